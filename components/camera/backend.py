@@ -1,0 +1,20 @@
+"""What the camera component captures from: a blocking frame source."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+
+class CameraBackend(Protocol):
+    """A frame source. ``capture()`` blocks (the component calls it from a worker thread).
+
+    Returns an ``H×W×3`` ``uint8`` RGB frame (1280×1024 for the OV9655 model).
+    """
+
+    def capture(self) -> np.ndarray:
+        ...
+
+    def close(self) -> None:
+        ...
