@@ -1,0 +1,182 @@
+"""The thesis's demonstration, "seek the big pink ball" (§3.4.2): search, chase and flee.
+
+All three read the camera's seekcolor result from the state, by default the source
+``"camera/front"`` (key ``ubf/<robot>/sensor/camera/front``), fields:
+
+* ``bins`` — five pink-pixel counts in image order, left to right (bin centres at +14°, +7°,
+  0°, −7°, −14°; positive = to the robot's left);
+* ``total`` — their sum.
+
+When the camera reading is missing or stale all three abstain: a robot that cannot see must
+not search, chase or flee on old news (the controller then commands a stop).
+
+*flee* and *chase* use the count of the most populated bin, as the thesis did ("the highest
+pink pixel count out of the center bin is 140" at the comfortable distance).
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Sequence
+
+from ubf_async.action import Action
+from ubf_async.arbiters import PriorityMerge
+from ubf_async.behavior import Behavior, Child, Composite
+from ubf_async.state import State
+
+CAMERA_SOURCE = "camera/front"
+BIN_TURNS: tuple[float, ...] = (60.0, 30.0, 0.0, -30.0, -60.0)
+"""chase's turn for pink concentrated in each bin (image order: outer left … outer right)."""
+
+
+def pink_bins(state: State, source: str = CAMERA_SOURCE) -> Sequence[int] | None:
+    """The five bin counts of a fresh camera reading, or ``None`` if there is none."""
+    bins = state.value(source, "bins")
+    if bins is None or len(bins) != len(BIN_TURNS):
+        return None
+    return bins
+
+
+class Chase(Behavior):
+    """Drive at the pink: speed +40, turn 0 / ±30 / ±60 toward the most populated bin.
+
+    Acts only when at least ``min_pixels`` pink pixels are seen. On equal counts the bin
+    nearer the centre wins (turn less when unsure).
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str = "chase",
+        source: str = CAMERA_SOURCE,
+        speed: float = 40.0,
+        min_pixels: int = 1,
+    ) -> None:
+        super().__init__(name=name)
+        self.source = source
+        self.speed = speed
+        self.min_pixels = min_pixels
+
+    def act(self, state: State) -> Action | None:
+        bins = pink_bins(state, self.source)
+        if bins is None or sum(bins) < self.min_pixels:
+            return None
+        # Centre first, then inner, then outer: max() keeps the first of equal counts.
+        order = (2, 1, 3, 0, 4)
+        best = max(order, key=lambda i: bins[i])
+        return Action(speed=self.speed, turn=BIN_TURNS[best])
+
+
+class Flee(Behavior):
+    """Back away from pink that is too close: speed 0 at ``start_pixels``, more negative
+    with the count (one speed unit per pixel) down to ``min_speed``; turn 0.
+
+    With chase's +40 the sum is 0 at 140 pixels (the comfortable distance), +20 at 120 and
+    −40 (backing away) from 180 on. Below ``start_pixels`` flee abstains.
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str = "flee",
+        source: str = CAMERA_SOURCE,
+        start_pixels: int = 100,
+        speed_per_pixel: float = 1.0,
+        min_speed: float = -80.0,
+    ) -> None:
+        super().__init__(name=name)
+        self.source = source
+        self.start_pixels = start_pixels
+        self.speed_per_pixel = speed_per_pixel
+        self.min_speed = min_speed
+
+    def act(self, state: State) -> Action | None:
+        bins = pink_bins(state, self.source)
+        if bins is None:
+            return None
+        peak = max(bins)
+        if peak < self.start_pixels:
+            return None
+        speed = max(self.min_speed, -(peak - self.start_pixels) * self.speed_per_pixel)
+        return Action(speed=speed, turn=0.0)
+
+
+class Search(Behavior):
+    """Look for the ball when no pink is seen: speed +10, turn ±80.
+
+    On becoming active it keeps turning the way the robot was turning (the sign of the
+    previous action's turn, i.e. toward where the ball was last seen). If there was no turn
+    it sits still (speed 0, turn 0). A counter of ``period_s`` (robot clock) starts when it
+    becomes active; each time it elapses a random direction is drawn from ``rng``. Any pink
+    deactivates it and the counter restarts on the next activation.
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str = "search",
+        source: str = CAMERA_SOURCE,
+        speed: float = 10.0,
+        turn: float = 80.0,
+        period_s: float = 4.0,
+        rng: random.Random | None = None,
+    ) -> None:
+        super().__init__(name=name)
+        if period_s <= 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        self.source = source
+        self.speed = speed
+        self.turn = turn
+        self.period_ns = int(period_s * 1e9)
+        self.rng = rng if rng is not None else random.Random()
+        self.direction = 0
+        self.next_pick_ns: int | None = None
+
+    def reset(self) -> None:
+        self.direction = 0
+        self.next_pick_ns = None
+
+    def act(self, state: State) -> Action | None:
+        bins = pink_bins(state, self.source)
+        if bins is None:
+            return None
+        if sum(bins) > 0:
+            self.next_pick_ns = None
+            return None
+        now = state.now_ns
+        if self.next_pick_ns is None:
+            previous = state.previous_action
+            turn = previous.turn if previous is not None and previous.turn else 0.0
+            self.direction = (turn > 0) - (turn < 0)
+            self.next_pick_ns = now + self.period_ns
+        elif now >= self.next_pick_ns:
+            self.direction = self.rng.choice((-1, 1))
+            self.next_pick_ns = now + self.period_ns
+        if self.direction == 0:
+            return Action(speed=0.0, turn=0.0)
+        return Action(speed=self.speed, turn=self.turn * self.direction)
+
+
+def seek_pink_ball(
+    *,
+    source: str = CAMERA_SOURCE,
+    search_period_s: float = 4.0,
+    rng: random.Random | None = None,
+    name: str = "seek_pink_ball",
+) -> Composite:
+    """The thesis's composite: search at priority 2; chase and flee share priority 1 and are
+    summed by :class:`~ubf_async.arbiters.PriorityMerge`.
+
+    Search only acts without pink and chase/flee only with it, so the two priority levels
+    never compete in practice; search sits above so that it supersedes them, as in the
+    thesis's figure 3.7.
+    """
+    return Composite(
+        name=name,
+        arbiter=PriorityMerge(),
+        children=[
+            Child(Search(source=source, period_s=search_period_s, rng=rng), priority=2),
+            Child(Chase(source=source), priority=1),
+            Child(Flee(source=source), priority=1),
+        ],
+    )
