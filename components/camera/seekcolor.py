@@ -9,6 +9,7 @@ side of the image).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -84,7 +85,7 @@ def seekcolor(
     per_column = color_mask(small, color).sum(axis=0)
     width = per_column.shape[0]
     edges = np.linspace(0, width, BIN_COUNT + 1).astype(int)
-    bins = tuple(int(per_column[a:b].sum()) for a, b in zip(edges[:-1], edges[1:], strict=True))
+    bins = tuple(int(per_column[a:b].sum()) for a, b in itertools.pairwise(edges))
     total = int(per_column.sum())
     if total == 0:
         return SeekResult(bins=bins, total=0, bearing_rad=None)

@@ -1,0 +1,92 @@
+"""Differential-drive dead reckoning from wheel rotations (pure logic).
+
+The Mini-WHEGS skid-steers: the left and right wheel-leg pairs each have one motor and one
+encoder. Treating each side as a wheel of ``wheel_radius_m`` at ``track_width_m`` apart, a step
+in which the left wheel turns ``dθl`` and the right ``dθr`` moves the robot along an arc:
+
+* distance of the robot's centre ``ds = r·(dθl + dθr)/2``
+* heading change ``dψ = r·(dθr − dθl)/track`` (REP-103: positive = counter-clockwise = left)
+
+The step is integrated **exactly** for that arc (constant curvature during the step): the
+robot moves along the chord ``2·(ds/dψ)·sin(dψ/2)`` in the direction ``ψ + dψ/2``, which tends
+to ``ds`` along ``ψ`` for a straight step. Splitting a constant arc into many small steps
+therefore gives the same pose as one big step; the only error left is the real wheels'
+(slip, which skid steering has plenty of).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """``angle_rad`` wrapped to ``(−π, π]``."""
+    wrapped = math.remainder(angle_rad, 2.0 * math.pi)
+    return math.pi if wrapped <= -math.pi else wrapped
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Pose2D:
+    """Planar pose in the odometry frame (REP-103: x forward at start, y left)."""
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    heading_rad: float = 0.0
+    """Counter-clockwise from the x axis, in ``(−π, π]``."""
+
+
+def _sinc(x: float) -> float:
+    """``sin(x)/x`` with the removable singularity at 0 handled."""
+    if abs(x) < 1e-6:
+        return 1.0 - x * x / 6.0
+    return math.sin(x) / x
+
+
+class Odometry:
+    """Accumulates a :class:`Pose2D` from per-step wheel rotation increments."""
+
+    def __init__(
+        self, geometry: MiniWhegsGeometry = MINI_WHEGS, *, pose: Pose2D | None = None
+    ) -> None:
+        if geometry.wheel_radius_m <= 0.0 or geometry.track_width_m <= 0.0:
+            raise ValueError(
+                "geometry needs a positive wheel_radius_m and track_width_m, got "
+                f"{geometry.wheel_radius_m} and {geometry.track_width_m}"
+            )
+        self.geometry = geometry
+        self._pose = Pose2D()
+        self.reset(pose or Pose2D())
+
+    @property
+    def pose(self) -> Pose2D:
+        return self._pose
+
+    def reset(self, pose: Pose2D | None = None) -> None:
+        """Start again from ``pose`` (the origin by default)."""
+        pose = pose or Pose2D()
+        for name in ("x_m", "y_m", "heading_rad"):
+            if not math.isfinite(getattr(pose, name)):
+                raise ValueError(f"pose.{name} must be finite, got {getattr(pose, name)!r}")
+        self._pose = Pose2D(x_m=pose.x_m, y_m=pose.y_m, heading_rad=wrap_angle(pose.heading_rad))
+
+    def update(self, d_left_rad: float, d_right_rad: float) -> Pose2D:
+        """Advance by the wheel rotations since the previous update and return the new pose."""
+        if not (math.isfinite(d_left_rad) and math.isfinite(d_right_rad)):
+            raise ValueError(
+                f"wheel increments must be finite, got left={d_left_rad!r} right={d_right_rad!r}"
+            )
+        r = self.geometry.wheel_radius_m
+        ds = r * (d_left_rad + d_right_rad) / 2.0
+        d_heading = r * (d_right_rad - d_left_rad) / self.geometry.track_width_m
+        half = d_heading / 2.0
+        chord = ds * _sinc(half)
+        direction = self._pose.heading_rad + half
+        self._pose = Pose2D(
+            x_m=self._pose.x_m + chord * math.cos(direction),
+            y_m=self._pose.y_m + chord * math.sin(direction),
+            heading_rad=wrap_angle(self._pose.heading_rad + d_heading),
+        )
+        return self._pose
