@@ -1,0 +1,341 @@
+"""The zenoh side of the runtime: connection options, the session, and the bridge into asyncio.
+
+zenoh-python is synchronous and runs subscriber callbacks on its own threads. The bridge
+here is deliberate about that hand-off:
+
+* the zenoh callback does almost nothing: it copies the key and payload bytes, stores them
+  and, if no drain is already pending, schedules one with ``loop.call_soon_threadsafe`` — it
+  never calls zenoh, never blocks and never runs user code;
+* the drain runs on the event loop and calls the handler for each stored sample;
+* in **latest** mode a burst on one key coalesces to the newest sample (what a state
+  aggregator wants); in **every** mode samples queue up to a bound, and overflow drops the
+  oldest and is counted.
+
+A handler that raises is logged with its traceback and counted; the subscription keeps going
+(a handler bug must not take the robot down). Measure the hand-off with ``bench/latency``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from ubf_async.clock import Clock, WallClock
+from ubf_async.protocol import Keys, ProtocolError, encode
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ROBOT = "mini"
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+
+SampleHandler = Callable[[str, bytes, int], None]
+"""``handler(key, payload, received_ns)`` — runs on the event loop."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Connection options shared by every entry point (the zenoh examples' flags)
+
+
+@dataclass(kw_only=True)
+class ConnectionOptions:
+    """How to join the zenoh network, plus which robot to talk about."""
+
+    robot: str = DEFAULT_ROBOT
+    mode: str = "peer"
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    config: Path | None = None
+    multicast_scouting: bool = False
+    """Off by default: a robot is found through explicit endpoints, never by accident."""
+
+    def zenoh_config(self) -> zenoh.Config:
+        conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
+        conf.insert_json5("mode", json.dumps(self.mode))
+        if self.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+        if self.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+        if not self.multicast_scouting:
+            conf.insert_json5("scouting/multicast/enabled", "false")
+        return conf
+
+
+def add_connection_arguments(
+    parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None
+) -> None:
+    """Add ``--mode/-m --connect/-e --listen/-l --config --robot`` to ``parser``."""
+    group = parser.add_argument_group("connection (shared by every ubf_async entry point)")
+    group.add_argument("--mode", "-m", choices=("peer", "client"), default="peer",
+                       help="zenoh session mode (default: peer)")
+    group.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    listen_help = "endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)"
+    if default_listen:
+        listen_help += f"; default: {' '.join(default_listen)}"
+    group.add_argument("--listen", "-l", action="append", default=None, metavar="ENDPOINT",
+                       help=listen_help)
+    group.add_argument("--config", type=Path, default=None, metavar="FILE",
+                       help="zenoh JSON5 configuration file (flags above override it)")
+    group.add_argument("--robot", default=DEFAULT_ROBOT,
+                       help=f"robot name: keys live under ubf/<robot>/ (default: {DEFAULT_ROBOT})")
+    group.add_argument("--multicast-scouting", action="store_true",
+                       help="also discover peers by UDP multicast (off by default)")
+    parser.set_defaults(_default_listen=default_listen or [])
+
+
+def connection_options(args: argparse.Namespace) -> ConnectionOptions:
+    """Build :class:`ConnectionOptions` from parsed :func:`add_connection_arguments` flags."""
+    if args.config is not None and not args.config.is_file():
+        raise SystemExit(f"error: --config {args.config}: no such file")
+    listen = args.listen if args.listen is not None else list(args._default_listen)
+    return ConnectionOptions(
+        robot=args.robot, mode=args.mode, connect=list(args.connect), listen=listen,
+        config=args.config, multicast_scouting=args.multicast_scouting,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# The bridge
+
+
+@dataclass
+class BridgeStats:
+    received: int = 0
+    delivered: int = 0
+    coalesced: int = 0
+    """Samples overwritten by a newer one on the same key before the loop drained them."""
+    dropped: int = 0
+    """Samples dropped from a full queue (``every`` mode)."""
+    handler_errors: int = 0
+
+
+class Subscription:
+    """A zenoh subscriber whose samples are delivered on the event loop."""
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        handler: SampleHandler,
+        *,
+        latest: bool,
+        max_queue: int = 1024,
+        name: str = "",
+    ) -> None:
+        self._loop = loop
+        self._handler = handler
+        self._latest = latest
+        self._lock = threading.Lock()
+        self._pending_latest: dict[str, tuple[bytes, int]] = {}
+        self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
+        self._scheduled = False
+        self._closed = False
+        self._zenoh: Any = None
+        self.name = name
+        self.stats = BridgeStats()
+
+    # zenoh thread ------------------------------------------------------------------------
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """The zenoh callback."""
+        self.push(str(sample.key_expr), sample.payload.to_bytes())
+
+    def push(self, key: str, payload: bytes) -> None:
+        """Hand one sample to the loop; callable from any thread, never blocks for long."""
+        received_ns = time.monotonic_ns()
+        with self._lock:
+            if self._closed:
+                return
+            self.stats.received += 1
+            if self._latest:
+                if key in self._pending_latest:
+                    self.stats.coalesced += 1
+                self._pending_latest[key] = (payload, received_ns)
+            else:
+                if len(self._pending_queue) == self._pending_queue.maxlen:
+                    self.stats.dropped += 1
+                self._pending_queue.append((key, payload, received_ns))
+            if self._scheduled:
+                return
+            self._scheduled = True
+        with contextlib.suppress(RuntimeError):  # a closed loop: nothing left to deliver to
+            self._loop.call_soon_threadsafe(self._drain)
+
+    # event loop --------------------------------------------------------------------------
+    def _drain(self) -> None:
+        with self._lock:
+            self._scheduled = False
+            if self._latest:
+                batch = [(k, p, t) for k, (p, t) in self._pending_latest.items()]
+                self._pending_latest = {}
+            else:
+                batch = list(self._pending_queue)
+                self._pending_queue.clear()
+        for key, payload, received_ns in batch:
+            if self._closed:
+                return
+            try:
+                self._handler(key, payload, received_ns)
+            except Exception:
+                self.stats.handler_errors += 1
+                log.exception("handler of subscription %s failed on %s", self.name, key)
+            else:
+                self.stats.delivered += 1
+
+    def close(self) -> None:
+        """Stop delivering; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._zenoh is not None:
+            with contextlib.suppress(zenoh.ZError):  # the session may already be closed
+                self._zenoh.undeclare()
+
+
+class Publisher:
+    """Publishes validated messages of one schema on one key, numbering them."""
+
+    def __init__(self, bus: Bus, key: str, schema: str, *, period_s: float | None) -> None:
+        self.key = key
+        self.schema = schema
+        self.period_s = period_s
+        self.seq = 0
+        self._bus = bus
+        self._zenoh = bus.session.declare_publisher(key)
+        self._closed = False
+
+    def publish(self, data: Mapping[str, Any], *, stamp_ns: int | None = None) -> tuple[int, int]:
+        """Encode and put one sample; returns ``(seq, stamp_ns)`` of what was sent."""
+        stamp = self._bus.clock.now_ns() if stamp_ns is None else stamp_ns
+        self.seq += 1
+        payload = encode(self.schema, data, stamp_ns=stamp, seq=self.seq, period_s=self.period_s)
+        self._zenoh.put(payload)
+        return self.seq, stamp
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(zenoh.ZError):
+            self._zenoh.undeclare()
+
+
+class Bus:
+    """A zenoh session for one robot, used from one event loop.
+
+    Open with ``async with await Bus.open(options) as bus`` or ``bus = await Bus.open(...)``
+    and ``await bus.aclose()`` (idempotent).
+    """
+
+    def __init__(self, session: zenoh.Session, options: ConnectionOptions, clock: Clock) -> None:
+        self.session = session
+        self.options = options
+        self.keys = Keys(options.robot)
+        self.clock = clock
+        self._loop = asyncio.get_running_loop()
+        self._subscriptions: list[Subscription] = []
+        self._closed = False
+
+    @classmethod
+    async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None) -> Bus:
+        """Open a session (in a worker thread: opening can take a while)."""
+        try:
+            session = await asyncio.to_thread(zenoh.open, options.zenoh_config())
+        except zenoh.ZError as exc:
+            raise ConnectionError(
+                f"cannot open a zenoh session (listen={options.listen}, "
+                f"connect={options.connect}): {exc}"
+            ) from exc
+        return cls(session, options, clock or WallClock())
+
+    @property
+    def robot(self) -> str:
+        return self.options.robot
+
+    def publisher(self, key: str, schema: str, *, period_s: float | None = None) -> Publisher:
+        return Publisher(self, key, schema, period_s=period_s)
+
+    def subscribe(
+        self, key_expr: str, handler: SampleHandler, *, latest: bool = True,
+        max_queue: int = 1024,
+    ) -> Subscription:
+        """Deliver samples matching ``key_expr`` to ``handler`` on the event loop."""
+        sub = Subscription(self._loop, handler, latest=latest, max_queue=max_queue, name=key_expr)
+        sub._zenoh = self.session.declare_subscriber(key_expr, sub.on_sample)
+        self._subscriptions.append(sub)
+        return sub
+
+    def declare_token(self, key: str) -> zenoh.LivelinessToken:
+        return self.session.liveliness().declare_token(key)
+
+    def watch_liveliness(
+        self, key_expr: str, on_change: Callable[[str, bool], None]
+    ) -> Subscription:
+        """Call ``on_change(key, alive)`` on the loop for tokens appearing/vanishing,
+        starting with those alive now."""
+
+        def handler(key: str, payload: bytes, received_ns: int) -> None:
+            on_change(key, payload == b"+")
+
+        sub = Subscription(self._loop, handler, latest=False, name=f"liveliness {key_expr}")
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            # The token's kind travels in the payload slot of the generic bridge.
+            alive = sample.kind == zenoh.SampleKind.PUT
+            sub.push(str(sample.key_expr), b"+" if alive else b"-")
+
+        sub._zenoh = self.session.liveliness().declare_subscriber(
+            key_expr, on_sample, history=True
+        )
+        self._subscriptions.append(sub)
+        return sub
+
+    async def alive_tokens(self, key_expr: str, *, timeout_s: float = 2.0) -> list[str]:
+        """Keys of the liveliness tokens currently alive under ``key_expr``."""
+
+        def query() -> list[str]:
+            replies = self.session.liveliness().get(key_expr, timeout=timeout_s)
+            return sorted(str(r.ok.key_expr) for r in replies if r.ok is not None)
+
+        return await asyncio.to_thread(query)
+
+    async def aclose(self) -> None:
+        """Undeclare everything and close the session; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        for sub in self._subscriptions:
+            sub.close()
+        await asyncio.to_thread(self.session.close)
+
+    async def __aenter__(self) -> Bus:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+
+def decode_or_count(
+    payload: bytes, counter: dict[str, int], key: str, decoder: Callable[[bytes], Any],
+) -> Any | None:
+    """Decode with ``decoder``; on :class:`ProtocolError` count it under ``key``, log it
+    (the first and then every 100th per key) and return ``None``."""
+    try:
+        return decoder(payload)
+    except ProtocolError as exc:
+        n = counter.get(key, 0) + 1
+        counter[key] = n
+        if n == 1 or n % 100 == 0:
+            log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
+        return None

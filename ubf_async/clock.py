@@ -1,0 +1,91 @@
+"""One clock for the whole robot: wall time, or simulation time published by a simulator.
+
+Every stamp and every periodic wait in the runtime goes through a :class:`Clock`:
+
+* :class:`WallClock` — ``CLOCK_MONOTONIC`` nanoseconds (``time.monotonic_ns()``), the same
+  clock in every process of the host, so stamps carried in messages can be compared across
+  processes.
+* :class:`SimClock` — time that only moves when told to (:meth:`SimClock.advance_to`), by a
+  simulator in the same process or by samples on ``ubf/<robot>/clock`` from one in another
+  (like ROS's ``use_sim_time``). A simulator running K× faster than real time makes every
+  component's periods, timeouts and latencies K× shorter in wall time, consistently.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    def now_ns(self) -> int:
+        """The current robot time in nanoseconds."""
+        ...
+
+    async def sleep_until_ns(self, deadline_ns: int) -> None:
+        """Return once ``now_ns() >= deadline_ns``."""
+        ...
+
+    async def sleep(self, seconds: float) -> None:
+        ...
+
+
+class WallClock:
+    """Host monotonic time."""
+
+    is_simulated = False
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns()
+
+    async def sleep_until_ns(self, deadline_ns: int) -> None:
+        # The event loop's own clock is also CLOCK_MONOTONIC on Linux, so call_at is exact.
+        await asyncio.sleep(max(0.0, (deadline_ns - time.monotonic_ns()) / 1e9))
+
+    async def sleep(self, seconds: float) -> None:
+        await asyncio.sleep(max(0.0, seconds))
+
+
+class SimClock:
+    """Time advanced explicitly; sleepers wake when it passes their deadline.
+
+    Must be used from one event loop: :meth:`advance_to` runs on the loop (the bus bridge
+    delivers clock samples there).
+    """
+
+    is_simulated = True
+
+    def __init__(self, start_ns: int = 0) -> None:
+        self._now = start_ns
+        self._sleepers: list[tuple[int, int, asyncio.Future[None]]] = []
+        self._order = itertools.count()
+        self.started = asyncio.Event()
+        """Set at the first :meth:`advance_to`: before that no simulator has spoken."""
+
+    def now_ns(self) -> int:
+        return self._now
+
+    def advance_to(self, now_ns: int) -> None:
+        """Move time forward (never backward: an older time is ignored) and wake sleepers."""
+        if now_ns > self._now:
+            self._now = now_ns
+        self.started.set()
+        sleepers = self._sleepers
+        while sleepers and sleepers[0][0] <= self._now:
+            _, _, future = heapq.heappop(sleepers)
+            if not future.done():
+                future.set_result(None)
+
+    async def sleep_until_ns(self, deadline_ns: int) -> None:
+        if deadline_ns <= self._now:
+            await asyncio.sleep(0)
+            return
+        future: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        heapq.heappush(self._sleepers, (deadline_ns, next(self._order), future))
+        await future
+
+    async def sleep(self, seconds: float) -> None:
+        await self.sleep_until_ns(self._now + int(max(0.0, seconds) * 1e9))

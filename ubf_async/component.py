@@ -1,0 +1,246 @@
+"""Components: supervised async resources with a liveliness token and a heartbeat.
+
+A component is used as ``async with SomeComponent(bus=bus, ...) as c:`` or started with
+``await c.start()`` and stopped with ``await c.aclose()``. ``aclose()`` always closes — its
+tasks, everything :meth:`Component.run` opened, its token — and calling it twice is harmless.
+
+Lifecycle — when each hook runs:
+
+* :meth:`Component.run` runs in the component's own task once :meth:`start` is called, and
+  is expected to run until cancelled. Publishers and subscriptions it opens through
+  :meth:`publisher` / :meth:`subscribe` are closed when it ends, however it ends.
+* If ``run`` raises, the error is logged with its traceback, counted in ``restarts`` and
+  ``run`` is called again after a backoff (doubling from ``restart_backoff_s`` up to
+  ``max_backoff_s``, reset after ``run`` has stayed up for ``healthy_after_s``). Other
+  components are unaffected.
+* If ``run`` returns normally the component has finished its work; it stays "alive" (token
+  and heartbeat) until closed.
+
+Liveness: the token ``ubf/<robot>/alive/<name>`` only proves that the zenoh session lives.
+The heartbeat (``ubf/<robot>/heartbeat/<name>``, every ``heartbeat_period_s``) proves the
+component's event loop is turning: it carries a sequence number, the number of restarts and
+the loop lag the heartbeat task itself observed. :class:`HealthMonitor` checks both.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
+from ubf_async.protocol import decode
+
+log = logging.getLogger(__name__)
+
+
+class Component:
+    """Base class of every component. Subclasses implement :meth:`run`."""
+
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        name: str,
+        heartbeat_period_s: float = 0.5,
+        restart_backoff_s: float = 0.1,
+        max_backoff_s: float = 5.0,
+        healthy_after_s: float = 10.0,
+    ) -> None:
+        self.bus = bus
+        self.name = name
+        self.heartbeat_period_s = heartbeat_period_s
+        self.restart_backoff_s = restart_backoff_s
+        self.max_backoff_s = max_backoff_s
+        self.healthy_after_s = healthy_after_s
+        self.restarts = 0
+        self.last_error: BaseException | None = None
+        self.running = asyncio.Event()
+        """Set while :meth:`run` is executing (cleared between restarts)."""
+        self._tasks: list[asyncio.Task[None]] = []
+        self._token: Any = None
+        self._attempt_resources: list[Publisher | Subscription] = []
+        self._started = False
+        self._closed = False
+
+    # -- for subclasses ----------------------------------------------------------------------
+    async def run(self) -> None:
+        """The component's work; runs until cancelled. Override this."""
+        raise NotImplementedError
+
+    def publisher(self, key: str, schema: str, *, period_s: float | None = None) -> Publisher:
+        """A publisher closed automatically when this run attempt ends."""
+        pub = self.bus.publisher(key, schema, period_s=period_s)
+        self._attempt_resources.append(pub)
+        return pub
+
+    def subscribe(
+        self, key_expr: str, handler: SampleHandler, *, latest: bool = True
+    ) -> Subscription:
+        """A subscription closed automatically when this run attempt ends."""
+        sub = self.bus.subscribe(key_expr, handler, latest=latest)
+        self._attempt_resources.append(sub)
+        return sub
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    async def start(self) -> None:
+        if self._closed:
+            raise RuntimeError(f"component {self.name!r} is closed")
+        if self._started:
+            return
+        self._started = True
+        self._token = self.bus.declare_token(self.bus.keys.alive(self.name))
+        self._tasks = [
+            asyncio.create_task(self._supervise(), name=f"{self.name}:run"),
+            asyncio.create_task(self._heartbeat(), name=f"{self.name}:heartbeat"),
+        ]
+
+    async def aclose(self) -> None:
+        """Stop and release everything. Idempotent; safe even if never started."""
+        if self._closed:
+            return
+        self._closed = True
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._release_attempt()
+        if self._token is not None:
+            with contextlib.suppress(Exception):
+                self._token.undeclare()
+            self._token = None
+
+    async def __aenter__(self) -> Component:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # -- internals ---------------------------------------------------------------------------
+    def _release_attempt(self) -> None:
+        resources, self._attempt_resources = self._attempt_resources, []
+        for resource in reversed(resources):
+            resource.close()
+
+    async def _supervise(self) -> None:
+        backoff = self.restart_backoff_s
+        while True:
+            started = time.monotonic()
+            self.running.set()
+            try:
+                await self.run()
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                self.last_error = exc
+                self.restarts += 1
+                if time.monotonic() - started >= self.healthy_after_s:
+                    backoff = self.restart_backoff_s
+                log.exception(
+                    "component %s failed (restart #%d in %.2fs)", self.name, self.restarts, backoff
+                )
+            else:
+                log.info("component %s finished its run", self.name)
+                return
+            finally:
+                self.running.clear()
+                self._release_attempt()
+            await asyncio.sleep(backoff)  # real time: backoff protects the host, not the sim
+            backoff = min(self.max_backoff_s, backoff * 2)
+
+    async def _heartbeat(self) -> None:
+        pub = self.bus.publisher(self.bus.keys.heartbeat(self.name), "heartbeat",
+                                 period_s=self.heartbeat_period_s)
+        try:
+            lag = 0.0
+            while True:
+                pub.publish({
+                    "component": self.name,
+                    "restarts": self.restarts,
+                    "loop_lag_s": lag,
+                    "running": "yes" if self.running.is_set() else "no",
+                })
+                expected = time.monotonic() + self.heartbeat_period_s
+                await asyncio.sleep(self.heartbeat_period_s)
+                lag = max(0.0, time.monotonic() - expected)
+        finally:
+            pub.close()
+
+
+@dataclass
+class ComponentHealth:
+    name: str
+    alive: bool = False
+    """Liveliness token present."""
+    last_heartbeat_s: float | None = None
+    """Host monotonic time the last heartbeat arrived."""
+    heartbeat_period_s: float | None = None
+    restarts: int = 0
+    loop_lag_s: float = 0.0
+
+    def healthy(self, now_s: float, *, missed: float = 3.0) -> bool:
+        """Alive and its heartbeat not more than ``missed`` periods late."""
+        if not self.alive or self.last_heartbeat_s is None:
+            return False
+        period = self.heartbeat_period_s or 1.0
+        return now_s - self.last_heartbeat_s <= missed * period
+
+
+class HealthMonitor:
+    """Watches the robot's liveliness tokens and heartbeats (the watchdog's eyes)."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+        self.components: dict[str, ComponentHealth] = {}
+        self.malformed: dict[str, int] = {}
+        self._subs: list[Subscription] = []
+        self.changed = asyncio.Event()
+
+    def start(self) -> None:
+        keys = self.bus.keys
+        self._subs.append(self.bus.watch_liveliness(keys.all_alive, self._on_liveliness))
+        self._subs.append(self.bus.subscribe(keys.all_heartbeats, self._on_heartbeat))
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.close()
+        self._subs = []
+
+    def _entry(self, name: str) -> ComponentHealth:
+        return self.components.setdefault(name, ComponentHealth(name))
+
+    def _on_liveliness(self, key: str, alive: bool) -> None:
+        self._entry(self.bus.keys.component_of_alive(key)).alive = alive
+        self.changed.set()
+
+    def _on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(
+            payload, self.malformed, key, lambda p: decode(p, schema="heartbeat")
+        )
+        if message is None:
+            return
+        data: Mapping[str, Any] = message.data
+        entry = self._entry(key.rsplit("/", 1)[-1])
+        entry.last_heartbeat_s = received_ns / 1e9
+        entry.heartbeat_period_s = message.period_s
+        entry.restarts = int(data.get("restarts", 0))
+        entry.loop_lag_s = float(data.get("loop_lag_s", 0.0))
+        self.changed.set()
+
+    def alive_names(self) -> list[str]:
+        return sorted(name for name, h in self.components.items() if h.alive)
+
+    def unhealthy(self) -> list[str]:
+        now = time.monotonic()
+        return sorted(name for name, h in self.components.items()
+                      if h.alive and not h.healthy(now))

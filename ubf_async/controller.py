@@ -1,0 +1,227 @@
+"""The UBF controller: ticks the root behaviour and publishes the arbitrated action.
+
+Three ways to decide *when* to tick (:class:`TickMode`):
+
+* ``periodic`` (default) — on its own clock at ``rate_hz`` (default 50 Hz), whatever the
+  sensors do. A slow camera never holds back a fast IR reflex.
+* ``sync`` — the thesis's loop: every tick first waits for a *new* camera sample, as the
+  Mini-WHEGS's state update waited for an image capture. Kept so the two can be compared.
+* ``event`` — tick whenever a chosen source (``trigger``) delivers a new sample.
+
+Each tick takes a :class:`~ubf_async.state.State` snapshot from the aggregator (with the
+previous tick's published action in ``previous_action``), evaluates the root behaviour,
+and publishes:
+
+* ``cmd/drive`` every tick: speed and turn (an unset field, or no action at all, means 0 —
+  a robot without an opinion stands still), the tick number, the leaf behaviours that won,
+  and ``based_on``: the source, seq and stamp of the sample the tick was based on (the
+  trigger in ``sync``/``event`` mode, the newest sample in ``periodic`` mode), so latency
+  can be measured end to end;
+* ``cmd/seek_color``, ``cmd/radio``, ``cmd/leds`` when the action sets them to a new value.
+
+A behaviour that raises is logged, counted in ``errors``, and that tick commands a stop.
+A tick that ends after the next tick was due counts as an overrun; missed ticks are skipped,
+not bunched up.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import enum
+import logging
+import statistics
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from ubf_async.action import Action
+from ubf_async.aggregator import SourceEntry, StateAggregator
+from ubf_async.behavior import Behavior, Trace
+from ubf_async.bus import Bus
+from ubf_async.component import Component
+
+log = logging.getLogger(__name__)
+
+MAX_EXPLANATION_CHARS = 4000
+
+
+class TickMode(enum.StrEnum):
+    PERIODIC = "periodic"
+    SYNC = "sync"
+    EVENT = "event"
+
+
+@dataclass
+class TickStats:
+    ticks: int = 0
+    overruns: int = 0
+    errors: int = 0
+    tick_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+    """How long recent ticks took (snapshot, evaluate, publish)."""
+    tick_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+    """Robot-clock start time of recent ticks."""
+
+    def rate_hz(self) -> float | None:
+        starts = self.tick_starts_ns
+        if len(starts) < 2 or starts[-1] == starts[0]:
+            return None
+        return (len(starts) - 1) / ((starts[-1] - starts[0]) / 1e9)
+
+    def summary(self) -> dict[str, Any]:
+        durations = list(self.tick_ns)
+        return {
+            "ticks": self.ticks,
+            "overruns": self.overruns,
+            "errors": self.errors,
+            "rate_hz": self.rate_hz(),
+            "tick_us_p50": statistics.median(durations) / 1e3 if durations else None,
+            "tick_us_max": max(durations) / 1e3 if durations else None,
+        }
+
+
+class Controller(Component):
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        aggregator: StateAggregator,
+        root: Behavior,
+        rate_hz: float = 50.0,
+        mode: TickMode | str = TickMode.PERIODIC,
+        camera_source: str = "camera/front",
+        trigger: str | None = None,
+        status_period_s: float = 0.5,
+        name: str = "controller",
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=name, **component_options)
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.mode = TickMode(mode)
+        if self.mode is TickMode.EVENT and not trigger:
+            raise ValueError("event mode needs a trigger source, e.g. trigger='range/front'")
+        self.aggregator = aggregator
+        self.root = root
+        self.rate_hz = rate_hz
+        self.camera_source = camera_source
+        self.trigger = trigger
+        self.status_period_s = status_period_s
+        self.stats = TickStats()
+        self.last_action: Action | None = None
+        self.last_trace: Trace | None = None
+        self.ticked = asyncio.Event()
+        """Set after every tick (tests and tools clear and await it)."""
+        self._sent: dict[str, Any] = {}
+
+    async def run(self) -> None:
+        keys = self.bus.keys
+        periodic = self.mode is TickMode.PERIODIC
+        self._drive = self.publisher(keys.cmd("drive"), "drive",
+                                     period_s=1.0 / self.rate_hz if periodic else None)
+        self._extras = {
+            "seek_color": self.publisher(keys.cmd("seek_color"), "seek_color"),
+            "message": self.publisher(keys.cmd("radio"), "radio.send"),
+            "leds": self.publisher(keys.cmd("leds"), "leds"),
+        }
+        self._status = self.publisher(keys.status(self.name), "controller.status",
+                                      period_s=self.status_period_s)
+        self._sent = {}
+        self.root.reset()
+        loop = {
+            TickMode.PERIODIC: self._run_periodic,
+            TickMode.SYNC: self._run_triggered,
+            TickMode.EVENT: self._run_triggered,
+        }[self.mode]
+        async with asyncio.TaskGroup() as group:
+            group.create_task(self._publish_status())
+            group.create_task(loop())
+
+    async def _run_periodic(self) -> None:
+        clock = self.bus.clock
+        period_ns = int(1e9 / self.rate_hz)
+        deadline = clock.now_ns()
+        while True:
+            self.tick()
+            deadline += period_ns
+            now = clock.now_ns()
+            if now >= deadline:
+                self.stats.overruns += 1
+                deadline += ((now - deadline) // period_ns + 1) * period_ns
+            await clock.sleep_until_ns(deadline)
+
+    async def _run_triggered(self) -> None:
+        source = self.camera_source if self.mode is TickMode.SYNC else self.trigger
+        assert source is not None
+        version = 0
+        while True:
+            entry = await self.aggregator.wait_for_update(source, after_version=version)
+            version = entry.version
+            self.tick(based_on=entry)
+
+    def tick(self, *, based_on: SourceEntry | None = None) -> Trace | None:
+        """One UBF cycle: snapshot, evaluate, publish."""
+        t0 = time.perf_counter_ns()
+        state = self.aggregator.snapshot(previous_action=self.last_action)
+        self.stats.tick_starts_ns.append(state.now_ns)
+        try:
+            trace: Trace | None = self.root.evaluate(state)
+        except Exception:
+            self.stats.errors += 1
+            if self.stats.errors == 1 or self.stats.errors % 100 == 0:
+                log.exception("behaviour tree raised (error #%d): commanding a stop",
+                              self.stats.errors)
+            trace = None
+        action = trace.action if trace is not None else None
+        speed = action.speed if action is not None and action.speed is not None else 0.0
+        turn = action.turn if action is not None and action.turn is not None else 0.0
+        basis = based_on if based_on is not None else self.aggregator.newest()
+        self.stats.ticks += 1
+        self._drive.publish({
+            "speed": speed,
+            "turn": turn,
+            "based_on": None if basis is None else {
+                "source": basis.source, "seq": basis.message.seq,
+                "stamp_ns": basis.message.stamp_ns,
+            },
+            "tick": self.stats.ticks,
+            "winners": trace.winning_leaves() if trace is not None else [],
+        })
+        if action is not None:
+            self._publish_extras(action)
+        self.last_action = Action(speed=speed, turn=turn)
+        self.last_trace = trace
+        self.stats.tick_ns.append(time.perf_counter_ns() - t0)
+        self.ticked.set()
+        return trace
+
+    def _publish_extras(self, action: Action) -> None:
+        for field_name, publisher in self._extras.items():
+            value = getattr(action, field_name)
+            if value is None or self._sent.get(field_name) == value:
+                continue
+            self._sent[field_name] = value
+            if field_name == "seek_color":
+                publisher.publish({"lo": list(value.lo), "hi": list(value.hi)})
+            elif field_name == "message":
+                publisher.publish({"text": value})
+            else:
+                publisher.publish({"mask": value})
+
+    def status(self) -> dict[str, Any]:
+        explanation = self.last_trace.render() if self.last_trace is not None else ""
+        last = self.last_action
+        return {
+            "mode": str(self.mode),
+            "rate_hz_target": self.rate_hz if self.mode is TickMode.PERIODIC else None,
+            **self.stats.summary(),
+            "speed": last.speed if last else None,
+            "turn": last.turn if last else None,
+            "winners": self.last_trace.winning_leaves() if self.last_trace else [],
+            "explanation": explanation[:MAX_EXPLANATION_CHARS],
+        }
+
+    async def _publish_status(self) -> None:
+        while True:
+            await asyncio.sleep(self.status_period_s)
+            self._status.publish(self.status())
