@@ -32,8 +32,8 @@ from typing import Any
 
 import zenoh
 
-from ubf_async.clock import Clock, WallClock
-from ubf_async.protocol import Keys, ProtocolError, encode
+from ubf_async.clock import Clock, SimClock, WallClock
+from ubf_async.protocol import Keys, ProtocolError, decode, encode
 
 log = logging.getLogger(__name__)
 
@@ -223,6 +223,19 @@ class Publisher:
         self._zenoh.put(payload)
         return self.seq, stamp
 
+    def has_subscribers(self) -> bool:
+        """Whether zenoh knows of at least one subscriber matching this key."""
+        return bool(self._zenoh.matching_status.matching)
+
+    async def wait_for_subscribers(self, timeout_s: float = 5.0) -> None:
+        """Wait until a matching subscriber is known (declarations propagate asynchronously:
+        a sample put before that is not delivered to it). Raises TimeoutError."""
+        deadline = time.monotonic() + timeout_s
+        while not self.has_subscribers():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no subscriber for {self.key} within {timeout_s}s")
+            await asyncio.sleep(0.01)
+
     def close(self) -> None:
         if self._closed:
             return
@@ -324,6 +337,21 @@ class Bus:
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
+
+
+def follow_sim_clock(bus: Bus, clock: SimClock, malformed: dict[str, int]) -> Subscription:
+    """Drive ``clock`` from the simulator's samples on ``ubf/<robot>/clock``.
+
+    Rejected samples are counted in ``malformed``; the clock never moves backwards.
+    """
+    key = bus.keys.clock
+
+    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(payload, malformed, key, lambda p: decode(p, schema="clock"))
+        if message is not None:
+            clock.advance_to(message.stamp_ns)
+
+    return bus.subscribe(key, on_sample)
 
 
 def decode_or_count(

@@ -219,6 +219,10 @@ class Controller(Component):
             "turn": last.turn if last else None,
             "winners": self.last_trace.winning_leaves() if self.last_trace else [],
             "explanation": explanation[:MAX_EXPLANATION_CHARS],
+            "sources": [
+                {"source": s.source, "age_s": s.age_s, "stale": s.stale, "schema": s.schema}
+                for s in self.aggregator.sources()[:256]
+            ],
         }
 
     async def _publish_status(self) -> None:

@@ -1,0 +1,59 @@
+"""Shared fixtures: real zenoh sessions on loopback, multicast scouting off."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import time
+from collections.abc import AsyncIterator, Callable
+
+import pytest
+import pytest_asyncio
+
+from ubf_async.bus import Bus, ConnectionOptions
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def robot(request: pytest.FixtureRequest) -> str:
+    """A robot name unique to the test, so concurrent runs never cross-talk."""
+    return "t" + str(abs(hash(request.node.nodeid)) % 10**8)
+
+
+async def eventually(
+    predicate: Callable[[], bool], *, timeout_s: float = 5.0, what: str = "condition"
+) -> None:
+    """Wait until ``predicate()`` holds, polling every 5 ms; fail after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s}s waiting for {what}")
+        await asyncio.sleep(0.005)
+
+
+@pytest_asyncio.fixture
+async def robot_bus(endpoint: str, robot: str) -> AsyncIterator[Bus]:
+    """The robot's session, listening on a loopback endpoint."""
+    bus = await Bus.open(ConnectionOptions(robot=robot, listen=[endpoint]))
+    yield bus
+    await bus.aclose()
+
+
+@pytest_asyncio.fixture
+async def peer_bus(robot_bus: Bus, endpoint: str, robot: str) -> AsyncIterator[Bus]:
+    """Another session (think: another process) connected to the robot's."""
+    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+    await eventually(lambda: len(list(robot_bus.session.info.peers_zid())) > 0,
+                     what="peer session to connect")
+    yield bus
+    await bus.aclose()

@@ -1,0 +1,84 @@
+"""`python -m ubf_async.launch` as users run it, in separate processes."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import eventually
+from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.protocol import decode
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def launch(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", *args],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+
+
+def test_help_explains_every_option() -> None:
+    out = subprocess.run([sys.executable, "-m", "ubf_async.launch", "--help"], cwd=ROOT,
+                         capture_output=True, text=True, check=True).stdout
+    for flag in ("--connect", "--listen", "--mode", "--config", "--robot", "--rate-hz",
+                 "--tick", "--duration"):
+        assert flag in out
+
+
+def test_launch_without_sensors_runs_and_says_so(endpoint: str, robot: str) -> None:
+    proc = launch("--listen", endpoint, "--robot", robot, "--duration", "1.5")
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out
+    assert f"listening on {endpoint}" in out
+    assert "no sensors yet" in out
+    assert "tick  " in out and "Hz" in out
+    assert "ubf_async: stopped" in out
+
+
+def test_bad_config_path_is_a_clear_error(tmp_path: Path) -> None:
+    proc = launch("--config", str(tmp_path / "missing.json5"), "--duration", "1")
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode != 0
+    assert "no such file" in out
+
+
+@pytest.mark.asyncio
+async def test_plain_script_sample_shows_in_running_controller_state(
+    endpoint: str, robot: str
+) -> None:
+    """A component written from docs/protocol.md alone (zenoh + msgpack, no ubf_async)."""
+    robot_proc = launch("--listen", endpoint, "--robot", robot, "--quiet")
+    sensor = subprocess.Popen(
+        [sys.executable, str(ROOT / "examples" / "plain_range_sensor.py"), "--connect", endpoint,
+         "--robot", robot, "--name", "plain", "--range-mm", "321"],
+        stdout=subprocess.DEVNULL,
+    )
+    statuses: list[dict] = []
+    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+    try:
+        bus.subscribe(bus.keys.status("controller"),
+                      lambda k, p, t: statuses.append(decode(p).data))
+
+        def shows_plain() -> bool:
+            return any(s["source"] == "range/plain" and not s["stale"]
+                       for status in statuses[-1:] for s in status["sources"])
+
+        await eventually(shows_plain, timeout_s=20, what="range/plain in the controller state")
+        assert statuses[-1]["rate_hz"] > 0
+    finally:
+        await bus.aclose()
+        sensor.terminate()
+        sensor.wait(timeout=10)
+        robot_proc.send_signal(signal.SIGTERM)
+        out, _ = await asyncio.to_thread(robot_proc.communicate, timeout=20)
+    assert robot_proc.returncode == 0, out
+    assert "ubf_async: stopped" in out

@@ -1,0 +1,286 @@
+"""Runtime behaviour over real zenoh sessions on loopback (multicast scouting off)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import msgpack
+import pytest
+
+from tests.conftest import eventually
+from ubf_async import Action, FunctionBehavior, State
+from ubf_async.aggregator import StateAggregator
+from ubf_async.behaviors import seek_pink_ball
+from ubf_async.bus import Bus, follow_sim_clock
+from ubf_async.clock import SimClock
+from ubf_async.component import Component, HealthMonitor
+from ubf_async.controller import Controller
+from ubf_async.protocol import decode
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
+
+
+async def start(*components: Component) -> None:
+    for c in components:
+        await c.start()
+    for c in components:
+        await asyncio.wait_for(c.running.wait(), 5)
+
+
+@pytest.mark.asyncio
+async def test_sample_from_another_session_reaches_aggregator(robot_bus: Bus, peer_bus: Bus) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    async with agg:
+        await asyncio.wait_for(agg.running.wait(), 5)
+        assert agg.snapshot() == State()  # nothing yet: no sources
+        pub = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range", period_s=0.05)
+        await pub.wait_for_subscribers()
+        seq, stamp = pub.publish({"range_mm": 420, "status": "ok"})
+        await eventually(lambda: "range/front" in agg.entries, what="range sample")
+        reading = agg.snapshot()["range/front"]
+        assert reading.value["range_mm"] == 420
+        assert (reading.seq, reading.stamp_ns) == (seq, stamp)
+        assert not reading.stale
+        # A source that appears later is picked up without a restart.
+        late = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor")
+        await late.wait_for_subscribers()
+        late.publish(CAMERA)
+        await eventually(lambda: "camera/front" in agg.entries, what="late camera source")
+        assert agg.snapshot().value("camera/front", "bins") == CAMERA["bins"]
+
+
+@pytest.mark.asyncio
+async def test_source_goes_stale_after_twice_its_period(robot_bus: Bus, peer_bus: Bus) -> None:
+    clock = SimClock(start_ns=1_000_000_000)
+    robot_bus.clock = clock
+    agg = StateAggregator(bus=robot_bus)
+    async with agg:
+        pub = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range", period_s=0.1)
+        await pub.wait_for_subscribers()
+        pub.publish({"range_mm": 300, "status": "ok"}, stamp_ns=clock.now_ns())
+        await eventually(lambda: "range/front" in agg.entries)
+        clock.advance_to(clock.now_ns() + 190_000_000)
+        assert not agg.snapshot()["range/front"].stale
+        clock.advance_to(clock.now_ns() + 20_000_000)  # 0.21 s > 2 × 0.1 s
+        state = agg.snapshot()
+        assert state["range/front"].stale
+        assert state.fresh("range/front") is None
+        assert state["range/front"].age_s == pytest.approx(0.21)
+
+
+@pytest.mark.asyncio
+async def test_killed_publisher_goes_stale_and_liveliness_vanishes(
+    robot_bus: Bus, endpoint: str, robot: str
+) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    health = HealthMonitor(robot_bus)
+    health.start()
+    proc = subprocess.Popen(
+        [sys.executable, str(EXAMPLES / "plain_range_sensor.py"), "--connect", endpoint,
+         "--robot", robot, "--name", "plain", "--rate-hz", "50"],
+        stdout=subprocess.DEVNULL,
+    )
+    try:
+        async with agg:
+            await eventually(lambda: "range/plain" in agg.entries, timeout_s=10,
+                             what="sample from the subprocess")
+            await eventually(lambda: "plain" in health.alive_names(), what="liveliness token")
+            assert not agg.snapshot()["range/plain"].stale
+            proc.kill()
+            await asyncio.to_thread(proc.wait)
+            await eventually(lambda: "plain" not in health.alive_names(),
+                             what="token to vanish after kill")
+            await eventually(lambda: agg.snapshot()["range/plain"].stale,
+                             what="source to go stale")
+    finally:
+        proc.kill()
+        proc.wait()
+        health.close()
+
+
+@pytest.mark.asyncio
+async def test_malformed_samples_rejected_counted_and_good_ones_flow(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
+    clock = SimClock()
+    clock_errors: dict[str, int] = {}
+    follow_sim_clock(robot_bus, clock, clock_errors)
+    agg = StateAggregator(bus=robot_bus)
+    health = HealthMonitor(robot_bus)
+    health.start()
+    keys = peer_bus.keys
+    garbage = [
+        b"\xc1\xff\x00garbage",
+        msgpack.packb([1, 2]),
+        msgpack.packb({"schema": "range", "v": 1, "stamp_ns": 1, "seq": 1,
+                       "data": {"range_mm": "near", "status": "ok"}}),
+        msgpack.packb({"schema": "range", "v": 1, "stamp_ns": 1, "seq": 1,
+                       "data": {"status": "ok"}}),
+        msgpack.packb({"schema": "range", "v": 1, "stamp_ns": 1, "seq": 1,
+                       "data": {"range_mm": -4, "status": "ok"}}),
+        msgpack.packb({"schema": "camera.seekcolor", "v": 1, "stamp_ns": 1, "seq": 1,
+                       "data": {"bins": [0, 0, math.nan, 0, 0], "total": 0}}),
+    ]
+    sensor_key = keys.sensor("range", "front")
+    async with agg:
+        good = peer_bus.publisher(sensor_key, "range")
+        raw_sensor = peer_bus.session.declare_publisher(sensor_key)
+        raw_heartbeat = peer_bus.session.declare_publisher(keys.heartbeat("liar"))
+        raw_clock = peer_bus.session.declare_publisher(keys.clock)
+        clock_pub = peer_bus.publisher(keys.clock, "clock")
+        for p in (good, clock_pub):
+            await p.wait_for_subscribers()
+        for i, junk in enumerate(garbage):
+            good.publish({"range_mm": 100 + i, "status": "ok"})
+            raw_sensor.put(junk)
+            raw_heartbeat.put(junk)
+            raw_clock.put(junk)
+            # The bridge keeps only the newest sample per key; wait for each to be handled.
+            await eventually(lambda i=i: agg.malformed.get(sensor_key, 0) == i + 1)
+        clock_pub.publish({}, stamp_ns=5_000_000_000)
+        await eventually(lambda: clock.now_ns() == 5_000_000_000, what="good clock sample")
+        last = {"range_mm": 777, "status": "ok"}
+        good.publish(last)
+        await eventually(lambda: agg.entries["range/front"].message.data == last)
+        await eventually(lambda: health.malformed.get(keys.heartbeat("liar"), 0) == len(garbage))
+        await eventually(lambda: clock_errors.get(keys.clock, 0) == len(garbage))
+        assert agg.malformed[sensor_key] == len(garbage)
+        assert agg.running.is_set() and agg.restarts == 0
+        for p in (raw_sensor, raw_heartbeat, raw_clock):
+            p.undeclare()
+    health.close()
+
+
+@pytest.mark.asyncio
+async def test_controller_keeps_its_rate_while_a_sensor_floods(robot_bus: Bus, peer_bus: Bus) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball(), rate_hz=50)
+    flood_key = peer_bus.keys.sensor("camera", "front")
+    pub = peer_bus.publisher(flood_key, "camera.seekcolor")
+    stop = threading.Event()
+    sent = [0]
+
+    def flood() -> None:  # another thread, like another process, as fast as it can
+        while not stop.is_set():
+            pub.publish(CAMERA)
+            sent[0] += 1
+
+    await start(agg, ctl)
+    await pub.wait_for_subscribers()
+    flooder = threading.Thread(target=flood)
+    flooder.start()
+    try:
+        await eventually(lambda: sent[0] > 2000, what="flood to get going")
+        ticks0, t0 = ctl.stats.ticks, asyncio.get_running_loop().time()
+        await eventually(lambda: asyncio.get_running_loop().time() - t0 >= 1.0)
+        ticks = ctl.stats.ticks - ticks0
+    finally:
+        stop.set()
+        flooder.join()
+        await ctl.aclose()
+        await agg.aclose()
+    bridge = robot_bus._subscriptions[0].stats
+    assert bridge.coalesced > 0  # the flood really outpaced the loop and was coalesced
+    assert 35 <= ticks <= 55, f"controller ticked {ticks} times in 1 s at 50 Hz under flood"
+
+
+@pytest.mark.asyncio
+async def test_sync_mode_ticks_only_on_a_fresh_camera_sample(robot_bus: Bus, peer_bus: Bus) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball(), mode="sync")
+    drives: list[dict] = []
+    robot_bus.subscribe(robot_bus.keys.cmd("drive"),
+                        lambda k, p, t: drives.append(decode(p, schema="drive").data), latest=False)
+    camera = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor")
+    other = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range")
+    await start(agg, ctl)
+    await camera.wait_for_subscribers()
+    await other.wait_for_subscribers()
+    for n in range(1, 6):
+        other.publish({"range_mm": 500, "status": "ok"})
+        seq, stamp = camera.publish({"bins": [0, 0, 100 + 10 * n, 0, 0], "total": 100 + 10 * n})
+        await eventually(lambda n=n: ctl.stats.ticks == n, what=f"tick {n}")
+        await eventually(lambda n=n: len(drives) == n)
+        assert drives[-1]["based_on"] == {"source": "camera/front", "seq": seq, "stamp_ns": stamp}
+    # Other sensors do not tick a sync controller: only a new camera sample does.
+    ctl.ticked.clear()
+    for _ in range(5):
+        version = agg.entries["range/front"].version
+        other.publish({"range_mm": 400, "status": "ok"})
+        await eventually(lambda v=version: agg.entries["range/front"].version == v + 1)
+    with pytest.raises(TimeoutError):
+        await asyncio.wait_for(ctl.ticked.wait(), 0.3)
+    assert ctl.stats.ticks == 5
+    assert [d["speed"] for d in drives] == [30, 20, 10, 0, -10]  # chase + flee, thesis numbers
+    await ctl.aclose()
+    await agg.aclose()
+
+
+@pytest.mark.asyncio
+async def test_event_mode_ticks_per_trigger_sample(robot_bus: Bus, peer_bus: Bus) -> None:
+    def avoid(state: State) -> Action | None:
+        mm = state.value("range/front", "range_mm")
+        return None if mm is None else Action(speed=-50 if mm < 200 else 50)
+
+    agg = StateAggregator(bus=robot_bus)
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=FunctionBehavior(avoid),
+                     mode="event", trigger="range/front")
+    await start(agg, ctl)
+    pub = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range")
+    await pub.wait_for_subscribers()
+    for n, mm in enumerate([500, 100, 600], start=1):
+        pub.publish({"range_mm": mm, "status": "ok"})
+        await eventually(lambda n=n: ctl.stats.ticks == n)
+        assert ctl.last_action.speed == (-50 if mm < 200 else 50)
+    await ctl.aclose()
+    await agg.aclose()
+
+
+class Flaky(Component):
+    def __init__(self, *, bus: Bus, failures: int) -> None:
+        super().__init__(bus=bus, name="flaky", restart_backoff_s=0.01, heartbeat_period_s=0.05)
+        self.failures = failures
+        self.attempts = 0
+        self.steady = asyncio.Event()
+
+    async def run(self) -> None:
+        self.attempts += 1
+        self.publisher(self.bus.keys.sensor("test", "flaky"), "range")
+        if self.attempts <= self.failures:
+            raise RuntimeError(f"boom #{self.attempts}")
+        self.steady.set()
+        await asyncio.Event().wait()
+
+
+@pytest.mark.asyncio
+async def test_component_that_raises_is_restarted_and_others_keep_going(robot_bus: Bus) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball())
+    flaky = Flaky(bus=robot_bus, failures=3)
+    await start(agg, ctl)
+    async with flaky:
+        await asyncio.wait_for(flaky.steady.wait(), 5)
+        assert flaky.restarts == 3 and flaky.attempts == 4
+        assert str(flaky.last_error) == "boom #3"
+        ticks = ctl.stats.ticks
+        await eventually(lambda: ctl.stats.ticks > ticks + 5, what="controller still ticking")
+        assert ctl.restarts == 0
+    await flaky.aclose()  # twice is harmless
+    assert flaky.closed
+    await ctl.aclose()
+    await agg.aclose()
+
+
+@pytest.mark.asyncio
+async def test_aclose_is_idempotent_and_closes_unstarted(robot_bus: Bus) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    await agg.aclose()
+    await agg.aclose()
+    with pytest.raises(RuntimeError, match="closed"):
+        await agg.start()
