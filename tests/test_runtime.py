@@ -34,7 +34,9 @@ async def start(*components: Component) -> None:
 
 
 @pytest.mark.asyncio
-async def test_sample_from_another_session_reaches_aggregator(robot_bus: Bus, peer_bus: Bus) -> None:
+async def test_sample_from_another_session_reaches_aggregator(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
     agg = StateAggregator(bus=robot_bus)
     async with agg:
         await asyncio.wait_for(agg.running.wait(), 5)
@@ -158,7 +160,9 @@ async def test_malformed_samples_rejected_counted_and_good_ones_flow(
 
 
 @pytest.mark.asyncio
-async def test_controller_keeps_its_rate_while_a_sensor_floods(robot_bus: Bus, peer_bus: Bus) -> None:
+async def test_controller_keeps_its_rate_while_a_sensor_floods(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
     agg = StateAggregator(bus=robot_bus)
     ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball(), rate_hz=50)
     flood_key = peer_bus.keys.sensor("camera", "front")
