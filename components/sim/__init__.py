@@ -1,0 +1,8 @@
+"""The Mini-WHEGS simulator: a pymunk world plus device backends (no bus, no asyncio).
+
+* :mod:`components.sim.world` — the 2-D world, scene description and immutable snapshots.
+* :mod:`components.sim.camera_render` — the OpenCV-rendered OV9655 camera view.
+* :mod:`components.sim.ranging` — ray casting for the IR range finders.
+* :mod:`components.sim.backends` — device backend implementations on top of a world.
+* :mod:`components.sim.calibrate` — ``python -m components.sim.calibrate``: distance → pink table.
+"""

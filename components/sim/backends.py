@@ -1,0 +1,218 @@
+"""Device backends on top of a simulated :class:`~components.sim.world.World`.
+
+Each class implements one of the device backend protocols (``components/<device>/backend.py``)
+so a device component can run against the simulator exactly as it would against hardware. They
+read the world's latest immutable snapshot, so they are safe to call from worker threads while
+the world steps in another. Nothing here touches the message bus or asyncio.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from components.range.backend import MountPose
+from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera
+from components.sim.ranging import beam_distance_m
+from components.sim.world import World
+
+CAMERA_RNG_STREAM = 1
+ENCODER_RNG_STREAM = 2
+
+QUADRATURE_SEQUENCE = np.array([0, 1, 3, 2], dtype=np.uint8)
+"""2-bit states ``(A << 1) | B`` in the order a forward-turning wheel steps through them."""
+
+
+class SimMotorBackend:
+    """Hands the pulse widths to the simulated motors."""
+
+    def __init__(self, world: World) -> None:
+        self._world = world
+
+    def apply_pulses(self, *, left_ms: float, right_ms: float) -> None:
+        self._world.set_motor_pulses(left_ms, right_ms)
+
+
+def edge_index(angle_rad: float, edges_per_rev: int) -> int:
+    """Number of quadrature edges a wheel has passed at ``angle_rad`` (floor, signed)."""
+    return math.floor(angle_rad / (2.0 * math.pi / edges_per_rev))
+
+
+def quadrature_states(previous_edge: int, edge: int) -> np.ndarray:
+    """The states a line steps through going from edge index ``previous_edge`` to ``edge``.
+
+    At edge index ``k`` the line is in state ``QUADRATURE_SEQUENCE[k % 4]`` (state 0 at angle
+    0). Forward motion yields the states of ``previous_edge + 1 … edge``; backward motion those
+    of ``previous_edge - 1 … edge``; no motion an empty array.
+    """
+    if edge > previous_edge:
+        idx = np.arange(previous_edge + 1, edge + 1, dtype=np.int64)
+    elif edge < previous_edge:
+        idx = np.arange(previous_edge - 1, edge - 1, -1, dtype=np.int64)
+    else:
+        return np.empty(0, dtype=np.uint8)
+    return QUADRATURE_SEQUENCE[idx % 4]
+
+
+def insert_glitches(
+    states: np.ndarray, probability: float, rng: np.random.Generator
+) -> np.ndarray:
+    """After each state, with ``probability``, insert a false edge: a jump to one of its two
+    neighbouring states and straight back (so the true count is unchanged)."""
+    n = len(states)
+    if n == 0 or probability <= 0.0:
+        return states
+    glitch = rng.random(n) < probability
+    if not glitch.any():
+        return states
+    repeats = np.where(glitch, 3, 1)
+    out = np.repeat(states, repeats)
+    starts = np.cumsum(repeats) - repeats
+    # Position of each glitched state in the Gray cycle, then a random neighbour.
+    position = np.argsort(QUADRATURE_SEQUENCE)[states[glitch]]
+    offset = np.where(rng.random(int(glitch.sum())) < 0.5, 1, -1)
+    out[starts[glitch] + 1] = QUADRATURE_SEQUENCE[(position + offset) % 4]
+    return out
+
+
+class SimEncoderBackend:
+    """Quadrature A/B phases from the simulated wheel angles.
+
+    Each wheel has ``MINI_WHEGS.edges_per_rev`` (4096) edges per revolution; ``read_phases``
+    turns the change in wheel angle since the previous call into the states the A/B lines
+    stepped through, optionally with seeded false edges (``glitch_probability`` per real edge).
+    The lines are in state 0 at wheel angle 0.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        *,
+        glitch_probability: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        if not 0.0 <= glitch_probability <= 1.0:
+            raise ValueError(f"glitch_probability must be in [0, 1], got {glitch_probability}")
+        self._world = world
+        self._edges_per_rev = world.config.robot.geometry.edges_per_rev
+        self._glitch_probability = glitch_probability
+        self._rng = rng if rng is not None else world.make_rng(ENCODER_RNG_STREAM)
+        self._lock = threading.Lock()
+        r = world.snapshot().robot
+        self._last = (
+            edge_index(r.left_wheel_angle_rad, self._edges_per_rev),
+            edge_index(r.right_wheel_angle_rad, self._edges_per_rev),
+        )
+
+    def current_states(self) -> tuple[int, int]:
+        """The (left, right) line states as of the previous read (the decoder's start state)."""
+        with self._lock:
+            return (
+                int(QUADRATURE_SEQUENCE[self._last[0] % 4]),
+                int(QUADRATURE_SEQUENCE[self._last[1] % 4]),
+            )
+
+    def read_phases(self) -> tuple[np.ndarray, np.ndarray]:
+        r = self._world.snapshot().robot
+        now = (
+            edge_index(r.left_wheel_angle_rad, self._edges_per_rev),
+            edge_index(r.right_wheel_angle_rad, self._edges_per_rev),
+        )
+        with self._lock:
+            left = quadrature_states(self._last[0], now[0])
+            right = quadrature_states(self._last[1], now[1])
+            self._last = now
+            if self._glitch_probability > 0.0:
+                left = insert_glitches(left, self._glitch_probability, self._rng)
+                right = insert_glitches(right, self._glitch_probability, self._rng)
+        return left, right
+
+
+class SimCameraBackend:
+    """Renders the world's latest snapshot (call ``capture`` from a worker thread).
+
+    ``capture`` renders without holding any world lock: the snapshot it reads is immutable.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        params: CameraParams = DEFAULT_CAMERA,
+        *,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        self._world = world
+        self._params = params
+        self._rng = rng if rng is not None else world.make_rng(CAMERA_RNG_STREAM)
+        self._lock = threading.Lock()
+        self._closed = False
+
+    @property
+    def params(self) -> CameraParams:
+        return self._params
+
+    def capture(self) -> np.ndarray:
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("camera backend is closed")
+            # One child generator per frame keeps concurrent captures independent.
+            frame_rng = np.random.default_rng(int(self._rng.integers(0, 2**63)))
+        return render_camera(self._world.snapshot(), self._params, frame_rng)
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+
+
+class SimRangeBackend:
+    """True beam distance from :func:`components.sim.ranging.beam_distance_m`."""
+
+    def __init__(self, world: World) -> None:
+        self._world = world
+
+    def distance_m(self, mount: MountPose, *, max_range_m: float) -> float | None:
+        return beam_distance_m(self._world.snapshot(), mount, max_range_m)
+
+
+class SimRadioBackend:
+    """An in-memory text link: ``send`` appends to ``outbox``; ``inject`` makes a message arrive.
+
+    Thread-safe.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._outbox: list[str] = []
+        self._inbox: list[str] = []
+
+    def send(self, text: str) -> None:
+        if not isinstance(text, str):
+            raise TypeError(f"radio messages are text, got {type(text).__name__}")
+        with self._lock:
+            self._outbox.append(text)
+
+    def receive(self) -> list[str]:
+        with self._lock:
+            arrived, self._inbox = self._inbox, []
+        return arrived
+
+    def inject(self, text: str) -> None:
+        """Make ``text`` arrive (it is returned by the next ``receive``)."""
+        if not isinstance(text, str):
+            raise TypeError(f"radio messages are text, got {type(text).__name__}")
+        with self._lock:
+            self._inbox.append(text)
+
+    @property
+    def outbox(self) -> list[str]:
+        """Every message sent so far, oldest first (a copy)."""
+        with self._lock:
+            return list(self._outbox)
+
+    def clear_outbox(self) -> list[str]:
+        """Return and forget the messages sent so far."""
+        with self._lock:
+            sent, self._outbox = self._outbox, []
+        return sent

@@ -1,0 +1,748 @@
+"""A top-down 2-D pymunk world with the Mini-WHEGS, a pink ball, walls and obstacles.
+
+Everything is SI and REP-103: x forward/east, y left/north, z up, headings counter-clockwise from
++x. pymunk has no gravity here (we look down on the floor); the ground acts through friction
+forces this module computes itself every substep:
+
+* The robot is a ≈10 cm × 7 cm box of 0.15 kg standing on four wheel-leg contacts at
+  ``(±wheelbase/2, ±track_width/2)`` in the body frame, each carrying a quarter of its weight.
+  Each motor turns the PWM pulse it receives into a target wheel speed with the measured
+  characteristic (:func:`components.motors.pwm.wheel_speed_rad_s`); the wheel follows the target
+  with a first-order lag. A contact pushes the body toward the wheel's surface speed ``ω·r``
+  with a slip-stiffness force capped at ``μ_long·m·g/4`` (so ``μ·m·g/2`` per track) and resists
+  sideways sliding with a force capped at ``μ_lat·m·g/4``. Asking for more than the cap makes
+  the wheel-legs slip: turning in place slips, straight driving at moderate speed barely does.
+* The ball and movable distractors roll with viscous damping plus a rolling resistance.
+* Walls are infinitely thin vertical surfaces (pymunk segments of radius 0); box obstacles and
+  static distractors are static pymunk shapes.
+
+``World.step`` advances the physics in fixed-size substeps; after every step the world replaces
+its immutable :class:`WorldSnapshot`, which renderers and range queries may read from other
+threads (reading the ``snapshot()`` reference is atomic; the snapshot itself never changes).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import pymunk
+
+from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
+from components.motors.pwm import (
+    LEFT_MOTOR,
+    RIGHT_MOTOR,
+    MotorCharacteristic,
+    wheel_speed_rad_s,
+)
+
+Color = tuple[int, int, int]
+"""An 8-bit RGB colour."""
+
+BALL_PINK: Color = (236, 72, 132)
+"""Base (fully lit, unshaded) colour of the thesis's pink ball."""
+WALL_COLOR: Color = (200, 194, 160)
+"""Default wall colour: a neutral beige that never passes the pink rule."""
+BOX_COLOR: Color = (180, 168, 128)
+"""Default box-obstacle colour (cardboard), also neutral."""
+ORANGE: Color = (255, 140, 0)
+"""A typical distractor colour (an orange ball) that must never read as pink."""
+
+BALL_DIAMETER_M = 0.065
+
+
+def _require_finite(**values: float) -> None:
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value!r}")
+
+
+def _require_positive(**values: float) -> None:
+    for name, value in values.items():
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """``angle_rad`` wrapped into ``[-π, π)``."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# --------------------------------------------------------------------------------------------
+# Scene description
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Pose2D:
+    """A planar pose: position (m) and heading (rad, CCW from +x)."""
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    heading_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        _require_finite(x_m=self.x_m, y_m=self.y_m, heading_rad=self.heading_rad)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BallConfig:
+    """The pink ball: light, rolls with damping, can be pushed by the robot."""
+
+    x_m: float
+    y_m: float
+    radius_m: float = BALL_DIAMETER_M / 2
+    mass_kg: float = 0.02
+    color: Color = BALL_PINK
+    linear_damping_per_s: float = 0.5
+    """Viscous part of the rolling loss: deceleration ``= damping · v``."""
+    rolling_resistance: float = 0.02
+    """Coulomb part of the rolling loss: deceleration ``= coefficient · g``."""
+    elasticity: float = 0.5
+
+    def __post_init__(self) -> None:
+        _require_finite(x_m=self.x_m, y_m=self.y_m)
+        _require_positive(radius_m=self.radius_m, mass_kg=self.mass_kg)
+        if self.linear_damping_per_s < 0.0 or self.rolling_resistance < 0.0:
+            raise ValueError("ball damping and rolling resistance must be >= 0")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Wall:
+    """A vertical, infinitely thin wall standing on the segment (x1, y1)–(x2, y2)."""
+
+    x1_m: float
+    y1_m: float
+    x2_m: float
+    y2_m: float
+    height_m: float = 0.30
+    color: Color = WALL_COLOR
+
+    def __post_init__(self) -> None:
+        _require_finite(x1_m=self.x1_m, y1_m=self.y1_m, x2_m=self.x2_m, y2_m=self.y2_m)
+        _require_positive(height_m=self.height_m)
+        if (self.x1_m, self.y1_m) == (self.x2_m, self.y2_m):
+            raise ValueError("a wall needs two distinct end points")
+
+    @property
+    def length_m(self) -> float:
+        return math.hypot(self.x2_m - self.x1_m, self.y2_m - self.y1_m)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Arena:
+    """A rectangular arena: four walls around ``[x_min, x_max] × [y_min, y_max]``."""
+
+    x_min_m: float = -1.5
+    y_min_m: float = -1.5
+    x_max_m: float = 1.5
+    y_max_m: float = 1.5
+    height_m: float = 0.30
+    color: Color = WALL_COLOR
+
+    def __post_init__(self) -> None:
+        if not (self.x_min_m < self.x_max_m and self.y_min_m < self.y_max_m):
+            raise ValueError("Arena needs x_min < x_max and y_min < y_max")
+
+    def walls(self) -> tuple[Wall, ...]:
+        x0, y0, x1, y1 = self.x_min_m, self.y_min_m, self.x_max_m, self.y_max_m
+        corners = ((x0, y0), (x1, y0), (x1, y1), (x0, y1))
+        return tuple(
+            Wall(
+                x1_m=a[0], y1_m=a[1], x2_m=b[0], y2_m=b[1],
+                height_m=self.height_m, color=self.color,
+            )
+            for a, b in zip(corners, corners[1:] + corners[:1], strict=True)
+        )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BoxObstacle:
+    """A static box: centre, size along its own x (length) and y (width), yaw, height."""
+
+    x_m: float
+    y_m: float
+    length_m: float
+    width_m: float
+    height_m: float = 0.10
+    yaw_rad: float = 0.0
+    color: Color = BOX_COLOR
+
+    def __post_init__(self) -> None:
+        _require_finite(x_m=self.x_m, y_m=self.y_m, yaw_rad=self.yaw_rad)
+        _require_positive(length_m=self.length_m, width_m=self.width_m, height_m=self.height_m)
+
+    def corners(self) -> tuple[tuple[float, float], ...]:
+        """Footprint corners, counter-clockwise, in the world frame."""
+        return _box_corners(
+            self.x_m, self.y_m, self.yaw_rad, self.length_m, self.width_m
+        )
+
+
+DistractorKind = Literal["cylinder", "sphere", "box"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Distractor:
+    """A coloured object that is not the ball (e.g. an orange ball or a red can).
+
+    ``cylinder`` and ``sphere`` use ``radius_m``; ``box`` uses ``length_m``/``width_m``/``yaw_rad``.
+    ``height_m`` defaults to the diameter for a sphere and 0.10 m otherwise. A ``movable``
+    distractor is a dynamic body (it rolls like the ball); otherwise it is static.
+    """
+
+    kind: DistractorKind
+    x_m: float
+    y_m: float
+    color: Color = ORANGE
+    radius_m: float = BALL_DIAMETER_M / 2
+    length_m: float = 0.05
+    width_m: float = 0.05
+    height_m: float | None = None
+    yaw_rad: float = 0.0
+    movable: bool = False
+    mass_kg: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("cylinder", "sphere", "box"):
+            raise ValueError(f"unknown distractor kind {self.kind!r}")
+        _require_finite(x_m=self.x_m, y_m=self.y_m, yaw_rad=self.yaw_rad)
+        _require_positive(
+            radius_m=self.radius_m, length_m=self.length_m, width_m=self.width_m,
+            mass_kg=self.mass_kg,
+        )
+        if self.height_m is not None:
+            _require_positive(height_m=self.height_m)
+
+    @property
+    def effective_height_m(self) -> float:
+        if self.height_m is not None:
+            return self.height_m
+        return 2.0 * self.radius_m if self.kind == "sphere" else 0.10
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Lighting:
+    """Scene lighting, relative to the calibrated nominal (1.0, 1.0).
+
+    ``brightness`` multiplies the exposure of every rendered object (not the far background);
+    ``glare`` scales the angular size of the specular glare patch on shiny spheres (0 = none).
+    """
+
+    brightness: float = 1.0
+    glare: float = 1.0
+
+    def __post_init__(self) -> None:
+        _require_positive(brightness=self.brightness)
+        if not (math.isfinite(self.glare) and self.glare >= 0.0):
+            raise ValueError(f"glare must be >= 0, got {self.glare!r}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RobotConfig:
+    """Mechanical and ground-contact model of the Mini-WHEGS."""
+
+    geometry: MiniWhegsGeometry = MINI_WHEGS
+    wheelbase_m: float = 0.06
+    """Distance between the front and rear wheel-leg contacts of a side."""
+    left_motor: MotorCharacteristic = LEFT_MOTOR
+    right_motor: MotorCharacteristic = RIGHT_MOTOR
+    motor_time_constant_s: float = 0.05
+    """First-order lag of the wheel speed behind the motor's target speed."""
+    mu_longitudinal: float = 0.9
+    """Traction friction coefficient: each track pushes with at most ``μ·m·g/2``."""
+    mu_lateral: float = 0.6
+    """Sideways friction coefficient of the wheel-legs (must stay below ``μ_long`` × track /
+    wheelbase or the robot cannot turn in place)."""
+    slip_stiffness_n_s_per_m: float = 6.0
+    """Contact force per m/s of slip (per contact, below the friction cap)."""
+    body_friction: float = 0.4
+    """Friction of the robot's shell against walls, ball and obstacles."""
+
+    def __post_init__(self) -> None:
+        _require_positive(
+            wheelbase_m=self.wheelbase_m,
+            motor_time_constant_s=self.motor_time_constant_s,
+            mu_longitudinal=self.mu_longitudinal,
+            mu_lateral=self.mu_lateral,
+            slip_stiffness_n_s_per_m=self.slip_stiffness_n_s_per_m,
+        )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WorldConfig:
+    """Everything needed to build a :class:`World`; ``seed`` drives all randomness."""
+
+    robot_start: Pose2D = field(default_factory=Pose2D)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    ball: BallConfig | None = None
+    arena: Arena | None = None
+    walls: tuple[Wall, ...] = ()
+    boxes: tuple[BoxObstacle, ...] = ()
+    distractors: tuple[Distractor, ...] = ()
+    lighting: Lighting = field(default_factory=Lighting)
+    seed: int = 0
+    substep_s: float = 0.002
+    """Largest physics substep; ``step(dt)`` splits dt into equal substeps no longer than it."""
+    gravity_m_s2: float = 9.81
+    """Only used for the friction caps (the 2-D world itself has no gravity)."""
+
+    def __post_init__(self) -> None:
+        _require_positive(substep_s=self.substep_s, gravity_m_s2=self.gravity_m_s2)
+
+    def all_walls(self) -> tuple[Wall, ...]:
+        arena = self.arena.walls() if self.arena is not None else ()
+        return arena + tuple(self.walls)
+
+
+# --------------------------------------------------------------------------------------------
+# Snapshot
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RobotState:
+    x_m: float
+    y_m: float
+    heading_rad: float
+    """Wrapped into ``[-π, π)``."""
+    heading_unwrapped_rad: float
+    """Continuous heading (counts full turns)."""
+    vx_m_s: float
+    """World-frame velocity."""
+    vy_m_s: float
+    yaw_rate_rad_s: float
+    left_wheel_angle_rad: float
+    right_wheel_angle_rad: float
+    left_wheel_speed_rad_s: float
+    right_wheel_speed_rad_s: float
+    left_pulse_ms: float
+    right_pulse_ms: float
+    length_m: float
+    width_m: float
+
+    @property
+    def forward_speed_m_s(self) -> float:
+        """Velocity along the robot's heading."""
+        return self.vx_m_s * math.cos(self.heading_rad) + self.vy_m_s * math.sin(self.heading_rad)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BallState:
+    x_m: float
+    y_m: float
+    vx_m_s: float
+    vy_m_s: float
+    radius_m: float
+    color: Color
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DistractorState:
+    kind: DistractorKind
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    radius_m: float
+    length_m: float
+    width_m: float
+    height_m: float
+    color: Color
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WorldSnapshot:
+    """Immutable picture of the world after a step; safe to share between threads."""
+
+    time_s: float
+    step_count: int
+    robot: RobotState
+    ball: BallState | None
+    walls: tuple[Wall, ...]
+    boxes: tuple[BoxObstacle, ...]
+    distractors: tuple[DistractorState, ...]
+    lighting: Lighting
+
+
+# --------------------------------------------------------------------------------------------
+# World
+# --------------------------------------------------------------------------------------------
+
+
+def _box_corners(
+    x: float, y: float, yaw: float, length: float, width: float
+) -> tuple[tuple[float, float], ...]:
+    c, s = math.cos(yaw), math.sin(yaw)
+    hl, hw = length / 2, width / 2
+    local = ((hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw))
+    return tuple((x + c * lx - s * ly, y + s * lx + c * ly) for lx, ly in local)
+
+
+def _clamp(value: float, limit: float) -> float:
+    return limit if value > limit else -limit if value < -limit else value
+
+
+@dataclass(slots=True)
+class _FloorBody:
+    """A dynamic body that rolls or slides on the floor (the ball, movable distractors)."""
+
+    body: pymunk.Body
+    damping_per_s: float
+    """Viscous loss: deceleration = damping · v."""
+    resistance: float
+    """Coulomb loss: deceleration = resistance · g (rolling resistance or sliding friction)."""
+
+
+StepHook = Callable[["World", float], None]
+"""Called at the start of every ``World.step`` with the world and the step's dt."""
+
+
+class World:
+    """The simulated Mini-WHEGS world.
+
+    Step it from one thread. ``snapshot()`` and ``set_motor_pulses()`` may be called from any
+    thread; the ball/robot placement helpers take the world's lock, so they are safe too.
+    """
+
+    def __init__(self, config: WorldConfig | None = None) -> None:
+        self._config = cfg = config if config is not None else WorldConfig()
+        self._lock = threading.RLock()
+        self._rng = np.random.default_rng(cfg.seed)
+        self._time_s = 0.0
+        self._step_count = 0
+        self._hooks: list[StepHook] = []
+        self._floor_bodies: list[_FloorBody] = []
+        self._lighting = cfg.lighting
+
+        space = pymunk.Space()
+        space.gravity = (0.0, 0.0)
+        space.damping = 1.0
+        space.collision_slop = 0.0005
+        space.iterations = 20
+        self._space = space
+
+        # Robot.
+        rc = cfg.robot
+        geo = rc.geometry
+        moment = pymunk.moment_for_box(geo.mass_kg, (geo.length_m, geo.width_m))
+        robot = pymunk.Body(geo.mass_kg, moment)
+        robot.position = (cfg.robot_start.x_m, cfg.robot_start.y_m)
+        robot.angle = cfg.robot_start.heading_rad
+        shell = pymunk.Poly.create_box(robot, (geo.length_m, geo.width_m), radius=0.001)
+        shell.friction = rc.body_friction
+        shell.elasticity = 0.1
+        space.add(robot, shell)
+        self._robot = robot
+        half_track = geo.track_width_m / 2
+        half_base = rc.wheelbase_m / 2
+        # Wheel-leg contacts (x, y, side) in the body frame; side 0 = left (+y), 1 = right.
+        self._contacts = (
+            (half_base, half_track, 0),
+            (-half_base, half_track, 0),
+            (half_base, -half_track, 1),
+            (-half_base, -half_track, 1),
+        )
+        weight_share = geo.mass_kg * cfg.gravity_m_s2 / 4
+        self._cap_long = rc.mu_longitudinal * weight_share
+        self._cap_lat = rc.mu_lateral * weight_share
+        self._motors = (rc.left_motor, rc.right_motor)
+        self._pulses: tuple[float, float] = (rc.left_motor.zero_ms, rc.right_motor.zero_ms)
+        self._wheel_speed = [0.0, 0.0]
+        self._wheel_angle = [0.0, 0.0]
+
+        # Ball.
+        self._ball: _FloorBody | None = None
+        if cfg.ball is not None:
+            b = cfg.ball
+            self._ball = self._add_round_body(
+                b.x_m, b.y_m, b.radius_m, b.mass_kg, elasticity=b.elasticity,
+                damping_per_s=b.linear_damping_per_s, resistance=b.rolling_resistance,
+            )
+
+        # Static geometry.
+        static = space.static_body
+        self._walls = cfg.all_walls()
+        for wall in self._walls:
+            seg = pymunk.Segment(static, (wall.x1_m, wall.y1_m), (wall.x2_m, wall.y2_m), 0.0)
+            seg.friction = 0.5
+            seg.elasticity = 0.3
+            space.add(seg)
+        for box in cfg.boxes:
+            poly = pymunk.Poly(static, box.corners())
+            poly.friction = 0.5
+            poly.elasticity = 0.3
+            space.add(poly)
+
+        # Distractors: static shapes, or floor bodies when movable.
+        self._distractor_bodies: list[pymunk.Body | None] = []
+        for d in cfg.distractors:
+            if d.movable and d.kind == "box":
+                size = (d.length_m, d.width_m)
+                mbody = pymunk.Body(d.mass_kg, pymunk.moment_for_box(d.mass_kg, size))
+                mbody.position = (d.x_m, d.y_m)
+                mbody.angle = d.yaw_rad
+                mshape = pymunk.Poly.create_box(mbody, size)
+                mshape.friction = 0.5
+                mshape.elasticity = 0.3
+                space.add(mbody, mshape)
+                # A box slides rather than rolls: strong Coulomb friction.
+                self._floor_bodies.append(_FloorBody(mbody, 2.0, 0.4))
+                self._distractor_bodies.append(mbody)
+            elif d.movable:
+                fb = self._add_round_body(
+                    d.x_m, d.y_m, d.radius_m, d.mass_kg, elasticity=0.5,
+                    damping_per_s=0.5, resistance=0.02 if d.kind == "sphere" else 0.4,
+                )
+                self._distractor_bodies.append(fb.body)
+            else:
+                if d.kind == "box":
+                    corners = _box_corners(d.x_m, d.y_m, d.yaw_rad, d.length_m, d.width_m)
+                    dshape: pymunk.Shape = pymunk.Poly(static, corners)
+                else:
+                    dshape = pymunk.Circle(static, d.radius_m, offset=(d.x_m, d.y_m))
+                dshape.friction = 0.5
+                dshape.elasticity = 0.3
+                space.add(dshape)
+                self._distractor_bodies.append(None)
+
+        self._snapshot = self._make_snapshot()
+
+    def _add_round_body(
+        self, x: float, y: float, radius: float, mass: float, *, elasticity: float,
+        damping_per_s: float, resistance: float,
+    ) -> _FloorBody:
+        body = pymunk.Body(mass, pymunk.moment_for_circle(mass, 0.0, radius))
+        body.position = (x, y)
+        shape = pymunk.Circle(body, radius)
+        shape.friction = 0.3
+        shape.elasticity = elasticity
+        self._space.add(body, shape)
+        fb = _FloorBody(body, damping_per_s, resistance)
+        self._floor_bodies.append(fb)
+        return fb
+
+    # -- properties ---------------------------------------------------------------------------
+
+    @property
+    def config(self) -> WorldConfig:
+        return self._config
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the world was built."""
+        return self._time_s
+
+    @property
+    def rng(self) -> np.random.Generator:
+        """The world's own generator (seeded from ``config.seed``), e.g. for scenario scripts."""
+        return self._rng
+
+    def make_rng(self, stream: int) -> np.random.Generator:
+        """An independent generator for ``stream`` derived from ``config.seed``.
+
+        Backends use fixed stream numbers so a run is reproducible from the one seed.
+        """
+        return np.random.default_rng([self._config.seed, stream])
+
+    @property
+    def motor_pulses(self) -> tuple[float, float]:
+        """The last pulses set, ``(left_ms, right_ms)``."""
+        return self._pulses
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def set_motor_pulses(self, left_ms: float, right_ms: float) -> None:
+        """Set the PWM high time of each motor (ms); takes effect at the next substep."""
+        _require_finite(left_ms=left_ms, right_ms=right_ms)
+        self._pulses = (float(left_ms), float(right_ms))
+
+    def set_ball_velocity(self, vx_m_s: float, vy_m_s: float) -> None:
+        """Give the ball a velocity (it then rolls and slows down on its own)."""
+        _require_finite(vx_m_s=vx_m_s, vy_m_s=vy_m_s)
+        ball = self._require_ball()
+        with self._lock:
+            ball.body.velocity = (vx_m_s, vy_m_s)
+            self._snapshot = self._make_snapshot()
+
+    def place_ball(self, x_m: float, y_m: float) -> None:
+        """Teleport the ball to (x, y) and stop it."""
+        _require_finite(x_m=x_m, y_m=y_m)
+        ball = self._require_ball()
+        with self._lock:
+            ball.body.position = (x_m, y_m)
+            ball.body.velocity = (0.0, 0.0)
+            ball.body.angular_velocity = 0.0
+            self._space.reindex_shapes_for_body(ball.body)
+            self._snapshot = self._make_snapshot()
+
+    def place_robot(self, pose: Pose2D) -> None:
+        """Teleport the robot to ``pose`` and stop it (wheel angles are kept)."""
+        with self._lock:
+            self._robot.position = (pose.x_m, pose.y_m)
+            self._robot.angle = pose.heading_rad
+            self._robot.velocity = (0.0, 0.0)
+            self._robot.angular_velocity = 0.0
+            self._space.reindex_shapes_for_body(self._robot)
+            self._snapshot = self._make_snapshot()
+
+    def set_lighting(self, lighting: Lighting) -> None:
+        """Change the scene lighting (seen by the camera from the next snapshot on)."""
+        with self._lock:
+            self._lighting = lighting
+            self._snapshot = self._make_snapshot()
+
+    def add_step_hook(self, hook: StepHook) -> Callable[[], None]:
+        """Run ``hook(world, dt_s)`` at the start of every step (scripted motion, scenarios).
+
+        Returns a function that removes the hook again.
+        """
+        with self._lock:
+            self._hooks.append(hook)
+
+        def remove() -> None:
+            with self._lock:
+                if hook in self._hooks:
+                    self._hooks.remove(hook)
+
+        return remove
+
+    def _require_ball(self) -> _FloorBody:
+        if self._ball is None:
+            raise RuntimeError("this world has no ball (WorldConfig.ball is None)")
+        return self._ball
+
+    # -- stepping -----------------------------------------------------------------------------
+
+    def step(self, dt_s: float) -> WorldSnapshot:
+        """Advance by ``dt_s`` in equal substeps no longer than ``config.substep_s``.
+
+        Returns (and publishes) the new snapshot.
+        """
+        if not (math.isfinite(dt_s) and dt_s >= 0.0):
+            raise ValueError(f"dt_s must be a finite number >= 0, got {dt_s!r}")
+        with self._lock:
+            for hook in tuple(self._hooks):
+                hook(self, dt_s)
+            if dt_s > 0.0:
+                n = max(1, math.ceil(dt_s / self._config.substep_s - 1e-9))
+                h = dt_s / n
+                for _ in range(n):
+                    self._substep(h)
+                self._time_s += dt_s
+            self._step_count += 1
+            snap = self._make_snapshot()
+            self._snapshot = snap
+            return snap
+
+    def _substep(self, h: float) -> None:
+        cfg = self._config
+        rc = cfg.robot
+        radius = rc.geometry.wheel_radius_m
+        alpha = 1.0 - math.exp(-h / rc.motor_time_constant_s)
+        surface = [0.0, 0.0]
+        for side in (0, 1):
+            target = wheel_speed_rad_s(self._motors[side], self._pulses[side])
+            old = self._wheel_speed[side]
+            new = old + (target - old) * alpha
+            self._wheel_speed[side] = new
+            self._wheel_angle[side] += 0.5 * (old + new) * h
+            surface[side] = new * radius
+
+        # Ground contact forces on the robot, computed in the body frame.
+        body = self._robot
+        heading = body.angle
+        c, s = math.cos(heading), math.sin(heading)
+        vx, vy = body.velocity
+        omega = body.angular_velocity
+        vxb = c * vx + s * vy
+        vyb = -s * vx + c * vy
+        k = rc.slip_stiffness_n_s_per_m
+        cap_long, cap_lat = self._cap_long, self._cap_lat
+        fx_sum = fy_sum = torque = 0.0
+        for ax, ay, side in self._contacts:
+            vcx = vxb - omega * ay
+            vcy = vyb + omega * ax
+            fx = _clamp(k * (surface[side] - vcx), cap_long)
+            fy = _clamp(-k * vcy, cap_lat)
+            fx_sum += fx
+            fy_sum += fy
+            torque += ax * fy - ay * fx
+        body.force = (c * fx_sum - s * fy_sum, s * fx_sum + c * fy_sum)
+        body.torque = torque
+
+        # Rolling / sliding losses of free bodies.
+        g = cfg.gravity_m_s2
+        for fb in self._floor_bodies:
+            b = fb.body
+            bvx, bvy = b.velocity
+            speed = math.hypot(bvx, bvy)
+            coulomb = fb.resistance * g
+            if speed <= coulomb * h:
+                b.velocity = (0.0, 0.0)
+            elif speed > 0.0:
+                decel = fb.damping_per_s * speed + coulomb
+                scale = -b.mass * decel / speed
+                b.force = (bvx * scale, bvy * scale)
+            b.angular_velocity *= math.exp(-5.0 * h)
+
+        self._space.step(h)
+
+    # -- snapshot -----------------------------------------------------------------------------
+
+    def snapshot(self) -> WorldSnapshot:
+        """The latest immutable snapshot (replaced after every step)."""
+        return self._snapshot
+
+    def _make_snapshot(self) -> WorldSnapshot:
+        cfg = self._config
+        body = self._robot
+        geo = cfg.robot.geometry
+        x, y = body.position
+        vx, vy = body.velocity
+        robot = RobotState(
+            x_m=float(x), y_m=float(y),
+            heading_rad=wrap_angle(body.angle), heading_unwrapped_rad=float(body.angle),
+            vx_m_s=float(vx), vy_m_s=float(vy), yaw_rate_rad_s=float(body.angular_velocity),
+            left_wheel_angle_rad=self._wheel_angle[0],
+            right_wheel_angle_rad=self._wheel_angle[1],
+            left_wheel_speed_rad_s=self._wheel_speed[0],
+            right_wheel_speed_rad_s=self._wheel_speed[1],
+            left_pulse_ms=self._pulses[0], right_pulse_ms=self._pulses[1],
+            length_m=geo.length_m, width_m=geo.width_m,
+        )
+        ball_state = None
+        if self._ball is not None and cfg.ball is not None:
+            bx, by = self._ball.body.position
+            bvx, bvy = self._ball.body.velocity
+            ball_state = BallState(
+                x_m=float(bx), y_m=float(by), vx_m_s=float(bvx), vy_m_s=float(bvy),
+                radius_m=cfg.ball.radius_m, color=cfg.ball.color,
+            )
+        distractors = []
+        for d, dbody in zip(cfg.distractors, self._distractor_bodies, strict=True):
+            if dbody is None:
+                dx, dy, dyaw = d.x_m, d.y_m, d.yaw_rad
+            else:
+                dx, dy = (float(v) for v in dbody.position)
+                dyaw = float(dbody.angle)
+            distractors.append(
+                DistractorState(
+                    kind=d.kind, x_m=dx, y_m=dy, yaw_rad=dyaw, radius_m=d.radius_m,
+                    length_m=d.length_m, width_m=d.width_m, height_m=d.effective_height_m,
+                    color=d.color,
+                )
+            )
+        return WorldSnapshot(
+            time_s=self._time_s,
+            step_count=self._step_count,
+            robot=robot,
+            ball=ball_state,
+            walls=self._walls,
+            boxes=tuple(cfg.boxes),
+            distractors=tuple(distractors),
+            lighting=self._lighting,
+        )

@@ -1,0 +1,170 @@
+"""The rendered camera and its calibration against the thesis's pink-count thresholds."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import statistics
+import time
+
+import numpy as np
+import pytest
+
+from components.camera.seekcolor import seekcolor
+from components.sim.calibrate import ball_ahead_world, main, pink_counts
+from components.sim.camera_render import DEFAULT_CAMERA, render_camera
+from components.sim.world import (
+    ORANGE,
+    Arena,
+    BallConfig,
+    BoxObstacle,
+    Distractor,
+    Lighting,
+    World,
+    WorldConfig,
+)
+
+SEEDS = range(8)
+DISTANCES = (0.20, 0.22, 0.25, 0.30, 0.35, 0.40, 0.45, 0.50, 0.60, 0.80, 1.0, 1.5, 2.0, 3.6)
+
+
+@pytest.fixture(scope="module")
+def peak() -> dict[float, float]:
+    """Mean (over seeds) of the largest seekcolor bin, ball straight ahead, per distance."""
+    return {
+        d: statistics.fmean(max(pink_counts(d, seed=s).bins) for s in SEEDS) for d in DISTANCES
+    }
+
+
+def test_frame_format() -> None:
+    frame = render_camera(World().snapshot(), DEFAULT_CAMERA, np.random.default_rng(0))
+    assert frame.shape == (1024, 1280, 3)
+    assert frame.dtype == np.uint8
+
+
+def test_comfortable_distance_reads_about_140(peak: dict[float, float]) -> None:
+    assert 100 <= peak[0.45] <= 180
+    # 140 is crossed between 35 and 60 cm.
+    assert peak[0.35] >= 140 >= peak[0.60]
+
+
+def test_pink_count_falls_with_distance(peak: dict[float, float]) -> None:
+    far = [peak[d] for d in DISTANCES if d >= 0.35]
+    assert all(a > b for a, b in itertools.pairwise(far)), far
+    assert peak[0.45] > 3 * peak[1.0]
+    assert peak[1.0] > 3 * peak[3.6]
+
+
+def test_ball_detectable_at_3_6_m_on_average(peak: dict[float, float]) -> None:
+    assert peak[3.6] >= 1.0
+
+
+def test_count_drops_when_the_ball_leaves_the_view(peak: dict[float, float]) -> None:
+    assert peak[0.30] >= 140  # still flee territory right at 30 cm
+    assert peak[0.25] < peak[0.30]
+    assert peak[0.22] < 0.5 * peak[0.30]
+    assert peak[0.20] < 0.25 * peak[0.30]
+
+
+@pytest.mark.parametrize(("bearing_deg", "expected_bin"), [(14, 0), (7, 1), (0, 2), (-7, 3),
+                                                           (-14, 4)])
+def test_ball_bearing_picks_the_bin(bearing_deg: float, expected_bin: int) -> None:
+    d = 0.6
+    lateral = d * math.tan(math.radians(bearing_deg))
+    result = pink_counts(d, seed=1, lateral_m=lateral, jitter_m=0.0)
+    assert result.bins.index(max(result.bins)) == expected_bin
+    assert result.bearing_rad is not None
+    assert math.degrees(result.bearing_rad) == pytest.approx(bearing_deg, abs=1.5)
+
+
+@pytest.mark.parametrize("lighting", [Lighting(), Lighting(glare=0.0), Lighting(glare=3.0),
+                                      Lighting(brightness=0.5), Lighting(brightness=2.0)])
+def test_orange_distractors_never_read_pink(lighting: Lighting) -> None:
+    for d in (0.1, 0.3, 0.6, 1.5):
+        world = World(
+            WorldConfig(
+                arena=Arena(),
+                lighting=lighting,
+                distractors=(
+                    Distractor(kind="sphere", x_m=0.05 + d, y_m=0.0, color=ORANGE),
+                    Distractor(kind="cylinder", x_m=0.15 + d, y_m=0.12, color=ORANGE),
+                    Distractor(kind="box", x_m=0.15 + d, y_m=-0.12, color=ORANGE),
+                ),
+            )
+        )
+        for seed in range(3):
+            frame = render_camera(world.snapshot(), DEFAULT_CAMERA, np.random.default_rng(seed))
+            assert seekcolor(frame).total == 0
+
+
+def test_neutral_scene_never_reads_pink() -> None:
+    world = World(
+        WorldConfig(
+            arena=Arena(x_max_m=0.8),
+            boxes=(BoxObstacle(x_m=0.5, y_m=0.1, length_m=0.1, width_m=0.2, yaw_rad=0.4),),
+        )
+    )
+    for seed in range(4):
+        frame = render_camera(world.snapshot(), DEFAULT_CAMERA, np.random.default_rng(seed))
+        assert seekcolor(frame).total == 0
+
+
+def test_glare_and_brightness_change_the_count() -> None:
+    base = max(pink_counts(0.45, seed=0).bins)
+    big_glare = max(pink_counts(0.45, seed=0, lighting=Lighting(glare=3.0)).bins)
+    dim = max(pink_counts(0.45, seed=0, lighting=Lighting(brightness=0.7)).bins)
+    assert big_glare < base
+    assert dim != base
+
+
+def test_ball_hidden_behind_a_box_is_not_seen() -> None:
+    world = World(
+        WorldConfig(
+            ball=BallConfig(x_m=0.8, y_m=0.0),
+            boxes=(BoxObstacle(x_m=0.5, y_m=0.0, length_m=0.05, width_m=0.2, height_m=0.1),),
+        )
+    )
+    frame = render_camera(world.snapshot(), DEFAULT_CAMERA, np.random.default_rng(0))
+    assert seekcolor(frame).total == 0
+    # ...and a ball in front of the box is.
+    world.place_ball(0.35, 0.0)
+    frame = render_camera(world.snapshot(), DEFAULT_CAMERA, np.random.default_rng(0))
+    assert seekcolor(frame).total > 100
+
+
+def test_rendering_is_deterministic_per_seed() -> None:
+    snap = ball_ahead_world(0.5).snapshot()
+    a = render_camera(snap, DEFAULT_CAMERA, np.random.default_rng(3))
+    b = render_camera(snap, DEFAULT_CAMERA, np.random.default_rng(3))
+    assert np.array_equal(a, b)
+    clean = render_camera(snap, DEFAULT_CAMERA, None)
+    assert np.array_equal(clean, render_camera(snap, DEFAULT_CAMERA, None))
+    assert not np.array_equal(clean, a)
+
+
+def test_render_time() -> None:
+    world = World(
+        WorldConfig(
+            arena=Arena(),
+            ball=BallConfig(x_m=0.4, y_m=0.02),
+            distractors=(Distractor(kind="sphere", x_m=0.9, y_m=0.2),
+                         Distractor(kind="cylinder", x_m=1.1, y_m=-0.3, color=(40, 90, 200))),
+            boxes=(BoxObstacle(x_m=1.2, y_m=0.4, length_m=0.2, width_m=0.3),),
+        )
+    )
+    rng = np.random.default_rng(0)
+    render_camera(world.snapshot(), DEFAULT_CAMERA, rng)  # warm the caches
+    times = []
+    for _ in range(10):
+        start = time.perf_counter()
+        render_camera(world.snapshot(), DEFAULT_CAMERA, rng)
+        times.append(time.perf_counter() - start)
+    median_ms = 1000 * statistics.median(times)
+    print(f"render_camera: median {median_ms:.1f} ms, max {1000 * max(times):.1f} ms per frame")
+    assert median_ms < 200
+
+
+def test_calibrate_script_prints_a_table(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--distances", "0.45", "3.6", "--seeds", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "0.45" in out and "3.60" in out
