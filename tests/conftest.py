@@ -57,3 +57,36 @@ async def peer_bus(robot_bus: Bus, endpoint: str, robot: str) -> AsyncIterator[B
                      what="peer session to connect")
     yield bus
     await bus.aclose()
+
+
+class SimRobot:
+    """The simulated robot in this process: simulator + device components on ``bus``."""
+
+    def __init__(self, bus: Bus, world_config: object, *, speed: float, devices: tuple[str, ...],
+                 **device_options: object) -> None:
+        from components.sim.component import SimulatorComponent, simulated_devices
+        from components.sim.world import World
+        from ubf_async.clock import SimClock
+
+        self.clock = SimClock()
+        bus.clock = self.clock
+        self.bus = bus
+        self.world = World(world_config)  # type: ignore[arg-type]
+        self.devices = simulated_devices(bus=bus, world=self.world, devices=devices,
+                                         **device_options)  # type: ignore[arg-type]
+        self.sim = SimulatorComponent(bus=bus, world=self.world, clock=self.clock, speed=speed)
+        self.extra: list[object] = []
+
+    def device(self, prefix: str) -> object:
+        return next(d for d in self.devices if d.name.startswith(prefix))
+
+    async def __aenter__(self) -> SimRobot:
+        for c in self.devices:
+            await c.start()
+        await self.sim.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.sim.aclose()
+        for c in reversed(self.devices):
+            await c.aclose()

@@ -18,6 +18,9 @@ import time
 from collections.abc import Sequence
 from typing import TextIO
 
+from components.sim.component import DEVICES, SimulatorComponent, simulated_devices
+from components.sim.scenes import ball_in_view
+from components.sim.world import World
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import (
@@ -25,7 +28,9 @@ from ubf_async.bus import (
     Bus,
     add_connection_arguments,
     connection_options,
+    follow_sim_clock,
 )
+from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
 
@@ -56,6 +61,21 @@ def build_parser() -> argparse.ArgumentParser:
                      help="camera source the behaviours and sync mode read")
     ctl.add_argument("--search-period-s", type=float, default=4.0,
                      help="search behaviour's counter: how often it draws a new direction")
+    sim = parser.add_argument_group("simulated robot")
+    sim.add_argument("--no-sim", action="store_true",
+                     help="run only the controller and wait for devices to attach over zenoh "
+                          "(on wall-clock time)")
+    sim.add_argument("--sim-time", action="store_true",
+                     help="with --no-sim: follow the simulation time published on "
+                          "ubf/<robot>/clock by a simulator in another process")
+    sim.add_argument("--speed", type=float, default=1.0, metavar="K",
+                     help="run the simulation K times faster than real time (every component, "
+                          "camera latency included, follows the simulated clock)")
+    sim.add_argument("--devices", default=",".join(DEVICES),
+                     help="comma-separated simulated devices to start; others can attach later")
+    sim.add_argument("--camera-latency-s", type=float, default=0.11,
+                     help="capture latency of the simulated OV9655 camera")
+    sim.add_argument("--seed", type=int, default=0, help="seed for every random source")
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S seconds (default: run until Ctrl-C)")
@@ -96,10 +116,22 @@ def format_status(
     return " | ".join(parts)
 
 
+def parse_devices(text: str) -> list[str]:
+    devices = [d.strip() for d in text.split(",") if d.strip()]
+    unknown = sorted(set(devices) - set(DEVICES))
+    if unknown:
+        raise SystemExit(f"error: --devices: unknown {unknown}; choose from {list(DEVICES)}")
+    return devices
+
+
 async def run_robot(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     options = connection_options(args)
-    bus = await Bus.open(options)
+    devices = [] if args.no_sim else parse_devices(args.devices)
+    clock: Clock = WallClock() if args.no_sim and not args.sim_time else SimClock()
+    bus = await Bus.open(options, clock=clock)
+    clock_errors: dict[str, int] = {}
     components: list[Component] = []
+    simulator: SimulatorComponent | None = None
     health = HealthMonitor(bus)
     try:
         endpoints = " ".join(options.listen) or "(not listening)"
@@ -114,6 +146,22 @@ async def run_robot(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
             mode=args.tick_mode, camera_source=args.camera_source, trigger=args.trigger,
         )
         components += [aggregator, controller]
+        if args.no_sim and isinstance(clock, SimClock):
+            follow_sim_clock(bus, clock, clock_errors)
+            print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
+                  file=out)
+        elif isinstance(clock, SimClock):
+            world = World(ball_in_view(seed=args.seed))
+            simulator = SimulatorComponent(bus=bus, world=world, clock=clock, speed=args.speed)
+            components += simulated_devices(
+                bus=bus, world=world, devices=devices,
+                camera_latency_s=args.camera_latency_s, seed=args.seed,
+            )
+            components.append(simulator)
+            print(f"  simulated Mini-WHEGS at {args.speed:g}x real time, devices: "
+                  f"{', '.join(devices) or 'none'}", file=out)
+        else:
+            print("  no simulator: waiting for devices to attach over zenoh", file=out)
         health.start()
         for component in components:
             await component.start()
@@ -131,6 +179,8 @@ async def run_robot(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
                 continue
             last_print = now
             line = format_status(options.robot, now - started, controller, aggregator, health)
+            if simulator is not None and (rtf := simulator.real_time_factor()):
+                line += f" | sim {clock.now_ns() / 1e9:.1f}s x{rtf:.2f}"
             if interactive:
                 out.write("\r\x1b[2K" + line[:200])
             else:
@@ -153,6 +203,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    if args.sim_time and not args.no_sim:
+        build_parser().error("--sim-time only makes sense with --no-sim")
     if args.tick_mode == TickMode.EVENT and not args.trigger:
         build_parser().error("--tick event needs --trigger SOURCE")
 

@@ -62,6 +62,9 @@ class Keys:
         """Where a sensor publishes its samples; its state source is ``"<kind>/<name>"``."""
         return f"{self.prefix}/sensor/{_check_segment('kind', kind)}/{_check_segment('name', name)}"
 
+    def sensors_of_kind(self, kind: str) -> str:
+        return f"{self.prefix}/sensor/{_check_segment('kind', kind)}/*"
+
     @property
     def all_sensors(self) -> str:
         return f"{self.prefix}/sensor/*/*"
@@ -99,6 +102,11 @@ class Keys:
     def clock(self) -> str:
         """Simulation time, published by a simulator (absent in wall-clock runs)."""
         return f"{self.prefix}/clock"
+
+    @property
+    def sim_truth(self) -> str:
+        """Ground truth from a simulator (robot and ball poses), for tests and tools."""
+        return f"{self.prefix}/sim/truth"
 
     def status(self, component: str) -> str:
         return f"{self.prefix}/status/{_check_segment('component name', component)}"

@@ -1,0 +1,93 @@
+"""The camera component: capture, subsample, seekcolor, publish — off the event loop.
+
+Each cycle stamps the capture time on the robot clock, captures a frame from its backend
+and runs :func:`~components.camera.seekcolor.seekcolor` in a worker thread (OpenCV and numpy
+release the GIL, and the event loop never waits on them), then holds the result until the
+device's capture latency has passed (``latency_s``, ≈0.11 s for the OV9655, on the robot
+clock, so a simulation running K× faster shortens it K×) and publishes it on
+``sensor/camera/<name>`` (schema ``camera.seekcolor``) with ``stamp_ns`` = capture time. The
+next capture starts right after, so the camera delivers a frame about every ``latency_s``.
+
+``cmd/seek_color`` changes the colour range; the ordering rule (R > B > G) stays as
+configured.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from components.camera.backend import CameraBackend
+from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
+from ubf_async.bus import Bus, decode_or_count
+from ubf_async.component import Component
+from ubf_async.protocol import decode
+
+OV9655_LATENCY_S = 0.11
+
+log = logging.getLogger(__name__)
+
+
+class CameraComponent(Component):
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        backend: CameraBackend,
+        name: str = "front",
+        latency_s: float = OV9655_LATENCY_S,
+        color: ColorRange = PINK,
+        hfov_deg: float = DEFAULT_HFOV_DEG,
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=f"camera-{name}", **component_options)
+        if latency_s < 0:
+            raise ValueError(f"latency_s must be ≥ 0, got {latency_s}")
+        self.source_name = name
+        self.backend = backend
+        self.latency_s = latency_s
+        self.color = color
+        self.hfov_deg = hfov_deg
+        self.malformed: dict[str, int] = {}
+        self.frames = 0
+        self.last_frame_shape: tuple[int, ...] | None = None
+
+    def _capture(self, color: ColorRange) -> tuple[SeekResult, tuple[int, ...]]:
+        """Runs in a worker thread."""
+        frame = self.backend.capture()
+        return seekcolor(frame, color, hfov_deg=self.hfov_deg), frame.shape
+
+    async def run(self) -> None:
+        keys = self.bus.keys
+        pub = self.publisher(keys.sensor("camera", self.source_name), "camera.seekcolor",
+                             period_s=max(self.latency_s, 0.01))
+        self.subscribe(keys.cmd("seek_color"), self._on_seek_color)
+        clock = self.bus.clock
+        latency_ns = int(self.latency_s * 1e9)
+        while True:
+            stamp = clock.now_ns()
+            result, shape = await asyncio.to_thread(self._capture, self.color)
+            await clock.sleep_until_ns(stamp + latency_ns)
+            self.frames += 1
+            self.last_frame_shape = shape
+            pub.publish({
+                "bins": list(result.bins), "total": result.total,
+                "bearing_rad": result.bearing_rad, "latency_s": self.latency_s,
+                "width": shape[1], "height": shape[0],
+            }, stamp_ns=stamp)
+            if latency_ns == 0:
+                await asyncio.sleep(0)  # a zero-latency device must still let others run
+
+    def _on_seek_color(self, key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(
+            payload, self.malformed, key, lambda p: decode(p, schema="seek_color")
+        )
+        if message is None:
+            return
+        lo, hi = message.data["lo"], message.data["hi"]
+        try:
+            self.color = ColorRange(lo=tuple(lo), hi=tuple(hi),
+                                    require_r_gt_b_gt_g=self.color.require_r_gt_b_gt_g)
+        except ValueError as exc:  # lo > hi: well-formed but unusable
+            self.malformed[key] = self.malformed.get(key, 0) + 1
+            log.warning("refused seek colour on %s: %s", key, exc)

@@ -1,0 +1,49 @@
+"""The radio component: plain-text messages in and out (the thesis's wireless link).
+
+Outgoing: ``cmd/radio`` (schema ``radio.send``) → ``backend.send(text)``.
+Incoming: every ``period_s`` the backend's new messages are published, each as one sample on
+``sensor/radio/<name>`` (schema ``radio.message``), so the last one is in the state.
+"""
+
+from __future__ import annotations
+
+from components.radio.backend import RadioBackend
+from ubf_async.bus import Bus, decode_or_count
+from ubf_async.component import Component
+from ubf_async.protocol import decode
+
+
+class RadioComponent(Component):
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        backend: RadioBackend,
+        name: str = "link",
+        period_s: float = 0.05,
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=f"radio-{name}", **component_options)
+        self.source_name = name
+        self.backend = backend
+        self.period_s = period_s
+        self.malformed: dict[str, int] = {}
+        self.sent = 0
+
+    async def run(self) -> None:
+        keys = self.bus.keys
+        pub = self.publisher(keys.sensor("radio", self.source_name), "radio.message")
+        self.subscribe(keys.cmd("radio"), self._on_send, latest=False)
+        clock = self.bus.clock
+        while True:
+            for text in self.backend.receive():
+                pub.publish({"text": text[:256]})
+            await clock.sleep(self.period_s)
+
+    def _on_send(self, key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(
+            payload, self.malformed, key, lambda p: decode(p, schema="radio.send")
+        )
+        if message is not None:
+            self.backend.send(message.data["text"])
+            self.sent += 1

@@ -1,0 +1,149 @@
+"""The simulator on the bus: steps the pymunk world, owns simulation time, wires devices.
+
+:class:`SimulatorComponent` steps the :class:`~components.sim.world.World` in fixed steps,
+paced to ``speed`` × real time (``--speed K``), advances the shared
+:class:`~ubf_async.clock.SimClock` of its process and publishes the time on
+``ubf/<robot>/clock`` so components in other processes follow it. It also publishes ground
+truth (robot pose, ball position) on ``ubf/<robot>/sim/truth`` — outside ``sensor/``, so
+behaviours never see it; tests and tools do.
+
+When the machine cannot keep up, simulation time simply runs slower than ``speed`` × real
+time; every component follows the simulated clock, so behaviour stays consistent and the
+achieved real-time factor is reported.
+
+:func:`simulated_devices` builds the device components with simulator backends.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Iterable
+
+from components.camera.component import CameraComponent
+from components.encoders.component import EncodersComponent
+from components.motors.component import MotorsComponent
+from components.radio.component import RadioComponent
+from components.range.backend import MountPose
+from components.range.component import RangeComponent
+from components.range.ir import GP2Y0A21
+from components.sim.backends import (
+    SimCameraBackend,
+    SimEncoderBackend,
+    SimMotorBackend,
+    SimRadioBackend,
+    SimRangeBackend,
+)
+from components.sim.world import World
+from ubf_async.bus import Bus
+from ubf_async.clock import SimClock
+from ubf_async.component import Component
+
+DEVICES = ("motors", "encoders", "camera", "range", "radio")
+
+
+class SimulatorComponent(Component):
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        world: World,
+        clock: SimClock,
+        speed: float = 1.0,
+        step_s: float = 0.005,
+        truth_period_s: float = 0.05,
+        name: str = "sim",
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=name, **component_options)
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.world = world
+        self.clock = clock
+        self.speed = speed
+        self.step_s = step_s
+        self.truth_period_s = truth_period_s
+        self.wall_started_s: float | None = None
+        self.sim_started_s = world.time_s
+        self.late_steps = 0
+
+    def real_time_factor(self) -> float | None:
+        """Simulated seconds per wall second since the simulator started."""
+        if self.wall_started_s is None:
+            return None
+        wall = time.monotonic() - self.wall_started_s
+        return (self.world.time_s - self.sim_started_s) / wall if wall > 0 else None
+
+    def truth(self) -> dict[str, object]:
+        snap = self.world.snapshot()
+        robot = snap.robot
+        out: dict[str, object] = {
+            "time_s": snap.time_s,
+            "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad,
+                      "speed_m_s": robot.forward_speed_m_s, "yaw_rate_rad_s": robot.yaw_rate_rad_s,
+                      "left_wheel_rad": robot.left_wheel_angle_rad,
+                      "right_wheel_rad": robot.right_wheel_angle_rad},
+        }
+        if snap.ball is not None:
+            out["ball"] = {"x_m": snap.ball.x_m, "y_m": snap.ball.y_m}
+        return out
+
+    async def run(self) -> None:
+        keys = self.bus.keys
+        clock_pub = self.publisher(keys.clock, "clock", period_s=self.step_s)
+        truth_pub = self.publisher(keys.sim_truth, "sim.truth", period_s=self.truth_period_s)
+        self.clock.advance_to(round(self.world.time_s * 1e9))
+        self.wall_started_s = time.monotonic()
+        self.sim_started_s = self.world.time_s
+        next_truth_s = self.world.time_s
+        while True:
+            self.world.step(self.step_s)
+            now_s = self.world.time_s
+            now_ns = round(now_s * 1e9)
+            self.clock.advance_to(now_ns)
+            rtf = self.real_time_factor()
+            clock_pub.publish({"real_time_factor": rtf or 0.0}, stamp_ns=now_ns)
+            if now_s >= next_truth_s:
+                truth_pub.publish(self.truth(), stamp_ns=now_ns)
+                next_truth_s += self.truth_period_s
+            target = self.wall_started_s + (now_s - self.sim_started_s) / self.speed
+            delay = target - time.monotonic()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            else:
+                self.late_steps += 1
+                await asyncio.sleep(0)  # behind schedule: still let every other task run
+
+
+def simulated_devices(
+    *,
+    bus: Bus,
+    world: World,
+    devices: Iterable[str] = DEVICES,
+    camera_latency_s: float = 0.11,
+    motor_timeout_s: float = 0.2,
+    range_mount: MountPose | None = None,
+    seed: int = 0,
+) -> list[Component]:
+    """The robot's device components, backed by ``world``."""
+    wanted = list(devices)
+    unknown = sorted(set(wanted) - set(DEVICES))
+    if unknown:
+        raise ValueError(f"unknown device(s) {unknown}; choose from {list(DEVICES)}")
+    out: list[Component] = []
+    if "motors" in wanted:
+        out.append(MotorsComponent(bus=bus, backend=SimMotorBackend(world),
+                                   timeout_s=motor_timeout_s))
+    if "encoders" in wanted:
+        encoder_backend = SimEncoderBackend(world)
+        out.append(EncodersComponent(bus=bus, backend=encoder_backend,
+                                     initial_states=encoder_backend.current_states()))
+    if "camera" in wanted:
+        out.append(CameraComponent(bus=bus, backend=SimCameraBackend(world),
+                                   latency_s=camera_latency_s))
+    if "range" in wanted:
+        out.append(RangeComponent(bus=bus, backend=SimRangeBackend(world), model=GP2Y0A21,
+                                  mount=range_mount, seed=seed))
+    if "radio" in wanted:
+        out.append(RadioComponent(bus=bus, backend=SimRadioBackend()))
+    return out
