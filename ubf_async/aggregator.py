@@ -6,8 +6,9 @@ without a restart), keeps the newest valid sample per source, and builds a
 
 A source is **stale** when its newest sample is older than its limit: the configured
 ``stale_after_s[source]`` if given, else twice the nominal period the sample itself declares
-(``period_s`` in the envelope), else twice the average interval seen so far, else
-``default_stale_after_s``.
+(``period_s`` in the envelope), else ``default_stale_after_s`` — ``None`` by default: a
+source without a nominal period publishes events (a radio message), and its last event stays
+valid until the next.
 
 Malformed samples are rejected, counted per key and logged (the first and every 100th);
 they never replace a good sample and never stop the aggregator.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -62,7 +64,7 @@ class StateAggregator(Component):
         bus: Bus,
         name: str = "aggregator",
         stale_after_s: Mapping[str, float] | None = None,
-        default_stale_after_s: float = 1.0,
+        default_stale_after_s: float | None = None,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=name, **component_options)
@@ -125,9 +127,9 @@ class StateAggregator(Component):
             return configured
         if entry.message.period_s is not None:
             return 2.0 * entry.message.period_s
-        if entry.interval_s is not None:
-            return 2.0 * entry.interval_s
-        return self.default_stale_after_s
+        if self.default_stale_after_s is not None:
+            return self.default_stale_after_s
+        return math.inf
 
     def snapshot(
         self, *, previous_action: Action | None = None, now_ns: int | None = None
