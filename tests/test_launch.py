@@ -35,7 +35,7 @@ def test_help_explains_every_option() -> None:
 
 
 def test_launch_without_sensors_runs_and_says_so(endpoint: str, robot: str) -> None:
-    proc = launch("--listen", endpoint, "--robot", robot, "--duration", "1.5")
+    proc = launch("--no-sim", "--listen", endpoint, "--robot", robot, "--duration", "1.5")
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
     assert f"listening on {endpoint}" in out
@@ -56,7 +56,7 @@ async def test_plain_script_sample_shows_in_running_controller_state(
     endpoint: str, robot: str
 ) -> None:
     """A component written from docs/protocol.md alone (zenoh + msgpack, no ubf_async)."""
-    robot_proc = launch("--listen", endpoint, "--robot", robot, "--quiet")
+    robot_proc = launch("--no-sim", "--listen", endpoint, "--robot", robot, "--quiet")
     sensor = subprocess.Popen(
         [sys.executable, str(ROOT / "examples" / "plain_range_sensor.py"), "--connect", endpoint,
          "--robot", robot, "--name", "plain", "--range-mm", "321"],

@@ -72,13 +72,23 @@ class ConnectionOptions:
         return conf
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows an option's default unless its help already speaks of it or there is none."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, [], argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action) or text
+
+
 def add_connection_arguments(
     parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None
 ) -> None:
     """Add ``--mode/-m --connect/-e --listen/-l --config --robot`` to ``parser``."""
     group = parser.add_argument_group("connection (shared by every ubf_async entry point)")
     group.add_argument("--mode", "-m", choices=("peer", "client"), default="peer",
-                       help="zenoh session mode (default: peer)")
+                       help="zenoh session mode")
     group.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT",
                        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     listen_help = "endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)"
@@ -89,7 +99,7 @@ def add_connection_arguments(
     group.add_argument("--config", type=Path, default=None, metavar="FILE",
                        help="zenoh JSON5 configuration file (flags above override it)")
     group.add_argument("--robot", default=DEFAULT_ROBOT,
-                       help=f"robot name: keys live under ubf/<robot>/ (default: {DEFAULT_ROBOT})")
+                       help="robot name: keys live under ubf/<robot>/")
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover peers by UDP multicast (off by default)")
     parser.set_defaults(_default_listen=default_listen or [])

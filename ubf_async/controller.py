@@ -31,7 +31,7 @@ import enum
 import logging
 import statistics
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -61,6 +61,8 @@ class TickStats:
     """How long recent ticks took (snapshot, evaluate, publish)."""
     tick_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
     """Robot-clock start time of recent ticks."""
+    winner_ticks: Counter[str] = field(default_factory=Counter)
+    """How many ticks each leaf behaviour was among the winners."""
 
     def rate_hz(self) -> float | None:
         starts = self.tick_starts_ns
@@ -77,6 +79,9 @@ class TickStats:
             "rate_hz": self.rate_hz(),
             "tick_us_p50": statistics.median(durations) / 1e3 if durations else None,
             "tick_us_max": max(durations) / 1e3 if durations else None,
+            "winner_share": {
+                name: count / self.ticks for name, count in sorted(self.winner_ticks.items())
+            } if self.ticks else {},
         }
 
 
@@ -176,7 +181,9 @@ class Controller(Component):
         speed = action.speed if action is not None and action.speed is not None else 0.0
         turn = action.turn if action is not None and action.turn is not None else 0.0
         basis = based_on if based_on is not None else self.aggregator.newest()
+        winners = trace.winning_leaves() if trace is not None else []
         self.stats.ticks += 1
+        self.stats.winner_ticks.update(winners)
         self._drive.publish({
             "speed": speed,
             "turn": turn,
@@ -185,7 +192,7 @@ class Controller(Component):
                 "stamp_ns": basis.message.stamp_ns,
             },
             "tick": self.stats.ticks,
-            "winners": trace.winning_leaves() if trace is not None else [],
+            "winners": winners,
         })
         if action is not None:
             self._publish_extras(action)

@@ -11,21 +11,21 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import importlib
 import logging
 import signal
 import sys
 import time
 from collections.abc import Sequence
-from typing import TextIO
+from types import ModuleType
+from typing import Any, TextIO
 
-from components.sim.component import DEVICES, SimulatorComponent, simulated_devices
-from components.sim.scenes import ball_in_view
-from components.sim.world import World
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import (
     DEFAULT_LISTEN,
     Bus,
+    HelpFormatter,
     add_connection_arguments,
     connection_options,
     follow_sim_clock,
@@ -37,15 +37,19 @@ from ubf_async.controller import Controller, TickMode
 log = logging.getLogger("ubf_async.launch")
 
 
-def build_parser() -> argparse.ArgumentParser:
+DEFAULT_SIMULATOR = "components.sim.runner"
+
+
+def build_parser(simulator: ModuleType | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m ubf_async.launch",
         description=(
-            "Run a UBF robot: zenoh session, state aggregator, controller (seek the pink ball) "
-            "and a live status line. Other processes attach over zenoh with "
-            "--connect <the endpoint printed at start> and the same --robot."
+            "Run a UBF robot: zenoh session, state aggregator, controller (seek the pink ball), "
+            "by default a simulated Mini-WHEGS with its devices, and a live status line. Other "
+            "processes attach over zenoh with --connect <the endpoint printed at start> and the "
+            "same --robot."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN])
     ctl = parser.add_argument_group("controller")
@@ -59,32 +63,45 @@ def build_parser() -> argparse.ArgumentParser:
                      help="source that triggers ticks in --tick event, e.g. range/front")
     ctl.add_argument("--camera-source", default="camera/front", metavar="SOURCE",
                      help="camera source the behaviours and sync mode read")
-    ctl.add_argument("--search-period-s", type=float, default=4.0,
-                     help="search behaviour's counter: how often it draws a new direction")
-    sim = parser.add_argument_group("simulated robot")
-    sim.add_argument("--no-sim", action="store_true",
-                     help="run only the controller and wait for devices to attach over zenoh "
-                          "(on wall-clock time)")
-    sim.add_argument("--sim-time", action="store_true",
-                     help="with --no-sim: follow the simulation time published on "
-                          "ubf/<robot>/clock by a simulator in another process")
-    sim.add_argument("--speed", type=float, default=1.0, metavar="K",
-                     help="run the simulation K times faster than real time (every component, "
-                          "camera latency included, follows the simulated clock)")
-    sim.add_argument("--devices", default=",".join(DEVICES),
-                     help="comma-separated simulated devices to start; others can attach later")
-    sim.add_argument("--camera-latency-s", type=float, default=0.11,
-                     help="capture latency of the simulated OV9655 camera")
-    sim.add_argument("--seed", type=int, default=0, help="seed for every random source")
+    ctl.add_argument("--search-period-s", type=float, default=None,
+                     help="search behaviour's counter: how often it draws a new direction "
+                          "(default: the scenario's, else 4)")
+    world = parser.add_argument_group("where the devices come from")
+    world.add_argument("--no-sim", action="store_true",
+                       help="no simulator: run only the controller and wait for devices to "
+                            "attach over zenoh")
+    world.add_argument("--sim-time", action="store_true",
+                       help="with --no-sim: follow the simulation time published on "
+                            "ubf/<robot>/clock by a simulator in another process")
+    world.add_argument("--simulator", default=DEFAULT_SIMULATOR, metavar="MODULE",
+                       help="module that provides the simulated robot")
+    if simulator is not None:
+        simulator.add_arguments(parser)
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
-                     help="stop after S seconds (default: run until Ctrl-C)")
+                     help="stop after S seconds (simulated seconds when simulating; default: "
+                          "the scenario's duration if --scenario is given, else until Ctrl-C)")
     run.add_argument("--status-period-s", type=float, default=0.5,
-                     help="how often the status line refreshes")
+                     help="how often (wall seconds) the status line refreshes")
     run.add_argument("--quiet", action="store_true", help="no status line")
     run.add_argument("--log-level", default="WARNING",
                      choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     return parser
+
+
+def load_simulator(argv: Sequence[str] | None) -> ModuleType | None:
+    """Import the simulator module named by ``--simulator`` unless ``--no-sim`` is given, so
+    its options join ``--help``. The framework itself never imports a simulator statically."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--no-sim", action="store_true")
+    pre.add_argument("--simulator", default=DEFAULT_SIMULATOR)
+    known, _ = pre.parse_known_args(argv)
+    if known.no_sim:
+        return None
+    try:
+        return importlib.import_module(known.simulator)
+    except ImportError as exc:
+        raise SystemExit(f"error: --simulator {known.simulator}: {exc}") from None
 
 
 def format_status(
@@ -116,80 +133,58 @@ def format_status(
     return " | ".join(parts)
 
 
-def parse_devices(text: str) -> list[str]:
-    devices = [d.strip() for d in text.split(",") if d.strip()]
-    unknown = sorted(set(devices) - set(DEVICES))
-    if unknown:
-        raise SystemExit(f"error: --devices: unknown {unknown}; choose from {list(DEVICES)}")
-    return devices
-
-
-async def run_robot(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+async def run_robot(
+    args: argparse.Namespace, simulator: ModuleType | None, out: TextIO = sys.stdout
+) -> int:
     options = connection_options(args)
-    devices = [] if args.no_sim else parse_devices(args.devices)
-    clock: Clock = WallClock() if args.no_sim and not args.sim_time else SimClock()
+    clock: Clock = SimClock() if simulator is not None or args.sim_time else WallClock()
     bus = await Bus.open(options, clock=clock)
-    clock_errors: dict[str, int] = {}
     components: list[Component] = []
-    simulator: SimulatorComponent | None = None
     health = HealthMonitor(bus)
+    sim_run = None
+    controller: Controller | None = None
     try:
         endpoints = " ".join(options.listen) or "(not listening)"
         print(f"ubf_async: robot {options.robot!r} on zenoh, listening on {endpoints}", file=out)
         if options.listen:
             print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
                   file=out)
+        if simulator is not None:
+            assert isinstance(clock, SimClock)
+            sim_run = simulator.SimulationRun(bus=bus, clock=clock, args=args)
+            print(f"  {sim_run.describe()}", file=out)
+        elif isinstance(clock, SimClock):
+            follow_sim_clock(bus, clock, {})
+            print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
+                  file=out)
+        else:
+            print("  no simulator: waiting for devices to attach over zenoh", file=out)
+        search_period_s = args.search_period_s or (sim_run.search_period_s if sim_run else 4.0)
         aggregator = StateAggregator(bus=bus)
-        root = seek_pink_ball(source=args.camera_source, search_period_s=args.search_period_s)
+        root = seek_pink_ball(source=args.camera_source, search_period_s=search_period_s)
         controller = Controller(
             bus=bus, aggregator=aggregator, root=root, rate_hz=args.rate_hz,
             mode=args.tick_mode, camera_source=args.camera_source, trigger=args.trigger,
         )
         components += [aggregator, controller]
-        if args.no_sim and isinstance(clock, SimClock):
-            follow_sim_clock(bus, clock, clock_errors)
-            print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
-                  file=out)
-        elif isinstance(clock, SimClock):
-            world = World(ball_in_view(seed=args.seed))
-            simulator = SimulatorComponent(bus=bus, world=world, clock=clock, speed=args.speed)
-            components += simulated_devices(
-                bus=bus, world=world, devices=devices,
-                camera_latency_s=args.camera_latency_s, seed=args.seed,
-            )
-            components.append(simulator)
-            print(f"  simulated Mini-WHEGS at {args.speed:g}x real time, devices: "
-                  f"{', '.join(devices) or 'none'}", file=out)
-        else:
-            print("  no simulator: waiting for devices to attach over zenoh", file=out)
+        if sim_run is not None:
+            components += sim_run.components()
         health.start()
         for component in components:
             await component.start()
+        if sim_run is not None:
+            sim_run.start(controller)
         print(f"  controller: {args.tick_mode} at {args.rate_hz:g} Hz, tree:", file=out)
         for line in root.render_tree().splitlines():
             print(f"    {line}", file=out)
         out.flush()
-        started = time.monotonic()
-        interactive = out.isatty()
-        last_print = 0.0
-        while args.duration is None or time.monotonic() - started < args.duration:
-            await asyncio.sleep(min(0.1, args.status_period_s))
-            now = time.monotonic()
-            if args.quiet or now - last_print < args.status_period_s:
-                continue
-            last_print = now
-            line = format_status(options.robot, now - started, controller, aggregator, health)
-            if simulator is not None and (rtf := simulator.real_time_factor()):
-                line += f" | sim {clock.now_ns() / 1e9:.1f}s x{rtf:.2f}"
-            if interactive:
-                out.write("\r\x1b[2K" + line[:200])
-            else:
-                out.write(line + "\n")
-            out.flush()
+        await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
         return 0
     finally:
         if not args.quiet and out.isatty():
             out.write("\n")
+        if sim_run is not None and controller is not None:
+            await sim_run.finish(controller, out)
         for component in reversed(components):
             await component.aclose()
         health.close()
@@ -198,15 +193,45 @@ async def run_robot(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
         out.flush()
 
 
+async def _run_until_done(
+    args: argparse.Namespace, out: TextIO, robot: str, controller: Controller,
+    aggregator: StateAggregator, health: HealthMonitor, sim_run: Any,
+) -> None:
+    wall_start = time.monotonic()
+    duration = sim_run.duration_s if sim_run is not None else args.duration
+
+    def elapsed() -> float:
+        return sim_run.elapsed_s() if sim_run is not None else time.monotonic() - wall_start
+
+    interactive = out.isatty()
+    last_print = 0.0
+    while duration is None or elapsed() < duration:
+        await asyncio.sleep(min(0.05, args.status_period_s))
+        now = time.monotonic()
+        if args.quiet or now - last_print < args.status_period_s:
+            continue
+        last_print = now
+        line = format_status(robot, elapsed(), controller, aggregator, health)
+        if sim_run is not None and (suffix := sim_run.status_suffix()):
+            line += f" | {suffix}"
+        if interactive:
+            out.write("\r\x1b[2K" + line[:200])
+        else:
+            out.write(line + "\n")
+        out.flush()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    simulator = load_simulator(argv)
+    parser = build_parser(simulator)
+    args = parser.parse_args(argv)
     logging.basicConfig(
         level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     if args.sim_time and not args.no_sim:
-        build_parser().error("--sim-time only makes sense with --no-sim")
+        parser.error("--sim-time only makes sense with --no-sim")
     if args.tick_mode == TickMode.EVENT and not args.trigger:
-        build_parser().error("--tick event needs --trigger SOURCE")
+        parser.error("--tick event needs --trigger SOURCE")
 
     async def runner() -> int:
         task = asyncio.current_task()
@@ -215,7 +240,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with contextlib.suppress(NotImplementedError):  # no signal handlers on some platforms
             loop.add_signal_handler(signal.SIGTERM, task.cancel)
         try:
-            return await run_robot(args)
+            return await run_robot(args, simulator)
         except asyncio.CancelledError:
             return 0
         except ConnectionError as exc:

@@ -73,15 +73,17 @@ class MotorsComponent(Component):
         timeout_ns = int(self.timeout_s * 1e9)
         while True:
             last = self._last_command_ns
+            if last is None or self.stopped_by_watchdog:
+                await clock.sleep(self.timeout_s / 4)  # nothing to guard until a command
+                continue
             now = clock.now_ns()
-            if last is not None and not self.stopped_by_watchdog and now - last >= timeout_ns:
+            if now - last >= timeout_ns:
                 self.timeouts += 1
                 self.stopped_by_watchdog = True
                 log.warning("no drive command for %.0f ms: stopping", (now - last) / 1e6)
                 self._apply(0.0, 0.0, reason="timeout")
-            deadline = (last + timeout_ns) if last is not None else now + timeout_ns
-            # Check again at the deadline of the newest command (or a period from now).
-            await clock.sleep_until_ns(max(deadline, now + timeout_ns // 4))
+                continue
+            await clock.sleep_until_ns(last + timeout_ns)  # re-checked: a newer command moves it
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key, lambda p: decode(p, schema="drive"))

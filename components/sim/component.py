@@ -40,6 +40,7 @@ from ubf_async.clock import SimClock
 from ubf_async.component import Component
 
 DEVICES = ("motors", "encoders", "camera", "range", "radio")
+BEHIND_SCHEDULE_PAUSE_S = 0.0002
 
 
 class SimulatorComponent(Component):
@@ -111,8 +112,11 @@ class SimulatorComponent(Component):
             if delay > 0:
                 await asyncio.sleep(delay)
             else:
+                # Behind schedule: still give the other tasks and zenoh's threads (which need
+                # the GIL to deliver samples) a moment, so that simulated time cannot race
+                # ahead of the components that follow it.
                 self.late_steps += 1
-                await asyncio.sleep(0)  # behind schedule: still let every other task run
+                await asyncio.sleep(BEHIND_SCHEDULE_PAUSE_S)
 
 
 def simulated_devices(

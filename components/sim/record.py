@@ -1,0 +1,192 @@
+"""Recording a simulated run: trajectory samples, a top-down plot, annotated camera frames.
+
+Pure functions (NumPy/OpenCV, no bus): the runner calls them from worker threads.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from components.camera.seekcolor import BIN_COUNT, SUBSAMPLE_STEP, SeekResult, subsample
+from components.sim.scenarios import CAMERA_OFFSET_M
+from components.sim.world import WorldSnapshot
+
+
+@dataclass(frozen=True, slots=True)
+class TrajectorySample:
+    t_s: float
+    robot_x_m: float
+    robot_y_m: float
+    robot_heading_rad: float
+    ball_x_m: float | None
+    ball_y_m: float | None
+    speed_cmd: float | None
+    turn_cmd: float | None
+    winners: str
+
+
+def camera_to_ball(
+    x_m: float, y_m: float, heading_rad: float, ball_x_m: float, ball_y_m: float
+) -> tuple[float, float]:
+    """Distance (m) and bearing (deg, + left) from the robot's camera to the ball centre."""
+    cam_x = x_m + CAMERA_OFFSET_M * math.cos(heading_rad)
+    cam_y = y_m + CAMERA_OFFSET_M * math.sin(heading_rad)
+    dx, dy = ball_x_m - cam_x, ball_y_m - cam_y
+    bearing = math.atan2(dy, dx) - heading_rad
+    bearing = (bearing + math.pi) % (2 * math.pi) - math.pi
+    return math.hypot(dx, dy), math.degrees(bearing)
+
+
+def motion_over(samples: Sequence[TrajectorySample], seconds: float) -> dict[str, float]:
+    """Path length and total heading change of the robot over the last ``seconds``."""
+    if not samples:
+        return {"distance_m": 0.0, "heading_change_deg": 0.0, "window_s": 0.0}
+    start = samples[-1].t_s - seconds
+    window = [s for s in samples if s.t_s >= start - 1e-9]
+    distance = sum(math.hypot(b.robot_x_m - a.robot_x_m, b.robot_y_m - a.robot_y_m)
+                   for a, b in itertools.pairwise(window))
+    turn = sum(abs((b.robot_heading_rad - a.robot_heading_rad + math.pi) % (2 * math.pi) - math.pi)
+               for a, b in itertools.pairwise(window))
+    return {"distance_m": distance, "heading_change_deg": math.degrees(turn),
+            "window_s": window[-1].t_s - window[0].t_s}
+
+
+def write_trajectory_csv(path: Path, samples: Sequence[TrajectorySample]) -> None:
+    fields = list(TrajectorySample.__dataclass_fields__)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer.writeheader()
+        for s in samples:
+            writer.writerow(asdict(s))
+
+
+def read_trajectory_csv(path: Path) -> list[TrajectorySample]:
+    def num(v: str) -> float | None:
+        return None if v == "" else float(v)
+
+    with path.open(encoding="utf-8") as fh:
+        return [
+            TrajectorySample(
+                t_s=float(r["t_s"]), robot_x_m=float(r["robot_x_m"]),
+                robot_y_m=float(r["robot_y_m"]), robot_heading_rad=float(r["robot_heading_rad"]),
+                ball_x_m=num(r["ball_x_m"]), ball_y_m=num(r["ball_y_m"]),
+                speed_cmd=num(r["speed_cmd"]), turn_cmd=num(r["turn_cmd"]), winners=r["winners"],
+            )
+            for r in csv.DictReader(fh)
+        ]
+
+
+# ---------------------------------------------------------------------------------------------
+# Pictures (BGR for OpenCV)
+
+_PINK_BGR = (150, 60, 235)
+_ROBOT_BGR = (180, 90, 20)
+
+
+def annotate_frame(frame_rgb: np.ndarray, result: SeekResult, *, t_s: float,
+                   scale: int = 4) -> np.ndarray:
+    """The 160×128 subsample the robot sees, enlarged, with the five seekcolor bins drawn as
+    vertical green lines (like the thesis's figure 4.1) and the pink count of each bin."""
+    small = np.ascontiguousarray(subsample(frame_rgb, SUBSAMPLE_STEP))
+    h, w = small.shape[:2]
+    image = cv2.resize(cv2.cvtColor(small, cv2.COLOR_RGB2BGR), (w * scale, h * scale),
+                       interpolation=cv2.INTER_NEAREST)
+    edges = np.linspace(0, w, BIN_COUNT + 1).astype(int)
+    for x in edges[1:-1]:
+        cv2.line(image, (x * scale, 0), (x * scale, h * scale), (0, 200, 0), 2)
+    for i, (a, b) in enumerate(itertools.pairwise(edges)):
+        cx = (a + b) * scale // 2
+        cv2.putText(image, str(result.bins[i]), (cx - 18, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
+                    (0, 0, 0), 4, cv2.LINE_AA)
+        cv2.putText(image, str(result.bins[i]), (cx - 18, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
+                    (255, 255, 255), 1, cv2.LINE_AA)
+    label = f"t={t_s:5.1f}s  pink={result.total}"
+    cv2.putText(image, label, (8, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3,
+                cv2.LINE_AA)
+    cv2.putText(image, label, (8, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
+                (255, 255, 255), 1, cv2.LINE_AA)
+    return image
+
+
+def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *,
+                    title: str, size_px: int = 800) -> np.ndarray:
+    """Top-down view: walls, obstacles, distractors, the robot's path (darker = later), the
+    ball's path, start and end poses, a 0.5 m grid and a scale bar."""
+    xs = [s.robot_x_m for s in samples] + [s.ball_x_m for s in samples if s.ball_x_m is not None]
+    ys = [s.robot_y_m for s in samples] + [s.ball_y_m for s in samples if s.ball_y_m is not None]
+    for wall in world.walls:
+        xs += [wall.x1_m, wall.x2_m]
+        ys += [wall.y1_m, wall.y2_m]
+    xs = [x for x in xs if abs(x) < 20] or [0.0]
+    ys = [y for y in ys if abs(y) < 20] or [0.0]
+    x0, x1 = min(xs) - 0.2, max(xs) + 0.2
+    y0, y1 = min(ys) - 0.2, max(ys) + 0.2
+    span = max(x1 - x0, y1 - y0)
+    margin = 40
+    k = (size_px - 2 * margin) / span
+
+    def px(x: float, y: float) -> tuple[int, int]:
+        return (int(margin + (x - x0) * k), int(size_px - margin - (y - y0) * k))
+
+    image = np.full((size_px, size_px, 3), 250, np.uint8)
+    g = math.floor(x0 * 2) / 2
+    while g <= x1:
+        cv2.line(image, px(g, y0), px(g, y0 + span), (225, 225, 225), 1)
+        g += 0.5
+    g = math.floor(y0 * 2) / 2
+    while g <= y1:
+        cv2.line(image, px(x0, g), px(x0 + span, g), (225, 225, 225), 1)
+        g += 0.5
+    for wall in world.walls:
+        cv2.line(image, px(wall.x1_m, wall.y1_m), px(wall.x2_m, wall.y2_m), (60, 60, 60), 3)
+    for box in world.boxes:
+        pts = np.array([px(x, y) for x, y in box.corners()], np.int32)
+        cv2.fillPoly(image, [pts], (120, 120, 120))
+    for d in world.distractors:
+        r, gg, b = d.color
+        cv2.circle(image, px(d.x_m, d.y_m), max(3, int(d.radius_m * k)), (b, gg, r), -1)
+    n = len(samples)
+    for i, (a, b) in enumerate(itertools.pairwise(samples)):
+        shade = int(200 - 170 * i / max(1, n - 1))
+        cv2.line(image, px(a.robot_x_m, a.robot_y_m), px(b.robot_x_m, b.robot_y_m),
+                 (shade, int(shade * 0.6), 20), 2)
+        if a.ball_x_m is not None and b.ball_x_m is not None and abs(b.ball_x_m) < 20:
+            cv2.line(image, px(a.ball_x_m, a.ball_y_m), px(b.ball_x_m, b.ball_y_m),
+                     _PINK_BGR, 1)
+    if samples:
+        first, last = samples[0], samples[-1]
+        _robot_marker(image, px(first.robot_x_m, first.robot_y_m), first.robot_heading_rad,
+                      (160, 160, 160))
+        _robot_marker(image, px(last.robot_x_m, last.robot_y_m), last.robot_heading_rad,
+                      _ROBOT_BGR)
+        if last.ball_x_m is not None and abs(last.ball_x_m) < 20:
+            cv2.circle(image, px(last.ball_x_m, last.ball_y_m), max(4, int(0.0325 * k)),
+                       _PINK_BGR, -1)
+    cv2.putText(image, title, (margin, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    bar = int(0.5 * k)
+    cv2.line(image, (size_px - margin - bar, size_px - 15), (size_px - margin, size_px - 15),
+             (0, 0, 0), 2)
+    cv2.putText(image, "0.5 m", (size_px - margin - bar, size_px - 20),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(image, "robot path: light = early, dark = late; pink = ball; grey = start",
+                (margin, size_px - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    return image
+
+
+def _robot_marker(image: np.ndarray, centre: tuple[int, int], heading_rad: float,
+                  color: tuple[int, int, int]) -> None:
+    cx, cy = centre
+    tip = (int(cx + 14 * math.cos(heading_rad)), int(cy - 14 * math.sin(heading_rad)))
+    left = (int(cx + 8 * math.cos(heading_rad + 2.5)), int(cy - 8 * math.sin(heading_rad + 2.5)))
+    right = (int(cx + 8 * math.cos(heading_rad - 2.5)), int(cy - 8 * math.sin(heading_rad - 2.5)))
+    cv2.fillPoly(image, [np.array([tip, left, right], np.int32)], color)
