@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import importlib
 import logging
+import random
 import signal
 import sys
 import time
@@ -161,7 +162,11 @@ async def run_robot(
             print("  no simulator: waiting for devices to attach over zenoh", file=out)
         search_period_s = args.search_period_s or (sim_run.search_period_s if sim_run else 4.0)
         aggregator = StateAggregator(bus=bus)
-        root = seek_pink_ball(source=args.camera_source, search_period_s=search_period_s)
+        # The search behaviour draws its directions from the run's seed, so a simulated run
+        # is repeatable.
+        rng = random.Random(sim_run.seed) if sim_run is not None else random.Random()
+        root = seek_pink_ball(source=args.camera_source, search_period_s=search_period_s,
+                              rng=rng)
         controller = Controller(
             bus=bus, aggregator=aggregator, root=root, rate_hz=args.rate_hz,
             mode=args.tick_mode, camera_source=args.camera_source, trigger=args.trigger,
