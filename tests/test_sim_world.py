@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import pytest
 
@@ -12,14 +13,21 @@ from components.motors.pwm import (
     LEFT_MOTOR,
     RIGHT_MOTOR,
     pulse_for_wheel_speed_ms,
+    pulse_widths,
     wheel_speed_rad_s,
 )
 from components.sim.world import (
+    THESIS_DRIVE_COMMANDS,
     Arena,
     BallConfig,
     Pose2D,
+    RobotConfig,
+    SteadyDrive,
     World,
     WorldConfig,
+    drive_table,
+    format_drive_table,
+    steady_drive,
     wrap_angle,
 )
 
@@ -69,11 +77,113 @@ def test_opposite_pulses_turn_in_place_with_slip() -> None:
     run(world, 1.0)
     r = world.snapshot().robot
     assert math.hypot(r.x_m, r.y_m) < 0.02
-    assert r.heading_unwrapped_rad > 3.0  # turned left (CCW)
+    assert r.heading_unwrapped_rad > 0.5  # turned left (CCW), not stuck
     implied = (r.right_wheel_angle_rad - r.left_wheel_angle_rad) * RADIUS / MINI_WHEGS.track_width_m
-    # The wheel-legs slip when turning in place: less rotation than the wheels imply.
-    assert r.heading_unwrapped_rad < 0.97 * implied
-    assert r.heading_unwrapped_rad > 0.5 * implied
+    # Skid steering: the wheel-legs slip a lot when turning in place, so the body turns much
+    # less than the wheels imply (the encoders would overestimate the rotation several times).
+    assert r.heading_unwrapped_rad < 0.3 * implied
+    assert r.heading_unwrapped_rad > 0.08 * implied
+
+
+def _thesis_drive(speed: float, turn: float) -> SteadyDrive:
+    pulses = pulse_widths(speed, turn)
+    return steady_drive(pulses.left_ms, pulses.right_ms)
+
+
+@pytest.mark.parametrize(
+    ("speed", "turn", "low_deg_s", "high_deg_s"),
+    [
+        (40, 30, 20, 40),  # chase, inner bin
+        (40, 60, 40, 80),  # chase, outer bin
+        (10, 80, 60, 120),  # search: "a slow, tight circle"
+        (0, 100, 30, 180),  # full in-place turn
+    ],
+)
+def test_skid_steer_yaw_rates_of_the_thesis_commands(
+    speed: float, turn: float, low_deg_s: float, high_deg_s: float
+) -> None:
+    left = _thesis_drive(speed, turn)
+    assert low_deg_s < left.yaw_rate_deg_s < high_deg_s  # +turn = left = CCW
+    # Most of the wheel speed difference is lost to slip, not to yaw.
+    assert left.yaw_rate_rad_s < 0.3 * left.kinematic_yaw_rate_rad_s
+    right = _thesis_drive(speed, -turn)
+    assert right.yaw_rate_deg_s == pytest.approx(-left.yaw_rate_deg_s, rel=0.05)
+    # The forward pace is what the wheels give (the turn does not stall the robot).
+    assert left.forward_speed_m_s == pytest.approx(left.kinematic_speed_m_s, abs=0.01)
+    if speed > 0:
+        assert left.forward_speed_m_s > 0.02
+    else:
+        assert abs(left.forward_speed_m_s) < 0.005
+
+
+def test_search_drives_a_slow_tight_circle() -> None:
+    search = _thesis_drive(10, 80)
+    assert 0.01 < search.forward_speed_m_s < 0.06
+    assert 0.01 < search.turn_radius_m < 0.06  # a few cm
+    chase = _thesis_drive(40, 30)
+    assert 0.15 < chase.turn_radius_m < 0.6
+
+
+def test_straight_chase_drive_does_not_yaw_or_slip() -> None:
+    chase = _thesis_drive(40, 0)
+    assert abs(chase.yaw_rate_deg_s) < 0.5
+    assert chase.forward_speed_m_s == pytest.approx(chase.kinematic_speed_m_s, rel=0.03)
+
+
+def test_yaw_fraction_predicts_the_measured_turn_rate() -> None:
+    rc = RobotConfig()
+    assert 0.1 < rc.yaw_fraction < 0.2
+    d = _thesis_drive(40, 60)
+    assert d.yaw_rate_rad_s / d.kinematic_yaw_rate_rad_s == pytest.approx(
+        rc.yaw_fraction, rel=0.1
+    )
+    # Softer longitudinal slip (or stiffer lateral grip) loses more of the turn.
+    soft = dataclasses.replace(rc, longitudinal_slip_m_s=2 * rc.longitudinal_slip_m_s)
+    assert soft.yaw_fraction < rc.yaw_fraction
+    pulses = pulse_widths(40, 60)
+    slower = steady_drive(pulses.left_ms, pulses.right_ms, robot=soft)
+    assert slower.yaw_rate_rad_s < 0.8 * d.yaw_rate_rad_s
+
+
+def test_drive_table_prints_the_thesis_commands(capsys: pytest.CaptureFixture[str]) -> None:
+    rows = drive_table()
+    assert [(s, t) for s, t, _ in rows] == list(THESIS_DRIVE_COMMANDS)
+    table = format_drive_table(rows)
+    with capsys.disabled():
+        print("\n" + table)
+    assert len(table.splitlines()) == len(rows) + 1
+
+
+@pytest.mark.parametrize("substep_s", [0.005, 0.02])
+def test_ground_contact_is_stable_with_coarse_substeps(substep_s: float) -> None:
+    fine = _thesis_drive(10, 80)
+    world = World(WorldConfig(substep_s=substep_s))
+    pulses = pulse_widths(10, 80)
+    world.set_motor_pulses(pulses.left_ms, pulses.right_ms)
+    run(world, 2.0, dt=substep_s)
+    start = world.snapshot().robot.heading_unwrapped_rad
+    run(world, 2.0, dt=substep_s)
+    r = world.snapshot().robot
+    assert (r.heading_unwrapped_rad - start) / 2.0 == pytest.approx(fine.yaw_rate_rad_s, rel=0.05)
+    assert math.hypot(r.vx_m_s, r.vy_m_s) < 0.1
+
+
+def test_stepping_is_deterministic_and_cheap() -> None:
+    def drive() -> tuple[World, float]:
+        world = World(WorldConfig(ball=BallConfig(x_m=0.3, y_m=0.05)))
+        start = time.process_time()
+        for i in range(400):
+            if i % 100 == 0:
+                pulses = pulse_widths(40, (-60, 30, 80, 0)[i // 100])
+                world.set_motor_pulses(pulses.left_ms, pulses.right_ms)
+            world.step(0.005)
+        return world, (time.process_time() - start) / 400
+
+    a, cpu_per_step = drive()
+    b, _ = drive()
+    assert a.snapshot().robot == b.snapshot().robot
+    assert a.snapshot().ball == b.snapshot().ball
+    assert cpu_per_step < 1e-3  # a 5 ms step: well under 1 ms of CPU (≈0.1 ms measured)
 
 
 @pytest.mark.parametrize(

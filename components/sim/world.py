@@ -8,10 +8,48 @@ forces this module computes itself every substep:
   ``(±wheelbase/2, ±track_width/2)`` in the body frame, each carrying a quarter of its weight.
   Each motor turns the PWM pulse it receives into a target wheel speed with the measured
   characteristic (:func:`components.motors.pwm.wheel_speed_rad_s`); the wheel follows the target
-  with a first-order lag. A contact pushes the body toward the wheel's surface speed ``ω·r``
-  with a slip-stiffness force capped at ``μ_long·m·g/4`` (so ``μ·m·g/2`` per track) and resists
-  sideways sliding with a force capped at ``μ_lat·m·g/4``. Asking for more than the cap makes
-  the wheel-legs slip: turning in place slips, straight driving at moderate speed barely does.
+  with a first-order lag. The encoders see the wheel, not the ground, so slip is invisible to
+  them.
+* Ground contact (skid steering). Each contact slides over the floor with a slip velocity: along
+  the body, the ground speed of the contact point minus the wheel-leg's surface speed ``ω·r``;
+  across it, the contact point's sideways speed. The floor answers with one Coulomb friction
+  force against that slip (a friction ellipse with the semi-axes ``μ_long·m·g/4`` and
+  ``μ_lat·m·g/4``), so a contact that slides sideways has less grip left to push with. How much
+  slip mobilises the friction differs by direction, and that is what sets the turning rate: a
+  three-spoke wheel-leg pushes through one or two spoke tips that scuff and dig in, so traction
+  builds up softly (full at :attr:`RobotConfig.longitudinal_slip_m_s`, a few cm/s), while a
+  spoke dragged sideways bites almost at once (full at :attr:`RobotConfig.lateral_slip_m_s`,
+  about 1 cm/s). Below these slips the force grows linearly with the slip, above them it stays
+  at the friction limit and turns with the direction of the (scaled) slip.
+
+  Turning therefore costs lateral sliding of the front and rear legs in opposite directions: the
+  ground's lateral friction along the robot's length resists the yaw with a turning-resistance
+  moment of at most ``μ_lat·m·g·wheelbase/2`` (≈ the classic ``μ_lat·m·g·L/4`` of a skid-steer
+  vehicle of length ``L``; ≈70 % of it in an in-place turn), and the tracks must slip hard to
+  overcome it. Because both directions saturate along the same scaled slip, the body yaws at a
+  nearly constant fraction of the kinematic rate ``(v_R − v_L)/track`` whatever the speeds::
+
+      κ ≈ C_long·b² / (C_long·b² + C_lat·a²),   C = μ / slip,   a = wheelbase/2, b = track/2
+
+  ≈ 0.14 with the defaults (a real skid-steer robot's "effective track width" is the track
+  divided by κ). Driving straight needs no slip once the robot is up to speed, so the encoders
+  agree with the true distance; an in-place turn slips a lot but still turns. Run
+  ``python -m components.sim.world`` to print the steady yaw rates of the thesis's commands
+  (:func:`steady_drive`); for the defaults:
+
+  ===============  =========  ==========  ==========  ===========
+  speed / turn     u (L / R)  yaw °/s     kinematic   forward m/s
+  ===============  =========  ==========  ==========  ===========
+  +40 / 0          40 / 40    0           0           0.136
+  +40 / +30        10 / 70    +28         +195        0.136
+  +40 / +60        −20 / 100  +56         +390        0.136
+  +10 / +80        −70 / 90   +74         +520        0.034
+  0 / +100         −100 / 100 +93         +649        0.000
+  ===============  =========  ==========  ==========  ===========
+
+  The contact forces are applied semi-implicitly (each body-frame axis divides its force by
+  ``1 + h·k/m`` with ``k`` the contacts' force per unit slip), so the stiff lateral grip stays
+  stable at any substep.
 * The ball and movable distractors roll with viscous damping plus a rolling resistance.
 * Walls are infinitely thin vertical surfaces (pymunk segments of radius 0); box obstacles and
   static distractors are static pymunk shapes.
@@ -37,6 +75,7 @@ from components.motors.pwm import (
     LEFT_MOTOR,
     RIGHT_MOTOR,
     MotorCharacteristic,
+    pulse_widths,
     wheel_speed_rad_s,
 )
 
@@ -253,13 +292,22 @@ class RobotConfig:
     right_motor: MotorCharacteristic = RIGHT_MOTOR
     motor_time_constant_s: float = 0.05
     """First-order lag of the wheel speed behind the motor's target speed."""
-    mu_longitudinal: float = 0.9
-    """Traction friction coefficient: each track pushes with at most ``μ·m·g/2``."""
-    mu_lateral: float = 0.6
-    """Sideways friction coefficient of the wheel-legs (must stay below ``μ_long`` × track /
-    wheelbase or the robot cannot turn in place)."""
-    slip_stiffness_n_s_per_m: float = 6.0
-    """Contact force per m/s of slip (per contact, below the friction cap)."""
+    mu_longitudinal: float = 0.8
+    """Friction coefficient along the body: a contact pushes with at most ``μ·m·g/4`` (so
+    ``μ·m·g/2`` per track)."""
+    mu_lateral: float = 0.8
+    """Friction coefficient across the body: a contact resists sideways sliding with at most
+    ``μ·m·g/4``. Together with ``mu_longitudinal`` it spans the friction ellipse; the floor's
+    Coulomb friction is the same both ways, what differs is the slip it takes (below)."""
+    longitudinal_slip_m_s: float = 0.06
+    """Slip between the wheel-legs' surface speed and the ground at which the traction reaches
+    its limit (linear below). Soft: the spoke tips scuff and dig in before they push fully. The
+    larger it is relative to ``lateral_slip_m_s`` the more of a wheel speed difference is lost to
+    slip instead of yaw (see the module docstring for the yaw fraction κ)."""
+    lateral_slip_m_s: float = 0.01
+    """Sideways sliding speed of a contact at which its lateral friction reaches the limit
+    (linear below). Stiff: a spoke dragged sideways bites at once. This grip along the robot's
+    length is what resists the yaw of a skid turn."""
     body_friction: float = 0.4
     """Friction of the robot's shell against walls, ball and obstacles."""
 
@@ -269,8 +317,19 @@ class RobotConfig:
             motor_time_constant_s=self.motor_time_constant_s,
             mu_longitudinal=self.mu_longitudinal,
             mu_lateral=self.mu_lateral,
-            slip_stiffness_n_s_per_m=self.slip_stiffness_n_s_per_m,
+            longitudinal_slip_m_s=self.longitudinal_slip_m_s,
+            lateral_slip_m_s=self.lateral_slip_m_s,
         )
+
+    @property
+    def yaw_fraction(self) -> float:
+        """κ: the steady yaw rate as a fraction of the kinematic ``(v_R − v_L)/track`` that the
+        linearised contact model predicts (see the module docstring)."""
+        a2 = (self.wheelbase_m / 2) ** 2
+        b2 = (self.geometry.track_width_m / 2) ** 2
+        c_long = self.mu_longitudinal / self.longitudinal_slip_m_s
+        c_lat = self.mu_lateral / self.lateral_slip_m_s
+        return c_long * b2 / (c_long * b2 + c_lat * a2)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -382,10 +441,6 @@ def _box_corners(
     return tuple((x + c * lx - s * ly, y + s * lx + c * ly) for lx, ly in local)
 
 
-def _clamp(value: float, limit: float) -> float:
-    return limit if value > limit else -limit if value < -limit else value
-
-
 @dataclass(slots=True)
 class _FloorBody:
     """A dynamic body that rolls or slides on the floor (the ball, movable distractors)."""
@@ -449,6 +504,8 @@ class World:
         weight_share = geo.mass_kg * cfg.gravity_m_s2 / 4
         self._cap_long = rc.mu_longitudinal * weight_share
         self._cap_lat = rc.mu_lateral * weight_share
+        self._inv_slip_long = 1.0 / rc.longitudinal_slip_m_s
+        self._inv_slip_lat = 1.0 / rc.lateral_slip_m_s
         self._motors = (rc.left_motor, rc.right_motor)
         self._pulses: tuple[float, float] = (rc.left_motor.zero_ms, rc.right_motor.zero_ms)
         self._wheel_speed = [0.0, 0.0]
@@ -652,7 +709,7 @@ class World:
             self._wheel_angle[side] += 0.5 * (old + new) * h
             surface[side] = new * radius
 
-        # Ground contact forces on the robot, computed in the body frame.
+        # Ground contact forces on the robot, computed in the body frame (module docstring).
         body = self._robot
         heading = body.angle
         c, s = math.cos(heading), math.sin(heading)
@@ -660,17 +717,34 @@ class World:
         omega = body.angular_velocity
         vxb = c * vx + s * vy
         vyb = -s * vx + c * vy
-        k = rc.slip_stiffness_n_s_per_m
         cap_long, cap_lat = self._cap_long, self._cap_lat
+        inv_long, inv_lat = self._inv_slip_long, self._inv_slip_lat
         fx_sum = fy_sum = torque = 0.0
+        kx_sum = ky_sum = kw_sum = 0.0  # force (torque) per unit slip, for the implicit step
         for ax, ay, side in self._contacts:
-            vcx = vxb - omega * ay
-            vcy = vyb + omega * ax
-            fx = _clamp(k * (surface[side] - vcx), cap_long)
-            fy = _clamp(-k * vcy, cap_lat)
+            # Slip in units of the slip that mobilises full friction in each direction.
+            sx = (vxb - omega * ay - surface[side]) * inv_long
+            sy = (vyb + omega * ax) * inv_lat
+            slip = math.hypot(sx, sy)
+            scale = 1.0 / slip if slip > 1.0 else 1.0  # on the friction ellipse, or linear
+            kx = cap_long * scale
+            ky = cap_lat * scale
+            fx = -kx * sx
+            fy = -ky * sy
             fx_sum += fx
             fy_sum += fy
             torque += ax * fy - ay * fx
+            kx *= inv_long
+            ky *= inv_lat
+            kx_sum += kx
+            ky_sum += ky
+            kw_sum += kx * ay * ay + ky * ax * ax
+        # Semi-implicit: scale each axis by 1 / (1 + h·k/m), as a backward-Euler step of the
+        # linearised contact would, so the stiff lateral grip cannot overshoot.
+        mass, moment = body.mass, body.moment
+        fx_sum /= 1.0 + h * kx_sum / mass
+        fy_sum /= 1.0 + h * ky_sum / mass
+        torque /= 1.0 + h * kw_sum / moment
         body.force = (c * fx_sum - s * fy_sum, s * fx_sum + c * fy_sum)
         body.torque = torque
 
@@ -746,3 +820,122 @@ class World:
             distractors=tuple(distractors),
             lighting=self._lighting,
         )
+
+
+# --------------------------------------------------------------------------------------------
+# Steady-state drive measurements (``python -m components.sim.world``)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SteadyDrive:
+    """The robot's steady motion for fixed pulses, measured in an empty world."""
+
+    left_ms: float
+    right_ms: float
+    yaw_rate_rad_s: float
+    """Mean yaw rate over the measuring window (CCW positive)."""
+    forward_speed_m_s: float
+    """Mean speed along the heading over the window (path length / time for a circle)."""
+    kinematic_yaw_rate_rad_s: float
+    """``(v_R − v_L)/track`` from the wheel surface speeds: the yaw rate without slip."""
+    kinematic_speed_m_s: float
+    """``(v_L + v_R)/2`` from the wheel surface speeds."""
+
+    @property
+    def yaw_rate_deg_s(self) -> float:
+        return math.degrees(self.yaw_rate_rad_s)
+
+    @property
+    def kinematic_yaw_rate_deg_s(self) -> float:
+        return math.degrees(self.kinematic_yaw_rate_rad_s)
+
+    @property
+    def turn_radius_m(self) -> float:
+        """Radius of the driven circle (``inf`` when not turning)."""
+        if abs(self.yaw_rate_rad_s) < 1e-6:
+            return math.inf
+        return abs(self.forward_speed_m_s / self.yaw_rate_rad_s)
+
+
+def steady_drive(
+    left_ms: float,
+    right_ms: float,
+    *,
+    robot: RobotConfig | None = None,
+    settle_s: float = 2.0,
+    window_s: float = 2.0,
+    dt_s: float = 0.005,
+) -> SteadyDrive:
+    """Drive an empty world with fixed pulses, let it settle, and measure the mean motion."""
+    world = World(WorldConfig(robot=robot if robot is not None else RobotConfig()))
+    world.set_motor_pulses(left_ms, right_ms)
+    for _ in range(round(settle_s / dt_s)):
+        world.step(dt_s)
+    start = world.snapshot().robot
+    forward = 0.0
+    steps = round(window_s / dt_s)
+    for _ in range(steps):
+        forward += world.step(dt_s).robot.forward_speed_m_s
+    end = world.snapshot().robot
+    rc = world.config.robot
+    radius = rc.geometry.wheel_radius_m
+    v_left = end.left_wheel_speed_rad_s * radius
+    v_right = end.right_wheel_speed_rad_s * radius
+    return SteadyDrive(
+        left_ms=left_ms,
+        right_ms=right_ms,
+        yaw_rate_rad_s=(end.heading_unwrapped_rad - start.heading_unwrapped_rad) / window_s,
+        forward_speed_m_s=forward / steps,
+        kinematic_yaw_rate_rad_s=(v_right - v_left) / rc.geometry.track_width_m,
+        kinematic_speed_m_s=0.5 * (v_left + v_right),
+    )
+
+
+THESIS_DRIVE_COMMANDS: tuple[tuple[float, float], ...] = (
+    (40.0, 0.0), (40.0, 30.0), (40.0, 60.0), (10.0, 80.0), (0.0, 100.0),
+)
+"""speed/turn pairs of the thesis's behaviours: chase straight, chase ±30, chase ±60, search,
+and a full in-place turn."""
+
+
+def drive_table(
+    commands: tuple[tuple[float, float], ...] = THESIS_DRIVE_COMMANDS,
+    *,
+    robot: RobotConfig | None = None,
+) -> list[tuple[float, float, SteadyDrive]]:
+    """``(speed, turn, SteadyDrive)`` for each command, through the default HAL calibration."""
+    rows = []
+    for speed, turn in commands:
+        pulses = pulse_widths(speed, turn)
+        rows.append(
+            (speed, turn, steady_drive(pulses.left_ms, pulses.right_ms, robot=robot))
+        )
+    return rows
+
+
+def _tidy(value: float, resolution: float) -> float:
+    """``value``, or 0.0 when it would print as ±0 (no "-0.0" in tables)."""
+    return 0.0 if abs(value) < resolution else value
+
+
+def format_drive_table(rows: list[tuple[float, float, SteadyDrive]]) -> str:
+    """A plain-text table of :func:`drive_table` rows."""
+    lines = [
+        "speed/turn   yaw °/s  kinematic °/s  fraction  forward m/s  kinematic m/s  radius m"
+    ]
+    for speed, turn, d in rows:
+        kinematic = d.kinematic_yaw_rate_rad_s
+        fraction = f"{d.yaw_rate_rad_s / kinematic:8.3f}" if abs(kinematic) > 1e-6 else "       -"
+        yaw, kin_yaw = _tidy(d.yaw_rate_deg_s, 0.05), _tidy(d.kinematic_yaw_rate_deg_s, 0.05)
+        lines.append(
+            f"{speed:+4.0f}/{turn:+4.0f}  {yaw:+8.1f}  {kin_yaw:+13.1f}  {fraction}  "
+            f"{_tidy(d.forward_speed_m_s, 5e-4):+11.3f}  "
+            f"{_tidy(d.kinematic_speed_m_s, 5e-4):+13.3f}  {d.turn_radius_m:8.3f}"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(f"yaw fraction κ (linearised): {RobotConfig().yaw_fraction:.3f}")
+    print(format_drive_table(drive_table()))

@@ -10,8 +10,11 @@ All three read the camera's seekcolor result from the state, by default the sour
 When the camera reading is missing or stale all three abstain: a robot that cannot see must
 not search, chase or flee on old news (the controller then commands a stop).
 
-*flee* and *chase* use the count of the most populated bin, as the thesis did ("the highest
-pink pixel count out of the center bin is 140" at the comfortable distance).
+*chase* steers by the most populated bin. *flee* reads the distance from the total count
+(the ball has a fixed size, so its pixel count gives the distance — §3.4.2): with the ball
+centred that is the centre bin's count, the thesis's "140 pink pixels" at the comfortable
+distance, and unlike a single bin's count it does not drop when the ball straddles two bins,
+which would let the robot creep closer than comfortable.
 """
 
 from __future__ import annotations
@@ -68,8 +71,9 @@ class Chase(Behavior):
 
 
 class Flee(Behavior):
-    """Back away from pink that is too close: speed 0 at ``start_pixels``, more negative
-    with the count (one speed unit per pixel) down to ``min_speed``; turn 0.
+    """Back away from pink that is too close: speed 0 at ``start_pixels`` pink pixels in
+    total, more negative with the count (one speed unit per pixel) down to ``min_speed``;
+    turn 0.
 
     With chase's +40 the sum is 0 at 140 pixels (the comfortable distance), +20 at 120 and
     −40 (backing away) from 180 on. Below ``start_pixels`` flee abstains.
@@ -94,10 +98,10 @@ class Flee(Behavior):
         bins = pink_bins(state, self.source)
         if bins is None:
             return None
-        peak = max(bins)
-        if peak < self.start_pixels:
+        count = sum(bins)
+        if count < self.start_pixels:
             return None
-        speed = max(self.min_speed, -(peak - self.start_pixels) * self.speed_per_pixel)
+        speed = max(self.min_speed, -(count - self.start_pixels) * self.speed_per_pixel)
         return Action(speed=speed, turn=0.0)
 
 
