@@ -20,9 +20,18 @@ import time
 from typing import Protocol
 
 
+class Hold(Protocol):
+    def release(self) -> None:
+        ...
+
+
 class Clock(Protocol):
     def now_ns(self) -> int:
         """The current robot time in nanoseconds."""
+        ...
+
+    def hold(self, until_ns: int) -> Hold:
+        """Ask time not to pass ``until_ns`` before :meth:`Hold.release` (see SimClock)."""
         ...
 
     async def sleep_until_ns(self, deadline_ns: int) -> None:
@@ -33,6 +42,11 @@ class Clock(Protocol):
         ...
 
 
+class _NoHold:
+    def release(self) -> None:
+        pass
+
+
 class WallClock:
     """Host monotonic time."""
 
@@ -40,6 +54,10 @@ class WallClock:
 
     def now_ns(self) -> int:
         return time.monotonic_ns()
+
+    def hold(self, until_ns: int) -> Hold:
+        """Real time waits for nobody: a no-op."""
+        return _NoHold()
 
     async def sleep_until_ns(self, deadline_ns: int) -> None:
         # The event loop's own clock is also CLOCK_MONOTONIC on Linux, so call_at is exact.
@@ -49,11 +67,30 @@ class WallClock:
         await asyncio.sleep(max(0.0, seconds))
 
 
+class SimHold:
+    """A promise, taken by a component of the simulator's process, that simulated time will
+    not pass ``until_ns`` before :meth:`release` — e.g. the camera while it renders a frame
+    whose capture latency ends at ``until_ns``. Releasing twice is harmless."""
+
+    def __init__(self, clock: SimClock, until_ns: int) -> None:
+        self.until_ns = until_ns
+        self._clock = clock
+        self.released = False
+
+    def release(self) -> None:
+        if not self.released:
+            self.released = True
+            self._clock._release(self)
+
+
 class SimClock:
     """Time advanced explicitly; sleepers wake when it passes their deadline.
 
     Must be used from one event loop: :meth:`advance_to` runs on the loop (the bus bridge
-    delivers clock samples there).
+    delivers clock samples there). A simulator in the same process honours
+    :meth:`hold`: it does not step past a held time until the hold is released, so work
+    that takes wall time (rendering a camera frame) takes no simulated time, however fast
+    the simulation runs.
     """
 
     is_simulated = True
@@ -62,8 +99,30 @@ class SimClock:
         self._now = start_ns
         self._sleepers: list[tuple[int, int, asyncio.Future[None]]] = []
         self._order = itertools.count()
+        self._holds: list[SimHold] = []
+        self._released: asyncio.Event | None = None
         self.started = asyncio.Event()
         """Set at the first :meth:`advance_to`: before that no simulator has spoken."""
+
+    def hold(self, until_ns: int) -> SimHold:
+        hold = SimHold(self, until_ns)
+        self._holds.append(hold)
+        return hold
+
+    def _release(self, hold: SimHold) -> None:
+        self._holds.remove(hold)
+        if self._released is not None:
+            self._released.set()
+
+    def held_until_ns(self) -> int | None:
+        """The earliest time a hold keeps simulated time from passing, if any."""
+        return min((h.until_ns for h in self._holds), default=None)
+
+    async def wait_for_holds(self, target_ns: int) -> None:
+        """For the simulator: return once no hold forbids advancing to ``target_ns``."""
+        while (held := self.held_until_ns()) is not None and held < target_ns:
+            self._released = asyncio.Event()
+            await self._released.wait()
 
     def now_ns(self) -> int:
         return self._now

@@ -4,7 +4,9 @@ Each cycle stamps the capture time on the robot clock, captures a frame from its
 and runs :func:`~components.camera.seekcolor.seekcolor` in a worker thread (OpenCV and numpy
 release the GIL, and the event loop never waits on them), then holds the result until the
 device's capture latency has passed (``latency_s``, ≈0.11 s for the OV9655, on the robot
-clock, so a simulation running K× faster shortens it K×) and publishes it on
+clock, so a simulation running K× faster shortens it K×; a simulator in the same process
+does not let simulated time pass the end of that latency before the frame is ready) and
+publishes it on
 ``sensor/camera/<name>`` (schema ``camera.seekcolor``) with ``stamp_ns`` = capture time. The
 next capture starts right after, so the camera delivers a frame about every ``latency_s``.
 
@@ -66,7 +68,13 @@ class CameraComponent(Component):
         latency_ns = int(self.latency_s * 1e9)
         while True:
             stamp = clock.now_ns()
-            result, shape = await asyncio.to_thread(self._capture, self.color)
+            # A simulated clock does not pass the end of the capture latency while the frame
+            # is still being rendered; on wall time this is a no-op.
+            hold = clock.hold(stamp + latency_ns)
+            try:
+                result, shape = await asyncio.to_thread(self._capture, self.color)
+            finally:
+                hold.release()
             await clock.sleep_until_ns(stamp + latency_ns)
             self.frames += 1
             self.last_frame_shape = shape

@@ -9,7 +9,9 @@ behaviours never see it; tests and tools do.
 
 When the machine cannot keep up, simulation time simply runs slower than ``speed`` × real
 time; every component follows the simulated clock, so behaviour stays consistent and the
-achieved real-time factor is reported.
+achieved real-time factor is reported. Components of the same process may :meth:`hold
+<ubf_async.clock.SimClock.hold>` the clock (the camera does while it renders): the simulator
+does not step past a held time, so wall-time work costs no simulated time.
 
 :func:`simulated_devices` builds the device components with simulator backends.
 """
@@ -97,7 +99,13 @@ class SimulatorComponent(Component):
         self.wall_started_s = time.monotonic()
         self.sim_started_s = self.world.time_s
         next_truth_s = self.world.time_s
+        step_ns = round(self.step_s * 1e9)
+        schedule_origin_s = self.wall_started_s  # wall time at which sim time started
         while True:
+            held_since = time.monotonic()
+            await self.clock.wait_for_holds(self.clock.now_ns() + step_ns)
+            # Time spent held is not made up afterwards in a burst of fast steps.
+            schedule_origin_s += time.monotonic() - held_since
             self.world.step(self.step_s)
             now_s = self.world.time_s
             now_ns = round(now_s * 1e9)
@@ -107,7 +115,7 @@ class SimulatorComponent(Component):
             if now_s >= next_truth_s:
                 truth_pub.publish(self.truth(), stamp_ns=now_ns)
                 next_truth_s += self.truth_period_s
-            target = self.wall_started_s + (now_s - self.sim_started_s) / self.speed
+            target = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
             delay = target - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)

@@ -46,17 +46,22 @@ def camera_to_ball(
 
 
 def motion_over(samples: Sequence[TrajectorySample], seconds: float) -> dict[str, float]:
-    """Path length and total heading change of the robot over the last ``seconds``."""
+    """How much the robot moved over the last ``seconds``: path length, the farthest it was
+    from where it ended (small when it only dithers in place), and total heading change."""
     if not samples:
-        return {"distance_m": 0.0, "heading_change_deg": 0.0, "window_s": 0.0}
+        return {"distance_m": 0.0, "max_offset_m": 0.0, "heading_change_deg": 0.0,
+                "window_s": 0.0}
     start = samples[-1].t_s - seconds
     window = [s for s in samples if s.t_s >= start - 1e-9]
     distance = sum(math.hypot(b.robot_x_m - a.robot_x_m, b.robot_y_m - a.robot_y_m)
                    for a, b in itertools.pairwise(window))
     turn = sum(abs((b.robot_heading_rad - a.robot_heading_rad + math.pi) % (2 * math.pi) - math.pi)
                for a, b in itertools.pairwise(window))
-    return {"distance_m": distance, "heading_change_deg": math.degrees(turn),
-            "window_s": window[-1].t_s - window[0].t_s}
+    end = window[-1]
+    offset = max(math.hypot(p.robot_x_m - end.robot_x_m, p.robot_y_m - end.robot_y_m)
+                 for p in window)
+    return {"distance_m": distance, "max_offset_m": offset,
+            "heading_change_deg": math.degrees(turn), "window_s": end.t_s - window[0].t_s}
 
 
 def write_trajectory_csv(path: Path, samples: Sequence[TrajectorySample]) -> None:

@@ -12,8 +12,9 @@ The ball script moves the ball like the experimenter's hand did: each step start
   at the moment the step starts (``bearing_deg`` positive to the robot's left);
 * ``out_of_view``— walk to ``"left"`` or ``"right"`` of the robot, ``bearing_deg`` (default
   70°) off its heading at ``distance_m`` (default 0.7 m), i.e. across and out of the 35° view;
-* ``hide``       — lift the ball out of the arena (nothing can see it);
-so a step of a moving ball ends when it arrives (or when the next step starts).
+* ``hide``       — lift the ball out of the arena (nothing can see it); the next step puts
+  it straight down at its target instead of walking it there;
+a step of a moving ball ends when it arrives (or when the next step starts).
 """
 
 from __future__ import annotations
@@ -111,7 +112,9 @@ class BallScript:
             self.target = None
             world.place_ball(*HIDDEN_AT)
             return
-        robot = world.snapshot().robot
+        snap = world.snapshot()
+        hidden = snap.ball is not None and (snap.ball.x_m, snap.ball.y_m) == HIDDEN_AT
+        robot = snap.robot
         cam_x = robot.x_m + CAMERA_OFFSET_M * math.cos(robot.heading_rad)
         cam_y = robot.y_m + CAMERA_OFFSET_M * math.sin(robot.heading_rad)
         if step.kind == "move_to":
@@ -120,6 +123,10 @@ class BallScript:
             bearing = robot.heading_rad + math.radians(step.target["bearing_deg"])
             distance = step.target["distance_m"]
             target = (cam_x + distance * math.cos(bearing), cam_y + distance * math.sin(bearing))
+        if hidden:  # a lifted ball is put straight down where it is meant to go
+            self.target = None
+            world.place_ball(*target)
+            return
         self.target = target
         self.speed_m_s = step.speed_m_s
 
