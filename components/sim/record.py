@@ -113,10 +113,9 @@ def annotate_frame(frame_rgb: np.ndarray, result: SeekResult, *, t_s: float,
                     (0, 0, 0), 4, cv2.LINE_AA)
         cv2.putText(image, str(result.bins[i]), (cx - 18, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
                     (255, 255, 255), 1, cv2.LINE_AA)
-    label = f"t={t_s:5.1f}s  pink={result.total}"
-    cv2.putText(image, label, (8, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 3,
-                cv2.LINE_AA)
-    cv2.putText(image, label, (8, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
+    label = f"t = {t_s:.1f} s   pink = {result.total}"
+    cv2.rectangle(image, (0, h * scale - 34), (330, h * scale), (0, 0, 0), -1)
+    cv2.putText(image, label, (10, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
                 (255, 255, 255), 1, cv2.LINE_AA)
     return image
 
@@ -125,16 +124,14 @@ def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *
                     title: str, size_px: int = 800) -> np.ndarray:
     """Top-down view: walls, obstacles, distractors, the robot's path (darker = later), the
     ball's path, start and end poses, a 0.5 m grid and a scale bar."""
-    xs = [s.robot_x_m for s in samples] + [s.ball_x_m for s in samples if s.ball_x_m is not None]
-    ys = [s.robot_y_m for s in samples] + [s.ball_y_m for s in samples if s.ball_y_m is not None]
-    for wall in world.walls:
-        xs += [wall.x1_m, wall.x2_m]
-        ys += [wall.y1_m, wall.y2_m]
-    xs = [x for x in xs if abs(x) < 20] or [0.0]
-    ys = [y for y in ys if abs(y) < 20] or [0.0]
-    x0, x1 = min(xs) - 0.2, max(xs) + 0.2
-    y0, y1 = min(ys) - 0.2, max(ys) + 0.2
-    span = max(x1 - x0, y1 - y0)
+    # Frame what happened (robot and visible ball, plus a margin); walls are clipped.
+    xs = [s.robot_x_m for s in samples] + [s.ball_x_m for s in samples if _on_stage(s)]
+    ys = [s.robot_y_m for s in samples] + [s.ball_y_m for s in samples if _on_stage(s)]
+    xs, ys = xs or [0.0], ys or [0.0]
+    span = max(max(xs) - min(xs), max(ys) - min(ys), 0.6) + 0.6
+    x0 = (max(xs) + min(xs)) / 2 - span / 2
+    y0 = (max(ys) + min(ys)) / 2 - span / 2
+    x1, y1 = x0 + span, y0 + span
     margin = 40
     k = (size_px - 2 * margin) / span
 
@@ -163,7 +160,7 @@ def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *
         shade = int(200 - 170 * i / max(1, n - 1))
         cv2.line(image, px(a.robot_x_m, a.robot_y_m), px(b.robot_x_m, b.robot_y_m),
                  (shade, int(shade * 0.6), 20), 2)
-        if a.ball_x_m is not None and b.ball_x_m is not None and abs(b.ball_x_m) < 20:
+        if _on_stage(a) and _on_stage(b):
             cv2.line(image, px(a.ball_x_m, a.ball_y_m), px(b.ball_x_m, b.ball_y_m),
                      _PINK_BGR, 1)
     if samples:
@@ -172,7 +169,7 @@ def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *
                       (160, 160, 160))
         _robot_marker(image, px(last.robot_x_m, last.robot_y_m), last.robot_heading_rad,
                       _ROBOT_BGR)
-        if last.ball_x_m is not None and abs(last.ball_x_m) < 20:
+        if _on_stage(last):
             cv2.circle(image, px(last.ball_x_m, last.ball_y_m), max(4, int(0.0325 * k)),
                        _PINK_BGR, -1)
     cv2.putText(image, title, (margin, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1,
@@ -186,6 +183,12 @@ def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *
                 (margin, size_px - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
                 cv2.LINE_AA)
     return image
+
+
+def _on_stage(s: TrajectorySample) -> bool:
+    """The ball is in the world (not lifted out of it by a scenario's ``hide``)."""
+    return s.ball_x_m is not None and s.ball_y_m is not None and abs(s.ball_x_m) < 20 \
+        and abs(s.ball_y_m) < 20
 
 
 def _robot_marker(image: np.ndarray, centre: tuple[int, int], heading_rad: float,
