@@ -103,10 +103,11 @@ class Keys:
         """Simulation time, published by a simulator (absent in wall-clock runs)."""
         return f"{self.prefix}/clock"
 
-    @property
-    def sim_truth(self) -> str:
-        """Ground truth from a simulator (robot and ball poses), for tests and tools."""
-        return f"{self.prefix}/sim/truth"
+    def sim(self, topic: str) -> str:
+        """A simulator's own topics, outside ``sensor/`` so behaviours never see them:
+        ``truth`` (robot and ball poses), ``world`` (the full snapshot, for sim-backed devices
+        in other processes) and ``pulses`` (motor pulses from such a motors process)."""
+        return f"{self.prefix}/sim/{_check_segment('sim topic', topic)}"
 
     def status(self, component: str) -> str:
         return f"{self.prefix}/status/{_check_segment('component name', component)}"
@@ -307,6 +308,15 @@ SCHEMAS: dict[str, Check] = {
 }
 """Known schemas and their data checks. Unknown schemas are accepted with :func:`plain`
 checks only, so anyone can add a new kind of sensor without changing this module."""
+
+
+def register_schema(name: str, check: Check) -> None:
+    """Add a schema a component defines (e.g. a simulator's own messages). Registering the
+    same name twice with a different check is a programming error."""
+    existing = SCHEMAS.get(name)
+    if existing is not None and existing is not check:
+        raise ValueError(f"schema {name!r} is already registered")
+    SCHEMAS[name] = check
 
 
 @dataclass(frozen=True, slots=True)

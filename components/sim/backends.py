@@ -10,13 +10,29 @@ from __future__ import annotations
 
 import math
 import threading
+from typing import Protocol
 
 import numpy as np
 
 from components.range.backend import MountPose
 from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera
 from components.sim.ranging import beam_distance_m
-from components.sim.world import World
+from components.sim.world import WorldConfig, WorldSnapshot
+
+
+class WorldView(Protocol):
+    """What the backends use of a world: a :class:`~components.sim.world.World` in this
+    process, or a :class:`~components.sim.remote.RemoteWorld` fed over the bus."""
+
+    @property
+    def config(self) -> WorldConfig: ...
+
+    def snapshot(self) -> WorldSnapshot: ...
+
+    def set_motor_pulses(self, left_ms: float, right_ms: float) -> None: ...
+
+    def make_rng(self, stream: int) -> np.random.Generator: ...
+
 
 CAMERA_RNG_STREAM = 1
 ENCODER_RNG_STREAM = 2
@@ -28,7 +44,7 @@ QUADRATURE_SEQUENCE = np.array([0, 1, 3, 2], dtype=np.uint8)
 class SimMotorBackend:
     """Hands the pulse widths to the simulated motors."""
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: WorldView) -> None:
         self._world = world
 
     def apply_pulses(self, *, left_ms: float, right_ms: float) -> None:
@@ -88,7 +104,7 @@ class SimEncoderBackend:
 
     def __init__(
         self,
-        world: World,
+        world: WorldView,
         *,
         glitch_probability: float = 0.0,
         rng: np.random.Generator | None = None,
@@ -138,7 +154,7 @@ class SimCameraBackend:
 
     def __init__(
         self,
-        world: World,
+        world: WorldView,
         params: CameraParams = DEFAULT_CAMERA,
         *,
         rng: np.random.Generator | None = None,
@@ -169,7 +185,7 @@ class SimCameraBackend:
 class SimRangeBackend:
     """True beam distance from :func:`components.sim.ranging.beam_distance_m`."""
 
-    def __init__(self, world: World) -> None:
+    def __init__(self, world: WorldView) -> None:
         self._world = world
 
     def distance_m(self, mount: MountPose, *, max_range_m: float) -> float | None:

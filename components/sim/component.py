@@ -5,7 +5,10 @@ paced to ``speed`` × real time (``--speed K``), advances the shared
 :class:`~ubf_async.clock.SimClock` of its process and publishes the time on
 ``ubf/<robot>/clock`` so components in other processes follow it. It also publishes ground
 truth (robot pose, ball position) on ``ubf/<robot>/sim/truth`` — outside ``sensor/``, so
-behaviours never see it; tests and tools do.
+behaviours never see it; tests and tools do — and the whole world snapshot on
+``ubf/<robot>/sim/world``, from which sim-backed devices started in other processes
+(``python -m components.range`` …) measure and render; a motors process sends its pulses back
+on ``ubf/<robot>/sim/pulses``.
 
 When the machine cannot keep up, simulation time simply runs slower than ``speed`` × real
 time; every component follows the simulated clock, so behaviour stays consistent and the
@@ -36,10 +39,12 @@ from components.sim.backends import (
     SimRadioBackend,
     SimRangeBackend,
 )
+from components.sim.wire import PULSES_SCHEMA, WORLD_SCHEMA, snapshot_to_data
 from components.sim.world import World
-from ubf_async.bus import Bus
+from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
+from ubf_async.protocol import decode
 
 DEVICES = ("motors", "encoders", "camera", "range", "radio")
 BEHIND_SCHEDULE_PAUSE_S = 0.0002
@@ -55,6 +60,7 @@ class SimulatorComponent(Component):
         speed: float = 1.0,
         step_s: float = 0.005,
         truth_period_s: float = 0.05,
+        world_period_s: float = 0.02,
         name: str = "sim",
         **component_options: float,
     ) -> None:
@@ -66,6 +72,8 @@ class SimulatorComponent(Component):
         self.speed = speed
         self.step_s = step_s
         self.truth_period_s = truth_period_s
+        self.world_period_s = world_period_s
+        self.malformed: dict[str, int] = {}
         self.wall_started_s: float | None = None
         self.sim_started_s = world.time_s
         self.late_steps = 0
@@ -76,6 +84,13 @@ class SimulatorComponent(Component):
             return None
         wall = time.monotonic() - self.wall_started_s
         return (self.world.time_s - self.sim_started_s) / wall if wall > 0 else None
+
+    def _on_pulses(self, key: str, payload: bytes, received_ns: int) -> None:
+        """Motor pulses from a motors component in another process."""
+        message = decode_or_count(payload, self.malformed, key,
+                                  lambda p: decode(p, schema=PULSES_SCHEMA))
+        if message is not None:
+            self.world.set_motor_pulses(message.data["left_ms"], message.data["right_ms"])
 
     def truth(self) -> dict[str, object]:
         snap = self.world.snapshot()
@@ -94,11 +109,13 @@ class SimulatorComponent(Component):
     async def run(self) -> None:
         keys = self.bus.keys
         clock_pub = self.publisher(keys.clock, "clock", period_s=self.step_s)
-        truth_pub = self.publisher(keys.sim_truth, "sim.truth", period_s=self.truth_period_s)
+        truth_pub = self.publisher(keys.sim("truth"), "sim.truth", period_s=self.truth_period_s)
+        world_pub = self.publisher(keys.sim("world"), WORLD_SCHEMA, period_s=self.world_period_s)
+        self.subscribe(keys.sim("pulses"), self._on_pulses)
         self.clock.advance_to(round(self.world.time_s * 1e9))
         self.wall_started_s = time.monotonic()
         self.sim_started_s = self.world.time_s
-        next_truth_s = self.world.time_s
+        next_truth_s = next_world_s = self.world.time_s
         step_ns = round(self.step_s * 1e9)
         schedule_origin_s = self.wall_started_s  # wall time at which sim time started
         while True:
@@ -115,6 +132,9 @@ class SimulatorComponent(Component):
             if now_s >= next_truth_s:
                 truth_pub.publish(self.truth(), stamp_ns=now_ns)
                 next_truth_s += self.truth_period_s
+            if now_s >= next_world_s:
+                world_pub.publish(snapshot_to_data(self.world.snapshot()), stamp_ns=now_ns)
+                next_world_s += self.world_period_s
             target = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
             delay = target - time.monotonic()
             if delay > 0:

@@ -1,0 +1,104 @@
+"""Devices as separate OS processes attached to a running simulated robot."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import eventually
+from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.protocol import decode
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def start(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, *args], cwd=ROOT, env=ENV, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+
+
+def stop(proc: subprocess.Popen[str], sig: int = signal.SIGTERM) -> str:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    out, _ = proc.communicate(timeout=20)
+    return out
+
+
+@pytest.mark.asyncio
+async def test_range_finder_attached_from_another_process_and_detached(
+    endpoint: str, robot: str
+) -> None:
+    robot_proc = start("-m", "ubf_async.launch", "--listen", endpoint, "--robot", robot,
+                       "--quiet", "--devices", "motors,camera")
+    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+    statuses: list[dict] = []
+    alive: dict[str, bool] = {}
+    sensor = None
+    try:
+        bus.subscribe(bus.keys.status("controller"),
+                      lambda k, p, t: statuses.append(decode(p).data))
+        bus.watch_liveliness(bus.keys.all_alive,
+                             lambda key, up: alive.__setitem__(key.rsplit("/", 1)[-1], up))
+        await eventually(lambda: len(statuses) > 0, timeout_s=20, what="the robot to run")
+
+        def source(name: str) -> dict | None:
+            if not statuses:
+                return None
+            return next((s for s in statuses[-1]["sources"] if s["source"] == name), None)
+
+        assert source("range/left") is None
+        # A second IR finder, mounted 45° to the left, added to the running robot.
+        sensor = start("-m", "components.range", "--connect", endpoint, "--robot", robot,
+                       "--name", "left", "--yaw-deg", "45", "--model", "ir-20-150")
+        assert sensor.stdout is not None
+        line = await asyncio.to_thread(sensor.stdout.readline)
+        assert "attached" in line, line
+        attached = time.monotonic()
+        await eventually(lambda: source("range/left") is not None, timeout_s=5,
+                         what="range/left in the controller's state")
+        # Status samples come every 0.5 s: the source was in the state within a second.
+        assert time.monotonic() - attached < 1.5
+        reading = source("range/left")
+        assert reading is not None and not reading["stale"]
+        assert alive.get("range-left") is True
+        # Detach it (kill -9): the source goes stale, its token vanishes, the robot goes on.
+        sensor.send_signal(signal.SIGKILL)
+        await asyncio.to_thread(sensor.wait)
+        await eventually(lambda: alive.get("range-left") is False, what="token to vanish")
+        await eventually(lambda: (source("range/left") or {}).get("stale") is True,
+                         timeout_s=5, what="range/left to go stale")
+        ticks = statuses[-1]["ticks"]
+        await eventually(lambda: statuses[-1]["ticks"] > ticks + 10, what="robot still ticking")
+        assert robot_proc.poll() is None
+    finally:
+        await bus.aclose()
+        if sensor is not None:
+            stop(sensor, signal.SIGKILL)
+        out = stop(robot_proc)
+    assert "ubf_async: stopped" in out, out
+
+
+def test_device_without_a_simulator_says_so(endpoint: str, robot: str) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "components.range", "--listen", endpoint, "--robot", robot,
+         "--wait-for-sim-s", "1"],
+        cwd=ROOT, capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert "no simulator is publishing" in proc.stderr
+
+
+@pytest.mark.parametrize("device", ["camera", "motors", "encoders", "radio", "range"])
+def test_every_device_has_help(device: str) -> None:
+    out = subprocess.run([sys.executable, "-m", f"components.{device}", "--help"], cwd=ROOT,
+                         capture_output=True, text=True, check=True).stdout
+    for flag in ("--connect", "--listen", "--mode", "--config", "--robot", "--duration"):
+        assert flag in out, (device, flag)
