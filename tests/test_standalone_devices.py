@@ -102,3 +102,40 @@ def test_every_device_has_help(device: str) -> None:
                          capture_output=True, text=True, check=True).stdout
     for flag in ("--connect", "--listen", "--mode", "--config", "--robot", "--duration"):
         assert flag in out, (device, flag)
+
+
+@pytest.mark.asyncio
+async def test_attached_ir_finder_drives_a_remote_avoidance_behaviour(
+    endpoint: str, robot: str, tmp_path: Path
+) -> None:
+    """Robot 15 cm from a wall, no IR finder of its own: an IR finder and the obstacle-
+    avoidance behaviour, each in its own process, join it; the drive commands follow avoid."""
+    scenario = tmp_path / "wall.json"
+    scenario.write_text(
+        '{"name": "wall", "robot": {"x_m": 1.30, "y_m": 0.0, "heading_deg": 0},'
+        ' "arena": {"x_min_m": -1.5, "y_min_m": -1.5, "x_max_m": 1.5, "y_max_m": 1.5},'
+        ' "duration_s": 1000, "search_period_s": 1000}'
+    )
+    robot_proc = start("-m", "ubf_async.launch", "--listen", endpoint, "--robot", robot,
+                       "--quiet", "--devices", "motors,camera", "--scenario", str(scenario))
+    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+    drives: list[dict] = []
+    helpers: list[subprocess.Popen[str]] = []
+    try:
+        bus.subscribe(bus.keys.cmd("drive"), lambda k, p, t: drives.append(decode(p).data),
+                      latest=False)
+        await eventually(lambda: len(drives) > 10, timeout_s=20, what="the robot to drive")
+        assert all("avoid_obstacles" not in d["winners"] for d in drives)
+        helpers.append(start("examples/avoid_obstacles.py", "--connect", endpoint,
+                             "--robot", robot))
+        helpers.append(start("-m", "components.range", "--connect", endpoint, "--robot", robot,
+                             "--name", "front", "--model", "ir-10-80"))
+        await eventually(lambda: any("avoid_obstacles" in d["winners"] for d in drives),
+                         timeout_s=15, what="avoid to take over the drive")
+        reacting = [d for d in drives if "avoid_obstacles" in d["winners"]]
+        assert all(d["speed"] < 0 for d in reacting), reacting
+    finally:
+        await bus.aclose()
+        for proc in helpers:
+            stop(proc, signal.SIGKILL)
+        stop(robot_proc)

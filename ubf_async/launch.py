@@ -34,6 +34,7 @@ from ubf_async.bus import (
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
+from ubf_async.remote import RemoteBehaviors, remote_spec
 
 log = logging.getLogger("ubf_async.launch")
 
@@ -64,6 +65,11 @@ def build_parser(simulator: ModuleType | None = None) -> argparse.ArgumentParser
                      help="source that triggers ticks in --tick event, e.g. range/front")
     ctl.add_argument("--camera-source", default="camera/front", metavar="SOURCE",
                      help="camera source the behaviours and sync mode read")
+    ctl.add_argument("--remote", type=remote_spec, action="append", default=[],
+                     metavar="[COMPOSITE/]NAME=PRIORITY[:WEIGHT]",
+                     help="place remote behaviour NAME (docs/protocol.md, 'Remote behaviours') "
+                          "at PRIORITY[:WEIGHT] in its composite, overriding what its votes ask "
+                          "for (repeatable); other remote behaviours get what they ask for")
     ctl.add_argument("--search-period-s", type=float, default=None,
                      help="search behaviour's counter: how often it draws a new direction "
                           "(default: the scenario's, else 4)")
@@ -171,7 +177,8 @@ async def run_robot(
             bus=bus, aggregator=aggregator, root=root, rate_hz=args.rate_hz,
             mode=args.tick_mode, camera_source=args.camera_source, trigger=args.trigger,
         )
-        components += [aggregator, controller]
+        remotes = RemoteBehaviors(bus=bus, root=root, config=dict(args.remote))
+        components += [aggregator, controller, remotes]
         if sim_run is not None:
             components += sim_run.components()
         health.start()

@@ -1,0 +1,213 @@
+"""``python -m ubf_async.inspector`` against a robot and components in separate processes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+
+import msgpack
+import pytest
+
+from tests.conftest import free_port
+from tests.remote_robot import ROOT, Process, start_robot
+from ubf_async.inspector import expected_schema, format_sample, resolve_key
+from ubf_async.protocol import Keys, encode
+
+EXAMPLES = ROOT / "examples"
+ROBOT_COMPONENTS = ["aggregator", "camera-front", "controller", "remotes"]
+
+
+def inspect(*args: str, timeout_s: float = 30) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ubf_async.inspector", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout_s)
+
+
+def until(
+    check: Callable[[], object], *, timeout_s: float = 10.0, what: str = "condition"
+) -> object:
+    """Re-run ``check()`` (which runs the CLI) until it returns something truthy."""
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = check()
+        if last:
+            return last
+    raise AssertionError(f"timed out after {timeout_s}s waiting for {what}; last: {last!r}")
+
+
+@pytest.fixture
+def running_robot(endpoint: str, robot: str) -> Iterator[list[Process]]:
+    """The robot helper plus a plain range sensor named "plain" (range 321 mm)."""
+    procs = [start_robot(endpoint, robot)]
+    try:
+        procs.append(Process(str(EXAMPLES / "plain_range_sensor.py"), "--connect", endpoint,
+                             "--robot", robot, "--name", "plain", "--range-mm", "321"))
+        procs[-1].wait_for_line("publishing")
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+
+
+def test_help_lists_commands_and_shared_flags() -> None:
+    top = inspect("--help")
+    assert top.returncode == 0
+    for command in ("components", "keys", "echo", "state"):
+        assert command in top.stdout
+    for command in ("components", "keys", "echo", "state"):
+        out = inspect(command, "--help").stdout
+        for flag in ("--connect", "--listen", "--mode", "--config", "--robot", "--timeout"):
+            assert flag in out, (command, flag)
+    assert "--count" in inspect("echo", "--help").stdout
+    assert inspect().returncode == 2  # a command is required
+
+
+def test_unreachable_robot_is_a_clear_error() -> None:
+    proc = inspect("components", "--connect", f"tcp/127.0.0.1:{free_port()}", "--timeout", "1")
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error:") and "Traceback" not in proc.stderr
+
+
+def test_components_lists_exactly_the_live_ones(
+    running_robot: list[Process], endpoint: str, robot: str
+) -> None:
+    second = Process(str(EXAMPLES / "plain_range_sensor.py"), "--connect", endpoint,
+                     "--robot", robot, "--name", "second", "--range-mm", "800")
+    try:
+        second.wait_for_line("publishing")
+
+        def listing() -> list[str]:
+            proc = inspect("components", "--connect", endpoint, "--robot", robot)
+            assert proc.returncode == 0, proc.stderr
+            return proc.stdout.split()
+
+        with_both = sorted([*ROBOT_COMPONENTS, "plain", "second"])
+        until(lambda: listing() == with_both, what=f"components == {with_both}")
+        assert listing() == with_both  # stable, and the inspector itself is not listed
+        second.kill()
+        without = sorted([*ROBOT_COMPONENTS, "plain"])
+        until(lambda: listing() == without, what="the killed component to disappear")
+        long = inspect("components", "--long", "--connect", endpoint, "--robot", robot,
+                       "--heartbeat-s", "0.7").stdout
+        rows = dict(line.split(None, 1) for line in long.splitlines())
+        assert sorted(rows) == without
+        assert rows["controller"].startswith("healthy")
+        assert rows["plain"].startswith("no heartbeat")  # plain zenoh: a token, no heartbeat
+    finally:
+        second.kill()
+
+
+def test_echo_decodes_samples_and_reports_malformed_ones(
+    running_robot: list[Process], endpoint: str, robot: str
+) -> None:
+    proc = inspect("echo", "sensor/range/plain", "--count", "3", "--connect", endpoint,
+                   "--robot", robot)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0] == f"# echo ubf/{robot}/sensor/range/plain"
+    assert len(lines) == 4
+    for line in lines[1:]:
+        assert line.startswith(f"ubf/{robot}/sensor/range/plain range #")
+        assert '"range_mm": 321' in line and '"status": "ok"' in line
+    drive = inspect("echo", f"ubf/{robot}/cmd/drive", "-n", "2", "--json", "--connect",
+                    endpoint, "--robot", robot)
+    samples = [json.loads(line) for line in drive.stdout.splitlines()]
+    assert len(samples) == 2
+    assert all(s["schema"] == "drive" and s["data"]["winners"] == ["chase"] for s in samples)
+    assert samples[1]["seq"] > samples[0]["seq"]
+
+    # A publisher of junk on a sensor key: echo shows it as an error and goes on.
+    junk = Process("-c", JUNK_PUBLISHER, endpoint, robot)
+    try:
+        junk.wait_for_line("publishing")
+        echo = inspect("echo", "sensor/junk/*", "--count", "4", "--connect", endpoint,
+                       "--robot", robot)
+    finally:
+        junk.kill()
+    assert echo.returncode == 0, echo.stderr
+    lines = echo.stdout.splitlines()[1:]
+    assert len(lines) == 4
+    errors = [line for line in lines if " ERROR " in line]
+    good = [line for line in lines if " range #" in line]
+    assert errors and good and len(errors) + len(good) == 4
+    assert any("not a valid msgpack payload" in e or "range_mm" in e for e in errors)
+
+
+JUNK_PUBLISHER = """
+import json, sys, time, msgpack, zenoh
+endpoint, robot = sys.argv[1:3]
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+with zenoh.open(conf) as session:
+    pub = session.declare_publisher(f"ubf/{robot}/sensor/junk/a")
+    print("publishing", flush=True)
+    seq = 0
+    while True:
+        seq += 1
+        pub.put(b"\\xc1\\xff garbage")
+        pub.put(msgpack.packb({"schema": "range", "v": 1, "stamp_ns": 1, "seq": seq,
+                               "data": {"range_mm": "near", "status": "ok"}}))
+        pub.put(msgpack.packb({"schema": "range", "v": 1, "stamp_ns": 1, "seq": seq,
+                               "data": {"range_mm": 5, "status": "ok"}}))
+        time.sleep(0.02)
+"""
+
+
+def test_state_shows_sources_with_ages_and_the_explanation(
+    running_robot: list[Process], endpoint: str, robot: str
+) -> None:
+    def state() -> str | None:
+        proc = inspect("state", "--connect", endpoint, "--robot", robot)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout if "range/plain" in proc.stdout else None
+
+    out = until(state, what="range/plain in the controller's state")
+    assert f"robot {robot!r}, controller: periodic mode" in out
+    assert "drive: speed +40 turn +0  won by: chase" in out
+    source_lines = [line for line in out.splitlines() if " age " in line]
+    assert {line.split()[0] for line in source_lines} == {"camera/front", "range/plain"}
+    assert all(line.split()[2].isdigit() and "ms" in line for line in source_lines)
+    explanation = out[out.index("last tick"):]
+    assert "* chase [p=1 w=1]: speed=+40 turn=+0 vote=1" in explanation
+    assert "search [p=2 w=1]: abstain" in explanation
+    as_json = json.loads(inspect("state", "--json", "--connect", endpoint, "--robot",
+                                 robot).stdout)
+    assert as_json["status"]["winners"] == ["chase"]
+
+
+def test_keys_lists_keys_with_rates(
+    running_robot: list[Process], endpoint: str, robot: str
+) -> None:
+    proc = inspect("keys", "--seconds", "1", "--connect", endpoint, "--robot", robot)
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split()[0]: line.split()[1:] for line in proc.stdout.splitlines()[1:]}
+    prefix = f"ubf/{robot}/"
+    assert {f"{prefix}cmd/drive", f"{prefix}sensor/range/plain", f"{prefix}sensor/camera/front",
+            f"{prefix}heartbeat/controller", f"{prefix}status/controller"} <= set(rows)
+    count, rate, schema = rows[f"{prefix}cmd/drive"][:3]
+    assert int(count) >= 30 and schema == "drive" and 30 <= float(rate.removesuffix("Hz")) <= 60
+    assert rows[f"{prefix}sensor/range/plain"][2] == "range"
+    assert 10 <= float(rows[f"{prefix}sensor/range/plain"][1].removesuffix("Hz")) <= 25
+
+
+def test_formatting_helpers() -> None:
+    keys = Keys("r")
+    assert resolve_key(keys, "sensor/range/front") == "ubf/r/sensor/range/front"
+    assert resolve_key(keys, "ubf/other/cmd/drive") == "ubf/other/cmd/drive"
+    assert expected_schema(keys, "ubf/r/cmd/drive") == "drive"
+    assert expected_schema(keys, "ubf/r/vote/a/b") == "vote"
+    assert expected_schema(keys, "ubf/r/sensor/range/x") is None
+    # A drive key only takes drive payloads, as on the robot.
+    wrong = encode("range", {"range_mm": 1, "status": "ok"}, stamp_ns=1, seq=1)
+    assert "ERROR" in format_sample(keys, "ubf/r/cmd/drive", wrong, raw=False, as_json=False)
+    assert "RAW" in format_sample(keys, "ubf/r/cmd/drive", wrong, raw=True, as_json=False)
+    raw_junk = format_sample(keys, "k", b"\xc1", raw=True, as_json=True)
+    assert "error" in json.loads(raw_junk)
+    with_bytes = msgpack.packb({"schema": "blob", "v": 1, "stamp_ns": 1, "seq": 1,
+                                "data": {"b": b"\x01\x02"}})
+    assert json.loads(format_sample(keys, "k", with_bytes, raw=False,
+                                    as_json=True))["data"] == {"b": "0102"}

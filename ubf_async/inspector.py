@@ -1,0 +1,410 @@
+"""``python -m ubf_async.inspector`` — look into a running robot from the command line.
+
+ROS-2-like subcommands, each a separate short-lived zenoh session:
+
+* ``components`` — the live components: one name per line, sorted, from the liveliness
+  tokens ``ubf/<robot>/alive/*`` (``--long`` adds heartbeat health);
+* ``keys`` — the keys that carry samples, with message counts and rates over ``--seconds``;
+* ``echo KEY`` — samples on a key (or key expression), decoded and validated like the robot
+  does; malformed payloads are printed as errors, never crash the tool;
+* ``state`` — the controller's view: tick rate, drive command, every source with its age
+  (and whether it is stale), and the last tick's explanation (who voted what, who won).
+
+It joins the robot as a zenoh **client** of the endpoint it connects to (default
+``tcp/127.0.0.1:7447``, where ``python -m ubf_async.launch`` listens), so the robot's peer
+answers for every process attached to it. It declares no liveliness token: it never shows up
+in ``components``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, TextIO
+
+import msgpack
+
+from ubf_async.bus import DEFAULT_LISTEN, Bus, add_connection_arguments, connection_options
+from ubf_async.component import HealthMonitor
+from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode
+from ubf_async.remote import VOTE_SCHEMA  # also registers the "vote" schema
+
+PROG = "python -m ubf_async.inspector"
+
+COMMAND_SCHEMAS = {"drive": "drive", "seek_color": "seek_color", "radio": "radio.send",
+                   "leds": "leds"}
+
+
+def expected_schema(keys: Keys, key: str) -> str | None:
+    """The schema a key requires (``cmd/drive`` → ``drive``), ``None`` where any is allowed."""
+    head = keys.prefix + "/"
+    if not key.startswith(head):
+        return None
+    parts = key[len(head):].split("/")
+    if parts[0] == "cmd" and len(parts) == 2:
+        return COMMAND_SCHEMAS.get(parts[1])
+    if parts[0] == "heartbeat" and len(parts) == 2:
+        return "heartbeat"
+    if parts == ["clock"]:
+        return "clock"
+    if parts[0] == "vote" and len(parts) == 3:
+        return VOTE_SCHEMA
+    return None
+
+
+def decode_for(keys: Keys, key: str, payload: bytes) -> Message:
+    """Decode and validate a sample as its key requires (raises :class:`ProtocolError`)."""
+    return decode(payload, schema=expected_schema(keys, key))
+
+
+def resolve_key(keys: Keys, key: str) -> str:
+    """``sensor/range/front`` → ``ubf/<robot>/sensor/range/front``; full keys stay as they are."""
+    key = key.strip().strip("/")
+    if not key:
+        raise ValueError("empty key")
+    return key if key.startswith("ubf/") or key.startswith("**") else f"{keys.prefix}/{key}"
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return value.hex()
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def _json(value: Any) -> str:
+    return json.dumps(_jsonable(value), ensure_ascii=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# Command line
+
+
+def _common_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    add_connection_arguments(common)
+    for action in common._actions:  # the tool's defaults differ from a component's
+        if action.dest == "mode":
+            action.default = "client"
+            action.help = ("zenoh session mode (default: client — the robot's peer then "
+                           "answers for every process attached to it)")
+        elif action.dest == "connect":
+            action.help = (f"endpoint of the robot (repeatable; default: {DEFAULT_LISTEN} "
+                           "unless --listen is given)")
+    common.add_argument("--timeout", type=float, default=5.0, metavar="S",
+                        help="how long to wait for the robot to answer (default: 5)")
+    return common
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = _common_parser()
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Inspect a running ubf_async robot over zenoh: its live components, "
+                    "its keys and their rates, decoded samples, and the controller's state "
+                    "with the last tick's explanation.",
+        epilog=f"examples:\n  {PROG} components --connect tcp/127.0.0.1:7447\n"
+               f"  {PROG} keys --seconds 3\n"
+               f"  {PROG} echo sensor/range/front --count 5\n"
+               f"  {PROG} echo 'cmd/**' --json\n"
+               f"  {PROG} state --robot mini\n"
+               f"run `{PROG} COMMAND --help` for a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    components = sub.add_parser(
+        "components", parents=[common], help="list the live components (liveliness tokens)",
+        description="List the robot's live components: one name per line, sorted, from the "
+                    "liveliness tokens ubf/<robot>/alive/*. Exactly those whose token is "
+                    "present now; a killed process disappears as soon as its session ends.",
+    )
+    components.add_argument("--long", "-L", action="store_true",
+                            help="also listen to heartbeats for --heartbeat-s and show health")
+    components.add_argument("--heartbeat-s", type=float, default=1.2, metavar="S",
+                            help="with --long: how long to listen for heartbeats")
+    keys = sub.add_parser(
+        "keys", parents=[common], help="list the keys carrying samples, with rates",
+        description="Listen to ubf/<robot>/** for --seconds and list every key that carried "
+                    "samples: count, rate, schema of the last sample, malformed payloads.",
+    )
+    keys.add_argument("--seconds", type=float, default=2.0, metavar="S",
+                      help="how long to listen (default: 2)")
+    echo = sub.add_parser(
+        "echo", parents=[common], help="print the samples of a key, decoded",
+        description="Print every sample on KEY, decoded from msgpack and validated like the "
+                    "robot does. Malformed payloads are printed as errors and echo goes on.",
+    )
+    echo.add_argument("key", metavar="KEY",
+                      help="a key or key expression, relative to ubf/<robot>/ unless it "
+                           "starts with ubf/ (e.g. sensor/range/front, 'sensor/**')")
+    echo.add_argument("--count", "-n", type=int, default=0, metavar="N",
+                      help="stop after N samples (default: 0 = until Ctrl-C)")
+    echo.add_argument("--seconds", type=float, default=None, metavar="S",
+                      help="stop after S seconds")
+    echo.add_argument("--raw", action="store_true",
+                      help="print the msgpack map as it came, without validation")
+    echo.add_argument("--json", action="store_true", help="one JSON object per line")
+    state = sub.add_parser(
+        "state", parents=[common], help="the controller's state and last tick's explanation",
+        description="Wait for the controller's status (ubf/<robot>/status/<controller>) and "
+                    "print its tick rate, drive command, sources with ages, and the last "
+                    "tick's explanation: every behaviour's vote, '*' marking the winners.",
+    )
+    state.add_argument("--controller", default="controller", metavar="NAME",
+                       help="the controller component's name (default: controller)")
+    state.add_argument("--json", action="store_true", help="print the status as JSON")
+    return parser
+
+
+# ---------------------------------------------------------------------------------------------
+# Commands
+
+
+async def open_bus(args: argparse.Namespace) -> Bus:
+    """Open a session and wait until it reaches the robot (ConnectionError if not)."""
+    options = connection_options(args)
+    if not options.connect and not options.listen:
+        options.connect = [DEFAULT_LISTEN]
+    bus = await Bus.open(options)
+    info = bus.session.info
+    deadline = time.monotonic() + args.timeout
+    while not (list(info.peers_zid()) or list(info.routers_zid())):
+        if time.monotonic() > deadline:
+            await bus.aclose()
+            raise ConnectionError(
+                f"no robot reached at {' '.join(options.connect) or '(listening only)'} "
+                f"within {args.timeout:g}s")
+        await asyncio.sleep(0.01)
+    return bus
+
+
+async def cmd_components(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    keys = bus.keys
+    monitor: HealthMonitor | None = None
+    if args.long:
+        monitor = HealthMonitor(bus)
+        monitor.start()
+        await asyncio.sleep(args.heartbeat_s)
+    tokens = await bus.alive_tokens(keys.all_alive, timeout_s=args.timeout)
+    names = sorted({keys.component_of_alive(t) for t in tokens})
+    if monitor is None:
+        for name in names:
+            print(name, file=out)
+        return 0
+    now = time.monotonic()
+    for name in names:
+        health = monitor.components.get(name)
+        if health is None or health.last_heartbeat_s is None:
+            detail = "no heartbeat (not a ubf_async component, or none yet)"
+        else:
+            state = "healthy" if health.healthy(now) else "UNHEALTHY"
+            detail = (f"{state}: heartbeat {now - health.last_heartbeat_s:.2f}s ago, "
+                      f"restarts {health.restarts}, loop lag {health.loop_lag_s * 1e3:.1f}ms")
+        print(f"{name:24} {detail}", file=out)
+    monitor.close()
+    return 0
+
+
+@dataclass
+class KeyStats:
+    count: int = 0
+    malformed: int = 0
+    schema: str = "?"
+    bytes: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+    error: str = ""
+
+
+async def cmd_keys(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    keys = bus.keys
+    seen: dict[str, KeyStats] = {}
+
+    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
+        stats = seen.get(key)
+        if stats is None:
+            stats = seen[key] = KeyStats(first_ns=received_ns)
+        stats.count += 1
+        stats.bytes += len(payload)
+        stats.last_ns = received_ns
+        try:
+            stats.schema = decode_for(keys, key, payload).schema
+        except ProtocolError as exc:
+            stats.malformed += 1
+            stats.error = str(exc)
+
+    bus.subscribe(keys.everything, on_sample, latest=False, max_queue=1 << 16)
+    await asyncio.sleep(args.seconds)
+    if not seen:
+        print(f"no samples on {keys.everything} in {args.seconds:g}s", file=out)
+        return 1
+    width = max(len(k) for k in seen)
+    print(f"{'KEY':{width}}  {'COUNT':>6}  {'RATE':>9}  SCHEMA", file=out)
+    for key in sorted(seen):
+        s = seen[key]
+        rate = f"{s.count / args.seconds:7.1f}Hz"
+        line = f"{key:{width}}  {s.count:6d}  {rate:>9}  {s.schema}"
+        if s.malformed:
+            line += f"  ({s.malformed} malformed: {s.error})"
+        print(line, file=out)
+    return 0
+
+
+def format_sample(keys: Keys, key: str, payload: bytes, *, raw: bool, as_json: bool) -> str:
+    """One line for one sample: decoded (or raw) fields, or the reason it was rejected."""
+    if raw:
+        try:
+            if len(payload) > MAX_PAYLOAD_BYTES:
+                raise ValueError(f"{len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+            value = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        except Exception as exc:  # any unpacker failure is the payload's, not ours
+            error = f"not msgpack: {exc}"
+            return _json({"key": key, "error": error}) if as_json else f"{key} ERROR {error}"
+        return _json({"key": key, "raw": value}) if as_json else f"{key} RAW {_json(value)}"
+    try:
+        message = decode_for(keys, key, payload)
+    except ProtocolError as exc:
+        return _json({"key": key, "error": str(exc)}) if as_json else f"{key} ERROR {exc}"
+    if as_json:
+        return _json({"key": key, "schema": message.schema, "seq": message.seq,
+                      "stamp_ns": message.stamp_ns, "period_s": message.period_s,
+                      "data": message.data})
+    period = f" period {message.period_s:g}s" if message.period_s is not None else ""
+    return (f"{key} {message.schema} #{message.seq} stamp {message.stamp_ns}{period}: "
+            f"{_json(message.data)}")
+
+
+async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    keys = bus.keys
+    try:
+        key_expr = resolve_key(keys, args.key)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    done = asyncio.Event()
+    shown = 0
+
+    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
+        nonlocal shown
+        if done.is_set():
+            return
+        print(format_sample(keys, key, payload, raw=args.raw, as_json=args.json), file=out)
+        out.flush()
+        shown += 1
+        if args.count and shown >= args.count:
+            done.set()
+
+    bus.subscribe(key_expr, on_sample, latest=False)
+    if not args.json:
+        print(f"# echo {key_expr}", file=out)
+        out.flush()
+    with contextlib.suppress(TimeoutError):  # --seconds elapsed
+        await asyncio.wait_for(done.wait(), args.seconds)
+    return 0 if not args.count or shown >= args.count else 1
+
+
+def format_state(status: dict[str, Any], *, robot: str, controller: str,
+                 status_age_s: float | None) -> str:
+    def num(value: Any, fmt: str, default: str = "--") -> str:
+        return format(value, fmt) if isinstance(value, int | float) else default
+
+    lines = []
+    age = f", status {status_age_s * 1e3:.0f} ms old" if status_age_s is not None else ""
+    lines.append(f"robot {robot!r}, {controller}: {status.get('mode', '?')} mode, "
+                 f"tick {num(status.get('rate_hz'), '.1f')} Hz "
+                 f"(target {num(status.get('rate_hz_target'), 'g')}), "
+                 f"{status.get('ticks', '?')} ticks, {status.get('overruns', '?')} overruns, "
+                 f"{status.get('errors', '?')} errors, "
+                 f"tick p50 {num(status.get('tick_us_p50'), '.0f')} us{age}")
+    winners = ", ".join(status.get("winners") or []) or "nobody (stop)"
+    lines.append(f"drive: speed {num(status.get('speed'), '+.0f')} "
+                 f"turn {num(status.get('turn'), '+.0f')}  won by: {winners}")
+    sources = status.get("sources") or []
+    lines.append(f"sources ({len(sources)}):")
+    if not sources:
+        lines.append("  (none yet)")
+    width = max((len(str(s.get("source", ""))) for s in sources), default=0)
+    for s in sources:
+        stale = "  STALE" if s.get("stale") else ""
+        age_s = s.get("age_s")
+        age_ms = age_s * 1e3 if isinstance(age_s, int | float) else None
+        lines.append(f"  {s.get('source', '?')!s:{width}}  age {num(age_ms, '7.0f'):>7} ms"
+                     f"  {s.get('schema', '')}{stale}")
+    explanation = status.get("explanation") or "(no tick yet)"
+    lines.append("last tick ('*' = won; [p=priority w=weight] <arbiter>):")
+    lines.extend(f"  {line}" for line in str(explanation).splitlines())
+    return "\n".join(lines)
+
+
+async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    keys = bus.keys
+    key = keys.status(args.controller)
+    got: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
+    errors: list[str] = []
+
+    def on_sample(k: str, payload: bytes, received_ns: int) -> None:
+        try:
+            message = decode(payload)
+        except ProtocolError as exc:
+            errors.append(str(exc))
+            return
+        if not got.done():
+            got.set_result(message)
+
+    bus.subscribe(key, on_sample)
+    try:
+        message = await asyncio.wait_for(got, args.timeout)
+    except TimeoutError:
+        why = f" (malformed: {errors[-1]})" if errors else ""
+        print(f"error: no status on {key} within {args.timeout:g}s{why}: is the robot's "
+              f"controller running (--controller, --robot)?", file=sys.stderr)
+        return 1
+    if args.json:
+        print(_json({"key": key, "stamp_ns": message.stamp_ns, "status": message.data}),
+              file=out)
+        return 0
+    # The status's stamp and our clock are both CLOCK_MONOTONIC of this host when the robot
+    # runs on wall time; under simulation time the difference means nothing, so omit it.
+    age = (time.monotonic_ns() - message.stamp_ns) / 1e9
+    print(format_state(message.data, robot=bus.robot, controller=args.controller,
+                       status_age_s=age if 0 <= age < 3600 else None), file=out)
+    return 0
+
+
+COMMANDS = {"components": cmd_components, "keys": cmd_keys, "echo": cmd_echo,
+            "state": cmd_state}
+
+
+async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+    try:
+        bus = await open_bus(args)
+    except ConnectionError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return await COMMANDS[args.command](bus, args, out)
+    finally:
+        await bus.aclose()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return asyncio.run(run(args))
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:  # `... | head`
+        return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,860 @@
+"""Remote behaviours: a behaviour in another process joins the robot's behaviour tree.
+
+The wire side (documented in ``docs/protocol.md``, section *Remote behaviours*):
+
+* a remote process holds the liveliness token ``ubf/<robot>/alive/<behaviour>`` and publishes
+  its votes on ``ubf/<robot>/vote/<composite>/<behaviour>``, schema ``"vote"``: the action's
+  fields (``speed``, ``turn``, ``seek_color``, ``message``, ``leds``), its ``vote`` (0 =
+  abstain) and optionally ``ttl_s`` (how long the vote holds), ``priority`` and ``weight``;
+* the robot's :class:`RemoteBehaviors` component attaches a :class:`RemoteBehavior` as a
+  child of the composite named in the key, on the first valid vote of a behaviour whose token
+  is alive, with the priority/weight configured on the robot (``config``) or else requested
+  in the vote. The child's action is the newest vote while that vote is younger than its
+  TTL on the robot clock and the token lives; otherwise it abstains. When the token goes
+  the child is detached (and attached again when the process comes back and votes).
+
+The remote side: :class:`RemoteBehaviorHost` runs any plain :class:`~ubf_async.behavior.
+Behavior` in this process — it builds the state with its own state aggregator (the same
+sensor samples the robot sees), ticks the behaviour and publishes its votes — and
+:func:`remote_parser` / :func:`run_remote_behavior` make a command-line program of it
+(``examples/teleop_override.py``, ``examples/avoid_obstacles.py``).
+
+Everything runs on the event loop; zenoh's threads only hand samples over (see ``bus``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import math
+import signal
+import sys
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, TextIO
+
+from ubf_async.action import Action
+from ubf_async.aggregator import StateAggregator
+from ubf_async.behavior import Behavior, Composite
+from ubf_async.bus import (
+    DEFAULT_LISTEN,
+    Bus,
+    Publisher,
+    add_connection_arguments,
+    connection_options,
+    decode_or_count,
+    follow_sim_clock,
+)
+from ubf_async.clock import Clock, SimClock, WallClock
+from ubf_async.component import Component
+from ubf_async.protocol import (
+    RGB,
+    Check,
+    Keys,
+    Message,
+    ProtocolError,
+    _check_segment,
+    decode,
+    integer,
+    number,
+    record,
+    register_schema,
+    text,
+)
+from ubf_async.state import State
+
+log = logging.getLogger(__name__)
+
+VOTE_SCHEMA = "vote"
+STATUS_SCHEMA = "remotes.status"
+DEFAULT_TTL_S = 0.5
+"""How long a vote holds when neither the vote nor the robot says otherwise."""
+MAX_TTL_S = 60.0
+"""Largest ``ttl_s`` the schema accepts (the robot clamps further, see ``max_ttl_s``)."""
+PRIORITY_LIMIT = 1_000_000
+MAX_WEIGHT = 1e6
+
+
+# ---------------------------------------------------------------------------------------------
+# Keys and the "vote" schema
+
+
+def vote_key(keys: Keys, composite: str, behavior: str) -> str:
+    """``ubf/<robot>/vote/<composite>/<behaviour>``: where ``behavior`` votes in ``composite``."""
+    return (f"{keys.prefix}/vote/{_check_segment('composite name', composite)}/"
+            f"{_check_segment('behaviour name', behavior)}")
+
+
+def all_votes(keys: Keys) -> str:
+    """Every vote of the robot (``**`` so that malformed keys are seen, and rejected)."""
+    return f"{keys.prefix}/vote/**"
+
+
+def parse_vote_key(keys: Keys, key: str) -> tuple[str, str]:
+    """``ubf/<robot>/vote/<composite>/<behaviour>`` → ``(composite, behaviour)``."""
+    head = f"{keys.prefix}/vote/"
+    parts = key[len(head):].split("/") if key.startswith(head) else []
+    if len(parts) != 2 or not all(parts):
+        raise ProtocolError(
+            f"{key!r} is not a vote key: expected {head}<composite>/<behaviour>"
+        )
+    return parts[0], parts[1]
+
+
+def _seek_color(value: Any, path: str) -> Any:
+    checked = record({"lo": RGB, "hi": RGB}, extra=False, nullable=True)(value, path)
+    if checked is not None and any(a > b for a, b in zip(checked["lo"], checked["hi"],
+                                                          strict=True)):
+        raise ProtocolError(f"{path}: lo {checked['lo']} exceeds hi {checked['hi']}")
+    return checked
+
+
+ACTION_FIELDS: dict[str, Check] = {
+    "speed": number(-100.0, 100.0, nullable=True),
+    "turn": number(-100.0, 100.0, nullable=True),
+    "seek_color": _seek_color,
+    "message": text(256, nullable=True),
+    "leds": integer(0, 255, nullable=True),
+}
+VOTE_CHECK: Check = record(
+    {
+        **ACTION_FIELDS,
+        "vote": number(0.0),
+        "ttl_s": number(1e-3, MAX_TTL_S),
+        "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
+        "weight": number(0.0, MAX_WEIGHT),
+    },
+    optional=(*ACTION_FIELDS, "ttl_s", "priority", "weight"),
+)
+"""The ``"vote"`` schema: action fields (unset = absent or nil), ``vote`` (required, finite,
+≥ 0), optional ``ttl_s``, ``priority`` and ``weight``."""
+
+register_schema(VOTE_SCHEMA, VOTE_CHECK)
+
+
+def action_of_vote(data: Mapping[str, Any]) -> Action:
+    """The :class:`Action` a validated vote's data describes (raises :class:`ProtocolError`)."""
+    seek = data.get("seek_color")
+    try:
+        return Action(
+            speed=data.get("speed"),
+            turn=data.get("turn"),
+            vote=data["vote"],
+            seek_color=None if seek is None else (tuple(seek["lo"]), tuple(seek["hi"])),
+            message=data.get("message"),
+            leds=data.get("leds"),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProtocolError(f"data: not a valid action: {exc}") from None
+
+
+def vote_data(
+    action: Action | None,
+    *,
+    ttl_s: float | None = None,
+    priority: int | None = None,
+    weight: float | None = None,
+) -> dict[str, Any]:
+    """The ``"vote"`` data for ``action`` (``None`` → a vote of 0: abstain)."""
+    out: dict[str, Any] = {"vote": 0.0}
+    if action is not None:
+        out["vote"] = float(action.vote)
+        for name in ("speed", "turn", "message", "leds"):
+            value = getattr(action, name)
+            if value is not None:
+                out[name] = value
+        if action.seek_color is not None:
+            out["seek_color"] = {"lo": list(action.seek_color.lo),
+                                 "hi": list(action.seek_color.hi)}
+    if ttl_s is not None:
+        out["ttl_s"] = float(ttl_s)
+    if priority is not None:
+        out["priority"] = priority
+    if weight is not None:
+        out["weight"] = float(weight)
+    return out
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Vote:
+    """One decoded, validated vote."""
+
+    composite: str
+    behavior: str
+    action: Action
+    stamp_ns: int
+    seq: int
+    ttl_s: float | None = None
+    priority: int | None = None
+    weight: float | None = None
+
+    @classmethod
+    def decode(cls, keys: Keys, key: str, payload: bytes) -> Vote:
+        """Parse key and payload (raises :class:`ProtocolError`, nothing else)."""
+        composite, behavior = parse_vote_key(keys, key)
+        message = decode(payload, schema=VOTE_SCHEMA)
+        return cls.of_message(composite, behavior, message)
+
+    @classmethod
+    def of_message(cls, composite: str, behavior: str, message: Message) -> Vote:
+        data = message.data
+        return cls(
+            composite=composite, behavior=behavior, action=action_of_vote(data),
+            stamp_ns=message.stamp_ns, seq=message.seq, ttl_s=data.get("ttl_s"),
+            priority=data.get("priority"), weight=data.get("weight"),
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Robot side
+
+
+class RemoteBehavior(Behavior):
+    """A child of a composite whose action comes from another process's votes.
+
+    :meth:`act` (each tick, on the event loop) returns the newest vote's action while the
+    vote's age on the robot clock, ``state.now_ns − stamp_ns``, is within ``ttl_s`` (a vote
+    stamped more than ``ttl_s`` in the *future* means the two clocks disagree and is dropped
+    too) and the process's liveliness token is alive; otherwise ``None`` (abstain).
+    :meth:`reset` keeps the vote: it is the remote process's opinion, not this object's memory.
+    """
+
+    def __init__(self, *, name: str, composite: str, ttl_s: float = DEFAULT_TTL_S) -> None:
+        super().__init__(name=name)
+        self.composite = composite
+        self.ttl_s = ttl_s
+        self.alive = False
+        """The process's liveliness token is present (kept by :class:`RemoteBehaviors`)."""
+        self.action: Action | None = None
+        self.stamp_ns = 0
+        self.seq = 0
+        self.votes = 0
+        """Accepted votes."""
+
+    @property
+    def ttl_s(self) -> float:
+        return self._ttl_ns / 1e9
+
+    @ttl_s.setter
+    def ttl_s(self, value: float) -> None:
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"ttl_s must be finite and > 0, got {value!r}")
+        self._ttl_ns = int(value * 1e9)
+
+    def update(self, action: Action, *, stamp_ns: int, seq: int = 0) -> bool:
+        """Take a new vote; an older one than the current (out of order) is ignored."""
+        if self.action is not None and stamp_ns < self.stamp_ns:
+            return False
+        self.action = action
+        self.stamp_ns = stamp_ns
+        self.seq = seq
+        self.votes += 1
+        return True
+
+    def forget(self) -> None:
+        """Drop the current vote (the process went away)."""
+        self.action = None
+
+    def valid(self, now_ns: int) -> bool:
+        """Whether the current vote counts at robot time ``now_ns``."""
+        if not self.alive or self.action is None:
+            return False
+        age = now_ns - self.stamp_ns
+        return -self._ttl_ns <= age <= self._ttl_ns
+
+    def act(self, state: State) -> Action | None:
+        action = self.action
+        if action is None or action.vote == 0 or not self.valid(state.now_ns):
+            return None  # a vote of 0 abstains: shown as such in the explanation
+        return action
+
+    def describe(self, indent: int = 0) -> str:
+        return "  " * indent + f"{self.name} (remote, ttl {self.ttl_s:g}s)"
+
+
+@dataclass(frozen=True, slots=True)
+class RemoteInfo:
+    composite: str
+    behavior: str
+    attached: bool
+    alive: bool
+    priority: int | None
+    weight: float | None
+    ttl_s: float
+    age_s: float | None
+    votes: int
+    action: str
+
+
+PriorityWeight = tuple[int, float]
+
+
+def parse_remote_spec(spec: str) -> tuple[str, PriorityWeight]:
+    """``"NAME=PRIORITY[:WEIGHT]"`` → ``(NAME, (priority, weight))`` for ``config``.
+
+    ``NAME`` is ``composite/behaviour`` or just ``behaviour`` (any composite). Raises
+    :class:`ValueError` with a readable message.
+    """
+    name, sep, value = spec.partition("=")
+    name = name.strip()
+    if not sep or not name or not value:
+        raise ValueError(f"{spec!r}: expected NAME=PRIORITY[:WEIGHT], e.g. teleop=10")
+    segments = name.split("/")
+    if len(segments) > 2 or not all(segments) or any(c in name for c in "*$?#"):
+        raise ValueError(f"{spec!r}: NAME must be 'behaviour' or 'composite/behaviour'")
+    priority_text, _, weight_text = value.partition(":")
+    try:
+        priority = int(priority_text)
+        weight = float(weight_text) if weight_text else 1.0
+    except ValueError:
+        raise ValueError(f"{spec!r}: PRIORITY must be an int and WEIGHT a number") from None
+    if not (math.isfinite(weight) and weight >= 0):
+        raise ValueError(f"{spec!r}: WEIGHT must be finite and ≥ 0")
+    return name, (priority, weight)
+
+
+def remote_spec(text: str) -> tuple[str, PriorityWeight]:
+    """:func:`parse_remote_spec` as an argparse ``type=``."""
+    try:
+        return parse_remote_spec(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+class _Entry:
+    __slots__ = ("attached_as", "behavior", "requested")
+
+    def __init__(self, behavior: RemoteBehavior) -> None:
+        self.behavior = behavior
+        self.requested: tuple[int | None, float | None] = (None, None)
+        self.attached_as: tuple[Composite, int, float] | None = None
+
+
+class RemoteBehaviors(Component):
+    """Attaches behaviours of other processes to the robot's tree (the robot's side).
+
+    Hooks: :meth:`run` (the component's task) subscribes to ``ubf/<robot>/vote/**``, watches
+    the liveliness tokens ``ubf/<robot>/alive/*`` and publishes a status on
+    ``ubf/<robot>/status/<name>`` every ``status_period_s``; when it ends, every remote child
+    is detached. :meth:`on_vote` and :meth:`on_liveliness` run on the event loop for each
+    sample and token change (call them directly to drive this class without a bus).
+
+    * ``root`` — the tree; a vote's composite is found with ``root.find(name)``.
+    * ``config`` — ``{"composite/behaviour" or "behaviour": (priority, weight)}``: the place
+      the robot gives a remote behaviour, overriding what its votes request. Without an entry
+      the vote's ``priority``/``weight`` are used (default 0 and 1); with
+      ``only_configured=True`` behaviours without an entry are refused.
+    * ``default_ttl_s`` — a vote's lifetime when it states none; ``max_ttl_s`` caps what a
+      vote may ask for.
+
+    Votes that are malformed, name an unknown composite (or a leaf), collide with a local
+    child's name, or exceed ``max_remotes`` are rejected: counted (``malformed`` /
+    ``rejected``, per key), logged (first and every 100th) and dropped.
+    """
+
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        root: Composite,
+        config: Mapping[str, PriorityWeight] | None = None,
+        default_ttl_s: float = DEFAULT_TTL_S,
+        max_ttl_s: float = 5.0,
+        only_configured: bool = False,
+        max_remotes: int = 64,
+        status_period_s: float = 0.5,
+        name: str = "remotes",
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=name, **component_options)
+        if not 0 < default_ttl_s <= max_ttl_s:
+            raise ValueError(f"need 0 < default_ttl_s ({default_ttl_s}) ≤ max_ttl_s "
+                             f"({max_ttl_s})")
+        self.root = root
+        self.config: dict[str, PriorityWeight] = {}
+        for key, (priority, weight) in (config or {}).items():
+            if isinstance(priority, bool) or not isinstance(priority, int):
+                raise ValueError(f"config[{key!r}]: priority must be an int, got {priority!r}")
+            if not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"config[{key!r}]: weight must be finite and ≥ 0")
+            self.config[key] = (priority, float(weight))
+        self.default_ttl_s = default_ttl_s
+        self.max_ttl_s = max_ttl_s
+        self.only_configured = only_configured
+        self.max_remotes = max_remotes
+        self.status_period_s = status_period_s
+        self.alive: set[str] = set()
+        """Names whose liveliness token is present."""
+        self.malformed: dict[str, int] = {}
+        """Votes that failed to decode, per key."""
+        self.rejected: dict[str, int] = {}
+        """Valid votes refused (unknown composite, name clash, not configured, full), per key."""
+        self.changed = asyncio.Event()
+        """Set whenever a remote is attached or detached (tests and tools clear and await it)."""
+        self._entries: dict[tuple[str, str], _Entry] = {}
+
+    # -- component ---------------------------------------------------------------------------
+    async def run(self) -> None:
+        keys = self.bus.keys
+        self.subscribe(all_votes(keys), self.on_vote)
+        watch = self.bus.watch_liveliness(keys.all_alive, self.on_liveliness)
+        status = self.publisher(keys.status(self.name), STATUS_SCHEMA,
+                                period_s=self.status_period_s)
+        try:
+            while True:
+                await asyncio.sleep(self.status_period_s)
+                self.prune()
+                status.publish(self.status())
+        finally:
+            watch.close()
+            self.detach_all()
+            self.alive.clear()
+
+    # -- ingest (event loop) -----------------------------------------------------------------
+    def on_vote(self, key: str, payload: bytes, received_ns: int = 0) -> None:
+        """Handle one sample on ``ubf/<robot>/vote/**``."""
+        vote = decode_or_count(payload, self.malformed, key,
+                               lambda p: Vote.decode(self.bus.keys, key, p))
+        if vote is not None:
+            self.accept(vote, key=key)
+
+    def accept(self, vote: Vote, *, key: str = "") -> bool:
+        """Take a validated vote: create/attach its remote child as needed."""
+        key = key or f"{vote.composite}/{vote.behavior}"
+        ident = (vote.composite, vote.behavior)
+        if self.only_configured and self._configured(*ident) is None:
+            return self._reject(key, f"{vote.behavior!r} is not configured on this robot "
+                                     "(only configured remote behaviours may attach)")
+        entry = self._entries.get(ident)
+        if entry is None:
+            if len(self._entries) >= self.max_remotes:
+                return self._reject(key, f"already {self.max_remotes} remote behaviours")
+            composite = self.root.find(vote.composite)
+            if not isinstance(composite, Composite):
+                what = "a leaf, not a composite" if composite is not None else "unknown"
+                return self._reject(key, f"composite {vote.composite!r} is {what}")
+            entry = _Entry(RemoteBehavior(name=vote.behavior, composite=vote.composite))
+            self._entries[ident] = entry
+            if vote.behavior not in self.alive:
+                log.info("vote of %s waits for its liveliness token %s", vote.behavior,
+                         self.bus.keys.alive(vote.behavior))
+        remote = entry.behavior
+        remote.alive = vote.behavior in self.alive
+        if not remote.update(vote.action, stamp_ns=vote.stamp_ns, seq=vote.seq):
+            return False  # out of order: older than the vote held
+        ttl = self.default_ttl_s if vote.ttl_s is None else vote.ttl_s
+        remote.ttl_s = min(ttl, self.max_ttl_s)
+        entry.requested = (vote.priority, vote.weight)
+        if remote.alive:
+            return self._attach(entry, key)
+        return True
+
+    def on_liveliness(self, key: str, alive: bool) -> None:
+        """A token ``ubf/<robot>/alive/<name>`` appeared (``alive``) or vanished."""
+        name = self.bus.keys.component_of_alive(key)
+        if alive:
+            self.alive.add(name)
+        else:
+            self.alive.discard(name)
+        for (composite, behavior), entry in list(self._entries.items()):
+            if behavior != name:
+                continue
+            entry.behavior.alive = alive
+            if alive:
+                if entry.behavior.action is not None:
+                    self._attach(entry, self._key(composite, behavior))
+            else:
+                self._detach(entry)
+                entry.behavior.forget()
+                del self._entries[(composite, behavior)]
+                log.info("remote behaviour %s left %s (token gone)", behavior, composite)
+
+    # -- tree changes ------------------------------------------------------------------------
+    def placement(self, composite: str, behavior: str,
+                  requested: tuple[int | None, float | None] = (None, None)) -> PriorityWeight:
+        """The (priority, weight) a remote gets: configured, else requested, else (0, 1)."""
+        configured = self._configured(composite, behavior)
+        if configured is not None:
+            return configured
+        priority, weight = requested
+        return (0 if priority is None else priority, 1.0 if weight is None else weight)
+
+    def _configured(self, composite: str, behavior: str) -> PriorityWeight | None:
+        return self.config.get(f"{composite}/{behavior}", self.config.get(behavior))
+
+    def _attach(self, entry: _Entry, key: str) -> bool:
+        remote = entry.behavior
+        priority, weight = self.placement(remote.composite, remote.name, entry.requested)
+        current = entry.attached_as
+        if current is not None:
+            composite, p, w = current
+            if (p, w) == (priority, weight) and any(
+                c.behavior is remote for c in composite.children
+            ):
+                return True
+            self._detach(entry)  # new placement requested: attach again below
+        composite = self.root.find(remote.composite)
+        if not isinstance(composite, Composite):
+            del self._entries[(remote.composite, remote.name)]
+            return self._reject(key, f"composite {remote.composite!r} no longer in the tree")
+        if any(c.behavior.name == remote.name for c in composite.children):
+            del self._entries[(remote.composite, remote.name)]
+            return self._reject(key, f"{remote.composite!r} already has a child named "
+                                     f"{remote.name!r}")
+        composite.add(remote, priority=priority, weight=weight)
+        entry.attached_as = (composite, priority, weight)
+        log.info("remote behaviour %s attached to %s at priority %d weight %g",
+                 remote.name, remote.composite, priority, weight)
+        self.changed.set()
+        return True
+
+    def _detach(self, entry: _Entry) -> None:
+        if entry.attached_as is None:
+            return
+        composite = entry.attached_as[0]
+        entry.attached_as = None
+        if any(c.behavior is entry.behavior for c in composite.children):
+            composite.remove(entry.behavior.name)
+        self.changed.set()
+
+    def prune(self) -> None:
+        """Forget votes still waiting for a token after ``max_ttl_s`` (run periodically)."""
+        now = self.bus.clock.now_ns()
+        limit_ns = int(self.max_ttl_s * 1e9)
+        for ident, entry in list(self._entries.items()):
+            remote = entry.behavior
+            if entry.attached_as is None and not remote.alive and (
+                remote.action is None or abs(now - remote.stamp_ns) > limit_ns
+            ):
+                del self._entries[ident]
+
+    def detach_all(self) -> None:
+        """Remove every remote child from the tree and forget every vote."""
+        for entry in self._entries.values():
+            self._detach(entry)
+            entry.behavior.forget()
+        self._entries.clear()
+
+    def _reject(self, key: str, reason: str) -> bool:
+        n = self.rejected.get(key, 0) + 1
+        self.rejected[key] = n
+        if n == 1 or n % 100 == 0:
+            log.warning("rejected vote #%d on %s: %s", n, key, reason)
+        return False
+
+    def _key(self, composite: str, behavior: str) -> str:
+        return f"{self.bus.keys.prefix}/vote/{composite}/{behavior}"
+
+    # -- queries -----------------------------------------------------------------------------
+    def get(self, composite: str, behavior: str) -> RemoteBehavior | None:
+        entry = self._entries.get((composite, behavior))
+        return entry.behavior if entry is not None else None
+
+    def attached(self) -> list[str]:
+        """``"composite/behaviour"`` of every remote child in the tree, sorted."""
+        return sorted(f"{c}/{b}" for (c, b), e in self._entries.items()
+                      if e.attached_as is not None)
+
+    def remotes(self) -> list[RemoteInfo]:
+        now = self.bus.clock.now_ns()
+        out = []
+        for (composite, behavior), entry in sorted(self._entries.items()):
+            remote = entry.behavior
+            placed = entry.attached_as
+            out.append(RemoteInfo(
+                composite=composite, behavior=behavior, attached=placed is not None,
+                alive=remote.alive, priority=placed[1] if placed else None,
+                weight=placed[2] if placed else None, ttl_s=remote.ttl_s,
+                age_s=(now - remote.stamp_ns) / 1e9 if remote.action is not None else None,
+                votes=remote.votes,
+                action=(remote.action.describe() if remote.valid(now) and remote.action
+                        else "abstain (no valid vote)"),
+            ))
+        return out
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "remotes": [
+                {"composite": r.composite, "behavior": r.behavior, "attached": r.attached,
+                 "alive": r.alive, "priority": r.priority, "weight": r.weight,
+                 "ttl_s": r.ttl_s, "age_s": r.age_s, "votes": r.votes, "action": r.action}
+                for r in self.remotes()
+            ],
+            "malformed": sum(self.malformed.values()),
+            "rejected": sum(self.rejected.values()),
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# Remote side
+
+
+class RemoteBehaviorHost(Component):
+    """Runs a plain behaviour in this process as a child of a composite on the robot.
+
+    The component (named after the behaviour, so its liveliness token is the
+    ``ubf/<robot>/alive/<behaviour>`` the robot watches) does, in :meth:`run`:
+
+    * keeps the robot's state with its own :class:`~ubf_async.aggregator.StateAggregator` on
+      this bus (the same ``sensor/*/*`` samples the robot's aggregator sees; it declares no
+      token of its own), with the robot's last drive command as ``previous_action``;
+    * ticks the behaviour every ``1/rate_hz`` s of the bus clock, or on every new sample of
+      ``trigger`` — :meth:`Behavior.act` runs on the event loop, so it must not block;
+    * publishes each result as a vote on ``ubf/<robot>/vote/<composite>/<behaviour>`` stamped
+      with the state's time. Abstaining (``None``) is published as a vote of 0, so the robot
+      shows the behaviour as attached and abstaining. A behaviour that raises is logged,
+      counted in ``errors`` and abstains that tick. When the host stops, it votes 0 once.
+    """
+
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        behavior: Behavior,
+        composite: str,
+        rate_hz: float = 20.0,
+        trigger: str | None = None,
+        ttl_s: float | None = None,
+        priority: int | None = None,
+        weight: float | None = None,
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=behavior.name, **component_options)
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.behavior = behavior
+        self.composite = composite
+        self.key = vote_key(bus.keys, composite, behavior.name)  # validates both names
+        self.rate_hz = rate_hz
+        self.trigger = trigger
+        self.ttl_s = ttl_s
+        self.priority = priority
+        self.weight = weight
+        VOTE_CHECK(vote_data(None, ttl_s=ttl_s, priority=priority, weight=weight), "vote")
+        self.votes = 0
+        self.errors = 0
+        self.last_action: Action | None = None
+        self.robot_action: Action | None = None
+        """The robot's last ``cmd/drive`` (speed/turn), handed to the behaviour as
+        ``state.previous_action``."""
+        self.robot_winners: list[str] = []
+        self.malformed: dict[str, int] = {}
+        self.voted = asyncio.Event()
+        """Set after every published vote."""
+        self.aggregator: StateAggregator | None = None
+
+    async def run(self) -> None:
+        keys = self.bus.keys
+        aggregator = StateAggregator(bus=self.bus, name=f"{self.name}-state")
+        self.aggregator = aggregator
+        publisher = self.publisher(self.key, VOTE_SCHEMA,
+                                   period_s=None if self.trigger else 1.0 / self.rate_hz)
+        self.subscribe(keys.cmd("drive"), self._on_drive)
+        self.behavior.reset()
+        try:
+            async with asyncio.TaskGroup() as group:
+                # The aggregator's run() only subscribes and waits; running it here instead of
+                # start() keeps it from declaring a liveliness token and heartbeat of its own.
+                group.create_task(aggregator.run())
+                group.create_task(self._tick_loop(aggregator, publisher))
+        finally:
+            with contextlib.suppress(Exception):
+                publisher.publish(vote_data(None, ttl_s=self.ttl_s, priority=self.priority,
+                                            weight=self.weight))
+            await aggregator.aclose()
+
+    async def _tick_loop(self, aggregator: StateAggregator, publisher: Publisher) -> None:
+        if self.trigger:
+            version = 0
+            while True:
+                entry = await aggregator.wait_for_update(self.trigger, after_version=version)
+                version = entry.version
+                self.tick(aggregator, publisher)
+        period_s = 1.0 / self.rate_hz
+        while True:
+            self.tick(aggregator, publisher)
+            await self.bus.clock.sleep(period_s)
+
+    def tick(self, aggregator: StateAggregator, publisher: Publisher) -> Action | None:
+        """Snapshot the state, run the behaviour, publish its vote."""
+        state = aggregator.snapshot(previous_action=self.robot_action)
+        try:
+            action = self.behavior.act(state)
+        except Exception:
+            self.errors += 1
+            if self.errors == 1 or self.errors % 100 == 0:
+                log.exception("behaviour %s raised (error #%d): abstaining", self.name,
+                              self.errors)
+            action = None
+        publisher.publish(
+            vote_data(action, ttl_s=self.ttl_s, priority=self.priority, weight=self.weight),
+            stamp_ns=state.now_ns,
+        )
+        self.votes += 1
+        self.last_action = action
+        self.voted.set()
+        return action
+
+    def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(payload, self.malformed, key,
+                                  lambda p: decode(p, schema="drive"))
+        if message is not None:
+            self.robot_action = Action(speed=message.data["speed"], turn=message.data["turn"])
+            self.robot_winners = list(message.data.get("winners", []))
+
+
+# ---------------------------------------------------------------------------------------------
+# Command line for remote-behaviour programs
+
+
+def remote_parser(
+    *,
+    prog: str | None = None,
+    description: str,
+    name: str,
+    composite: str = "seek_pink_ball",
+    priority: int = 0,
+    weight: float = 1.0,
+    rate_hz: float = 20.0,
+    ttl_s: float = DEFAULT_TTL_S,
+) -> argparse.ArgumentParser:
+    """A parser with the shared connection flags and the remote-behaviour flags; add your
+    behaviour's own options to it, then call :func:`run_remote_behavior`."""
+    parser = argparse.ArgumentParser(
+        prog=prog, description=description,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    add_connection_arguments(parser)
+    parser.epilog = (f"Without --connect or --listen it connects to {DEFAULT_LISTEN}, where "
+                     "`python -m ubf_async.launch` listens by default.")
+    group = parser.add_argument_group("remote behaviour (see docs/protocol.md)")
+    group.add_argument("--name", default=name,
+                       help="behaviour name: its liveliness token is ubf/<robot>/alive/<name>")
+    group.add_argument("--composite", default=composite,
+                       help="the composite of the robot's tree to join")
+    group.add_argument("--priority", type=int, default=priority,
+                       help="priority requested in the composite (the robot's configuration "
+                            "may override it)")
+    group.add_argument("--weight", type=float, default=weight, help="weight requested")
+    group.add_argument("--rate-hz", type=float, default=rate_hz,
+                       help="how often the behaviour runs and votes")
+    group.add_argument("--trigger", default=None, metavar="SOURCE",
+                       help="vote on every new sample of SOURCE (e.g. range/front) instead of "
+                            "at --rate-hz")
+    group.add_argument("--ttl-s", type=float, default=ttl_s,
+                       help="how long each vote holds on the robot")
+    group.add_argument("--clock", choices=("auto", "wall", "sim"), default="auto",
+                       help="robot clock: wall (CLOCK_MONOTONIC), sim (follow "
+                            "ubf/<robot>/clock), auto (sim if a simulator speaks within "
+                            "--clock-wait-s)")
+    group.add_argument("--clock-wait-s", type=float, default=1.0,
+                       help="with --clock auto: how long to listen for a simulator")
+    run = parser.add_argument_group("run")
+    run.add_argument("--duration", type=float, default=None, metavar="S",
+                     help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
+    run.add_argument("--status-period-s", type=float, default=1.0,
+                     help="how often the status line is printed")
+    run.add_argument("--quiet", action="store_true", help="no status line")
+    run.add_argument("--log-level", default="WARNING",
+                     choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return parser
+
+
+async def choose_clock(bus: Bus, mode: str, *, wait_s: float = 1.0) -> Clock:
+    """The clock a remote process stamps with: wall, or the simulation time that a simulator
+    publishes on ``ubf/<robot>/clock`` (``auto``: sim if a clock sample arrives within
+    ``wait_s``). Sets ``bus.clock`` and returns it."""
+    if mode == "wall":
+        return bus.clock
+    sim = SimClock()
+    follow_sim_clock(bus, sim, {})
+    if mode == "auto":
+        try:
+            await asyncio.wait_for(sim.started.wait(), wait_s)
+        except TimeoutError:
+            return bus.clock
+    else:
+        await sim.started.wait()
+    bus.clock = sim
+    return sim
+
+
+async def host_remote_behavior(
+    behavior: Behavior, args: argparse.Namespace, out: TextIO = sys.stdout
+) -> int:
+    """Run ``behavior`` as a remote behaviour with the options of :func:`remote_parser`."""
+    if args.name:
+        behavior.name = args.name
+    options = connection_options(args)
+    if not options.connect and not options.listen:
+        options.connect = [DEFAULT_LISTEN]  # the endpoint `python -m ubf_async.launch` uses
+    bus = await Bus.open(options, clock=WallClock())
+    host: RemoteBehaviorHost | None = None
+    try:
+        if args.clock == "sim":
+            print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
+            out.flush()
+        clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s)
+        host = RemoteBehaviorHost(
+            bus=bus, behavior=behavior, composite=args.composite, rate_hz=args.rate_hz,
+            trigger=args.trigger, ttl_s=args.ttl_s, priority=args.priority,
+            weight=args.weight,
+        )
+        timing = f"on {args.trigger}" if args.trigger else f"at {args.rate_hz:g} Hz"
+        print(f"remote behaviour {behavior.name!r} votes in {args.composite!r} of robot "
+              f"{options.robot!r} {timing} (priority {args.priority}, weight {args.weight:g}, "
+              f"ttl {args.ttl_s:g}s) on {host.key}", file=out)
+        print(f"  clock: {'simulation time' if isinstance(clock, SimClock) else 'wall'}",
+              file=out)
+        out.flush()
+        await host.start()
+        started = time.monotonic()
+        last = 0.0
+        while args.duration is None or time.monotonic() - started < args.duration:
+            await asyncio.sleep(0.1)
+            now = time.monotonic()
+            if args.quiet or now - last < args.status_period_s:
+                continue
+            last = now
+            mine = host.last_action.describe() if host.last_action else "abstain"
+            robot = host.robot_action
+            drive = (f"robot drive {robot.speed:+.0f}/{robot.turn:+.0f} "
+                     f"({','.join(host.robot_winners) or 'stop'})" if robot else
+                     "no drive command seen yet")
+            print(f"[{behavior.name}] votes {host.votes}: {mine} | {drive}", file=out)
+            out.flush()
+        return 0
+    finally:
+        if host is not None:
+            await host.aclose()
+        await bus.aclose()
+
+
+def run_remote_behavior(
+    make_behavior: Callable[[argparse.Namespace], Behavior], args: argparse.Namespace
+) -> int:
+    """Entry point for a remote-behaviour program: logging, SIGTERM, asyncio, exit code."""
+    logging.basicConfig(level=args.log_level,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    behavior = make_behavior(args)
+
+    async def runner() -> int:
+        task = asyncio.current_task()
+        assert task is not None
+        with contextlib.suppress(NotImplementedError):
+            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
+        try:
+            return await host_remote_behavior(behavior, args)
+        except asyncio.CancelledError:
+            return 0
+        except (ConnectionError, ValueError) as exc:  # ProtocolError is a ValueError
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+
+    try:
+        return asyncio.run(runner())
+    except KeyboardInterrupt:
+        return 130
