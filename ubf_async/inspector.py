@@ -360,6 +360,13 @@ async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         if not got.done():
             got.set_result(message)
 
+    sim_now: list[int] = []
+
+    def on_clock(clock_key: str, payload: bytes, received_ns: int) -> None:
+        with contextlib.suppress(ProtocolError):
+            sim_now.append(decode(payload, schema="clock").stamp_ns)
+
+    bus.subscribe(bus.keys.clock, on_clock)
     bus.subscribe(key, on_sample)
     try:
         message = await asyncio.wait_for(got, args.timeout)
@@ -372,9 +379,10 @@ async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         print(_json({"key": key, "stamp_ns": message.stamp_ns, "status": message.data}),
               file=out)
         return 0
-    # The status's stamp and our clock are both CLOCK_MONOTONIC of this host when the robot
-    # runs on wall time; under simulation time the difference means nothing, so omit it.
-    age = (time.monotonic_ns() - message.stamp_ns) / 1e9
+    # The status is stamped on the robot clock: simulation time when a simulator publishes
+    # one (then compare with the newest simulation time seen), else CLOCK_MONOTONIC.
+    now_ns = max(sim_now) if sim_now else time.monotonic_ns()
+    age = (now_ns - message.stamp_ns) / 1e9
     print(format_state(message.data, robot=bus.robot, controller=args.controller,
                        status_age_s=age if 0 <= age < 3600 else None), file=out)
     return 0
