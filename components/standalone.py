@@ -14,8 +14,6 @@ import argparse
 import asyncio
 import contextlib
 import logging
-import signal
-import sys
 from collections.abc import Callable, Sequence
 
 from components.sim.remote import RemoteWorld
@@ -26,6 +24,7 @@ from ubf_async.bus import (
     connection_options,
     follow_sim_clock,
 )
+from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component
 
@@ -56,23 +55,7 @@ def run_device(
     logging.basicConfig(level=args.log_level,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
-    async def main() -> int:
-        task = asyncio.current_task()
-        assert task is not None
-        with contextlib.suppress(NotImplementedError):
-            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
-        try:
-            return await _serve(args, build, uses_simulator(args))
-        except asyncio.CancelledError:
-            return 0
-        except (ConnectionError, ValueError) as exc:
-            print(f"{prog}: error: {exc}", file=sys.stderr)
-            return 2
-
-    try:
-        return asyncio.run(main())
-    except KeyboardInterrupt:
-        return 130
+    return run_main(lambda: _serve(args, build, uses_simulator(args)), prog=prog)
 
 
 async def _serve(args: argparse.Namespace, build: Build, simulated: bool) -> int:

@@ -98,17 +98,29 @@ class HighestPriority(Arbiter):
         return _decide(best.action, (best.index,))
 
 
-def _fieldwise(ranked: Sequence[Candidate], vote: float) -> Decision:
-    """Each field from the first candidate in ``ranked`` that set it."""
-    values: dict[str, object] = {}
-    winners: set[int] = set()
-    for name in FIELDS:
+NON_NUMERIC_FIELDS = tuple(f for f in FIELDS if f not in NUMERIC_FIELDS)
+
+
+def _take_first_set(
+    values: dict[str, object], ranked: Sequence[Candidate], names: Sequence[str],
+    winners: set[int],
+) -> None:
+    """For each field in ``names``, the value of the first candidate in ``ranked`` that set
+    it (fields nobody set stay out of ``values``); contributors are added to ``winners``."""
+    for name in names:
         for c in ranked:
             value = getattr(c.action, name)
             if value is not None:
                 values[name] = value
                 winners.add(c.index)
                 break
+
+
+def _fieldwise(ranked: Sequence[Candidate], vote: float) -> Decision:
+    """Each field from the first candidate in ``ranked`` that set it."""
+    values: dict[str, object] = {}
+    winners: set[int] = set()
+    _take_first_set(values, ranked, FIELDS, winners)
     return _decide(Action(vote=vote, **values), tuple(sorted(winners)))
 
 
@@ -137,14 +149,7 @@ class PriorityMerge(Arbiter):
             parts = [v for c in group if (v := getattr(c.action, name)) is not None]
             if parts:
                 values[name] = clamp_command(sum(parts))
-        for name in FIELDS:
-            if name in NUMERIC_FIELDS:
-                continue
-            for c in group:
-                value = getattr(c.action, name)
-                if value is not None:
-                    values[name] = value
-                    break
+        _take_first_set(values, group, NON_NUMERIC_FIELDS, set())
         vote = max(c.action.vote for c in group)
         return _decide(Action(vote=vote, **values), tuple(c.index for c in group))
 
@@ -213,16 +218,7 @@ class CommandFusion(Arbiter):
                     winners.add(c.index)
             if utility > 0:
                 values[name] = clamp_command(total / utility)
-        ranked = _stable_desc(counted, _utility)
-        for name in FIELDS:
-            if name in NUMERIC_FIELDS:
-                continue
-            for c in ranked:
-                value = getattr(c.action, name)
-                if value is not None:
-                    values[name] = value
-                    winners.add(c.index)
-                    break
+        _take_first_set(values, _stable_desc(counted, _utility), NON_NUMERIC_FIELDS, winners)
         vote = max(c.action.vote for c in counted)
         return _decide(Action(vote=vote, **values), tuple(sorted(winners)))
 

@@ -10,11 +10,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import importlib
 import logging
 import random
-import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -31,6 +29,7 @@ from ubf_async.bus import (
     connection_options,
     follow_sim_clock,
 )
+from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
@@ -245,24 +244,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.tick_mode == TickMode.EVENT and not args.trigger:
         parser.error("--tick event needs --trigger SOURCE")
 
-    async def runner() -> int:
-        task = asyncio.current_task()
-        loop = asyncio.get_running_loop()
-        assert task is not None
-        with contextlib.suppress(NotImplementedError):  # no signal handlers on some platforms
-            loop.add_signal_handler(signal.SIGTERM, task.cancel)
-        try:
-            return await run_robot(args, simulator)
-        except asyncio.CancelledError:
-            return 0
-        except ConnectionError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-
-    try:
-        return asyncio.run(runner())
-    except KeyboardInterrupt:
-        return 130
+    return run_main(lambda: run_robot(args, simulator), prog="python -m ubf_async.launch")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ import asyncio
 import contextlib
 import logging
 import math
-import signal
 import sys
 import time
 from collections.abc import Callable, Mapping
@@ -48,6 +47,7 @@ from ubf_async.bus import (
     decode_or_count,
     follow_sim_clock,
 )
+from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component
 from ubf_async.protocol import (
@@ -841,20 +841,4 @@ def run_remote_behavior(
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     behavior = make_behavior(args)
 
-    async def runner() -> int:
-        task = asyncio.current_task()
-        assert task is not None
-        with contextlib.suppress(NotImplementedError):
-            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
-        try:
-            return await host_remote_behavior(behavior, args)
-        except asyncio.CancelledError:
-            return 0
-        except (ConnectionError, ValueError) as exc:  # ProtocolError is a ValueError
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-
-    try:
-        return asyncio.run(runner())
-    except KeyboardInterrupt:
-        return 130
+    return run_main(lambda: host_remote_behavior(behavior, args), prog=sys.argv[0])
