@@ -288,3 +288,56 @@ async def test_aclose_is_idempotent_and_closes_unstarted(robot_bus: Bus) -> None
     await agg.aclose()
     with pytest.raises(RuntimeError, match="closed"):
         await agg.start()
+
+
+@pytest.mark.asyncio
+async def test_periodic_controller_ticks_at_once_on_a_reflex_source(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
+    def avoid(state: State) -> Action | None:
+        mm = state.value("range/front", "range_mm")
+        return None if mm is None else Action(speed=-50 if mm < 200 else 20)
+
+    agg = StateAggregator(bus=robot_bus)
+    # A 1 Hz clock: any prompt reaction must come from the reflex, not the period.
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=FunctionBehavior(avoid), rate_hz=1,
+                     reflex_sources=("range/",))
+    drives: list[dict] = []
+    robot_bus.subscribe(robot_bus.keys.cmd("drive"),
+                        lambda k, p, t: drives.append(decode(p, schema="drive").data),
+                        latest=False)
+    await start(agg, ctl)
+    await eventually(lambda: len(drives) >= 1, what="the first periodic tick")
+    pub = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range")
+    camera = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor")
+    await pub.wait_for_subscribers()
+    camera.publish(CAMERA)  # not a reflex source: no extra tick
+    await eventually(lambda: "camera/front" in agg.entries)
+    for n, mm in enumerate([150, 600, 120], start=1):
+        seq, stamp = pub.publish({"range_mm": mm, "status": "ok"})
+        await eventually(lambda n=n: ctl.stats.triggered == n, timeout_s=0.9,
+                         what="a reflex tick well within the 1 s period")
+        assert drives[-1]["based_on"] == {"source": "range/front", "seq": seq, "stamp_ns": stamp}
+        assert drives[-1]["speed"] == (-50 if mm < 200 else 20)
+    await ctl.aclose()
+    await agg.aclose()
+
+
+@pytest.mark.asyncio
+async def test_a_faulty_state_listener_is_cut_off(robot_bus: Bus, peer_bus: Bus) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    calls: list[str] = []
+
+    def faulty(source: str, entry: object) -> None:
+        calls.append(source)
+        raise RuntimeError("listener bug")
+
+    agg.add_listener(faulty)
+    async with agg:
+        pub = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range")
+        await pub.wait_for_subscribers()
+        for i in range(3):
+            pub.publish({"range_mm": 100 + i, "status": "ok"})
+            await eventually(lambda i=i: agg.entries.get("range/front") is not None
+                             and agg.entries["range/front"].version == i + 1)
+    assert calls == ["range/front"]  # called once, then removed; samples kept flowing

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from ubf_async.action import Action
@@ -31,6 +31,7 @@ from ubf_async.state import Reading, State
 log = logging.getLogger(__name__)
 
 MAX_SOURCES = 1024
+Listener = Callable[[str, "SourceEntry"], None]
 
 
 @dataclass
@@ -75,6 +76,19 @@ class StateAggregator(Component):
         """Rejected samples per key."""
         self.refused_sources = 0
         self._pending_waiters: dict[str, list[asyncio.Future[SourceEntry]]] = {}
+        self._listeners: list[Listener] = []
+
+    def add_listener(self, listener: Listener) -> Callable[[], None]:
+        """Call ``listener(source, entry)`` right after each accepted sample is stored, on the
+        event loop, before anything else runs (the controller's reflexes use this). A listener
+        that raises is logged and removed; the aggregator goes on. Returns a remover."""
+        self._listeners.append(listener)
+
+        def remove() -> None:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+
+        return remove
 
     async def run(self) -> None:
         self.subscribe(self.bus.keys.all_sensors, self._on_sample)
@@ -119,6 +133,12 @@ class StateAggregator(Component):
         for future in waiters:
             if not future.done():
                 future.set_result(entry)
+        for listener in tuple(self._listeners):
+            try:
+                listener(source, entry)
+            except Exception:
+                log.exception("state listener %r failed: removed", listener)
+                self._listeners.remove(listener)
 
     # -- queries -----------------------------------------------------------------------------
     def limit_s(self, entry: SourceEntry) -> float:

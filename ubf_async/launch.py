@@ -62,6 +62,10 @@ def build_parser(simulator: ModuleType | None = None) -> argparse.ArgumentParser
                           "thesis's loop); event: tick on each sample of --trigger")
     ctl.add_argument("--trigger", default=None, metavar="SOURCE",
                      help="source that triggers ticks in --tick event, e.g. range/front")
+    ctl.add_argument("--reflex", action="append", default=None, metavar="PREFIX",
+                     help="in periodic mode, also tick at once on each sample of sources "
+                          "starting with PREFIX (repeatable; default: range/ — the IR "
+                          "finders; --reflex '' for none)")
     ctl.add_argument("--camera-source", default="camera/front", metavar="SOURCE",
                      help="camera source the behaviours and sync mode read")
     ctl.add_argument("--remote", type=remote_spec, action="append", default=[],
@@ -175,6 +179,7 @@ async def run_robot(
         controller = Controller(
             bus=bus, aggregator=aggregator, root=root, rate_hz=args.rate_hz,
             mode=args.tick_mode, camera_source=args.camera_source, trigger=args.trigger,
+            reflex_sources=tuple(p for p in (args.reflex or ["range/"]) if p),
         )
         remotes = RemoteBehaviors(bus=bus, root=root, config=dict(args.remote))
         components += [aggregator, controller, remotes]
