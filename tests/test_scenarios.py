@@ -139,6 +139,8 @@ def search_draws(run: Run, period_s: float) -> list[int]:
     draws: list[int] = []
     segment_start: float | None = None
     for s in run.samples:
+        if s.winners == "":
+            continue  # no fresh camera reading this tick: search abstains but keeps its counter
         if s.winners != "search":
             segment_start = None
             continue

@@ -4,11 +4,14 @@ It subscribes to ``ubf/<robot>/sensor/*/*`` (so sources that start later are pic
 without a restart), keeps the newest valid sample per source, and builds a
 :class:`~ubf_async.state.State` snapshot on demand with each source's age and staleness.
 
-A source is **stale** when its newest sample is older than its limit: the configured
-``stale_after_s[source]`` if given, else twice the nominal period the sample itself declares
-(``period_s`` in the envelope), else ``default_stale_after_s`` — ``None`` by default: a
-source without a nominal period publishes events (a radio message), and its last event stays
-valid until the next.
+A source is **stale** when it has gone quiet: no sample has arrived for longer than its
+limit (robot clock) — the configured ``stale_after_s[source]`` if given, else twice the
+nominal period the sample itself declares (``period_s`` in the envelope), else
+``default_stale_after_s`` — ``None`` by default: a source without a nominal period publishes
+events (a radio message), and its last event stays valid until the next. Staleness counts
+from arrival, not from the sample's stamp, because some sources are old by design when they
+arrive (a camera frame is 0.11 s old when published) and that is not silence; each reading
+still reports its age from its stamp.
 
 Malformed samples are rejected, counted per key and logged (the first and every 100th);
 they never replace a good sample and never stop the aggregator.
@@ -41,6 +44,9 @@ class SourceEntry:
     source: str
     message: Message
     received_ns: int
+    """Host monotonic time the bridge received it (for latency measurements)."""
+    arrived_ns: int = 0
+    """Robot-clock time it was stored (for staleness)."""
     version: int = 1
     """Accepted samples so far (unlike ``seq`` it never restarts)."""
     interval_s: float | None = None
@@ -114,7 +120,7 @@ class StateAggregator(Component):
             if len(self.entries) >= MAX_SOURCES:
                 self.refused_sources += 1
                 return
-            entry = SourceEntry(source, message, received_ns)
+            entry = SourceEntry(source, message, received_ns, self.bus.clock.now_ns())
             entry.waiters = self._pending_waiters.pop(source, [])
             self.entries[source] = entry
             log.info("new source %s (%s)", source, message.schema)
@@ -128,6 +134,7 @@ class StateAggregator(Component):
                 )
             entry.message = message
             entry.received_ns = received_ns
+            entry.arrived_ns = self.bus.clock.now_ns()
             entry.version += 1
         waiters, entry.waiters = entry.waiters, []
         for future in waiters:
@@ -141,6 +148,11 @@ class StateAggregator(Component):
                 self._listeners.remove(listener)
 
     # -- queries -----------------------------------------------------------------------------
+    @staticmethod
+    def quiet_s(entry: SourceEntry, now_ns: int) -> float:
+        """How long since the newest sample of ``entry`` arrived (robot clock)."""
+        return max(0.0, (now_ns - entry.arrived_ns) / 1e9)
+
     def limit_s(self, entry: SourceEntry) -> float:
         configured = self.stale_after_s.get(entry.source)
         if configured is not None:
@@ -161,7 +173,7 @@ class StateAggregator(Component):
             age = max(0.0, (now - message.stamp_ns) / 1e9)
             readings[source] = Reading(
                 value=message.data, stamp_ns=message.stamp_ns, seq=message.seq, age_s=age,
-                stale=age > self.limit_s(entry),
+                stale=self.quiet_s(entry, now) > self.limit_s(entry),
             )
         return State(readings, now_ns=now, previous_action=previous_action)
 
@@ -171,7 +183,8 @@ class StateAggregator(Component):
         for source, entry in sorted(self.entries.items()):
             age = max(0.0, (now - entry.message.stamp_ns) / 1e9)
             out.append(SourceInfo(
-                source=source, age_s=age, stale=age > self.limit_s(entry), samples=entry.version,
+                source=source, age_s=age, stale=self.quiet_s(entry, now) > self.limit_s(entry),
+                samples=entry.version,
                 rate_hz=1.0 / entry.interval_s if entry.interval_s else None,
                 schema=entry.message.schema,
             ))
