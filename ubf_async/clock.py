@@ -17,6 +17,7 @@ import asyncio
 import heapq
 import itertools
 import time
+from collections.abc import AsyncIterator
 from typing import Protocol
 
 
@@ -148,3 +149,19 @@ class SimClock:
 
     async def sleep(self, seconds: float) -> None:
         await self.sleep_until_ns(self._now + int(max(0.0, seconds) * 1e9))
+
+
+async def every(clock: Clock, period_s: float) -> AsyncIterator[int]:
+    """Yield the clock's time now and then every ``period_s`` on a fixed schedule (absolute
+    deadlines, so the period never drifts; a late wake-up is not made up with a burst)."""
+    if not period_s > 0:
+        raise ValueError(f"period_s must be > 0, got {period_s}")
+    period_ns = round(period_s * 1e9)
+    deadline = clock.now_ns()
+    while True:
+        yield clock.now_ns()
+        deadline += period_ns
+        now = clock.now_ns()
+        if now >= deadline:  # overslept: skip the missed slots, keep the phase
+            deadline += ((now - deadline) // period_ns + 1) * period_ns
+        await clock.sleep_until_ns(deadline)

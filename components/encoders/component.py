@@ -20,6 +20,7 @@ from components.encoders.quadrature import (
 )
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from ubf_async.bus import Bus, decode_or_count
+from ubf_async.clock import every
 from ubf_async.component import Component
 from ubf_async.protocol import decode
 
@@ -58,18 +59,14 @@ class EncodersComponent(Component):
         odom_pub = self.publisher(keys.sensor("odometry", self.source_name), "odometry",
                                   period_s=self.period_s)
         self.subscribe(keys.sensors_of_kind("motors"), self._on_motors)
-        clock = self.bus.clock
-        period_ns = int(self.period_s * 1e9)
-        deadline = clock.now_ns()
         mode = "commanded" if self.mode is DirectionMode.COMMANDED else "phase"
-        while True:
+        async for stamp in every(self.bus.clock, self.period_s):
             left_states, right_states = self.backend.read_phases()
             d_left = self.left.feed(left_states)
             d_right = self.right.feed(right_states)
             pose = self.odometry.update(
                 edges_to_radians(d_left, self.geometry), edges_to_radians(d_right, self.geometry)
             )
-            stamp = clock.now_ns()
             counts_pub.publish({
                 "left_edges": self.left.edges, "right_edges": self.right.edges,
                 "left_counts": edges_to_counts(self.left.edges, self.geometry),
@@ -80,8 +77,6 @@ class EncodersComponent(Component):
                 {"x_m": pose.x_m, "y_m": pose.y_m, "heading_rad": pose.heading_rad},
                 stamp_ns=stamp,
             )
-            deadline += period_ns
-            await clock.sleep_until_ns(deadline)
 
     def _on_motors(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ubf_async.action import clamp_command as clamp_value
+
 COMMAND_LIMIT = 100.0
 """Magnitude limit of speed, turn and the per-wheel command ``u``."""
 
@@ -38,11 +40,8 @@ def clamp_command(speed: float, turn: float) -> tuple[float, float]:
     The component calls this on what behaviours send before :func:`mix`, which refuses
     out-of-range input so that a bug upstream is not silently absorbed there.
     """
-    _require_finite(speed=speed, turn=turn)
-    return (
-        min(max(float(speed), -COMMAND_LIMIT), COMMAND_LIMIT),
-        min(max(float(turn), -COMMAND_LIMIT), COMMAND_LIMIT),
-    )
+    _require_finite(speed=speed, turn=turn)  # says which of the two is bad
+    return clamp_value(float(speed)), clamp_value(float(turn))
 
 
 def mix(speed: float, turn: float) -> tuple[float, float]:

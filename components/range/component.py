@@ -13,6 +13,7 @@ import numpy as np
 from components.range.backend import MountPose, RangeBackend
 from components.range.ir import GP2Y0A21, IrModel, read_ir
 from ubf_async.bus import Bus
+from ubf_async.clock import every
 from ubf_async.component import Component
 
 
@@ -42,16 +43,10 @@ class RangeComponent(Component):
     async def run(self) -> None:
         pub = self.publisher(self.bus.keys.sensor("range", self.source_name), "range",
                              period_s=self.period_s)
-        clock = self.bus.clock
-        period_ns = int(self.period_s * 1e9)
-        deadline = clock.now_ns()
         limits = {"model": self.model.name, "min_mm": round(self.model.min_range_m * 1000),
                   "max_mm": round(self.model.max_range_m * 1000)}
-        while True:
-            stamp = clock.now_ns()
+        async for stamp in every(self.bus.clock, self.period_s):
             true_m = self.backend.distance_m(self.mount, max_range_m=self.model.max_range_m)
             reading = read_ir(self.model, true_m, rng=self.rng)
             pub.publish({"range_mm": reading.range_mm, "status": str(reading.status), **limits},
                         stamp_ns=stamp)
-            deadline += period_ns
-            await clock.sleep_until_ns(deadline)
