@@ -129,11 +129,15 @@ class SimulatorComponent(Component):
             self.clock.advance_to(now_ns)
             rtf = self.real_time_factor()
             clock_pub.publish({"real_time_factor": rtf or 0.0}, stamp_ns=now_ns)
+            # Truth and the world snapshot cost encoding time on the loop: build them only
+            # when some process listens (zenoh knows its matching subscribers).
             if now_s >= next_truth_s:
-                truth_pub.publish(self.truth(), stamp_ns=now_ns)
+                if truth_pub.has_subscribers():
+                    truth_pub.publish(self.truth(), stamp_ns=now_ns)
                 next_truth_s += self.truth_period_s
             if now_s >= next_world_s:
-                world_pub.publish(snapshot_to_data(self.world.snapshot()), stamp_ns=now_ns)
+                if world_pub.has_subscribers():
+                    world_pub.publish(snapshot_to_data(self.world.snapshot()), stamp_ns=now_ns)
                 next_world_s += self.world_period_s
             target = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
             delay = target - time.monotonic()
