@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from ubf_async.action import Action
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
-from ubf_async.protocol import Message, ProtocolError, decode
+from ubf_async.protocol import Message, ProtocolError
 from ubf_async.state import Reading, State
 
 log = logging.getLogger(__name__)
@@ -102,7 +102,7 @@ class StateAggregator(Component):
 
     # -- ingest (event loop) -----------------------------------------------------------------
     def _on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, decode)
+        message = decode_or_count(payload, self.malformed, key)
         if message is None:
             return
         try:

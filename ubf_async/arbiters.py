@@ -53,11 +53,6 @@ class Arbiter:
         return self.name
 
 
-def _best(candidates: Sequence[Candidate], key: Callable[[Candidate], object]) -> Candidate:
-    """The first candidate with the largest ``key`` (``max`` keeps the first on ties)."""
-    return max(candidates, key=key)
-
-
 def _priority_then_utility(c: Candidate) -> tuple[int, float]:
     return (c.priority, c.action.vote * c.weight)
 
@@ -94,7 +89,7 @@ class HighestPriority(Arbiter):
     def arbitrate(self, candidates: Sequence[Candidate], state: State) -> Decision:
         if not candidates:
             return NO_DECISION
-        best = _best(candidates, _priority_then_utility)
+        best = max(candidates, key=_priority_then_utility)  # max keeps the first of ties
         return _decide(best.action, (best.index,))
 
 

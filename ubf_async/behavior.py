@@ -212,23 +212,6 @@ class Trace:
         for child in self.children:
             yield from child.walk()
 
-    def to_dict(self) -> dict[str, object]:
-        """Plain data (for publishing the explanation over the bus)."""
-        out: dict[str, object] = {"name": self.name, "won": self.won}
-        if self.action is not None:
-            out["action"] = {
-                k: v for k, v in self.action._asdict().items()
-                if v is not None and k != "seek_color"
-            }
-        if self.priority is not None:
-            out["priority"] = self.priority
-            out["weight"] = self.weight
-        if self.arbiter:
-            out["arbiter"] = self.arbiter
-        if self.children:
-            out["children"] = [child.to_dict() for child in self.children]
-        return out
-
     def __repr__(self) -> str:
         return f"<Trace {self.name!r} {self.action!r}>"
 

@@ -359,7 +359,7 @@ def follow_sim_clock(bus: Bus, clock: SimClock, malformed: dict[str, int]) -> Su
     key = bus.keys.clock
 
     def on_sample(key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, malformed, key, lambda p: decode(p, schema="clock"))
+        message = decode_or_count(payload, malformed, key, schema="clock")
         if message is not None:
             clock.advance_to(message.stamp_ns)
 
@@ -367,12 +367,14 @@ def follow_sim_clock(bus: Bus, clock: SimClock, malformed: dict[str, int]) -> Su
 
 
 def decode_or_count(
-    payload: bytes, counter: dict[str, int], key: str, decoder: Callable[[bytes], Any],
+    payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
+    decoder: Callable[[bytes], Any] | None = None,
 ) -> Any | None:
-    """Decode with ``decoder``; on :class:`ProtocolError` count it under ``key``, log it
-    (the first and then every 100th per key) and return ``None``."""
+    """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
+    :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
+    per key) and return ``None``."""
     try:
-        return decoder(payload)
+        return decoder(payload) if decoder is not None else decode(payload, schema=schema)
     except ProtocolError as exc:
         n = counter.get(key, 0) + 1
         counter[key] = n

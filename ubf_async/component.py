@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
-from ubf_async.protocol import decode
 
 log = logging.getLogger(__name__)
 
@@ -224,9 +223,7 @@ class HealthMonitor:
         self.changed.set()
 
     def _on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(
-            payload, self.malformed, key, lambda p: decode(p, schema="heartbeat")
-        )
+        message = decode_or_count(payload, self.malformed, key, schema="heartbeat")
         if message is None:
             return
         data: Mapping[str, Any] = message.data

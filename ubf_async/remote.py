@@ -417,7 +417,7 @@ class RemoteBehaviors(Component):
     def on_vote(self, key: str, payload: bytes, received_ns: int = 0) -> None:
         """Handle one sample on ``ubf/<robot>/vote/**``."""
         vote = decode_or_count(payload, self.malformed, key,
-                               lambda p: Vote.decode(self.bus.keys, key, p))
+                               decoder=lambda p: Vote.decode(self.bus.keys, key, p))
         if vote is not None:
             self.accept(vote, key=key)
 
@@ -699,8 +699,7 @@ class RemoteBehaviorHost(Component):
         return action
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key,
-                                  lambda p: decode(p, schema="drive"))
+        message = decode_or_count(payload, self.malformed, key, schema="drive")
         if message is not None:
             self.robot_action = Action(speed=message.data["speed"], turn=message.data["turn"])
             self.robot_winners = list(message.data.get("winners", []))

@@ -23,7 +23,6 @@ from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
-from ubf_async.protocol import decode
 
 OV9655_LATENCY_S = 0.11
 
@@ -87,9 +86,7 @@ class CameraComponent(Component):
                 await asyncio.sleep(0)  # a zero-latency device must still let others run
 
     def _on_seek_color(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(
-            payload, self.malformed, key, lambda p: decode(p, schema="seek_color")
-        )
+        message = decode_or_count(payload, self.malformed, key, schema="seek_color")
         if message is None:
             return
         lo, hi = message.data["lo"], message.data["hi"]

@@ -22,7 +22,6 @@ from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import every
 from ubf_async.component import Component
-from ubf_async.protocol import decode
 
 
 class EncodersComponent(Component):
@@ -79,9 +78,7 @@ class EncodersComponent(Component):
             )
 
     def _on_motors(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(
-            payload, self.malformed, key, lambda p: decode(p, schema="motors.applied")
-        )
+        message = decode_or_count(payload, self.malformed, key, schema="motors.applied")
         if message is None:
             return
         self.left.set_commanded_direction(message.data["left_dir"])

@@ -28,7 +28,6 @@ from components.motors.pwm import (
 )
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
-from ubf_async.protocol import decode
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +85,7 @@ class MotorsComponent(Component):
             await clock.sleep_until_ns(last + timeout_ns)  # re-checked: a newer command moves it
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, lambda p: decode(p, schema="drive"))
+        message = decode_or_count(payload, self.malformed, key, schema="drive")
         if message is None:
             return
         speed, turn = message.data["speed"], message.data["turn"]

@@ -10,7 +10,6 @@ from __future__ import annotations
 from components.radio.backend import RadioBackend
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
-from ubf_async.protocol import decode
 
 
 class RadioComponent(Component):
@@ -41,9 +40,7 @@ class RadioComponent(Component):
             await clock.sleep(self.period_s)
 
     def _on_send(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(
-            payload, self.malformed, key, lambda p: decode(p, schema="radio.send")
-        )
+        message = decode_or_count(payload, self.malformed, key, schema="radio.send")
         if message is not None:
             self.backend.send(message.data["text"])
             self.sent += 1

@@ -44,7 +44,6 @@ from components.sim.world import World
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
-from ubf_async.protocol import decode
 
 DEVICES = ("motors", "encoders", "camera", "range", "radio")
 BEHIND_SCHEDULE_PAUSE_S = 0.0002
@@ -87,8 +86,7 @@ class SimulatorComponent(Component):
 
     def _on_pulses(self, key: str, payload: bytes, received_ns: int) -> None:
         """Motor pulses from a motors component in another process."""
-        message = decode_or_count(payload, self.malformed, key,
-                                  lambda p: decode(p, schema=PULSES_SCHEMA))
+        message = decode_or_count(payload, self.malformed, key, schema=PULSES_SCHEMA)
         if message is not None:
             self.world.set_motor_pulses(message.data["left_ms"], message.data["right_ms"])
 

@@ -18,7 +18,6 @@ import numpy as np
 from components.sim.wire import PULSES_SCHEMA, WORLD_SCHEMA, snapshot_from_data
 from components.sim.world import RobotConfig, WorldConfig, WorldSnapshot
 from ubf_async.bus import Bus, Publisher, Subscription, decode_or_count
-from ubf_async.protocol import decode
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +54,7 @@ class RemoteWorld:
             ) from None
 
     def _on_world(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key,
-                                  lambda p: decode(p, schema=WORLD_SCHEMA))
+        message = decode_or_count(payload, self.malformed, key, schema=WORLD_SCHEMA)
         if message is None:
             return
         try:
