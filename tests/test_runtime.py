@@ -344,3 +344,39 @@ async def test_a_faulty_state_listener_is_cut_off(robot_bus: Bus, peer_bus: Bus)
             await eventually(lambda i=i: agg.entries.get("range/front") is not None
                              and agg.entries["range/front"].version == i + 1)
     assert calls == ["range/front"]  # called once, then removed; samples kept flowing
+
+
+@pytest.mark.asyncio
+async def test_same_bus_samples_arrive_once_on_the_loop_and_others_still_through_zenoh(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
+    """Samples between components of one bus skip zenoh's threads (delivered on the loop,
+    exactly once); samples from another session still arrive through zenoh."""
+    got: list[tuple[str, int, int]] = []  # (key, seq, thread)
+
+    def handler(key: str, payload: bytes, received_ns: int) -> None:
+        got.append((key, decode(payload).seq, threading.get_ident()))
+
+    # A wildcard subscription declared after the publisher: the publisher must still find it.
+    pub = robot_bus.publisher(robot_bus.keys.sensor("range", "front"), "range")
+    sub = robot_bus.subscribe(robot_bus.keys.sensors_of_kind("range"), handler, latest=False)
+    assert pub.has_subscribers()
+    for _ in range(5):
+        pub.publish({"range_mm": 300, "status": "ok"})
+    # Delivered on the loop's next iteration, without waiting for any other thread.
+    await asyncio.sleep(0)
+    assert [seq for _, seq, _ in got] == [1, 2, 3, 4, 5]
+    assert {thread for _, _, thread in got} == {threading.get_ident()}
+    # A sample from the other session comes through zenoh; by the time it has, a duplicate
+    # of the local ones through zenoh would have too.
+    remote = peer_bus.publisher(peer_bus.keys.sensor("range", "rear"), "range")
+    await remote.wait_for_subscribers()
+    remote.publish({"range_mm": 500, "status": "ok"})
+    await eventually(lambda: any(key.endswith("/rear") for key, _, _ in got), what="remote sample")
+    assert [seq for key, seq, _ in got if key.endswith("/front")] == [1, 2, 3, 4, 5]
+    assert sub.stats.delivered == 6
+    # A closed subscription hears nothing more, and the publisher knows it.
+    sub.close()
+    pub.publish({"range_mm": 300, "status": "ok"})
+    await asyncio.sleep(0)
+    assert len(got) == 6

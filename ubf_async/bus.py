@@ -13,6 +13,15 @@ here is deliberate about that hand-off:
 
 A handler that raises is logged with its traceback and counted; the subscription keeps going
 (a handler bug must not take the robot down). Measure the hand-off with ``bench/latency``.
+
+Samples between components of the **same** :class:`Bus` (one process) never take that detour:
+a :class:`Publisher` hands them straight to the matching subscriptions of its bus, on the loop
+(``loop.call_soon``), and zenoh subscribers are declared with ``allowed_origin=REMOTE`` so they
+only bring in samples from other sessions. A sample published on the loop is therefore handled
+on the loop's next iterations without waiting for a zenoh thread to get the GIL — which is what
+lets a simulated robot run several times faster than real time without its own commands
+arriving late in simulated time. Semantics (latest/every, counters, handler errors) are the
+same for both paths.
 """
 
 from __future__ import annotations
@@ -154,6 +163,7 @@ class Subscription:
         self._scheduled = False
         self._closed = False
         self._zenoh: Any = None
+        self._on_close: Callable[[Subscription], None] | None = None
         self.name = name
         self.stats = BridgeStats()
 
@@ -162,8 +172,11 @@ class Subscription:
         """The zenoh callback."""
         self.push(str(sample.key_expr), sample.payload.to_bytes())
 
-    def push(self, key: str, payload: bytes) -> None:
-        """Hand one sample to the loop; callable from any thread, never blocks for long."""
+    def push(self, key: str, payload: bytes, *, on_loop: bool = False) -> None:
+        """Hand one sample to the loop; callable from any thread, never blocks for long.
+
+        ``on_loop=True`` (only from the loop's own thread) schedules the drain with
+        ``call_soon``, skipping the thread-safe wake-up."""
         received_ns = time.monotonic_ns()
         with self._lock:
             if self._closed:
@@ -180,6 +193,9 @@ class Subscription:
             if self._scheduled:
                 return
             self._scheduled = True
+        if on_loop:
+            self._loop.call_soon(self._drain)
+            return
         with contextlib.suppress(RuntimeError):  # a closed loop: nothing left to deliver to
             self._loop.call_soon_threadsafe(self._drain)
 
@@ -210,6 +226,8 @@ class Subscription:
             if self._closed:
                 return
             self._closed = True
+        if self._on_close is not None:
+            self._on_close(self)
         if self._zenoh is not None:
             with contextlib.suppress(zenoh.ZError):  # the session may already be closed
                 self._zenoh.undeclare()
@@ -228,16 +246,25 @@ class Publisher:
         self._closed = False
 
     def publish(self, data: Mapping[str, Any], *, stamp_ns: int | None = None) -> tuple[int, int]:
-        """Encode and put one sample; returns ``(seq, stamp_ns)`` of what was sent."""
+        """Encode and send one sample: to the matching subscriptions of this bus (on the loop)
+        and through zenoh to other sessions. Returns ``(seq, stamp_ns)`` of what was sent.
+        Call it on the bus's event loop."""
         stamp = self._bus.clock.now_ns() if stamp_ns is None else stamp_ns
         self.seq += 1
         payload = encode(self.schema, data, stamp_ns=stamp, seq=self.seq, period_s=self.period_s)
+        local = self._bus._local_subscriptions(self.key)
+        if local:
+            on_loop = threading.get_ident() == self._bus._loop_thread
+            for sub in local:
+                sub.push(self.key, payload, on_loop=on_loop)
         self._zenoh.put(payload)
         return self.seq, stamp
 
     def has_subscribers(self) -> bool:
-        """Whether zenoh knows of at least one subscriber matching this key."""
-        return bool(self._zenoh.matching_status.matching)
+        """Whether a subscriber matching this key is known: on this bus, or to zenoh."""
+        return bool(self._bus._local_subscriptions(self.key)) or bool(
+            self._zenoh.matching_status.matching
+        )
 
     async def wait_for_subscribers(self, timeout_s: float = 5.0) -> None:
         """Wait until a matching subscriber is known (declarations propagate asynchronously:
@@ -269,7 +296,11 @@ class Bus:
         self.keys = Keys(options.robot)
         self.clock = clock
         self._loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
         self._subscriptions: list[Subscription] = []
+        self._local: list[tuple[zenoh.KeyExpr, Subscription]] = []
+        self._local_by_key: dict[str, list[Subscription]] = {}
+        """Which local subscriptions each published key reaches; cleared on any change."""
         self._closed = False
 
     @classmethod
@@ -297,9 +328,28 @@ class Bus:
     ) -> Subscription:
         """Deliver samples matching ``key_expr`` to ``handler`` on the event loop."""
         sub = Subscription(self._loop, handler, latest=latest, max_queue=max_queue, name=key_expr)
-        sub._zenoh = self.session.declare_subscriber(key_expr, sub.on_sample)
+        # Samples from this session arrive through Publisher.publish instead (module docstring).
+        sub._zenoh = self.session.declare_subscriber(
+            key_expr, sub.on_sample, allowed_origin=zenoh.Locality.REMOTE
+        )
+        sub._on_close = self._forget_local
         self._subscriptions.append(sub)
+        self._local.append((zenoh.KeyExpr(key_expr), sub))
+        self._local_by_key.clear()
         return sub
+
+    def _forget_local(self, sub: Subscription) -> None:
+        self._local = [(expr, s) for expr, s in self._local if s is not sub]
+        self._local_by_key.clear()
+
+    def _local_subscriptions(self, key: str) -> list[Subscription]:
+        """The open subscriptions of this bus whose key expression matches ``key``."""
+        subs = self._local_by_key.get(key)
+        if subs is None:
+            expr = zenoh.KeyExpr(key)
+            subs = [sub for sub_expr, sub in self._local if sub_expr.intersects(expr)]
+            self._local_by_key[key] = subs
+        return subs
 
     def declare_token(self, key: str) -> zenoh.LivelinessToken:
         return self.session.liveliness().declare_token(key)
