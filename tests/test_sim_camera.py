@@ -20,6 +20,7 @@ from components.sim.world import (
     BoxObstacle,
     Distractor,
     Lighting,
+    Pose2D,
     World,
     WorldConfig,
 )
@@ -168,3 +169,44 @@ def test_calibrate_script_prints_a_table(capsys: pytest.CaptureFixture[str]) -> 
     assert main(["--distances", "0.45", "3.6", "--seeds", "2"]) == 0
     out = capsys.readouterr().out
     assert "0.45" in out and "3.60" in out
+
+
+def test_wall_chunks_take_the_shortcut_only_when_clipping_would_change_nothing() -> None:
+    """Walls are classified in one pass (dropped / wholly in view / straddling the frustum).
+    From poses that see corners, walls up close and walls behind, the chunks kept must be
+    exactly those that clipping polygon by polygon leaves visible, and a chunk projected
+    without clipping must be one that clipping leaves as it is."""
+    from components.sim.camera_render import _clip_polygon, _make_cam, _project, _wall_items
+
+    world = World(WorldConfig(arena=Arena(x_min_m=-1.5, x_max_m=1.5, y_min_m=-1.5, y_max_m=1.5)))
+    rng = np.random.default_rng(7)
+    shortcut = clipped_by_hand = 0
+    for _ in range(40):
+        world.place_robot(Pose2D(x_m=float(rng.uniform(-1.4, 1.4)),
+                                 y_m=float(rng.uniform(-1.4, 1.4)),
+                                 heading_rad=float(rng.uniform(-math.pi, math.pi))))
+        snap = world.snapshot()
+        cam = _make_cam(snap, DEFAULT_CAMERA, 0.0)
+        items = _wall_items(snap, DEFAULT_CAMERA, cam)
+        # The reference: every chunk, clipped one by one.
+        visible = []
+        for wall in snap.walls:
+            n = max(1, math.ceil(wall.length_m / DEFAULT_CAMERA.wall_chunk_m))
+            ends = np.linspace([wall.x1_m, wall.y1_m], [wall.x2_m, wall.y2_m], n + 1)
+            for p, q in itertools.pairwise(ends):
+                quad = np.array([[*p, 0.0], [*q, 0.0], [*q, wall.height_m], [*p, wall.height_m]])
+                pts = cam.to_cam(quad)
+                if len(_clip_polygon(pts, cam)) >= 3:
+                    visible.append(pts)
+        kept = [pts for _, _, (pts, _, _) in items]
+        for pts in visible:
+            assert any(np.allclose(pts, k, atol=1e-12) for k in kept), "a visible chunk was lost"
+        for _depth, kind, (pts, projected, _rgb) in items:
+            assert kind == 0
+            if projected is not None:
+                np.testing.assert_array_equal(_clip_polygon(pts, cam), pts)
+                np.testing.assert_array_equal(projected, _project(pts, cam))
+                shortcut += 1
+            else:
+                clipped_by_hand += 1
+    assert shortcut > 0 and clipped_by_hand > 0

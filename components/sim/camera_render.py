@@ -214,16 +214,38 @@ def _clip_polygon(poly: np.ndarray, cam: _Cam) -> np.ndarray:
 
 
 def _fill_polygon(frame: np.ndarray, cam: _Cam, world_pts: np.ndarray, color: np.ndarray) -> None:
-    pts = _clip_polygon(cam.to_cam(world_pts), cam)
-    if len(pts) < 3:
-        return
-    u = cam.cx + cam.f * pts[:, 0] / pts[:, 2]
-    v = cam.cy + cam.f * pts[:, 1] / pts[:, 2]
-    shift = 4
-    scale = float(1 << shift)
-    poly = np.round(np.stack([u, v], axis=1) * scale).astype(np.int32)
+    _fill_clipped(frame, cam, _clip_polygon(cam.to_cam(world_pts), cam), color)
+
+
+_SUBPIXEL_SHIFT = 4
+"""fillConvexPoly vertices carry 4 fractional bits."""
+
+
+def _project(pts: np.ndarray, cam: _Cam) -> np.ndarray:
+    """Camera-frame points (…×3, z > 0) to fixed-point pixel vertices for fillConvexPoly."""
+    u = cam.cx + cam.f * pts[..., 0] / pts[..., 2]
+    v = cam.cy + cam.f * pts[..., 1] / pts[..., 2]
+    return np.round(np.stack([u, v], axis=-1) * float(1 << _SUBPIXEL_SHIFT)).astype(np.int32)
+
+
+def _fill_projected(frame: np.ndarray, poly: np.ndarray, color: np.ndarray) -> None:
     rgb = tuple(int(c) for c in np.clip(color, 0, 255))
-    cv2.fillConvexPoly(frame, poly, rgb, lineType=cv2.LINE_8, shift=shift)
+    cv2.fillConvexPoly(frame, poly, rgb, lineType=cv2.LINE_8, shift=_SUBPIXEL_SHIFT)
+
+
+def _fill_clipped(frame: np.ndarray, cam: _Cam, pts: np.ndarray, color: np.ndarray) -> None:
+    if len(pts) >= 3:
+        _fill_projected(frame, _project(pts, cam), color)
+
+
+def _frustum_distances(pts: np.ndarray, cam: _Cam) -> np.ndarray:
+    """Signed distances (…×5) of camera-frame points to the planes :func:`_clip_polygon` uses
+    (near, left, right, top, bottom); inside where all are >= 0."""
+    x, y, z = pts[..., 0], pts[..., 1], pts[..., 2]
+    return np.stack(
+        [z - cam.near, -x + cam.tan_x * z, x + cam.tan_x * z, -y + cam.tan_y * z,
+         y + cam.tan_y * z], axis=-1,
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -277,6 +299,14 @@ def _noise_planes(h: int, w: int, sigma: float, clip: int) -> tuple[np.ndarray, 
     pos.setflags(write=False)
     neg.setflags(write=False)
     return pos, neg
+
+
+def warm_up(params: CameraParams = DEFAULT_CAMERA) -> None:
+    """Build the cached background and noise field for ``params`` now (they take a few hundred
+    milliseconds the first time; every frame after reuses them)."""
+    _background(params)
+    if params.noise_sigma > 0.0 and params.noise_clip > 0:
+        _noise_planes(params.height_px, params.width_px, params.noise_sigma, params.noise_clip)
 
 
 def _add_noise(frame: np.ndarray, params: CameraParams, rng: np.random.Generator) -> None:
@@ -438,6 +468,49 @@ def _box_footprint(x: float, y: float, yaw: float, length: float, width: float) 
     return local @ np.array([[c, s], [-s, c]]) + np.array([x, y])
 
 
+def _wall_items(
+    snapshot: WorldSnapshot, params: CameraParams, cam: _Cam
+) -> list[tuple[float, int, object]]:
+    """Paint items (kind 0) for the wall chunks in view, computed for all chunks at once.
+
+    A chunk wholly outside one frustum plane is dropped; one wholly inside is projected here;
+    only the few that straddle the frustum's edge are clipped polygon by polygon. Each item's
+    payload is ``(camera-frame quad, projected vertices or None, colour)``."""
+    quads, normals, colors = [], [], []
+    for wall in snapshot.walls:
+        a = np.array([wall.x1_m, wall.y1_m])
+        b = np.array([wall.x2_m, wall.y2_m])
+        n = max(1, math.ceil(wall.length_m / params.wall_chunk_m))
+        pts = a[None, :] + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)[None, :]
+        p, q = pts[:-1], pts[1:]
+        zero, top = np.zeros(n), np.full(n, wall.height_m)
+        quads.append(np.stack([
+            np.column_stack([p, zero]), np.column_stack([q, zero]),
+            np.column_stack([q, top]), np.column_stack([p, top]),
+        ], axis=1))
+        edge = b - a
+        normals.append(np.broadcast_to(np.array([edge[1], -edge[0]]) / wall.length_m, (n, 2)))
+        colors.append(np.broadcast_to(np.asarray(wall.color, dtype=np.float64), (n, 3)))
+    if not quads:
+        return []
+    world = np.concatenate(quads)  # chunks × 4 corners × xyz
+    to_face = 0.5 * (world[:, 0, :2] + world[:, 1, :2]) - cam.position[:2]
+    depth = np.linalg.norm(to_face, axis=1)
+    # Flat shading, brighter the more squarely a chunk faces the camera (either side).
+    facing = np.abs(np.einsum("ij,ij->i", np.concatenate(normals), to_face))
+    factor = np.where(depth > 0.0, 0.8 + 0.2 * facing / np.where(depth > 0.0, depth, 1.0), 1.0)
+    rgb = np.concatenate(colors) * (factor * snapshot.lighting.brightness)[:, None]
+    pts = cam.to_cam(world.reshape(-1, 3)).reshape(world.shape)
+    inside = _frustum_distances(pts, cam) >= 0.0  # chunks × corners × planes
+    culled = (~inside.any(axis=1)).any(axis=1)  # some plane has every corner outside
+    whole = inside.all(axis=(1, 2))
+    projected = _project(np.where(whole[:, None, None], pts, 1.0), cam)
+    return [
+        (float(depth[i]), 0, (pts[i], projected[i] if whole[i] else None, rgb[i]))
+        for i in np.flatnonzero(~culled)
+    ]
+
+
 def render_camera(
     snapshot: WorldSnapshot,
     params: CameraParams = DEFAULT_CAMERA,
@@ -462,27 +535,7 @@ def render_camera(
     cam_xy = cam.position[:2]
     items: list[tuple[float, int, object]] = []  # (depth, kind, payload)
 
-    # Walls, cut into chunks.
-    for wall in snapshot.walls:
-        a = np.array([wall.x1_m, wall.y1_m])
-        b = np.array([wall.x2_m, wall.y2_m])
-        n = max(1, math.ceil(wall.length_m / params.wall_chunk_m))
-        ts = np.linspace(0.0, 1.0, n + 1)
-        pts = a[None, :] + ts[:, None] * (b - a)[None, :]
-        edge = b - a
-        normal = np.array([edge[1], -edge[0]]) / wall.length_m
-        for i in range(n):
-            p, q = pts[i], pts[i + 1]
-            mid = 0.5 * (p + q)
-            quad = np.array(
-                [[p[0], p[1], 0.0], [q[0], q[1], 0.0], [q[0], q[1], wall.height_m],
-                 [p[0], p[1], wall.height_m]]
-            )
-            to_face = mid - cam_xy
-            factor = _face_factor(
-                normal if float(normal @ to_face) < 0 else -normal, to_face
-            ) * lighting.brightness
-            items.append((float(np.linalg.norm(to_face)), 0, (quad, _shade(wall.color, factor))))
+    items.extend(_wall_items(snapshot, params, cam))
 
     for box in snapshot.boxes:
         fp = _box_footprint(box.x_m, box.y_m, box.yaw_rad, box.length_m, box.width_m)
@@ -510,8 +563,11 @@ def render_camera(
     items.sort(key=lambda item: -item[0])
     for _depth, kind, payload in items:
         if kind == 0:
-            quad, rgb = payload  # type: ignore[misc]
-            _fill_polygon(frame, cam, quad, rgb)
+            pts, projected, rgb = payload  # type: ignore[misc]
+            if projected is not None:
+                _fill_projected(frame, projected, rgb)
+            else:
+                _fill_clipped(frame, cam, _clip_polygon(pts, cam), rgb)
         elif kind == 1:
             fp, height, color = payload  # type: ignore[misc]
             _draw_prism(frame, cam, fp, height, color, lighting.brightness)
