@@ -13,6 +13,12 @@ class CameraBackend(Protocol):
     Returns an ``H×W×3`` ``uint8`` RGB frame (1280×1024 for the OV9655 model).
     """
 
+    def prepare(self) -> None:
+        """Get ready to capture: called once, from a worker thread, before the first
+        :meth:`capture`. May block (open a device, build caches); a no-op if there is nothing
+        to do."""
+        ...
+
     def capture(self) -> np.ndarray:
         ...
 

@@ -1,6 +1,8 @@
 """The camera component: capture, subsample, seekcolor, publish — off the event loop.
 
-Each cycle stamps the capture time on the robot clock, captures a frame from its backend
+Before the first frame it lets the backend :meth:`~components.camera.backend.CameraBackend.prepare`
+(in a worker thread; a simulated clock is held meanwhile). Each cycle stamps the capture time
+on the robot clock, captures a frame from its backend
 and runs :func:`~components.camera.seekcolor.seekcolor` in a worker thread (OpenCV and numpy
 release the GIL, and the event loop never waits on them), then holds the result until the
 device's capture latency has passed (``latency_s``, ≈0.11 s for the OV9655, on the robot
@@ -65,6 +67,12 @@ class CameraComponent(Component):
         self.subscribe(keys.cmd("seek_color"), self._on_seek_color)
         clock = self.bus.clock
         latency_ns = int(self.latency_s * 1e9)
+        # Simulated time waits while the backend gets ready, whatever the simulation's speed.
+        hold = clock.hold(clock.now_ns())
+        try:
+            await asyncio.to_thread(self.backend.prepare)
+        finally:
+            hold.release()
         while True:
             stamp = clock.now_ns()
             # A simulated clock does not pass the end of the capture latency while the frame

@@ -46,6 +46,9 @@ class VideoCaptureBackend:
             kind = "video file" if self._is_file else "camera"
             raise CameraError(f"cannot open {kind} {source!r}")
 
+    def prepare(self) -> None:
+        """Nothing to do: the source is opened by the constructor, so a bad one fails early."""
+
     def capture(self) -> np.ndarray:
         """The next frame as ``height×width×3`` ``uint8`` RGB.
 

@@ -15,7 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from components.range.backend import MountPose
-from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera
+from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
 from components.sim.ranging import beam_distance_m
 from components.sim.world import WorldConfig, WorldSnapshot
 
@@ -168,6 +168,11 @@ class SimCameraBackend:
     @property
     def params(self) -> CameraParams:
         return self._params
+
+    def prepare(self) -> None:
+        """Build the renderer's cached background and noise field (a few hundred ms), so the
+        first frame costs no more than the others."""
+        warm_up(self._params)
 
     def capture(self) -> np.ndarray:
         with self._lock:
