@@ -8,15 +8,21 @@ import os
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import msgpack
+import numpy as np
 import pytest
 
+from components.sim.component import DEVICES
 from components.sim.world import Arena, BallConfig, Pose2D, WorldConfig
 from tests.conftest import SimRobot, eventually
 from ubf_async.aggregator import StateAggregator
+from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus
+from ubf_async.controller import Controller
 from ubf_async.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -192,6 +198,82 @@ async def test_watchdog_stops_the_wheels_when_the_controller_is_killed(
         assert sim.world.motor_pulses == pytest.approx((1.55, 1.55))
         gap_s = (stop_ns - drives[-1]) / 1e9
         assert 0.2 - 0.01 <= gap_s <= 0.2 + 0.03, f"stopped {gap_s:.3f} s after the last command"
+
+
+class GatedPrepare:
+    """A camera backend whose ``prepare`` blocks until the test lets it finish."""
+
+    def __init__(self, inner: object) -> None:
+        self.inner = inner
+        self.entered = threading.Event()
+        self.proceed = threading.Event()
+
+    def prepare(self) -> None:
+        self.entered.set()
+        self.proceed.wait(timeout=30)
+        self.inner.prepare()  # type: ignore[attr-defined]
+
+    def capture(self) -> np.ndarray:
+        return self.inner.capture()  # type: ignore[attr-defined]
+
+    def close(self) -> None:
+        self.inner.close()  # type: ignore[attr-defined]
+
+
+@pytest.mark.asyncio
+async def test_simulated_time_starts_once_the_camera_is_ready(robot_bus: Bus) -> None:
+    """However long the camera takes to get ready, no simulated time passes meanwhile, and
+    the real-time factor is measured from the moment it is."""
+    stamps: list[int] = []
+    robot = SimRobot(robot_bus, open_floor(ball=BallConfig(x_m=0.8, y_m=0.0)), speed=5,
+                     devices=("camera", "motors"))
+    camera = robot.device("camera")
+    gate = GatedPrepare(camera.backend)  # type: ignore[attr-defined]
+    camera.backend = gate  # type: ignore[attr-defined]
+    robot_bus.subscribe(robot_bus.keys.sensors_of_kind("camera"),
+                        lambda k, p, t: stamps.append(decode(p).stamp_ns), latest=False)
+    async with robot:
+        await eventually(gate.entered.is_set, what="the camera to start preparing")
+        await eventually(robot.sim.running.is_set, what="the simulator to run")
+        assert robot.clock.now_ns() == 0 and robot.sim.wall_started_s is None
+        released_s = time.monotonic()
+        gate.proceed.set()
+        await eventually(lambda: len(stamps) >= 2, what="two camera samples")
+    assert robot.sim.wall_started_s is not None and robot.sim.wall_started_s >= released_s
+    assert stamps[:2] == [0, 110_000_000]  # first capture at the start, then every 0.11 s
+
+
+@pytest.mark.asyncio
+async def test_commands_take_no_simulated_time_inside_the_process_at_speed_5(
+    robot_bus: Bus,
+) -> None:
+    """The whole robot in one process at --speed 5 (the machine mostly behind schedule):
+    every drive command — periodic ticks and reflex ticks on IR samples — is applied at the
+    simulated instant it was sent, not a step later."""
+    sent: set[int] = set()
+    applied: list[int] = []
+    config = open_floor(ball=BallConfig(x_m=0.9, y_m=0.1))
+    async with SimRobot(robot_bus, config, speed=5, devices=DEVICES) as sim:
+        robot_bus.subscribe(robot_bus.keys.cmd("drive"),
+                            lambda k, p, t: sent.add(decode(p).stamp_ns), latest=False)
+
+        def on_applied(key: str, payload: bytes, received_ns: int) -> None:
+            message = decode(payload)
+            if message.data["reason"] == "command":
+                applied.append(message.stamp_ns)
+
+        robot_bus.subscribe(robot_bus.keys.sensors_of_kind("motors"), on_applied, latest=False)
+        aggregator = StateAggregator(bus=robot_bus)
+        controller = Controller(bus=robot_bus, aggregator=aggregator, root=seek_pink_ball(),
+                                reflex_sources=("range/",))
+        async with aggregator, controller:
+            end_ns = sim.clock.now_ns() + 3_000_000_000
+            await eventually(lambda: sim.clock.now_ns() >= end_ns, timeout_s=30,
+                             what="3 s of simulated time")
+        assert controller.stats.triggered > 0, "no reflex ticks: the IR finder never spoke"
+    assert len(applied) > 150
+    late = [t for t in applied if t not in sent]
+    assert not late, f"{len(late)} of {len(applied)} commands applied after the instant sent"
 
 
 def test_headless_run_at_speed_5_keeps_up(endpoint: str, robot: str) -> None:

@@ -10,11 +10,23 @@ behaviours never see it; tests and tools do — and the whole world snapshot on
 (``python -m components.range`` …) measure and render; a motors process sends its pulses back
 on ``ubf/<robot>/sim/pulses``.
 
+Pacing: each step is due at an absolute wall time (start + simulated time / ``speed``). Ahead
+of schedule the simulator sleeps; the event loop's timer has about 1 ms resolution, so it may
+oversleep, and the steps that fell due meanwhile then run back to back. Between two steps it
+always lets the loop :func:`settle`, so what a step woke up in this process (a periodic
+wake-up, the samples it publishes, a reflex tick, the drive command that follows — all
+delivered on the loop, see :mod:`ubf_async.bus`) happens at the simulated instant it belongs
+to, whatever the speed. Components in other processes see the simulation through zenoh: at
+K× speed their messages cost K× the transport latency in simulated time.
+
 When the machine cannot keep up, simulation time simply runs slower than ``speed`` × real
 time; every component follows the simulated clock, so behaviour stays consistent and the
-achieved real-time factor is reported. Components of the same process may :meth:`hold
-<ubf_async.clock.SimClock.hold>` the clock (the camera does while it renders): the simulator
-does not step past a held time, so wall-time work costs no simulated time.
+achieved real-time factor is reported (:meth:`SimulatorComponent.real_time_factor`, and per
+0.25 s window in :attr:`SimulatorComponent.rtf_windows`; ``python -m bench.realtime``
+measures it). Components of the same process may :meth:`hold
+<ubf_async.clock.SimClock.hold>` the clock (the camera does while it gets ready and while it
+renders): the simulator does not step past a held time, so wall-time work costs no simulated
+time, and simulated time starts only once the holds taken at the start are released.
 
 :func:`simulated_devices` builds the device components with simulator backends.
 """
@@ -41,12 +53,14 @@ from components.sim.backends import (
 )
 from components.sim.wire import PULSES_SCHEMA, WORLD_SCHEMA, snapshot_to_data
 from components.sim.world import World
-from ubf_async.bus import Bus, decode_or_count
+from ubf_async.bus import Bus, Publisher, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 
 DEVICES = ("motors", "encoders", "camera", "range", "radio")
-BEHIND_SCHEDULE_PAUSE_S = 0.0002
+RTF_WINDOW_S = 0.25
+SETTLE_ITERATIONS = 4
+"""Wake-up → publish → handler → reflex tick → drive handler: four hops of the loop."""
 
 
 class SimulatorComponent(Component):
@@ -74,14 +88,20 @@ class SimulatorComponent(Component):
         self.world_period_s = world_period_s
         self.malformed: dict[str, int] = {}
         self.wall_started_s: float | None = None
+        self.wall_stopped_s: float | None = None
         self.sim_started_s = world.time_s
         self.late_steps = 0
+        self.rtf_windows: list[float] = []
+        """Real-time factor over each successive ``RTF_WINDOW_S`` of wall time: shows whether
+        the run kept up throughout, not just on average."""
 
     def real_time_factor(self) -> float | None:
-        """Simulated seconds per wall second since the simulator started."""
+        """Simulated seconds per wall second from the simulator's start (once the components
+        holding the start were ready) until now, or until it stopped."""
         if self.wall_started_s is None:
             return None
-        wall = time.monotonic() - self.wall_started_s
+        end = self.wall_stopped_s if self.wall_stopped_s is not None else time.monotonic()
+        wall = end - self.wall_started_s
         return (self.world.time_s - self.sim_started_s) / wall if wall > 0 else None
 
     def _on_pulses(self, key: str, payload: bytes, received_ns: int) -> None:
@@ -111,20 +131,39 @@ class SimulatorComponent(Component):
         world_pub = self.publisher(keys.sim("world"), WORLD_SCHEMA, period_s=self.world_period_s)
         self.subscribe(keys.sim("pulses"), self._on_pulses)
         self.clock.advance_to(round(self.world.time_s * 1e9))
+        # Components of this process that are still getting ready (the camera building its
+        # renderer's caches) hold the start: time starts, and is measured, once they are done.
+        await self.clock.wait_for_holds(self.clock.now_ns() + 1)
         self.wall_started_s = time.monotonic()
         self.sim_started_s = self.world.time_s
+        self.wall_stopped_s = None
+        try:
+            await self._step_forever(clock_pub, truth_pub, world_pub, self.wall_started_s)
+        finally:
+            self.wall_stopped_s = time.monotonic()
+
+    async def _step_forever(self, clock_pub: Publisher, truth_pub: Publisher,
+                            world_pub: Publisher, started_s: float) -> None:
         next_truth_s = next_world_s = self.world.time_s
         step_ns = round(self.step_s * 1e9)
-        schedule_origin_s = self.wall_started_s  # wall time at which sim time started
+        schedule_origin_s = started_s  # wall time at which sim time started
+        window_wall_s, window_sim_s = started_s, self.world.time_s
         while True:
-            held_since = time.monotonic()
-            await self.clock.wait_for_holds(self.clock.now_ns() + step_ns)
-            # Time spent held is not made up afterwards in a burst of fast steps.
-            schedule_origin_s += time.monotonic() - held_since
+            next_ns = self.clock.now_ns() + step_ns
+            held_until = self.clock.held_until_ns()
+            if held_until is not None and held_until < next_ns:
+                held_since = time.monotonic()
+                await self.clock.wait_for_holds(next_ns)
+                # Time spent held is not made up afterwards in a burst of fast steps.
+                schedule_origin_s += time.monotonic() - held_since
             self.world.step(self.step_s)
             now_s = self.world.time_s
             now_ns = round(now_s * 1e9)
             self.clock.advance_to(now_ns)
+            wall_s = time.monotonic()
+            if wall_s - window_wall_s >= RTF_WINDOW_S:
+                self.rtf_windows.append((now_s - window_sim_s) / (wall_s - window_wall_s))
+                window_wall_s, window_sim_s = wall_s, now_s
             rtf = self.real_time_factor()
             clock_pub.publish({"real_time_factor": rtf or 0.0}, stamp_ns=now_ns)
             # Truth and the world snapshot cost encoding time on the loop: build them only
@@ -140,13 +179,21 @@ class SimulatorComponent(Component):
             target = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
             delay = target - time.monotonic()
             if delay > 0:
+                # The loop's timer has ~1 ms resolution, so this may oversleep; the schedule is
+                # absolute, and the steps that fall due meanwhile run back to back.
                 await asyncio.sleep(delay)
             else:
-                # Behind schedule: still give the other tasks and zenoh's threads (which need
-                # the GIL to deliver samples) a moment, so that simulated time cannot race
-                # ahead of the components that follow it.
                 self.late_steps += 1
-                await asyncio.sleep(BEHIND_SCHEDULE_PAUSE_S)
+                await settle()
+
+
+async def settle(iterations: int = SETTLE_ITERATIONS) -> None:
+    """Let the event loop run ``iterations`` times before the next step, so the work the last
+    step woke up — a component's periodic wake-up, the samples it publishes (delivered on the
+    loop within the process, see :mod:`ubf_async.bus`), a reflex tick and the drive command it
+    sends — is done at the simulated time it belongs to, not one step later."""
+    for _ in range(iterations):
+        await asyncio.sleep(0)
 
 
 def simulated_devices(

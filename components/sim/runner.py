@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import statistics
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -20,7 +21,12 @@ import cv2
 
 from components.camera.seekcolor import seekcolor
 from components.sim.backends import SimCameraBackend
-from components.sim.component import DEVICES, SimulatorComponent, simulated_devices
+from components.sim.component import (
+    DEVICES,
+    RTF_WINDOW_S,
+    SimulatorComponent,
+    simulated_devices,
+)
 from components.sim.record import (
     TrajectorySample,
     annotate_frame,
@@ -69,6 +75,17 @@ def parse_devices(text: str) -> list[str]:
     if unknown:
         raise SystemExit(f"error: --devices: unknown {unknown}; choose from {list(DEVICES)}")
     return devices
+
+
+def window_summary(windows: list[float]) -> dict[str, Any] | None:
+    """Median, 1st percentile and worst of the per-window real-time factors
+    (``RTF_WINDOW_S`` of wall time each)."""
+    if not windows:
+        return None
+    ordered = sorted(windows)
+    return {"window_s": RTF_WINDOW_S, "count": len(ordered),
+            "median": statistics.median(ordered), "p1": ordered[int(0.01 * (len(ordered) - 1))],
+            "min": ordered[0]}
 
 
 class SimulationRun:
@@ -212,7 +229,8 @@ class SimulationRun:
             "seed": self.seed,
             "sim_time_s": snap.time_s,
             "wall_time_s": wall_s,
-            "real_time_factor": snap.time_s / wall_s if wall_s > 0 else None,
+            "real_time_factor": self.simulator.real_time_factor(),
+            "real_time_factor_windows": window_summary(self.simulator.rtf_windows),
             "speed_requested": self.args.speed,
             "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad},
             "ball": None,
