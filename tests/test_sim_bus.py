@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import os
 import signal
@@ -276,14 +277,24 @@ async def test_commands_take_no_simulated_time_inside_the_process_at_speed_5(
     assert not late, f"{len(late)} of {len(applied)} commands applied after the instant sent"
 
 
-def test_headless_run_at_speed_5_keeps_up(endpoint: str, robot: str) -> None:
+def test_headless_run_at_speed_5_keeps_up(endpoint: str, robot: str, tmp_path: Path) -> None:
+    summary_path = tmp_path / "summary.json"
     proc = subprocess.run(
         [sys.executable, "-m", "ubf_async.launch", "--listen", endpoint, "--robot", robot,
-         "--speed", "5", "--duration", "4", "--status-period-s", "1"],
+         "--speed", "5", "--duration", "6", "--status-period-s", "0.5",
+         "--summary", str(summary_path)],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     last = [line for line in proc.stdout.splitlines() if " x" in line and "sim " in line][-1]
-    factor = float(last.rsplit(" x", 1)[1])
-    print(f"achieved real-time factor at --speed 5: {factor:.2f}")
-    assert factor > 1.5, last  # generous: the figure is reported; a loaded machine runs slower
+    status_factor = float(last.rsplit(" x", 1)[1])
+    summary = json.loads(summary_path.read_text("utf-8"))
+    factor, windows = summary["real_time_factor"], summary["real_time_factor_windows"]
+    print(f"achieved real-time factor at --speed 5: {factor:.2f} (status line "
+          f"{status_factor:.2f}; 0.25 s windows: median {windows['median']:.2f}, "
+          f"min {windows['min']:.2f}); python -m bench.realtime measures it properly")
+    # Generous bounds: the figure is measured by bench/realtime.py; a loaded machine runs
+    # slower, and simulated time then simply runs slower too.
+    assert 3.0 < factor <= 5.0 * 1.01, summary
+    assert windows["count"] >= 4 and windows["median"] <= 5.0 * 1.05
+    assert status_factor > 3.0, last
