@@ -214,6 +214,9 @@ class GatedPrepare:
         self.proceed.wait(timeout=30)
         self.inner.prepare()  # type: ignore[attr-defined]
 
+    def expose(self) -> None:
+        self.inner.expose()  # type: ignore[attr-defined]
+
     def capture(self) -> np.ndarray:
         return self.inner.capture()  # type: ignore[attr-defined]
 
@@ -298,3 +301,28 @@ def test_headless_run_at_speed_5_keeps_up(endpoint: str, robot: str, tmp_path: P
     assert 3.0 < factor <= 5.0 * 1.01, summary
     assert windows["count"] >= 4 and windows["median"] <= 5.0 * 1.05
     assert status_factor > 3.0, last
+
+
+def test_a_run_is_the_same_at_any_speed(tmp_path: Path) -> None:
+    """Same scenario and seed at 2x and flat out (asked 50x): the same trajectory, to the last
+    bit — every command and every camera frame happen at the same simulated instants,
+    whatever rendering and scheduling cost in wall time."""
+    runs = {}
+    for speed in ("2", "50"):
+        out = tmp_path / f"x{speed}"
+        proc = subprocess.run(
+            [sys.executable, "-m", "ubf_async.launch", "--listen", "tcp/127.0.0.1:0",
+             "--scenario", "ball-in-sight", "--seed", "3", "--duration", "4", "--speed", speed,
+             "--quiet", "--summary", str(out / "summary.json"), "--record", str(out)],
+            cwd=ROOT, capture_output=True, text=True, timeout=90,
+        )
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        summary = json.loads((out / "summary.json").read_text("utf-8"))
+        runs[speed] = (summary, (out / "trajectory.csv").read_text("utf-8"))
+    (slow, slow_csv), (fast, fast_csv) = runs["2"], runs["50"]
+    assert fast["real_time_factor"] > slow["real_time_factor"] * 1.2  # really ran faster
+    assert slow_csv.count("\n") > 70
+    assert fast_csv == slow_csv
+    assert fast["robot"] == slow["robot"]
+    assert fast["camera_frames"] == slow["camera_frames"]
+    assert fast["ticks"]["ticks"] == slow["ticks"]["ticks"]

@@ -19,6 +19,14 @@ class CameraBackend(Protocol):
         to do."""
         ...
 
+    def expose(self) -> None:
+        """Mark the capture instant: called on the event loop at the moment the frame is
+        stamped, right before :meth:`capture` runs in a worker thread. Must return at once.
+        A camera that captures when asked has nothing to do; a simulated one freezes the
+        world's state here, so the frame shows the instant it is stamped with, however late
+        the worker thread starts."""
+        ...
+
     def capture(self) -> np.ndarray:
         ...
 

@@ -2,15 +2,19 @@
 
 Before the first frame it lets the backend :meth:`~components.camera.backend.CameraBackend.prepare`
 (in a worker thread; a simulated clock is held meanwhile). Each cycle stamps the capture time
-on the robot clock, captures a frame from its backend
-and runs :func:`~components.camera.seekcolor.seekcolor` in a worker thread (OpenCV and numpy
-release the GIL, and the event loop never waits on them), then holds the result until the
-device's capture latency has passed (``latency_s``, ≈0.11 s for the OV9655, on the robot
-clock, so a simulation running K× faster shortens it K×; a simulator in the same process
-does not let simulated time pass the end of that latency before the frame is ready) and
-publishes it on
-``sensor/camera/<name>`` (schema ``camera.seekcolor``) with ``stamp_ns`` = capture time. The
-next capture starts right after, so the camera delivers a frame about every ``latency_s``.
+on the robot clock, tells the backend that instant
+(:meth:`~components.camera.backend.CameraBackend.expose`), captures the frame and runs
+:func:`~components.camera.seekcolor.seekcolor` in a worker thread (OpenCV and numpy release
+the GIL, and the event loop never waits on them), then holds the result until the device's
+capture latency has passed (``latency_s``, ≈0.11 s for the OV9655, on the robot clock, so a
+simulation running K× faster shortens it K×) and publishes it on ``sensor/camera/<name>``
+(schema ``camera.seekcolor``) with ``stamp_ns`` = capture time. The next capture starts right
+after, so the camera delivers a frame every ``latency_s``.
+
+With a simulator in the same process, simulated time does not reach the end of the latency
+before the frame is ready, and the wake-up at that deadline is booked at the stamp: the
+sample comes out exactly at its deadline, in the same order among that instant's events,
+however long rendering took — a run is repeatable at any speed.
 
 ``cmd/seek_color`` changes the colour range; the ordering rule (R > B > G) stays as
 configured.
@@ -75,14 +79,22 @@ class CameraComponent(Component):
             hold.release()
         while True:
             stamp = clock.now_ns()
-            # A simulated clock does not pass the end of the capture latency while the frame
-            # is still being rendered; on wall time this is a no-op.
-            hold = clock.hold(stamp + latency_ns)
+            deadline = stamp + latency_ns
+            # On a simulated clock the frame is taken at the stamp (expose), time does not
+            # reach the deadline while it is still being rendered, and the wake-up at the
+            # deadline is booked now: so the sample comes out at the deadline, in the same
+            # order among that instant's events, however long rendering took. On wall time
+            # the hold is a no-op.
+            hold = clock.hold(deadline - 1)
+            wake = asyncio.ensure_future(clock.sleep_until_ns(deadline))
+            self.backend.expose()
             try:
                 result, shape = await asyncio.to_thread(self._capture, self.color)
+                hold.release()
+                await wake
             finally:
                 hold.release()
-            await clock.sleep_until_ns(stamp + latency_ns)
+                wake.cancel()
             self.frames += 1
             self.last_frame_shape = shape
             pub.publish({

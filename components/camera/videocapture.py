@@ -49,6 +49,9 @@ class VideoCaptureBackend:
     def prepare(self) -> None:
         """Nothing to do: the source is opened by the constructor, so a bad one fails early."""
 
+    def expose(self) -> None:
+        """Nothing to do: the device delivers frames at its own pace."""
+
     def capture(self) -> np.ndarray:
         """The next frame as ``height×width×3`` ``uint8`` RGB.
 

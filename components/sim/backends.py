@@ -164,6 +164,7 @@ class SimCameraBackend:
         self._rng = rng if rng is not None else world.make_rng(CAMERA_RNG_STREAM)
         self._lock = threading.Lock()
         self._closed = False
+        self._exposed: WorldSnapshot | None = None
 
     @property
     def params(self) -> CameraParams:
@@ -174,13 +175,23 @@ class SimCameraBackend:
         first frame costs no more than the others."""
         warm_up(self._params)
 
+    def expose(self) -> None:
+        """Latch the world's current snapshot for the next :meth:`capture`."""
+        snapshot = self._world.snapshot()
+        with self._lock:
+            self._exposed = snapshot
+
     def capture(self) -> np.ndarray:
+        """Render the snapshot latched by :meth:`expose` (or, without one, the current one)."""
         with self._lock:
             if self._closed:
                 raise RuntimeError("camera backend is closed")
             # One child generator per frame keeps concurrent captures independent.
             frame_rng = np.random.default_rng(int(self._rng.integers(0, 2**63)))
-        return render_camera(self._world.snapshot(), self._params, frame_rng)
+            snapshot, self._exposed = self._exposed, None
+        if snapshot is None:
+            snapshot = self._world.snapshot()
+        return render_camera(snapshot, self._params, frame_rng)
 
     def close(self) -> None:
         with self._lock:

@@ -59,7 +59,7 @@ from ubf_async.component import Component
 
 DEVICES = ("motors", "encoders", "camera", "range", "radio")
 RTF_WINDOW_S = 0.25
-SETTLE_ITERATIONS = 4
+SETTLE_ITERATIONS = 6
 """Wake-up → publish → handler → reflex tick → drive handler: four hops of the loop."""
 
 

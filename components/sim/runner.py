@@ -135,7 +135,8 @@ class SimulationRun:
         return [*self.device_components, self.simulator]
 
     def elapsed_s(self) -> float:
-        return self.world.time_s
+        """Simulated time, as the robot's clock has it (whole nanoseconds: no float drift)."""
+        return self.clock.now_ns() / 1e9
 
     def describe(self) -> str:
         return (f"simulated Mini-WHEGS, scenario {self.scenario.name!r} ({self.scenario.source}), "
@@ -148,6 +149,10 @@ class SimulationRun:
 
     def start(self, controller: Controller) -> None:
         """Begin sampling the trajectory (and frames) once the controller exists."""
+        if self.duration_s is not None:
+            # Simulated time stops exactly at the end, however late launch notices it, so a
+            # run ends in the same state at any speed.
+            self.clock.hold(round(self.duration_s * 1e9))
         self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
         if self.args.record is not None:
             self.args.record.mkdir(parents=True, exist_ok=True)
@@ -178,6 +183,7 @@ class SimulationRun:
         folder = self.args.record
         while True:
             t_s = self.world.time_s
+            camera.expose()  # the picture shows this instant, however late the thread runs
             await asyncio.to_thread(self._write_frame, camera, folder, t_s)
             await self.clock.sleep(self.args.record_every_s)
 
