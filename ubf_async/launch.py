@@ -213,28 +213,38 @@ async def _run_until_done(
     args: argparse.Namespace, out: TextIO, robot: str, controller: Controller,
     aggregator: StateAggregator, health: HealthMonitor, sim_run: Any,
 ) -> None:
+    """Print the status line until the run's duration has passed (forever without one)."""
     wall_start = time.monotonic()
     duration = sim_run.duration_s if sim_run is not None else args.duration
 
     def elapsed() -> float:
         return sim_run.elapsed_s() if sim_run is not None else time.monotonic() - wall_start
 
-    interactive = out.isatty()
-    last_print = 0.0
-    while duration is None or elapsed() < duration:
-        await asyncio.sleep(min(0.05, args.status_period_s))
-        now = time.monotonic()
-        if args.quiet or now - last_print < args.status_period_s:
-            continue
-        last_print = now
-        line = format_status(robot, elapsed(), controller, aggregator, health)
-        if sim_run is not None and (suffix := sim_run.status_suffix()):
-            line += f" | {suffix}"
-        if interactive:
-            out.write("\r\x1b[2K" + line[:200])
-        else:
-            out.write(line + "\n")
-        out.flush()
+    async def report() -> None:
+        interactive = out.isatty()
+        while True:
+            await asyncio.sleep(args.status_period_s)
+            line = format_status(robot, elapsed(), controller, aggregator, health)
+            if sim_run is not None and (suffix := sim_run.status_suffix()):
+                line += f" | {suffix}"
+            if interactive:
+                out.write("\r\x1b[2K" + line[:200])
+            else:
+                out.write(line + "\n")
+            out.flush()
+
+    if duration is None:
+        await (asyncio.Event().wait() if args.quiet else report())
+        return
+    reporter = None if args.quiet else asyncio.create_task(report())
+    try:
+        # A simulated run ends the moment simulated time reaches its duration.
+        await (sim_run.until_elapsed(duration) if sim_run is not None
+               else asyncio.sleep(duration))
+    finally:
+        if reporter is not None:
+            reporter.cancel()
+            await asyncio.gather(reporter, return_exceptions=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

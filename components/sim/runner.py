@@ -138,6 +138,10 @@ class SimulationRun:
         """Simulated time, as the robot's clock has it (whole nanoseconds: no float drift)."""
         return self.clock.now_ns() / 1e9
 
+    async def until_elapsed(self, duration_s: float) -> None:
+        """Return once simulated time has reached ``duration_s``."""
+        await self.clock.sleep_until_ns(round(duration_s * 1e9))
+
     def describe(self) -> str:
         return (f"simulated Mini-WHEGS, scenario {self.scenario.name!r} ({self.scenario.source}), "
                 f"{self.args.speed:g}x real time, seed {self.seed}, devices: "
