@@ -60,7 +60,9 @@ from ubf_async.component import Component
 DEVICES = ("motors", "encoders", "camera", "range", "radio")
 RTF_WINDOW_S = 0.25
 SETTLE_ITERATIONS = 6
-"""Wake-up → publish → handler → reflex tick → drive handler: four hops of the loop."""
+"""Loop iterations between late steps. The longest in-process chain a step starts takes five:
+the camera's deadline wake-up → its publish → the aggregator's handler, where a triggered
+tick publishes a drive command → the motors' handler → their applied sample's handler."""
 
 
 class SimulatorComponent(Component):
