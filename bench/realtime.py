@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import statistics
 import subprocess
 import sys
@@ -49,17 +48,11 @@ class Setup:
         return [run["real_time_factor_windows"][stat] for run in self.runs]
 
 
-def free_endpoint() -> str:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
-
-
 def run_once(setup: Setup, *, scenario: str, duration_s: float, folder: Path) -> dict:
     summary = folder / f"{setup.name.replace(' ', '-')}-{len(setup.runs)}.json"
     cmd = [sys.executable, "-m", "ubf_async.launch", "--scenario", scenario,
            "--speed", f"{setup.speed:g}", "--duration", f"{duration_s:g}", "--devices",
-           setup.devices, "--quiet", "--summary", str(summary), "--listen", free_endpoint()]
+           setup.devices, "--quiet", "--summary", str(summary), "--listen", "tcp/127.0.0.1:0"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
                           timeout=duration_s * 10 + 60)
     if proc.returncode != 0:
