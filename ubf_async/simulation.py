@@ -1,0 +1,124 @@
+"""The typed seam between launch and a simulator, and what device backends are given.
+
+A simulator is a plug-in (entry-point group ``ubf_async.simulators``) like any other: launch
+never imports one by module name. It provides
+
+* the *world* that simulated device backends read and drive (handed to backend factories as
+  :attr:`DeviceContext.simulation`), and
+* a :class:`SimulationRun`: simulated time, the simulator's own components, a status-line
+  suffix and, at the end, a summary.
+
+A device's backend that needs a simulator says which (its factory's ``requires_simulator``
+attribute, e.g. ``"mini-whegs"``); launch starts that simulator only when some device of the
+robot file needs it, so a robot whose devices are real or remote runs without one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, TextIO, runtime_checkable
+
+if TYPE_CHECKING:
+    from ubf_async.bus import Bus
+    from ubf_async.clock import Clock, SimClock
+    from ubf_async.component import Component
+    from ubf_async.controller import Controller
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SimulationOptions:
+    """What a user asks of a simulated run (launch's ``--scenario``, ``--speed`` …)."""
+
+    scenario: str | None = None
+    """A built-in scenario name or a scenario file; ``None``: the simulator's default."""
+    speed: float = 1.0
+    """Simulated seconds per wall second asked for (> 0)."""
+    seed: int | None = None
+    """Seed of every random source; ``None``: the scenario's."""
+    duration_s: float | None = None
+    """Simulated seconds to run; ``None``: the scenario's when one was named, else forever."""
+    summary_path: Path | None = None
+    record_dir: Path | None = None
+    record_every_s: float = 2.0
+
+
+@dataclass(kw_only=True)
+class DeviceContext:
+    """What a backend factory receives besides its own parameters."""
+
+    bus: Bus
+    clock: Clock
+    seed: int = 0
+    """The run's seed: backends with noise derive their random streams from it."""
+    simulation: Any = None
+    """The world of the simulator the backend requires (``None`` without one)."""
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class SimulationRun(Protocol):
+    """One simulated run, as launch drives it. Every method runs on the event loop."""
+
+    @property
+    def seed(self) -> int: ...
+
+    @property
+    def duration_s(self) -> float | None:
+        """Simulated seconds to run, or ``None`` to run until stopped."""
+        ...
+
+    @property
+    def world(self) -> Any:
+        """What simulated backends are given as :attr:`DeviceContext.simulation`."""
+        ...
+
+    def describe(self) -> str:
+        """One line for launch's banner."""
+        ...
+
+    def components(self) -> list[Component]:
+        """The simulator's own components (started after the devices)."""
+        ...
+
+    def add_devices(self, devices: list[Component]) -> None:
+        """The robot's devices, once built (for the summary's counts)."""
+        ...
+
+    def status_suffix(self) -> str:
+        ...
+
+    def elapsed_s(self) -> float:
+        ...
+
+    def start(self, controller: Controller) -> None:
+        """Called once every component runs."""
+        ...
+
+    async def until_elapsed(self, duration_s: float) -> None:
+        ...
+
+    async def finish(self, controller: Controller, out: TextIO) -> dict[str, Any]:
+        """Stop, write the summary and recording asked for, return the summary."""
+        ...
+
+
+class Simulator(Protocol):
+    """A simulator plug-in (what a ``ubf_async.simulators`` entry point names)."""
+
+    name: str
+
+    def open(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> SimulationRun:
+        """Build a run (raises :class:`~ubf_async.errors.ConfigurationError` on bad options)."""
+        ...
+
+    async def attach(self, *, bus: Bus, seed: int, wait_s: float) -> Any:
+        """The world of a simulator running in another process, for a device started on its
+        own (``python -m components.<device>``); raises ``ConnectionError`` if none answers
+        within ``wait_s``. The caller closes it with its ``close()``."""
+        ...
+
+    def scenario_names(self) -> list[str]:
+        """Built-in scenarios, for ``--help``."""
+        ...
