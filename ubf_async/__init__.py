@@ -3,6 +3,9 @@
 The core (this module's exports) is pure Python: no I/O, no middleware.
 """
 
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
+
 from ubf_async.action import COMMAND_LIMIT, STOP, Action, SeekColor, clamp_command
 from ubf_async.arbiters import (
     Arbiter,
@@ -25,7 +28,21 @@ from ubf_async.behavior import (
     Trace,
     behavior,
 )
+from ubf_async.errors import (
+    ConfigurationError,
+    PluginError,
+    ProtocolError,
+    RobotFileError,
+    ScenarioError,
+    TreeChangeError,
+    UbfError,
+)
 from ubf_async.state import Reading, State
+
+try:
+    __version__ = _version("ubf-async")
+except PackageNotFoundError:  # running from a source tree that was never installed
+    __version__ = "0+unknown"
 
 __all__ = [
     "COMMAND_LIMIT",
@@ -38,18 +55,26 @@ __all__ = [
     "CommandFusion",
     "Composite",
     "Conditional",
+    "ConfigurationError",
     "Decision",
     "FunctionBehavior",
     "HighestActivation",
     "HighestPriority",
     "MonteCarlo",
+    "PluginError",
     "PriorityFusion",
     "PriorityMerge",
+    "ProtocolError",
     "Reading",
+    "RobotFileError",
+    "ScenarioError",
     "SeekColor",
     "State",
     "Trace",
+    "TreeChangeError",
+    "UbfError",
     "UtilityFusion",
+    "__version__",
     "behavior",
     "clamp_command",
 ]

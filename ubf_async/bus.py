@@ -22,6 +22,10 @@ on the loop's next iterations without waiting for a zenoh thread to get the GIL 
 lets a simulated robot run several times faster than real time without its own commands
 arriving late in simulated time. Semantics (latest/every, counters, handler errors) are the
 same for both paths.
+
+Queries take the same road: :meth:`Bus.declare_queryable` answers each query on the event
+loop (the zenoh callback only hands it over), and :meth:`Bus.query` sends one from a worker
+thread and awaits the first reply.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from typing import Any
 import zenoh
 
 from ubf_async.clock import Clock, SimClock, WallClock
+from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.protocol import Keys, ProtocolError, decode, encode
 
 log = logging.getLogger(__name__)
@@ -51,6 +56,10 @@ DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 SampleHandler = Callable[[str, bytes, int], None]
 """``handler(key, payload, received_ns)`` — runs on the event loop."""
+
+QueryHandler = Callable[[str, bytes], bytes]
+"""``handler(key, payload) -> reply payload`` — runs on the event loop (see
+:meth:`Bus.declare_queryable`)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -96,7 +105,11 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 def add_connection_arguments(
     parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None
 ) -> None:
-    """Add ``--mode/-m --connect/-e --listen/-l --config --robot`` to ``parser``."""
+    """Add ``--mode/-m --connect/-e --listen/-l --config --robot`` (and ``--version``) to
+    ``parser``."""
+    from ubf_async import __version__
+
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     group = parser.add_argument_group("connection (shared by every ubf_async entry point)")
     group.add_argument("--mode", "-m", choices=("peer", "client"), default="peer",
                        help="zenoh session mode")
@@ -119,7 +132,7 @@ def add_connection_arguments(
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     """Build :class:`ConnectionOptions` from parsed :func:`add_connection_arguments` flags."""
     if args.config is not None and not args.config.is_file():
-        raise SystemExit(f"error: --config {args.config}: no such file")
+        raise ConfigurationError(f"--config {args.config}: no such file")
     listen = args.listen if args.listen is not None else list(args._default_listen)
     return ConnectionOptions(
         robot=args.robot, mode=args.mode, connect=list(args.connect), listen=listen,
@@ -283,6 +296,105 @@ class Publisher:
             self._zenoh.undeclare()
 
 
+class QueryError(UbfError, RuntimeError):
+    """A queryable answered with an error instead of a reply (see :meth:`Bus.query`)."""
+
+
+@dataclass
+class QueryStats:
+    received: int = 0
+    answered: int = 0
+    refused: int = 0
+    """Queries answered with an error at once because ``max_pending`` were waiting."""
+    handler_errors: int = 0
+
+
+class Queryable:
+    """A zenoh queryable whose queries are answered on the event loop.
+
+    The zenoh callback only copies the query's payload and schedules the answer on the loop
+    (``call_soon_threadsafe``); the handler runs there, so what it reads or changes is never
+    touched by a zenoh thread. Its return value is the reply; a handler that raises is logged
+    and counted, and the querier gets an error reply. At most ``max_pending`` queries wait for
+    the loop; more are refused with an error reply at once (a flood cannot queue up work).
+    """
+
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, key: str, handler: QueryHandler, *,
+        max_pending: int = 64,
+    ) -> None:
+        self.key = key
+        self._loop = loop
+        self._handler = handler
+        self._max_pending = max_pending
+        self._pending = 0
+        self._lock = threading.Lock()
+        self._closed = False
+        self._zenoh: Any = None
+        self.stats = QueryStats()
+
+    # zenoh thread ------------------------------------------------------------------------
+    def on_query(self, query: zenoh.Query) -> None:
+        """The zenoh callback: hand the query to the loop, never block."""
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        with self._lock:
+            self.stats.received += 1
+            refuse = "closed" if self._closed else (
+                "busy" if self._pending >= self._max_pending else "")
+            if refuse:
+                self.stats.refused += 1
+            else:
+                self._pending += 1
+        if refuse:
+            self._error(query, f"{self.key}: {refuse}, try again")
+            return
+        try:
+            self._loop.call_soon_threadsafe(self._answer, query, str(query.key_expr), payload)
+        except RuntimeError:  # the loop is closed: nobody will answer
+            self._error(query, f"{self.key}: closed")
+
+    @staticmethod
+    def _error(query: zenoh.Query, text: str) -> None:
+        with contextlib.suppress(zenoh.ZError):
+            query.reply_err(text.encode())
+        with contextlib.suppress(zenoh.ZError):
+            query.drop()
+
+    # event loop --------------------------------------------------------------------------
+    def _answer(self, query: zenoh.Query, key: str, payload: bytes) -> None:
+        with self._lock:
+            self._pending -= 1
+            closed = self._closed
+        if closed:
+            self._error(query, f"{self.key}: closed")
+            return
+        try:
+            reply = self._handler(key, payload)
+        except Exception as exc:
+            self.stats.handler_errors += 1
+            log.exception("handler of queryable %s failed", self.key)
+            self._error(query, f"{self.key}: internal error: {type(exc).__name__}: {exc}")
+            return
+        try:
+            query.reply(self.key, reply)
+            self.stats.answered += 1
+        except zenoh.ZError as exc:
+            log.warning("cannot reply to a query on %s: %s", self.key, exc)
+        finally:
+            with contextlib.suppress(zenoh.ZError):
+                query.drop()
+
+    def close(self) -> None:
+        """Stop answering (queries still waiting get an error reply); idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._zenoh is not None:
+            with contextlib.suppress(zenoh.ZError):
+                self._zenoh.undeclare()
+
+
 class Bus:
     """A zenoh session for one robot, used from one event loop.
 
@@ -298,6 +410,7 @@ class Bus:
         self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
         self._subscriptions: list[Subscription] = []
+        self._queryables: list[Queryable] = []
         self._local: list[tuple[zenoh.KeyExpr, Subscription]] = []
         self._local_by_key: dict[str, list[Subscription]] = {}
         """Which local subscriptions each published key reaches; cleared on any change."""
@@ -385,6 +498,44 @@ class Bus:
 
         return await asyncio.to_thread(query)
 
+    def declare_queryable(
+        self, key: str, handler: QueryHandler, *, max_pending: int = 64
+    ) -> Queryable:
+        """Answer queries on ``key`` (a concrete key) with ``handler(key, payload) -> reply``,
+        called on the event loop; queries from this session are answered too."""
+        queryable = Queryable(self._loop, key, handler, max_pending=max_pending)
+        queryable._zenoh = self.session.declare_queryable(key, queryable.on_query)
+        self._queryables.append(queryable)
+        return queryable
+
+    async def query(
+        self, key: str, payload: bytes | None = None, *, timeout_s: float = 5.0
+    ) -> bytes:
+        """Send one query on ``key`` and return the first reply's payload.
+
+        Raises :class:`TimeoutError` when nothing answered within ``timeout_s`` (at once when
+        no queryable matching ``key`` is known), :class:`QueryError` when the queryable
+        answered with an error. The query runs in a worker thread, so a queryable on this
+        same loop can answer it."""
+
+        def get() -> tuple[bytes | None, list[str]]:
+            errors: list[str] = []
+            replies = self.session.get(key, payload=payload, timeout=timeout_s,
+                                       consolidation=zenoh.ConsolidationMode.NONE)
+            for reply in replies:
+                if reply.ok is not None:
+                    return reply.ok.payload.to_bytes(), errors
+                if reply.err is not None:
+                    errors.append(reply.err.payload.to_bytes().decode(errors="replace"))
+            return None, errors
+
+        answer, errors = await asyncio.to_thread(get)
+        if answer is not None:
+            return answer
+        if errors:
+            raise QueryError("; ".join(errors))
+        raise TimeoutError(f"nothing answered a query on {key} within {timeout_s:g}s")
+
     async def aclose(self) -> None:
         """Undeclare everything and close the session; idempotent."""
         if self._closed:
@@ -392,6 +543,8 @@ class Bus:
         self._closed = True
         for sub in self._subscriptions:
             sub.close()
+        for queryable in self._queryables:
+            queryable.close()
         await asyncio.to_thread(self.session.close)
 
     async def __aenter__(self) -> Bus:

@@ -1,6 +1,7 @@
 """What every command-line entry point does around its asyncio main: SIGTERM and Ctrl-C stop
 it cleanly (its ``finally`` blocks close components and sessions), and a connection or
-configuration problem is one clear line on stderr with exit status 2."""
+configuration problem (any :class:`~ubf_async.errors.UbfError`) is one clear line on stderr
+with exit status 2. This is the only place an error becomes an exit status."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import contextlib
 import signal
 import sys
 from collections.abc import Awaitable, Callable
+
+from ubf_async.errors import UbfError
 
 
 def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
@@ -21,7 +24,7 @@ def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
             return await main()
         except asyncio.CancelledError:
             return 0
-        except (ConnectionError, ValueError) as exc:  # ProtocolError is a ValueError
+        except (UbfError, ConnectionError, ValueError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return 2
 

@@ -1,28 +1,35 @@
-"""``python -m ubf_async.launch`` — run a robot: bus, state aggregator, UBF controller.
+"""``python -m ubf_async.launch [ROBOT_FILE]`` — run a robot; the one composition root.
 
-Starts a zenoh session (listening on a loopback endpoint by default, printed at start so
-other processes can attach with ``--connect``), the state aggregator, the controller with
-the seek-the-pink-ball behaviour tree, and a health monitor; prints a one-line live status
-until Ctrl-C, SIGTERM or ``--duration`` elapses, then shuts everything down cleanly.
+Launch is the only place that wires things together: it reads a robot file
+(:mod:`ubf_async.robotfile`; without one, the shipped ``mini-whegs`` file: the simulated
+Mini-WHEGS seeking the pink ball), opens the zenoh session (listening on a loopback endpoint
+by default, printed at start so other processes can attach with ``--connect``), builds the
+devices through the plug-in registries, starts a simulator only if some device's backend
+needs one, and runs the state aggregator, the UBF controller with the file's behaviour tree,
+the remote-behaviour slots and the live-tree service. It prints a one-line live status until
+Ctrl-C, SIGTERM or ``--duration`` elapses, then shuts everything down cleanly.
+
+Everything a user can get wrong (the robot file, a scenario, options) is checked before the
+robot starts; errors become exit status 2 here, in :func:`main`, and nowhere else.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
-import importlib
 import logging
-import random
 import sys
 import time
 from collections.abc import Sequence
-from types import ModuleType
-from typing import Any, TextIO
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
 
+from ubf_async import __version__
 from ubf_async.aggregator import StateAggregator
-from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import (
     DEFAULT_LISTEN,
+    DEFAULT_ROBOT,
     Bus,
     HelpFormatter,
     add_connection_arguments,
@@ -33,60 +40,89 @@ from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
+from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.registry import SIMULATORS
 from ubf_async.remote import RemoteBehaviors, remote_spec
+from ubf_async.robotfile import (
+    DEFAULT_ROBOT_FILE,
+    ResolvedDevice,
+    Robot,
+    builtin_robot_files,
+    load_robot,
+)
+from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun, Simulator
 
 log = logging.getLogger("ubf_async.launch")
 
+PROG = "python -m ubf_async.launch"
 
-DEFAULT_SIMULATOR = "components.sim.runner"
 
-
-def build_parser(simulator: ModuleType | None = None) -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m ubf_async.launch",
+        prog=PROG,
         description=(
-            "Run a UBF robot: zenoh session, state aggregator, controller (seek the pink ball), "
-            "by default a simulated Mini-WHEGS with its devices, and a live status line. Other "
-            "processes attach over zenoh with --connect <the endpoint printed at start> and the "
-            "same --robot."
+            "Run a UBF robot described by a robot file (docs/robot-file.md): zenoh session, "
+            "its devices, state aggregator, controller with its behaviour tree, and a live "
+            "status line. Without ROBOT_FILE: the simulated Mini-WHEGS seeking the pink ball "
+            f"(the shipped '{DEFAULT_ROBOT_FILE}' file). Other processes attach over zenoh "
+            "with --connect <the endpoint printed at start> and the same --robot."
         ),
         formatter_class=HelpFormatter,
     )
+    parser.add_argument(
+        "robot_file", nargs="?", default=DEFAULT_ROBOT_FILE, metavar="ROBOT_FILE",
+        help=f"a robot file (.yaml) or a shipped one ({', '.join(builtin_robot_files())}); "
+             f"default: {DEFAULT_ROBOT_FILE}")
+    parser.add_argument("--check", action="store_true",
+                        help="load and check the robot file (every name and parameter), print "
+                             "what would run, and exit without starting anything")
     add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN])
-    ctl = parser.add_argument_group("controller")
-    ctl.add_argument("--rate-hz", type=float, default=50.0,
-                     help="tick rate in periodic mode")
+    parser.set_defaults(robot=None)  # the robot file names the robot unless --robot is given
+    ctl = parser.add_argument_group("controller (override the robot file's `controller:`)")
+    ctl.add_argument("--rate-hz", type=float, default=None,
+                     help="tick rate in periodic mode (robot file default: 50)")
     ctl.add_argument("--tick", dest="tick_mode", choices=[m.value for m in TickMode],
-                     default=TickMode.PERIODIC.value,
-                     help="periodic: own clock; sync: wait for each camera sample (the "
-                          "thesis's loop); event: tick on each sample of --trigger")
+                     default=None,
+                     help="periodic: own clock; sync: wait for each sample of the sync source "
+                          "(the camera: the thesis's loop); event: tick on each sample of "
+                          "--trigger (robot file default: periodic)")
     ctl.add_argument("--trigger", default=None, metavar="SOURCE",
                      help="source that triggers ticks in --tick event, e.g. range/front")
     ctl.add_argument("--reflex", action="append", default=None, metavar="PREFIX",
                      help="in periodic mode, also tick at once on each sample of sources "
-                          "starting with PREFIX (repeatable; default: range/ — the IR "
-                          "finders; --reflex '' for none)")
-    ctl.add_argument("--camera-source", default="camera/front", metavar="SOURCE",
-                     help="camera source the behaviours and sync mode read")
+                          "starting with PREFIX (repeatable; robot file default: range/ — the "
+                          "IR finders; --reflex '' for none)")
     ctl.add_argument("--remote", type=remote_spec, action="append", default=[],
                      metavar="[COMPOSITE/]NAME=PRIORITY[:WEIGHT]",
                      help="place remote behaviour NAME (docs/protocol.md, 'Remote behaviours') "
-                          "at PRIORITY[:WEIGHT] in its composite, overriding what its votes ask "
-                          "for (repeatable); other remote behaviours get what they ask for")
-    ctl.add_argument("--search-period-s", type=float, default=None,
-                     help="search behaviour's counter: how often it draws a new direction "
-                          "(default: the scenario's, else 4)")
+                          "at PRIORITY[:WEIGHT] in its composite, as a `remote:` slot of the "
+                          "tree does (repeatable); other remote behaviours get what they ask "
+                          "for unless the robot file says `remotes: {only_declared: true}`")
     world = parser.add_argument_group("where the devices come from")
     world.add_argument("--no-sim", action="store_true",
-                       help="no simulator: run only the controller and wait for devices to "
-                            "attach over zenoh")
+                       help="no simulator: devices whose backend needs one are not started "
+                            "here; they attach over zenoh from other processes")
     world.add_argument("--sim-time", action="store_true",
                        help="with --no-sim: follow the simulation time published on "
                             "ubf/<robot>/clock by a simulator in another process")
-    world.add_argument("--simulator", default=DEFAULT_SIMULATOR, metavar="MODULE",
-                       help="module that provides the simulated robot")
-    if simulator is not None:
-        simulator.add_arguments(parser)
+    world.add_argument("--devices", default=None, metavar="KIND[/NAME],...",
+                       help="start only these devices of the robot file (e.g. motors,camera); "
+                            "others can attach later")
+    sim = parser.add_argument_group("simulated run (when a device's backend is simulated)")
+    sim.add_argument("--scenario", default=None, metavar="NAME|PATH",
+                     help="world and scripted ball: a built-in scenario or a scenario .json file "
+                          "(docs/scenarios.md); default: ball-in-sight, run until stopped")
+    sim.add_argument("--speed", type=float, default=1.0, metavar="K",
+                     help="run the simulation K times faster than real time (every component, "
+                          "camera latency included, follows the simulated clock)")
+    sim.add_argument("--seed", type=int, default=None,
+                     help="seed for every random source (default: the scenario's)")
+    sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
+                     help="write a JSON summary of the run when it ends")
+    sim.add_argument("--record", type=Path, default=None, metavar="DIR",
+                     help="write trajectory.csv, trajectory.png and annotated camera frames")
+    sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
+                     help="simulated seconds between recorded camera frames")
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S seconds (simulated seconds when simulating; default: "
@@ -99,19 +135,94 @@ def build_parser(simulator: ModuleType | None = None) -> argparse.ArgumentParser
     return parser
 
 
-def load_simulator(argv: Sequence[str] | None) -> ModuleType | None:
-    """Import the simulator module named by ``--simulator`` unless ``--no-sim`` is given, so
-    its options join ``--help``. The framework itself never imports a simulator statically."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--no-sim", action="store_true")
-    pre.add_argument("--simulator", default=DEFAULT_SIMULATOR)
-    known, _ = pre.parse_known_args(argv)
-    if known.no_sim:
-        return None
-    try:
-        return importlib.import_module(known.simulator)
-    except ImportError as exc:
-        raise SystemExit(f"error: --simulator {known.simulator}: {exc}") from None
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ControllerSettings:
+    """The robot file's ``controller:`` with the command line's overrides applied."""
+
+    mode: TickMode
+    rate_hz: float
+    reflex: tuple[str, ...]
+    sync_source: str
+    trigger: str | None
+
+    @classmethod
+    def of(cls, robot: Robot, args: argparse.Namespace) -> ControllerSettings:
+        spec = robot.spec.controller
+        mode = TickMode(args.tick_mode or spec.mode)
+        rate_hz = spec.rate_hz if args.rate_hz is None else args.rate_hz
+        if not rate_hz > 0:
+            raise ConfigurationError(f"--rate-hz must be > 0, got {rate_hz:g}")
+        trigger = args.trigger or spec.trigger
+        if mode is TickMode.EVENT and not trigger:
+            raise ConfigurationError("--tick event needs --trigger SOURCE (or `trigger:` in "
+                                     "the robot file's controller)")
+        reflex = spec.reflex if args.reflex is None else args.reflex
+        return cls(mode=mode, rate_hz=rate_hz, reflex=tuple(p for p in reflex if p),
+                   sync_source=spec.sync_source, trigger=trigger)
+
+
+def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
+    """The robot file's devices, narrowed by ``--devices KIND[/NAME],...``."""
+    if wanted is None:
+        return list(robot.devices)
+    names = [w.strip() for w in wanted.split(",") if w.strip()]
+    known = {d.kind for d in robot.devices} | {f"{d.kind}/{d.name}" for d in robot.devices}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigurationError(f"--devices: {', '.join(unknown)} not in {robot.source}; its "
+                                 f"devices: {', '.join(sorted(known))}")
+    return [d for d in robot.devices if d.kind in names or f"{d.kind}/{d.name}" in names]
+
+
+@dataclass(slots=True, kw_only=True)
+class LaunchPlan:
+    """Everything checked before the robot starts."""
+
+    robot: Robot
+    devices: list[ResolvedDevice]
+    """Devices this process builds."""
+    elsewhere: list[ResolvedDevice]
+    """Devices of the file left to other processes (``--no-sim`` with simulated backends)."""
+    simulator: Simulator | None
+    sim_options: SimulationOptions | None
+    controller: ControllerSettings
+
+
+def plan_launch(args: argparse.Namespace) -> LaunchPlan:
+    """Load and check the robot file and options; nothing starts. Raises :class:`UbfError`."""
+    robot = load_robot(args.robot_file, seed=args.seed)
+    devices = selected_devices(robot, args.devices)
+    simulators = sorted({d.requires_simulator for d in devices if d.requires_simulator})
+    if len(simulators) > 1:
+        raise ConfigurationError(f"{robot.source}: devices need several simulators "
+                                 f"({', '.join(simulators)}); one robot runs in one")
+    elsewhere: list[ResolvedDevice] = []
+    simulator: Simulator | None = None
+    options: SimulationOptions | None = None
+    if args.sim_time and not args.no_sim:
+        raise ConfigurationError("--sim-time only makes sense with --no-sim")
+    if args.no_sim:
+        elsewhere = [d for d in devices if d.requires_simulator]
+        devices = [d for d in devices if not d.requires_simulator]
+    elif simulators:
+        simulator = SIMULATORS.get(simulators[0])()
+        if not args.speed > 0:
+            raise ConfigurationError(f"--speed must be > 0, got {args.speed:g}")
+        options = SimulationOptions(
+            scenario=args.scenario, speed=args.speed, seed=args.seed,
+            duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
+            record_every_s=args.record_every_s)
+    if simulator is None:
+        given = [flag for flag, value in (("--scenario", args.scenario),
+                                          ("--summary", args.summary),
+                                          ("--record", args.record)) if value is not None]
+        if given:
+            why = "--no-sim is given" if args.no_sim else f"no device of {robot.source} is simulated"
+            raise ConfigurationError(f"{', '.join(given)}: there is no simulator ({why})")
+    if args.duration is not None and not args.duration > 0:
+        raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
+    return LaunchPlan(robot=robot, devices=devices, elsewhere=elsewhere, simulator=simulator,
+                      sim_options=options, controller=ControllerSettings.of(robot, args))
 
 
 def format_status(
@@ -143,56 +254,79 @@ def format_status(
     return " | ".join(parts)
 
 
-async def run_robot(
-    args: argparse.Namespace, simulator: ModuleType | None, out: TextIO = sys.stdout
-) -> int:
+async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+    robot = plan.robot
+    args.robot = args.robot or robot.name or DEFAULT_ROBOT
     options = connection_options(args)
-    clock: Clock = SimClock() if simulator is not None or args.sim_time else WallClock()
+    simulated = plan.simulator is not None
+    clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
     bus = await Bus.open(options, clock=clock)
     components: list[Component] = []
     health = HealthMonitor(bus)
-    sim_run = None
+    sim_run: SimulationRun | None = None
     controller: Controller | None = None
     try:
         endpoints = " ".join(options.listen) or "(not listening)"
-        print(f"ubf_async: robot {options.robot!r} on zenoh, listening on {endpoints}", file=out)
+        print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
+              f"{endpoints}", file=out)
         if options.listen:
             print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
                   file=out)
-        if simulator is not None:
+        seed = robot.spec.seed or 0
+        if plan.simulator is not None and plan.sim_options is not None:
             assert isinstance(clock, SimClock)
-            sim_run = simulator.SimulationRun(bus=bus, clock=clock, args=args)
+            sim_run = plan.simulator.open(bus=bus, clock=clock, options=plan.sim_options)
+            seed = sim_run.seed
             print(f"  {sim_run.describe()}", file=out)
         elif isinstance(clock, SimClock):
             follow_sim_clock(bus, clock, {})
             print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
                   file=out)
-        else:
-            print("  no simulator: waiting for devices to attach over zenoh", file=out)
-        search_period_s = args.search_period_s or (sim_run.search_period_s if sim_run else 4.0)
-        aggregator = StateAggregator(bus=bus)
-        # The search behaviour draws its directions from the run's seed, so a simulated run
-        # is repeatable.
-        rng = random.Random(sim_run.seed) if sim_run is not None else random.Random()
-        root = seek_pink_ball(source=args.camera_source, search_period_s=search_period_s,
-                              rng=rng)
+        if plan.elsewhere:
+            print("  not started here (simulated; attach them with python -m "
+                  "components.<kind>): "
+                  + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere), file=out)
+        if not plan.devices and not plan.elsewhere and sim_run is None:
+            print("  no devices here: waiting for devices to attach over zenoh", file=out)
+        if sim_run is not None and args.seed is None and seed != robot.spec.seed:
+            # The behaviours draw from the run's seed, so a simulated run is repeatable.
+            robot = load_robot(args.robot_file, seed=seed)
+        context = DeviceContext(bus=bus, clock=clock, seed=seed,
+                                simulation=sim_run.world if sim_run is not None else None)
+        devices = [device.build(bus=bus, context=context) for device in plan.devices]
+        spec = robot.spec
+        aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
+                                     default_stale_after_s=spec.controller.default_stale_after_s)
+        settings = plan.controller
+        root = robot.root
         controller = Controller(
-            bus=bus, aggregator=aggregator, root=root, rate_hz=args.rate_hz,
-            mode=args.tick_mode, camera_source=args.camera_source, trigger=args.trigger,
-            reflex_sources=tuple(p for p in (args.reflex or ["range/"]) if p),
+            bus=bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
+            mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
+            reflex_sources=settings.reflex,
         )
-        remotes = RemoteBehaviors(bus=bus, root=root, config=dict(args.remote))
-        components += [aggregator, controller, remotes]
+        remotes = RemoteBehaviors(
+            bus=bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
+            only_configured=spec.remotes.only_declared,
+            default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
+            max_remotes=spec.remotes.max_remotes,
+        )
+        components += [aggregator, controller, remotes, *devices]
         if sim_run is not None:
+            sim_run.add_devices(devices)
             components += sim_run.components()
         health.start()
         for component in components:
             await component.start()
         if sim_run is not None:
             sim_run.start(controller)
-        print(f"  controller: {args.tick_mode} at {args.rate_hz:g} Hz, tree:", file=out)
+        rate = f" at {settings.rate_hz:g} Hz" if settings.mode is TickMode.PERIODIC else ""
+        print(f"  devices: {', '.join(f'{d.kind}/{d.name} ({d.backend})' for d in plan.devices)"
+              f"{'' if plan.devices else 'none here'}", file=out)
+        print(f"  controller: {settings.mode.value}{rate}, tree:", file=out)
         for line in root.render_tree().splitlines():
             print(f"    {line}", file=out)
+        for slot in robot.remotes:
+            print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
         out.flush()
         await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
         return 0
@@ -211,7 +345,7 @@ async def run_robot(
 
 async def _run_until_done(
     args: argparse.Namespace, out: TextIO, robot: str, controller: Controller,
-    aggregator: StateAggregator, health: HealthMonitor, sim_run: Any,
+    aggregator: StateAggregator, health: HealthMonitor, sim_run: SimulationRun | None,
 ) -> None:
     """Print the status line until the run's duration has passed (forever without one)."""
     wall_start = time.monotonic()
@@ -247,19 +381,37 @@ async def _run_until_done(
             await asyncio.gather(reporter, return_exceptions=True)
 
 
+def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
+    robot = plan.robot
+    print(f"{robot.source}: robot {robot.name!r} — OK", file=out)
+    for device in plan.devices + plan.elsewhere:
+        sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
+        print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
+    settings = plan.controller
+    print(f"  controller: {settings.mode.value} at {settings.rate_hz:g} Hz, reflex "
+          f"{', '.join(settings.reflex) or 'none'}", file=out)
+    for line in robot.root.render_tree().splitlines():
+        print(f"    {line}", file=out)
+    for slot in robot.remotes:
+        print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    simulator = load_simulator(argv)
-    parser = build_parser(simulator)
+    parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
-    if args.sim_time and not args.no_sim:
-        parser.error("--sim-time only makes sense with --no-sim")
-    if args.tick_mode == TickMode.EVENT and not args.trigger:
-        parser.error("--tick event needs --trigger SOURCE")
-
-    return run_main(lambda: run_robot(args, simulator), prog="python -m ubf_async.launch")
+    try:
+        plan = plan_launch(args)
+    except UbfError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    if args.check:
+        print_plan(plan)
+        return 0
+    log.info("ubf_async %s", __version__)
+    return run_main(lambda: run_robot(plan, args), prog=PROG)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 import msgspec
+import msgspec.inspect
 
 from ubf_async.errors import PluginError
 
@@ -189,7 +190,7 @@ def parameters_of(factory: Callable[..., Any], *, injected: Iterable[str] = ()) 
         if parameter.name in skip or parameter.kind in (
                 inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD):
             continue
-        annotation = hints.get(parameter.name, Any)
+        annotation = _data_type(hints.get(parameter.name, Any))
         if parameter.default is inspect.Parameter.empty:
             fields.append((parameter.name, annotation))
         else:
@@ -200,6 +201,16 @@ def parameters_of(factory: Callable[..., Any], *, injected: Iterable[str] = ()) 
     struct = msgspec.defstruct(name, fields, kw_only=True, forbid_unknown_fields=True)
     _PARAMETER_CACHE[key] = struct
     return struct
+
+
+def _data_type(annotation: Any) -> Any:
+    """``annotation`` if msgspec can decode data into it, else ``Any`` (e.g. a union with a
+    ``Callable``): such a parameter is then checked by the factory itself."""
+    try:
+        msgspec.inspect.type_info(annotation)
+    except (TypeError, ValueError):
+        return Any
+    return annotation
 
 
 def accepts(factory: Callable[..., Any], parameter: str) -> bool:

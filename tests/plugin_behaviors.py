@@ -1,0 +1,29 @@
+"""A user's own behaviours, referenced from robot files as ``tests.plugin_behaviors:NAME``."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+from ubf_async.action import Action
+from ubf_async.behavior import Behavior
+from ubf_async.state import State
+
+
+class Spin(Behavior):
+    """Turn on the spot at ``turn`` whatever the sensors say."""
+
+    def __init__(self, *, turn: Annotated[float, msgspec.Meta(ge=-100, le=100)] = 60.0,
+                 vote: float = 1.0) -> None:
+        super().__init__()
+        self.turn = turn
+        self.vote = vote
+
+    def act(self, state: State) -> Action | None:
+        return Action(speed=0.0, turn=self.turn, vote=self.vote)
+
+
+def not_a_behavior() -> str:
+    """A factory that returns the wrong thing (robot files must refuse it)."""
+    return "surprise"

@@ -1,0 +1,247 @@
+"""Robot files through the real launch path (``python -m ubf_async.launch FILE``), in separate
+processes, on real zenoh sessions and the real simulator."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# The final state of two thesis scenarios as launch ran them before robot files existed (the
+# tree built in code), with `--speed 100 --seed 3 --duration 12`. Simulated runs are exactly
+# repeatable, so the shipped default robot file must reproduce them to the last digit.
+BEFORE_ROBOT_FILES = {
+    "ball-in-sight": {"x_m": 0.14671630433356378, "y_m": 0.025277135715691776,
+                      "heading_rad": 0.21253923054790125, "ticks": 902, "camera_frames": 109},
+    "keep-away": {"x_m": 0.09522894798192952, "y_m": 0.24661492926097567,
+                  "heading_rad": 1.0916036150891086, "ticks": 902, "camera_frames": 109},
+}
+
+
+def run_launch(*args: str, env: dict[str, str] | None = None,
+               timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", *args], cwd=ROOT, capture_output=True,
+        text=True, timeout=timeout, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", sorted(BEFORE_ROBOT_FILES))
+def test_default_robot_file_reproduces_the_built_in_tree(
+        scenario: str, endpoint: str, robot: str, tmp_path: Path) -> None:
+    summary = tmp_path / "summary.json"
+    proc = run_launch("--scenario", scenario, "--speed", "100", "--seed", "3", "--duration",
+                      "12", "--quiet", "--listen", endpoint, "--robot", robot,
+                      "--summary", str(summary))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    data = json.loads(summary.read_text())
+    before = BEFORE_ROBOT_FILES[scenario]
+    for key in ("x_m", "y_m", "heading_rad"):
+        assert data["robot"][key] == pytest.approx(before[key], abs=1e-9), key
+    assert data["ticks"]["ticks"] == before["ticks"]
+    assert data["camera_frames"] == before["camera_frames"]
+
+
+def test_check_prints_the_plan_and_starts_nothing() -> None:
+    proc = run_launch("--check")
+    assert proc.returncode == 0, proc.stderr
+    assert "mini-whegs.yaml: robot 'mini' — OK" in proc.stdout
+    assert "device camera/front: backend sim, simulator mini-whegs" in proc.stdout
+    assert "search (Search) [p=2 w=1]" in proc.stdout
+    assert "listening" not in proc.stdout
+
+
+BAD_ROBOT = """\
+name: bad
+tree:
+  name: root
+  arbiter: PriorityMerge
+  children:
+    - behavior: chase
+    - behavior: chsae
+"""
+
+
+def test_a_bad_robot_file_is_refused_with_file_and_line_and_nothing_starts(
+        tmp_path: Path, endpoint: str) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(BAD_ROBOT)
+    proc = run_launch(str(path), "--listen", endpoint, "--duration", "5")
+    assert proc.returncode == 2
+    assert f"{path}:7: unknown behaviour 'chsae'; known: " in proc.stderr
+    assert "listening" not in proc.stdout and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--scenario", "keep-away", "--no-sim"], "--scenario: there is no simulator"),
+    (["--speed", "0"], "--speed must be > 0"),
+    (["--tick", "event"], "--tick event needs --trigger"),
+    (["--devices", "motors,lidar"], "--devices: lidar not in"),
+    (["--sim-time"], "--sim-time only makes sense with --no-sim"),
+])
+def test_bad_options_are_refused_before_the_robot_starts(args: list[str], message: str) -> None:
+    proc = run_launch(*args, "--duration", "5")
+    assert proc.returncode == 2, proc.stdout
+    assert message in proc.stderr
+    assert "listening" not in proc.stdout
+
+
+# -- a user's robot: module:factory behaviour + a behaviour from an installed plug-in ---------
+
+PLUGIN_PYPROJECT = """\
+[build-system]
+requires = ["setuptools>=61"]
+build-backend = "setuptools.build_meta"
+
+[project]
+name = "ubf-test-plugin"
+version = "0.1.0"
+
+[project.entry-points."ubf_async.behaviors"]
+forward = "ubf_test_plugin:Forward"
+"""
+
+PLUGIN_MODULE = '''\
+"""A behaviour package, as a third party would ship it."""
+
+from ubf_async.action import Action
+from ubf_async.behavior import Behavior
+
+
+class Forward(Behavior):
+    def __init__(self, *, name: str = "forward", speed: float = 30.0) -> None:
+        super().__init__(name=name)
+        self.speed = speed
+
+    def act(self, state):
+        return Action(speed=self.speed)
+'''
+
+USER_ROBOT = """\
+name: {robot}
+devices:
+  - {{kind: motors, name: main, backend: sim}}
+  - {{kind: encoders, name: wheels, backend: sim}}
+tree:
+  name: mine
+  arbiter: PriorityMerge
+  children:
+    - behavior: forward                        # from the installed plug-in package
+      params: {{speed: 30}}
+    - behavior: tests.plugin_behaviors:Spin    # from the user's own module
+      name: spin
+      params: {{turn: 40}}
+"""
+
+
+@pytest.fixture(scope="module")
+def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The test plug-in package, pip-installed into a folder of its own."""
+    base = tmp_path_factory.mktemp("plugin")
+    source = base / "src"
+    (source / "ubf_test_plugin").mkdir(parents=True)
+    (source / "pyproject.toml").write_text(PLUGIN_PYPROJECT)
+    (source / "ubf_test_plugin" / "__init__.py").write_text(PLUGIN_MODULE)
+    site = base / "site"
+    proc = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
+         "--no-build-isolation", "--target", str(site), str(source)],
+        capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert list(site.glob("ubf_test_plugin-*.dist-info/entry_points.txt"))
+    return site
+
+
+@pytest.mark.slow
+def test_user_and_plugin_behaviours_drive_the_simulated_robot(
+        plugin_site: Path, tmp_path: Path, endpoint: str, robot: str) -> None:
+    path = tmp_path / "my_robot.yaml"
+    path.write_text(USER_ROBOT.format(robot=robot))
+    summary = tmp_path / "summary.json"
+    env = {"PYTHONPATH": os.pathsep.join([str(plugin_site), str(ROOT)])}
+    proc = run_launch(str(path), "--scenario", "ball-behind", "--speed", "10", "--duration",
+                      "3", "--quiet", "--listen", endpoint, "--summary", str(summary), env=env)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "forward (Forward) [p=0 w=1]" in proc.stdout and "spin (Spin)" in proc.stdout
+    data = json.loads(summary.read_text())
+    # PriorityMerge sums the two at the same priority: both win every tick...
+    assert data["ticks"]["winner_share"] == {"forward": 1.0, "spin": 1.0}
+    # ...and the robot both drove and turned (scenario start: origin, heading 0).
+    pose = data["robot"]
+    assert math.hypot(pose["x_m"], pose["y_m"]) > 0.05
+    assert abs(pose["heading_rad"]) > 0.3
+
+
+def test_plugin_behaviour_is_listed_only_when_installed(plugin_site: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(plugin_site), str(ROOT)])}
+    listed = subprocess.run([sys.executable, "-m", "ubf_async.robotfile", "plugins"], cwd=ROOT,
+                            capture_output=True, text=True, env=env, check=True).stdout
+    assert "forward" in listed and "ubf_test_plugin:Forward" in listed
+    plain = subprocess.run([sys.executable, "-m", "ubf_async.robotfile", "plugins"], cwd=ROOT,
+                           capture_output=True, text=True, check=True).stdout
+    assert "ubf_test_plugin" not in plain
+
+
+# -- a robot without the simulator ------------------------------------------------------------
+
+VIDEO_ROBOT = """\
+name: {robot}
+devices:
+  - kind: camera
+    name: front
+    backend: video
+    backend_params: {{source: "{video}"}}
+    params: {{latency_s: 0.0}}
+controller: {{rate_hz: 20}}
+tree:
+  name: look
+  arbiter: PriorityMerge
+  children:
+    - behavior: chase
+    - behavior: flee
+"""
+
+
+@pytest.mark.slow
+def test_a_robot_of_real_devices_runs_without_the_simulator(
+        tmp_path: Path, endpoint: str, robot: str) -> None:
+    video = tmp_path / "pink.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (320, 256))
+    assert writer.isOpened()
+    for _ in range(40):
+        bgr = np.full((256, 320, 3), (40, 120, 40), dtype=np.uint8)
+        bgr[100:140, 140:180] = (110, 60, 200)  # pink (RGB 200, 60, 110), as BGR
+        writer.write(bgr)
+    writer.release()
+    path = tmp_path / "video_robot.yaml"
+    path.write_text(VIDEO_ROBOT.format(robot=robot, video=video))
+    proc = run_launch(str(path), "--listen", endpoint, "--duration", "3",
+                      "--status-period-s", "0.5")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "simulated" not in proc.stdout and "sim " not in proc.stdout
+    assert "devices: camera/front (video)" in proc.stdout
+    assert "camera/front" in proc.stdout.split("tree:")[-1]
+    # the camera's samples reached the controller: chase sees the pink square
+    assert "(chase" in proc.stdout
+
+
+def test_robot_file_check_command_reports_each_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(BAD_ROBOT)
+    good = tmp_path / "good.yaml"
+    good.write_text(textwrap.dedent(BAD_ROBOT).replace("chsae", "flee"))
+    proc = subprocess.run([sys.executable, "-m", "ubf_async.robotfile", "check", str(good),
+                           str(bad)], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert f"{good}: robot 'bad'" in proc.stdout
+    assert f"{bad}:7: unknown behaviour" in proc.stderr
