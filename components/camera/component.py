@@ -24,6 +24,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from typing import Annotated
+
+import msgspec
 
 from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
@@ -116,3 +119,22 @@ class CameraComponent(Component):
         except ValueError as exc:  # lo > hi: well-formed but unusable
             self.malformed[key] = self.malformed.get(key, 0) + 1
             log.warning("refused seek colour on %s: %s", key, exc)
+
+
+def build_device(
+    *,
+    bus: Bus,
+    name: str,
+    backend: CameraBackend,
+    latency_s: Annotated[float, msgspec.Meta(ge=0)] = OV9655_LATENCY_S,
+    hfov_deg: Annotated[float, msgspec.Meta(gt=0, lt=180)] = DEFAULT_HFOV_DEG,
+) -> CameraComponent:
+    """The ``camera`` device kind: captures from ``backend``, publishes
+    ``sensor/camera/<name>``.
+
+    ``latency_s``: capture latency on the robot clock (the thesis's OV9655: 0.11 s; a real
+    camera whose driver has its own latency: 0). ``hfov_deg``: horizontal field of view the
+    bearing is computed with.
+    """
+    return CameraComponent(bus=bus, backend=backend, name=name, latency_s=latency_s,
+                           hfov_deg=hfov_deg)

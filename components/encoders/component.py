@@ -10,6 +10,10 @@ or from the phase order), integrates odometry, and publishes
 
 from __future__ import annotations
 
+from typing import Annotated, Literal
+
+import msgspec
+
 from components.encoders.backend import EncoderBackend
 from components.encoders.odometry import Odometry
 from components.encoders.quadrature import (
@@ -83,3 +87,25 @@ class EncodersComponent(Component):
             return
         self.left.set_commanded_direction(message.data["left_dir"])
         self.right.set_commanded_direction(message.data["right_dir"])
+
+
+def build_device(
+    *,
+    bus: Bus,
+    name: str,
+    backend: EncoderBackend,
+    period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.02,
+    direction: Literal["commanded", "phase"] = "commanded",
+) -> EncodersComponent:
+    """The ``encoders`` device kind: reads ``backend`` every ``period_s`` (robot clock),
+    publishes ``sensor/encoders/<name>`` and ``sensor/odometry/<name>``.
+
+    ``direction``: ``commanded`` takes each wheel's sign from the motors' command (the
+    thesis), ``phase`` decodes it from the A/B phase order. A backend that knows the lines'
+    present states (``current_states()``) gives the decoders their start state.
+    """
+    current_states = getattr(backend, "current_states", None)
+    initial = current_states() if callable(current_states) else None
+    mode = DirectionMode.COMMANDED if direction == "commanded" else DirectionMode.PHASE
+    return EncodersComponent(bus=bus, backend=backend, name=name, period_s=period_s, mode=mode,
+                             initial_states=initial)

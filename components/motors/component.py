@@ -15,6 +15,9 @@
 from __future__ import annotations
 
 import logging
+from typing import Annotated
+
+import msgspec
 
 from components.motors.backend import MotorBackend
 from components.motors.pwm import (
@@ -106,3 +109,15 @@ class MotorsComponent(Component):
             "left_dir": command.left_direction, "right_dir": command.right_direction,
             "reason": reason,
         })
+
+
+def build_device(
+    *,
+    bus: Bus,
+    name: str,
+    backend: MotorBackend,
+    timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 0.2,
+) -> MotorsComponent:
+    """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
+    wheels when no drive command arrived for ``timeout_s`` (robot clock)."""
+    return MotorsComponent(bus=bus, backend=backend, name=name, timeout_s=timeout_s)

@@ -7,6 +7,10 @@ Incoming: every ``period_s`` the backend's new messages are published, each as o
 
 from __future__ import annotations
 
+from typing import Annotated
+
+import msgspec
+
 from components.radio.backend import RadioBackend
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
@@ -44,3 +48,15 @@ class RadioComponent(Component):
         if message is not None:
             self.backend.send(message.data["text"])
             self.sent += 1
+
+
+def build_device(
+    *,
+    bus: Bus,
+    name: str,
+    backend: RadioBackend,
+    period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.05,
+) -> RadioComponent:
+    """The ``radio`` device kind: ``cmd/radio`` out through ``backend``; what arrives is
+    published on ``sensor/radio/<name>``, polled every ``period_s`` (robot clock)."""
+    return RadioComponent(bus=bus, backend=backend, name=name, period_s=period_s)
