@@ -9,9 +9,14 @@ source delivers. A video file loops back to its start at the end unless ``loop=F
 from __future__ import annotations
 
 from types import TracebackType
+from typing import Annotated
 
 import cv2
+import msgspec
 import numpy as np
+
+from ubf_async.errors import ConfigurationError
+from ubf_async.simulation import DeviceContext
 
 
 class CameraError(RuntimeError):
@@ -99,3 +104,23 @@ class VideoCaptureBackend:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def video_backend(
+    *,
+    context: DeviceContext,
+    source: str = "0",
+    width: Annotated[int, msgspec.Meta(gt=0)] = 1280,
+    height: Annotated[int, msgspec.Meta(gt=0)] = 1024,
+    loop: bool = True,
+) -> VideoCaptureBackend:
+    """``camera.video``: frames from ``source`` — digits are a camera index, anything else a
+    video file — as ``width``×``height`` RGB; a file starts over at its end when ``loop``."""
+    capture_source: int | str = int(source) if source.isdigit() else source
+    try:
+        return VideoCaptureBackend(capture_source, size=(width, height), loop=loop)
+    except CameraError as exc:  # a source that cannot be opened is the user's to fix
+        raise ConfigurationError(f"camera.video: {exc}") from exc
+
+
+video_backend.requires_simulator = None  # type: ignore[attr-defined]

@@ -11,6 +11,8 @@ import sys
 import threading
 from typing import TextIO
 
+from ubf_async.simulation import DeviceContext
+
 
 class StdioRadioBackend:
     def __init__(self, *, stdin: TextIO | None = None, stdout: TextIO | None = None) -> None:
@@ -36,3 +38,12 @@ class StdioRadioBackend:
                 out.append(self._queue.get_nowait())
             except queue.Empty:
                 return out
+
+
+def stdio_backend(*, context: DeviceContext) -> StdioRadioBackend:
+    """``radio.stdio``: lines typed on the process's standard input arrive; messages sent are
+    printed on its standard output."""
+    return StdioRadioBackend()
+
+
+stdio_backend.requires_simulator = None  # type: ignore[attr-defined]

@@ -4,20 +4,30 @@ Each class implements one of the device backend protocols (``components/<device>
 so a device component can run against the simulator exactly as it would against hardware. They
 read the world's latest immutable snapshot, so they are safe to call from worker threads while
 the world steps in another. Nothing here touches the message bus or asyncio.
+
+The factories at the end (``camera_backend`` …) are what the ``ubf_async.backends`` entry
+points ``<kind>.sim`` name: ``(*, context, **params) -> backend``. Each says it requires the
+``mini-whegs`` simulator (its ``requires_simulator`` attribute), whose world it finds in
+``context.simulation``: a :class:`~components.sim.world.World` in the simulator's process, a
+:class:`~components.sim.remote.RemoteWorld` in a device's own process.
 """
 
 from __future__ import annotations
 
 import math
 import threading
-from typing import Protocol
+from collections.abc import Callable
+from typing import Annotated, Any, Protocol, TypeVar
 
+import msgspec
 import numpy as np
 
 from components.range.backend import MountPose
 from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
 from components.sim.ranging import beam_distance_m
 from components.sim.world import WorldConfig, WorldSnapshot
+from ubf_async.errors import ConfigurationError
+from ubf_async.simulation import DeviceContext
 
 
 class WorldView(Protocol):
@@ -248,3 +258,64 @@ class SimRadioBackend:
         with self._lock:
             sent, self._outbox = self._outbox, []
         return sent
+
+
+# -- backend factories (entry points ``ubf_async.backends``: ``<kind>.sim``) -------------------
+
+SIMULATOR = "mini-whegs"
+"""The simulator plug-in (``ubf_async.simulators``) whose world these backends need."""
+
+Factory = TypeVar("Factory", bound=Callable[..., Any])
+
+
+def _on_simulator(factory: Factory) -> Factory:
+    factory.requires_simulator = SIMULATOR  # type: ignore[attr-defined]
+    return factory
+
+
+def _world(context: DeviceContext, backend: str) -> WorldView:
+    world = context.simulation
+    if world is None:
+        raise ConfigurationError(
+            f"backend {backend!r} needs the {SIMULATOR!r} simulator's world, and none was given"
+        )
+    return world  # type: ignore[no-any-return]
+
+
+@_on_simulator
+def camera_backend(*, context: DeviceContext) -> SimCameraBackend:
+    """``camera.sim``: renders the simulated OV9655's view of the world."""
+    return SimCameraBackend(_world(context, "camera.sim"))
+
+
+@_on_simulator
+def motors_backend(*, context: DeviceContext) -> SimMotorBackend:
+    """``motors.sim``: drives the simulated wheels."""
+    return SimMotorBackend(_world(context, "motors.sim"))
+
+
+@_on_simulator
+def encoders_backend(
+    *,
+    context: DeviceContext,
+    glitch_probability: Annotated[float, msgspec.Meta(ge=0, le=1)] = 0.0,
+) -> SimEncoderBackend:
+    """``encoders.sim``: quadrature phases from the simulated wheel angles, with a false edge
+    after a real one with ``glitch_probability`` (seeded by the world's seed)."""
+    return SimEncoderBackend(_world(context, "encoders.sim"),
+                             glitch_probability=glitch_probability)
+
+
+@_on_simulator
+def range_backend(*, context: DeviceContext) -> SimRangeBackend:
+    """``range.sim``: true beam distances in the simulated world."""
+    return SimRangeBackend(_world(context, "range.sim"))
+
+
+def radio_backend(*, context: DeviceContext) -> SimRadioBackend:
+    """``radio.sim``: an in-memory text link (``inject`` a message, read ``outbox``). It
+    needs nothing of the world, so it does not require the simulator."""
+    return SimRadioBackend()
+
+
+radio_backend.requires_simulator = None  # type: ignore[attr-defined]
