@@ -28,36 +28,28 @@ measures it). Components of the same process may :meth:`hold
 renders): the simulator does not step past a held time, so wall-time work costs no simulated
 time, and simulated time starts only once the holds taken at the start are released.
 
-:func:`simulated_devices` builds the device components with simulator backends.
+:func:`simulated_devices` builds device components with simulator backends in this process,
+through the registry (device kinds and ``<kind>.sim`` backends), as launch does from a robot
+file.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
-from components.camera.component import CameraComponent
-from components.encoders.component import EncodersComponent
-from components.motors.component import MotorsComponent
-from components.radio.component import RadioComponent
-from components.range.backend import MountPose
-from components.range.component import RangeComponent
-from components.range.ir import GP2Y0A21
-from components.sim.backends import (
-    SimCameraBackend,
-    SimEncoderBackend,
-    SimMotorBackend,
-    SimRadioBackend,
-    SimRangeBackend,
-)
+from components.devices import KINDS, make_backend, make_device
 from components.sim.wire import PULSES_SCHEMA, WORLD_SCHEMA, snapshot_to_data
 from components.sim.world import World
 from ubf_async.bus import Bus, Publisher, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
+from ubf_async.simulation import DeviceContext
 
-DEVICES = ("motors", "encoders", "camera", "range", "radio")
+DEVICES = KINDS
+"""The devices of the simulated Mini-WHEGS."""
 RTF_WINDOW_S = 0.25
 SETTLE_ITERATIONS = 6
 """Loop iterations between late steps. The longest in-process chain a step starts takes five:
@@ -203,30 +195,32 @@ def simulated_devices(
     bus: Bus,
     world: World,
     devices: Iterable[str] = DEVICES,
-    camera_latency_s: float = 0.11,
-    motor_timeout_s: float = 0.2,
-    range_mount: MountPose | None = None,
     seed: int = 0,
+    params: Mapping[str, Mapping[str, Any]] | None = None,
+    camera_latency_s: float | None = None,
+    motor_timeout_s: float | None = None,
 ) -> list[Component]:
-    """The robot's device components, backed by ``world``."""
+    """The robot's device components with ``<kind>.sim`` backends on ``world``, in this
+    process, each under its kind's usual name and built through the registry.
+
+    ``params`` maps a kind to its device parameters (``{"range": {"yaw_deg": 45}}``);
+    ``camera_latency_s`` and ``motor_timeout_s`` are shorthands for the camera's
+    ``latency_s`` and the motors' ``timeout_s``. ``seed`` is the run's seed.
+    """
     wanted = list(devices)
     unknown = sorted(set(wanted) - set(DEVICES))
     if unknown:
         raise ValueError(f"unknown device(s) {unknown}; choose from {list(DEVICES)}")
+    chosen: dict[str, dict[str, Any]] = {kind: dict(p) for kind, p in (params or {}).items()}
+    if camera_latency_s is not None:
+        chosen.setdefault("camera", {})["latency_s"] = camera_latency_s
+    if motor_timeout_s is not None:
+        chosen.setdefault("motors", {})["timeout_s"] = motor_timeout_s
+    context = DeviceContext(bus=bus, clock=bus.clock, seed=seed, simulation=world)
     out: list[Component] = []
-    if "motors" in wanted:
-        out.append(MotorsComponent(bus=bus, backend=SimMotorBackend(world),
-                                   timeout_s=motor_timeout_s))
-    if "encoders" in wanted:
-        encoder_backend = SimEncoderBackend(world)
-        out.append(EncodersComponent(bus=bus, backend=encoder_backend,
-                                     initial_states=encoder_backend.current_states()))
-    if "camera" in wanted:
-        out.append(CameraComponent(bus=bus, backend=SimCameraBackend(world),
-                                   latency_s=camera_latency_s))
-    if "range" in wanted:
-        out.append(RangeComponent(bus=bus, backend=SimRangeBackend(world), model=GP2Y0A21,
-                                  mount=range_mount, seed=seed))
-    if "radio" in wanted:
-        out.append(RadioComponent(bus=bus, backend=SimRadioBackend()))
+    for kind in DEVICES:  # in a fixed order, whatever the order asked for
+        if kind in wanted:
+            backend = make_backend(kind, "sim", context=context)
+            out.append(make_device(kind, context=context, backend=backend,
+                                   params=chosen.get(kind)))
     return out

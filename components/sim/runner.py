@@ -1,32 +1,32 @@
-"""The simulated Mini-WHEGS for ``python -m ubf_async.launch`` (its default ``--simulator``).
+"""One simulated run of the Mini-WHEGS, as launch drives it through the simulator seam.
 
-Launch loads this module by name, calls :func:`add_arguments` on its parser and builds a
-:class:`SimulationRun`, which provides the simulator and device components, the status-line
-suffix, the run's simulated time, and at the end the summary (``--summary FILE.json``) and
-recording (``--record DIR``: trajectory.csv, trajectory.png, annotated camera frames).
+:class:`SimulationRun` implements :class:`ubf_async.simulation.SimulationRun` (the
+:class:`~components.sim.plugin.MiniWhegsSimulator` plug-in's ``open()`` builds it from
+:class:`~ubf_async.simulation.SimulationOptions`): the world the simulated device backends are
+given, the simulator component, simulated time, the status-line suffix and, at the end, the
+summary (``summary_path``) and recording (``record_dir``: trajectory.csv, trajectory.png,
+annotated camera frames). Launch builds the devices (from the robot file, through the
+registry) and hands them over with :meth:`SimulationRun.add_devices`.
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import json
+import math
 import statistics
 import time
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, TextIO
 
 import cv2
 
+from components.camera.component import CameraComponent
 from components.camera.seekcolor import seekcolor
 from components.sim.backends import SimCameraBackend
-from components.sim.component import (
-    DEVICES,
-    RTF_WINDOW_S,
-    SimulatorComponent,
-    simulated_devices,
-)
+from components.sim.component import RTF_WINDOW_S, SimulatorComponent
 from components.sim.record import (
     TrajectorySample,
     annotate_frame,
@@ -35,46 +35,27 @@ from components.sim.record import (
     plot_trajectory,
     write_trajectory_csv,
 )
-from components.sim.scenarios import ScenarioError, builtin_names, load_scenario
+from components.sim.scenarios import load_scenario
 from components.sim.world import World
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.controller import Controller
+from ubf_async.errors import ConfigurationError
+from ubf_async.simulation import SimulationOptions
 
 DEFAULT_SCENARIO = "ball-in-sight"
 SAMPLE_PERIOD_S = 0.05
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    sim = parser.add_argument_group("simulated robot (components.sim)")
-    sim.add_argument("--scenario", default=None, metavar="NAME|PATH",
-                     help=f"world and scripted ball to run: a built-in "
-                          f"({', '.join(builtin_names())}) or a scenario .json file "
-                          f"(docs/scenarios.md); default: {DEFAULT_SCENARIO}, run until stopped")
-    sim.add_argument("--speed", type=float, default=1.0, metavar="K",
-                     help="run the simulation K times faster than real time (every component, "
-                          "camera latency included, follows the simulated clock)")
-    sim.add_argument("--devices", default=",".join(DEVICES),
-                     help="comma-separated simulated devices to start; others can attach later")
-    sim.add_argument("--camera-latency-s", type=float, default=0.11,
-                     help="capture latency of the simulated OV9655 camera")
-    sim.add_argument("--seed", type=int, default=None,
-                     help="seed for every random source (default: the scenario's)")
-    sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
-                     help="write a JSON summary of the run when it ends")
-    sim.add_argument("--record", type=Path, default=None, metavar="DIR",
-                     help="write trajectory.csv, trajectory.png and annotated camera frames")
-    sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
-                     help="simulated seconds between recorded camera frames")
-
-
-def parse_devices(text: str) -> list[str]:
-    devices = [d.strip() for d in text.split(",") if d.strip()]
-    unknown = sorted(set(devices) - set(DEVICES))
-    if unknown:
-        raise SystemExit(f"error: --devices: unknown {unknown}; choose from {list(DEVICES)}")
-    return devices
+def _check_options(options: SimulationOptions) -> None:
+    if not (math.isfinite(options.speed) and options.speed > 0):
+        raise ConfigurationError(f"speed must be a finite number > 0, got {options.speed}")
+    if options.duration_s is not None and not options.duration_s > 0:
+        raise ConfigurationError(f"duration must be > 0 simulated seconds, got "
+                                 f"{options.duration_s}")
+    if not options.record_every_s > 0:
+        raise ConfigurationError(f"record_every_s must be > 0, got {options.record_every_s}")
 
 
 def window_summary(windows: list[float]) -> dict[str, Any] | None:
@@ -89,31 +70,28 @@ def window_summary(windows: list[float]) -> dict[str, Any] | None:
 
 
 class SimulationRun:
-    """Everything the simulated robot adds to a launch."""
+    """Everything the simulated Mini-WHEGS adds to a launch (see the module docstring).
 
-    def __init__(self, *, bus: Bus, clock: SimClock, args: argparse.Namespace) -> None:
-        if not args.speed > 0:
-            raise SystemExit(f"error: --speed must be > 0, got {args.speed}")
-        try:
-            self.scenario = load_scenario(args.scenario or DEFAULT_SCENARIO)
-        except ScenarioError as exc:
-            raise SystemExit(f"error: --scenario: {exc}") from None
-        self.args = args
+    Raises :class:`~ubf_async.errors.ConfigurationError` for a bad speed, duration or
+    recording period, and :class:`~ubf_async.errors.ScenarioError` for an unknown or invalid
+    scenario.
+    """
+
+    def __init__(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> None:
+        _check_options(options)
+        self.scenario = load_scenario(options.scenario or DEFAULT_SCENARIO)
+        self.options = options
         self.bus = bus
         self.clock = clock
-        self.seed = self.scenario.seed if args.seed is None else args.seed
+        self._seed = self.scenario.seed if options.seed is None else options.seed
         config = self.scenario.world
-        if args.seed is not None:
-            config = replace(config, seed=args.seed)
-        self.world = World(config)
-        self.scenario.install(self.world)
-        self.devices = parse_devices(args.devices)
-        self.simulator = SimulatorComponent(bus=bus, world=self.world, clock=clock,
-                                            speed=args.speed)
-        self.device_components = simulated_devices(
-            bus=bus, world=self.world, devices=self.devices,
-            camera_latency_s=args.camera_latency_s, seed=self.seed,
-        )
+        if options.seed is not None:
+            config = replace(config, seed=options.seed)
+        self._world = World(config)
+        self.scenario.install(self._world)
+        self.simulator = SimulatorComponent(bus=bus, world=self._world, clock=clock,
+                                            speed=options.speed)
+        self.devices: list[Component] = []
         self.samples: list[TrajectorySample] = []
         self.frames: list[Path] = []
         self._tasks: list[asyncio.Task[None]] = []
@@ -121,18 +99,30 @@ class SimulationRun:
 
     # -- what launch asks ---------------------------------------------------------------------
     @property
-    def search_period_s(self) -> float:
-        return self.scenario.search_period_s
+    def seed(self) -> int:
+        """The seed of every random source: ``options.seed``, else the scenario's."""
+        return self._seed
+
+    @property
+    def world(self) -> World:
+        """The world simulated backends read and drive (``DeviceContext.simulation``)."""
+        return self._world
 
     @property
     def duration_s(self) -> float | None:
-        """Simulated seconds to run: ``--duration``, else the scenario's when one was named."""
-        if self.args.duration is not None:
-            return self.args.duration
-        return self.scenario.duration_s if self.args.scenario else None
+        """Simulated seconds to run: ``options.duration_s``, else the scenario's when one was
+        named, else ``None`` (until stopped)."""
+        if self.options.duration_s is not None:
+            return self.options.duration_s
+        return self.scenario.duration_s if self.options.scenario else None
 
     def components(self) -> list[Component]:
-        return [*self.device_components, self.simulator]
+        """The simulator component (the devices are launch's, see :meth:`add_devices`)."""
+        return [self.simulator]
+
+    def add_devices(self, devices: Iterable[Component]) -> None:
+        """The robot's device components, for the summary's counts (camera frames)."""
+        self.devices.extend(devices)
 
     def elapsed_s(self) -> float:
         """Simulated time, as the robot's clock has it (whole nanoseconds: no float drift)."""
@@ -144,8 +134,7 @@ class SimulationRun:
 
     def describe(self) -> str:
         return (f"simulated Mini-WHEGS, scenario {self.scenario.name!r} ({self.scenario.source}), "
-                f"{self.args.speed:g}x real time, seed {self.seed}, devices: "
-                f"{', '.join(self.devices) or 'none'}")
+                f"{self.options.speed:g}x real time, seed {self.seed}")
 
     def status_suffix(self) -> str:
         rtf = self.simulator.real_time_factor()
@@ -158,8 +147,8 @@ class SimulationRun:
             # run ends in the same state at any speed.
             self.clock.hold(round(self.duration_s * 1e9))
         self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
-        if self.args.record is not None:
-            self.args.record.mkdir(parents=True, exist_ok=True)
+        if self.options.record_dir is not None:
+            self.options.record_dir.mkdir(parents=True, exist_ok=True)
             self._tasks.append(asyncio.create_task(self._record_frames(), name="sim:frames"))
 
     def _take_sample(self, controller: Controller) -> None:
@@ -184,12 +173,13 @@ class SimulationRun:
 
     async def _record_frames(self) -> None:
         camera = SimCameraBackend(self.world)
-        folder = self.args.record
+        folder = self.options.record_dir
+        assert folder is not None
         while True:
             t_s = self.world.time_s
             camera.expose()  # the picture shows this instant, however late the thread runs
             await asyncio.to_thread(self._write_frame, camera, folder, t_s)
-            await self.clock.sleep(self.args.record_every_s)
+            await self.clock.sleep(self.options.record_every_s)
 
     def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float) -> None:
         frame = camera.capture()
@@ -206,18 +196,18 @@ class SimulationRun:
         await self.simulator.aclose()  # freeze the world: summary and trajectory end together
         self._take_sample(controller)
         summary = self.summary(controller)
-        if self.args.record is not None:
-            folder = self.args.record
+        if self.options.record_dir is not None:
+            folder = self.options.record_dir
             await asyncio.to_thread(self._write_recording, folder)
             summary["recording"] = {"dir": str(folder), "trajectory_csv": "trajectory.csv",
                                     "trajectory_png": "trajectory.png",
                                     "frames": [p.name for p in self.frames]}
             print(f"  recorded {len(self.samples)} samples and {len(self.frames)} frames "
                   f"in {folder}", file=out)
-        if self.args.summary is not None:
+        if self.options.summary_path is not None:
             text = json.dumps(summary, indent=2)
-            await asyncio.to_thread(self.args.summary.write_text, text, "utf-8")
-            print(f"  summary written to {self.args.summary}", file=out)
+            await asyncio.to_thread(self.options.summary_path.write_text, text, "utf-8")
+            print(f"  summary written to {self.options.summary_path}", file=out)
         return summary
 
     def _write_recording(self, folder: Path) -> None:
@@ -241,14 +231,15 @@ class SimulationRun:
             "wall_time_s": wall_s,
             "real_time_factor": self.simulator.real_time_factor(),
             "real_time_factor_windows": window_summary(self.simulator.rtf_windows),
-            "speed_requested": self.args.speed,
+            "speed_requested": self.options.speed,
             "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad},
             "ball": None,
             "ball_distance_m": None,
             "ball_bearing_deg": None,
             "motion_last_2s": motion_over(self.samples, 2.0),
             "ticks": controller.stats.summary(),
-            "camera_frames": sum(getattr(d, "frames", 0) for d in self.device_components),
+            "camera_frames": sum(d.frames for d in self.devices
+                                 if isinstance(d, CameraComponent)),
             "trajectory_samples": len(self.samples),
         }
         if snap.ball is not None:

@@ -1,0 +1,89 @@
+"""Building a device from the registry: a device kind, a backend, parameters checked by type.
+
+The device kinds (entry points ``ubf_async.devices``) and their backends
+(``ubf_async.backends``, ``<kind>.<backend>``) are looked up by name, exactly as launch does
+for a robot file; their keyword parameters are checked with
+:func:`ubf_async.registry.parameters_of` before anything is built. A device started on its own
+(:mod:`components.standalone`) and the simulator's in-process helper
+(:func:`components.sim.component.simulated_devices`) both build through :func:`make_device`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import msgspec
+
+from ubf_async import registry
+from ubf_async.component import Component
+from ubf_async.errors import ConfigurationError
+from ubf_async.simulation import DeviceContext
+
+KINDS = ("motors", "encoders", "camera", "range", "radio")
+"""The built-in device kinds."""
+DEFAULT_NAMES: dict[str, str] = {"camera": "front", "motors": "main", "encoders": "wheels",
+                                 "range": "front", "radio": "link"}
+"""Each built-in kind's usual source name (``sensor/<kind>/<name>``)."""
+DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
+"""Parameters of a device kind's factory the builder supplies itself."""
+BACKEND_INJECTED = frozenset({"context"})
+"""Parameters of a backend factory the builder supplies itself."""
+
+
+def requires_simulator(factory: Callable[..., Any]) -> str | None:
+    """The simulator plug-in a backend factory needs (its ``requires_simulator``), or None."""
+    name = getattr(factory, "requires_simulator", None)
+    if name is not None and not isinstance(name, str):
+        raise ConfigurationError(f"{factory!r}: requires_simulator must be a str or None, "
+                                 f"got {name!r}")
+    return name
+
+
+def checked(factory: Callable[..., Any], params: Mapping[str, Any], *,
+            injected: frozenset[str], what: str) -> dict[str, Any]:
+    """``params`` checked against ``factory``'s keyword parameters (defaults filled in).
+
+    Raises :class:`~ubf_async.errors.ConfigurationError` naming ``what`` and the field.
+    """
+    struct = registry.parameters_of(factory, injected=injected)
+    try:
+        value = msgspec.convert(dict(params), struct)
+    except msgspec.ValidationError as exc:
+        raise ConfigurationError(f"{what}: {exc}") from None
+    return msgspec.structs.asdict(value)
+
+
+def make_backend(kind: str, backend: str, *, context: DeviceContext,
+                 params: Mapping[str, Any] | None = None) -> Any:
+    """The backend ``backend`` of device ``kind``, built with ``params`` in ``context``."""
+    factory = registry.get_backend(kind, backend)
+    values = checked(factory, params or {}, injected=BACKEND_INJECTED,
+                     what=f"backend {kind}.{backend}")
+    return factory(context=context, **values)
+
+
+def make_device(
+    kind: str,
+    *,
+    context: DeviceContext,
+    backend: Any,
+    name: str | None = None,
+    params: Mapping[str, Any] | None = None,
+) -> Component:
+    """A device component of ``kind`` on ``context.bus``, reading/driving ``backend`` (an
+    object built by :func:`make_backend`, or any object following the kind's backend
+    interface). ``name`` defaults to the kind's usual one; ``params`` are checked against the
+    kind's factory; the run's seed and clock are given to a factory that takes them."""
+    factory = registry.DEVICES.get(kind)
+    name = name if name is not None else DEFAULT_NAMES.get(kind, kind)
+    values = checked(factory, params or {}, injected=DEVICE_INJECTED, what=f"{kind} {name!r}")
+    if registry.accepts(factory, "seed"):
+        values["seed"] = context.seed
+    if registry.accepts(factory, "clock"):
+        values["clock"] = context.clock
+    component = factory(bus=context.bus, name=name, backend=backend, **values)
+    if not isinstance(component, Component):
+        raise ConfigurationError(f"device kind {kind!r} ({registry.DEVICES.origin(kind)}) "
+                                 f"returned {type(component).__name__}, not a Component")
+    return component

@@ -1,0 +1,65 @@
+"""The ``mini-whegs`` simulator plug-in (entry point ``ubf_async.simulators``).
+
+:class:`MiniWhegsSimulator` implements :class:`ubf_async.simulation.Simulator`:
+
+* :meth:`~MiniWhegsSimulator.open` builds a :class:`~components.sim.runner.SimulationRun` —
+  the pymunk world of a scenario, the simulator component, simulated time, summary and
+  recording — whose ``world`` the ``<kind>.sim`` backends (:mod:`components.sim.backends`)
+  are given;
+* :meth:`~MiniWhegsSimulator.attach` gives a device started in its own process
+  (``python -m components.<device>``) the world of a simulator running elsewhere, seen through
+  the bus (:class:`~components.sim.remote.RemoteWorld`).
+
+Importing this module is cheap: the simulator's modules (pymunk, OpenCV) load on first use.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from ubf_async.bus import Bus
+from ubf_async.clock import SimClock
+from ubf_async.simulation import SimulationOptions
+
+if TYPE_CHECKING:
+    from components.sim.remote import RemoteWorld
+    from components.sim.runner import SimulationRun
+
+
+class MiniWhegsSimulator:
+    """The simulated Mini-WHEGS: a pymunk world, an OpenCV-rendered camera, scenarios."""
+
+    name = "mini-whegs"
+
+    def open(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> SimulationRun:
+        """A run of ``options.scenario`` (default ``ball-in-sight``) on ``clock``.
+
+        Raises :class:`~ubf_async.errors.ConfigurationError` for a speed ≤ 0 (or a bad
+        duration or recording period) and :class:`~ubf_async.errors.ScenarioError` for an
+        unknown or invalid scenario.
+        """
+        from components.sim.runner import SimulationRun
+
+        return SimulationRun(bus=bus, clock=clock, options=options)
+
+    async def attach(self, *, bus: Bus, seed: int, wait_s: float) -> RemoteWorld:
+        """The world of the simulator publishing on ``bus``'s robot, started and holding its
+        first snapshot. ``seed`` seeds the backends' noise in this process. Raises
+        ``ConnectionError`` if no simulator publishes within ``wait_s`` seconds; the caller
+        closes the world (``close()``) when done."""
+        from components.sim.remote import RemoteWorld
+
+        world = RemoteWorld(bus, seed=seed)
+        world.start()
+        try:
+            await world.wait_ready(wait_s)
+        except BaseException:
+            world.close()
+            raise
+        return world
+
+    def scenario_names(self) -> list[str]:
+        """The built-in scenarios (``components/sim/scenario_files``)."""
+        from components.sim.scenarios import builtin_names
+
+        return builtin_names()
