@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -37,16 +38,16 @@ from components.sim.world import (
     World,
     WorldConfig,
 )
+from ubf_async.errors import ScenarioError
+
+__all__ = ["BallScript", "BallStep", "Scenario", "ScenarioError", "builtin_names",
+           "load_scenario", "parse_scenario"]
 
 CAMERA_OFFSET_M = 0.05
 """The camera sits this far ahead of the robot's centre (see camera_render.CameraParams)."""
 HIDDEN_AT = (50.0, 50.0)
 """Where a hidden ball waits: far outside any arena, behind its walls."""
 BUILTIN_DIR = "scenario_files"
-
-
-class ScenarioError(ValueError):
-    """A scenario file that does not follow docs/scenarios.md (the message says where)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -65,7 +66,6 @@ class Scenario:
     world: WorldConfig
     ball_script: tuple[BallStep, ...]
     duration_s: float
-    search_period_s: float
     seed: int
     source: str
 
@@ -134,8 +134,10 @@ class BallScript:
 # ---------------------------------------------------------------------------------------------
 # Parsing
 
-_TOP_LEVEL = {"name", "title", "description", "seed", "duration_s", "search_period_s", "robot",
-              "ball", "arena", "walls", "obstacles", "distractors", "lighting", "ball_script"}
+_TOP_LEVEL = {"name", "title", "description", "seed", "duration_s", "robot", "ball", "arena",
+              "walls", "obstacles", "distractors", "lighting", "ball_script"}
+_DEPRECATED = {"search_period_s"}
+"""Fields old scenario files may still have: read (and checked), warned about, not used."""
 
 
 def _number(data: dict[str, Any], key: str, where: str, default: float | None = None) -> float:
@@ -204,7 +206,7 @@ def _ball_step(data: Any, where: str) -> BallStep:
 
 def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
     """Validate a decoded scenario document and build the :class:`Scenario`."""
-    data = _check_keys(data, _TOP_LEVEL, "scenario")
+    data = _check_keys(data, _TOP_LEVEL | _DEPRECATED, "scenario")
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise ScenarioError("scenario: 'name' must be a non-empty string")
@@ -261,9 +263,17 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
     if steps and ball is None:
         raise ScenarioError("ball_script needs a ball")
     duration = _number(data, "duration_s", "scenario", 30.0)
-    period = _number(data, "search_period_s", "scenario", 4.0)
-    if duration <= 0 or period <= 0:
-        raise ScenarioError("duration_s and search_period_s must be > 0")
+    if duration <= 0:
+        raise ScenarioError("scenario.duration_s must be > 0")
+    if "search_period_s" in data:
+        period = _number(data, "search_period_s", "scenario")
+        if period <= 0:
+            raise ScenarioError("scenario.search_period_s must be > 0")
+        warnings.warn(
+            f"{source}: 'search_period_s' in a scenario is deprecated and ignored: set "
+            f"period_s of the search behaviour in the robot file instead (it was {period:g})",
+            DeprecationWarning, stacklevel=3,
+        )
     try:
         world = WorldConfig(robot_start=start, ball=ball, arena=arena, walls=tuple(walls),
                             boxes=tuple(boxes), distractors=tuple(distractors), lighting=lighting,
@@ -272,7 +282,7 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
         raise ScenarioError(f"scenario {name!r}: {exc}") from exc
     return Scenario(name=name, title=str(data.get("title", name)),
                     description=str(data.get("description", "")), world=world,
-                    ball_script=steps, duration_s=duration, search_period_s=period, seed=seed,
+                    ball_script=steps, duration_s=duration, seed=seed,
                     source=source)
 
 
