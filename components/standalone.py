@@ -1,11 +1,16 @@
 """Running one device component as its own process: ``python -m components.<device>``.
 
 Every device entry point shares the connection flags of all ubf_async entry points
-(``--connect/-e --listen/-l --mode/-m --config --robot``) plus ``--duration`` and
-``--log-level``, and adds its own options. With a simulator backend (the default) the process
-follows the simulation time published on ``ubf/<robot>/clock`` and reads the world from the
-running simulator over the bus (:class:`~components.sim.remote.RemoteWorld`), so a device can
-be added to, or removed from, a running simulated robot at any time.
+(``--connect/-e --listen/-l --mode/-m --config --robot``) plus ``--backend``, ``--duration``,
+``--wait-for-sim-s`` and ``--log-level``, and adds its own options, which it maps to the
+parameters of its device kind's ``build_device``.
+
+The device and its backend are looked up in the registry (:mod:`ubf_async.registry`) exactly
+as launch looks them up for a robot file: ``--backend`` lists the backends registered for the
+kind. When the backend needs a simulator (its ``requires_simulator``), the process follows the
+simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from
+that simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running
+simulated robot at any time. This module knows no simulator by name.
 """
 
 from __future__ import annotations
@@ -15,8 +20,11 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
-from components.sim.remote import RemoteWorld
+from components.devices import make_backend, make_device, requires_simulator
+from ubf_async import registry
 from ubf_async.bus import (
     Bus,
     HelpFormatter,
@@ -27,19 +35,41 @@ from ubf_async.bus import (
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component
+from ubf_async.simulation import DeviceContext
 
-Build = Callable[[Bus, RemoteWorld | None, argparse.Namespace], Component]
+Params = Callable[[argparse.Namespace], dict[str, Any]]
+"""Maps the parsed command line to keyword parameters (of the device or of its backend)."""
+
+
+def _no_params(args: argparse.Namespace) -> dict[str, Any]:
+    return {}
+
+
+def add_backend_argument(group: argparse._ArgumentGroup, kind: str, *, default: str,
+                         help: str) -> None:
+    """``--backend``: the backends registered for ``kind`` (entry points ``<kind>.<name>``)."""
+    group.add_argument("--backend", choices=registry.backends_for(kind), default=default,
+                       help=help)
 
 
 def run_device(
     *,
+    kind: str,
     prog: str,
     description: str,
     add_arguments: Callable[[argparse.ArgumentParser], None],
-    build: Build,
-    uses_simulator: Callable[[argparse.Namespace], bool] = lambda args: True,
+    device_params: Params = _no_params,
+    backend_params: Params = _no_params,
+    seed: Callable[[argparse.Namespace], int] = lambda args: 0,
     argv: Sequence[str] | None = None,
 ) -> int:
+    """Parse the command line and run one ``kind`` device until stopped.
+
+    ``add_arguments`` adds the device's own options, ``--name`` and ``--backend`` (see
+    :func:`add_backend_argument`) among them; ``device_params`` / ``backend_params`` map them
+    to the keyword parameters of the device kind's factory / of the backend's; ``seed`` gives
+    the run's seed (sensor noise).
+    """
     parser = argparse.ArgumentParser(prog=prog, description=description,
                                      formatter_class=HelpFormatter)
     add_connection_arguments(parser)
@@ -48,43 +78,70 @@ def run_device(
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S wall-clock seconds (default: until Ctrl-C or SIGTERM)")
     run.add_argument("--wait-for-sim-s", type=float, default=10.0, metavar="S",
-                     help="how long to wait for the simulator's world before giving up")
+                     help="with a simulated backend: how long to wait for the simulator's "
+                          "world before giving up")
     run.add_argument("--log-level", default="WARNING",
                      choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     args = parser.parse_args(argv)
     logging.basicConfig(level=args.log_level,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    device = Device(kind=kind, name=args.name, backend=args.backend,
+                    params=device_params(args), backend_params=backend_params(args),
+                    seed=seed(args), wait_for_sim_s=args.wait_for_sim_s)
+    return run_main(lambda: device.serve(args, duration_s=args.duration), prog=prog)
 
-    return run_main(lambda: _serve(args, build, uses_simulator(args)), prog=prog)
 
+@dataclass(frozen=True, kw_only=True)
+class Device:
+    """One device to run in this process: its kind, name, backend and their parameters."""
 
-async def _serve(args: argparse.Namespace, build: Build, simulated: bool) -> int:
-    options = connection_options(args)
-    clock: Clock = SimClock() if simulated else WallClock()
-    bus = await Bus.open(options, clock=clock)
-    world: RemoteWorld | None = None
-    component: Component | None = None
-    try:
-        if simulated:
-            assert isinstance(clock, SimClock)
-            follow_sim_clock(bus, clock, {})
-            world = RemoteWorld(bus, seed=getattr(args, "seed", 0) or 0)
-            world.start()
-            await world.wait_ready(args.wait_for_sim_s)
-        component = build(bus, world, args)
-        await component.start()
-        print(f"{component.name}: attached to robot {options.robot!r}"
-              + (" (simulated)" if simulated else ""), flush=True)
-        forever = asyncio.Event()  # never set: we run until cancelled (SIGTERM/Ctrl-C)
-        if args.duration is None:
-            await forever.wait()
-        else:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(forever.wait(), args.duration)
-        return 0
-    finally:
-        if component is not None:
-            await component.aclose()
-        if world is not None:
-            world.close()
-        await bus.aclose()
+    kind: str
+    name: str
+    backend: str
+    params: dict[str, Any] = field(default_factory=dict)
+    backend_params: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+    wait_for_sim_s: float = 10.0
+
+    async def serve(self, args: argparse.Namespace, *, duration_s: float | None) -> int:
+        """Attach to the robot on the bus ``args`` names; run for ``duration_s`` wall
+        seconds, or until cancelled (SIGTERM, Ctrl-C)."""
+        factory = registry.get_backend(self.kind, self.backend)
+        simulator_name = requires_simulator(factory)
+        simulator = registry.SIMULATORS.get(simulator_name)() if simulator_name else None
+        options = connection_options(args)
+        clock: Clock = SimClock() if simulator is not None else WallClock()
+        bus = await Bus.open(options, clock=clock)
+        world: Any = None
+        backend: Any = None
+        component: Component | None = None
+        try:
+            if simulator is not None:
+                assert isinstance(clock, SimClock)
+                follow_sim_clock(bus, clock, {})
+                world = await simulator.attach(bus=bus, seed=self.seed,
+                                               wait_s=self.wait_for_sim_s)
+            context = DeviceContext(bus=bus, clock=clock, seed=self.seed, simulation=world)
+            backend = make_backend(self.kind, self.backend, context=context,
+                                   params=self.backend_params)
+            component = make_device(self.kind, context=context, backend=backend,
+                                    name=self.name, params=self.params)
+            await component.start()
+            print(f"{component.name}: attached to robot {options.robot!r}"
+                  + (" (simulated)" if simulator is not None else ""), flush=True)
+            forever = asyncio.Event()  # never set: we run until cancelled (SIGTERM/Ctrl-C)
+            if duration_s is None:
+                await forever.wait()
+            else:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(forever.wait(), duration_s)
+            return 0
+        finally:
+            if component is not None:
+                await component.aclose()
+            close = getattr(backend, "close", None)
+            if callable(close):
+                close()
+            if world is not None:
+                world.close()
+            await bus.aclose()

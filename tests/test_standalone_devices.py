@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import eventually
+from components.sim.world import Arena, Pose2D, WorldConfig
+from tests.conftest import SimRobot, eventually
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.protocol import decode
 
@@ -114,7 +115,7 @@ async def test_attached_ir_finder_drives_a_remote_avoidance_behaviour(
     scenario.write_text(
         '{"name": "wall", "robot": {"x_m": 1.30, "y_m": 0.0, "heading_deg": 0},'
         ' "arena": {"x_min_m": -1.5, "y_min_m": -1.5, "x_max_m": 1.5, "y_max_m": 1.5},'
-        ' "duration_s": 1000, "search_period_s": 1000}'
+        ' "duration_s": 1000}'
     )
     robot_proc = start("-m", "ubf_async.launch", "--listen", endpoint, "--robot", robot,
                        "--quiet", "--devices", "motors,camera", "--scenario", str(scenario))
@@ -139,3 +140,49 @@ async def test_attached_ir_finder_drives_a_remote_avoidance_behaviour(
         for proc in helpers:
             stop(proc, signal.SIGKILL)
         stop(robot_proc)
+
+
+@pytest.mark.asyncio
+async def test_devices_in_their_own_processes_use_the_simulator_in_this_one(
+    robot_bus: Bus, endpoint: str, robot: str
+) -> None:
+    """No launch: the simulator runs in this process; an IR finder and the motors started
+    with ``python -m components.<device>`` find it through the registry, follow its clock,
+    measure its world and drive its wheels."""
+    config = WorldConfig(arena=Arena(), robot_start=Pose2D(x_m=1.0, y_m=0.0, heading_rad=0.0))
+    readings: list[tuple[int, dict]] = []
+    applied: list[dict] = []
+    procs: list[subprocess.Popen[str]] = []
+    async with SimRobot(robot_bus, config, speed=2, devices=()) as sim:
+        robot_bus.subscribe(robot_bus.keys.sensor("range", "ahead"),
+                            lambda k, p, t: readings.append((sim.clock.now_ns(), decode(p))),
+                            latest=False)
+        robot_bus.subscribe(robot_bus.keys.sensors_of_kind("motors"),
+                            lambda k, p, t: applied.append(decode(p).data), latest=False)
+        try:
+            for device, *flags in (("range", "--name", "ahead", "--model", "ir-20-150"),
+                                   ("motors", "--timeout-s", "5")):
+                procs.append(start("-m", f"components.{device}", "--connect", endpoint,
+                                   "--robot", robot, *flags))
+            for proc in procs:
+                assert proc.stdout is not None
+                line = await asyncio.to_thread(proc.stdout.readline)
+                assert "attached" in line and "(simulated)" in line, line
+            await eventually(lambda: len(readings) >= 5, timeout_s=10, what="IR readings")
+            now_ns, message = readings[-1]
+            # The wall is 0.5 m ahead of the robot's centre, 0.45 m from the sensor.
+            assert message.data["model"] == "ir-20-150"
+            assert message.data["range_mm"] == pytest.approx(450, rel=0.15)
+            assert 0 < message.stamp_ns <= now_ns  # stamped on the simulated clock
+            await eventually(lambda: len(applied) > 0, what="the motors to arm")
+            drive = robot_bus.publisher(robot_bus.keys.cmd("drive"), "drive")
+            await drive.wait_for_subscribers()
+            drive.publish({"speed": 60.0, "turn": 0.0})
+            await eventually(lambda: any(a["reason"] == "command" for a in applied),
+                             what="the drive command to be applied")
+            await eventually(lambda: sim.world.motor_pulses[0] > 1.6, timeout_s=5,
+                             what="the pulses to reach the simulated wheels")
+        finally:
+            for proc in procs:
+                out = stop(proc)
+                assert "Traceback" not in out, out

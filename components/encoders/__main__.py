@@ -3,13 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
-from components.encoders.component import EncodersComponent
-from components.encoders.quadrature import DirectionMode
-from components.sim.backends import SimEncoderBackend
-from components.sim.remote import RemoteWorld
-from components.standalone import run_device
-from ubf_async.bus import Bus
+from components.standalone import add_backend_argument, run_device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,22 +16,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--direction", choices=["commanded", "phase"], default="commanded",
                        help="commanded: sign from the motors' command (the thesis); "
                             "phase: decoded from the A/B phase order")
-    group.add_argument("--backend", choices=["sim"], default="sim",
-                       help="sim: read the running simulator's wheel angles over the bus")
+    add_backend_argument(group, "encoders", default="sim",
+                         help="sim: read the running simulator's wheel angles over the bus")
 
 
-def build(bus: Bus, world: RemoteWorld | None, args: argparse.Namespace) -> EncodersComponent:
-    assert world is not None
-    backend = SimEncoderBackend(world)
-    mode = DirectionMode.COMMANDED if args.direction == "commanded" else DirectionMode.PHASE
-    return EncodersComponent(bus=bus, backend=backend, name=args.name, period_s=args.period_s,
-                             mode=mode, initial_states=backend.current_states())
+def device_params(args: argparse.Namespace) -> dict[str, Any]:
+    return {"period_s": args.period_s, "direction": args.direction}
 
 
 def main() -> int:
-    return run_device(prog="python -m components.encoders",
+    return run_device(kind="encoders", prog="python -m components.encoders",
                       description="Quadrature wheel encoders and odometry as their own process.",
-                      add_arguments=add_arguments, build=build)
+                      add_arguments=add_arguments, device_params=device_params)
 
 
 if __name__ == "__main__":

@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
-from components.motors.component import MotorsComponent
-from components.sim.backends import SimMotorBackend
-from components.sim.remote import RemoteWorld
-from components.standalone import run_device
-from ubf_async.bus import Bus
+from components.standalone import add_backend_argument, run_device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -17,21 +14,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="publishes what it applied on ubf/<robot>/sensor/motors/<name>")
     group.add_argument("--timeout-s", type=float, default=0.2,
                        help="stop the wheels when no drive command arrived for this long")
-    group.add_argument("--backend", choices=["sim"], default="sim",
-                       help="sim: drive the running simulator's motors over the bus")
+    add_backend_argument(group, "motors", default="sim",
+                         help="sim: drive the running simulator's motors over the bus")
 
 
-def build(bus: Bus, world: RemoteWorld | None, args: argparse.Namespace) -> MotorsComponent:
-    assert world is not None
-    return MotorsComponent(bus=bus, backend=SimMotorBackend(world), name=args.name,
-                           timeout_s=args.timeout_s)
+def device_params(args: argparse.Namespace) -> dict[str, Any]:
+    return {"timeout_s": args.timeout_s}
 
 
 def main() -> int:
-    return run_device(prog="python -m components.motors",
+    return run_device(kind="motors", prog="python -m components.motors",
                       description="The Mini-WHEGS motor driver (cmd/drive → PWM) as its own "
                                   "process, with the 200 ms command watchdog.",
-                      add_arguments=add_arguments, build=build)
+                      add_arguments=add_arguments, device_params=device_params)
 
 
 if __name__ == "__main__":

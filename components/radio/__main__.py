@@ -4,30 +4,24 @@ from __future__ import annotations
 
 import argparse
 
-from components.radio.component import RadioComponent
-from components.radio.stdio import StdioRadioBackend
-from components.sim.remote import RemoteWorld
-from components.standalone import run_device
-from ubf_async.bus import Bus
+from components.standalone import add_backend_argument, run_device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("radio")
     group.add_argument("--name", default="link",
                        help="publishes received lines on ubf/<robot>/sensor/radio/<name>")
-
-
-def build(bus: Bus, world: RemoteWorld | None, args: argparse.Namespace) -> RadioComponent:
-    return RadioComponent(bus=bus, backend=StdioRadioBackend(), name=args.name)
+    add_backend_argument(group, "radio", default="stdio",
+                         help="stdio: lines typed on standard input arrive, messages sent are "
+                              "printed; sim: an in-memory link (for tests)")
 
 
 def main() -> int:
-    return run_device(prog="python -m components.radio",
+    return run_device(kind="radio", prog="python -m components.radio",
                       description="The wireless text link: lines typed on standard input "
                                   "reach the robot's state; messages the behaviours send are "
                                   "printed.",
-                      add_arguments=add_arguments, build=build,
-                      uses_simulator=lambda args: False)
+                      add_arguments=add_arguments)
 
 
 if __name__ == "__main__":

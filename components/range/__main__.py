@@ -3,15 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import math
+from typing import Any
 
-from components.range.backend import MountPose
-from components.range.component import RangeComponent
 from components.range.ir import IR_MODELS
-from components.sim.backends import SimRangeBackend
-from components.sim.remote import RemoteWorld
-from components.standalone import run_device
-from ubf_async.bus import Bus
+from components.standalone import add_backend_argument, run_device
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,22 +21,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="mount: beam direction, + to the left of straight ahead")
     group.add_argument("--period-s", type=float, default=0.04, help="time between readings")
     group.add_argument("--seed", type=int, default=0, help="seed of the 5–10 %% error")
-    group.add_argument("--backend", choices=["sim"], default="sim",
-                       help="sim: measure in the running simulator's world")
+    add_backend_argument(group, "range", default="sim",
+                         help="sim: measure in the running simulator's world")
 
 
-def build(bus: Bus, world: RemoteWorld | None, args: argparse.Namespace) -> RangeComponent:
-    assert world is not None
-    mount = MountPose(x_m=args.x_m, y_m=args.y_m, yaw_rad=math.radians(args.yaw_deg))
-    return RangeComponent(bus=bus, backend=SimRangeBackend(world), name=args.name,
-                          model=IR_MODELS[args.model], mount=mount, period_s=args.period_s,
-                          seed=args.seed)
+def device_params(args: argparse.Namespace) -> dict[str, Any]:
+    return {"model": args.model, "x_m": args.x_m, "y_m": args.y_m, "yaw_deg": args.yaw_deg,
+            "period_s": args.period_s}
 
 
 def main() -> int:
-    return run_device(prog="python -m components.range",
+    return run_device(kind="range", prog="python -m components.range",
                       description="An IR range finder of the Mini-WHEGS as its own process.",
-                      add_arguments=add_arguments, build=build)
+                      add_arguments=add_arguments, device_params=device_params,
+                      seed=lambda args: args.seed)
 
 
 if __name__ == "__main__":
