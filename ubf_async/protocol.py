@@ -22,6 +22,9 @@ from typing import Any
 
 import msgpack
 
+# Defined with the rest of the exception tree; re-exported here, where it has always been.
+from ubf_async.errors import ProtocolError as ProtocolError
+
 PROTOCOL_VERSION = 1
 ROOT = "ubf"
 MAX_PAYLOAD_BYTES = 256 * 1024
@@ -29,10 +32,6 @@ MAX_STR_LEN = 4096
 MAX_CONTAINER_LEN = 4096
 MAX_DEPTH = 8
 INT64_MAX = 2**63 - 1
-
-
-class ProtocolError(ValueError):
-    """A payload or key that does not follow the protocol. The message says what and where."""
 
 
 # ---------------------------------------------------------------------------------------------
