@@ -22,6 +22,7 @@ from ubf_async import (
     State,
     UtilityFusion,
 )
+from ubf_async.errors import ConfigurationError
 
 STATE = State.of(now_ns=0)
 
@@ -237,9 +238,9 @@ def test_conditional_evaluates_only_the_chosen_child() -> None:
 
 
 def test_conditional_needs_two_children() -> None:
-    c = Composite(name="cond", arbiter=Conditional(lambda s: True), children=[const("a", None)])
-    with pytest.raises(ValueError, match="exactly two"):
-        c.act(STATE)
+    # Refused when the composite is built, not on its first tick.
+    with pytest.raises(ConfigurationError, match=r"'cond'.*exactly two children"):
+        Composite(name="cond", arbiter=Conditional(lambda s: True), children=[const("a", None)])
 
 
 def test_nesting_three_levels_and_trace() -> None:

@@ -1,10 +1,14 @@
 """Arbiters: each reduces the children's proposals to one action.
 
-An arbiter is an object with one method, :meth:`Arbiter.arbitrate`, which receives the
-*candidates* — children that returned an action with a vote above 0, in child order — and
-returns a :class:`~ubf_async.behavior.Decision`. Children that returned ``None`` or voted 0
-never reach it, so "empty input" and "all abstain" are the same case: the decision is
-``Decision(None, ())`` and the composite abstains in turn.
+An arbiter (:class:`~ubf_async.behavior.Arbiter`, defined with the rest of the tree in
+:mod:`ubf_async.behavior` and re-exported here) has one required method,
+:meth:`~ubf_async.behavior.Arbiter.arbitrate`, which receives the *candidates* — children that
+returned an action with a vote above 0, in child order — and returns a
+:class:`~ubf_async.behavior.Decision`. Children that returned ``None`` or voted 0 never reach
+it, so "empty input" and "all abstain" are the same case: the decision is
+``Decision(None, ())`` and the composite abstains in turn. Optional hooks: ``select`` (which
+children run this tick), ``validate`` (refuse a set of children, when the tree changes — never
+on a tick) and ``reset``; the lifecycle is in :mod:`ubf_async.behavior`.
 
 Common rules (where the original UBF code was loose, these are the sane choices):
 
@@ -12,16 +16,46 @@ Common rules (where the original UBF code was loose, these are the sane choices)
 * Ties always go to the child that comes first in the composite.
 * Field-wise arbiters treat an unset field (``None``) as "no opinion": it is filled from the
   next candidate that did set it, and stays unset if nobody did.
+
+Every arbiter is built from keywords with plain-data values, so a robot file can name it
+(entry-point group ``ubf_async.arbiters``): the six deterministic ones take none,
+``MonteCarlo(hold_ticks=…, seed=…)`` and ``Conditional(predicate="sees_color",
+predicate_params={…})`` (a predicate by registered name or ``module:factory`` reference,
+resolved and checked when the arbiter is built). ``rng`` is injected by the robot-file loader.
 """
 
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Annotated, Any
 
+import msgspec
+
+from ubf_async import registry
 from ubf_async.action import FIELDS, NUMERIC_FIELDS, Action, clamp_command
-from ubf_async.behavior import Candidate, Child, Decision
+from ubf_async.behavior import Arbiter, Candidate, Child, Decision
+from ubf_async.errors import ConfigurationError, PluginError
 from ubf_async.state import State
+
+__all__ = [
+    "NO_DECISION",
+    "Arbiter",
+    "CommandFusion",
+    "Conditional",
+    "HighestActivation",
+    "HighestPriority",
+    "MonteCarlo",
+    "Predicate",
+    "PriorityFusion",
+    "PriorityMerge",
+    "UtilityFusion",
+    "conditional",
+    "predicate_from",
+]
+
+Predicate = Callable[[State], bool]
+"""What :class:`Conditional` asks each tick: true selects the first child, false the second."""
 
 NO_DECISION = Decision(None, ())
 
@@ -30,27 +64,6 @@ def _decide(action: Action, winners: tuple[int, ...]) -> Decision:
     # Same as Decision(action, winners) without the NamedTuple argument handling: arbiters
     # run on every tick of every composite.
     return tuple.__new__(Decision, (action, winners))
-
-
-class Arbiter:
-    """Base class. Subclasses implement :meth:`arbitrate`; :meth:`select` is optional."""
-
-    name = "Arbiter"
-
-    def select(
-        self, children: Sequence[tuple[int, Child]], state: State
-    ) -> Sequence[tuple[int, Child]]:
-        """Which of the ``(index, child)`` pairs to evaluate this tick (default: all)."""
-        return children
-
-    def arbitrate(self, candidates: Sequence[Candidate], state: State) -> Decision:
-        raise NotImplementedError
-
-    def reset(self) -> None:
-        """Forget memory (e.g. a MonteCarlo hold); called when the controller starts."""
-
-    def describe(self) -> str:
-        return self.name
 
 
 def _priority_then_utility(c: Candidate) -> tuple[int, float]:
@@ -223,19 +236,32 @@ class MonteCarlo(Arbiter):
 
     ``hold_ticks`` is how many consecutive ticks one draw lasts (1 = draw every tick). The
     hold counts down every tick (the original code's counter never did) and ends early when
-    the held child abstains, in which case a new draw is made at once. Pass ``seed`` or an
-    ``rng`` (a :class:`random.Random`) to make runs repeatable.
+    the held child abstains, in which case a new draw is made at once.
+
+    Repeatable runs: ``seed`` gives the arbiter a generator of its own; otherwise ``rng`` (a
+    :class:`random.Random`; the robot-file loader injects one derived from the robot's seed)
+    is used; with neither, the draws are unseeded. An explicit ``seed`` wins over ``rng``.
     """
 
     name = "MonteCarlo"
 
     def __init__(
-        self, *, hold_ticks: int = 1, seed: int | None = None, rng: random.Random | None = None
+        self,
+        *,
+        hold_ticks: Annotated[int, msgspec.Meta(ge=1)] = 1,
+        seed: int | None = None,
+        rng: random.Random | None = None,
     ) -> None:
-        if hold_ticks < 1:
-            raise ValueError(f"hold_ticks must be ≥ 1, got {hold_ticks}")
+        if isinstance(hold_ticks, bool) or not isinstance(hold_ticks, int) or hold_ticks < 1:
+            raise ConfigurationError(f"MonteCarlo: hold_ticks must be an int ≥ 1, got "
+                                     f"{hold_ticks!r}")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise ConfigurationError(f"MonteCarlo: seed must be an int, got {seed!r}")
         self.hold_ticks = hold_ticks
-        self._rng = rng if rng is not None else random.Random(seed)
+        if seed is not None:
+            self._rng = random.Random(seed)
+        else:
+            self._rng = rng if rng is not None else random.Random()
         self._held: int | None = None
         self._remaining = 0
 
@@ -262,26 +288,93 @@ class MonteCarlo(Arbiter):
         return f"{self.name}(hold_ticks={self.hold_ticks})"
 
 
+def predicate_from(reference: str, params: Mapping[str, Any] | None = None) -> Predicate:
+    """The predicate a robot file names: ``reference`` is a name registered in the
+    ``ubf_async.predicates`` group (``sees_color``) or a ``module:factory`` reference, and
+    ``params`` the keyword parameters of that *factory*, which returns ``State -> bool``.
+
+    ``params`` are checked against the factory's signature
+    (:func:`~ubf_async.registry.parameters_of`) before it is called. Raises
+    :class:`~ubf_async.errors.PluginError` for an unknown or unusable factory and
+    :class:`~ubf_async.errors.ConfigurationError` for parameters it refuses.
+    """
+    factory = registry.PREDICATES.get(reference)
+    if not callable(factory):
+        raise PluginError(f"predicate {reference!r} is a {type(factory).__name__}, not a "
+                          f"factory returning State -> bool")
+    try:
+        parameters = registry.parameters_of(factory)
+    except (TypeError, ValueError) as exc:
+        raise PluginError(f"predicate {reference!r} has parameters a robot file cannot give: "
+                          f"{exc}") from exc
+    try:
+        checked = msgspec.convert(dict(params or {}), parameters)
+    except (msgspec.ValidationError, TypeError) as exc:
+        raise ConfigurationError(f"predicate {reference!r}: {exc}") from exc
+    kwargs = {field: getattr(checked, field) for field in checked.__struct_fields__}
+    try:
+        predicate = factory(**kwargs)
+    except (TypeError, ValueError) as exc:  # ConfigurationError is a ValueError
+        raise ConfigurationError(f"predicate {reference!r}: {exc}") from exc
+    if not callable(predicate):
+        raise PluginError(f"predicate factory {reference!r} returned a "
+                          f"{type(predicate).__name__}, not a State -> bool callable")
+    return predicate
+
+
 class Conditional(Arbiter):
     """A predicate on the state picks one of exactly two children.
 
-    Only the chosen child is evaluated (the other's :meth:`~ubf_async.behavior.Behavior.act`
-    does not run that tick), and its action passes through unchanged.
+    The first child runs when the predicate is true, the second when it is false. Only the
+    chosen child is run (the other's :meth:`~ubf_async.behavior.Behavior.act` does not run
+    that tick), and its action passes through unchanged. A composite with any other number
+    of children is refused when the children or the arbiter are set
+    (:meth:`validate`), not on a tick.
+
+    ``predicate`` is either a callable ``State -> bool`` (from code) or, from data, the name
+    of a registered predicate factory (``"sees_color"``) or a ``module:factory`` reference,
+    built with ``predicate_params`` — resolved and checked here, so an unknown name or a bad
+    parameter fails now, never at the first tick::
+
+        Conditional(predicate="sees_color", predicate_params={"min_pixels": 1})
+        Conditional(lambda state: state.value("range/front", "range_mm", 9999) < 200)
     """
 
     name = "Conditional"
 
-    def __init__(self, predicate: Callable[[State], bool], *, label: str | None = None) -> None:
-        self.predicate = predicate
-        self.label = label or getattr(predicate, "__name__", "predicate")
+    def __init__(
+        self,
+        predicate: str | Predicate,
+        *,
+        predicate_params: Mapping[str, Any] | None = None,
+        label: str | None = None,
+    ) -> None:
+        if isinstance(predicate, str):
+            self.predicate: Predicate = predicate_from(predicate, predicate_params)
+            shown = ", ".join(f"{k}={v!r}" for k, v in (predicate_params or {}).items())
+            default_label = f"{predicate}({shown})" if shown else predicate
+        elif callable(predicate):
+            if predicate_params:
+                raise ConfigurationError(
+                    "Conditional: predicate_params go with a predicate given by name; "
+                    "a callable predicate takes none")
+            self.predicate = predicate
+            default_label = getattr(predicate, "__name__", "predicate")
+        else:
+            raise ConfigurationError(
+                f"Conditional: predicate must be a registered name, a 'module:factory' "
+                f"reference or a callable, got {type(predicate).__name__}")
+        self.label = label or default_label
+
+    def validate(self, children: Sequence[Child]) -> None:
+        if len(children) != 2:
+            raise ConfigurationError(
+                f"Conditional needs exactly two children (if-true, if-false), got "
+                f"{len(children)}")
 
     def select(
         self, children: Sequence[tuple[int, Child]], state: State
     ) -> Sequence[tuple[int, Child]]:
-        if len(children) != 2:
-            raise ValueError(
-                f"Conditional needs exactly two children (if-true, if-false), got {len(children)}"
-            )
         return (children[0] if self.predicate(state) else children[1],)
 
     def arbitrate(self, candidates: Sequence[Candidate], state: State) -> Decision:
@@ -292,3 +385,17 @@ class Conditional(Arbiter):
 
     def describe(self) -> str:
         return f"{self.name}({self.label})"
+
+
+def conditional(
+    *,
+    predicate: str,
+    predicate_params: dict[str, Any] | None = None,
+    label: str | None = None,
+) -> Conditional:
+    """:class:`Conditional` from plain data — the ``Conditional`` entry point's target.
+
+    The class also takes a Python callable, which no robot file can give; this factory's
+    parameters are what :func:`~ubf_async.registry.parameters_of` can check.
+    """
+    return Conditional(predicate, predicate_params=predicate_params, label=label)
