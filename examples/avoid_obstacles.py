@@ -10,7 +10,9 @@ gets nearer; otherwise it abstains. It joins the robot's ``seek_pink_ball`` comp
 priority 3, above search (2) and chase/flee (1), so it interrupts seeking only while an
 obstacle is near.
 
-The protocol it speaks is in docs/protocol.md, section "Remote behaviours".
+The behaviour itself is the built-in ``avoid`` (ubf_async/behaviors/obstacles.py), which a
+robot file can also run inside the robot; this example runs it in a process of its own. The
+protocol it speaks is in docs/protocol.md, section "Remote behaviours".
 """
 
 from __future__ import annotations
@@ -18,65 +20,19 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import Any
 
-from ubf_async.action import Action
 from ubf_async.behavior import Behavior
+from ubf_async.behaviors.obstacles import Avoid
 from ubf_async.remote import remote_parser, run_remote_behavior
-from ubf_async.state import State
 
 
-class AvoidObstacles(Behavior):
-    """Back away from the nearest obstacle closer than ``near_mm``; abstain otherwise.
+class AvoidObstacles(Avoid):
+    """The built-in ``avoid`` behaviour (:class:`ubf_async.behaviors.obstacles.Avoid`) under
+    the name this example has always used, ``avoid_obstacles``."""
 
-    A reading counts when it is fresh and either ``status == "ok"`` with ``range_mm ≤
-    near_mm``, or ``status == "too_close"`` (nearer than the sensor can measure: 0 mm).
-    ``too_far`` and stale readings never trigger it.
-    """
-
-    def __init__(
-        self,
-        *,
-        name: str = "avoid_obstacles",
-        sources: Sequence[str] = (),
-        near_mm: int = 250,
-        speed: float = -30.0,
-        turn: float = 60.0,
-    ) -> None:
-        super().__init__(name=name)
-        if near_mm <= 0:
-            raise ValueError(f"near_mm must be > 0, got {near_mm}")
-        self.sources = list(sources)
-        self.near_mm = near_mm
-        self.speed = speed
-        self.turn = turn
-
-    def nearest(self, state: State) -> tuple[str, int] | None:
-        """``(source, mm)`` of the nearest obstacle within ``near_mm``, if any."""
-        best: tuple[str, int] | None = None
-        sources = self.sources or [s for s in state if s.startswith("range/")]
-        for source in sources:
-            reading = state.fresh(source)
-            if reading is None:
-                continue
-            status = reading.value.get("status")
-            mm = reading.value.get("range_mm")
-            if status == "too_close":
-                mm = 0
-            elif status != "ok" or mm is None:
-                continue
-            if mm <= self.near_mm and (best is None or mm < best[1]):
-                best = (source, mm)
-        return best
-
-    def act(self, state: State) -> Action | None:
-        found = self.nearest(state)
-        if found is None:
-            return None
-        source, mm = found
-        side = source.partition("/")[2]
-        turn = -self.turn if "left" in side else self.turn  # obstacle on the left: go right
-        closeness = 1.0 - mm / self.near_mm
-        return Action(speed=self.speed, turn=turn, vote=1.0 + closeness)
+    def __init__(self, *, name: str = "avoid_obstacles", **params: Any) -> None:
+        super().__init__(name=name, **params)
 
 
 def build_parser() -> argparse.ArgumentParser:

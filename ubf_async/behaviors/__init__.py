@@ -1,5 +1,9 @@
-"""Reusable behaviours. ``pink_ball`` holds the thesis's seek-the-pink-ball demonstration."""
+"""Reusable behaviours, each registered by name in the ``ubf_async.behaviors`` entry-point
+group: ``search``/``chase``/``flee`` (:mod:`.pink_ball`, the thesis's seek-the-pink-ball
+demonstration), ``avoid`` (:mod:`.obstacles`), ``stop`` and ``drive`` (:mod:`.basic`)."""
 
+from ubf_async.behaviors.basic import Drive, Stop
+from ubf_async.behaviors.obstacles import Avoid, nearest_obstacle
 from ubf_async.behaviors.pink_ball import (
     CAMERA_SOURCE,
     Chase,
@@ -9,4 +13,15 @@ from ubf_async.behaviors.pink_ball import (
     seek_pink_ball,
 )
 
-__all__ = ["CAMERA_SOURCE", "Chase", "Flee", "Search", "pink_bins", "seek_pink_ball"]
+__all__ = [
+    "CAMERA_SOURCE",
+    "Avoid",
+    "Chase",
+    "Drive",
+    "Flee",
+    "Search",
+    "Stop",
+    "nearest_obstacle",
+    "pink_bins",
+    "seek_pink_ball",
+]

@@ -15,16 +15,24 @@ not search, chase or flee on old news (the controller then commands a stop).
 centred that is the centre bin's count, the thesis's "140 pink pixels" at the comfortable
 distance, and unlike a single bin's count it does not drop when the ball straddles two bins,
 which would let the robot creep closer than comfortable.
+
+The three are registered as the behaviours ``search``, ``chase`` and ``flee`` (entry-point
+group ``ubf_async.behaviors``); their keyword parameters, with the thesis's numbers as
+defaults, are what a robot file may set. ``name`` and ``rng`` are injected by the loader.
 """
 
 from __future__ import annotations
 
 import random
 from collections.abc import Sequence
+from typing import Annotated
+
+import msgspec
 
 from ubf_async.action import Action
 from ubf_async.arbiters import PriorityMerge
 from ubf_async.behavior import Behavior, Child, Composite
+from ubf_async.behaviors.params import Command, Pixels, check
 from ubf_async.state import State
 
 CAMERA_SOURCE = "camera/front"
@@ -52,10 +60,12 @@ class Chase(Behavior):
         *,
         name: str = "chase",
         source: str = CAMERA_SOURCE,
-        speed: float = 40.0,
-        min_pixels: int = 1,
+        speed: Command = 40.0,
+        min_pixels: Pixels = 1,
     ) -> None:
         super().__init__(name=name)
+        check("Chase", "speed", speed, ge=-100, le=100)
+        check("Chase", "min_pixels", min_pixels, ge=0, integer=True)
         self.source = source
         self.speed = speed
         self.min_pixels = min_pixels
@@ -84,11 +94,14 @@ class Flee(Behavior):
         *,
         name: str = "flee",
         source: str = CAMERA_SOURCE,
-        start_pixels: int = 100,
-        speed_per_pixel: float = 1.0,
-        min_speed: float = -80.0,
+        start_pixels: Pixels = 100,
+        speed_per_pixel: Annotated[float, msgspec.Meta(ge=0)] = 1.0,
+        min_speed: Annotated[float, msgspec.Meta(ge=-100, le=0)] = -80.0,
     ) -> None:
         super().__init__(name=name)
+        check("Flee", "start_pixels", start_pixels, ge=0, integer=True)
+        check("Flee", "speed_per_pixel", speed_per_pixel, ge=0)
+        check("Flee", "min_speed", min_speed, ge=-100, le=0)
         self.source = source
         self.start_pixels = start_pixels
         self.speed_per_pixel = speed_per_pixel
@@ -120,14 +133,15 @@ class Search(Behavior):
         *,
         name: str = "search",
         source: str = CAMERA_SOURCE,
-        speed: float = 10.0,
-        turn: float = 80.0,
-        period_s: float = 4.0,
+        speed: Command = 10.0,
+        turn: Command = 80.0,
+        period_s: Annotated[float, msgspec.Meta(gt=0)] = 4.0,
         rng: random.Random | None = None,
     ) -> None:
         super().__init__(name=name)
-        if period_s <= 0:
-            raise ValueError(f"period_s must be > 0, got {period_s}")
+        check("Search", "speed", speed, ge=-100, le=100)
+        check("Search", "turn", turn, ge=-100, le=100)
+        check("Search", "period_s", period_s, gt=0)
         self.source = source
         self.speed = speed
         self.turn = turn

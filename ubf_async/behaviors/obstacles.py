@@ -1,0 +1,84 @@
+"""Obstacle avoidance from the IR range finders: the ``avoid`` behaviour.
+
+Range sources are named ``range/<name>`` and carry ``status`` (``"ok"``, ``"too_close"``,
+``"too_far"``) and ``range_mm`` (see docs/protocol.md). A reading counts as an obstacle when
+it is fresh and either ``status == "ok"`` with ``range_mm ≤ near_mm``, or ``status ==
+"too_close"`` (nearer than the sensor can measure: 0 mm). ``too_far`` and stale readings
+never count.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from ubf_async.action import Action
+from ubf_async.behavior import Behavior
+from ubf_async.behaviors.params import Command, Millimetres, check
+from ubf_async.state import State
+
+RANGE_PREFIX = "range/"
+DEFAULT_NEAR_MM = 250
+
+
+def nearest_obstacle(
+    state: State, near_mm: int, sources: Sequence[str] = ()
+) -> tuple[str, int] | None:
+    """``(source, mm)`` of the nearest obstacle within ``near_mm`` among ``sources`` (every
+    ``range/*`` source of the state when empty), or ``None``."""
+    best: tuple[str, int] | None = None
+    for source in sources or [s for s in state if s.startswith(RANGE_PREFIX)]:
+        reading = state.fresh(source)
+        if reading is None:
+            continue
+        status = reading.value.get("status")
+        mm = reading.value.get("range_mm")
+        if status == "too_close":
+            mm = 0
+        elif status != "ok" or mm is None:
+            continue
+        if mm <= near_mm and (best is None or mm < best[1]):
+            best = (source, mm)
+    return best
+
+
+class Avoid(Behavior):
+    """Back away from the nearest obstacle closer than ``near_mm``; abstain otherwise.
+
+    It backs at ``speed`` and turns by ``turn`` — away from the side of the sensor when its
+    name says ``left`` or ``right`` (an obstacle on the left: turn right), else to the left —
+    with a vote of ``1 + closeness`` (1 at ``near_mm``, 2 when touching), so it grows as the
+    obstacle gets nearer. ``sources`` are the range sources to watch (default: every
+    ``range/*`` source of the state).
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str = "avoid",
+        sources: Sequence[str] = (),
+        near_mm: Millimetres = DEFAULT_NEAR_MM,
+        speed: Command = -30.0,
+        turn: Command = 60.0,
+    ) -> None:
+        super().__init__(name=name)
+        check("Avoid", "near_mm", near_mm, gt=0, integer=True)
+        check("Avoid", "speed", speed, ge=-100, le=100)
+        check("Avoid", "turn", turn, ge=-100, le=100)
+        self.sources = list(sources)
+        self.near_mm = near_mm
+        self.speed = speed
+        self.turn = turn
+
+    def nearest(self, state: State) -> tuple[str, int] | None:
+        """``(source, mm)`` of the nearest obstacle within ``near_mm``, if any."""
+        return nearest_obstacle(state, self.near_mm, self.sources)
+
+    def act(self, state: State) -> Action | None:
+        found = self.nearest(state)
+        if found is None:
+            return None
+        source, mm = found
+        side = source.partition("/")[2]
+        turn = -self.turn if "left" in side else self.turn  # obstacle on the left: go right
+        closeness = 1.0 - mm / self.near_mm
+        return Action(speed=self.speed, turn=turn, vote=1.0 + closeness)
