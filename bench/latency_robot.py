@@ -153,7 +153,7 @@ class TimedController(Controller):
         basis = based_on if based_on is not None else self.aggregator.newest()
         trace = super().tick(based_on=based_on)
         t1 = time.monotonic_ns()
-        camera = self.aggregator.entries.get(self.camera_source)
+        camera = self.aggregator.entries.get(self.sync_source)
         if len(self.ticks) < 200_000:
             self.ticks.append((
                 t0, t1, self.stats.tick_starts_ns[-1],

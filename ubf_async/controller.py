@@ -6,8 +6,9 @@ Three ways to decide *when* to tick (:class:`TickMode`):
   sensors do. A slow camera never holds back a fast IR reflex. Sources matching
   ``reflex_sources`` (prefixes such as ``"range/"``) also tick it at once when a sample
   arrives, so an obstacle is answered in about a millisecond, not half a period.
-* ``sync`` — the thesis's loop: every tick first waits for a *new* camera sample, as the
-  Mini-WHEGS's state update waited for an image capture. Kept so the two can be compared.
+* ``sync`` — the thesis's loop: every tick first waits for a *new* sample of
+  ``sync_source`` (default ``"camera/front"``), as the Mini-WHEGS's state update waited for
+  an image capture. Kept so the two can be compared.
 * ``event`` — tick whenever a chosen source (``trigger``) delivers a new sample.
 
 Triggered ticks (reflexes, ``sync``, ``event``) run right where the aggregator stores the
@@ -23,6 +24,12 @@ and publishes:
   trigger in ``sync``/``event`` mode, the newest sample in ``periodic`` mode), so latency
   can be measured end to end;
 * ``cmd/seek_color``, ``cmd/radio``, ``cmd/leds`` when the action sets them to a new value.
+
+Lifecycle of the tree (the hooks are described in :mod:`ubf_async.behavior`): each time the
+component runs — its start, and again after a restart — the controller calls
+``root.setup()`` once, then ``root.reset()``, before its first tick; an exception from setup
+fails that run like any other (logged, restarted with backoff) and no tick happens. When the
+run ends, however it ends, the controller calls ``root.shutdown()``.
 
 A behaviour that raises is logged, counted in ``errors``, and that tick commands a stop.
 A tick that ends after the next tick was due counts as an overrun; missed ticks are skipped,
@@ -102,7 +109,7 @@ class Controller(Component):
         root: Behavior,
         rate_hz: float = 50.0,
         mode: TickMode | str = TickMode.PERIODIC,
-        camera_source: str = "camera/front",
+        sync_source: str = "camera/front",
         trigger: str | None = None,
         reflex_sources: tuple[str, ...] = (),
         status_period_s: float = 0.5,
@@ -118,7 +125,8 @@ class Controller(Component):
         self.aggregator = aggregator
         self.root = root
         self.rate_hz = rate_hz
-        self.camera_source = camera_source
+        self.sync_source = sync_source
+        """The source whose every new sample ticks the controller in ``sync`` mode."""
         self.trigger = trigger
         self.reflex_sources = tuple(reflex_sources)
         self.status_period_s = status_period_s
@@ -142,19 +150,26 @@ class Controller(Component):
         self._status = self.publisher(keys.status(self.name), "controller.status",
                                       period_s=self.status_period_s)
         self._sent = {}
-        self.root.reset()
-        remove_listener = self.aggregator.add_listener(self._on_sample)
         loop = {
             TickMode.PERIODIC: self._run_periodic,
             TickMode.SYNC: self._run_triggered,
             TickMode.EVENT: self._run_triggered,
         }[self.mode]
         try:
-            async with asyncio.TaskGroup() as group:
-                group.create_task(self._publish_status())
-                group.create_task(loop())
+            self.root.setup()
+            self.root.reset()
+            remove_listener = self.aggregator.add_listener(self._on_sample)
+            try:
+                async with asyncio.TaskGroup() as group:
+                    group.create_task(self._publish_status())
+                    group.create_task(loop())
+            finally:
+                remove_listener()
         finally:
-            remove_listener()
+            try:
+                self.root.shutdown()
+            except Exception:  # must not replace the exception (or cancellation) ending run
+                log.exception("shutdown of the behaviour tree %r raised", self.root.name)
 
     async def _run_periodic(self) -> None:
         clock = self.bus.clock
@@ -171,7 +186,7 @@ class Controller(Component):
 
     def _triggers(self, source: str) -> bool:
         if self.mode is TickMode.SYNC:
-            return source == self.camera_source
+            return source == self.sync_source
         if self.mode is TickMode.EVENT:
             return source == self.trigger
         return source.startswith(self.reflex_sources) if self.reflex_sources else False
