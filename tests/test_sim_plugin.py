@@ -1,0 +1,88 @@
+"""The mini-whegs simulator plug-in through the typed seam, as launch and devices use it."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from components.sim.component import simulated_devices
+from components.sim.remote import RemoteWorld
+from components.sim.world import Arena, BallConfig, WorldConfig
+from tests.conftest import SimRobot, eventually
+from ubf_async import registry
+from ubf_async.aggregator import StateAggregator
+from ubf_async.behaviors import seek_pink_ball
+from ubf_async.bus import Bus
+from ubf_async.clock import SimClock
+from ubf_async.controller import Controller
+from ubf_async.simulation import SimulationOptions, Simulator
+
+
+def simulator() -> Simulator:
+    return registry.SIMULATORS.get("mini-whegs")()  # type: ignore[no-any-return]
+
+
+@pytest.mark.asyncio
+async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None:
+    """open → build the devices on run.world → add_devices → start → until_elapsed → finish:
+    the summary counts the camera frames of the devices it was given."""
+    clock = SimClock()
+    robot_bus.clock = clock
+    summary_path = tmp_path / "summary.json"
+    run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
+        scenario="ball-in-sight", speed=20, seed=4, duration_s=1.0, summary_path=summary_path))
+    assert run.duration_s == 1.0 and run.seed == 4
+    devices = simulated_devices(bus=robot_bus, world=run.world, seed=run.seed)
+    run.add_devices(devices)
+    aggregator = StateAggregator(bus=robot_bus)
+    controller = Controller(bus=robot_bus, aggregator=aggregator, root=seek_pink_ball())
+    components = [aggregator, controller, *devices, *run.components()]
+    for component in components:
+        await component.start()
+    out = io.StringIO()
+    try:
+        run.start(controller)
+        await run.until_elapsed(1.0)
+        assert run.elapsed_s() == pytest.approx(1.0)
+        assert "sim 1.0s" in run.status_suffix()
+    finally:
+        summary = await run.finish(controller, out)
+        for component in reversed(components):
+            await component.aclose()
+    assert summary["seed"] == 4 and summary["sim_time_s"] == pytest.approx(1.0)
+    assert summary["camera_frames"] >= 9  # one every 0.11 s of simulated time
+    assert json.loads(summary_path.read_text("utf-8"))["camera_frames"] == summary["camera_frames"]
+    assert "summary written" in out.getvalue()
+    assert "scenario 'ball-in-sight'" in run.describe()
+
+
+@pytest.mark.asyncio
+async def test_attach_gives_the_world_of_a_simulator_in_another_session(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
+    config = WorldConfig(arena=Arena(), ball=BallConfig(x_m=0.5, y_m=0.0), seed=3)
+    async with SimRobot(robot_bus, config, speed=2, devices=()) as sim:
+        world = await simulator().attach(bus=peer_bus, seed=7, wait_s=10)
+        try:
+            assert isinstance(world, RemoteWorld)
+            assert world.ready.is_set()
+            snapshot = world.snapshot()
+            assert snapshot.ball is not None and snapshot.ball.x_m == pytest.approx(0.5)
+            assert world.config.seed == 7
+            world.set_motor_pulses(1.7, 1.7)  # reaches the simulator over the bus
+            await eventually(lambda: sim.world.motor_pulses == pytest.approx((1.7, 1.7)),
+                             what="the pulses to reach the simulator")
+        finally:
+            world.close()
+
+
+@pytest.mark.asyncio
+async def test_attach_without_a_simulator_raises_connection_error(robot_bus: Bus) -> None:
+    started = time.monotonic()
+    with pytest.raises(ConnectionError, match="no simulator is publishing"):
+        await simulator().attach(bus=robot_bus, seed=0, wait_s=0.3)
+    assert time.monotonic() - started < 5
