@@ -1,0 +1,534 @@
+"""Live tree changes: another process reads or changes the running behaviour tree.
+
+The robot's :class:`TreeService` component answers queries on ``ubf/<robot>/tree``
+(documented in ``docs/protocol.md``, section *Live tree changes*). A request is the usual
+msgpack envelope with schema ``"tree.request"``; its ``data`` is one operation:
+
+* ``{"op": "show"}`` — the current tree;
+* ``{"op": "set_arbiter", "composite": NAME, "arbiter": "HighestPriority" | {"type": ...,
+  "params": {...}}}`` — swap a composite's arbiter;
+* ``{"op": "set_child", "composite": NAME, "child": NAME, "priority": int, "weight": float}``
+  — change a child's priority and/or weight;
+* ``{"op": "load", "tree": "<YAML: a robot-file tree fragment>"}`` — replace the whole tree.
+
+The reply (schema ``"tree.reply"``) is ``{"ok": true, "op": ..., "version": N, "tree": {...}}``
+with the tree as it is after the request, or ``{"ok": false, "op": ..., "version": N,
+"error": "..."}``. ``version`` counts the changes applied since the service started.
+
+How a change applies: the query is handed to the event loop, where the controller ticks, so a
+request is handled between two ticks and the next tick (and its trace) sees the whole change.
+Everything is built and validated first — the arbiter by :func:`~ubf_async.robotfile.
+build_arbiter` and then against the composite's children (:meth:`Arbiter.validate
+<ubf_async.behavior.Arbiter.validate>` through the composite), a new tree by
+:func:`~ubf_async.robotfile.load_tree_fragment` and, if the running tree is set up, the new
+tree's ``setup()`` — and only then is anything switched. A refused request gets an error reply
+and leaves the running tree exactly as it was; a malformed one is also counted and logged. The
+service keeps answering either way.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from ubf_async.behavior import Behavior, Composite
+from ubf_async.bus import Bus
+from ubf_async.component import Component
+from ubf_async.controller import Controller
+from ubf_async.errors import ConfigurationError, ProtocolError, TreeChangeError
+from ubf_async.protocol import (
+    MAX_STR_LEN,
+    Check,
+    Keys,
+    array,
+    decode,
+    encode,
+    integer,
+    number,
+    record,
+    register_schema,
+    text,
+)
+from ubf_async.remote import RemoteBehavior, RemoteBehaviors
+from ubf_async.robotfile import (
+    MAX_WEIGHT,
+    PRIORITY_LIMIT,
+    RemoteSlot,
+    build_arbiter,
+    load_tree_fragment,
+)
+
+log = logging.getLogger(__name__)
+
+REQUEST_SCHEMA = "tree.request"
+REPLY_SCHEMA = "tree.reply"
+OPS = ("show", "set_arbiter", "set_child", "load")
+MAX_NAME_LEN = 128
+MAX_TREE_DEPTH = 64
+"""Deepest tree a reply carries (robot files allow 32 levels)."""
+MAX_ERROR_CHARS = 2000
+
+
+def tree_key(keys: Keys) -> str:
+    """``ubf/<robot>/tree``: where the robot's :class:`TreeService` answers."""
+    return f"{keys.prefix}/tree"
+
+
+# ---------------------------------------------------------------------------------------------
+# The "tree.request" and "tree.reply" schemas
+
+
+def _boolean(value: Any, path: str) -> bool:
+    if not isinstance(value, bool):
+        raise ProtocolError(f"{path}: expected a boolean, got {type(value).__name__}")
+    return value
+
+
+_NAME = text(MAX_NAME_LEN)
+_PARAMS = record({})  # any str-keyed map of plain values; the arbiter's factory types them
+_ARBITER_SPEC = record({"type": text(200), "params": _PARAMS}, optional=("params",),
+                       extra=False)
+
+
+def _arbiter(value: Any, path: str) -> Any:
+    """An arbiter by name, or ``{"type": NAME, "params": {...}}``."""
+    if isinstance(value, str):
+        return text(200)(value, path)
+    return _ARBITER_SPEC(value, path)
+
+
+def _fragment(value: Any, path: str) -> str | bytes:
+    """A robot-file tree fragment: a str, or UTF-8 bytes (for fragments over 4096 chars,
+    the protocol's longest string). Kept as it came: an encoder must not turn the bytes
+    back into a string too long to decode."""
+    if isinstance(value, bytes):
+        try:
+            value.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ProtocolError(f"{path}: bytes that are not UTF-8: {exc}") from None
+        return value
+    result: str = text()(value, path)
+    return result
+
+
+REQUEST_FIELDS: dict[str, Check] = {
+    "composite": _NAME,
+    "child": _NAME,
+    "arbiter": _arbiter,
+    "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
+    "weight": number(0.0, MAX_WEIGHT),
+    "tree": _fragment,
+}
+OP_FIELDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    # op: (required fields, optional fields)
+    "show": ((), ()),
+    "set_arbiter": (("composite", "arbiter"), ()),
+    "set_child": (("composite", "child"), ("priority", "weight")),
+    "load": (("tree",), ()),
+}
+_REQUEST_RECORD = record({"op": text(32, choices=OPS), **REQUEST_FIELDS},
+                         optional=tuple(REQUEST_FIELDS), extra=False)
+
+
+def check_request(value: Any, path: str) -> Any:
+    """The ``"tree.request"`` schema: the fields and, per ``op``, which are required."""
+    data = _REQUEST_RECORD(value, path)
+    required, optional = OP_FIELDS[data["op"]]
+    missing = [name for name in required if name not in data]
+    if missing:
+        raise ProtocolError(f"{path}: op {data['op']!r} needs "
+                            + ", ".join(repr(m) for m in missing))
+    stray = [name for name in data if name != "op" and name not in (*required, *optional)]
+    if stray:
+        raise ProtocolError(f"{path}: op {data['op']!r} takes no "
+                            + ", ".join(repr(s) for s in stray))
+    if data["op"] == "set_child" and "priority" not in data and "weight" not in data:
+        raise ProtocolError(f"{path}: op 'set_child' needs 'priority' and/or 'weight'")
+    return data
+
+
+def check_node(value: Any, path: str, depth: int = 0) -> Any:
+    """One node of a tree in a reply (recursively, at most :data:`MAX_TREE_DEPTH` deep)."""
+    if depth > MAX_TREE_DEPTH:
+        raise ProtocolError(f"{path}: tree deeper than {MAX_TREE_DEPTH}")
+    node = _NODE(value, path)
+    if "children" in node:
+        node["children"] = array(lambda c, p: check_node(c, p, depth + 1))(
+            node["children"], f"{path}.children")
+    return node
+
+
+_NODE = record(
+    {
+        "name": _NAME,
+        "kind": text(16, choices=("composite", "behavior", "remote")),
+        "type": text(200),
+        "arbiter": text(MAX_STR_LEN),
+        "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
+        "weight": number(0.0, MAX_WEIGHT),
+        "children": lambda value, path: value,  # checked by check_node
+    },
+    optional=("type", "arbiter", "priority", "weight", "children"),
+)
+_SLOT = record({"composite": _NAME, "name": _NAME,
+                "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
+                "weight": number(0.0, MAX_WEIGHT)})
+_REPLY_RECORD = record(
+    {
+        "ok": _boolean,
+        "op": text(32),
+        "version": integer(0),
+        "error": text(MAX_STR_LEN),
+        "tree": check_node,
+        "slots": array(_SLOT),
+    },
+    optional=("op", "version", "error", "tree", "slots"),
+)
+
+
+def check_reply(value: Any, path: str) -> Any:
+    """The ``"tree.reply"`` schema: ``ok`` with ``tree``, or not ``ok`` with ``error``."""
+    data = _REPLY_RECORD(value, path)
+    if data["ok"] and "tree" not in data:
+        raise ProtocolError(f"{path}: an ok reply carries the tree")
+    if not data["ok"] and "error" not in data:
+        raise ProtocolError(f"{path}: a refusal carries an error")
+    return data
+
+
+register_schema(REQUEST_SCHEMA, check_request)
+register_schema(REPLY_SCHEMA, check_reply)
+
+
+def encode_request(data: Mapping[str, Any], *, seq: int = 1, stamp_ns: int = 0) -> bytes:
+    """A ``"tree.request"`` payload (raises :class:`ProtocolError` for a malformed one)."""
+    return encode(REQUEST_SCHEMA, data, stamp_ns=stamp_ns, seq=seq)
+
+
+def decode_reply(payload: bytes) -> dict[str, Any]:
+    """The data of a ``"tree.reply"`` payload (raises :class:`ProtocolError`)."""
+    return decode(payload, schema=REPLY_SCHEMA).data
+
+
+async def request(bus: Bus, data: Mapping[str, Any], *, timeout_s: float = 5.0,
+                  retry_s: float = 0.05) -> dict[str, Any]:
+    """Send one request to the robot's tree service and return the reply's data.
+
+    A query that nothing answers is sent again every ``retry_s`` until ``timeout_s`` has
+    passed (a freshly connected session may not know the robot's queryable yet; unanswered,
+    nothing was applied). Raises :class:`TimeoutError` if no robot answered,
+    :class:`~ubf_async.bus.QueryError` if it answered with an error instead of a reply, and
+    :class:`ProtocolError` for a malformed request or reply. A refusal is a reply: check
+    ``reply["ok"]``."""
+    payload = encode_request(data, stamp_ns=bus.clock.now_ns())
+    key = tree_key(bus.keys)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        remaining = deadline - time.monotonic()
+        try:
+            answer = await bus.query(key, payload, timeout_s=max(remaining, retry_s))
+        except TimeoutError:
+            if time.monotonic() + retry_s >= deadline:
+                raise TimeoutError(f"no robot answered on {key} within {timeout_s:g}s") from None
+            await asyncio.sleep(retry_s)
+            continue
+        return decode_reply(answer)
+
+
+# ---------------------------------------------------------------------------------------------
+# The tree as data, and back as text
+
+
+def tree_data(behavior: Behavior, *, priority: int | None = None,
+              weight: float | None = None) -> dict[str, Any]:
+    """``behavior`` and everything under it as nested plain data (a reply's ``tree``)."""
+    if isinstance(behavior, Composite):
+        kind = "composite"
+    elif isinstance(behavior, RemoteBehavior):
+        kind = "remote"
+    else:
+        kind = "behavior"
+    node: dict[str, Any] = {"name": behavior.name, "kind": kind,
+                            "type": type(behavior).__name__}
+    if priority is not None:
+        node["priority"] = priority
+        node["weight"] = float(weight if weight is not None else 1.0)
+    if isinstance(behavior, Composite):
+        node["arbiter"] = behavior.arbiter.describe()
+        node["children"] = [tree_data(c.behavior, priority=c.priority, weight=c.weight)
+                            for c in behavior.children]
+    return node
+
+
+def render_tree_data(node: Mapping[str, Any], indent: int = 0) -> str:
+    """A reply's ``tree`` as indented text, like the robot prints its tree at start."""
+    pad = "  " * indent
+    if node.get("kind") == "composite":
+        head = f"{pad}{node['name']} <{node.get('arbiter', '?')}>"
+    elif node.get("kind") == "remote":
+        head = f"{pad}{node['name']} (remote)"
+    else:
+        head = f"{pad}{node['name']} ({node.get('type', 'behaviour')})"
+    if "priority" in node:
+        head += f" [p={node['priority']} w={node.get('weight', 1.0):g}]"
+    lines = [head]
+    lines.extend(render_tree_data(child, indent + 1) for child in node.get("children") or ())
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+# The robot's side
+
+
+class TreeService(Component):
+    """Answers ``ubf/<robot>/tree``: shows and changes the controller's tree between ticks.
+
+    * ``controller`` — whose ``root`` is the running tree; ``load`` replaces it;
+    * ``remotes`` — the robot's :class:`~ubf_async.remote.RemoteBehaviors`, if any: on
+      ``load`` its ``root`` follows, the remote children of the old tree move to the
+      composite of the same name in the new one (or are dropped, with a warning, when it has
+      none or refuses them), and the fragment's ``remote:`` slots replace the old tree's in
+      its ``config``;
+    * ``seed`` — seed of the random choices of the behaviours a ``load`` builds;
+    * ``slots`` — the ``remote:`` slots of the tree the robot started with (launch passes
+      ``robot.remotes``), so a ``load`` knows which ``config`` entries were the old tree's.
+
+    Hooks: :meth:`run` declares the queryable and waits; :meth:`on_query` runs on the event
+    loop for each query. :meth:`show`, :meth:`set_arbiter`, :meth:`set_child` and
+    :meth:`load` do the work and can be called directly (on the loop); they raise
+    :class:`~ubf_async.errors.TreeChangeError` and leave the tree untouched when they refuse.
+    """
+
+    def __init__(
+        self,
+        *,
+        bus: Bus,
+        controller: Controller,
+        remotes: RemoteBehaviors | None = None,
+        seed: int | None = None,
+        slots: Iterable[RemoteSlot] = (),
+        name: str = "tree",
+        **component_options: float,
+    ) -> None:
+        super().__init__(bus=bus, name=name, **component_options)
+        self.controller = controller
+        self.remotes = remotes
+        self.seed = seed
+        self.slots: list[RemoteSlot] = list(slots)
+        self.version = 0
+        """Changes applied since the service was made."""
+        self.malformed: dict[str, int] = {}
+        """Requests that failed to decode, per key."""
+        self.refused = 0
+        """Valid requests refused (unknown composite, arbiter that does not fit, …)."""
+        self.changed = asyncio.Event()
+        """Set after every applied change (tests and tools clear and await it)."""
+        self._replies = 0
+
+    @property
+    def key(self) -> str:
+        return tree_key(self.bus.keys)
+
+    @property
+    def root(self) -> Behavior:
+        return self.controller.root
+
+    async def run(self) -> None:
+        queryable = self.bus.declare_queryable(self.key, self.on_query)
+        try:
+            await asyncio.Event().wait()
+        finally:
+            queryable.close()
+
+    # -- the queryable (event loop) ----------------------------------------------------------
+    def on_query(self, key: str, payload: bytes) -> bytes:
+        """Handle one query: decode, apply, reply. Never raises for a bad request."""
+        op = "?"
+        try:
+            request = decode(payload, schema=REQUEST_SCHEMA).data
+        except ProtocolError as exc:
+            n = self.malformed.get(self.key, 0) + 1
+            self.malformed[self.key] = n
+            if n == 1 or n % 100 == 0:
+                log.warning("rejected malformed tree request #%d on %s: %s", n, self.key, exc)
+            return self._reply({"ok": False, "op": op, "error": f"malformed request: {exc}"})
+        op = request["op"]
+        try:
+            self.handle(request)
+        except TreeChangeError as exc:
+            self.refused += 1
+            log.warning("refused tree request %s: %s", op, exc)
+            return self._reply({"ok": False, "op": op, "error": str(exc)})
+        return self._reply({"ok": True, "op": op, "tree": self.show(),
+                            "slots": [{"composite": s.composite, "name": s.name,
+                                       "priority": s.priority, "weight": float(s.weight)}
+                                      for s in self.slots]})
+
+    def _reply(self, data: dict[str, Any]) -> bytes:
+        data["version"] = self.version
+        if "error" in data and len(data["error"]) > MAX_ERROR_CHARS:
+            data["error"] = data["error"][:MAX_ERROR_CHARS - 1] + "…"
+        self._replies += 1
+        return encode(REPLY_SCHEMA, data, stamp_ns=self.bus.clock.now_ns(), seq=self._replies)
+
+    def handle(self, request: Mapping[str, Any]) -> None:
+        """Apply one request already checked against ``"tree.request"``."""
+        op = request["op"]
+        if op == "set_arbiter":
+            self.set_arbiter(request["composite"], request["arbiter"])
+        elif op == "set_child":
+            self.set_child(request["composite"], request["child"],
+                           priority=request.get("priority"), weight=request.get("weight"))
+        elif op == "load":
+            fragment = request["tree"]
+            self.load(fragment.decode("utf-8") if isinstance(fragment, bytes) else fragment)
+
+    # -- operations --------------------------------------------------------------------------
+    def show(self) -> dict[str, Any]:
+        """The running tree as nested data."""
+        return tree_data(self.root)
+
+    def set_arbiter(self, composite: str, spec: str | Mapping[str, Any]) -> None:
+        """Swap ``composite``'s arbiter for the one ``spec`` describes."""
+        target = self._composite(composite)
+        what = spec if isinstance(spec, str) else spec.get("type", "?")
+        try:
+            arbiter = build_arbiter(spec, source="<request>")
+        except ConfigurationError as exc:
+            reason = getattr(exc, "message", str(exc))  # a RobotFileError's, without its place
+            raise TreeChangeError(f"cannot build arbiter {what!r}: {reason}") from None
+        try:
+            target.arbiter = arbiter  # validated against the children, then reset
+        except ConfigurationError as exc:
+            raise TreeChangeError(str(exc)) from None
+        self._applied(f"composite {composite!r} now arbitrates with {arbiter.describe()}")
+
+    def set_child(self, composite: str, child: str, *, priority: int | None = None,
+                  weight: float | None = None) -> None:
+        """Change the priority and/or weight of ``child`` in ``composite``."""
+        if priority is None and weight is None:
+            raise TreeChangeError("set_child: give a priority and/or a weight")
+        target = self._composite(composite)
+        if not any(c.behavior.name == child for c in target.children):
+            names = ", ".join(c.behavior.name for c in target.children) or "none"
+            raise TreeChangeError(f"composite {composite!r} has no child {child!r} (its "
+                                  f"children: {names})")
+        try:
+            placed = target.set_child(child, priority=priority, weight=weight)
+        except (ConfigurationError, KeyError) as exc:
+            raise TreeChangeError(f"composite {composite!r}, child {child!r}: {exc}") from None
+        self._applied(f"child {child!r} of {composite!r} now has priority {placed.priority} "
+                      f"weight {placed.weight:g}")
+
+    def load(self, fragment: str) -> None:
+        """Replace the whole tree with the one a robot-file fragment describes."""
+        try:
+            root, slots = load_tree_fragment(fragment, source="<fragment>", seed=self.seed)
+        except ConfigurationError as exc:
+            raise TreeChangeError(f"cannot load the tree: {exc}") from None
+        old = self.controller.root
+        if getattr(old, "live", False):
+            # The running tree is set up: so is the new one, before it takes over.
+            try:
+                root.setup()
+            except Exception as exc:
+                try:
+                    root.shutdown()
+                except Exception:
+                    log.exception("shutdown of the refused tree %r raised", root.name)
+                raise TreeChangeError(f"cannot load the tree: setup of {root.name!r} failed: "
+                                      f"{type(exc).__name__}: {exc}") from None
+        root.reset()
+        moving = self._detach_remotes()
+        self.controller.root = root
+        if self.remotes is not None:
+            self.remotes.root = root
+            self._replace_slots(slots)
+            self._attach_remotes(moving)
+        self.slots = list(slots)
+        try:
+            old.shutdown()
+        except Exception:
+            log.exception("shutdown of the replaced tree %r raised", old.name)
+        self._applied(f"loaded tree {root.name!r}")
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _composite(self, name: str) -> Composite:
+        root = self.root
+        found = root.find(name) if isinstance(root, Composite) else (
+            root if root.name == name else None)
+        if isinstance(found, Composite):
+            return found
+        if found is not None:
+            raise TreeChangeError(f"{name!r} is a leaf behaviour, not a composite")
+        raise TreeChangeError(f"no composite named {name!r} in the tree (composites: "
+                              f"{', '.join(_composites(root)) or 'none'})")
+
+    def _applied(self, what: str) -> None:
+        self.version += 1
+        log.info("tree version %d: %s", self.version, what)
+        self.changed.set()
+
+    def _replace_slots(self, slots: list[RemoteSlot]) -> None:
+        assert self.remotes is not None
+        config = self.remotes.config
+        for slot in self.slots:
+            if config.get(slot.key) == (slot.priority, slot.weight):
+                del config[slot.key]
+        for slot in slots:
+            config[slot.key] = (slot.priority, float(slot.weight))
+
+    def _detach_remotes(self) -> list[tuple[str, str, Any]]:
+        """Take the remote children out of the old tree; returns what to attach again.
+
+        Uses :class:`RemoteBehaviors`' bookkeeping (``_entries``, ``_detach``, ``_attach``);
+        a public ``RemoteBehaviors.set_root(root)`` doing this would be the better home."""
+        if self.remotes is None:
+            return []
+        entries: dict[tuple[str, str], Any] = self.remotes._entries
+        moving = [(composite, behavior, entry)
+                  for (composite, behavior), entry in entries.items()
+                  if entry.attached_as is not None]
+        for _, _, entry in moving:
+            self.remotes._detach(entry)
+        return moving
+
+    def _attach_remotes(self, moving: list[tuple[str, str, Any]]) -> None:
+        remotes = self.remotes
+        assert remotes is not None
+        for composite, behavior, entry in moving:
+            key = f"{self.bus.keys.prefix}/vote/{composite}/{behavior}"
+            configured = remotes.config.get(f"{composite}/{behavior}",
+                                            remotes.config.get(behavior))
+            if remotes.only_configured and configured is None:
+                remotes._entries.pop((composite, behavior), None)
+                log.warning("remote behaviour %s left the tree: the new tree declares no "
+                            "slot for it", behavior)
+                continue
+            try:
+                remotes._attach(entry, key)
+            except ConfigurationError as exc:
+                remotes._entries.pop((composite, behavior), None)
+                log.warning("remote behaviour %s left the tree: %s", behavior, exc)
+                continue
+            if entry.attached_as is None:
+                log.warning("remote behaviour %s left the tree: the new tree has no "
+                            "composite %r for it", behavior, composite)
+
+
+def _composites(node: Behavior) -> list[str]:
+    if not isinstance(node, Composite):
+        return []
+    out = [node.name]
+    for child in node.children:
+        out.extend(_composites(child.behavior))
+    return out
+
+
+__all__ = [
+    "OPS", "REPLY_SCHEMA", "REQUEST_SCHEMA", "TreeService", "check_reply", "check_request",
+    "decode_reply", "encode_request", "render_tree_data", "request", "tree_data", "tree_key",
+]
