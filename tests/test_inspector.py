@@ -7,13 +7,20 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import msgpack
 import pytest
 
 from tests.conftest import free_port
 from tests.remote_robot import ROOT, Process, start_robot
-from ubf_async.inspector import expected_schema, format_sample, resolve_key
+from ubf_async.inspector import (
+    build_parser,
+    expected_schema,
+    format_sample,
+    resolve_key,
+    tree_request_data,
+)
 from ubf_async.protocol import Keys, encode
 
 EXAMPLES = ROOT / "examples"
@@ -63,6 +70,17 @@ def test_help_lists_commands_and_shared_flags() -> None:
             assert flag in out, (command, flag)
     assert "--count" in inspect("echo", "--help").stdout
     assert inspect().returncode == 2  # a command is required
+    assert "tree" in top.stdout
+    verbs = inspect("tree", "--help").stdout
+    for verb in ("show", "set-arbiter", "set-child", "load"):
+        assert verb in verbs
+        out = inspect("tree", verb, "--help").stdout
+        for flag in ("--connect", "--robot", "--timeout", "--json"):
+            assert flag in out, (verb, flag)
+    assert "--param" in inspect("tree", "set-arbiter", "--help").stdout
+    assert inspect("tree").returncode == 2  # a verb is required
+    bad_param = inspect("tree", "set-arbiter", "c", "MonteCarlo", "--param", "nokey")
+    assert bad_param.returncode == 2 and "expected KEY=VALUE" in bad_param.stderr
 
 
 def test_unreachable_robot_is_a_clear_error() -> None:
@@ -192,6 +210,25 @@ def test_keys_lists_keys_with_rates(
     assert int(count) >= 30 and schema == "drive" and 30 <= float(rate.removesuffix("Hz")) <= 60
     assert rows[f"{prefix}sensor/range/plain"][2] == "range"
     assert 10 <= float(rows[f"{prefix}sensor/range/plain"][1].removesuffix("Hz")) <= 25
+
+
+def test_tree_request_data_from_the_command_line(tmp_path: Path) -> None:
+    def data(*argv: str) -> dict[str, object]:
+        return tree_request_data(build_parser().parse_args(["tree", *argv]))
+
+    assert data("show") == {"op": "show"}
+    assert data("set-arbiter", "c", "HighestPriority") == {
+        "op": "set_arbiter", "composite": "c", "arbiter": "HighestPriority"}
+    assert data("set-arbiter", "c", "MonteCarlo", "-p", "hold_ticks=5", "-p", "seed=2") == {
+        "op": "set_arbiter", "composite": "c",
+        "arbiter": {"type": "MonteCarlo", "params": {"hold_ticks": 5, "seed": 2}}}
+    assert data("set-child", "c", "x", "--weight", "0.5") == {
+        "op": "set_child", "composite": "c", "child": "x", "weight": 0.5}
+    fragment = tmp_path / "t.yaml"
+    fragment.write_text("name: a\n", encoding="utf-8")
+    assert data("load", str(fragment)) == {"op": "load", "tree": "name: a\n"}
+    fragment.write_text("#" * 5000, encoding="utf-8")
+    assert data("load", str(fragment))["tree"] == b"#" * 5000  # too long for a string
 
 
 def test_formatting_helpers() -> None:

@@ -8,7 +8,11 @@ ROS-2-like subcommands, each a separate short-lived zenoh session:
 * ``echo KEY`` — samples on a key (or key expression), decoded and validated like the robot
   does; malformed payloads are printed as errors, never crash the tool;
 * ``state`` — the controller's view: tick rate, drive command, every source with its age
-  (and whether it is stale), and the last tick's explanation (who voted what, who won).
+  (and whether it is stale), and the last tick's explanation (who voted what, who won);
+* ``tree show | set-arbiter | set-child | load`` — the running behaviour tree, and live
+  changes to it through the robot's tree service (``ubf/<robot>/tree``, docs/protocol.md,
+  "Live tree changes"). Exit status 1 when the robot refuses a change (it then keeps its
+  tree as it was), 2 when no robot answers.
 
 It joins the robot as a zenoh **client** of the endpoint it connects to (default
 ``tcp/127.0.0.1:7447``, where ``python -m ubf_async.launch`` listens), so the robot's peer
@@ -26,12 +30,22 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TextIO
 
 import msgpack
+import yaml
 
-from ubf_async.bus import DEFAULT_LISTEN, Bus, add_connection_arguments, connection_options
+from ubf_async.bus import (
+    DEFAULT_LISTEN,
+    Bus,
+    QueryError,
+    add_connection_arguments,
+    connection_options,
+)
 from ubf_async.component import HealthMonitor
+from ubf_async.live import render_tree_data
+from ubf_async.live import request as tree_request
 from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode
 from ubf_async.remote import VOTE_SCHEMA  # also registers the "vote" schema
 
@@ -117,6 +131,10 @@ def build_parser() -> argparse.ArgumentParser:
                f"  {PROG} echo sensor/range/front --count 5\n"
                f"  {PROG} echo 'cmd/**' --json\n"
                f"  {PROG} state --robot mini\n"
+               f"  {PROG} tree show\n"
+               f"  {PROG} tree set-arbiter seek_pink_ball MonteCarlo --param hold_ticks=5\n"
+               f"  {PROG} tree set-child seek_pink_ball chase --priority 3\n"
+               f"  {PROG} tree load my-tree.yaml\n"
                f"run `{PROG} COMMAND --help` for a command's options.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -162,7 +180,63 @@ def build_parser() -> argparse.ArgumentParser:
     state.add_argument("--controller", default="controller", metavar="NAME",
                        help="the controller component's name (default: controller)")
     state.add_argument("--json", action="store_true", help="print the status as JSON")
+    add_tree_parser(sub, common)
     return parser
+
+
+def param(text: str) -> tuple[str, Any]:
+    """``--param KEY=VALUE``: VALUE is read as YAML (``3`` an int, ``true`` a bool, ``[1, 2]``
+    a list, anything else a string)."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE, e.g. hold_ticks=5")
+    try:
+        return key, yaml.safe_load(value) if value.strip() else ""
+    except yaml.YAMLError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: VALUE is not valid YAML: {exc}") from None
+
+
+def add_tree_parser(sub: Any, common: argparse.ArgumentParser) -> None:
+    tree = sub.add_parser(
+        "tree", help="show the running behaviour tree, or change it live",
+        description="Show the robot's running behaviour tree or change it while it runs, "
+                    "through its tree service (ubf/<robot>/tree; docs/protocol.md, 'Live tree "
+                    "changes'). A change applies between two ticks, after the robot has "
+                    "validated it; a refused change leaves the tree as it was. Exit status: "
+                    "0 done, 1 refused by the robot, 2 no robot answered.",
+    )
+    verbs = tree.add_subparsers(dest="tree_command", required=True, metavar="VERB")
+    show = verbs.add_parser("show", parents=[common], help="print the running tree",
+                            description="Print the running tree: composites with their "
+                                        "arbiter, children with [p=priority w=weight].")
+    arbiter = verbs.add_parser(
+        "set-arbiter", parents=[common], help="swap a composite's arbiter",
+        description="Give COMPOSITE a new arbiter, e.g. HighestPriority, or MonteCarlo with "
+                    "--param hold_ticks=5. The robot builds it and checks it against the "
+                    "composite's children first.")
+    arbiter.add_argument("composite", metavar="COMPOSITE")
+    arbiter.add_argument("arbiter", metavar="ARBITER",
+                         help="a registered arbiter name or a 'module:factory' reference")
+    arbiter.add_argument("--param", "-p", type=param, action="append", default=[],
+                         metavar="KEY=VALUE",
+                         help="a parameter of the arbiter (repeatable; VALUE is read as YAML)")
+    child = verbs.add_parser(
+        "set-child", parents=[common], help="change a child's priority and/or weight",
+        description="Change the priority and/or weight of CHILD in COMPOSITE.")
+    child.add_argument("composite", metavar="COMPOSITE")
+    child.add_argument("child", metavar="CHILD")
+    child.add_argument("--priority", type=int, default=None, metavar="N")
+    child.add_argument("--weight", type=float, default=None, metavar="W")
+    load = verbs.add_parser(
+        "load", parents=[common], help="replace the whole tree from a robot-file fragment",
+        description="Replace the running tree with the one FRAGMENT describes: a robot file's "
+                    "`tree:` node (docs/robot-file.md), alone or as `tree: ...`. Every "
+                    "behaviour, arbiter and parameter is checked before the new tree takes "
+                    "over.")
+    load.add_argument("fragment", type=Path, metavar="FRAGMENT.yaml")
+    for verb in (show, arbiter, child, load):
+        verb.add_argument("--json", action="store_true", help="print the reply as JSON")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -388,8 +462,72 @@ async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
+def tree_request_data(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``tree.request`` data a ``tree`` verb sends (ValueError for unusable input)."""
+    verb = args.tree_command
+    if verb == "show":
+        return {"op": "show"}
+    if verb == "set-arbiter":
+        params = dict(args.param)
+        return {"op": "set_arbiter", "composite": args.composite,
+                "arbiter": {"type": args.arbiter, "params": params} if params else args.arbiter}
+    if verb == "set-child":
+        if args.priority is None and args.weight is None:
+            raise ValueError("set-child: give --priority and/or --weight")
+        data: dict[str, Any] = {"op": "set_child", "composite": args.composite,
+                                "child": args.child}
+        if args.priority is not None:
+            data["priority"] = args.priority
+        if args.weight is not None:
+            data["weight"] = args.weight
+        return data
+    try:
+        fragment = args.fragment.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{args.fragment}: cannot read it: {exc}") from None
+    # Long fragments travel as UTF-8 bytes: protocol strings are at most 4096 characters.
+    return {"op": "load", "tree": fragment if len(fragment) <= 4096 else fragment.encode()}
+
+
+async def cmd_tree(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    try:
+        data = tree_request_data(args)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        reply = await tree_request(bus, data, timeout_s=args.timeout)
+    except TimeoutError:
+        print(f"error: no robot {bus.robot!r} answered on ubf/{bus.robot}/tree within "
+              f"{args.timeout:g}s: is it running, with its tree service (--robot, "
+              f"--connect)?", file=sys.stderr)
+        return 2
+    except (QueryError, ProtocolError) as exc:
+        print(f"error: robot {bus.robot!r} gave no usable reply: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(_json(reply), file=out)
+    if not reply["ok"]:
+        print(f"error: robot {bus.robot!r} refused {args.tree_command}: {reply['error']} "
+              f"(tree unchanged, version {reply.get('version', '?')})", file=sys.stderr)
+        return 1
+    if args.json:
+        return 0
+    version = reply.get("version", "?")
+    if args.tree_command == "show":
+        print(f"robot {bus.robot!r}: tree version {version}", file=out)
+    else:
+        print(f"robot {bus.robot!r}: {args.tree_command} applied, tree version {version}",
+              file=out)
+    print(render_tree_data(reply["tree"]), file=out)
+    for slot in reply.get("slots") or ():
+        print(f"remote slot {slot['composite']}/{slot['name']} [p={slot['priority']} "
+              f"w={slot['weight']:g}]", file=out)
+    return 0
+
+
 COMMANDS = {"components": cmd_components, "keys": cmd_keys, "echo": cmd_echo,
-            "state": cmd_state}
+            "state": cmd_state, "tree": cmd_tree}
 
 
 async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
