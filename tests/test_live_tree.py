@@ -508,6 +508,12 @@ async def test_inspector_changes_a_launched_robot(endpoint: str, robot: str) -> 
         "--robot", robot, cwd=ROOT, stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
     try:
+        assert proc.stdout is not None
+        printed = ""
+        while "controller:" not in printed:  # printed once every component has started
+            line = await asyncio.wait_for(proc.stdout.readline(), 30)
+            assert line, f"launch ended early: {printed}"
+            printed += line.decode()
         conn = ("--connect", endpoint, "--robot", robot, "--timeout", "20")
         code, out, err = await inspector("tree", "show", *conn)
         assert code == 0, err
