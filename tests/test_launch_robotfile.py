@@ -154,8 +154,8 @@ def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (source / "ubf_test_plugin" / "__init__.py").write_text(PLUGIN_MODULE)
     site = base / "site"
     proc = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
-         "--no-build-isolation", "--target", str(site), str(source)],
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(site),
+         str(source)],
         capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert list(site.glob("ubf_test_plugin-*.dist-info/entry_points.txt"))

@@ -41,6 +41,7 @@ from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
 from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.live import TreeService
 from ubf_async.registry import SIMULATORS
 from ubf_async.remote import RemoteBehaviors, remote_spec
 from ubf_async.robotfile import (
@@ -217,7 +218,8 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
                                           ("--summary", args.summary),
                                           ("--record", args.record)) if value is not None]
         if given:
-            why = "--no-sim is given" if args.no_sim else f"no device of {robot.source} is simulated"
+            why = ("--no-sim is given" if args.no_sim
+                   else f"no device of {robot.source} is simulated")
             raise ConfigurationError(f"{', '.join(given)}: there is no simulator ({why})")
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
@@ -310,7 +312,9 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
             max_remotes=spec.remotes.max_remotes,
         )
-        components += [aggregator, controller, remotes, *devices]
+        tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
+                                   slots=robot.remotes)
+        components += [aggregator, controller, remotes, tree_service, *devices]
         if sim_run is not None:
             sim_run.add_devices(devices)
             components += sim_run.components()
@@ -320,8 +324,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         if sim_run is not None:
             sim_run.start(controller)
         rate = f" at {settings.rate_hz:g} Hz" if settings.mode is TickMode.PERIODIC else ""
-        print(f"  devices: {', '.join(f'{d.kind}/{d.name} ({d.backend})' for d in plan.devices)"
-              f"{'' if plan.devices else 'none here'}", file=out)
+        here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
+        print(f"  devices: {here or 'none here'}", file=out)
         print(f"  controller: {settings.mode.value}{rate}, tree:", file=out)
         for line in root.render_tree().splitlines():
             print(f"    {line}", file=out)
