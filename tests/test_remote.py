@@ -25,7 +25,7 @@ import pytest
 
 from tests.conftest import eventually
 from tests.remote_robot import ROOT, Process, start_robot
-from ubf_async import Action, Composite, FunctionBehavior, PriorityMerge, State
+from ubf_async import Action, Composite, Conditional, FunctionBehavior, PriorityMerge, State
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus, ConnectionOptions
@@ -257,6 +257,19 @@ def test_nested_composite_found_by_name() -> None:
     robot.vote("avoid", composite="reflexes", speed=-30, turn=60, priority=3)
     assert [c.behavior.name for c in inner.children] == ["avoid"]
     assert root.evaluate(robot.at(0.01)).winning_leaves() == ["chase", "avoid"]  # same prio
+
+
+def test_vote_into_a_composite_whose_arbiter_refuses_a_third_child_is_rejected() -> None:
+    gate = Composite(name="gate", arbiter=Conditional(lambda state: True),
+                     children=[FunctionBehavior(lambda s: None, name="a"),
+                               FunctionBehavior(lambda s: None, name="b")])
+    root = Composite(name="root", arbiter=PriorityMerge(), children=[seek_pink_ball(), gate])
+    robot = Robot(root=root)
+    robot.token("intruder")
+    key = robot.vote("intruder", composite="gate", speed=-30, priority=3)
+    assert robot.remotes.rejected == {key: 1}
+    assert [c.behavior.name for c in gate.children] == ["a", "b"]
+    assert robot.drive(0) == CHASE  # the tree keeps working
 
 
 @pytest.mark.parametrize("case", [

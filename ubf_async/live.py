@@ -396,7 +396,7 @@ class TreeService(Component):
         target = self._composite(composite)
         what = spec if isinstance(spec, str) else spec.get("type", "?")
         try:
-            arbiter = build_arbiter(spec, source="<request>")
+            arbiter = build_arbiter(spec, source="<request>", seed=self.seed)
         except ConfigurationError as exc:
             reason = getattr(exc, "message", str(exc))  # a RobotFileError's, without its place
             raise TreeChangeError(f"cannot build arbiter {what!r}: {reason}") from None

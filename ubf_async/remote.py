@@ -50,6 +50,7 @@ from ubf_async.bus import (
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component
+from ubf_async.errors import ConfigurationError
 from ubf_async.protocol import (
     RGB,
     Check,
@@ -504,7 +505,11 @@ class RemoteBehaviors(Component):
             del self._entries[(remote.composite, remote.name)]
             return self._reject(key, f"{remote.composite!r} already has a child named "
                                      f"{remote.name!r}")
-        composite.add(remote, priority=priority, weight=weight)
+        try:
+            composite.add(remote, priority=priority, weight=weight)
+        except ConfigurationError as exc:  # e.g. a Conditional takes exactly two children
+            del self._entries[(remote.composite, remote.name)]
+            return self._reject(key, str(exc))
         entry.attached_as = (composite, priority, weight)
         log.info("remote behaviour %s attached to %s at priority %d weight %g",
                  remote.name, remote.composite, priority, weight)

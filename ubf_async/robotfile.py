@@ -582,15 +582,17 @@ def load_tree_fragment(text: str, *, source: str = "<tree>",
     return builder.composite(node, base), builder.remotes
 
 
-def build_arbiter(spec: str | Mapping[str, Any], *, source: str = "<arbiter>") -> Any:
-    """An arbiter from a name or ``{type, params}`` (live changes use this)."""
+def build_arbiter(spec: str | Mapping[str, Any], *, source: str = "<arbiter>",
+                  seed: int | None = None) -> Any:
+    """An arbiter from a name or ``{type, params}`` (live changes use this); an arbiter that
+    takes ``rng`` draws from ``seed``, as in a robot file."""
     text = json.dumps(spec)
     locator = Locator(text, source=source)
     try:
         typed = msgspec.convert(spec, str | ArbiterSpec)  # type: ignore[arg-type]
     except msgspec.ValidationError as exc:
         raise locator.from_validation(exc) from None
-    return TreeBuilder(locator=locator, seed=None).arbiter(typed, ())
+    return TreeBuilder(locator=locator, seed=seed).arbiter(typed, ())
 
 
 # -- the JSON Schema --------------------------------------------------------------------------
