@@ -36,6 +36,7 @@ from typing import Any, TextIO
 import msgpack
 import yaml
 
+from ubf_async import __version__
 from ubf_async.bus import (
     DEFAULT_LISTEN,
     Bus,
@@ -138,6 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
                f"run `{PROG} COMMAND --help` for a command's options.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     components = sub.add_parser(
         "components", parents=[common], help="list the live components (liveliness tokens)",
