@@ -235,6 +235,20 @@ def test_a_robot_of_real_devices_runs_without_the_simulator(
     assert "(chase" in proc.stdout
 
 
+def test_an_old_scenario_with_a_behaviour_parameter_warns_the_user(
+        tmp_path: Path, endpoint: str) -> None:
+    scenario = json.loads((ROOT / "components/sim/scenario_files/ball-behind.json").read_text())
+    scenario["search_period_s"] = 2
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(scenario))
+    proc = run_launch("--scenario", str(path), "--duration", "0.2", "--speed", "5", "--quiet",
+                      "--listen", endpoint)
+    assert proc.returncode == 0, proc.stderr
+    assert "DeprecationWarning" in proc.stderr
+    assert "'search_period_s' in a scenario is deprecated and ignored" in proc.stderr
+    assert "period_s of the search behaviour in the robot file" in proc.stderr
+
+
 def test_robot_file_check_command_reports_each_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text(BAD_ROBOT)

@@ -20,6 +20,7 @@ import asyncio
 import logging
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -403,6 +404,9 @@ def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Deprecations in what a user wrote (old scenario fields …) are for the user to see.
+    warnings.filterwarnings("default", category=DeprecationWarning,
+                            module=r"(ubf_async|components)(\.|$)")
     logging.basicConfig(
         level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
