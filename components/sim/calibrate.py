@@ -13,6 +13,7 @@ at. Tests import :func:`pink_counts` so the table and the tests agree.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -23,6 +24,7 @@ import numpy as np
 from components.camera.seekcolor import SeekResult, seekcolor
 from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera
 from components.sim.world import BallConfig, Distractor, Lighting, World, WorldConfig
+from ubf_async.errors import ConfigurationError
 
 DEFAULT_DISTANCES_M: tuple[float, ...] = (
     0.20, 0.25, 0.28, 0.30, 0.32, 0.35, 0.40, 0.45, 0.50, 0.60, 0.80, 1.00, 1.50, 2.00, 2.50,
@@ -133,7 +135,8 @@ def update_doc(path: Path, table: str) -> None:
     """Replace the generated block of ``path`` (between the two marker comments)."""
     text = path.read_text(encoding="utf-8")
     if DOC_BEGIN not in text or DOC_END not in text:
-        raise SystemExit(f"error: {path} has no calibration markers ({DOC_BEGIN!r} … {DOC_END!r})")
+        raise ConfigurationError(f"{path} has no calibration markers ({DOC_BEGIN!r} … "
+                                 f"{DOC_END!r})")
     head, rest = text.split(DOC_BEGIN, 1)
     _, tail = rest.split(DOC_END, 1)
     path.write_text(f"{head}{DOC_BEGIN}\n{table}\n{DOC_END}{tail}", encoding="utf-8")
@@ -185,7 +188,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.markdown or args.update_doc:
         table = markdown_table(rows, seeds=args.seeds)
         if args.update_doc:
-            update_doc(args.update_doc, table)
+            try:
+                update_doc(args.update_doc, table)
+            except (ConfigurationError, OSError) as exc:
+                print(f"python -m components.sim.calibrate: error: {exc}", file=sys.stderr)
+                return 2
             print(f"updated the calibration table in {args.update_doc}")
         else:
             print(table)
