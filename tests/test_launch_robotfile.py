@@ -259,3 +259,89 @@ def test_robot_file_check_command_reports_each_file(tmp_path: Path) -> None:
     assert proc.returncode == 1
     assert f"{good}: robot 'bad'" in proc.stdout
     assert f"{bad}:7: unknown behaviour" in proc.stderr
+
+
+# -- live tree changes on a launched robot ----------------------------------------------------
+
+LIVE_ROBOT = """\
+name: {robot}
+tree:
+  name: root
+  arbiter: HighestPriority
+  children:
+    - {{behavior: drive, name: careful, priority: 2, weight: 1, params: {{speed: 10}}}}
+    - {{behavior: drive, name: eager, priority: 1, weight: 3, params: {{speed: 50}}}}
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.asyncio
+async def test_live_arbiter_swap_changes_the_winner_and_a_bad_change_leaves_no_gap(
+        tmp_path: Path, endpoint: str, robot: str) -> None:
+    import asyncio
+
+    from ubf_async.bus import Bus, ConnectionOptions
+    from ubf_async.protocol import decode
+
+    path = tmp_path / "live.yaml"
+    path.write_text(LIVE_ROBOT.format(robot=robot))
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "ubf_async.launch", str(path), "--quiet", "--listen", endpoint,
+        cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+    drives: list[dict[str, object]] = []
+    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+
+    async def inspect(*args: str) -> tuple[int, str]:
+        child = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "ubf_async.inspector", "tree", *args, "--connect", endpoint,
+            "--robot", robot, "--timeout", "20", cwd=ROOT, stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT)
+        out, _ = await asyncio.wait_for(child.communicate(), 60)
+        assert child.returncode is not None
+        return child.returncode, out.decode()
+
+    async def ticks_after(count: int) -> list[dict[str, object]]:
+        start = len(drives)
+        while len(drives) < start + count:
+            await asyncio.wait_for(got.wait(), 20)
+            got.clear()
+        return drives[start:start + count]
+
+    got = asyncio.Event()
+
+    def on_drive(key: str, payload: bytes, received_ns: int) -> None:
+        drives.append(decode(payload).data)
+        got.set()
+
+    try:
+        assert proc.stdout is not None
+        printed = ""
+        while "controller:" not in printed:  # printed once every component has started
+            line = await asyncio.wait_for(proc.stdout.readline(), 30)
+            assert line, f"launch ended early: {printed}"
+            printed += line.decode()
+        bus.subscribe(bus.keys.cmd("drive"), on_drive, latest=False)
+        before = await ticks_after(5)
+        assert all(d["winners"] == ["careful"] and d["speed"] == 10 for d in before)
+
+        code, out = await inspect("set-arbiter", "root", "HighestActivation")
+        assert code == 0, out
+        after = await ticks_after(5)  # every tick after the reply: the change is applied
+        assert all(d["winners"] == ["eager"] and d["speed"] == 50 for d in after)
+
+        # An unknown predicate is refused by the robot; a priority out of range already by
+        # the inspector. The tree keeps ticking without a gap.
+        code, out = await inspect("set-arbiter", "root", "Conditional",
+                                  "--param", "predicate=no_such_predicate")
+        assert code == 1 and "no_such_predicate" in out
+        code, out = await inspect("set-child", "root", "careful", "--priority", "9999999")
+        assert code == 2 and "outside [-1000000, 1000000]" in out, out
+        assert "no usable reply" not in out
+        later = await ticks_after(20)
+        assert all(d["winners"] == ["eager"] for d in later)
+        numbers = [int(d["tick"]) for d in drives]  # type: ignore[call-overload]
+        assert numbers == list(range(numbers[0], numbers[0] + len(numbers))), "a tick was lost"
+    finally:
+        await bus.aclose()
+        proc.terminate()
+        await asyncio.wait_for(proc.wait(), 20)

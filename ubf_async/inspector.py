@@ -45,7 +45,7 @@ from ubf_async.bus import (
     connection_options,
 )
 from ubf_async.component import HealthMonitor
-from ubf_async.live import render_tree_data
+from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
 from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode
 from ubf_async.remote import VOTE_SCHEMA  # also registers the "vote" schema
@@ -494,7 +494,8 @@ def tree_request_data(args: argparse.Namespace) -> dict[str, Any]:
 async def cmd_tree(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     try:
         data = tree_request_data(args)
-    except ValueError as exc:
+        encode_request(data, stamp_ns=0)  # refuse what the robot would refuse, before sending
+    except ValueError as exc:  # ProtocolError is a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
