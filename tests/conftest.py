@@ -41,6 +41,19 @@ async def eventually(
         await asyncio.sleep(0.005)
 
 
+async def read_until(proc: asyncio.subprocess.Process, text: str, *,
+                     timeout_s: float = 30.0) -> str:
+    """Read ``proc``'s stdout line by line until a line contains ``text``; return all read.
+    Launch prints ``controller:`` once every component has started (and listens)."""
+    assert proc.stdout is not None
+    printed = ""
+    while text not in printed:
+        line = await asyncio.wait_for(proc.stdout.readline(), timeout_s)
+        assert line, f"the process ended before printing {text!r}: {printed}"
+        printed += line.decode()
+    return printed
+
+
 @pytest_asyncio.fixture
 async def robot_bus(endpoint: str, robot: str) -> AsyncIterator[Bus]:
     """The robot's session, listening on a loopback endpoint."""

@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.conftest import read_until
+
 ROOT = Path(__file__).resolve().parent.parent
 
 # The final state of two thesis scenarios as launch ran them before robot files existed (the
@@ -314,12 +316,7 @@ async def test_live_arbiter_swap_changes_the_winner_and_a_bad_change_leaves_no_g
         got.set()
 
     try:
-        assert proc.stdout is not None
-        printed = ""
-        while "controller:" not in printed:  # printed once every component has started
-            line = await asyncio.wait_for(proc.stdout.readline(), 30)
-            assert line, f"launch ended early: {printed}"
-            printed += line.decode()
+        await read_until(proc, "controller:")
         bus.subscribe(bus.keys.cmd("drive"), on_drive, latest=False)
         before = await ticks_after(5)
         assert all(d["winners"] == ["careful"] and d["speed"] == 10 for d in before)

@@ -20,7 +20,7 @@ import msgpack
 import pytest
 import pytest_asyncio
 
-from tests.conftest import eventually
+from tests.conftest import eventually, read_until
 from ubf_async import launch
 from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
@@ -508,12 +508,7 @@ async def test_inspector_changes_a_launched_robot(endpoint: str, robot: str) -> 
         "--robot", robot, cwd=ROOT, stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
     try:
-        assert proc.stdout is not None
-        printed = ""
-        while "controller:" not in printed:  # printed once every component has started
-            line = await asyncio.wait_for(proc.stdout.readline(), 30)
-            assert line, f"launch ended early: {printed}"
-            printed += line.decode()
+        await read_until(proc, "controller:")
         conn = ("--connect", endpoint, "--robot", robot, "--timeout", "20")
         code, out, err = await inspector("tree", "show", *conn)
         assert code == 0, err
