@@ -109,8 +109,9 @@ class HighestPriority(Arbiter):
 NON_NUMERIC_FIELDS = tuple(f for f in FIELDS if f not in NUMERIC_FIELDS)
 
 
+# ``values`` are Action keyword arguments copied field by field (via getattr): typed Any.
 def _take_first_set(
-    values: dict[str, object], ranked: Sequence[Candidate], names: Sequence[str],
+    values: dict[str, Any], ranked: Sequence[Candidate], names: Sequence[str],
     winners: set[int],
 ) -> None:
     """For each field in ``names``, the value of the first candidate in ``ranked`` that set
@@ -126,7 +127,7 @@ def _take_first_set(
 
 def _fieldwise(ranked: Sequence[Candidate], vote: float) -> Decision:
     """Each field from the first candidate in ``ranked`` that set it."""
-    values: dict[str, object] = {}
+    values: dict[str, Any] = {}
     winners: set[int] = set()
     _take_first_set(values, ranked, FIELDS, winners)
     return _decide(Action(vote=vote, **values), tuple(sorted(winners)))
@@ -152,7 +153,7 @@ class PriorityMerge(Arbiter):
         if len(group) == 1:
             only = group[0]
             return _decide(only.action, (only.index,))
-        values: dict[str, object] = {}
+        values: dict[str, Any] = {}
         for name in NUMERIC_FIELDS:
             parts = [v for c in group if (v := getattr(c.action, name)) is not None]
             if parts:
@@ -212,7 +213,7 @@ class CommandFusion(Arbiter):
         counted = [c for c in candidates if c.weight > 0]
         if not counted:
             return NO_DECISION
-        values: dict[str, object] = {}
+        values: dict[str, Any] = {}
         winners: set[int] = set()
         for name in NUMERIC_FIELDS:
             total = 0.0

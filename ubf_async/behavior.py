@@ -183,7 +183,9 @@ class Child:
 class Candidate(NamedTuple):
     """One child's non-abstaining proposal, as an arbiter sees it."""
 
-    index: int
+    # A NamedTuple field named ``index`` shadows ``tuple.index``; it is public API (arbiters
+    # and plug-ins read ``c.index``), and candidates are never searched with ``.index()``.
+    index: int  # type: ignore[assignment]
     """Position of the child in the composite (ties go to the lower index)."""
     priority: int
     weight: float

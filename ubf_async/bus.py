@@ -275,8 +275,9 @@ class Publisher:
 
     def has_subscribers(self) -> bool:
         """Whether a subscriber matching this key is known: on this bus, or to zenoh."""
+        # zenoh's stub types Publisher.matching_status as bool; it returns a MatchingStatus.
         return bool(self._bus._local_subscriptions(self.key)) or bool(
-            self._zenoh.matching_status.matching
+            self._zenoh.matching_status.matching  # type: ignore[attr-defined]
         )
 
     async def wait_for_subscribers(self, timeout_s: float = 5.0) -> None:

@@ -179,7 +179,7 @@ def parameters_of(factory: Callable[..., Any], *, injected: Iterable[str] = ()) 
     cached = _PARAMETER_CACHE.get(key)
     if cached is not None:
         return cached
-    target = factory.__init__ if inspect.isclass(factory) else factory  # type: ignore[misc]
+    target = factory.__init__ if inspect.isclass(factory) else factory
     signature = inspect.signature(factory)
     try:
         hints = typing.get_type_hints(target, include_extras=True)

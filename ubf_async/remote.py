@@ -491,9 +491,9 @@ class RemoteBehaviors(Component):
         priority, weight = self.placement(remote.composite, remote.name, entry.requested)
         current = entry.attached_as
         if current is not None:
-            composite, p, w = current
+            attached, p, w = current
             if (p, w) == (priority, weight) and any(
-                c.behavior is remote for c in composite.children
+                c.behavior is remote for c in attached.children
             ):
                 return True
             self._detach(entry)  # new placement requested: attach again below

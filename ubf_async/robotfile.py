@@ -28,7 +28,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 import msgspec
 import yaml
@@ -45,7 +45,7 @@ from ubf_async.registry import (
     parameters_of,
 )
 
-FORMAT_VERSION = 1
+FORMAT_VERSION: Final = 1
 DEFAULT_ROBOT_FILE = "mini-whegs"
 """The robot file ``python -m ubf_async.launch`` runs without arguments (package data)."""
 SCHEMA_RESOURCE = "robot-file.schema.json"
@@ -589,7 +589,7 @@ def build_arbiter(spec: str | Mapping[str, Any], *, source: str = "<arbiter>",
     text = json.dumps(spec)
     locator = Locator(text, source=source)
     try:
-        typed = msgspec.convert(spec, str | ArbiterSpec)  # type: ignore[arg-type]
+        typed = msgspec.convert(spec, str | ArbiterSpec)
     except msgspec.ValidationError as exc:
         raise locator.from_validation(exc) from None
     return TreeBuilder(locator=locator, seed=seed).arbiter(typed, ())
