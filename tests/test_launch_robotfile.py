@@ -251,6 +251,23 @@ def test_an_old_scenario_with_a_behaviour_parameter_warns_the_user(
     assert "period_s of the search behaviour in the robot file" in proc.stderr
 
 
+def test_summary_into_a_missing_folder_is_made(tmp_path: Path, endpoint: str) -> None:
+    summary = tmp_path / "new" / "deeper" / "summary.json"
+    proc = run_launch("--duration", "0.2", "--speed", "5", "--quiet", "--listen", endpoint,
+                      "--summary", str(summary))
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(summary.read_text())["sim_time_s"] == pytest.approx(0.2)
+
+
+def test_summary_where_no_folder_can_be_made_is_refused_before_the_start(
+        tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    proc = run_launch("--duration", "5", "--summary", str(blocker / "summary.json"))
+    assert proc.returncode == 2
+    assert "--summary: cannot create" in proc.stderr and "listening" not in proc.stdout
+
+
 def test_robot_file_check_command_reports_each_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text(BAD_ROBOT)

@@ -222,6 +222,13 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
             why = ("--no-sim is given" if args.no_sim
                    else f"no device of {robot.source} is simulated")
             raise ConfigurationError(f"{', '.join(given)}: there is no simulator ({why})")
+    for flag, folder in (("--summary", args.summary.parent if args.summary else None),
+                         ("--record", args.record)):
+        if folder is not None:
+            try:  # made now, so a run never ends with nowhere to put its results
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise ConfigurationError(f"{flag}: cannot create {folder}: {exc}") from None
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
     return LaunchPlan(robot=robot, devices=devices, elsewhere=elsewhere, simulator=simulator,
