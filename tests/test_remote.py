@@ -259,6 +259,20 @@ def test_nested_composite_found_by_name() -> None:
     assert root.evaluate(robot.at(0.01)).winning_leaves() == ["chase", "avoid"]  # same prio
 
 
+def test_set_root_moves_remote_children_to_the_composite_of_the_same_name() -> None:
+    robot = Robot()
+    robot.token("teleop")
+    robot.vote(speed=-30, turn=50, priority=10)
+    same = seek_pink_ball()
+    assert robot.remotes.set_root(same, config={"seek_pink_ball/teleop": (7, 2.0)}) == []
+    moved = next(c for c in same.children if c.behavior.name == "teleop")
+    assert (moved.priority, moved.weight) == (7, 2.0)
+    assert all(c.behavior.name != "teleop" for c in robot.root.children)  # left the old tree
+    elsewhere = Composite(name="other", arbiter=PriorityMerge())
+    assert robot.remotes.set_root(elsewhere) == ["seek_pink_ball/teleop"]
+    assert robot.remotes.attached() == [] and not same.find("teleop")
+
+
 def test_vote_into_a_composite_whose_arbiter_refuses_a_third_child_is_rejected() -> None:
     gate = Composite(name="gate", arbiter=Conditional(lambda state: True),
                      children=[FunctionBehavior(lambda s: None, name="a"),

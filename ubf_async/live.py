@@ -442,12 +442,11 @@ class TreeService(Component):
                 raise TreeChangeError(f"cannot load the tree: setup of {root.name!r} failed: "
                                       f"{type(exc).__name__}: {exc}") from None
         root.reset()
-        moving = self._detach_remotes()
         self.controller.root = root
         if self.remotes is not None:
-            self.remotes.root = root
-            self._replace_slots(slots)
-            self._attach_remotes(moving)
+            for name in self.remotes.set_root(root, config=self._config_with(slots)):
+                log.warning("remote behaviour %s left the tree: the new tree has no place "
+                            "for it", name)
         self.slots = list(slots)
         try:
             old.shutdown()
@@ -472,51 +471,16 @@ class TreeService(Component):
         log.info("tree version %d: %s", self.version, what)
         self.changed.set()
 
-    def _replace_slots(self, slots: list[RemoteSlot]) -> None:
+    def _config_with(self, slots: list[RemoteSlot]) -> dict[str, tuple[int, float]]:
+        """The remote placements with the old tree's slots replaced by ``slots``."""
         assert self.remotes is not None
-        config = self.remotes.config
+        config = dict(self.remotes.config)
         for slot in self.slots:
             if config.get(slot.key) == (slot.priority, slot.weight):
                 del config[slot.key]
         for slot in slots:
             config[slot.key] = (slot.priority, float(slot.weight))
-
-    def _detach_remotes(self) -> list[tuple[str, str, Any]]:
-        """Take the remote children out of the old tree; returns what to attach again.
-
-        Uses :class:`RemoteBehaviors`' bookkeeping (``_entries``, ``_detach``, ``_attach``);
-        a public ``RemoteBehaviors.set_root(root)`` doing this would be the better home."""
-        if self.remotes is None:
-            return []
-        entries: dict[tuple[str, str], Any] = self.remotes._entries
-        moving = [(composite, behavior, entry)
-                  for (composite, behavior), entry in entries.items()
-                  if entry.attached_as is not None]
-        for _, _, entry in moving:
-            self.remotes._detach(entry)
-        return moving
-
-    def _attach_remotes(self, moving: list[tuple[str, str, Any]]) -> None:
-        remotes = self.remotes
-        assert remotes is not None
-        for composite, behavior, entry in moving:
-            key = f"{self.bus.keys.prefix}/vote/{composite}/{behavior}"
-            configured = remotes.config.get(f"{composite}/{behavior}",
-                                            remotes.config.get(behavior))
-            if remotes.only_configured and configured is None:
-                remotes._entries.pop((composite, behavior), None)
-                log.warning("remote behaviour %s left the tree: the new tree declares no "
-                            "slot for it", behavior)
-                continue
-            try:
-                remotes._attach(entry, key)
-            except ConfigurationError as exc:
-                remotes._entries.pop((composite, behavior), None)
-                log.warning("remote behaviour %s left the tree: %s", behavior, exc)
-                continue
-            if entry.attached_as is None:
-                log.warning("remote behaviour %s left the tree: the new tree has no "
-                            "composite %r for it", behavior, composite)
+        return config
 
 
 def _composites(node: Behavior) -> list[str]:

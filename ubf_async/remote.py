@@ -558,6 +558,33 @@ class RemoteBehaviors(Component):
         entry = self._entries.get((composite, behavior))
         return entry.behavior if entry is not None else None
 
+    def set_root(self, root: Composite, *,
+                 config: Mapping[str, PriorityWeight] | None = None) -> list[str]:
+        """Move to a new tree (a live ``load``): detach every remote child from the old tree,
+        take ``config`` as the new placements if given, and attach each again in the
+        composite of the same name in ``root``. Returns the names of those that could not
+        follow (no such composite, no slot while ``only_configured``, or refused by the
+        arbiter); they are forgotten, and join again with their next vote if the tree allows."""
+        moving = [(key, entry) for key, entry in self._entries.items()
+                  if entry.attached_as is not None]
+        for _, entry in moving:
+            self._detach(entry)
+        self.root = root
+        if config is not None:
+            self.config = dict(config)
+        left: list[str] = []
+        for (composite, behavior), entry in moving:
+            key = vote_key(self.bus.keys, composite, behavior)
+            configured = self.config.get(f"{composite}/{behavior}", self.config.get(behavior))
+            if self.only_configured and configured is None:
+                self._entries.pop((composite, behavior), None)
+                attached = False
+            else:
+                attached = self._attach(entry, key) and entry.attached_as is not None
+            if not attached:
+                left.append(f"{composite}/{behavior}")
+        return left
+
     def attached(self) -> list[str]:
         """``"composite/behaviour"`` of every remote child in the tree, sorted."""
         return sorted(f"{c}/{b}" for (c, b), e in self._entries.items()
