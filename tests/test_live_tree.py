@@ -8,7 +8,6 @@ from the inspector in a subprocess, or from a launched robot's inspector.
 from __future__ import annotations
 
 import asyncio
-import inspect
 import json
 import sys
 from collections.abc import AsyncIterator
@@ -21,7 +20,6 @@ import pytest
 import pytest_asyncio
 
 from tests.conftest import eventually, read_until
-from ubf_async import launch
 from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
 from ubf_async.arbiters import HighestPriority
@@ -496,12 +494,6 @@ async def test_inspector_tree_verbs(
     assert code == 2 and f"no robot {robot + 'x'!r} answered" in err
 
 
-def launch_has_tree_service() -> bool:
-    return "TreeService" in inspect.getsource(launch)
-
-
-@pytest.mark.skipif(not launch_has_tree_service(),
-                    reason="ubf_async.launch does not start a TreeService yet")
 async def test_inspector_changes_a_launched_robot(endpoint: str, robot: str) -> None:
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "ubf_async.launch", "--no-sim", "--quiet", "--listen", endpoint,
