@@ -17,27 +17,24 @@ import msgspec
 
 from ubf_async import registry
 from ubf_async.component import Component
+from ubf_async.devices import (
+    BACKEND_INJECTED,
+    DEVICE_INJECTED,
+    build_device,
+    requires_simulator,
+    typed_params,
+)
 from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import DeviceContext
+
+__all__ = ["BACKEND_INJECTED", "DEFAULT_NAMES", "DEVICE_INJECTED", "KINDS", "checked",
+           "make_backend", "make_device", "requires_simulator"]
 
 KINDS = ("motors", "encoders", "camera", "range", "radio")
 """The built-in device kinds."""
 DEFAULT_NAMES: dict[str, str] = {"camera": "front", "motors": "main", "encoders": "wheels",
                                  "range": "front", "radio": "link"}
 """Each built-in kind's usual source name (``sensor/<kind>/<name>``)."""
-DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
-"""Parameters of a device kind's factory the builder supplies itself."""
-BACKEND_INJECTED = frozenset({"context"})
-"""Parameters of a backend factory the builder supplies itself."""
-
-
-def requires_simulator(factory: Callable[..., Any]) -> str | None:
-    """The simulator plug-in a backend factory needs (its ``requires_simulator``), or None."""
-    name = getattr(factory, "requires_simulator", None)
-    if name is not None and not isinstance(name, str):
-        raise ConfigurationError(f"{factory!r}: requires_simulator must be a str or None, "
-                                 f"got {name!r}")
-    return name
 
 
 def checked(factory: Callable[..., Any], params: Mapping[str, Any], *,
@@ -46,12 +43,10 @@ def checked(factory: Callable[..., Any], params: Mapping[str, Any], *,
 
     Raises :class:`~ubf_async.errors.ConfigurationError` naming ``what`` and the field.
     """
-    struct = registry.parameters_of(factory, injected=injected)
     try:
-        value = msgspec.convert(dict(params), struct)
+        return typed_params(factory, params, injected=injected)
     except msgspec.ValidationError as exc:
         raise ConfigurationError(f"{what}: {exc}") from None
-    return msgspec.structs.asdict(value)
 
 
 def make_backend(kind: str, backend: str, *, context: DeviceContext,
@@ -78,12 +73,5 @@ def make_device(
     factory = registry.DEVICES.get(kind)
     name = name if name is not None else DEFAULT_NAMES.get(kind, kind)
     values = checked(factory, params or {}, injected=DEVICE_INJECTED, what=f"{kind} {name!r}")
-    if registry.accepts(factory, "seed"):
-        values["seed"] = context.seed
-    if registry.accepts(factory, "clock"):
-        values["clock"] = context.clock
-    component = factory(bus=context.bus, name=name, backend=backend, **values)
-    if not isinstance(component, Component):
-        raise ConfigurationError(f"device kind {kind!r} ({registry.DEVICES.origin(kind)}) "
-                                 f"returned {type(component).__name__}, not a Component")
-    return component
+    return build_device(factory, kind=kind, name=name, backend=backend, params=values,
+                        context=context)

@@ -293,17 +293,17 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
                   file=out)
         if plan.elsewhere:
-            print("  not started here (simulated; attach them with python -m "
-                  "components.<kind>): "
-                  + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere), file=out)
+            print("  not started here (their backends need the simulator; attach them from "
+                  "other processes): " + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere),
+                  file=out)
         if not plan.devices and not plan.elsewhere and sim_run is None:
             print("  no devices here: waiting for devices to attach over zenoh", file=out)
         if sim_run is not None and args.seed is None and seed != robot.spec.seed:
             # The behaviours draw from the run's seed, so a simulated run is repeatable.
-            robot = load_robot(args.robot_file, seed=seed)
+            robot = robot.reseeded(seed)
         context = DeviceContext(bus=bus, clock=clock, seed=seed,
                                 simulation=sim_run.world if sim_run is not None else None)
-        devices = [device.build(bus=bus, context=context) for device in plan.devices]
+        devices = [device.build(context=context) for device in plan.devices]
         spec = robot.spec
         aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
                                      default_stale_after_s=spec.controller.default_stale_after_s)

@@ -24,7 +24,7 @@ import json
 import random
 import re
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -34,6 +34,14 @@ import msgspec
 import yaml
 
 from ubf_async.behavior import Behavior, Child, Composite
+from ubf_async.component import Component
+from ubf_async.devices import (
+    BACKEND_INJECTED,
+    DEVICE_INJECTED,
+    build_device,
+    requires_simulator,
+    typed_params,
+)
 from ubf_async.errors import ConfigurationError, PluginError, RobotFileError
 from ubf_async.registry import (
     ARBITERS,
@@ -44,6 +52,7 @@ from ubf_async.registry import (
     is_reference,
     parameters_of,
 )
+from ubf_async.simulation import DeviceContext
 
 FORMAT_VERSION: Final = 1
 DEFAULT_ROBOT_FILE = "mini-whegs"
@@ -65,8 +74,6 @@ Params = Annotated[dict[str, Any], msgspec.Meta(
 
 # Behaviour and arbiter factories get these from the loader, never from the file.
 INJECTED_TREE = frozenset({"name", "rng"})
-INJECTED_DEVICE = frozenset({"bus", "name", "backend", "seed", "clock"})
-INJECTED_BACKEND = frozenset({"context"})
 
 
 class Spec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True, omit_defaults=True):
@@ -352,18 +359,13 @@ class ResolvedDevice:
 
     @property
     def requires_simulator(self) -> str | None:
-        value = getattr(self.backend_factory, "requires_simulator", None)
-        return value if isinstance(value, str) else None
+        return requires_simulator(self.backend_factory)
 
-    def build(self, *, bus: Any, context: Any) -> Any:
+    def build(self, *, context: DeviceContext) -> Component:
         """Build the backend and the device component (launch calls this)."""
         backend = self.backend_factory(context=context, **self.backend_params)
-        extra: dict[str, Any] = {}
-        if accepts(self.factory, "seed"):
-            extra["seed"] = context.seed
-        if accepts(self.factory, "clock"):
-            extra["clock"] = context.clock
-        return self.factory(bus=bus, name=self.name, backend=backend, **extra, **self.params)
+        return build_device(self.factory, kind=self.kind, name=self.name, backend=backend,
+                            params=self.params, context=context)
 
 
 @dataclass(slots=True)
@@ -374,11 +376,17 @@ class Robot:
     source: str
     root: Composite
     devices: list[ResolvedDevice]
+    locator: Locator
     remotes: list[RemoteSlot] = field(default_factory=list)
 
     @property
     def name(self) -> str:
         return self.spec.name
+
+    def reseeded(self, seed: int | None) -> Robot:
+        """The same robot file resolved again with the behaviours drawing from ``seed`` (a
+        simulated run's), without reading the file again."""
+        return resolve(self.spec, self.locator, seed=seed)
 
     def remote_config(self) -> dict[str, tuple[int, float]]:
         """``RemoteBehaviors(config=…)``: each declared slot's place."""
@@ -393,18 +401,15 @@ def _typed_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
                   injected: frozenset[str], locator: Locator, path: Path_,
                   what: str) -> dict[str, Any]:
     try:
-        struct = parameters_of(factory, injected=injected)
+        return typed_params(factory, params, injected=injected)
+    except msgspec.ValidationError as exc:
+        error = locator.from_validation(exc, path)
+        known = ", ".join(parameters_of(factory, injected=injected).__struct_fields__)
+        raise RobotFileError(f"{error.message}; {what} takes: {known or 'none'}",
+                             path=error.path, line=error.line) from None
     except (TypeError, ValueError) as exc:
         raise locator.error(f"{what}: its parameters cannot be described ({exc})",
                             path) from None
-    try:
-        typed = msgspec.convert(dict(params), struct)
-    except msgspec.ValidationError as exc:
-        error = locator.from_validation(exc, path)
-        known = ", ".join(struct.__struct_fields__) or "none"
-        raise RobotFileError(f"{error.message}; {what} takes: {known}", path=error.path,
-                             line=error.line) from None
-    return {name: getattr(typed, name) for name in struct.__struct_fields__}
 
 
 def _lookup(registry_get: Callable[[], Any], locator: Locator, path: Path_, key: str) -> Any:
@@ -505,13 +510,13 @@ class TreeBuilder:
 
 def _resolve_device(spec: DeviceSpec, locator: Locator, path: Path_) -> ResolvedDevice:
     factory = _lookup(lambda: DEVICES.get(spec.kind), locator, path, "kind")
-    params = _typed_params(factory, spec.params, injected=INJECTED_DEVICE, locator=locator,
+    params = _typed_params(factory, spec.params, injected=DEVICE_INJECTED, locator=locator,
                            path=(*path, "params"), what=f"device kind {spec.kind!r}")
     if is_reference(spec.kind) and not is_reference(spec.backend):
         raise locator.error(f"a device kind given as a reference ({spec.kind!r}) needs its "
                             f"backend as a 'module:factory' reference too", path, key="backend")
     backend = _lookup(lambda: get_backend(spec.kind, spec.backend), locator, path, "backend")
-    backend_params = _typed_params(backend, spec.backend_params, injected=INJECTED_BACKEND,
+    backend_params = _typed_params(backend, spec.backend_params, injected=BACKEND_INJECTED,
                                    locator=locator, path=(*path, "backend_params"),
                                    what=f"backend {spec.kind}.{spec.backend}")
     return ResolvedDevice(kind=spec.kind, name=spec.name, backend=spec.backend, factory=factory,
@@ -535,7 +540,7 @@ def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Ro
     builder = TreeBuilder(locator=locator, seed=spec.seed if seed is None else seed)
     root = builder.composite(spec.tree, ("tree",))
     return Robot(spec=spec, source=locator.source, root=root, devices=devices,
-                 remotes=builder.remotes)
+                 locator=locator, remotes=builder.remotes)
 
 
 def load_robot(name_or_path: str | Path = DEFAULT_ROBOT_FILE, *,
@@ -614,13 +619,6 @@ def schema_text() -> str:
 
 def shipped_schema_text() -> str:
     return (resources.files("ubf_async") / SCHEMA_RESOURCE).read_text(encoding="utf-8")
-
-
-def walk(node: Behavior) -> Iterator[Behavior]:
-    yield node
-    if isinstance(node, Composite):
-        for child in node.children:
-            yield from walk(child.behavior)
 
 
 # -- python -m ubf_async.robotfile ------------------------------------------------------------
