@@ -34,7 +34,6 @@ from ubf_async.live import (
     encode_request,
     render_tree_data,
     request,
-    tree_key,
 )
 from ubf_async.protocol import ProtocolError, decode, encode
 from ubf_async.remote import RemoteBehaviorHost, RemoteBehaviors
@@ -242,7 +241,7 @@ async def test_bad_changes_are_refused_and_the_old_tree_keeps_ticking(
     arbiter, children = root.arbiter, root.children
     await ask(peer_bus, op="show")  # the queryable is known to the peer from here on
     ticks_before = controller.stats.ticks
-    key = tree_key(peer_bus.keys)
+    key = peer_bus.keys.tree
     for bad, expected in BAD_REQUESTS:
         payload = bad if isinstance(bad, bytes) else msgpack.packb(
             {"schema": REQUEST_SCHEMA, "v": 1, "stamp_ns": 1, "seq": 1, "data": bad})

@@ -42,8 +42,8 @@ from ubf_async.errors import ConfigurationError, ProtocolError, TreeChangeError
 from ubf_async.protocol import (
     MAX_STR_LEN,
     Check,
-    Keys,
     array,
+    boolean,
     decode,
     encode,
     integer,
@@ -72,19 +72,8 @@ MAX_TREE_DEPTH = 64
 MAX_ERROR_CHARS = 2000
 
 
-def tree_key(keys: Keys) -> str:
-    """``ubf/<robot>/tree``: where the robot's :class:`TreeService` answers."""
-    return f"{keys.prefix}/tree"
-
-
 # ---------------------------------------------------------------------------------------------
 # The "tree.request" and "tree.reply" schemas
-
-
-def _boolean(value: Any, path: str) -> bool:
-    if not isinstance(value, bool):
-        raise ProtocolError(f"{path}: expected a boolean, got {type(value).__name__}")
-    return value
 
 
 _NAME = text(MAX_NAME_LEN)
@@ -178,7 +167,7 @@ _SLOT = record({"composite": _NAME, "name": _NAME,
                 "weight": number(0.0, MAX_WEIGHT)})
 _REPLY_RECORD = record(
     {
-        "ok": _boolean,
+        "ok": boolean,
         "op": text(32),
         "version": integer(0),
         "error": text(MAX_STR_LEN),
@@ -224,7 +213,7 @@ async def request(bus: Bus, data: Mapping[str, Any], *, timeout_s: float = 5.0,
     :class:`ProtocolError` for a malformed request or reply. A refusal is a reply: check
     ``reply["ok"]``."""
     payload = encode_request(data, stamp_ns=bus.clock.now_ns())
-    key = tree_key(bus.keys)
+    key = bus.keys.tree
     deadline = time.monotonic() + timeout_s
     while True:
         remaining = deadline - time.monotonic()
@@ -330,7 +319,7 @@ class TreeService(Component):
 
     @property
     def key(self) -> str:
-        return tree_key(self.bus.keys)
+        return self.bus.keys.tree
 
     @property
     def root(self) -> Behavior:
@@ -494,5 +483,5 @@ def _composites(node: Behavior) -> list[str]:
 
 __all__ = [
     "OPS", "REPLY_SCHEMA", "REQUEST_SCHEMA", "TreeService", "check_reply", "check_request",
-    "decode_reply", "encode_request", "render_tree_data", "request", "tree_data", "tree_key",
+    "decode_reply", "encode_request", "render_tree_data", "request", "tree_data",
 ]

@@ -112,6 +112,11 @@ class Keys:
         return f"{self.prefix}/status/{_check_segment('component name', component)}"
 
     @property
+    def tree(self) -> str:
+        """The robot's live-tree queryable (:mod:`ubf_async.live`)."""
+        return f"{self.prefix}/tree"
+
+    @property
     def everything(self) -> str:
         return f"{self.prefix}/**"
 
@@ -121,6 +126,12 @@ class Keys:
 # raises ProtocolError naming the field.
 
 Check = Callable[[Any, str], Any]
+
+
+def boolean(value: Any, path: str) -> bool:
+    if not isinstance(value, bool):
+        raise ProtocolError(f"{path}: expected a boolean, got {type(value).__name__}")
+    return value
 
 
 def integer(lo: int = -INT64_MAX, hi: int = INT64_MAX, *, nullable: bool = False) -> Check:

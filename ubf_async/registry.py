@@ -88,9 +88,6 @@ class Registry:
         """Every name this group knows, sorted."""
         return sorted({*self._points(), *self._loaded})
 
-    def __contains__(self, name: object) -> bool:
-        return isinstance(name, str) and (name in self._loaded or name in self._points())
-
     def register(self, name: str, obj: Any) -> None:
         """Add (or replace) ``name`` at run time, e.g. from a test or an application."""
         self._loaded[name] = obj
