@@ -48,6 +48,7 @@ import zenoh
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.protocol import Keys, ProtocolError, decode, encode
+from ubf_async.timesource import ClockAction, ClockFollower
 
 log = logging.getLogger(__name__)
 
@@ -555,17 +556,30 @@ class Bus:
         await self.aclose()
 
 
-def follow_sim_clock(bus: Bus, clock: SimClock, malformed: dict[str, int]) -> Subscription:
+def follow_sim_clock(
+    bus: Bus, clock: SimClock, malformed: dict[str, int], *,
+    follower: ClockFollower | None = None,
+) -> Subscription:
     """Drive ``clock`` from the simulator's samples on ``ubf/<robot>/clock``.
 
-    Rejected samples are counted in ``malformed``; the clock never moves backwards.
+    Malformed samples are counted in ``malformed``. What a valid sample may do is decided by
+    ``follower`` (a new :class:`~ubf_async.timesource.ClockFollower` if not given — pass one
+    to pin an epoch or to read its counters): advance the clock, reset it to a new run's time,
+    or nothing (refused, counted and logged by the follower).
     """
     key = bus.keys.clock
+    policy = follower if follower is not None else ClockFollower(name=f"{bus.robot} clock")
 
     def on_sample(key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, malformed, key, schema="clock")
-        if message is not None:
+        if message is None:
+            return
+        verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.get("epoch"),
+                               wall_ns=received_ns)
+        if verdict.action is ClockAction.ADVANCE:
             clock.advance_to(message.stamp_ns)
+        elif verdict.action is ClockAction.RESET:
+            clock.reset_to(message.stamp_ns)
 
     return bus.subscribe(key, on_sample)
 

@@ -9,15 +9,23 @@ Every stamp and every periodic wait in the runtime goes through a :class:`Clock`
   simulator in the same process or by samples on ``ubf/<robot>/clock`` from one in another
   (like ROS's ``use_sim_time``). A simulator running K× faster than real time makes every
   component's periods, timeouts and latencies K× shorter in wall time, consistently.
+  Which samples may move it is decided by :class:`ubf_async.timesource.ClockFollower`; a new
+  simulation run *resets* it (:meth:`SimClock.reset_to`), and periodic loops re-anchor.
+
+Safety deadlines (the motor watchdog, staleness) must also hold when simulated time stops:
+:class:`SilenceLimit` is the one rule they share — robot time, or wall time while the clock
+is stalled, or a wall-time backstop (see its docstring for the numbers).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import heapq
 import itertools
 import time
 from collections.abc import AsyncIterator
+from dataclasses import dataclass
 from typing import Protocol
 
 
@@ -27,6 +35,10 @@ class Hold(Protocol):
 
 
 class Clock(Protocol):
+    resets: int
+    """How many times the clock was reset to a new run's time (0 for wall time). Periodic
+    loops compare it before and after a sleep and re-anchor their deadlines when it changed."""
+
     def now_ns(self) -> int:
         """The current robot time in nanoseconds."""
         ...
@@ -42,6 +54,10 @@ class Clock(Protocol):
     async def sleep(self, seconds: float) -> None:
         ...
 
+    def stalled_s(self, wall_now_ns: int | None = None) -> float:
+        """Wall seconds since the clock last advanced (0 for a clock that always runs)."""
+        ...
+
 
 class _NoHold:
     def release(self) -> None:
@@ -52,9 +68,14 @@ class WallClock:
     """Host monotonic time."""
 
     is_simulated = False
+    resets = 0
 
     def now_ns(self) -> int:
         return time.monotonic_ns()
+
+    def stalled_s(self, wall_now_ns: int | None = None) -> float:
+        """Wall time never stalls."""
+        return 0.0
 
     def hold(self, until_ns: int) -> Hold:
         """Real time waits for nobody: a no-op."""
@@ -98,6 +119,8 @@ class SimClock:
 
     def __init__(self, start_ns: int = 0) -> None:
         self._now = start_ns
+        self.resets = 0
+        self._advanced_wall_ns = time.monotonic_ns()
         self._sleepers: list[tuple[int, int, asyncio.Future[None]]] = []
         self._order = itertools.count()
         self._holds: list[SimHold] = []
@@ -128,14 +151,36 @@ class SimClock:
     def now_ns(self) -> int:
         return self._now
 
+    def stalled_s(self, wall_now_ns: int | None = None) -> float:
+        """Wall seconds since time last advanced — 0 while a hold of this process keeps it
+        still on purpose (the simulator waiting for a camera frame is not a stall)."""
+        if self._holds:
+            return 0.0
+        now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
+        return max(0.0, (now - self._advanced_wall_ns) / 1e9)
+
     def advance_to(self, now_ns: int) -> None:
         """Move time forward (never backward: an older time is ignored) and wake sleepers."""
         if now_ns > self._now:
             self._now = now_ns
+            self._advanced_wall_ns = time.monotonic_ns()
         self.started.set()
         sleepers = self._sleepers
         while sleepers and sleepers[0][0] <= self._now:
             _, _, future = heapq.heappop(sleepers)
+            if not future.done():
+                future.set_result(None)
+
+    def reset_to(self, now_ns: int) -> None:
+        """Start a new run at ``now_ns`` (which may be earlier than the current time): count
+        the reset in :attr:`resets` and wake **every** sleeper — their deadlines belong to the
+        old run; each wakes early, sees :attr:`resets` changed and re-anchors."""
+        self._now = now_ns
+        self.resets += 1
+        self._advanced_wall_ns = time.monotonic_ns()
+        self.started.set()
+        sleepers, self._sleepers = self._sleepers, []
+        for _, _, future in sleepers:
             if not future.done():
                 future.set_result(None)
 
@@ -153,15 +198,96 @@ class SimClock:
 
 async def every(clock: Clock, period_s: float) -> AsyncIterator[int]:
     """Yield the clock's time now and then every ``period_s`` on a fixed schedule (absolute
-    deadlines, so the period never drifts; a late wake-up is not made up with a burst)."""
+    deadlines, so the period never drifts; a late wake-up is not made up with a burst).
+
+    When the clock is reset to a new run (:attr:`Clock.resets` changes), the schedule is
+    re-anchored on the new run's time: one yield at once, then every ``period_s`` from there."""
     if not period_s > 0:
         raise ValueError(f"period_s must be > 0, got {period_s}")
     period_ns = round(period_s * 1e9)
     deadline = clock.now_ns()
+    resets = clock.resets
     while True:
         yield clock.now_ns()
+        if clock.resets != resets:  # a new run: its time, not the old run's, sets the phase
+            resets = clock.resets
+            deadline = clock.now_ns()
         deadline += period_ns
         now = clock.now_ns()
         if now >= deadline:  # overslept: skip the missed slots, keep the phase
             deadline += ((now - deadline) // period_ns + 1) * period_ns
         await clock.sleep_until_ns(deadline)
+
+
+MIN_REAL_TIME_FACTOR = 0.2
+"""The slowest simulation (simulated seconds per wall second) that safety deadlines still
+measure in robot time alone; see :class:`SilenceLimit`."""
+
+
+@dataclass(frozen=True, slots=True)
+class SilenceLimit:
+    """The rule every safety deadline follows: something (a drive command, a sensor's
+    samples) is overdue when nothing has been heard from it for
+
+    (a) ``limit_s`` of **robot time** — the normal rule, consistent at any simulation speed;
+    (b) ``limit_s`` of **wall time while the clock is stalled** — it has not advanced for
+        ``limit_s`` of wall time either (the simulator stopped, died or is being refused):
+        robot time would never get there;
+    (c) ``limit_s / min_real_time_factor`` of **wall time** in any case — a backstop for a
+        clock that crawls.
+
+    With wall time (a) always comes first, so nothing changes there. Why a simulation running
+    slowly is not cut off: a simulator publishes its clock every step (5 ms of simulated
+    time), i.e. every 25 ms of wall time at 0.2× real time, far inside any ``limit_s`` of
+    tens of milliseconds or more, so (b) never holds while it runs; and a 50 Hz controller
+    at 0.2× sends a command every 100 ms of wall time, far inside (c)'s 5 × ``limit_s``.
+    """
+
+    limit_s: float
+    min_real_time_factor: float = MIN_REAL_TIME_FACTOR
+
+    def __post_init__(self) -> None:
+        if not self.limit_s > 0:
+            raise ValueError(f"limit_s must be > 0, got {self.limit_s}")
+        if not 0 < self.min_real_time_factor <= 1:
+            raise ValueError("min_real_time_factor must be in (0, 1], got "
+                             f"{self.min_real_time_factor}")
+
+    @property
+    def backstop_s(self) -> float:
+        """Rule (c)'s wall-time limit."""
+        return self.limit_s / self.min_real_time_factor
+
+    def expired(self, clock: Clock, *, since_ns: int, since_wall_ns: int,
+                now_ns: int | None = None, wall_now_ns: int | None = None) -> bool:
+        """Whether the limit has passed since robot time ``since_ns`` / host monotonic time
+        ``since_wall_ns`` (both taken when last heard from)."""
+        now = clock.now_ns() if now_ns is None else now_ns
+        wall_now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
+        if now - since_ns >= self.limit_s * 1e9:
+            return True
+        quiet_wall_s = (wall_now - since_wall_ns) / 1e9
+        if quiet_wall_s >= self.backstop_s:
+            return True
+        return quiet_wall_s >= self.limit_s and clock.stalled_s(wall_now) >= self.limit_s
+
+    def wall_deadline_ns(self, clock: Clock, *, since_wall_ns: int,
+                         wall_now_ns: int | None = None) -> int:
+        """The earliest host monotonic time at which (b) or (c) may hold, if robot time does
+        not get there first: when to re-check."""
+        wall_now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
+        limit_ns = round(self.limit_s * 1e9)
+        stalled_since = wall_now - round(clock.stalled_s(wall_now) * 1e9)
+        by_stall = max(since_wall_ns, stalled_since) + limit_ns
+        return min(by_stall, since_wall_ns + round(self.backstop_s * 1e9))
+
+
+async def sleep_until(clock: Clock, deadline_ns: int, *, wall_deadline_ns: int) -> None:
+    """Sleep until robot time ``deadline_ns`` or host monotonic time ``wall_deadline_ns``,
+    whichever comes first (or a reset of the clock wakes it)."""
+    wall_s = (wall_deadline_ns - time.monotonic_ns()) / 1e9
+    if wall_s <= 0:
+        await asyncio.sleep(0)
+        return
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(clock.sleep_until_ns(deadline_ns), wall_s)

@@ -175,8 +175,14 @@ class Controller(Component):
         clock = self.bus.clock
         period_ns = int(1e9 / self.rate_hz)
         deadline = clock.now_ns()
+        resets = clock.resets
         while True:
             self.tick()
+            if clock.resets != resets:
+                # A new simulation run woke us (or started while we ticked): its time sets
+                # the schedule, not the old run's deadline (which might lie hours ahead).
+                resets = clock.resets
+                deadline = clock.now_ns()
             deadline += period_ns
             now = clock.now_ns()
             if now >= deadline:

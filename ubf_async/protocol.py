@@ -314,7 +314,8 @@ SCHEMAS: dict[str, Check] = {
          "running": text(8, choices=("yes", "no"))},
         optional=("restarts", "loop_lag_s", "running"),
     ),
-    "clock": record({"real_time_factor": number(0.0, 1e6)}, optional=("real_time_factor",)),
+    "clock": record({"real_time_factor": number(0.0, 1e6), "epoch": text(64)},
+                    optional=("real_time_factor", "epoch")),
 }
 """Known schemas and their data checks. Unknown schemas are accepted with :func:`plain`
 checks only, so anyone can add a new kind of sensor without changing this module."""

@@ -797,7 +797,9 @@ def remote_parser(
 async def choose_clock(bus: Bus, mode: str, *, wait_s: float = 1.0) -> Clock:
     """The clock a remote process stamps with: wall, or the simulation time that a simulator
     publishes on ``ubf/<robot>/clock`` (``auto``: sim if a clock sample arrives within
-    ``wait_s``). Sets ``bus.clock`` and returns it."""
+    ``wait_s``), followed under :class:`~ubf_async.timesource.ClockFollower`'s rules (one
+    run at a time, never backwards, no implausible jumps). Sets ``bus.clock`` and returns
+    it."""
     if mode == "wall":
         return bus.clock
     sim = SimClock()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from components.motors.component import DEFAULT_TIMEOUT_S
 from components.standalone import add_backend_argument, run_device
 
 
@@ -12,7 +13,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("motors")
     group.add_argument("--name", default="main",
                        help="publishes what it applied on ubf/<robot>/sensor/motors/<name>")
-    group.add_argument("--timeout-s", type=float, default=0.2,
+    group.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S,
                        help="stop the wheels when no drive command arrived for this long")
     add_backend_argument(group, "motors", default="sim",
                          help="sim: drive the running simulator's motors over the bus")
@@ -25,7 +26,7 @@ def device_params(args: argparse.Namespace) -> dict[str, Any]:
 def main() -> int:
     return run_device(kind="motors", prog="python -m components.motors",
                       description="The Mini-WHEGS motor driver (cmd/drive → PWM) as its own "
-                                  "process, with the 200 ms command watchdog.",
+                                  "process, with the command watchdog.",
                       add_arguments=add_arguments, device_params=device_params)
 
 

@@ -5,15 +5,26 @@
   refuses non-finite ones).
 * Maps speed/turn to per-motor pulse widths through each motor's calibration table and
   applies them through its :class:`~components.motors.backend.MotorBackend`.
-* **Watchdog:** if no valid drive command has arrived for ``timeout_s`` (robot clock,
-  default 200 ms), it applies the stop pulse — a controller that dies cannot leave the
-  robot driving.
+* **Watchdog:** if no valid drive command has arrived for ``timeout_s`` (default
+  :data:`DEFAULT_TIMEOUT_S`, 150 ms), it applies the stop pulse — a controller that dies
+  cannot leave the robot driving. The deadline follows
+  :class:`~ubf_async.clock.SilenceLimit`: ``timeout_s`` of robot time, or of wall time while
+  the robot clock is stalled (simulated time stopped), or ``timeout_s / 0.2`` of wall time in
+  any case. A new simulation run (the clock reset) also stops the wheels: a command of the
+  old run does not hold in the new one.
+
+  Why 150 ms: the goal is that the wheels stop at most :data:`STOP_GOAL_S` (200 ms) after
+  the last command was *sent*; the timeout runs from its *arrival*, and the stop is
+  applied and reported after a timer wake-up on a loaded event loop. 50 ms is left for
+  delivery and scheduling (``python -m bench.margins`` measures the whole path), while a
+  controller at 50 Hz still has 7 command periods of slack before a spurious stop.
 * Publishes what it applied on ``ubf/<robot>/sensor/motors/<name>`` (schema
   ``motors.applied``), including each wheel's commanded direction, which the encoders use.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from typing import Annotated
 
@@ -30,9 +41,15 @@ from components.motors.pwm import (
     pulse_widths,
 )
 from ubf_async.bus import Bus, decode_or_count
+from ubf_async.clock import SilenceLimit, sleep_until
 from ubf_async.component import Component
 
 log = logging.getLogger(__name__)
+
+DEFAULT_TIMEOUT_S = 0.15
+"""The command watchdog's default timeout (see the module docstring for the choice)."""
+STOP_GOAL_S = 0.2
+"""How soon after the last command is sent the wheels must have stopped, end to end."""
 
 
 class MotorsComponent(Component):
@@ -42,7 +59,7 @@ class MotorsComponent(Component):
         bus: Bus,
         backend: MotorBackend,
         name: str = "main",
-        timeout_s: float = 0.2,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
         left: MotorCalibration = DEFAULT_LEFT_CALIBRATION,
         right: MotorCalibration = DEFAULT_RIGHT_CALIBRATION,
         **component_options: float,
@@ -60,7 +77,11 @@ class MotorsComponent(Component):
         self.timeouts = 0
         self.applied: PulseCommand | None = None
         self.stopped_by_watchdog = True
+        self.limit = SilenceLimit(limit_s=timeout_s)
         self._last_command_ns: int | None = None
+        self._last_command_wall_ns = 0
+        self._command_resets = 0
+        self._armed = asyncio.Event()
 
     async def run(self) -> None:
         keys = self.bus.keys
@@ -70,22 +91,33 @@ class MotorsComponent(Component):
         # Arm the drivers with the init pulse (inside both dead zones), then hold still.
         self.backend.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
         self._apply(0.0, 0.0, reason="init")
+        self.stopped_by_watchdog = True
         self.subscribe(keys.cmd("drive"), self._on_drive)
         clock = self.bus.clock
-        timeout_ns = int(self.timeout_s * 1e9)
+        timeout_ns = round(self.timeout_s * 1e9)
         while True:
             last = self._last_command_ns
             if last is None or self.stopped_by_watchdog:
-                await clock.sleep(self.timeout_s / 4)  # nothing to guard until a command
+                self._armed.clear()
+                await self._armed.wait()  # nothing to guard until a command arrives
                 continue
-            now = clock.now_ns()
-            if now - last >= timeout_ns:
-                self.timeouts += 1
-                self.stopped_by_watchdog = True
-                log.warning("no drive command for %.0f ms: stopping", (now - last) / 1e6)
-                self._apply(0.0, 0.0, reason="timeout")
+            if clock.resets != self._command_resets:
+                self._stop("clock_reset", "the clock was reset to a new run")
                 continue
-            await clock.sleep_until_ns(last + timeout_ns)  # re-checked: a newer command moves it
+            if self.limit.expired(clock, since_ns=last, since_wall_ns=self._last_command_wall_ns):
+                quiet_ms = (clock.now_ns() - last) / 1e6
+                self._stop("timeout", f"no drive command for {quiet_ms:.0f} ms (robot time)")
+                continue
+            # Re-checked on waking: a newer command moves both deadlines.
+            wall_deadline = self.limit.wall_deadline_ns(
+                clock, since_wall_ns=self._last_command_wall_ns)
+            await sleep_until(clock, last + timeout_ns, wall_deadline_ns=wall_deadline)
+
+    def _stop(self, reason: str, why: str) -> None:
+        self.timeouts += 1
+        self.stopped_by_watchdog = True
+        log.warning("%s: stopping", why)
+        self._apply(0.0, 0.0, reason=reason)
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key, schema="drive")
@@ -95,8 +127,12 @@ class MotorsComponent(Component):
         safe_speed, safe_turn = clamp_command(speed, turn)
         if (safe_speed, safe_turn) != (speed, turn):
             self.clamped += 1
-        self._last_command_ns = self.bus.clock.now_ns()
+        clock = self.bus.clock
+        self._last_command_ns = clock.now_ns()
+        self._last_command_wall_ns = received_ns
+        self._command_resets = clock.resets
         self.stopped_by_watchdog = False
+        self._armed.set()
         self._apply(safe_speed, safe_turn, reason="command")
 
     def _apply(self, speed: float, turn: float, *, reason: str) -> None:
@@ -116,8 +152,9 @@ def build_device(
     bus: Bus,
     name: str,
     backend: MotorBackend,
-    timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 0.2,
+    timeout_s: Annotated[float, msgspec.Meta(gt=0)] = DEFAULT_TIMEOUT_S,
 ) -> MotorsComponent:
     """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
-    wheels when no drive command arrived for ``timeout_s`` (robot clock)."""
+    wheels when no drive command arrived for ``timeout_s`` (robot clock; also in wall time
+    when the clock stalls, see :class:`~ubf_async.clock.SilenceLimit`)."""
     return MotorsComponent(bus=bus, backend=backend, name=name, timeout_s=timeout_s)

@@ -3,7 +3,9 @@
 :class:`SimulatorComponent` steps the :class:`~components.sim.world.World` in fixed steps,
 paced to ``speed`` × real time (``--speed K``), advances the shared
 :class:`~ubf_async.clock.SimClock` of its process and publishes the time on
-``ubf/<robot>/clock`` so components in other processes follow it. It also publishes ground
+``ubf/<robot>/clock`` so components in other processes follow it, with this run's random
+``epoch`` (a new one for each simulator component: followers tell runs apart by it, see
+:mod:`ubf_async.timesource`). It also publishes ground
 truth (robot pose, ball position) on ``ubf/<robot>/sim/truth`` — outside ``sensor/``, so
 behaviours never see it; tests and tools do — and the whole world snapshot on
 ``ubf/<robot>/sim/world``, from which sim-backed devices started in other processes
@@ -36,6 +38,7 @@ file.
 from __future__ import annotations
 
 import asyncio
+import secrets
 import time
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -81,6 +84,9 @@ class SimulatorComponent(Component):
         self.truth_period_s = truth_period_s
         self.world_period_s = world_period_s
         self.malformed: dict[str, int] = {}
+        self.epoch = secrets.token_hex(8)
+        """This run's id on ``ubf/<robot>/clock``: the same across restarts of the component
+        (its time goes on), a new one for every simulator."""
         self.wall_started_s: float | None = None
         self.wall_stopped_s: float | None = None
         self.sim_started_s = world.time_s
@@ -159,7 +165,8 @@ class SimulatorComponent(Component):
                 self.rtf_windows.append((now_s - window_sim_s) / (wall_s - window_wall_s))
                 window_wall_s, window_sim_s = wall_s, now_s
             rtf = self.real_time_factor()
-            clock_pub.publish({"real_time_factor": rtf or 0.0}, stamp_ns=now_ns)
+            clock_pub.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch},
+                              stamp_ns=now_ns)
             # Truth and the world snapshot cost encoding time on the loop: build them only
             # when some process listens (zenoh knows its matching subscribers).
             if now_s >= next_truth_s:

@@ -1,0 +1,405 @@
+"""Time you can trust: only the robot's simulator moves simulated time, a new run is
+recognised by everyone, and safety deadlines hold in wall time when simulated time stops.
+
+The policy (:class:`~ubf_async.timesource.ClockFollower`) and the deadline rule
+(:class:`~ubf_async.clock.SilenceLimit`) are unit-tested; the rest runs real processes on
+loopback zenoh: a simulator in this process, devices and a controller in their own, and an
+outsider publishing plain zenoh + msgpack.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from components.motors.component import DEFAULT_TIMEOUT_S
+from components.sim.world import Arena, WorldConfig
+from tests.conftest import SimRobot, eventually
+from ubf_async.bus import Bus, follow_sim_clock
+from ubf_async.clock import SilenceLimit, SimClock, every
+from ubf_async.protocol import decode
+from ubf_async.timesource import ClockAction, ClockFollower
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+S = 1_000_000_000  # one second in ns
+
+
+def floor() -> WorldConfig:
+    return WorldConfig(arena=Arena(x_min_m=-5, x_max_m=5, y_min_m=-5, y_max_m=5))
+
+
+# ---------------------------------------------------------------------------------------------
+# The follower's policy, without a bus
+
+
+def test_follower_locks_the_first_epoch_and_never_goes_back() -> None:
+    f = ClockFollower()
+    assert f.offer(stamp_ns=5 * S, epoch="a", wall_ns=0).action is ClockAction.ADVANCE
+    assert f.epoch == "a" and f.runs == 1
+    assert f.offer(stamp_ns=5 * S + 10, epoch="a", wall_ns=1).action is ClockAction.ADVANCE
+    assert f.offer(stamp_ns=5 * S + 10, epoch="a", wall_ns=2).action is ClockAction.ADVANCE
+    verdict = f.offer(stamp_ns=4 * S, epoch="a", wall_ns=3)
+    assert verdict.action is ClockAction.REFUSE and verdict.reason == "backwards"
+    assert f.last_stamp_ns == 5 * S + 10 and f.refused == {"backwards": 1}
+
+
+def test_follower_refuses_implausible_jumps_but_not_a_fast_simulator() -> None:
+    f = ClockFollower(max_speed=100.0, slack_s=0.5)
+    f.offer(stamp_ns=0, epoch="a", wall_ns=0)
+    # 100x for 10 ms of wall time is 1 s, plus 0.5 s slack: 1.4 s goes, 1.6 s does not.
+    assert f.offer(stamp_ns=2**62, epoch="a", wall_ns=10_000_000).reason == "implausible jump"
+    assert f.offer(stamp_ns=1_600_000_000, epoch="a",
+                   wall_ns=10_000_000).reason == "implausible jump"
+    assert f.offer(stamp_ns=1_400_000_000, epoch="a",
+                   wall_ns=10_000_000).action is ClockAction.ADVANCE
+    # After a long silence of the simulator itself, a matching jump is plausible.
+    assert f.offer(stamp_ns=101 * S, epoch="a", wall_ns=1_010_000_000).action is ClockAction.ADVANCE
+
+
+def test_another_epoch_takes_over_only_after_the_current_one_fell_silent() -> None:
+    f = ClockFollower(takeover_s=1.0)
+    f.offer(stamp_ns=100 * S, epoch="old", wall_ns=0)
+    f.offer(stamp_ns=100 * S + 1, epoch="old", wall_ns=S // 2)
+    for epoch in ("new", None):  # a sample without an epoch is just another epoch
+        verdict = f.offer(stamp_ns=S, epoch=epoch, wall_ns=S)  # old heard 0.5 s ago
+        assert verdict.action is ClockAction.REFUSE and verdict.reason == "other epoch"
+    assert f.epoch == "old"
+    # The old run silent for 1 s (wall): the new one is a new run, and time may go back.
+    assert f.offer(stamp_ns=S, epoch="new", wall_ns=S // 2 + S).action is ClockAction.RESET
+    assert (f.epoch, f.runs, f.last_stamp_ns) == ("new", 2, S)
+    assert f.offer(stamp_ns=200 * S, epoch="old", wall_ns=2 * S).reason == "other epoch"
+    assert f.offer(stamp_ns=S + 5, epoch="new", wall_ns=2 * S).action is ClockAction.ADVANCE
+
+
+def test_a_pinned_epoch_is_the_only_one_ever_followed() -> None:
+    f = ClockFollower(epoch="mine")
+    assert f.offer(stamp_ns=S, epoch="other", wall_ns=0).reason == "other epoch"
+    assert not f.locked
+    assert f.offer(stamp_ns=2 * S, epoch="mine", wall_ns=1).action is ClockAction.ADVANCE
+    assert f.offer(stamp_ns=S, epoch="other", wall_ns=100 * S).reason == "other epoch"
+
+
+def test_refusals_are_counted_and_logged_first_and_every_100th(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    f = ClockFollower()
+    f.offer(stamp_ns=S, epoch="a", wall_ns=0)
+    with caplog.at_level(logging.WARNING, logger="ubf_async.timesource"):
+        for i in range(250):
+            f.offer(stamp_ns=0, epoch="a" if i % 2 else "b", wall_ns=1)
+    assert f.refused == {"backwards": 125, "other epoch": 125} and f.refused_total == 250
+    assert len([r for r in caplog.records if "refused clock sample" in r.message]) == 3
+
+
+def test_follower_rejects_nonsense_settings() -> None:
+    for bad in ({"takeover_s": 0}, {"max_speed": -1}, {"slack_s": -0.1}):
+        with pytest.raises(ValueError):
+            ClockFollower(**bad)  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# The clock: resets wake sleepers and re-anchor periodic loops; the deadline rule
+
+
+@pytest.mark.asyncio
+async def test_a_reset_wakes_sleepers_and_reanchors_every() -> None:
+    clock = SimClock(start_ns=1000 * S)
+    ticks: list[int] = []
+
+    async def loop() -> None:
+        async for stamp in every(clock, 0.1):
+            ticks.append(stamp)
+
+    task = asyncio.create_task(loop())
+    await eventually(lambda: ticks == [1000 * S])
+    sleeper = asyncio.create_task(clock.sleep_until_ns(2000 * S))
+    await asyncio.sleep(0)
+    clock.reset_to(3 * S)  # a new run, far earlier
+    await asyncio.wait_for(sleeper, 1)
+    await eventually(lambda: len(ticks) == 2)
+    assert ticks[1] == 3 * S and clock.resets == 1
+    clock.advance_to(3 * S + 99_000_000)
+    for _ in range(5):
+        await asyncio.sleep(0)
+    assert len(ticks) == 2  # the next tick is due 0.1 s after the new run's start, not before
+    clock.advance_to(3 * S + 100_000_000)
+    await eventually(lambda: len(ticks) == 3)
+    assert ticks[2] == 3 * S + 100_000_000
+    task.cancel()
+
+
+class FakeClock:
+    """A clock whose robot time and stall are set by the test."""
+
+    resets = 0
+
+    def __init__(self) -> None:
+        self.now = 0
+        self.stalled = 0.0
+
+    def now_ns(self) -> int:
+        return self.now
+
+    def stalled_s(self, wall_now_ns: int | None = None) -> float:
+        return self.stalled
+
+
+def test_silence_limit_robot_time_stall_and_backstop() -> None:
+    limit = SilenceLimit(limit_s=0.15)
+    clock = FakeClock()
+
+    def expired(robot_s: float, wall_s: float, stalled_s: float) -> bool:
+        clock.now, clock.stalled = round(robot_s * S), stalled_s
+        return limit.expired(clock, since_ns=0, since_wall_ns=0,  # type: ignore[arg-type]
+                             wall_now_ns=round(wall_s * S))
+
+    assert expired(0.15, 0.15, 0.0)  # (a) robot time
+    assert not expired(0.14, 0.14, 0.0)
+    # A simulation at 0.2x real time: 0.7 s of wall time, 0.14 s simulated, clock running.
+    assert not expired(0.14, 0.7, 0.025)
+    assert expired(0.0, 0.15, 0.15)  # (b) simulated time stopped: 0.15 s of wall time
+    assert not expired(0.0, 0.15, 0.1)
+    assert expired(0.01, 0.75, 0.0)  # (c) backstop: 0.15 / 0.2 = 0.75 s of wall time
+    # When to re-check: robot time gives no wake-up while the clock stalls.
+    clock.stalled = 0.05
+    assert limit.wall_deadline_ns(clock, since_wall_ns=0,  # type: ignore[arg-type]
+                                  wall_now_ns=S // 10) == 200_000_000
+    with pytest.raises(ValueError):
+        SilenceLimit(limit_s=0)
+
+
+def test_sim_clock_stall_is_measured_in_wall_time_except_while_held() -> None:
+    clock = SimClock()
+    clock.advance_to(S)
+    t = time.monotonic_ns()
+    assert clock.stalled_s(t + 2 * S) >= 2.0
+    hold = clock.hold(2 * S)
+    assert clock.stalled_s(t + 2 * S) == 0.0  # held on purpose by this process: no stall
+    hold.release()
+    clock.advance_to(2 * S)
+    assert clock.stalled_s(time.monotonic_ns()) < 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Separate processes: an outsider's clock messages move nothing
+
+OUTSIDER = r"""
+import json, sys, time
+import msgpack, zenoh
+endpoint, key, messages = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+session = zenoh.open(conf)
+pub = session.declare_publisher(key)
+deadline = time.monotonic() + 10
+while not pub.matching_status.matching and time.monotonic() < deadline:
+    time.sleep(0.01)
+for _ in range(5):
+    for m in messages:
+        pub.put(msgpack.packb(m))
+        time.sleep(0.01)
+print("sent", flush=True)
+session.close()
+"""
+
+
+def clock_message(stamp_ns: int, data: dict[str, object]) -> dict[str, object]:
+    return {"schema": "clock", "v": 1, "stamp_ns": stamp_ns, "seq": 1, "data": data}
+
+
+async def outsider(endpoint: str, key: str, messages: list[dict[str, object]]) -> None:
+    """Publish ``messages`` on ``key`` from another process (plain zenoh + msgpack)."""
+    import json
+
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-c", OUTSIDER, endpoint, key, json.dumps(messages), cwd=ROOT, env=ENV,
+        stdout=asyncio.subprocess.PIPE)
+    out, _ = await asyncio.wait_for(proc.communicate(), 30)
+    assert proc.returncode == 0 and b"sent" in out
+
+
+def attacks(epoch: str) -> list[dict[str, object]]:
+    huge = 2**62
+    return [
+        clock_message(huge, {"epoch": "not-the-simulator"}),
+        clock_message(huge, {}),  # no epoch at all
+        clock_message(huge, {"epoch": epoch, "real_time_factor": 1.0}),  # right epoch, jump
+    ]
+
+
+async def witness_refusals(peer_bus: Bus, endpoint: str, epoch: str) -> ClockFollower:
+    """Send the attacks while a follower in this process watches: it proves they were
+    delivered on the bus (and refused) — the same samples the process under test received."""
+    witness = ClockFollower(name="witness")
+    follow_sim_clock(peer_bus, SimClock(), {}, follower=witness)
+    await eventually(lambda: witness.locked, what="the witness to lock onto the simulator")
+    await outsider(endpoint, peer_bus.keys.clock, attacks(epoch))
+    await eventually(lambda: witness.refused["other epoch"] >= 2
+                     and witness.refused["implausible jump"] >= 1,
+                     what="the witness to see the outsider's samples")
+    assert witness.epoch == epoch
+    return witness
+
+
+def start(*args: str) -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, *args], cwd=ROOT, env=ENV,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def finish(proc: subprocess.Popen[bytes]) -> None:
+    proc.kill()
+    proc.wait(timeout=20)
+
+
+async def drive_then_stop(peer_bus: Bus, seconds: float) -> float:
+    """Publish drive commands at 50 Hz (wall) for ``seconds``; return when the last was sent
+    (host monotonic seconds)."""
+    pub = peer_bus.publisher(peer_bus.keys.cmd("drive"), "drive")
+    await pub.wait_for_subscribers()
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pub.publish({"speed": 40.0, "turn": 0.0})
+        await asyncio.sleep(0.02)
+    pub.publish({"speed": 40.0, "turn": 0.0})
+    last = time.monotonic()
+    pub.close()
+    return last
+
+
+@pytest.mark.asyncio
+async def test_outsider_clock_cannot_disable_a_standalone_motors_watchdog(
+    robot_bus: Bus, peer_bus: Bus, endpoint: str, robot: str
+) -> None:
+    applied: list[tuple[int, str]] = []
+    robot_bus.subscribe(robot_bus.keys.sensor("motors", "main"),
+                        lambda k, p, t: applied.append((decode(p).stamp_ns,
+                                                        decode(p).data["reason"])),
+                        latest=False)
+    async with SimRobot(robot_bus, floor(), speed=1, devices=()) as sim:
+        motors = start("-m", "components.motors", "--connect", endpoint, "--robot", robot)
+        try:
+            await eventually(lambda: any(r == "init" for _, r in applied), timeout_s=30,
+                             what="the motors process to attach")
+            await drive_then_stop(peer_bus, 0.2)
+            await eventually(lambda: applied[-1][1] == "timeout", what="a first watchdog stop")
+            await witness_refusals(peer_bus, endpoint, sim.sim.epoch)
+            before = len(applied)
+            await drive_then_stop(peer_bus, 0.3)
+            await eventually(lambda: len(applied) > before and applied[-1][1] == "timeout",
+                             what="the watchdog to stop the wheels after the attack")
+        finally:
+            finish(motors)
+        # The motors' clock followed the simulator throughout, never the outsider's time.
+        now = sim.clock.now_ns()
+        assert all(stamp <= now for stamp, _ in applied), applied[-3:]
+        commands = [stamp for stamp, reason in applied[before:] if reason == "command"]
+        gap_s = (applied[-1][0] - commands[-1]) / 1e9
+        assert DEFAULT_TIMEOUT_S - 0.01 <= gap_s <= DEFAULT_TIMEOUT_S + 0.2, gap_s
+
+
+@pytest.mark.asyncio
+async def test_outsider_clock_cannot_freeze_a_sim_time_controller(
+    robot_bus: Bus, peer_bus: Bus, endpoint: str, robot: str
+) -> None:
+    drives: list[int] = []
+    async with SimRobot(robot_bus, floor(), speed=1, devices=("motors",)) as sim:
+        robot_bus.subscribe(robot_bus.keys.cmd("drive"),
+                            lambda k, p, t: drives.append(decode(p).stamp_ns), latest=False)
+        controller = start("-m", "ubf_async.launch", "--no-sim", "--sim-time", "--connect",
+                           endpoint, "--robot", robot, "--quiet", "--listen",
+                           "tcp/127.0.0.1:0")
+        try:
+            await eventually(lambda: len(drives) >= 10, timeout_s=30,
+                             what="the controller to tick on simulated time")
+            await witness_refusals(peer_bus, endpoint, sim.sim.epoch)
+            after_attack = len(drives)
+            # Still ticking at 50 Hz of simulated time: 25 more ticks take 0.5 s.
+            await eventually(lambda: len(drives) >= after_attack + 25, timeout_s=10,
+                             what="the controller to keep ticking after the attack")
+        finally:
+            finish(controller)
+        now = sim.clock.now_ns()
+        assert all(stamp <= now for stamp in drives)
+        assert drives[-1] > drives[after_attack - 1]
+
+
+@pytest.mark.asyncio
+async def test_a_restarted_simulator_is_followed_and_sensors_resume(
+    robot_bus: Bus, endpoint: str, robot: str
+) -> None:
+    """A range finder in its own process keeps publishing when the simulator is replaced by
+    a new run whose time starts again at 0 (before: silent for the old run's whole time)."""
+    samples: list[int] = []
+    robot_bus.subscribe(robot_bus.keys.sensor("range", "front"),
+                        lambda k, p, t: samples.append(decode(p).stamp_ns), latest=False)
+    async with SimRobot(robot_bus, floor(), speed=20, devices=()) as first:
+        sensor = start("-m", "components.range", "--connect", endpoint, "--robot", robot)
+        try:
+            await eventually(lambda: len(samples) >= 3, timeout_s=30,
+                             what="the range finder to publish on the first run's time")
+            await eventually(lambda: first.clock.now_ns() >= 20 * S, timeout_s=10,
+                             what="20 s of simulated time")
+            old_end = first.clock.now_ns()
+        except BaseException:
+            finish(sensor)
+            raise
+    try:
+        async with SimRobot(robot_bus, floor(), speed=1, devices=()) as second:
+            assert second.sim.epoch != first.sim.epoch
+            await eventually(lambda: any(stamp < old_end / 2 for stamp in samples[-3:]),
+                             timeout_s=10,
+                             what="samples stamped with the new run's time")
+            n = len(samples)
+            await eventually(lambda: len(samples) >= n + 3, timeout_s=5,
+                             what="the range finder to keep publishing on the new run")
+            assert samples[-1] <= second.clock.now_ns()
+    finally:
+        finish(sensor)
+
+
+@pytest.mark.asyncio
+async def test_motors_stop_in_wall_time_when_simulated_time_stops(
+    robot_bus: Bus, peer_bus: Bus, endpoint: str, robot: str
+) -> None:
+    applied: list[tuple[float, str]] = []
+    robot_bus.subscribe(robot_bus.keys.sensor("motors", "main"),
+                        lambda k, p, t: applied.append((time.monotonic(),
+                                                        decode(p).data["reason"])),
+                        latest=False)
+    sim = SimRobot(robot_bus, floor(), speed=1, devices=())
+    await sim.__aenter__()
+    sim_running = True
+    motors = start("-m", "components.motors", "--connect", endpoint, "--robot", robot)
+    try:
+        await eventually(lambda: any(r == "init" for _, r in applied), timeout_s=30,
+                         what="the motors process to attach")
+        pub = peer_bus.publisher(peer_bus.keys.cmd("drive"), "drive")
+        await pub.wait_for_subscribers()
+        for _ in range(10):
+            pub.publish({"speed": 40.0, "turn": 0.0})
+            await asyncio.sleep(0.02)
+        await eventually(lambda: applied[-1][1] == "command", what="the wheels to turn")
+        sim_running = False
+        await sim.__aexit__(None, None, None)  # simulated time stops here, for good
+        pub.publish({"speed": 40.0, "turn": 0.0})
+        last_s = time.monotonic()
+        limit = SilenceLimit(limit_s=DEFAULT_TIMEOUT_S)
+        await eventually(lambda: applied[-1][1] == "timeout", timeout_s=limit.backstop_s + 1,
+                         what="the watchdog to stop the wheels in wall time")
+        stopped_after_s = applied[-1][0] - last_s
+        # Rule (b): no command and no clock for timeout_s of wall time (sanity bound only).
+        assert stopped_after_s <= limit.backstop_s + 0.25, stopped_after_s
+    finally:
+        finish(motors)
+        if sim_running:
+            await sim.__aexit__(None, None, None)
