@@ -6,18 +6,20 @@
 * Maps speed/turn to per-motor pulse widths through each motor's calibration table and
   applies them through its :class:`~components.motors.backend.MotorBackend`.
 * **Watchdog:** if no valid drive command has arrived for ``timeout_s`` (default
-  :data:`DEFAULT_TIMEOUT_S`, 150 ms), it applies the stop pulse — a controller that dies
+  :data:`DEFAULT_TIMEOUT_S`, 110 ms), it applies the stop pulse — a controller that dies
   cannot leave the robot driving. The deadline follows
   :class:`~ubf_async.clock.SilenceLimit`: ``timeout_s`` of robot time, or of wall time while
   the robot clock is stalled (simulated time stopped), or ``timeout_s / 0.2`` of wall time in
   any case. A new simulation run (the clock reset) also stops the wheels: a command of the
   old run does not hold in the new one.
 
-  Why 150 ms: the goal is that the wheels stop at most :data:`STOP_GOAL_S` (200 ms) after
-  the last command was *sent*; the timeout runs from its *arrival*, and the stop is
-  applied and reported after a timer wake-up on a loaded event loop. 50 ms is left for
-  delivery and scheduling (``python -m bench.margins`` measures the whole path), while a
-  controller at 50 Hz still has 7 command periods of slack before a spurious stop.
+  Why 110 ms: the goal is that the wheels stop at most :data:`STOP_GOAL_S` (200 ms) after
+  the last command was *sent*. Two failures bound the timeout ``T``: a late stop, when
+  ``T`` + the delivery and wake-up lag exceeds the goal, and a spurious stop, when a 50 Hz
+  controller's command period (20 ms) + the same lag exceeds ``T``. ``T = (200 + 20) / 2``
+  leaves both 90 ms of lag; the watchdog sleeps until the exact deadline (no polling), so
+  on an idle host the stop comes ≈ ``T`` + 1–2 ms after the last command
+  (``python -m bench.margins`` measures it end to end).
 * Publishes what it applied on ``ubf/<robot>/sensor/motors/<name>`` (schema
   ``motors.applied``), including each wheel's commanded direction, which the encoders use.
 """
@@ -46,7 +48,7 @@ from ubf_async.component import Component
 
 log = logging.getLogger(__name__)
 
-DEFAULT_TIMEOUT_S = 0.15
+DEFAULT_TIMEOUT_S = 0.11
 """The command watchdog's default timeout (see the module docstring for the choice)."""
 STOP_GOAL_S = 0.2
 """How soon after the last command is sent the wheels must have stopped, end to end."""
