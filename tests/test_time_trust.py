@@ -136,6 +136,28 @@ async def test_a_reset_wakes_sleepers_and_reanchors_every() -> None:
     task.cancel()
 
 
+@pytest.mark.asyncio
+async def test_the_controllers_periodic_ticks_reanchor_on_a_new_run(robot_bus: Bus) -> None:
+    from ubf_async.aggregator import StateAggregator
+    from ubf_async.behavior import FunctionBehavior
+    from ubf_async.controller import Controller
+
+    clock = SimClock(start_ns=1000 * S)
+    robot_bus.clock = clock
+    agg = StateAggregator(bus=robot_bus)
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=FunctionBehavior(lambda s: None),
+                     rate_hz=50)
+    async with agg, ctl:
+        await eventually(lambda: ctl.stats.ticks == 1, what="the first tick")
+        clock.reset_to(5 * S)  # the old run's next tick was due at 1000.02 s
+        await eventually(lambda: ctl.stats.ticks == 2, what="a tick at the new run's start")
+        for step in range(1, 6):
+            clock.advance_to(5 * S + step * 20_000_000)
+            await eventually(lambda step=step: ctl.stats.ticks == 2 + step,
+                             what=f"tick {step} of the new run")
+    assert list(ctl.stats.tick_starts_ns)[1:] == [5 * S + i * 20_000_000 for i in range(6)]
+
+
 class FakeClock:
     """A clock whose robot time and stall are set by the test."""
 
