@@ -57,7 +57,7 @@ def test_every_device_kind_loads_with_its_parameters() -> None:
 
 def test_device_defaults_are_the_thesis_robot() -> None:
     assert msgspec.convert({}, device_parameters("camera")).latency_s == 0.11  # type: ignore[attr-defined]
-    assert msgspec.convert({}, device_parameters("motors")).timeout_s == 0.2  # type: ignore[attr-defined]
+    assert msgspec.convert({}, device_parameters("motors")).timeout_s == 0.11  # type: ignore[attr-defined]
     assert msgspec.convert({}, device_parameters("range")).model == "ir-10-80"  # type: ignore[attr-defined]
 
 

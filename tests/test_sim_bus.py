@@ -17,6 +17,7 @@ import msgpack
 import numpy as np
 import pytest
 
+from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.component import DEVICES
 from components.sim.world import Arena, BallConfig, Pose2D, WorldConfig
 from tests.conftest import SimRobot, eventually
@@ -198,7 +199,8 @@ async def test_watchdog_stops_the_wheels_when_the_controller_is_killed(
         assert (stop["speed"], stop["turn"]) == (0.0, 0.0)
         assert sim.world.motor_pulses == pytest.approx((1.55, 1.55))
         gap_s = (stop_ns - drives[-1]) / 1e9
-        assert 0.2 - 0.01 <= gap_s <= 0.2 + 0.03, f"stopped {gap_s:.3f} s after the last command"
+        assert DEFAULT_TIMEOUT_S - 0.01 <= gap_s <= DEFAULT_TIMEOUT_S + 0.03, (
+            f"stopped {gap_s:.3f} s after the last command")
 
 
 class GatedPrepare:
