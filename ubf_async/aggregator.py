@@ -36,6 +36,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+from array import array
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -65,6 +66,59 @@ MAX_MALFORMED_KEYS = 1024
 """Keys whose malformed-sample counts are kept (the oldest key's count goes first)."""
 
 Listener = Callable[[str, "SourceEntry"], None]
+
+
+class RecentCounts:
+    """Roughly how many samples each source name sent in the last one to two windows.
+
+    A count-min sketch (fixed memory, whatever the number of names): ``rows`` arrays of
+    ``width`` counters, two windows (this one and the last) rolled every ``window_ns`` of
+    the robot clock. A flood of distinct junk names adds about ``flood / width`` to every
+    estimate per window, far below a real sensor's own rate; the aggregator uses it so that
+    a name seen once does not push out a source that keeps publishing.
+    """
+
+    __slots__ = ("_current", "_previous", "_seeds", "_width", "_window_ns", "_window_start")
+
+    def __init__(self, *, width: int = 16384, rows: int = 2, window_ns: int = 10**9) -> None:
+        self._width = width
+        self._window_ns = window_ns
+        self._seeds = tuple(range(rows))
+        self._current = [array("I", bytes(4 * width)) for _ in self._seeds]
+        self._previous = [array("I", bytes(4 * width)) for _ in self._seeds]
+        self._window_start = 0
+
+    def _roll(self, now_ns: int) -> None:
+        elapsed = now_ns - self._window_start
+        if 0 <= elapsed < self._window_ns:
+            return
+        if 0 <= elapsed < 2 * self._window_ns:
+            self._previous, self._current = self._current, self._previous
+        else:  # two windows or more (or a clock that went back): forget everything
+            for counters in self._previous:
+                counters[:] = array("I", bytes(4 * self._width))
+        for counters in self._current:
+            counters[:] = array("I", bytes(4 * self._width))
+        self._window_start = now_ns
+
+    def add(self, name: str, now_ns: int) -> int:
+        """Count one sample of ``name``; returns its estimate including this one."""
+        return self._count(name, now_ns, 1)
+
+    def estimate(self, name: str, now_ns: int) -> int:
+        """Samples of ``name`` in this window and the last (never less than the truth)."""
+        return self._count(name, now_ns, 0)
+
+    def _count(self, name: str, now_ns: int, add: int) -> int:
+        self._roll(now_ns)
+        estimate = 1 << 33
+        for seed, current, previous in zip(self._seeds, self._current, self._previous,
+                                           strict=True):
+            i = hash((seed, name)) % self._width
+            if add and current[i] < 0xFFFFFFFF:
+                current[i] += add
+            estimate = min(estimate, current[i] + previous[i])
+        return estimate
 
 
 @dataclass
@@ -138,6 +192,7 @@ class StateAggregator(Component):
         self.protected_sources = frozenset(protected_sources)
         self.max_sources = max_sources
         self.entries: dict[str, SourceEntry] = {}
+        self._recent = RecentCounts()
         self._silence: OrderedDict[str, None] = OrderedDict()
         """Unprotected sources, the one silent longest first (eviction order)."""
         self.malformed: dict[str, int] = {}
@@ -213,15 +268,17 @@ class StateAggregator(Component):
             return False
         now = self.bus.clock.now_ns()
         entry = self.entries.get(source)
+        count = self._recent.add(source, now)
         if ahead_of_clock(message.stamp_ns, now, self._future_tolerance_ns):
             self._refuse(Refusal.FUTURE, source,
                          f"stamped {(message.stamp_ns - now) / 1e9:.3g}s ahead of the robot "
                          f"clock (tolerance {self.future_tolerance_s:g}s)", entry)
             return False
         if entry is None:
-            if len(self.entries) >= self.max_sources and not self._make_room(source):
+            if len(self.entries) >= self.max_sources and not self._make_room(source, count, now):
                 self._refuse(Refusal.FULL, source,
-                             f"{len(self.entries)} sources held, all protected")
+                             f"{len(self.entries)} sources held, none of them both unprotected "
+                             f"and less busy")
                 return False
             entry = SourceEntry(source, message, received_ns, now)
             entry.order.accept(pub=message.pub, seq=message.seq, stamp_ns=message.stamp_ns)
@@ -265,14 +322,19 @@ class StateAggregator(Component):
         if entry.waiters:  # whoever waits for it still gets its next sample
             self._pending_waiters.setdefault(source, []).extend(entry.waiters)
 
-    def _make_room(self, newcomer: str) -> bool:
-        """Evict the unprotected source silent longest; False if there is none."""
-        self.forget_silent()
+    def _make_room(self, newcomer: str, newcomer_count: int, now_ns: int) -> bool:
+        """Evict the unprotected source silent longest if it has sent fewer samples lately
+        than the newcomer (so a flood of names seen once cannot push out a source that keeps
+        publishing, while a real new sensor gets in by its second sample at the latest);
+        False if nothing may be evicted."""
+        self.forget_silent(now_ns)
         if len(self.entries) < self.max_sources:
             return True
         if not self._silence:
             return False
         victim = next(iter(self._silence))
+        if self._recent.estimate(victim, now_ns) >= newcomer_count:
+            return False
         self._drop(victim)
         self.evicted += 1
         if self.evicted == 1 or self.evicted % 100 == 0:

@@ -84,6 +84,8 @@ class TickStats:
     ticks: int = 0
     triggered: int = 0
     """Ticks run by a sample (reflex, sync or event) rather than the clock."""
+    periodic: int = 0
+    """Ticks run by the clock."""
     overruns: int = 0
     errors: int = 0
     """Ticks on which the root behaviour raised (each commanded a stop)."""
@@ -273,6 +275,7 @@ class Controller(Component):
         state = self.aggregator.snapshot(previous_action=self.last_action)
         self.stats.tick_starts_ns.append(state.now_ns)
         if based_on is None:
+            self.stats.periodic += 1
             self.stats.periodic_starts_ns.append(state.now_ns)
         try:
             trace: Trace | None = self.root.evaluate(state)

@@ -37,7 +37,8 @@ class Refusal(enum.StrEnum):
     NAME_TOO_LONG = "name_too_long"
     """A source name longer than :data:`~ubf_async.protocol.MAX_NAME_CHARS`."""
     FULL = "full"
-    """No room for a new source and nothing that may be evicted."""
+    """No room for a new source: every source held is protected, or has sent at least as
+    many samples lately as the newcomer."""
 
 
 def ahead_of_clock(stamp_ns: int, now_ns: int, tolerance_ns: int) -> bool:
