@@ -50,9 +50,10 @@ from ubf_async.state import Reading, State
 
 log = logging.getLogger(__name__)
 
-MAX_SOURCES = 256
+MAX_SOURCES = 128
 """Sources held at once. A robot has a few dozen; every held source costs each tick a
-reading (1024 sources made a tick ≈ 5 ms), so a flood of junk keys is capped well below."""
+reading (≈ 2.3 µs each: 1024 sources made a tick ≈ 5 ms over zenoh), so a flood of junk
+keys is capped well below that (bench/flood.py measures it)."""
 STALE_PERIODS = 1.5
 """A source declaring ``period_s`` is stale after this many periods without a sample."""
 DEFAULT_FUTURE_TOLERANCE_S = 0.5

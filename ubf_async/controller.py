@@ -7,8 +7,9 @@ Three ways to decide *when* to tick (:class:`TickMode`):
   ``reflex_sources`` (prefixes such as ``"range/"``) also tick it at once when a sample
   arrives, so an obstacle is answered in about a millisecond, not half a period. Reflex
   ticks are rate-limited together by a token bucket (``reflex_rate_hz``, default
-  ``rate_hz``, burst ``reflex_burst``, robot clock): a reflex source flooding the robot
-  cannot make it command more than ``rate_hz + reflex_rate_hz`` times a second; a sample
+  0.8 × ``rate_hz``, burst ``reflex_burst``, robot clock): a reflex source flooding the
+  robot cannot make it command more than ``rate_hz + reflex_rate_hz`` (1.8 × ``rate_hz``)
+  times a second, with a margin below twice its rate; a sample
   that finds the bucket empty is used by the next tick instead (counted in
   ``reflex_limited``).
 * ``sync`` — the thesis's loop: every tick first waits for a *new* sample of
@@ -69,6 +70,8 @@ from ubf_async.protocol import MAX_NAME_CHARS, MAX_WINNERS, clip
 log = logging.getLogger(__name__)
 
 MAX_EXPLANATION_CHARS = 4000
+REFLEX_SHARE = 0.8
+"""Default reflex tick budget as a share of ``rate_hz``."""
 MAX_COUNTED_NAMES = 1024
 """Distinct behaviour names counted in ``winner_ticks`` (later newcomers are not counted)."""
 
@@ -190,7 +193,8 @@ class Controller(Component):
         """The source whose every new sample ticks the controller in ``sync`` mode."""
         self.trigger = trigger
         self.reflex_sources = tuple(reflex_sources)
-        self.reflex_rate_hz = rate_hz if reflex_rate_hz is None else reflex_rate_hz
+        self.reflex_rate_hz = (REFLEX_SHARE * rate_hz if reflex_rate_hz is None
+                               else reflex_rate_hz)
         self.reflex_burst = reflex_burst
         self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
                                           now_ns=bus.clock.now_ns())
