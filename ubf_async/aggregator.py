@@ -5,16 +5,30 @@ without a restart), keeps the newest valid sample per source, and builds a
 :class:`~ubf_async.state.State` snapshot on demand with each source's age and staleness.
 
 A source is **stale** when it has gone quiet: no sample has arrived for longer than its
-limit (robot clock) — the configured ``stale_after_s[source]`` if given, else twice the
-nominal period the sample itself declares (``period_s`` in the envelope), else
-``default_stale_after_s`` — ``None`` by default: a source without a nominal period publishes
-events (a radio message), and its last event stays valid until the next. Staleness counts
-from arrival, not from the sample's stamp, because some sources are old by design when they
-arrive (a camera frame is 0.11 s old when published) and that is not silence; each reading
-still reports its age from its stamp.
+limit (robot clock) — the configured ``stale_after_s[source]`` if given, else
+:data:`STALE_PERIODS` (1.5) times the nominal period the sample itself declares
+(``period_s`` in the envelope), else ``default_stale_after_s`` — ``None`` by default: a
+source without a nominal period publishes events (a radio message), and its last event stays
+valid until the next. Staleness counts from arrival, not from the sample's stamp, because
+some sources are old by design when they arrive (a camera frame is 0.11 s old when
+published) and that is not silence; each reading still reports its age from its stamp.
+1.5 periods, not 2, so that a source is reported stale within 2 of its periods *end to end*
+(its last sample's transit and the next tick come on top of the limit).
 
-Malformed samples are rejected, counted per key and logged (the first and every 100th);
-they never replace a good sample and never stop the aggregator.
+What is refused — each counted and logged (the first and every 100th per reason):
+
+* malformed samples (per key, :attr:`StateAggregator.malformed`);
+* a source name longer than :data:`~ubf_async.protocol.MAX_NAME_CHARS` (the controller
+  copies source names into its commands);
+* a sample stamped more than ``future_tolerance_s`` ahead of the robot clock, and one not
+  newer from its publisher than what is held (:mod:`ubf_async.ordering`): a future stamp
+  cannot pin a source, a replay cannot roll it back;
+* a new source when the table is full and every source in it is protected.
+
+None of them replaces a good sample or stops the aggregator. The table is bounded: a source
+silent for ``forget_after_s`` is forgotten, and when :data:`MAX_SOURCES` sources are held
+a new one evicts the one silent longest — except the ``protected_sources`` (the devices the
+robot declares), which are never forgotten nor evicted.
 """
 
 from __future__ import annotations
@@ -22,19 +36,90 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-from collections.abc import Callable, Mapping
+from array import array
+from collections import Counter, OrderedDict
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 from ubf_async.action import Action
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
-from ubf_async.protocol import Message, ProtocolError
+from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
+from ubf_async.protocol import MAX_NAME_CHARS, Message, ProtocolError
 from ubf_async.state import Reading, State
 
 log = logging.getLogger(__name__)
 
-MAX_SOURCES = 1024
+MAX_SOURCES = 128
+"""Sources held at once. A robot has a few dozen; every held source costs each tick a
+reading (≈ 2.3 µs each: 1024 sources made a tick ≈ 5 ms over zenoh), so a flood of junk
+keys is capped well below that (bench/flood.py measures it)."""
+STALE_PERIODS = 1.5
+"""A source declaring ``period_s`` is stale after this many periods without a sample."""
+DEFAULT_FUTURE_TOLERANCE_S = 0.5
+"""How far ahead of the robot clock a stamp may be. On one host with the wall clock stamps
+are never ahead; with simulated time a device in another process may have seen a clock
+sample before the robot did, by a few ms of wall time — multiplied by the simulation speed
+(20 ms at 20× is 0.4 s). A sample stamped further ahead is refused."""
+DEFAULT_FORGET_AFTER_S = 60.0
+"""An unprotected source silent this long (robot clock) is dropped from the state."""
+MAX_MALFORMED_KEYS = 1024
+"""Keys whose malformed-sample counts are kept (the oldest key's count goes first)."""
+
 Listener = Callable[[str, "SourceEntry"], None]
+
+
+class RecentCounts:
+    """Roughly how many samples each source name sent in the last one to two windows.
+
+    A count-min sketch (fixed memory, whatever the number of names): ``rows`` arrays of
+    ``width`` counters, two windows (this one and the last) rolled every ``window_ns`` of
+    the robot clock. A flood of distinct junk names adds about ``flood / width`` to every
+    estimate per window, far below a real sensor's own rate; the aggregator uses it so that
+    a name seen once does not push out a source that keeps publishing.
+    """
+
+    __slots__ = ("_current", "_previous", "_seeds", "_width", "_window_ns", "_window_start")
+
+    def __init__(self, *, width: int = 16384, rows: int = 2, window_ns: int = 10**9) -> None:
+        self._width = width
+        self._window_ns = window_ns
+        self._seeds = tuple(range(rows))
+        self._current = [array("I", bytes(4 * width)) for _ in self._seeds]
+        self._previous = [array("I", bytes(4 * width)) for _ in self._seeds]
+        self._window_start = 0
+
+    def _roll(self, now_ns: int) -> None:
+        elapsed = now_ns - self._window_start
+        if 0 <= elapsed < self._window_ns:
+            return
+        if 0 <= elapsed < 2 * self._window_ns:
+            self._previous, self._current = self._current, self._previous
+        else:  # two windows or more (or a clock that went back): forget everything
+            for counters in self._previous:
+                counters[:] = array("I", bytes(4 * self._width))
+        for counters in self._current:
+            counters[:] = array("I", bytes(4 * self._width))
+        self._window_start = now_ns
+
+    def add(self, name: str, now_ns: int) -> int:
+        """Count one sample of ``name``; returns its estimate including this one."""
+        return self._count(name, now_ns, 1)
+
+    def estimate(self, name: str, now_ns: int) -> int:
+        """Samples of ``name`` in this window and the last (never less than the truth)."""
+        return self._count(name, now_ns, 0)
+
+    def _count(self, name: str, now_ns: int, add: int) -> int:
+        self._roll(now_ns)
+        estimate = 1 << 33
+        for seed, current, previous in zip(self._seeds, self._current, self._previous,
+                                           strict=True):
+            i = hash((seed, name)) % self._width
+            if add and current[i] < 0xFFFFFFFF:
+                current[i] += add
+            estimate = min(estimate, current[i] + previous[i])
+        return estimate
 
 
 @dataclass
@@ -52,6 +137,10 @@ class SourceEntry:
     interval_s: float | None = None
     """Smoothed interval between samples (stamp to stamp)."""
     waiters: list[asyncio.Future[SourceEntry]] = field(default_factory=list)
+    order: SampleOrder = field(default_factory=SampleOrder)
+    """Which samples of this source are newer (:mod:`ubf_async.ordering`)."""
+    refused: Counter[str] = field(default_factory=Counter)
+    """Valid samples of this source refused, per :class:`~ubf_async.ordering.Refusal`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,9 +151,19 @@ class SourceInfo:
     samples: int
     rate_hz: float | None
     schema: str
+    refused: Mapping[str, int] = field(default_factory=dict)
+    """Valid samples of this source refused, per reason (``future``, ``out_of_order``)."""
 
 
 class StateAggregator(Component):
+    """Keeps the newest sample of every source (module docstring for the rules).
+
+    ``future_tolerance_s``: how far ahead of the robot clock a stamp may be
+    (:data:`DEFAULT_FUTURE_TOLERANCE_S`). ``forget_after_s``: silence after which an
+    unprotected source is dropped (``None``: never). ``protected_sources``: sources never
+    forgotten nor evicted (launch passes the devices of the robot file).
+    """
+
     def __init__(
         self,
         *,
@@ -72,17 +171,46 @@ class StateAggregator(Component):
         name: str = "aggregator",
         stale_after_s: Mapping[str, float] | None = None,
         default_stale_after_s: float | None = None,
+        future_tolerance_s: float = DEFAULT_FUTURE_TOLERANCE_S,
+        forget_after_s: float | None = DEFAULT_FORGET_AFTER_S,
+        protected_sources: Iterable[str] = (),
+        max_sources: int = MAX_SOURCES,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=name, **component_options)
+        if not (math.isfinite(future_tolerance_s) and future_tolerance_s >= 0):
+            raise ValueError(f"future_tolerance_s must be finite and ≥ 0, got "
+                             f"{future_tolerance_s}")
+        if forget_after_s is not None and not forget_after_s > 0:
+            raise ValueError(f"forget_after_s must be > 0 or None, got {forget_after_s}")
+        if max_sources < 1:
+            raise ValueError(f"max_sources must be ≥ 1, got {max_sources}")
         self.stale_after_s = dict(stale_after_s or {})
         self.default_stale_after_s = default_stale_after_s
+        self.future_tolerance_s = future_tolerance_s
+        self._future_tolerance_ns = round(future_tolerance_s * 1e9)
+        self.forget_after_s = forget_after_s
+        self.protected_sources = frozenset(protected_sources)
+        self.max_sources = max_sources
         self.entries: dict[str, SourceEntry] = {}
+        self._recent = RecentCounts()
+        self._silence: OrderedDict[str, None] = OrderedDict()
+        """Unprotected sources, the one silent longest first (eviction order)."""
         self.malformed: dict[str, int] = {}
-        """Rejected samples per key."""
-        self.refused_sources = 0
+        """Rejected samples per key (at most :data:`MAX_MALFORMED_KEYS` keys)."""
+        self.refused: Counter[str] = Counter()
+        """Valid samples refused, per :class:`~ubf_async.ordering.Refusal` (all sources)."""
+        self.evicted = 0
+        """Sources dropped to make room for a new one."""
+        self.forgotten = 0
+        """Sources dropped after ``forget_after_s`` of silence."""
         self._pending_waiters: dict[str, list[asyncio.Future[SourceEntry]]] = {}
         self._listeners: list[Listener] = []
+
+    @property
+    def refused_sources(self) -> int:
+        """New sources refused because the table was full of protected ones."""
+        return self.refused[Refusal.FULL]
 
     def add_listener(self, listener: Listener) -> Callable[[], None]:
         """Call ``listener(source, entry)`` right after each accepted sample is stored, on the
@@ -98,11 +226,19 @@ class StateAggregator(Component):
 
     async def run(self) -> None:
         self.subscribe(self.bus.keys.all_sensors, self._on_sample)
-        await asyncio.Event().wait()  # samples arrive through the subscription
+        forget_after_s = self.forget_after_s
+        if forget_after_s is None:
+            await asyncio.Event().wait()  # samples arrive through the subscription
+            return
+        while True:  # samples arrive through the subscription; this only forgets
+            await self.bus.clock.sleep(min(1.0, forget_after_s / 4))
+            self.forget_silent()
 
     # -- ingest (event loop) -----------------------------------------------------------------
     def _on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key)
+        if len(self.malformed) > MAX_MALFORMED_KEYS:
+            del self.malformed[next(iter(self.malformed))]
         if message is None:
             return
         try:
@@ -113,20 +249,49 @@ class StateAggregator(Component):
             return
         self.ingest(source, message, received_ns)
 
-    def ingest(self, source: str, message: Message, received_ns: int) -> None:
-        """Store a validated sample (also usable in-process, without the bus)."""
+    def _refuse(self, reason: Refusal, source: str, detail: str,
+                entry: SourceEntry | None = None) -> None:
+        self.refused[reason] += 1
+        if entry is not None:
+            entry.refused[reason] += 1
+        n = self.refused[reason]
+        if n == 1 or n % 100 == 0:
+            log.warning("refused sample #%d (%s) of %s: %s", n, reason,
+                        source[:MAX_NAME_CHARS] + ("…" if len(source) > MAX_NAME_CHARS else ""),
+                        detail)
+
+    def ingest(self, source: str, message: Message, received_ns: int) -> bool:
+        """Store a validated sample (also usable in-process, without the bus); returns
+        whether it was taken (module docstring for what is refused)."""
+        if len(source) > MAX_NAME_CHARS:
+            self._refuse(Refusal.NAME_TOO_LONG, source,
+                         f"{len(source)} characters, at most {MAX_NAME_CHARS}")
+            return False
+        now = self.bus.clock.now_ns()
         entry = self.entries.get(source)
+        count = self._recent.add(source, now)
+        if ahead_of_clock(message.stamp_ns, now, self._future_tolerance_ns):
+            self._refuse(Refusal.FUTURE, source,
+                         f"stamped {(message.stamp_ns - now) / 1e9:.3g}s ahead of the robot "
+                         f"clock (tolerance {self.future_tolerance_s:g}s)", entry)
+            return False
         if entry is None:
-            if len(self.entries) >= MAX_SOURCES:
-                self.refused_sources += 1
-                return
-            entry = SourceEntry(source, message, received_ns, self.bus.clock.now_ns())
+            if len(self.entries) >= self.max_sources and not self._make_room(source, count, now):
+                self._refuse(Refusal.FULL, source,
+                             f"{len(self.entries)} sources held, none of them both unprotected "
+                             f"and less busy")
+                return False
+            entry = SourceEntry(source, message, received_ns, now)
+            entry.order.accept(pub=message.pub, seq=message.seq, stamp_ns=message.stamp_ns)
             entry.waiters = self._pending_waiters.pop(source, [])
             self.entries[source] = entry
             log.info("new source %s (%s)", source, message.schema)
         else:
-            if message.stamp_ns < entry.message.stamp_ns:
-                return  # out of order: keep the newer sample
+            if not entry.order.accept(pub=message.pub, seq=message.seq,
+                                      stamp_ns=message.stamp_ns):
+                self._refuse(Refusal.OUT_OF_ORDER, source,
+                             f"seq {message.seq} (pub {message.pub}) not newer than held", entry)
+                return False
             dt = (message.stamp_ns - entry.message.stamp_ns) / 1e9
             if dt > 0:
                 entry.interval_s = dt if entry.interval_s is None else (
@@ -134,8 +299,11 @@ class StateAggregator(Component):
                 )
             entry.message = message
             entry.received_ns = received_ns
-            entry.arrived_ns = self.bus.clock.now_ns()
+            entry.arrived_ns = now
             entry.version += 1
+        if source not in self.protected_sources:
+            self._silence[source] = None
+            self._silence.move_to_end(source)
         waiters, entry.waiters = entry.waiters, []
         for future in waiters:
             if not future.done():
@@ -146,6 +314,51 @@ class StateAggregator(Component):
             except Exception:
                 log.exception("state listener %r failed: removed", listener)
                 self._listeners.remove(listener)
+        return True
+
+    # -- bounds ------------------------------------------------------------------------------
+    def _drop(self, source: str) -> None:
+        entry = self.entries.pop(source)
+        self._silence.pop(source, None)
+        if entry.waiters:  # whoever waits for it still gets its next sample
+            self._pending_waiters.setdefault(source, []).extend(entry.waiters)
+
+    def _make_room(self, newcomer: str, newcomer_count: int, now_ns: int) -> bool:
+        """Evict the unprotected source silent longest if it has sent fewer samples lately
+        than the newcomer (so a flood of names seen once cannot push out a source that keeps
+        publishing, while a real new sensor gets in by its second sample at the latest);
+        False if nothing may be evicted."""
+        self.forget_silent(now_ns)
+        if len(self.entries) < self.max_sources:
+            return True
+        if not self._silence:
+            return False
+        victim = next(iter(self._silence))
+        if self._recent.estimate(victim, now_ns) >= newcomer_count:
+            return False
+        self._drop(victim)
+        self.evicted += 1
+        if self.evicted == 1 or self.evicted % 100 == 0:
+            log.warning("source table full (%d): evicted %s, silent longest, for %s "
+                        "(eviction #%d)", self.max_sources, victim, newcomer, self.evicted)
+        return True
+
+    def forget_silent(self, now_ns: int | None = None) -> int:
+        """Drop unprotected sources silent for ``forget_after_s``; returns how many."""
+        if self.forget_after_s is None:
+            return 0
+        now = self.bus.clock.now_ns() if now_ns is None else now_ns
+        limit_ns = round(self.forget_after_s * 1e9)
+        dropped = 0
+        while self._silence:
+            source = next(iter(self._silence))
+            if now - self.entries[source].arrived_ns <= limit_ns:
+                break
+            self._drop(source)
+            dropped += 1
+            log.info("forgot source %s: silent for more than %gs", source, self.forget_after_s)
+        self.forgotten += dropped
+        return dropped
 
     # -- queries -----------------------------------------------------------------------------
     @staticmethod
@@ -158,7 +371,7 @@ class StateAggregator(Component):
         if configured is not None:
             return configured
         if entry.message.period_s is not None:
-            return 2.0 * entry.message.period_s
+            return STALE_PERIODS * entry.message.period_s
         if self.default_stale_after_s is not None:
             return self.default_stale_after_s
         return math.inf
@@ -186,9 +399,16 @@ class StateAggregator(Component):
                 source=source, age_s=age, stale=self.quiet_s(entry, now) > self.limit_s(entry),
                 samples=entry.version,
                 rate_hz=1.0 / entry.interval_s if entry.interval_s else None,
-                schema=entry.message.schema,
+                schema=entry.message.schema, refused=dict(entry.refused),
             ))
         return out
+
+    def refusals(self) -> dict[str, int]:
+        """Everything refused so far: per reason, plus ``malformed`` (all keys),
+        ``evicted`` and ``forgotten`` sources."""
+        return {**{str(k): v for k, v in sorted(self.refused.items())},
+                "malformed": sum(self.malformed.values()),
+                "evicted": self.evicted, "forgotten": self.forgotten}
 
     def newest(self) -> SourceEntry | None:
         """The entry holding the most recently stamped sample."""

@@ -26,6 +26,14 @@ component runs (its start, and again after each restart that follows a failure):
    and hands the non-abstaining proposals to :meth:`Arbiter.arbitrate`. ``act`` receives the
    tick's :class:`~ubf_async.state.State` and returns an :class:`~ubf_async.action.Action` or
    ``None`` to abstain. It must not block: it runs on the event loop.
+   A child whose ``run`` raises (its ``act``, or a composite's arbiter) is **cut off for
+   that tick**: logged, counted, treated as abstaining, and its siblings and the arbiter go
+   on (trio's faulty-observer rule). A child that fails on
+   :attr:`Composite.quarantine_after` consecutive ticks is **quarantined**: skipped (shown
+   abstaining, marked ``QUARANTINED`` in the trace) until the composite's next ``reset()``
+   — the controller's next run or a restart, a reload of the tree — or until it leaves the
+   composite and joins again. Only a failure of the root itself reaches the controller,
+   which then commands a stop.
 4. ``root.shutdown()`` — when the controller's run ends, however it ends (stopped, cancelled,
    or failed, including a failed setup). A composite shuts its children down in *reverse*
    child order; one that raises is logged and the others are still shut down.
@@ -261,7 +269,7 @@ class Trace:
     """
 
     __slots__ = ("_children", "_results", "_selected", "_winners", "action", "arbiter",
-                 "name", "priority", "weight", "won")
+                 "fault", "name", "priority", "weight", "won")
 
     def __init__(
         self,
@@ -273,9 +281,13 @@ class Trace:
         won: bool = False,
         priority: int | None = None,
         weight: float | None = None,
+        fault: str | None = None,
     ) -> None:
         self.name = name
         self.action = action
+        self.fault = fault
+        """Why this behaviour did not run properly this tick (it raised, or is
+        quarantined); ``None`` when it did."""
         self.arbiter = arbiter
         self.won = won
         self.priority = priority
@@ -298,6 +310,7 @@ class Trace:
         trace = cls.__new__(cls)
         trace.name = name
         trace.action = action
+        trace.fault = None
         trace.arbiter = arbiter
         trace.won = False
         trace.priority = None
@@ -324,6 +337,9 @@ class Trace:
     def render(self, indent: int = 0) -> str:
         mark = "*" if self.won else " "
         what = self.action.describe() if self.action is not None else "abstain"
+        if self.fault is not None:
+            mark = "!"
+            what = f"abstain — {self.fault}"
         place = ""
         if self.priority is not None:
             place = f" [p={self.priority} w={self.weight:g}]"
@@ -366,6 +382,9 @@ class Composite(Behavior):
     The constructor attaches all ``children`` and then validates the complete set once, so an
     arbiter that needs a fixed number of children (:class:`~ubf_async.arbiters.Conditional`)
     gets them all at once.
+
+    A child that raises is cut off for the tick; one that fails ``quarantine_after``
+    consecutive ticks is quarantined until :meth:`reset` (module docstring).
     """
 
     def __init__(
@@ -374,8 +393,21 @@ class Composite(Behavior):
         name: str,
         arbiter: Arbiter,
         children: Iterable[Child | Behavior] = (),
+        quarantine_after: int = 10,
     ) -> None:
         super().__init__(name=name)
+        if isinstance(quarantine_after, bool) or not (
+                isinstance(quarantine_after, int) and quarantine_after >= 1):
+            raise ConfigurationError(
+                f"composite {name!r}: quarantine_after must be an int ≥ 1, got "
+                f"{quarantine_after!r}")
+        self.quarantine_after = quarantine_after
+        """Consecutive failing ticks after which a child is quarantined."""
+        self._streaks: dict[int, int] = {}
+        """Consecutive failing ticks per child behaviour (by id), only while failing."""
+        self._quarantined: set[int] = set()
+        self.failures: dict[str, int] = {}
+        """Ticks on which each child (by name) raised, since the composite was made."""
         if not isinstance(arbiter, Arbiter):
             raise ConfigurationError(
                 f"composite {name!r}: the arbiter must be an Arbiter, got "
@@ -510,6 +542,10 @@ class Composite(Behavior):
     def _set_children(self, children: tuple[Child, ...]) -> None:
         self._children = children
         self._indexed = tuple(enumerate(children))
+        present = {id(c.behavior) for c in children}
+        # A behaviour that left (and may join again later) starts afresh.
+        self._streaks = {k: v for k, v in self._streaks.items() if k in present}
+        self._quarantined &= present
 
     # -- lifecycle ---------------------------------------------------------------------------
     def setup(self) -> None:
@@ -530,9 +566,27 @@ class Composite(Behavior):
         _shutdown_all(reversed([c.behavior for c in self._children]), self.name)
 
     def reset(self) -> None:
+        """Reset the children and the arbiter; lifts every quarantine in this composite."""
+        if self._quarantined:
+            log.info("composite %r: quarantine of %s lifted on reset", self.name,
+                     ", ".join(self.quarantined_children()))
+        self._streaks.clear()
+        self._quarantined.clear()
         for child in self._children:
             child.behavior.reset()
         self._arbiter.reset()
+
+    def quarantined_children(self) -> list[str]:
+        """Names of this composite's children that are quarantined now."""
+        return [c.behavior.name for c in self._children if id(c.behavior) in self._quarantined]
+
+    def quarantined(self) -> list[str]:
+        """Every quarantined behaviour in this subtree, as ``composite/child`` paths."""
+        out = [f"{self.name}/{name}" for name in self.quarantined_children()]
+        for child in self._children:
+            if isinstance(child.behavior, Composite):
+                out.extend(child.behavior.quarantined())
+        return out
 
     # -- the tick ----------------------------------------------------------------------------
     def act(self, state: State) -> Action | None:
@@ -544,8 +598,21 @@ class Composite(Behavior):
         results: list[tuple[Action | None, Trace | None]] = []
         candidates: list[Candidate] = []
         new = tuple.__new__  # Candidate(...) validates arity; this is the hot path.
+        quarantined = self._quarantined
         for index, child in selected:
-            result = child.behavior.run(state)
+            behavior = child.behavior
+            if quarantined and id(behavior) in quarantined:
+                results.append((None, Trace(behavior.name, None, fault=(
+                    f"QUARANTINED after {self.quarantine_after} failing ticks"))))
+                continue
+            try:
+                result = behavior.run(state)
+            except Exception as exc:
+                results.append((None, Trace(behavior.name, None, fault=self._failed(
+                    behavior, exc))))
+                continue
+            if self._streaks:
+                self._streaks.pop(id(behavior), None)
             results.append(result)
             action = result[0]
             if action is not None and action.vote > 0:
@@ -554,6 +621,23 @@ class Composite(Behavior):
         return action, Trace._of_composite(
             self.name, action, arbiter.name, selected, results, winners
         )
+
+    def _failed(self, behavior: Behavior, exc: Exception) -> str:
+        """Count and log a child that raised on this tick; quarantine it when it keeps
+        failing. Returns the fault shown in the trace."""
+        name = behavior.name
+        n = self.failures[name] = self.failures.get(name, 0) + 1
+        streak = self._streaks[id(behavior)] = self._streaks.get(id(behavior), 0) + 1
+        if n == 1 or n % 100 == 0:
+            log.error("composite %r: child %r raised (failure #%d), abstains this tick",
+                      self.name, name, n, exc_info=exc)
+        fault = f"FAILED: {type(exc).__name__}: {exc}"[:200]
+        if streak >= self.quarantine_after:
+            self._quarantined.add(id(behavior))
+            log.error("composite %r: child %r failed %d ticks in a row: quarantined until the "
+                      "next reset", self.name, name, streak)
+            fault += " (now QUARANTINED)"
+        return fault
 
     def describe(self, indent: int = 0) -> str:
         lines = ["  " * indent + f"{self.name} <{self._arbiter.describe()}>"]

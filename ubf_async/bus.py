@@ -35,6 +35,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import secrets
 import threading
 import time
 from collections import deque
@@ -47,7 +48,7 @@ import zenoh
 
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
-from ubf_async.protocol import Keys, ProtocolError, decode, encode
+from ubf_async.protocol import INT64_MAX, Keys, ProtocolError, decode, encode
 from ubf_async.timesource import ClockAction, ClockFollower
 
 log = logging.getLogger(__name__)
@@ -248,13 +249,19 @@ class Subscription:
 
 
 class Publisher:
-    """Publishes validated messages of one schema on one key, numbering them."""
+    """Publishes validated messages of one schema on one key, numbering them.
+
+    Every instance draws a random publisher identity (``pub``: 1 ≤ pub < 2**63) that goes in
+    each envelope, so receivers order its samples by ``seq`` per publisher and recognise a
+    restarted component (a new instance, a new ``pub``, ``seq`` from 1 again) as a new
+    publisher rather than as a replay (:mod:`ubf_async.ordering`)."""
 
     def __init__(self, bus: Bus, key: str, schema: str, *, period_s: float | None) -> None:
         self.key = key
         self.schema = schema
         self.period_s = period_s
         self.seq = 0
+        self.pub = secrets.randbelow(INT64_MAX) + 1
         self._bus = bus
         self._zenoh = bus.session.declare_publisher(key)
         self._closed = False
@@ -265,7 +272,8 @@ class Publisher:
         Call it on the bus's event loop."""
         stamp = self._bus.clock.now_ns() if stamp_ns is None else stamp_ns
         self.seq += 1
-        payload = encode(self.schema, data, stamp_ns=stamp, seq=self.seq, period_s=self.period_s)
+        payload = encode(self.schema, data, stamp_ns=stamp, seq=self.seq, period_s=self.period_s,
+                         pub=self.pub)
         local = self._bus._local_subscriptions(self.key)
         if local:
             on_loop = threading.get_ident() == self._bus._loop_thread

@@ -5,7 +5,13 @@ Three ways to decide *when* to tick (:class:`TickMode`):
 * ``periodic`` (default) — on its own clock at ``rate_hz`` (default 50 Hz), whatever the
   sensors do. A slow camera never holds back a fast IR reflex. Sources matching
   ``reflex_sources`` (prefixes such as ``"range/"``) also tick it at once when a sample
-  arrives, so an obstacle is answered in about a millisecond, not half a period.
+  arrives, so an obstacle is answered in about a millisecond, not half a period. Reflex
+  ticks are rate-limited together by a token bucket (``reflex_rate_hz``, default
+  0.8 × ``rate_hz``, burst ``reflex_burst``, robot clock): a reflex source flooding the
+  robot cannot make it command more than ``rate_hz + reflex_rate_hz`` (1.8 × ``rate_hz``)
+  times a second, with a margin below twice its rate; a sample
+  that finds the bucket empty is used by the next tick instead (counted in
+  ``reflex_limited``).
 * ``sync`` — the thesis's loop: every tick first waits for a *new* sample of
   ``sync_source`` (default ``"camera/front"``), as the Mini-WHEGS's state update waited for
   an image capture. Kept so the two can be compared.
@@ -31,7 +37,14 @@ component runs — its start, and again after a restart — the controller calls
 fails that run like any other (logged, restarted with backoff) and no tick happens. When the
 run ends, however it ends, the controller calls ``root.shutdown()``.
 
-A behaviour that raises is logged, counted in ``errors``, and that tick commands a stop.
+A tick never fails because of its input. Whatever it copies from input into the command
+(``based_on.source``, ``winners``) is cut to what the protocol carries
+(:func:`~ubf_async.protocol.clip`). A behaviour or arbiter below the root that raises is cut
+off for that tick and, if it keeps failing, quarantined by its composite (see
+:mod:`ubf_async.behavior`; ``status()["quarantined"]`` lists them); if the root itself
+raises, the failure is logged, counted in ``errors``, and that tick commands a stop. If
+publishing the command still raises, it is counted in ``publish_errors``, logged, and a
+plain stop is published instead.
 A tick that ends after the next tick was due counts as an overrun; missed ticks are skipped,
 not bunched up.
 """
@@ -49,13 +62,18 @@ from typing import Any
 
 from ubf_async.action import Action
 from ubf_async.aggregator import SourceEntry, StateAggregator
-from ubf_async.behavior import Behavior, Trace
+from ubf_async.behavior import Behavior, Composite, Trace
 from ubf_async.bus import Bus
 from ubf_async.component import Component
+from ubf_async.protocol import MAX_NAME_CHARS, MAX_WINNERS, clip
 
 log = logging.getLogger(__name__)
 
 MAX_EXPLANATION_CHARS = 4000
+REFLEX_SHARE = 0.8
+"""Default reflex tick budget as a share of ``rate_hz``."""
+MAX_COUNTED_NAMES = 1024
+"""Distinct behaviour names counted in ``winner_ticks`` (later newcomers are not counted)."""
 
 
 class TickMode(enum.StrEnum):
@@ -69,8 +87,17 @@ class TickStats:
     ticks: int = 0
     triggered: int = 0
     """Ticks run by a sample (reflex, sync or event) rather than the clock."""
+    periodic: int = 0
+    """Ticks run by the clock."""
     overruns: int = 0
     errors: int = 0
+    """Ticks on which the root behaviour raised (each commanded a stop)."""
+    publish_errors: int = 0
+    """Ticks whose command could not be published (a plain stop went out instead)."""
+    reflex_limited: int = 0
+    """Reflex samples that did not tick because the reflex bucket was empty."""
+    periodic_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+    """Robot-clock start time of recent ticks not run by a sample."""
     tick_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
     """How long recent ticks took (snapshot, evaluate, publish)."""
     tick_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
@@ -84,6 +111,13 @@ class TickStats:
             return None
         return (len(starts) - 1) / ((starts[-1] - starts[0]) / 1e9)
 
+    def periodic_rate_hz(self) -> float | None:
+        """Rate of the recent ticks run by the clock (reflex ticks left out)."""
+        starts = self.periodic_starts_ns
+        if len(starts) < 2 or starts[-1] == starts[0]:
+            return None
+        return (len(starts) - 1) / ((starts[-1] - starts[0]) / 1e9)
+
     def summary(self) -> dict[str, Any]:
         durations = list(self.tick_ns)
         return {
@@ -91,13 +125,41 @@ class TickStats:
             "triggered": self.triggered,
             "overruns": self.overruns,
             "errors": self.errors,
+            "publish_errors": self.publish_errors,
+            "reflex_limited": self.reflex_limited,
             "rate_hz": self.rate_hz(),
+            "periodic_rate_hz": self.periodic_rate_hz(),
             "tick_us_p50": statistics.median(durations) / 1e3 if durations else None,
             "tick_us_max": max(durations) / 1e3 if durations else None,
             "winner_share": {
-                name: count / self.ticks for name, count in sorted(self.winner_ticks.items())
+                clip(name): count / self.ticks
+                for name, count in sorted(self.winner_ticks.items())
             } if self.ticks else {},
         }
+
+
+class TokenBucket:
+    """At most ``burst`` at once and ``rate_hz`` on average, on the robot clock."""
+
+    __slots__ = ("_capacity", "_last_ns", "_tokens", "rate_hz")
+
+    def __init__(self, *, rate_hz: float, burst: int, now_ns: int = 0) -> None:
+        if not rate_hz > 0 or burst < 1:
+            raise ValueError(f"need rate_hz > 0 and burst ≥ 1, got {rate_hz}, {burst}")
+        self.rate_hz = rate_hz
+        self._capacity = float(burst)
+        self._tokens = float(burst)
+        self._last_ns = now_ns
+
+    def take(self, now_ns: int) -> bool:
+        """Take one token if there is one."""
+        elapsed_s = max(0, now_ns - self._last_ns) / 1e9  # a clock that went back: no refill
+        self._last_ns = now_ns
+        self._tokens = min(self._capacity, self._tokens + elapsed_s * self.rate_hz)
+        if self._tokens >= 1.0:
+            self._tokens -= 1.0
+            return True
+        return False
 
 
 class Controller(Component):
@@ -112,6 +174,8 @@ class Controller(Component):
         sync_source: str = "camera/front",
         trigger: str | None = None,
         reflex_sources: tuple[str, ...] = (),
+        reflex_rate_hz: float | None = None,
+        reflex_burst: int = 2,
         status_period_s: float = 0.5,
         name: str = "controller",
         **component_options: float,
@@ -129,6 +193,11 @@ class Controller(Component):
         """The source whose every new sample ticks the controller in ``sync`` mode."""
         self.trigger = trigger
         self.reflex_sources = tuple(reflex_sources)
+        self.reflex_rate_hz = (REFLEX_SHARE * rate_hz if reflex_rate_hz is None
+                               else reflex_rate_hz)
+        self.reflex_burst = reflex_burst
+        self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
+                                          now_ns=bus.clock.now_ns())
         self.status_period_s = status_period_s
         self.stats = TickStats()
         self.last_action: Action | None = None
@@ -198,9 +267,14 @@ class Controller(Component):
         return source.startswith(self.reflex_sources) if self.reflex_sources else False
 
     def _on_sample(self, source: str, entry: SourceEntry) -> None:
-        if self._triggers(source):
-            self.stats.triggered += 1
-            self.tick(based_on=entry)
+        if not self._triggers(source):
+            return
+        if self.mode is TickMode.PERIODIC and not self._reflex_bucket.take(
+                self.bus.clock.now_ns()):
+            self.stats.reflex_limited += 1
+            return
+        self.stats.triggered += 1
+        self.tick(based_on=entry)
 
     async def _run_triggered(self) -> None:
         await asyncio.Event().wait()  # ticks come from _on_sample
@@ -210,6 +284,9 @@ class Controller(Component):
         t0 = time.perf_counter_ns()
         state = self.aggregator.snapshot(previous_action=self.last_action)
         self.stats.tick_starts_ns.append(state.now_ns)
+        if based_on is None:
+            self.stats.periodic += 1
+            self.stats.periodic_starts_ns.append(state.now_ns)
         try:
             trace: Trace | None = self.root.evaluate(state)
         except Exception:
@@ -224,24 +301,42 @@ class Controller(Component):
         basis = based_on if based_on is not None else self.aggregator.newest()
         winners = trace.winning_leaves() if trace is not None else []
         self.stats.ticks += 1
-        self.stats.winner_ticks.update(winners)
-        self._drive.publish({
+        counted = self.stats.winner_ticks
+        # Bounded: behaviours of other processes come and go under any name.
+        counted.update(w for w in winners if w in counted or len(counted) < MAX_COUNTED_NAMES)
+        command = {
             "speed": speed,
             "turn": turn,
             "based_on": None if basis is None else {
-                "source": basis.source, "seq": basis.message.seq,
+                "source": clip(basis.source, MAX_NAME_CHARS), "seq": basis.message.seq,
                 "stamp_ns": basis.message.stamp_ns,
             },
             "tick": self.stats.ticks,
-            "winners": winners,
-        })
+            "winners": [clip(w, MAX_NAME_CHARS) for w in winners[:MAX_WINNERS]],
+        }
+        try:
+            self._drive.publish(command)
+        except Exception:
+            self._publish_failed("tick's drive command; a plain stop goes out instead")
+            speed = turn = 0.0
+            action = None
+            self._drive.publish({"speed": 0.0, "turn": 0.0, "tick": self.stats.ticks})
         if action is not None:
-            self._publish_extras(action)
+            try:
+                self._publish_extras(action)
+            except Exception:
+                self._publish_failed("tick's seek_color/radio/leds command")
         self.last_action = Action(speed=speed, turn=turn)
         self.last_trace = trace
         self.stats.tick_ns.append(time.perf_counter_ns() - t0)
         self.ticked.set()
         return trace
+
+    def _publish_failed(self, what: str) -> None:
+        self.stats.publish_errors += 1
+        n = self.stats.publish_errors
+        if n == 1 or n % 100 == 0:
+            log.exception("could not publish the %s (publish error #%d)", what, n)
 
     def _publish_extras(self, action: Action) -> None:
         for field_name, publisher in self._extras.items():
@@ -265,15 +360,28 @@ class Controller(Component):
             **self.stats.summary(),
             "speed": last.speed if last else None,
             "turn": last.turn if last else None,
-            "winners": self.last_trace.winning_leaves() if self.last_trace else [],
+            "winners": [clip(w) for w in self.last_trace.winning_leaves()][:MAX_WINNERS]
+            if self.last_trace else [],
             "explanation": explanation[:MAX_EXPLANATION_CHARS],
+            "quarantined": [clip(q) for q in self.quarantined()][:MAX_WINNERS],
+            "refused": self.aggregator.refusals(),
             "sources": [
-                {"source": s.source, "age_s": s.age_s, "stale": s.stale, "schema": s.schema}
+                {"source": s.source, "age_s": s.age_s, "stale": s.stale, "schema": s.schema,
+                 "refused": sum(s.refused.values())}
                 for s in self.aggregator.sources()[:256]
             ],
         }
 
+    def quarantined(self) -> list[str]:
+        """Behaviours of the tree quarantined now (``composite/child``); they stay so until
+        their composite is reset — the controller's next run, a reload of the tree — or
+        they leave and join again."""
+        return self.root.quarantined() if isinstance(self.root, Composite) else []
+
     async def _publish_status(self) -> None:
         while True:
             await asyncio.sleep(self.status_period_s)
-            self._status.publish(self.status())
+            try:
+                self._status.publish(self.status())
+            except Exception:  # the status is best effort: it must not stop the ticks
+                self._publish_failed("status")

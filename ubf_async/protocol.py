@@ -6,7 +6,10 @@ this one turns them into validated messages and back.
 
 Every payload is a msgpack map (the *envelope*)::
 
-    {"schema": "range", "v": 1, "stamp_ns": 1234, "seq": 7, "period_s": 0.05, "data": {...}}
+    {"schema": "range", "v": 1, "stamp_ns": 1234, "seq": 7, "period_s": 0.05,
+     "pub": 81985529216486895, "data": {...}}
+
+(``period_s`` and ``pub`` are optional.)
 
 Decoding treats every payload as untrusted: size limits, ``strict_map_key``, every
 unpacker error caught, types, ranges and finiteness checked. Whatever is wrong, the only
@@ -32,6 +35,10 @@ MAX_STR_LEN = 4096
 MAX_CONTAINER_LEN = 4096
 MAX_DEPTH = 8
 INT64_MAX = 2**63 - 1
+MAX_NAME_CHARS = 128
+"""Longest name a command or status carries back out: a state source (``"<kind>/<name>"``)
+in ``based_on.source``, a behaviour in ``winners``. The aggregator refuses sources with
+longer names, so whatever the controller copies from its input stays publishable."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -238,9 +245,17 @@ def plain(value: Any, path: str, depth: int = 0) -> Any:
     raise ProtocolError(f"{path}: unsupported type {type(value).__name__}")
 
 
+def clip(value: str, max_len: int = MAX_NAME_CHARS) -> str:
+    """``value`` cut to ``max_len`` characters (the last one an ellipsis when cut): for names
+    copied into outgoing messages, which must never fail their own validation."""
+    return value if len(value) <= max_len else value[: max_len - 1] + "…"
+
+
 RGB = array(integer(0, 255), min_len=3, max_len=3)
 COMMAND = number(-100.0, 100.0)
 STAMP = integer(0)
+PUBLISHER_ID = integer(1, INT64_MAX)
+MAX_WINNERS = 256
 
 SCHEMAS: dict[str, Check] = {
     # --- sensors (ubf/<robot>/sensor/<kind>/<name>) ---
@@ -298,10 +313,11 @@ SCHEMAS: dict[str, Check] = {
             "speed": COMMAND,
             "turn": COMMAND,
             "based_on": record(
-                {"source": text(128), "seq": integer(0), "stamp_ns": STAMP}, nullable=True
+                {"source": text(MAX_NAME_CHARS), "seq": integer(0), "stamp_ns": STAMP},
+                nullable=True,
             ),
             "tick": integer(0),
-            "winners": array(text(128), max_len=256),
+            "winners": array(text(MAX_NAME_CHARS), max_len=MAX_WINNERS),
         },
         optional=("based_on", "tick", "winners"),
     ),
@@ -340,6 +356,9 @@ class Message:
     data: dict[str, Any]
     period_s: float | None = None
     version: int = PROTOCOL_VERSION
+    pub: int | None = None
+    """The publisher's identity (random, new for every publisher instance) or ``None`` for a
+    client that does not send one; see :mod:`ubf_async.ordering`."""
 
 
 _ENVELOPE = record(
@@ -349,9 +368,10 @@ _ENVELOPE = record(
         "stamp_ns": STAMP,
         "seq": integer(0),
         "period_s": number(1e-6, 3600.0, nullable=True),
+        "pub": PUBLISHER_ID,
         "data": lambda value, path: value,  # checked against the schema below
     },
-    optional=("period_s",),
+    optional=("period_s", "pub"),
     extra=False,
 )
 
@@ -406,6 +426,7 @@ def decode(payload: bytes | bytearray | memoryview, *, schema: str | None = None
         seq=envelope["seq"],
         data=data,
         period_s=envelope.get("period_s"),
+        pub=envelope.get("pub"),
     )
 
 
@@ -416,15 +437,20 @@ def encode(
     stamp_ns: int,
     seq: int,
     period_s: float | None = None,
+    pub: int | None = None,
 ) -> bytes:
     """Build a payload. The data is validated like incoming data, so this side never
-    publishes what it would itself reject (raises :class:`ProtocolError`)."""
+    publishes what it would itself reject (raises :class:`ProtocolError`). ``pub`` is the
+    publisher's identity (:class:`~ubf_async.bus.Publisher` sets it)."""
     checked = check_data(schema, dict(data))
     STAMP(stamp_ns, "stamp_ns")
+    integer(0)(seq, "seq")
     envelope: dict[str, Any] = {
         "schema": schema, "v": PROTOCOL_VERSION, "stamp_ns": stamp_ns, "seq": seq,
         "data": checked,
     }
     if period_s is not None:
         envelope["period_s"] = float(period_s)
+    if pub is not None:
+        envelope["pub"] = PUBLISHER_ID(pub, "pub")
     return msgpack.packb(envelope, use_bin_type=True)
