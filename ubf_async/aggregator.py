@@ -36,6 +36,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from array import array
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Mapping
@@ -43,6 +44,7 @@ from dataclasses import dataclass, field
 
 from ubf_async.action import Action
 from ubf_async.bus import Bus, decode_or_count
+from ubf_async.clock import SilenceLimit
 from ubf_async.component import Component
 from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.protocol import MAX_NAME_CHARS, Message, ProtocolError
@@ -132,6 +134,8 @@ class SourceEntry:
     """Host monotonic time the bridge received it (for latency measurements)."""
     arrived_ns: int = 0
     """Robot-clock time it was stored (for staleness)."""
+    arrived_wall_ns: int = field(default_factory=time.monotonic_ns)
+    """Host monotonic time it was stored (staleness while simulated time stalls)."""
     version: int = 1
     """Accepted samples so far (unlike ``seq`` it never restarts)."""
     interval_s: float | None = None
@@ -300,6 +304,7 @@ class StateAggregator(Component):
             entry.message = message
             entry.received_ns = received_ns
             entry.arrived_ns = now
+            entry.arrived_wall_ns = time.monotonic_ns()
             entry.version += 1
         if source not in self.protected_sources:
             self._silence[source] = None
@@ -366,6 +371,21 @@ class StateAggregator(Component):
         """How long since the newest sample of ``entry`` arrived (robot clock)."""
         return max(0.0, (now_ns - entry.arrived_ns) / 1e9)
 
+    def is_stale(self, entry: SourceEntry, now_ns: int, wall_now_ns: int) -> bool:
+        """Whether ``entry`` has been quiet beyond its limit: in robot time, or — so that a
+        stalled simulation cannot keep dead data fresh — in wall time as
+        :class:`~ubf_async.clock.SilenceLimit` rules."""
+        limit = self.limit_s(entry)
+        if limit == math.inf:
+            return False
+        if now_ns - entry.arrived_ns > limit * 1e9:
+            return True
+        if wall_now_ns - entry.arrived_wall_ns < limit * 1e9:
+            return False  # the common case, decided without the clock's stall bookkeeping
+        return SilenceLimit(limit_s=limit).expired(
+            self.bus.clock, since_ns=entry.arrived_ns, since_wall_ns=entry.arrived_wall_ns,
+            now_ns=now_ns, wall_now_ns=wall_now_ns)
+
     def limit_s(self, entry: SourceEntry) -> float:
         configured = self.stale_after_s.get(entry.source)
         if configured is not None:
@@ -380,23 +400,25 @@ class StateAggregator(Component):
         self, *, previous_action: Action | None = None, now_ns: int | None = None
     ) -> State:
         now = self.bus.clock.now_ns() if now_ns is None else now_ns
+        wall_now = time.monotonic_ns()
         readings = {}
         for source, entry in self.entries.items():
             message = entry.message
             age = max(0.0, (now - message.stamp_ns) / 1e9)
             readings[source] = Reading(
                 value=message.data, stamp_ns=message.stamp_ns, seq=message.seq, age_s=age,
-                stale=self.quiet_s(entry, now) > self.limit_s(entry),
+                stale=self.is_stale(entry, now, wall_now),
             )
         return State(readings, now_ns=now, previous_action=previous_action)
 
     def sources(self) -> list[SourceInfo]:
         now = self.bus.clock.now_ns()
+        wall_now = time.monotonic_ns()
         out = []
         for source, entry in sorted(self.entries.items()):
             age = max(0.0, (now - entry.message.stamp_ns) / 1e9)
             out.append(SourceInfo(
-                source=source, age_s=age, stale=self.quiet_s(entry, now) > self.limit_s(entry),
+                source=source, age_s=age, stale=self.is_stale(entry, now, wall_now),
                 samples=entry.version,
                 rate_hz=1.0 / entry.interval_s if entry.interval_s else None,
                 schema=entry.message.schema, refused=dict(entry.refused),
