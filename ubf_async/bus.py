@@ -265,8 +265,8 @@ def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError
             f"listens there); stop it, or choose another endpoint with --listen "
             f"(e.g. --listen tcp/127.0.0.1:0 for any free port)")
     if "Unable to connect" in text:
-        return NoRobotError(f"no robot to connect to at {' '.join(options.connect)}: nothing "
-                            f"answers there ({START_ROBOT_HINT})")
+        return NoRobotError(f"no robot to connect to: nothing answered at "
+                            f"{' '.join(options.connect)} ({START_ROBOT_HINT})")
     return SessionError(f"cannot open a zenoh session (listen={' '.join(options.listen) or '-'}"
                         f", connect={' '.join(options.connect) or '-'}): {text}")
 
