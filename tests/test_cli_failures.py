@@ -80,7 +80,8 @@ class Child:
             try:
                 line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
             except queue.Empty:
-                raise AssertionError(f"no {pattern!r} within {timeout_s}s:\n{self.text()}") from None
+                raise AssertionError(
+                    f"no {pattern!r} within {timeout_s}s:\n{self.text()}") from None
             if line is None and self.proc.poll() is not None and all(
                     not r.is_alive() for r in self._readers):
                 raise AssertionError(f"exited ({self.proc.returncode}) before {pattern!r}:\n"
