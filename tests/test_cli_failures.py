@@ -6,6 +6,7 @@ Every test runs the real command in a subprocess, with a timeout."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import queue
@@ -22,7 +23,14 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import free_port
-from ubf_async.bus import Bus, ConnectionOptions, wait_for_robot
+from ubf_async.bus import (
+    Bus,
+    ConnectionOptions,
+    add_connection_arguments,
+    connection_options,
+    wait_for_robot,
+)
+from ubf_async.errors import ConfigurationError
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -268,3 +276,37 @@ def test_a_component_name_already_on_the_robot_is_refused(
     wrong = run("-m", "components.range", "--connect", endpoint, "--robot", robot + "x",
                 "--wait-for-robot-s", "1")
     assert_clear_error(wrong, f"no robot {robot + 'x'!r} answered", f"robots there: {robot}")
+
+
+def test_only_the_flags_given_override_the_config_file(tmp_path: Path) -> None:
+    """How the options are merged (parsing only; the launch test above runs it for real)."""
+    config = tmp_path / "zenoh.json5"
+    config.write_text('{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7001"]},'
+                      ' listen: {endpoints: {peer: ["tcp/127.0.0.1:7002"]}}}')
+    parser = argparse.ArgumentParser()
+    add_connection_arguments(parser, default_listen=["tcp/127.0.0.1:7447"])
+    parser.set_defaults(mode=None)  # as if --mode had no default: the file's mode applies
+
+    def options(*argv: str) -> ConnectionOptions:
+        return connection_options(parser.parse_args(["--config", str(config), *argv]))
+
+    kept = options()
+    assert (kept.mode, kept.connect, kept.listen) == ("client", ["tcp/127.0.0.1:7001"], [])
+    flags = options("--mode", "peer", "--connect", "tcp/127.0.0.1:7003",
+                    "--listen", "tcp/127.0.0.1:7004")
+    assert (flags.mode, flags.connect, flags.listen) == (
+        "peer", ["tcp/127.0.0.1:7003"], ["tcp/127.0.0.1:7004"])
+    # peer mode picks the file's peer listen endpoints, not launch's default
+    assert options("--mode", "peer").listen == ["tcp/127.0.0.1:7002"]
+    no_file = connection_options(parser.parse_args([]))
+    assert (no_file.mode, no_file.listen) == ("peer", ["tcp/127.0.0.1:7447"])
+    # A file that sets no endpoints leaves launch's default (zenoh reports its own defaults,
+    # tcp/[::]:0 on every interface, as if the file had set them).
+    silent = tmp_path / "silent.json5"
+    silent.write_text('{mode: "peer"}')
+    assert connection_options(parser.parse_args(["--config", str(silent)])).listen == [
+        "tcp/127.0.0.1:7447"]
+    broken = tmp_path / "broken.json5"
+    broken.write_text("{mode: ")
+    with pytest.raises(ConfigurationError, match=r"--config .*broken\.json5"):
+        connection_options(parser.parse_args(["--config", str(broken)]))

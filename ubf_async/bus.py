@@ -148,10 +148,10 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
         raise ConfigurationError(f"--config {args.config}: `mode` must be a string, got {mode!r}")
     listen = args.listen
     if listen is None:
-        listen = (_config_endpoints(file_conf, "listen", mode) if file_conf is not None
-                  else None) or list(getattr(args, "_default_listen", []))
-    connect = list(args.connect) or (
-        _config_endpoints(file_conf, "connect", mode) if file_conf is not None else [])
+        from_file = _config_endpoints(file_conf, "listen", mode)
+        listen = from_file if from_file is not None else list(
+            getattr(args, "_default_listen", []))
+    connect = list(args.connect) or _config_endpoints(file_conf, "connect", mode) or []
     try:
         Keys(args.robot)
     except ProtocolError as exc:
@@ -178,22 +178,30 @@ def load_zenoh_config(path: Path) -> zenoh.Config:
 
 
 def _config_value(conf: zenoh.Config | None, key: str) -> Any:
+    """``key`` of a configuration read from a file, or ``None`` where the file leaves zenoh's
+    default (zenoh reports its defaults as if they were set)."""
     if conf is None:
         return None
     try:
-        return json.loads(conf.get_json(key))
+        value = conf.get_json(key)
+        if value == zenoh.Config().get_json(key):
+            return None
+        return json.loads(value)
     except (zenoh.ZError, ValueError):
         return None
 
 
-def _config_endpoints(conf: zenoh.Config, section: str, mode: str) -> list[str]:
-    """``<section>/endpoints`` of a zenoh configuration: a list, or one list per mode."""
+def _config_endpoints(conf: zenoh.Config | None, section: str, mode: str) -> list[str] | None:
+    """``<section>/endpoints`` set by a configuration file (a list, or one list per mode:
+    this ``mode``'s); ``None`` if the file sets none."""
     value = _config_value(conf, f"{section}/endpoints")
+    if value is None:
+        return None
     if isinstance(value, dict):
-        value = value.get(mode)
+        value = value.get(mode, [])
     if isinstance(value, list) and all(isinstance(e, str) for e in value):
         return list(value)
-    return []
+    return None
 
 
 _RUST_LOCATION = re.compile(r"\s*\bat /\S+\.rs:\d+\.?")

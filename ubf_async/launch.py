@@ -9,8 +9,16 @@ needs one, and runs the state aggregator, the UBF controller with the file's beh
 the remote-behaviour slots and the live-tree service. It prints a one-line live status until
 Ctrl-C, SIGTERM or ``--duration`` elapses, then shuts everything down cleanly.
 
-Everything a user can get wrong (the robot file, a scenario, options) is checked before the
-robot starts; errors become exit status 2 here, in :func:`main`, and nowhere else.
+Everything a user can get wrong (the robot file, a scenario, options, the ``--config`` file,
+the folders ``--summary``/``--record`` write into) is checked before the robot starts; a port
+already in use is one line too. Errors become exit status 2 in :func:`main` (through
+:func:`ubf_async.cli.run_main`) and nowhere else. A ``--config`` file is overridden only by
+the flags actually given: the default listen endpoint applies only when neither ``--listen``
+nor the file sets one; for ``…:0`` the port really listened on is printed.
+
+The end of a run never loses its results: if the summary or recording cannot be written, the
+summary is printed instead and the exit status is 2. A second Ctrl-C or SIGTERM exits at once
+(status 130), whatever the shutdown is stuck on.
 """
 
 from __future__ import annotations
