@@ -26,15 +26,17 @@ from typing import Any
 from components.devices import make_backend, make_device, requires_simulator
 from ubf_async import registry
 from ubf_async.bus import (
+    DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
     HelpFormatter,
     add_connection_arguments,
     connection_options,
     follow_sim_clock,
+    wait_for_robot,
 )
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
-from ubf_async.component import Component
+from ubf_async.component import Component, ensure_name_free
 from ubf_async.simulation import DeviceContext
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
@@ -77,6 +79,10 @@ def run_device(
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S wall-clock seconds (default: until Ctrl-C or SIGTERM)")
+    run.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
+                     metavar="S",
+                     help="with --connect: how long to wait for the robot to answer before "
+                          "giving up")
     run.add_argument("--wait-for-sim-s", type=float, default=10.0, metavar="S",
                      help="with a simulated backend: how long to wait for the simulator's "
                           "world before giving up")
@@ -87,7 +93,8 @@ def run_device(
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     device = Device(kind=kind, name=args.name, backend=args.backend,
                     params=device_params(args), backend_params=backend_params(args),
-                    seed=seed(args), wait_for_sim_s=args.wait_for_sim_s)
+                    seed=seed(args), wait_for_sim_s=args.wait_for_sim_s,
+                    wait_for_robot_s=args.wait_for_robot_s)
     return run_main(lambda: device.serve(args, duration_s=args.duration), prog=prog)
 
 
@@ -102,10 +109,15 @@ class Device:
     backend_params: dict[str, Any] = field(default_factory=dict)
     seed: int = 0
     wait_for_sim_s: float = 10.0
+    wait_for_robot_s: float = DEFAULT_ATTACH_TIMEOUT_S
 
     async def serve(self, args: argparse.Namespace, *, duration_s: float | None) -> int:
         """Attach to the robot on the bus ``args`` names; run for ``duration_s`` wall
-        seconds, or until cancelled (SIGTERM, Ctrl-C)."""
+        seconds, or until cancelled (SIGTERM, Ctrl-C).
+
+        Before anything starts it checks that the robot answers at ``--connect`` (within
+        ``wait_for_robot_s``) and that no component of the robot already has this device's
+        name; either is a :class:`~ubf_async.errors.UbfError` with a one-line message."""
         factory = registry.get_backend(self.kind, self.backend)
         simulator_name = requires_simulator(factory)
         simulator = registry.SIMULATORS.get(simulator_name)() if simulator_name else None
@@ -116,6 +128,7 @@ class Device:
         backend: Any = None
         component: Component | None = None
         try:
+            await wait_for_robot(bus, timeout_s=self.wait_for_robot_s)
             if simulator is not None:
                 assert isinstance(clock, SimClock)
                 follow_sim_clock(bus, clock, {})
@@ -126,6 +139,8 @@ class Device:
                                    params=self.backend_params)
             component = make_device(self.kind, context=context, backend=backend,
                                     name=self.name, params=self.params)
+            await ensure_name_free(bus, component.name,
+                                   hint=f"start it with another --name than {self.name!r}")
             await component.start()
             print(f"{component.name}: attached to robot {options.robot!r}"
                   + (" (simulated)" if simulator is not None else ""), flush=True)

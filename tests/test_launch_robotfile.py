@@ -265,7 +265,8 @@ def test_summary_where_no_folder_can_be_made_is_refused_before_the_start(
     blocker.write_text("")
     proc = run_launch("--duration", "5", "--summary", str(blocker / "summary.json"))
     assert proc.returncode == 2
-    assert "--summary: cannot create" in proc.stderr and "listening" not in proc.stdout
+    assert "--summary: cannot write in" in proc.stderr and "is not a directory" in proc.stderr
+    assert "listening" not in proc.stdout
 
 
 def test_robot_file_check_command_reports_each_file(tmp_path: Path) -> None:

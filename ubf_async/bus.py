@@ -33,9 +33,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import json
 import logging
+import re
 import secrets
+import socket
 import threading
 import time
 from collections import deque
@@ -48,7 +51,7 @@ import zenoh
 
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
-from ubf_async.protocol import INT64_MAX, Keys, ProtocolError, decode, encode
+from ubf_async.protocol import INT64_MAX, ROOT, Keys, ProtocolError, decode, encode
 from ubf_async.timesource import ClockAction, ClockFollower
 
 log = logging.getLogger(__name__)
@@ -132,14 +135,187 @@ def add_connection_arguments(
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:
-    """Build :class:`ConnectionOptions` from parsed :func:`add_connection_arguments` flags."""
-    if args.config is not None and not args.config.is_file():
-        raise ConfigurationError(f"--config {args.config}: no such file")
-    listen = args.listen if args.listen is not None else list(args._default_listen)
-    return ConnectionOptions(
-        robot=args.robot, mode=args.mode, connect=list(args.connect), listen=listen,
+    """Build :class:`ConnectionOptions` from parsed :func:`add_connection_arguments` flags.
+
+    A ``--config`` file is read here (so a missing or malformed one is refused before anything
+    starts) and only the flags actually given override it: ``--listen`` replaces its
+    ``listen/endpoints`` and ``--connect`` its ``connect/endpoints``; without the flag, the
+    file's endpoints (and ``mode``, when ``--mode`` defaults to ``None``) are kept, and the
+    entry point's default listen endpoint (launch's) applies only when neither sets one.
+    Raises :class:`~ubf_async.errors.ConfigurationError`.
+    """
+    file_conf = load_zenoh_config(args.config) if args.config is not None else None
+    mode = getattr(args, "mode", None) or _config_value(file_conf, "mode") or "peer"
+    if not isinstance(mode, str):
+        raise ConfigurationError(f"--config {args.config}: `mode` must be a string, got {mode!r}")
+    listen = args.listen
+    if listen is None:
+        from_file = _config_endpoints(file_conf, "listen", mode)
+        listen = from_file if from_file is not None else list(
+            getattr(args, "_default_listen", []))
+    connect = list(args.connect) or _config_endpoints(file_conf, "connect", mode) or []
+    try:
+        Keys(args.robot)
+    except ProtocolError as exc:
+        raise ConfigurationError(f"--robot: {exc}") from None
+    options = ConnectionOptions(
+        robot=args.robot, mode=mode, connect=connect, listen=list(listen),
         config=args.config, multicast_scouting=args.multicast_scouting,
     )
+    try:  # every endpoint and value is checked now, not when the session opens
+        options.zenoh_config()
+    except zenoh.ZError as exc:
+        raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
+    return options
+
+
+def load_zenoh_config(path: Path) -> zenoh.Config:
+    """Read a zenoh JSON5 configuration file; :class:`ConfigurationError` if it cannot be."""
+    if not path.is_file():
+        raise ConfigurationError(f"--config {path}: no such file")
+    try:
+        return zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise ConfigurationError(f"--config {path}: {zenoh_message(exc)}") from None
+
+
+def _config_value(conf: zenoh.Config | None, key: str) -> Any:
+    """``key`` of a configuration read from a file, or ``None`` where the file leaves zenoh's
+    default (zenoh reports its defaults as if they were set)."""
+    if conf is None:
+        return None
+    try:
+        value = conf.get_json(key)
+        if value == zenoh.Config().get_json(key):
+            return None
+        return json.loads(value)
+    except (zenoh.ZError, ValueError):
+        return None
+
+
+def _config_endpoints(conf: zenoh.Config | None, section: str, mode: str) -> list[str] | None:
+    """``<section>/endpoints`` set by a configuration file (a list, or one list per mode:
+    this ``mode``'s); ``None`` if the file sets none."""
+    value = _config_value(conf, f"{section}/endpoints")
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        value = value.get(mode, [])
+    if isinstance(value, list) and all(isinstance(e, str) for e in value):
+        return list(value)
+    return None
+
+
+_RUST_LOCATION = re.compile(r"\s*\bat /\S+\.rs:\d+\.?")
+
+
+def zenoh_message(exc: BaseException) -> str:
+    """A zenoh error's message without the Rust source locations it carries."""
+    text = _RUST_LOCATION.sub("", str(exc)).strip()
+    if (wrapped := re.search(r'msg: "((?:[^"\\]|\\.)*)"', text)) is not None:
+        text = wrapped[1]  # Json5Err(Message { msg: "...", location: ... }) -> the message
+    return re.sub(r"\s+", " ", text).rstrip(" .!") or type(exc).__name__
+
+
+_PORT_ZERO = re.compile(
+    r"^(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]*\]|[^:/?#\[\]]+):0(?P<rest>[?#].*)?$")
+
+
+def bind_free_ports(endpoints: list[str]) -> list[str]:
+    """The endpoints with each ``…:0`` port replaced by a port free now, so the endpoints a
+    process prints are the ones it listens on (zenoh-python 1.10 does not say which port it
+    bound: ``SessionInfo`` has no locators, and its admin space is off by default). The OS
+    picks the port (bind to port 0, read it, release it); another program could take it in
+    the instant before zenoh binds it, and opening then fails as "port in use"."""
+    resolved = []
+    for endpoint in endpoints:
+        match = _PORT_ZERO.match(endpoint)
+        if match is None:
+            resolved.append(endpoint)
+            continue
+        host = match["host"].strip("[]")
+        kind = socket.SOCK_DGRAM if match["proto"] in ("udp", "quic") else socket.SOCK_STREAM
+        try:
+            family, *_, address = socket.getaddrinfo(host, 0, type=kind)[0]
+            with socket.socket(family, kind) as probe:
+                probe.bind(address)
+                port = probe.getsockname()[1]
+        except OSError:  # an address we cannot bind: zenoh will say what is wrong with it
+            resolved.append(endpoint)
+            continue
+        resolved.append(f"{match['proto']}/{match['host']}:{port}{match['rest'] or ''}")
+    return resolved
+
+
+class SessionError(UbfError, ConnectionError):
+    """A zenoh session that cannot be opened, or does not reach the robot (one line that
+    says what to do)."""
+
+
+class PortInUseError(SessionError):
+    """A listen endpoint whose port another process already holds."""
+
+
+class NoRobotError(SessionError):
+    """Nothing to connect to: no robot answers at the endpoints given."""
+
+
+START_ROBOT_HINT = ("is the robot running? `python -m ubf_async.launch` prints the endpoint "
+                    "to pass to --connect")
+
+
+def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError:
+    """Turn zenoh's error on opening a session into a one-line :class:`SessionError`."""
+    text = zenoh_message(exc)
+    if "Address already in use" in text or "address already in use" in text.lower():
+        bound = re.search(r"bound to (\S+?):? \[", text)
+        where = bound[1] if bound else " ".join(options.listen)
+        return PortInUseError(
+            f"cannot listen on {where}: the port is already in use (another robot or program "
+            f"listens there); stop it, or choose another endpoint with --listen "
+            f"(e.g. --listen tcp/127.0.0.1:0 for any free port)")
+    if "Unable to connect" in text:
+        return NoRobotError(f"no robot to connect to: nothing answered at "
+                            f"{' '.join(options.connect)} ({START_ROBOT_HINT})")
+    return SessionError(f"cannot open a zenoh session (listen={' '.join(options.listen) or '-'}"
+                        f", connect={' '.join(options.connect) or '-'}): {text}")
+
+
+DEFAULT_ATTACH_TIMEOUT_S = 10.0
+
+
+async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S) -> None:
+    """For a process attaching to a running robot: wait until the session reaches another
+    zenoh node and one of the robot's components is alive there (its liveliness token
+    ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
+    nothing answered at the endpoints or the robot there has another name.
+
+    Returns at once for a session that only listens (in ``peer`` mode without ``connect``
+    endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
+    anything."""
+    options = bus.options
+    if not options.connect and options.mode != "client":
+        return
+    where = " ".join(options.connect) or "(the configured router)"
+    info = bus.session.info
+    deadline = time.monotonic() + timeout_s
+    reached = False
+    while True:
+        reached = reached or bool(list(info.peers_zid()) or list(info.routers_zid()))
+        if reached and await bus.alive_tokens(bus.keys.all_alive, timeout_s=1.0):
+            return
+        if time.monotonic() >= deadline:
+            break
+        await asyncio.sleep(0.05)
+    if not reached:
+        raise NoRobotError(f"no robot to connect to: nothing answered at {where} within "
+                           f"{timeout_s:g}s ({START_ROBOT_HINT})")
+    seen = sorted({key.split("/")[1] for key in await bus.alive_tokens(
+        f"{ROOT}/*/alive/*", timeout_s=1.0)} - {bus.robot})
+    other = f"; robots there: {', '.join(seen)} (check --robot)" if seen else ""
+    raise NoRobotError(f"no robot {bus.robot!r} answered at {where} within {timeout_s:g}s: "
+                       f"a zenoh node is there, but none of the robot's components is alive"
+                       f"{other}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -428,14 +604,21 @@ class Bus:
 
     @classmethod
     async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None) -> Bus:
-        """Open a session (in a worker thread: opening can take a while)."""
+        """Open a session (in a worker thread: opening can take a while).
+
+        Listen endpoints on port 0 get a free port first (:func:`bind_free_ports`), so
+        ``bus.options.listen`` names the ports really listened on. Raises
+        :class:`SessionError` with a one-line message (:class:`PortInUseError` for a port
+        taken, :class:`NoRobotError` when nothing answers a ``client``)."""
+        options = dataclasses.replace(options, listen=bind_free_ports(options.listen))
         try:
-            session = await asyncio.to_thread(zenoh.open, options.zenoh_config())
+            config = options.zenoh_config()
         except zenoh.ZError as exc:
-            raise ConnectionError(
-                f"cannot open a zenoh session (listen={options.listen}, "
-                f"connect={options.connect}): {exc}"
-            ) from exc
+            raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
+        try:
+            session = await asyncio.to_thread(zenoh.open, config)
+        except zenoh.ZError as exc:
+            raise session_error(options, exc) from None
         return cls(session, options, clock or WallClock())
 
     @property

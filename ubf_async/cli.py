@@ -1,34 +1,167 @@
-"""What every command-line entry point does around its asyncio main: SIGTERM and Ctrl-C stop
-it cleanly (its ``finally`` blocks close components and sessions), and a connection or
-configuration problem (any :class:`~ubf_async.errors.UbfError`) is one clear line on stderr
-with exit status 2. This is the only place an error becomes an exit status."""
+"""What every command-line entry point does around its asyncio main.
+
+* The first Ctrl-C (SIGINT) or SIGTERM stops it cleanly: the main task is cancelled, so its
+  ``finally`` blocks close components and sessions (and launch saves the run's results).
+* A second Ctrl-C or SIGTERM exits at once with status 130, whatever the shutdown is stuck on
+  — a write that blocks, a zenoh call that never returns, a thread the interpreter would wait
+  for at exit. It is noticed by a thread of its own (through :func:`signal.set_wakeup_fd`), so
+  it works even when the main thread is stuck inside a C call.
+* A connection or configuration problem (any :class:`~ubf_async.errors.UbfError`) is one
+  clear line on stderr with exit status 2. This is the only place an error becomes an exit
+  status.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import signal
 import sys
-from collections.abc import Awaitable, Callable
+import threading
+from collections.abc import Awaitable, Callable, Iterator
+from types import FrameType
 
 from ubf_async.errors import UbfError
 
+EXIT_ERROR = 2
+"""A user's mistake or a problem the program explains (one line on stderr)."""
+EXIT_INTERRUPTED = 130
+"""Stopped at once by a second Ctrl-C/SIGTERM (the shell's 128 + SIGINT)."""
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopGuard:
+    """SIGINT/SIGTERM handling for one command: the first signal calls ``on_first`` (cancel
+    the main task), the second exits the process at once (``os._exit``) after flushing what
+    can be flushed.
+
+    Install it with ``with guard.installed():`` from the main thread (elsewhere it does
+    nothing: Python only lets the main thread handle signals). When the block ends without
+    any signal received the previous handlers are restored; after one, the guard stays in
+    place, so a second signal still exits if the interpreter hangs on its way out.
+    """
+
+    def __init__(self, *, prog: str, flush_timeout_s: float = 0.5) -> None:
+        self.prog = prog
+        self.flush_timeout_s = flush_timeout_s
+        self.signals = 0
+        """Stop signals received so far (counted by the watcher thread)."""
+        self._on_first: Callable[[], None] | None = None
+        self._first_handled = False
+        self._lock = threading.Lock()
+        self._exiting = threading.Lock()
+
+    def arm(self, on_first: Callable[[], None]) -> None:
+        """What the first signal does (typically: cancel the main task, thread-safely)."""
+        self._on_first = on_first
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[StopGuard]:
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)  # the C-level handler must never block
+        previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, self._handle)
+        old_wakeup = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        watcher = threading.Thread(target=self._watch, args=(read_fd,), daemon=True,
+                                   name="ubf-stop-guard")
+        watcher.start()
+        try:
+            yield self
+        finally:
+            if self.signals == 0 and not self._first_handled:
+                signal.set_wakeup_fd(old_wakeup)
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
+                os.close(write_fd)  # the watcher reads EOF and ends
+                watcher.join(timeout=1.0)
+                with contextlib.suppress(OSError):
+                    os.close(read_fd)
+
+    # main thread: Python-level handler ------------------------------------------------------
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        with self._lock:
+            first = not self._first_handled
+            self._first_handled = True
+        if not first:
+            self.exit_now(signum)  # the watcher normally got there first
+        if self._on_first is None:
+            raise KeyboardInterrupt  # before the loop runs: nothing to stop cleanly yet
+        self._on_first()
+
+    # watcher thread --------------------------------------------------------------------------
+    def _watch(self, read_fd: int) -> None:
+        while True:
+            try:
+                data = os.read(read_fd, 64)
+            except OSError:
+                return
+            if not data:
+                return
+            for signum in data:
+                if signum not in STOP_SIGNALS:
+                    continue
+                self.signals += 1
+                if self.signals == 1:
+                    self._say(f"{self.prog}: stopping (press Ctrl-C again to quit at once)\n")
+                else:
+                    self.exit_now(signum)
+
+    def _say(self, text: str) -> None:
+        with contextlib.suppress(OSError):
+            os.write(2, text.encode(errors="replace"))  # no Python-level lock to get stuck on
+
+    def exit_now(self, signum: int) -> None:
+        """Flush stdout/stderr (giving up after ``flush_timeout_s``) and ``os._exit(130)``."""
+        if not self._exiting.acquire(blocking=False):
+            threading.Event().wait()  # another thread is exiting the process right now
+        name = signal.Signals(signum).name
+        self._say(f"{self.prog}: {name} again: exiting now, without finishing the shutdown\n")
+
+        def flush() -> None:
+            for stream in (sys.stdout, sys.stderr):
+                with contextlib.suppress(Exception):
+                    stream.flush()
+
+        flusher = threading.Thread(target=flush, daemon=True, name="ubf-stop-flush")
+        flusher.start()
+        flusher.join(self.flush_timeout_s)  # a stream stuck on a full pipe must not hold us
+        os._exit(EXIT_INTERRUPTED)
+
 
 def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
+    """Run ``main()`` in a new event loop under a :class:`StopGuard`; return the exit status:
+    ``main``'s, 0 when stopped by a first signal, 2 for a :class:`UbfError` (or a
+    ``ConnectionError``/``ValueError``, printed as one line), 130 when interrupted before the
+    loop ran."""
+    guard = StopGuard(prog=prog)
+
     async def runner() -> int:
+        loop = asyncio.get_running_loop()
         task = asyncio.current_task()
         assert task is not None
-        with contextlib.suppress(NotImplementedError):  # no signal handlers on some platforms
-            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
+
+        def cancel() -> None:
+            with contextlib.suppress(RuntimeError):  # the loop has closed meanwhile
+                loop.call_soon_threadsafe(task.cancel)
+
+        guard.arm(cancel)
         try:
             return await main()
         except asyncio.CancelledError:
             return 0
         except (UbfError, ConnectionError, ValueError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_ERROR
 
-    try:
-        return asyncio.run(runner())
-    except KeyboardInterrupt:
-        return 130
+    with guard.installed():
+        try:
+            return asyncio.run(runner())
+        except KeyboardInterrupt:
+            return EXIT_INTERRUPTED
+

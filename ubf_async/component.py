@@ -33,8 +33,31 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
+from ubf_async.errors import ConfigurationError
 
 log = logging.getLogger(__name__)
+
+
+class NameTakenError(ConfigurationError):
+    """A component name already alive on the robot (see :func:`ensure_name_free`)."""
+
+
+async def ensure_name_free(bus: Bus, name: str, *, hint: str = "", timeout_s: float = 2.0
+                           ) -> None:
+    """Refuse to join under a name another process already uses on this robot.
+
+    A process that attaches a component to a running robot (a standalone device, a remote
+    behaviour's host) calls this before :meth:`Component.start`: two components under one
+    name would share a liveliness token and their samples would silently merge into one
+    source. Raises :class:`NameTakenError` when the token ``ubf/<robot>/alive/<name>`` is
+    alive (``hint`` says how to pick another name). Two processes checking in the same
+    instant can still both pass; the check is for the honest mistake, not an attacker.
+    """
+    key = bus.keys.alive(name)
+    if await bus.alive_tokens(key, timeout_s=timeout_s):
+        raise NameTakenError(
+            f"a component named {name!r} is already alive on robot {bus.robot!r} ({key}); "
+            f"{hint or 'give this one another name'}")
 
 
 class Component:

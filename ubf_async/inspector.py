@@ -43,8 +43,10 @@ from ubf_async.bus import (
     QueryError,
     add_connection_arguments,
     connection_options,
+    wait_for_robot,
 )
 from ubf_async.component import HealthMonitor
+from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
 from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode
@@ -246,20 +248,17 @@ def add_tree_parser(sub: Any, common: argparse.ArgumentParser) -> None:
 
 
 async def open_bus(args: argparse.Namespace) -> Bus:
-    """Open a session and wait until it reaches the robot (ConnectionError if not)."""
+    """Open a session and wait until it reaches the robot: :class:`NoRobotError` (one line:
+    nothing answered, or the robot there has another name) after ``--timeout``."""
     options = connection_options(args)
     if not options.connect and not options.listen:
         options.connect = [DEFAULT_LISTEN]
     bus = await Bus.open(options)
-    info = bus.session.info
-    deadline = time.monotonic() + args.timeout
-    while not (list(info.peers_zid()) or list(info.routers_zid())):
-        if time.monotonic() > deadline:
-            await bus.aclose()
-            raise ConnectionError(
-                f"no robot reached at {' '.join(options.connect) or '(listening only)'} "
-                f"within {args.timeout:g}s")
-        await asyncio.sleep(0.01)
+    try:
+        await wait_for_robot(bus, timeout_s=args.timeout)
+    except BaseException:
+        await bus.aclose()
+        raise
     return bus
 
 
@@ -536,7 +535,7 @@ COMMANDS = {"components": cmd_components, "keys": cmd_keys, "echo": cmd_echo,
 async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     try:
         bus = await open_bus(args)
-    except ConnectionError as exc:
+    except (UbfError, ConnectionError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:

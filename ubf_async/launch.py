@@ -9,16 +9,26 @@ needs one, and runs the state aggregator, the UBF controller with the file's beh
 the remote-behaviour slots and the live-tree service. It prints a one-line live status until
 Ctrl-C, SIGTERM or ``--duration`` elapses, then shuts everything down cleanly.
 
-Everything a user can get wrong (the robot file, a scenario, options) is checked before the
-robot starts; errors become exit status 2 here, in :func:`main`, and nowhere else.
+Everything a user can get wrong (the robot file, a scenario, options, the ``--config`` file,
+the folders ``--summary``/``--record`` write into) is checked before the robot starts; a port
+already in use is one line too. Errors become exit status 2 in :func:`main` (through
+:func:`ubf_async.cli.run_main`) and nowhere else. A ``--config`` file is overridden only by
+the flags actually given: the default listen endpoint applies only when neither ``--listen``
+nor the file sets one; for ``…:0`` the port really listened on is printed.
+
+The end of a run never loses its results: if the summary or recording cannot be written, the
+summary is printed instead and the exit status is 2. A second Ctrl-C or SIGTERM exits at once
+(status 130), whatever the shutdown is stuck on.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import logging
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Sequence
@@ -32,6 +42,7 @@ from ubf_async.bus import (
     DEFAULT_LISTEN,
     DEFAULT_ROBOT,
     Bus,
+    ConnectionOptions,
     HelpFormatter,
     add_connection_arguments,
     connection_options,
@@ -188,6 +199,9 @@ class LaunchPlan:
     simulator: Simulator | None
     sim_options: SimulationOptions | None
     controller: ControllerSettings
+    connection: ConnectionOptions
+    """The zenoh session's options: the flags given over the ``--config`` file over launch's
+    default listen endpoint."""
 
 
 def plan_launch(args: argparse.Namespace) -> LaunchPlan:
@@ -222,17 +236,37 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
             why = ("--no-sim is given" if args.no_sim
                    else f"no device of {robot.source} is simulated")
             raise ConfigurationError(f"{', '.join(given)}: there is no simulator ({why})")
-    for flag, folder in (("--summary", args.summary.parent if args.summary else None),
-                         ("--record", args.record)):
-        if folder is not None:
-            try:  # made now, so a run never ends with nowhere to put its results
-                folder.mkdir(parents=True, exist_ok=True)
-            except OSError as exc:
-                raise ConfigurationError(f"{flag}: cannot create {folder}: {exc}") from None
+    check_outputs(args.summary, args.record)
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
+    args.robot = args.robot or robot.name or DEFAULT_ROBOT
     return LaunchPlan(robot=robot, devices=devices, elsewhere=elsewhere, simulator=simulator,
-                      sim_options=options, controller=ControllerSettings.of(robot, args))
+                      sim_options=options, controller=ControllerSettings.of(robot, args),
+                      connection=connection_options(args))
+
+
+def check_outputs(summary: Path | None, record: Path | None) -> None:
+    """Make the folders ``--summary`` and ``--record`` write into, and check that a file can
+    be created there, so a run never ends with nowhere to put its results. Raises
+    :class:`ConfigurationError`."""
+    if summary is not None and summary.is_dir():
+        raise ConfigurationError(f"--summary {summary}: is a directory; give a file name, "
+                                 f"e.g. {summary / 'summary.json'}")
+    if record is not None and record.exists() and not record.is_dir():
+        raise ConfigurationError(f"--record {record}: exists and is not a directory")
+    for flag, folder in (("--summary", summary.parent if summary else None),
+                         ("--record", record)):
+        if folder is None:
+            continue
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as exc:
+            found = next((p for p in (folder, *folder.parents) if p.exists()), None)
+            reason = (f"{found} is not a directory" if found is not None and not found.is_dir()
+                      else exc.strerror or str(exc))
+            raise ConfigurationError(f"{flag}: cannot write in {folder}: {reason}") from None
 
 
 def format_status(
@@ -264,13 +298,23 @@ def format_status(
     return " | ".join(parts)
 
 
+class ResultsNotSavedError(UbfError, OSError):
+    """The run's summary or recording could not be written at the end of the run; the summary
+    was printed instead (the message says where writing failed)."""
+
+
 async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+    """Run the planned robot until ``--duration``, SIGTERM or Ctrl-C.
+
+    Whatever ends the run (an error too), the shutdown saves the results, then closes every
+    component and the session, each step even if an earlier one failed. Results that cannot
+    be written are printed (see :func:`save_results`) and end in
+    :class:`ResultsNotSavedError` (exit status 2)."""
     robot = plan.robot
-    args.robot = args.robot or robot.name or DEFAULT_ROBOT
-    options = connection_options(args)
     simulated = plan.simulator is not None
     clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
-    bus = await Bus.open(options, clock=clock)
+    bus = await Bus.open(plan.connection, clock=clock)
+    options = bus.options  # with the port really listened on for a `:0` endpoint
     components: list[Component] = []
     health = HealthMonitor(bus)
     sim_run: SimulationRun | None = None
@@ -345,14 +389,64 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     finally:
         if not args.quiet and out.isatty():
             out.write("\n")
+        failure = None
         if sim_run is not None and controller is not None:
-            await sim_run.finish(controller, out)
-        for component in reversed(components):
-            await component.aclose()
-        health.close()
-        await bus.aclose()
+            failure = await save_results(sim_run, controller, out)
+        await _close_all(components, health, bus)
         print("ubf_async: stopped", file=out)
         out.flush()
+        if failure is not None:
+            raise ResultsNotSavedError(f"the run's results were not saved: {failure}; its "
+                                       f"summary was printed above instead")
+
+
+async def save_results(sim_run: SimulationRun, controller: Controller, out: TextIO
+                       ) -> str | None:
+    """End the simulated run and write its summary and recording (``sim_run.finish``).
+
+    If that fails — a full disk, a folder removed during the run, a Ctrl-C while a write is
+    stuck — the results are not lost: the summary is printed on ``out`` as JSON (the error's
+    ``summary`` if it carries one, else the run's own ``summary()``) and what failed is
+    returned; ``None`` when everything was written."""
+    print("  saving the run's results ...", file=out)
+    out.flush()
+    try:
+        await sim_run.finish(controller, out)
+        return None
+    except (Exception, asyncio.CancelledError) as exc:  # never lose the results
+        interrupted = isinstance(exc, asyncio.CancelledError)
+        failure = ("interrupted while writing them" if interrupted
+                   else f"{type(exc).__name__}: {exc}")
+        log.debug("finishing the simulated run failed", exc_info=True)
+        summary = getattr(exc, "summary", None)
+    if summary is None:
+        summarize = getattr(sim_run, "summary", None)
+        try:
+            summary = summarize(controller) if callable(summarize) else None
+        except Exception as again:
+            failure += f"; the summary could not be made either: {again}"
+    print(f"ubf_async: error: could not save the run's results ({failure})", file=sys.stderr)
+    if summary is not None:
+        print("ubf_async: the run's summary, not saved:", file=out)
+        print(json.dumps(summary, indent=2, default=str), file=out)
+    out.flush()
+    return failure
+
+
+async def _close_all(components: list[Component], health: HealthMonitor, bus: Bus) -> None:
+    """Close the components (last started first), the health monitor and the session; a
+    step that fails is logged and the others still run (a session left open would keep the
+    process from exiting)."""
+    for component in reversed(components):
+        try:
+            await component.aclose()
+        except Exception:
+            log.exception("closing component %s failed", component.name)
+    health.close()
+    try:
+        await bus.aclose()
+    except Exception:
+        log.exception("closing the zenoh session failed")
 
 
 async def _run_until_done(
