@@ -248,3 +248,24 @@ def test_formatting_helpers() -> None:
                                 "data": {"b": b"\x01\x02"}})
     assert json.loads(format_sample(keys, "k", with_bytes, raw=False,
                                     as_json=True))["data"] == {"b": "0102"}
+
+
+def test_state_shows_refusals_and_quarantined_behaviours() -> None:
+    from ubf_async.inspector import format_state
+
+    status = {
+        "mode": "periodic", "sources": [
+            {"source": "camera/front", "age_s": 0.05, "stale": False, "schema": "camera",
+             "refused": 3},
+            {"source": "range/front", "age_s": 0.01, "stale": False, "schema": "range",
+             "refused": 0},
+        ],
+        "refused": {"future": 3, "out_of_order": 0, "malformed": 2},
+        "quarantined": ["root/flaky"],
+    }
+    text = format_state(status, robot="mini", controller="controller", status_age_s=None)
+    camera, range_line = (line for line in text.splitlines() if line.startswith("  ")
+                          and ("camera/" in line or "range/" in line))
+    assert camera.endswith("refused 3") and "refused" not in range_line
+    assert "refused: future 3, malformed 2" in text and "out_of_order" not in text
+    assert "quarantined (failing tick after tick, cut off): root/flaky" in text

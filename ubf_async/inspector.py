@@ -412,8 +412,16 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
         stale = "  STALE" if s.get("stale") else ""
         age_s = s.get("age_s")
         age_ms = age_s * 1e3 if isinstance(age_s, int | float) else None
+        refused = s.get("refused")
+        refused_text = f"  refused {refused}" if refused else ""
         lines.append(f"  {s.get('source', '?')!s:{width}}  age {num(age_ms, '7.0f'):>7} ms"
-                     f"  {s.get('schema', '')}{stale}")
+                     f"  {s.get('schema', '')}{stale}{refused_text}")
+    refusals = {k: v for k, v in (status.get("refused") or {}).items() if v}
+    if refusals:
+        lines.append("refused: " + ", ".join(f"{k} {v}" for k, v in refusals.items()))
+    quarantined = status.get("quarantined") or []
+    if quarantined:
+        lines.append("quarantined (failing tick after tick, cut off): " + ", ".join(quarantined))
     explanation = status.get("explanation") or "(no tick yet)"
     lines.append("last tick ('*' = won; [p=priority w=weight] <arbiter>):")
     lines.extend(f"  {line}" for line in str(explanation).splitlines())

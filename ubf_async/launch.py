@@ -292,6 +292,13 @@ def format_status(
     bad = sum(aggregator.malformed.values())
     if bad:
         parts.append(f"rejected {bad}")
+    refused = {reason: n for reason, n in aggregator.refusals().items()
+               if n and reason != "malformed"}
+    if refused:
+        parts.append("refused " + ",".join(f"{reason} {n}" for reason, n in refused.items()))
+    quarantined = controller.quarantined()
+    if quarantined:
+        parts.append("QUARANTINED " + ",".join(quarantined))
     unhealthy = health.unhealthy()
     if unhealthy:
         parts.append("UNHEALTHY " + ",".join(unhealthy))
@@ -349,9 +356,13 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
                                 simulation=sim_run.world if sim_run is not None else None)
         devices = [device.build(context=context) for device in plan.devices]
         spec = robot.spec
-        aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
-                                     default_stale_after_s=spec.controller.default_stale_after_s)
         settings = plan.controller
+        # The robot's own sources are never evicted to make room for unknown ones.
+        protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
+        protected.update(s for s in (settings.sync_source, settings.trigger) if s)
+        aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
+                                     default_stale_after_s=spec.controller.default_stale_after_s,
+                                     protected_sources=protected)
         root = robot.root
         controller = Controller(
             bus=bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
