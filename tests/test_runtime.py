@@ -199,6 +199,44 @@ async def test_controller_keeps_its_rate_while_a_sensor_floods(
     assert 35 <= ticks <= 55, f"controller ticked {ticks} times in 1 s at 50 Hz under flood"
 
 
+def ticked(drives: list[dict]) -> list[dict]:
+    """The drive commands of ticks, without the holds repeated between them."""
+    return [d for d in drives if not d.get("hold")]
+
+
+@pytest.mark.asyncio
+async def test_sync_mode_holds_the_last_decision_between_frames_and_stops_when_stale(
+    robot_bus: Bus, peer_bus: Bus
+) -> None:
+    agg = StateAggregator(bus=robot_bus)
+    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball(), mode="sync",
+                     rate_hz=50.0)
+    drives: list[dict] = []
+    robot_bus.subscribe(robot_bus.keys.cmd("drive"),
+                        lambda k, p, t: drives.append(decode(p, schema="drive").data), latest=False)
+    camera = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor",
+                                period_s=0.2)
+    await start(agg, ctl)
+    await camera.wait_for_subscribers()
+    await eventually(lambda: any(d.get("hold") for d in drives), what="a hold before any frame")
+    assert all(d["speed"] == 0 for d in drives), "no frame yet: holds are stops"
+    camera.publish({"bins": [0, 0, 110, 0, 0], "total": 110})  # chase: speed 30
+    await eventually(lambda: ctl.stats.ticks == 1)
+    mark = len(drives)
+    await eventually(lambda: sum(1 for d in drives[mark:] if d.get("hold")) >= 3,
+                     what="holds after the tick")
+    held = [d for d in drives[mark:] if d.get("hold")]
+    # Between frames the motors get the last decision again, at the controller's rate, with
+    # the tick it came from and no based_on (latency tools match commands to samples by it).
+    assert held[0]["speed"] == 30 and held[0]["tick"] == 1 and "based_on" not in held[0]
+    # Once the camera is stale (1.5 periods = 0.3 s without a frame) a hold is a stop.
+    await eventually(lambda: drives[-1].get("hold") and drives[-1]["speed"] == 0,
+                     timeout_s=5, what="a stop once the camera is stale")
+    assert ctl.stats.ticks == 1 and ctl.stats.holds >= 3
+    await ctl.aclose()
+    await agg.aclose()
+
+
 @pytest.mark.asyncio
 async def test_sync_mode_ticks_only_on_a_fresh_camera_sample(robot_bus: Bus, peer_bus: Bus) -> None:
     agg = StateAggregator(bus=robot_bus)
@@ -215,8 +253,9 @@ async def test_sync_mode_ticks_only_on_a_fresh_camera_sample(robot_bus: Bus, pee
         other.publish({"range_mm": 500, "status": "ok"})
         seq, stamp = camera.publish({"bins": [0, 0, 100 + 10 * n, 0, 0], "total": 100 + 10 * n})
         await eventually(lambda n=n: ctl.stats.ticks == n, what=f"tick {n}")
-        await eventually(lambda n=n: len(drives) == n)
-        assert drives[-1]["based_on"] == {"source": "camera/front", "seq": seq, "stamp_ns": stamp}
+        await eventually(lambda n=n: len(ticked(drives)) == n)
+        assert ticked(drives)[-1]["based_on"] == {
+            "source": "camera/front", "seq": seq, "stamp_ns": stamp}
     # Other sensors do not tick a sync controller: only a new camera sample does.
     ctl.ticked.clear()
     for _ in range(5):
@@ -226,7 +265,7 @@ async def test_sync_mode_ticks_only_on_a_fresh_camera_sample(robot_bus: Bus, pee
     with pytest.raises(TimeoutError):
         await asyncio.wait_for(ctl.ticked.wait(), 0.3)
     assert ctl.stats.ticks == 5
-    assert [d["speed"] for d in drives] == [30, 20, 10, 0, -10]  # chase + flee, thesis numbers
+    assert [d["speed"] for d in ticked(drives)] == [30, 20, 10, 0, -10]  # thesis numbers
     await ctl.aclose()
     await agg.aclose()
 

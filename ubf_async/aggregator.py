@@ -386,6 +386,14 @@ class StateAggregator(Component):
             self.bus.clock, since_ns=entry.arrived_ns, since_wall_ns=entry.arrived_wall_ns,
             now_ns=now_ns, wall_now_ns=wall_now_ns)
 
+    def fresh(self, source: str, now_ns: int | None = None) -> bool:
+        """Whether ``source`` has a sample that is not stale."""
+        entry = self.entries.get(source)
+        if entry is None:
+            return False
+        now = self.bus.clock.now_ns() if now_ns is None else now_ns
+        return not self.is_stale(entry, now, time.monotonic_ns())
+
     def limit_s(self, entry: SourceEntry) -> float:
         configured = self.stale_after_s.get(entry.source)
         if configured is not None:

@@ -96,6 +96,8 @@ class TickStats:
     """Ticks whose command could not be published (a plain stop went out instead)."""
     reflex_limited: int = 0
     """Reflex samples that did not tick because the reflex bucket was empty."""
+    holds: int = 0
+    """Drive commands repeating the last decision between triggered ticks (sync/event)."""
     periodic_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
     """Robot-clock start time of recent ticks not run by a sample."""
     tick_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
@@ -105,18 +107,18 @@ class TickStats:
     winner_ticks: Counter[str] = field(default_factory=Counter)
     """How many ticks each leaf behaviour was among the winners."""
 
-    def rate_hz(self) -> float | None:
-        starts = self.tick_starts_ns
+    @staticmethod
+    def _rate(starts: deque[int]) -> float | None:
         if len(starts) < 2 or starts[-1] == starts[0]:
             return None
         return (len(starts) - 1) / ((starts[-1] - starts[0]) / 1e9)
 
+    def rate_hz(self) -> float | None:
+        return self._rate(self.tick_starts_ns)
+
     def periodic_rate_hz(self) -> float | None:
         """Rate of the recent ticks run by the clock (reflex ticks left out)."""
-        starts = self.periodic_starts_ns
-        if len(starts) < 2 or starts[-1] == starts[0]:
-            return None
-        return (len(starts) - 1) / ((starts[-1] - starts[0]) / 1e9)
+        return self._rate(self.periodic_starts_ns)
 
     def summary(self) -> dict[str, Any]:
         durations = list(self.tick_ns)
@@ -127,6 +129,7 @@ class TickStats:
             "errors": self.errors,
             "publish_errors": self.publish_errors,
             "reflex_limited": self.reflex_limited,
+            "holds": self.holds,
             "rate_hz": self.rate_hz(),
             "periodic_rate_hz": self.periodic_rate_hz(),
             "tick_us_p50": statistics.median(durations) / 1e3 if durations else None,
@@ -201,6 +204,7 @@ class Controller(Component):
         self.status_period_s = status_period_s
         self.stats = TickStats()
         self.last_action: Action | None = None
+        self._last_drive_ns = 0
         self.last_trace: Trace | None = None
         self.ticked = asyncio.Event()
         """Set after every tick (tests and tools clear and await it)."""
@@ -277,7 +281,34 @@ class Controller(Component):
         self.tick(based_on=entry)
 
     async def _run_triggered(self) -> None:
-        await asyncio.Event().wait()  # ticks come from _on_sample
+        """Ticks come from :meth:`_on_sample`. Between them the last decision is repeated
+        every ``1/rate_hz`` as a *hold* (``hold: true``, no ``based_on``, the same tick
+        number), as the thesis robot's motors kept their last setting until the next image:
+        the motors' watchdog (shorter than a camera period) must only stop a robot whose
+        controller died. A hold while the trigger source is stale is a stop."""
+        clock = self.bus.clock
+        period_s = 1.0 / self.rate_hz
+        period_ns = int(period_s * 1e9)
+        trigger = self.sync_source if self.mode is TickMode.SYNC else self.trigger
+        while True:
+            await clock.sleep(period_s)
+            now = clock.now_ns()
+            if 0 <= now - self._last_drive_ns < period_ns:
+                continue  # a tick published lately (a clock that went back re-anchors here)
+            last = self.last_action
+            fresh = trigger is not None and self.aggregator.fresh(trigger, now)
+            speed = last.speed if fresh and last is not None and last.speed is not None else 0.0
+            turn = last.turn if fresh and last is not None and last.turn is not None else 0.0
+            winners = self.last_trace.winning_leaves() if fresh and self.last_trace else []
+            self.stats.holds += 1
+            try:
+                self._drive.publish({
+                    "speed": speed, "turn": turn, "tick": self.stats.ticks, "hold": True,
+                    "winners": [clip(w, MAX_NAME_CHARS) for w in winners[:MAX_WINNERS]],
+                })
+            except Exception:
+                self._publish_failed("hold drive command")
+            self._last_drive_ns = now
 
     def tick(self, *, based_on: SourceEntry | None = None) -> Trace | None:
         """One UBF cycle: snapshot, evaluate, publish."""
@@ -314,6 +345,7 @@ class Controller(Component):
             "tick": self.stats.ticks,
             "winners": [clip(w, MAX_NAME_CHARS) for w in winners[:MAX_WINNERS]],
         }
+        self._last_drive_ns = state.now_ns
         try:
             self._drive.publish(command)
         except Exception:
