@@ -111,6 +111,9 @@ class Robot:
         self.clock = SimClock(start_ns=T0)
         bus = SimpleNamespace(keys=self.keys, clock=self.clock)
         self.root = options.pop("root", None) or seek_pink_ball()
+        # These tests are about attaching, TTLs and tokens, with an unconfigured teleop asking
+        # for priority 10; the stranger cap has its own tests (test_remote_rules.py).
+        options.setdefault("max_stranger_priority", 100)
         self.remotes = RemoteBehaviors(bus=bus, root=self.root, **options)  # type: ignore[arg-type]
         self.seq = 0
 
@@ -193,13 +196,15 @@ def test_default_ttl_and_the_robots_cap() -> None:
                            root=seek_pink_ball()).default_ttl_s == DEFAULT_TTL_S
 
 
-def test_vote_from_the_future_beyond_its_ttl_is_dropped() -> None:
+def test_vote_from_the_future_is_refused_and_counted() -> None:
     robot = Robot()
     robot.token("teleop")
     # e.g. a remote stamping with its host's wall clock while the robot runs on sim time
-    robot.vote(speed=-30, priority=10, ttl_s=0.5, stamp_ns=T0 + 2_000_000_000)
+    key = robot.vote(speed=-30, priority=10, ttl_s=0.5, stamp_ns=T0 + 2_000_000_000)
+    assert robot.remotes.future == {key: 1} and robot.child("teleop") is None
     assert robot.drive(0) == CHASE
-    assert robot.drive(1.5)[2] == ["teleop"]  # 0.5 s ahead: within the TTL
+    assert robot.drive(1.5) == CHASE  # never held, not even once the clock gets there
+    assert robot.remotes.status()["future"] == 1
 
 
 def test_out_of_order_vote_is_ignored_and_vote_zero_abstains() -> None:
@@ -357,7 +362,8 @@ def test_votes_without_a_token_are_forgotten_after_max_ttl() -> None:
     robot.at(1.1)
     robot.remotes.prune()
     assert robot.remotes.get("seek_pink_ball", "ghost") is None
-    assert robot.remotes.status() == {"remotes": [], "malformed": 0, "rejected": 0}
+    assert robot.remotes.status() == {"remotes": [], "malformed": 0, "rejected": 0,
+                                     "future": 0}
 
 
 def test_only_configured_and_max_remotes() -> None:
@@ -392,7 +398,7 @@ async def test_host_runs_a_plain_behaviour_remotely(robot_bus: Bus, peer_bus: Bu
     root = seek_pink_ball()
     agg = StateAggregator(bus=robot_bus)
     ctl = Controller(bus=robot_bus, aggregator=agg, root=root, rate_hz=50)
-    remotes = RemoteBehaviors(bus=robot_bus, root=root)
+    remotes = RemoteBehaviors(bus=robot_bus, root=root, config={"backer": (5, 1.0)})
     host = RemoteBehaviorHost(bus=peer_bus, behavior=FunctionBehavior(backer, name="backer"),
                               composite="seek_pink_ball", rate_hz=50, priority=5, ttl_s=0.3)
     camera = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor")
@@ -547,7 +553,7 @@ async def test_remote_override_takes_control_and_gives_it_back_within_its_ttl(
 ) -> None:
     ttl_s, host_period_s, tick_s = 0.5, 1 / 20, 1 / 50
     teleop_output = (-30.0, 50.0, ["teleop"])
-    robot_proc = start_robot(endpoint, robot)
+    robot_proc = start_robot(endpoint, robot, "--remote", "teleop=10")
     teleop: Process | None = None
     bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
     try:
@@ -593,7 +599,7 @@ async def test_remote_override_takes_control_and_gives_it_back_within_its_ttl(
 async def test_avoid_obstacles_process_backs_away_from_a_near_reading(
     endpoint: str, robot: str
 ) -> None:
-    robot_proc = start_robot(endpoint, robot)
+    robot_proc = start_robot(endpoint, robot, "--remote", "avoid_obstacles=3")
     procs: list[Process] = []
     bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
     try:
@@ -624,7 +630,7 @@ async def test_the_documented_plain_python_remote_behaviour_works(
     section = doc[doc.index("## Remote behaviours"):]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     code = code.replace("tcp/127.0.0.1:7447", endpoint).replace('"mini"', repr(robot))
-    robot_proc = start_robot(endpoint, robot)
+    robot_proc = start_robot(endpoint, robot, "--remote", "teleop=10")
     script: Process | None = None
     bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
     try:

@@ -82,8 +82,27 @@ class ConnectionOptions:
     config: Path | None = None
     multicast_scouting: bool = False
     """Off by default: a robot is found through explicit endpoints, never by accident."""
+    secure: Path | None = None
+    """Secure mode: a set-up directory made by ``python -m ubf_async.secure init``."""
+    identity: str | None = None
+    """Secure mode: who this process is (``robot``, ``inspector``, a remote behaviour's name
+    …); its credentials are ``<secure>/identities/<identity>.json``."""
+
+    @staticmethod
+    def secure_fields(args: argparse.Namespace) -> dict[str, Any]:
+        """``secure`` and ``identity`` from :func:`add_connection_arguments` flags: the
+        entry point's default identity applies only with ``--secure``."""
+        secure = getattr(args, "secure", None)
+        identity = getattr(args, "identity", None)
+        if secure is not None and identity is None:
+            identity = getattr(args, "_default_identity", None)
+        return {"secure": secure, "identity": identity}
 
     def zenoh_config(self) -> zenoh.Config:
+        """The zenoh configuration: the ``config`` file, then these options over it; in secure
+        mode the identity's credentials (and for ``robot`` the password dictionary and the
+        ACL), and client mode for every identity but ``robot`` (see :mod:`ubf_async.secure`).
+        Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up."""
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.connect:
@@ -92,6 +111,13 @@ class ConnectionOptions:
             conf.insert_json5("listen/endpoints", json.dumps(self.listen))
         if not self.multicast_scouting:
             conf.insert_json5("scouting/multicast/enabled", "false")
+        if self.secure is not None:
+            from ubf_async import secure  # only secure mode needs it
+
+            secure.apply(conf, directory=self.secure, identity=self.identity, robot=self.robot,
+                         listen=self.listen)
+        elif self.identity is not None:
+            raise ConfigurationError(f"--identity {self.identity} needs --secure DIR")
         return conf
 
 
@@ -108,10 +134,11 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def add_connection_arguments(
-    parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None
+    parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None,
+    default_identity: str | None = None,
 ) -> None:
-    """Add ``--mode/-m --connect/-e --listen/-l --config --robot`` (and ``--version``) to
-    ``parser``."""
+    """Add ``--mode/-m --connect/-e --listen/-l --config --robot --multicast-scouting``,
+    ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``."""
     from ubf_async import __version__
 
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -131,7 +158,17 @@ def add_connection_arguments(
                        help="robot name: keys live under ubf/<robot>/")
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover peers by UDP multicast (off by default)")
-    parser.set_defaults(_default_listen=default_listen or [])
+    group.add_argument("--secure", type=Path, default=None, metavar="DIR",
+                       help="secure mode: authenticate with the credentials in DIR (made by "
+                            "`python -m ubf_async.secure init`); see docs/security.md")
+    identity_help = ("with --secure: who this process is (robot, inspector, operator, a "
+                     "remote behaviour's slot name, device-KIND-NAME); all but robot connect "
+                     "as clients")
+    if default_identity:
+        identity_help += f"; default: {default_identity}"
+    group.add_argument("--identity", default=None, metavar="NAME", help=identity_help)
+    parser.set_defaults(_default_listen=default_listen or [],
+                        _default_identity=default_identity)
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:
@@ -161,6 +198,7 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     options = ConnectionOptions(
         robot=args.robot, mode=mode, connect=connect, listen=list(listen),
         config=args.config, multicast_scouting=args.multicast_scouting,
+        **ConnectionOptions.secure_fields(args),
     )
     try:  # every endpoint and value is checked now, not when the session opens
         options.zenoh_config()

@@ -89,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--check", action="store_true",
                         help="load and check the robot file (every name and parameter), print "
                              "what would run, and exit without starting anything")
-    add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN])
+    add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN],
+                             default_identity="robot")  # secure mode: see ubf_async.secure
     parser.set_defaults(robot=None)  # the robot file names the robot unless --robot is given
     ctl = parser.add_argument_group("controller (override the robot file's `controller:`)")
     ctl.add_argument("--rate-hz", type=float, default=None,
@@ -381,6 +382,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         if sim_run is not None:
             sim_run.add_devices(devices)
             components += sim_run.components()
+        # No remote behaviour may vote under the name of one of the robot's own components.
+        remotes.reserve(c.name for c in components)
         health.start()
         for component in components:
             await component.start()

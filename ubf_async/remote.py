@@ -31,7 +31,7 @@ import logging
 import math
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TextIO
 
@@ -77,6 +77,14 @@ MAX_TTL_S = 60.0
 """Largest ``ttl_s`` the schema accepts (the robot clamps further, see ``max_ttl_s``)."""
 PRIORITY_LIMIT = 1_000_000
 MAX_WEIGHT = 1e6
+MAX_NAME_LEN = 128
+"""Longest remote behaviour name accepted: the drive command lists winners as text of at most
+128 characters, so a longer name would make every tick's command invalid."""
+RESERVED_NAMES = frozenset({"controller", "aggregator", "remotes", "tree"})
+"""Names no remote behaviour may take (the robot's own components); launch adds the rest."""
+DEFAULT_MAX_FUTURE_S = 0.1
+"""How far ahead of the robot clock a vote may be stamped (clock skew between followers of
+the same simulation time, delivery order) before it is refused."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -348,12 +356,26 @@ class RemoteBehaviors(Component):
       the robot gives a remote behaviour, overriding what its votes request. Without an entry
       the vote's ``priority``/``weight`` are used (default 0 and 1); with
       ``only_configured=True`` behaviours without an entry are refused.
+    * ``max_stranger_priority`` — the highest priority an *unconfigured* remote behaviour
+      (a stranger) gets, whatever it asks for. ``None`` (the default): one below the lowest
+      priority of the composite's own (local) children, so a stranger only acts when every
+      local child abstains and never outranks or merges with what the robot's tree decides;
+      an int is a fixed cap. Configured behaviours get exactly their configured place.
     * ``default_ttl_s`` — a vote's lifetime when it states none; ``max_ttl_s`` caps what a
       vote may ask for.
+    * ``reserved_names`` — names no remote behaviour may take, added to
+      :data:`RESERVED_NAMES` and this component's own name (launch passes the robot's
+      component names). The names of the tree's own behaviours are refused too.
+    * ``max_remotes`` — how many remote children may exist at once. Configured behaviours
+      always find their place; strangers share what is left, ``max_remotes − len(config)``,
+      so strangers cannot exhaust the slots.
+    * ``max_future_s`` — a vote stamped more than this ahead of the robot clock is refused
+      and counted in ``future`` (a far-future stamp would otherwise win every ordering).
 
-    Votes that are malformed, name an unknown composite (or a leaf), collide with a local
-    child's name, or exceed ``max_remotes`` are rejected: counted (``malformed`` /
-    ``rejected``, per key), logged (first and every 100th) and dropped.
+    Votes that are malformed, name an unknown composite (or a leaf), take a reserved or too
+    long name, collide with a local child's name, come from the future or find no slot are
+    rejected: counted (``malformed`` / ``rejected`` / ``future``, per key), logged (first and
+    every 100th) and dropped.
     """
 
     def __init__(
@@ -366,6 +388,9 @@ class RemoteBehaviors(Component):
         max_ttl_s: float = 5.0,
         only_configured: bool = False,
         max_remotes: int = 64,
+        max_stranger_priority: int | None = None,
+        reserved_names: Iterable[str] = (),
+        max_future_s: float = DEFAULT_MAX_FUTURE_S,
         status_period_s: float = 0.5,
         name: str = "remotes",
         **component_options: float,
@@ -374,14 +399,21 @@ class RemoteBehaviors(Component):
         if not 0 < default_ttl_s <= max_ttl_s:
             raise ValueError(f"need 0 < default_ttl_s ({default_ttl_s}) ≤ max_ttl_s "
                              f"({max_ttl_s})")
+        if not (math.isfinite(max_future_s) and max_future_s >= 0):
+            raise ValueError(f"max_future_s must be finite and ≥ 0, got {max_future_s!r}")
+        if max_stranger_priority is not None and (
+            isinstance(max_stranger_priority, bool) or not isinstance(max_stranger_priority, int)
+        ):
+            raise ValueError(f"max_stranger_priority must be an int or None, got "
+                             f"{max_stranger_priority!r}")
         self.root = root
+        self.reserved: set[str] = {*RESERVED_NAMES, name}
+        """Names no remote behaviour may take (see :meth:`reserve`)."""
         self.config: dict[str, PriorityWeight] = {}
-        for key, (priority, weight) in (config or {}).items():
-            if isinstance(priority, bool) or not isinstance(priority, int):
-                raise ValueError(f"config[{key!r}]: priority must be an int, got {priority!r}")
-            if not (math.isfinite(weight) and weight >= 0):
-                raise ValueError(f"config[{key!r}]: weight must be finite and ≥ 0")
-            self.config[key] = (priority, float(weight))
+        self.set_config(config or {})
+        self.reserve(reserved_names)
+        self.max_stranger_priority = max_stranger_priority
+        self.max_future_s = max_future_s
         self.default_ttl_s = default_ttl_s
         self.max_ttl_s = max_ttl_s
         self.only_configured = only_configured
@@ -393,6 +425,8 @@ class RemoteBehaviors(Component):
         """Votes that failed to decode, per key."""
         self.rejected: dict[str, int] = {}
         """Valid votes refused (unknown composite, name clash, not configured, full), per key."""
+        self.future: dict[str, int] = {}
+        """Votes refused for a stamp more than ``max_future_s`` ahead of the robot clock."""
         self.changed = asyncio.Event()
         """Set whenever a remote is attached or detached (tests and tools clear and await it)."""
         self._entries: dict[tuple[str, str], _Entry] = {}
@@ -426,13 +460,24 @@ class RemoteBehaviors(Component):
         """Take a validated vote: create/attach its remote child as needed."""
         key = key or f"{vote.composite}/{vote.behavior}"
         ident = (vote.composite, vote.behavior)
-        if self.only_configured and self._configured(*ident) is None:
+        ahead_ns = vote.stamp_ns - self.bus.clock.now_ns()
+        if ahead_ns > self.max_future_s * 1e9:
+            return self._reject(key, f"stamped {ahead_ns / 1e9:.3g} s ahead of the robot clock "
+                                     f"(more than max_future_s {self.max_future_s:g})",
+                                counter=self.future)
+        configured = self._configured(*ident)
+        if self.only_configured and configured is None:
             return self._reject(key, f"{vote.behavior!r} is not configured on this robot "
                                      "(only configured remote behaviours may attach)")
         entry = self._entries.get(ident)
         if entry is None:
-            if len(self._entries) >= self.max_remotes:
-                return self._reject(key, f"already {self.max_remotes} remote behaviours")
+            if refusal := self._name_refusal(vote.behavior):
+                return self._reject(key, refusal)
+            if configured is None and self._strangers() >= self.stranger_slots:
+                return self._reject(key, f"no slot left for unconfigured remote behaviours "
+                                         f"({self.stranger_slots} of max_remotes "
+                                         f"{self.max_remotes} after {len(self.config)} "
+                                         "configured)")
             composite = self.root.find(vote.composite)
             if not isinstance(composite, Composite):
                 what = "a leaf, not a composite" if composite is not None else "unknown"
@@ -476,12 +521,71 @@ class RemoteBehaviors(Component):
     # -- tree changes ------------------------------------------------------------------------
     def placement(self, composite: str, behavior: str,
                   requested: tuple[int | None, float | None] = (None, None)) -> PriorityWeight:
-        """The (priority, weight) a remote gets: configured, else requested, else (0, 1)."""
+        """The (priority, weight) a remote gets: its configured place; else what it requested
+        (default 0 and 1) with the priority capped at :meth:`stranger_cap`."""
         configured = self._configured(composite, behavior)
         if configured is not None:
             return configured
         priority, weight = requested
-        return (0 if priority is None else priority, 1.0 if weight is None else weight)
+        cap = self.stranger_cap(composite)
+        return (min(0 if priority is None else priority, cap),
+                1.0 if weight is None else weight)
+
+    def stranger_cap(self, composite: str) -> int:
+        """The highest priority an unconfigured remote gets in ``composite``:
+        ``max_stranger_priority``, or one below the composite's lowest local child (0 for a
+        composite without local children)."""
+        if self.max_stranger_priority is not None:
+            return self.max_stranger_priority
+        node = self.root.find(composite)
+        local = [c.priority for c in node.children if not isinstance(c.behavior, RemoteBehavior)
+                 ] if isinstance(node, Composite) else []
+        return max(min(local) - 1, -PRIORITY_LIMIT) if local else 0
+
+    @property
+    def stranger_slots(self) -> int:
+        """How many unconfigured remotes may exist at once: ``max_remotes − len(config)``."""
+        return max(0, self.max_remotes - len(self.config))
+
+    def set_config(self, config: Mapping[str, PriorityWeight]) -> None:
+        """Take ``config`` (see the class) as the configured places; checks each entry."""
+        checked: dict[str, PriorityWeight] = {}
+        for key, (priority, weight) in config.items():
+            if isinstance(priority, bool) or not isinstance(priority, int):
+                raise ValueError(f"config[{key!r}]: priority must be an int, got {priority!r}")
+            if not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"config[{key!r}]: weight must be finite and ≥ 0")
+            checked[key] = (priority, float(weight))
+        self.config = checked
+        self._check_config_names()
+
+    def reserve(self, names: Iterable[str]) -> None:
+        """Add ``names`` (e.g. the robot's component names) to the reserved names. Raises
+        :class:`~ubf_async.errors.ConfigurationError` if the robot configures one of them as a
+        remote behaviour."""
+        self.reserved.update(names)
+        self._check_config_names()
+
+    def _check_config_names(self) -> None:
+        for key in self.config:
+            name = key.rpartition("/")[2]
+            if name in self.reserved:
+                raise ConfigurationError(f"remote behaviour {key!r}: {name!r} is reserved for "
+                                         "the robot's own components")
+
+    def _name_refusal(self, behavior: str) -> str:
+        """Why a new remote may not use ``behavior`` as its name ('' if it may)."""
+        if len(behavior) > MAX_NAME_LEN:
+            return f"name longer than {MAX_NAME_LEN} characters ({len(behavior)})"
+        if behavior in self.reserved:
+            return f"{behavior!r} is reserved for the robot's own components"
+        local = self.root.find(behavior)
+        if local is not None and not isinstance(local, RemoteBehavior):
+            return f"{behavior!r} is the name of a behaviour of the robot's own tree"
+        return ""
+
+    def _strangers(self) -> int:
+        return sum(1 for ident in self._entries if self._configured(*ident) is None)
 
     def _configured(self, composite: str, behavior: str) -> PriorityWeight | None:
         return self.config.get(f"{composite}/{behavior}", self.config.get(behavior))
@@ -543,9 +647,10 @@ class RemoteBehaviors(Component):
             entry.behavior.forget()
         self._entries.clear()
 
-    def _reject(self, key: str, reason: str) -> bool:
-        n = self.rejected.get(key, 0) + 1
-        self.rejected[key] = n
+    def _reject(self, key: str, reason: str, *, counter: dict[str, int] | None = None) -> bool:
+        counter = self.rejected if counter is None else counter
+        n = counter.get(key, 0) + 1
+        counter[key] = n
         if n == 1 or n % 100 == 0:
             log.warning("rejected vote #%d on %s: %s", n, key, reason)
         return False
@@ -571,7 +676,7 @@ class RemoteBehaviors(Component):
             self._detach(entry)
         self.root = root
         if config is not None:
-            self.config = dict(config)
+            self.set_config(config)
         left: list[str] = []
         for (composite, behavior), entry in moving:
             key = vote_key(self.bus.keys, composite, behavior)
@@ -617,6 +722,7 @@ class RemoteBehaviors(Component):
             ],
             "malformed": sum(self.malformed.values()),
             "rejected": sum(self.rejected.values()),
+            "future": sum(self.future.values()),
         }
 
 
@@ -824,6 +930,8 @@ async def host_remote_behavior(
     options = connection_options(args)
     if not options.connect and not options.listen:
         options.connect = [DEFAULT_LISTEN]  # the endpoint `python -m ubf_async.launch` uses
+    if options.secure is not None and options.identity is None:
+        options.identity = behavior.name  # a remote slot's identity is the slot's name
     bus = await Bus.open(options, clock=WallClock())
     host: RemoteBehaviorHost | None = None
     try:
