@@ -96,7 +96,8 @@ async def start_robot(bus: Bus, root: Composite, *, with_remotes: bool = False,
                       seed: int | None = 1) -> tuple[LiveRobot, list[Any]]:
     aggregator = StateAggregator(bus=bus)
     controller = Controller(bus=bus, aggregator=aggregator, root=root, rate_hz=100.0)
-    remotes = RemoteBehaviors(bus=bus, root=root) if with_remotes else None
+    remotes = (RemoteBehaviors(bus=bus, root=root, config={"root/teleop": (10, 1.0)})
+               if with_remotes else None)
     service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed)
     components: list[Any] = [aggregator, controller, service]
     if remotes is not None:

@@ -121,12 +121,13 @@ class Robot:
         self.remotes.on_liveliness(self.keys.alive(name), alive)
 
     def vote(self, name: str = "teleop", composite: str = "seek_pink_ball", *,
-             stamp_ns: int | None = None, **data: Any) -> str:
+             stamp_ns: int | None = None, seq: int | None = None, **data: Any) -> str:
         data.setdefault("vote", 1.0)
         self.seq += 1
         key = vote_key(self.keys, composite, name)
         stamp = self.clock.now_ns() if stamp_ns is None else stamp_ns
-        self.remotes.on_vote(key, encode("vote", data, stamp_ns=stamp, seq=self.seq))
+        self.remotes.on_vote(key, encode("vote", data, stamp_ns=stamp,
+                                         seq=self.seq if seq is None else seq))
         return key
 
     def at(self, seconds: float) -> State:
@@ -211,10 +212,13 @@ def test_out_of_order_vote_is_ignored_and_vote_zero_abstains() -> None:
     robot = Robot()
     robot.token("teleop")
     robot.at(1.0)
-    robot.vote(speed=-30, priority=10)
-    robot.vote(speed=99, priority=10, stamp_ns=T0 + 500_000_000)  # older: ignored
+    robot.vote(speed=-30, priority=10, seq=5)
+    robot.vote(speed=99, priority=10, seq=4)  # out of order (same publisher, older seq)
     assert robot.drive(1.01) == (-30.0, None, ["teleop"])
-    robot.vote(vote=0.0, speed=-30, priority=10)  # abstain, explicitly
+    # A restarted plain publisher (its seq starts again) is taken once its stamp is newer.
+    robot.vote(speed=-20, priority=10, seq=1, stamp_ns=T0 + 1_005_000_000)
+    assert robot.drive(1.01) == (-20.0, None, ["teleop"])
+    robot.vote(vote=0.0, speed=-30, priority=10, seq=2)  # abstain, explicitly
     assert robot.drive(1.02) == CHASE
     assert robot.child("teleop") is not None
 

@@ -35,17 +35,13 @@ from ubf_async.secure import access_control, apply, identities_for, init
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
-SLOTS = """
-    - remote: teleop
-      priority: 10
-"""
-
-
 def robot_file(tmp_path: Path, name: str) -> Path:
-    """mini-whegs named ``name``, with a `remote: teleop` slot at priority 10."""
+    """mini-whegs named ``name``: it has `remote:` slots for teleop (priority 10) and
+    avoid_obstacles (3)."""
     text = ROBOT_FILE.read_text().replace("\nname: mini\n", f"\nname: {name}\n")
+    assert "remote: teleop" in text
     path = tmp_path / "robot.yaml"
-    path.write_text(text.rstrip("\n") + "\n" + SLOTS.lstrip("\n"))
+    path.write_text(text)
     return path
 
 
@@ -57,14 +53,14 @@ def test_init_writes_private_credentials_and_a_default_deny_acl(tmp_path: Path) 
     robot = load_robot(robot_file(tmp_path, "sec"))
     setup = init(tmp_path / "s", robot=robot, devices=["camera/front"])
     assert list(setup.identities) == ["robot", "inspector", "operator", "teleop",
-                                      "device-camera-front"]
+                                      "avoid_obstacles", "device-camera-front"]
     for path in [tmp_path / "s", *(tmp_path / "s").rglob("*")]:
         mode = stat.S_IMODE(path.stat().st_mode)
         assert mode == (0o700 if path.is_dir() else 0o600), (path, oct(mode))
     creds = json.loads((tmp_path / "s" / "identities" / "teleop.json").read_text())
     assert creds["user"] == "teleop" and len(creds["password"]) >= 30
     lines = (tmp_path / "s" / "passwords.txt").read_text().splitlines()
-    assert f"teleop:{creds['password']}" in lines and len(lines) == 5
+    assert f"teleop:{creds['password']}" in lines and len(lines) == 6
     with pytest.raises(ConfigurationError, match="already holds"):
         init(tmp_path / "s", robot=robot)
     again = init(tmp_path / "s", robot=robot, force=True)

@@ -143,17 +143,18 @@ def add_connection_arguments(
 
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     group = parser.add_argument_group("connection (shared by every ubf_async entry point)")
-    group.add_argument("--mode", "-m", choices=("peer", "client"), default="peer",
-                       help="zenoh session mode")
+    group.add_argument("--mode", "-m", choices=("peer", "client"), default=None,
+                       help="zenoh session mode (default: the --config file's, else peer)")
     group.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT",
                        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     listen_help = "endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)"
     if default_listen:
-        listen_help += f"; default: {' '.join(default_listen)}"
+        listen_help += (f"; default: {' '.join(default_listen)} unless the --config file "
+                        "sets listen endpoints")
     group.add_argument("--listen", "-l", action="append", default=None, metavar="ENDPOINT",
                        help=listen_help)
     group.add_argument("--config", type=Path, default=None, metavar="FILE",
-                       help="zenoh JSON5 configuration file (flags above override it)")
+                       help="zenoh JSON5 configuration file (the flags given override it)")
     group.add_argument("--robot", default=DEFAULT_ROBOT,
                        help="robot name: keys live under ubf/<robot>/")
     group.add_argument("--multicast-scouting", action="store_true",

@@ -39,6 +39,7 @@ from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behavior import Behavior, Composite
 from ubf_async.bus import (
+    DEFAULT_ATTACH_TIMEOUT_S,
     DEFAULT_LISTEN,
     Bus,
     Publisher,
@@ -46,11 +47,13 @@ from ubf_async.bus import (
     connection_options,
     decode_or_count,
     follow_sim_clock,
+    wait_for_robot,
 )
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
-from ubf_async.component import Component
+from ubf_async.component import Component, ensure_name_free
 from ubf_async.errors import ConfigurationError
+from ubf_async.ordering import SampleOrder, ahead_of_clock
 from ubf_async.protocol import (
     RGB,
     Check,
@@ -199,6 +202,8 @@ class Vote:
     ttl_s: float | None = None
     priority: int | None = None
     weight: float | None = None
+    pub: int | None = None
+    """The voting publisher's identity (envelope ``pub``), if it sent one."""
 
     @classmethod
     def decode(cls, keys: Keys, key: str, payload: bytes) -> Vote:
@@ -213,7 +218,7 @@ class Vote:
         return cls(
             composite=composite, behavior=behavior, action=action_of_vote(data),
             stamp_ns=message.stamp_ns, seq=message.seq, ttl_s=data.get("ttl_s"),
-            priority=data.get("priority"), weight=data.get("weight"),
+            priority=data.get("priority"), weight=data.get("weight"), pub=message.pub,
         )
 
 
@@ -254,9 +259,8 @@ class RemoteBehavior(Behavior):
         self._ttl_ns = int(value * 1e9)
 
     def update(self, action: Action, *, stamp_ns: int, seq: int = 0) -> bool:
-        """Take a new vote; an older one than the current (out of order) is ignored."""
-        if self.action is not None and stamp_ns < self.stamp_ns:
-            return False
+        """Take a new vote (the robot's :class:`RemoteBehaviors` has already ordered it per
+        publisher, see :class:`~ubf_async.ordering.SampleOrder`). Returns ``True``."""
         self.action = action
         self.stamp_ns = stamp_ns
         self.seq = seq
@@ -334,10 +338,11 @@ def remote_spec(text: str) -> tuple[str, PriorityWeight]:
 
 
 class _Entry:
-    __slots__ = ("attached_as", "behavior", "requested")
+    __slots__ = ("attached_as", "behavior", "order", "requested")
 
     def __init__(self, behavior: RemoteBehavior) -> None:
         self.behavior = behavior
+        self.order = SampleOrder()
         self.requested: tuple[int | None, float | None] = (None, None)
         self.attached_as: tuple[Composite, int, float] | None = None
 
@@ -461,7 +466,7 @@ class RemoteBehaviors(Component):
         key = key or f"{vote.composite}/{vote.behavior}"
         ident = (vote.composite, vote.behavior)
         ahead_ns = vote.stamp_ns - self.bus.clock.now_ns()
-        if ahead_ns > self.max_future_s * 1e9:
+        if ahead_of_clock(vote.stamp_ns, self.bus.clock.now_ns(), int(self.max_future_s * 1e9)):
             return self._reject(key, f"stamped {ahead_ns / 1e9:.3g} s ahead of the robot clock "
                                      f"(more than max_future_s {self.max_future_s:g})",
                                 counter=self.future)
@@ -489,8 +494,10 @@ class RemoteBehaviors(Component):
                          self.bus.keys.alive(vote.behavior))
         remote = entry.behavior
         remote.alive = vote.behavior in self.alive
-        if not remote.update(vote.action, stamp_ns=vote.stamp_ns, seq=vote.seq):
-            return False  # out of order: older than the vote held
+        if not entry.order.accept(pub=vote.pub, seq=vote.seq, stamp_ns=vote.stamp_ns):
+            return self._reject(key, f"seq {vote.seq} (pub {vote.pub}) not newer than the "
+                                     "vote held (same rule as sensor samples)")
+        remote.update(vote.action, stamp_ns=vote.stamp_ns, seq=vote.seq)
         ttl = self.default_ttl_s if vote.ttl_s is None else vote.ttl_s
         remote.ttl_s = min(ttl, self.max_ttl_s)
         entry.requested = (vote.priority, vote.weight)
@@ -887,6 +894,9 @@ def remote_parser(
                        help="robot clock: wall (CLOCK_MONOTONIC), sim (follow "
                             "ubf/<robot>/clock), auto (sim if a simulator speaks within "
                             "--clock-wait-s)")
+    group.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
+                       metavar="S", help="how long to wait for the robot to answer before "
+                                         "giving up")
     group.add_argument("--clock-wait-s", type=float, default=1.0,
                        help="with --clock auto: how long to listen for a simulator")
     run = parser.add_argument_group("run")
@@ -927,14 +937,15 @@ async def host_remote_behavior(
     """Run ``behavior`` as a remote behaviour with the options of :func:`remote_parser`."""
     if args.name:
         behavior.name = args.name
+    if getattr(args, "secure", None) is not None and getattr(args, "identity", None) is None:
+        args.identity = behavior.name  # a remote slot's identity is the slot's name
     options = connection_options(args)
     if not options.connect and not options.listen:
         options.connect = [DEFAULT_LISTEN]  # the endpoint `python -m ubf_async.launch` uses
-    if options.secure is not None and options.identity is None:
-        options.identity = behavior.name  # a remote slot's identity is the slot's name
     bus = await Bus.open(options, clock=WallClock())
     host: RemoteBehaviorHost | None = None
     try:
+        await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
         if args.clock == "sim":
             print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
             out.flush()
@@ -944,6 +955,7 @@ async def host_remote_behavior(
             trigger=args.trigger, ttl_s=args.ttl_s, priority=args.priority,
             weight=args.weight,
         )
+        await ensure_name_free(bus, host.name, hint="start it with another --name")
         timing = f"on {args.trigger}" if args.trigger else f"at {args.rate_hz:g} Hz"
         print(f"remote behaviour {behavior.name!r} votes in {args.composite!r} of robot "
               f"{options.robot!r} {timing} (priority {args.priority}, weight {args.weight:g}, "
