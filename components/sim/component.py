@@ -40,6 +40,7 @@ from __future__ import annotations
 import asyncio
 import secrets
 import time
+from collections import deque
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -54,6 +55,8 @@ from ubf_async.simulation import DeviceContext
 DEVICES = KINDS
 """The devices of the simulated Mini-WHEGS."""
 RTF_WINDOW_S = 0.25
+RTF_WINDOWS_KEPT = 14_400
+"""The last hour of wall time's windows are kept (a bounded deque, ≈ 0.5 MB)."""
 SETTLE_ITERATIONS = 6
 """Loop iterations between late steps. The longest in-process chain a step starts takes five:
 the camera's deadline wake-up → its publish → the aggregator's handler, where a triggered
@@ -91,9 +94,9 @@ class SimulatorComponent(Component):
         self.wall_stopped_s: float | None = None
         self.sim_started_s = world.time_s
         self.late_steps = 0
-        self.rtf_windows: list[float] = []
-        """Real-time factor over each successive ``RTF_WINDOW_S`` of wall time: shows whether
-        the run kept up throughout, not just on average."""
+        self.rtf_windows: deque[float] = deque(maxlen=RTF_WINDOWS_KEPT)
+        """Real-time factor over each successive ``RTF_WINDOW_S`` of wall time (the last
+        ``RTF_WINDOWS_KEPT``): shows whether the run kept up throughout, not just on average."""
 
     def real_time_factor(self) -> float | None:
         """Simulated seconds per wall second from the simulator's start (once the components

@@ -1,6 +1,9 @@
 """Recording a simulated run: trajectory samples, a top-down plot, annotated camera frames.
 
-Pure functions (NumPy/OpenCV, no bus): the runner calls them from worker threads.
+No bus here (NumPy/OpenCV): the runner calls the drawing and file functions from worker
+threads. A run's memory stays bounded however long it lasts: :class:`TrajectoryBuffer` keeps
+a decimated history of the whole run plus the recent samples at full rate, and
+:class:`TrajectoryCsvWriter` streams every sample to ``trajectory.csv`` as the run goes.
 """
 
 from __future__ import annotations
@@ -8,9 +11,12 @@ from __future__ import annotations
 import csv
 import itertools
 import math
-from collections.abc import Sequence
+import threading
+from collections import deque
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TextIO
 
 import cv2
 import numpy as np
@@ -31,6 +37,18 @@ class TrajectorySample:
     speed_cmd: float | None
     turn_cmd: float | None
     winners: str
+
+
+def trajectory_sample(snap: WorldSnapshot, *, speed_cmd: float | None = None,
+                      turn_cmd: float | None = None, winners: str = "") -> TrajectorySample:
+    """The sample of ``snap``: robot pose and ball position, with the command then in force."""
+    return TrajectorySample(
+        t_s=snap.time_s, robot_x_m=snap.robot.x_m, robot_y_m=snap.robot.y_m,
+        robot_heading_rad=snap.robot.heading_rad,
+        ball_x_m=snap.ball.x_m if snap.ball else None,
+        ball_y_m=snap.ball.y_m if snap.ball else None,
+        speed_cmd=speed_cmd, turn_cmd=turn_cmd, winners=winners,
+    )
 
 
 def camera_to_ball(
@@ -64,13 +82,135 @@ def motion_over(samples: Sequence[TrajectorySample], seconds: float) -> dict[str
             "heading_change_deg": math.degrees(turn), "window_s": end.t_s - window[0].t_s}
 
 
-def write_trajectory_csv(path: Path, samples: Sequence[TrajectorySample]) -> None:
-    fields = list(TrajectorySample.__dataclass_fields__)
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields)
-        writer.writeheader()
-        for s in samples:
-            writer.writerow(asdict(s))
+HISTORY_CAPACITY = 4096
+"""Most samples :class:`TrajectoryBuffer` keeps of the run's history (before the recent ones)."""
+RECENT_SAMPLES = 1200
+"""Samples :class:`TrajectoryBuffer` keeps at full rate at the end: 60 s at the runner's 50 ms."""
+
+
+class TrajectoryBuffer:
+    """The samples of a run in bounded memory, keeping the whole run's shape.
+
+    Two parts, together at most ``capacity + recent`` samples whatever the run's length:
+
+    * the *history*: every ``stride``-th sample since the start. When it holds ``capacity``
+      samples, every other one is dropped and the stride doubles, so the kept samples always
+      cover the whole run evenly (the first sample stays; a 1 h run at 20 samples/s keeps one
+      in 32, every 1.6 s) — enough for the trajectory plot;
+    * the *recent* samples, the last ``recent`` at full rate — for figures over the run's
+      end (:func:`motion_over` over the last 2 s) and the final pose.
+
+    :meth:`samples` joins both in time order. ``append`` is O(1) amortised; call it from one
+    thread (the runner's event loop).
+    """
+
+    def __init__(self, *, capacity: int = HISTORY_CAPACITY, recent: int = RECENT_SAMPLES) -> None:
+        if capacity < 2 or capacity % 2:
+            raise ValueError(f"capacity must be an even number >= 2, got {capacity}")
+        if recent < 1:
+            raise ValueError(f"recent must be >= 1, got {recent}")
+        self._capacity = capacity
+        self._history: list[TrajectorySample] = []
+        self._recent: deque[TrajectorySample] = deque(maxlen=recent)
+        self._stride = 1
+        self._count = 0
+
+    @property
+    def count(self) -> int:
+        """Samples appended since the start (kept or not)."""
+        return self._count
+
+    @property
+    def stride(self) -> int:
+        """The history keeps the samples whose index is a multiple of this."""
+        return self._stride
+
+    @property
+    def max_kept(self) -> int:
+        """The most samples the buffer ever holds."""
+        return self._capacity + (self._recent.maxlen or 0)
+
+    @property
+    def last(self) -> TrajectorySample | None:
+        return self._recent[-1] if self._recent else None
+
+    def __len__(self) -> int:
+        """Samples held now (``<= max_kept``)."""
+        return len(self._history) + len(self._recent)
+
+    def append(self, sample: TrajectorySample) -> None:
+        if self._count % self._stride == 0:
+            self._history.append(sample)
+            if len(self._history) >= self._capacity:
+                # Indices were multiples of stride; now multiples of 2·stride. The next index
+                # kept (capacity·stride) is one of them, as capacity is even.
+                self._history = self._history[::2]
+                self._stride *= 2
+        self._recent.append(sample)
+        self._count += 1
+
+    def samples(self) -> list[TrajectorySample]:
+        """The kept samples in time order: the history before the recent ones, then those."""
+        first_recent = self._count - len(self._recent)
+        older = -(-first_recent // self._stride)  # history entries with index < first_recent
+        return self._history[:older] + list(self._recent)
+
+
+_CSV_FIELDS = list(TrajectorySample.__dataclass_fields__)
+
+
+class TrajectoryCsvWriter:
+    """Streams samples to a ``trajectory.csv`` as the run goes, so none is held for the end.
+
+    The event loop hands samples over with :meth:`add` (cheap, no I/O) and takes them back in
+    batches with :meth:`take`; :meth:`write` (a worker thread's job) appends a batch to the
+    file. Writes are serialised by a lock, so batches land in the order ``write`` was called.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._fh: TextIO | None = path.open("w", newline="", encoding="utf-8")
+        self._writer = csv.DictWriter(self._fh, fieldnames=_CSV_FIELDS)
+        self._writer.writeheader()
+        self._pending: list[TrajectorySample] = []
+        self._lock = threading.Lock()
+        self.written = 0
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def add(self, sample: TrajectorySample) -> None:
+        self._pending.append(sample)
+
+    def take(self) -> list[TrajectorySample]:
+        batch, self._pending = self._pending, []
+        return batch
+
+    def write(self, samples: Iterable[TrajectorySample]) -> None:
+        """Append ``samples`` to the file and flush it (blocking I/O: not on the loop)."""
+        with self._lock:
+            if self._fh is None:
+                raise ValueError(f"{self.path} is closed")
+            for s in samples:
+                self._writer.writerow(asdict(s))
+                self.written += 1
+            self._fh.flush()
+
+    def close(self) -> None:
+        """Close the file (blocking I/O: not on the loop). Samples still pending are not
+        written: :meth:`take` and :meth:`write` them first."""
+        with self._lock:
+            if self._fh is not None:
+                self._fh.close()
+                self._fh = None
+
+
+def write_trajectory_csv(path: Path, samples: Iterable[TrajectorySample]) -> None:
+    """Write ``samples`` to ``path`` in one go (the format :class:`TrajectoryCsvWriter` streams)."""
+    writer = TrajectoryCsvWriter(path)
+    writer.write(samples)
+    writer.close()
 
 
 def read_trajectory_csv(path: Path) -> list[TrajectorySample]:

@@ -7,16 +7,25 @@ given, the simulator component, simulated time, the status-line suffix and, at t
 summary (``summary_path``) and recording (``record_dir``: trajectory.csv, trajectory.png,
 annotated camera frames). Launch builds the devices (from the robot file, through the
 registry) and hands them over with :meth:`SimulationRun.add_devices`.
+
+Memory stays bounded however long a run lasts (docs/resources.md): the trajectory is sampled
+every ``SAMPLE_PERIOD_S`` into a :class:`~components.sim.record.TrajectoryBuffer` (a decimated
+history of the whole run plus the last minute at full rate: what the plot and the summary
+need), and with ``record_dir`` every sample is also streamed to ``trajectory.csv`` as the run
+goes, in batches written by a worker thread.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import statistics
+import threading
 import time
-from collections.abc import Iterable
+from collections import deque
+from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, TextIO
@@ -28,12 +37,14 @@ from components.camera.seekcolor import seekcolor
 from components.sim.backends import SimCameraBackend
 from components.sim.component import RTF_WINDOW_S, SimulatorComponent
 from components.sim.record import (
+    TrajectoryBuffer,
+    TrajectoryCsvWriter,
     TrajectorySample,
     annotate_frame,
     camera_to_ball,
     motion_over,
     plot_trajectory,
-    write_trajectory_csv,
+    trajectory_sample,
 )
 from components.sim.scenarios import load_scenario
 from components.sim.world import World
@@ -44,8 +55,14 @@ from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import SimulationOptions
 
+log = logging.getLogger(__name__)
+
 DEFAULT_SCENARIO = "ball-in-sight"
 SAMPLE_PERIOD_S = 0.05
+CSV_BATCH_SAMPLES = 100
+"""Samples handed to the writer thread at a time (5 s of simulated time)."""
+LISTED_FRAMES = 1000
+"""Most recorded frame names the summary lists (the last ones; ``frames_written`` counts all)."""
 
 
 def _check_options(options: SimulationOptions) -> None:
@@ -58,7 +75,7 @@ def _check_options(options: SimulationOptions) -> None:
         raise ConfigurationError(f"record_every_s must be > 0, got {options.record_every_s}")
 
 
-def window_summary(windows: list[float]) -> dict[str, Any] | None:
+def window_summary(windows: Sequence[float]) -> dict[str, Any] | None:
     """Median, 1st percentile and worst of the per-window real-time factors
     (``RTF_WINDOW_S`` of wall time each)."""
     if not windows:
@@ -92,12 +109,24 @@ class SimulationRun:
         self.simulator = SimulatorComponent(bus=bus, world=self._world, clock=clock,
                                             speed=options.speed)
         self.devices: list[Component] = []
-        self.samples: list[TrajectorySample] = []
-        self.frames: list[Path] = []
+        self.trajectory = TrajectoryBuffer()
+        self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
+        """The last ``LISTED_FRAMES`` frames written (``frames_written`` counts them all)."""
+        self.frames_written = 0
+        self._csv: TrajectoryCsvWriter | None = None
+        self._csv_write: asyncio.Future[None] | None = None
+        self._recording_errors: list[str] = []
+        self._frames_lock = threading.Lock()
         self._tasks: list[asyncio.Task[None]] = []
         self._wall_start = time.monotonic()
 
     # -- what launch asks ---------------------------------------------------------------------
+    @property
+    def samples(self) -> list[TrajectorySample]:
+        """The trajectory kept in memory: the whole run decimated, the last minute at full
+        rate (:class:`~components.sim.record.TrajectoryBuffer`). A copy: build it sparingly."""
+        return self.trajectory.samples()
+
     @property
     def seed(self) -> int:
         """The seed of every random source: ``options.seed``, else the scenario's."""
@@ -146,30 +175,59 @@ class SimulationRun:
             # Simulated time stops exactly at the end, however late launch notices it, so a
             # run ends in the same state at any speed.
             self.clock.hold(round(self.duration_s * 1e9))
-        self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
         if self.options.record_dir is not None:
             self.options.record_dir.mkdir(parents=True, exist_ok=True)
+            self._csv = TrajectoryCsvWriter(self.options.record_dir / "trajectory.csv")
+        self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
+        if self.options.record_dir is not None:
             self._tasks.append(asyncio.create_task(self._record_frames(), name="sim:frames"))
 
     def _take_sample(self, controller: Controller) -> None:
         snap = self.world.snapshot()
-        if self.samples and self.samples[-1].t_s == snap.time_s:
+        last_sample = self.trajectory.last
+        if last_sample is not None and last_sample.t_s == snap.time_s:
             return
         last = controller.last_action
         trace = controller.last_trace
-        self.samples.append(TrajectorySample(
-            t_s=snap.time_s, robot_x_m=snap.robot.x_m, robot_y_m=snap.robot.y_m,
-            robot_heading_rad=snap.robot.heading_rad,
-            ball_x_m=snap.ball.x_m if snap.ball else None,
-            ball_y_m=snap.ball.y_m if snap.ball else None,
-            speed_cmd=last.speed if last else None, turn_cmd=last.turn if last else None,
-            winners="+".join(trace.winning_leaves()) if trace else "",
-        ))
+        sample = trajectory_sample(
+            snap, speed_cmd=last.speed if last else None, turn_cmd=last.turn if last else None,
+            winners="+".join(trace.winning_leaves()) if trace else "")
+        self.trajectory.append(sample)
+        if self._csv is not None:
+            self._csv.add(sample)
 
     async def _sample(self, controller: Controller) -> None:
         while True:
             self._take_sample(controller)
+            if self._csv is not None and self._csv.pending >= CSV_BATCH_SAMPLES:
+                await self._write_csv_batch()
             await self.clock.sleep(SAMPLE_PERIOD_S)
+
+    async def _write_csv_batch(self) -> None:
+        """Hand the pending samples to a writer thread. At most one batch is in flight: a
+        slow disk makes sampling wait (bounded memory) rather than batches pile up."""
+        await self._csv_written()
+        if self._csv is not None:
+            self._csv_write = asyncio.ensure_future(asyncio.to_thread(self._csv.write,
+                                                                      self._csv.take()))
+
+    async def _csv_written(self) -> None:
+        """Wait for the batch in flight. A failed write stops the streaming (logged, and
+        reported in the summary); the run goes on."""
+        if self._csv_write is None:
+            return
+        try:
+            # Shielded: cancelling the sampler must not cancel (and so lose) a batch.
+            await asyncio.shield(self._csv_write)
+        except OSError as exc:
+            if self._csv is not None:
+                log.error("trajectory.csv: %s; no more samples are written to it", exc)
+                self._recording_errors.append(f"trajectory.csv: {exc}")
+                self._csv.take()
+                self._csv = None
+        finally:
+            if self._csv_write.done():
+                self._csv_write = None
 
     async def _record_frames(self) -> None:
         camera = SimCameraBackend(self.world)
@@ -186,7 +244,9 @@ class SimulationRun:
         image = annotate_frame(frame, seekcolor(frame), t_s=t_s)
         path = folder / f"frame_{t_s:07.2f}s.png"
         cv2.imwrite(str(path), image)
-        self.frames.append(path)
+        with self._frames_lock:  # the final frame may overlap a cancelled periodic one
+            self.frames.append(path)
+            self.frames_written += 1
 
     async def finish(self, controller: Controller, out: TextIO) -> dict[str, Any]:
         """Stop sampling; write the summary and recording; return the summary."""
@@ -198,20 +258,30 @@ class SimulationRun:
         summary = self.summary(controller)
         if self.options.record_dir is not None:
             folder = self.options.record_dir
-            await asyncio.to_thread(self._write_recording, folder)
+            await self._csv_written()  # the batch in flight lands before the rest
+            rest = self._csv.take() if self._csv is not None else []
+            try:
+                await asyncio.to_thread(self._write_recording, folder, rest)
+            except OSError as exc:  # the summary is still written
+                log.error("recording in %s: %s", folder, exc)
+                self._recording_errors.append(str(exc))
             summary["recording"] = {"dir": str(folder), "trajectory_csv": "trajectory.csv",
                                     "trajectory_png": "trajectory.png",
-                                    "frames": [p.name for p in self.frames]}
-            print(f"  recorded {len(self.samples)} samples and {len(self.frames)} frames "
-                  f"in {folder}", file=out)
+                                    "frames": [p.name for p in self.frames],
+                                    "frames_written": self.frames_written,
+                                    "errors": self._recording_errors}
+            print(f"  recorded {self.trajectory.count} samples and {self.frames_written} "
+                  f"frames in {folder}", file=out)
         if self.options.summary_path is not None:
             text = json.dumps(summary, indent=2)
             await asyncio.to_thread(self.options.summary_path.write_text, text, "utf-8")
             print(f"  summary written to {self.options.summary_path}", file=out)
         return summary
 
-    def _write_recording(self, folder: Path) -> None:
-        write_trajectory_csv(folder / "trajectory.csv", self.samples)
+    def _write_recording(self, folder: Path, rest: list[TrajectorySample]) -> None:
+        if self._csv is not None:
+            self._csv.write(rest)
+            self._csv.close()
         image = plot_trajectory(self.samples, self.world.snapshot(),
                                 title=f"{self.scenario.title} (seed {self.seed})")
         cv2.imwrite(str(folder / "trajectory.png"), image)
@@ -222,6 +292,7 @@ class SimulationRun:
         snap = self.world.snapshot()
         robot = snap.robot
         wall_s = time.monotonic() - self._wall_start
+        samples = self.samples
         out: dict[str, Any] = {
             "scenario": self.scenario.name,
             "title": self.scenario.title,
@@ -236,11 +307,12 @@ class SimulationRun:
             "ball": None,
             "ball_distance_m": None,
             "ball_bearing_deg": None,
-            "motion_last_2s": motion_over(self.samples, 2.0),
+            "motion_last_2s": motion_over(samples, 2.0),
             "ticks": controller.stats.summary(),
             "camera_frames": sum(d.frames for d in self.devices
                                  if isinstance(d, CameraComponent)),
-            "trajectory_samples": len(self.samples),
+            "trajectory_samples": self.trajectory.count,
+            "trajectory_samples_kept": len(samples),
         }
         if snap.ball is not None:
             distance, bearing = camera_to_ball(robot.x_m, robot.y_m, robot.heading_rad,
