@@ -65,8 +65,6 @@ sample before the robot did, by a few ms of wall time — multiplied by the simu
 (20 ms at 20× is 0.4 s). A sample stamped further ahead is refused."""
 DEFAULT_FORGET_AFTER_S = 60.0
 """An unprotected source silent this long (robot clock) is dropped from the state."""
-MAX_MALFORMED_KEYS = 1024
-"""Keys whose malformed-sample counts are kept (the oldest key's count goes first)."""
 
 Listener = Callable[[str, "SourceEntry"], None]
 
@@ -201,7 +199,7 @@ class StateAggregator(Component):
         self._silence: OrderedDict[str, None] = OrderedDict()
         """Unprotected sources, the one silent longest first (eviction order)."""
         self.malformed: dict[str, int] = {}
-        """Rejected samples per key (at most :data:`MAX_MALFORMED_KEYS` keys)."""
+        """Rejected samples per key (at most :data:`~ubf_async.bus.MAX_COUNTED_KEYS` keys)."""
         self.refused: Counter[str] = Counter()
         """Valid samples refused, per :class:`~ubf_async.ordering.Refusal` (all sources)."""
         self.evicted = 0
@@ -241,8 +239,6 @@ class StateAggregator(Component):
     # -- ingest (event loop) -----------------------------------------------------------------
     def _on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key)
-        if len(self.malformed) > MAX_MALFORMED_KEYS:
-            del self.malformed[next(iter(self.malformed))]
         if message is None:
             return
         try:

@@ -34,6 +34,7 @@ import argparse
 import asyncio
 import contextlib
 import dataclasses
+import itertools
 import json
 import logging
 import re
@@ -58,6 +59,11 @@ log = logging.getLogger(__name__)
 
 DEFAULT_ROBOT = "mini"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+
+DRAIN_BATCH = 256
+"""Samples a subscription hands to its handler in one pass of the event loop."""
+MAX_COUNTED_KEYS = 1024
+"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
 
 SampleHandler = Callable[[str, bytes, int], None]
 """``handler(key, payload, received_ns)`` — runs on the event loop."""
@@ -390,6 +396,8 @@ class Subscription:
         self._lock = threading.Lock()
         self._pending_latest: dict[str, tuple[bytes, int]] = {}
         self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
+        self._max_pending = max_queue
+        """Distinct keys waiting in latest mode (a new key beyond them is dropped)."""
         self._scheduled = False
         self._closed = False
         self._zenoh: Any = None
@@ -415,6 +423,10 @@ class Subscription:
             if self._latest:
                 if key in self._pending_latest:
                     self.stats.coalesced += 1
+                elif len(self._pending_latest) >= self._max_pending:
+                    # A flood of distinct keys must not grow memory or the loop's next batch.
+                    self.stats.dropped += 1
+                    return
                 self._pending_latest[key] = (payload, received_ns)
             else:
                 if len(self._pending_queue) == self._pending_queue.maxlen:
@@ -432,13 +444,24 @@ class Subscription:
     # event loop --------------------------------------------------------------------------
     def _drain(self) -> None:
         with self._lock:
-            self._scheduled = False
             if self._latest:
-                batch = [(k, p, t) for k, (p, t) in self._pending_latest.items()]
-                self._pending_latest = {}
+                pending = self._pending_latest
+                if len(pending) <= DRAIN_BATCH:
+                    batch = [(k, p, t) for k, (p, t) in pending.items()]
+                    self._pending_latest = {}
+                else:
+                    keys = list(itertools.islice(pending, DRAIN_BATCH))
+                    batch = [(k, *pending.pop(k)) for k in keys]
+                more = bool(self._pending_latest)
             else:
-                batch = list(self._pending_queue)
-                self._pending_queue.clear()
+                queue = self._pending_queue
+                batch = [queue.popleft() for _ in range(min(DRAIN_BATCH, len(queue)))]
+                more = bool(queue)
+            # With more waiting the drain stays scheduled, but yields to the loop first:
+            # a flood is handled in slices, never in one pass that starves other tasks.
+            self._scheduled = more
+        if more:
+            self._loop.call_soon(self._drain)
         for key, payload, received_ns in batch:
             if self._closed:
                 return
@@ -820,12 +843,15 @@ def decode_or_count(
 ) -> Any | None:
     """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
     :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
-    per key) and return ``None``."""
+    per key) and return ``None``. ``counter`` keeps at most :data:`MAX_COUNTED_KEYS` keys, so
+    junk keys cannot grow it without bound."""
     try:
         return decoder(payload) if decoder is not None else decode(payload, schema=schema)
     except ProtocolError as exc:
         n = counter.get(key, 0) + 1
         counter[key] = n
+        if len(counter) > MAX_COUNTED_KEYS:
+            del counter[next(iter(counter))]
         if n == 1 or n % 100 == 0:
             log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
         return None

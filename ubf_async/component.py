@@ -37,6 +37,9 @@ from ubf_async.errors import ConfigurationError
 
 log = logging.getLogger(__name__)
 
+MAX_WATCHED_COMPONENTS = 1024
+"""Components the :class:`HealthMonitor` keeps track of (the oldest departed one goes first)."""
+
 
 class NameTakenError(ConfigurationError):
     """A component name already alive on the robot (see :func:`ensure_name_free`)."""
@@ -239,7 +242,15 @@ class HealthMonitor:
         self._subs = []
 
     def _entry(self, name: str) -> ComponentHealth:
-        return self.components.setdefault(name, ComponentHealth(name))
+        entry = self.components.get(name)
+        if entry is None:
+            if len(self.components) >= MAX_WATCHED_COMPONENTS:
+                # Bounded against junk heartbeat names: a departed component goes first.
+                gone = next((n for n, h in self.components.items() if not h.alive),
+                            next(iter(self.components)))
+                del self.components[gone]
+            entry = self.components[name] = ComponentHealth(name)
+        return entry
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         self._entry(self.bus.keys.component_of_alive(key)).alive = alive
