@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.latency_stats import percentile
+from bench.processes import terminate
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.protocol import decode
 
@@ -46,15 +47,6 @@ def free_endpoint() -> str:
 
 def child(*args: str) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-m", "bench.margins", *args], cwd=ROOT)
-
-
-def stop_child(proc: subprocess.Popen[bytes]) -> None:
-    proc.terminate()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
 
 
 def stats_ms(values_s: list[float]) -> str:
@@ -140,7 +132,7 @@ async def measure_watchdog(trials: int, burst_s: float, timeout_s: float | None)
             stops.append((stamp_ns - last_sent) / 1e9)
             seen.append((received_ns - last_sent) / 1e9)
     finally:
-        stop_child(proc)
+        terminate(proc)
         await bus.aclose()
     print(f"(a) motor watchdog, timeout {(timeout_s or DEFAULT_TIMEOUT_S) * 1e3:.0f} ms, "
           f"commands at 50 Hz from another process, {trials} trials:")
@@ -176,7 +168,7 @@ async def measure_staleness(trials: int, period_s: float) -> list[float]:
                     periods.append((time.monotonic_ns() - reading.stamp_ns) / 1e9 / period_s)
                 was_stale = reading.stale
     finally:
-        stop_child(proc)
+        terminate(proc)
         await bus.aclose()
     if len(periods) < trials:
         raise RuntimeError(f"only {len(periods)} of {trials} staleness trials completed")

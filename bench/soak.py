@@ -37,6 +37,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench.processes import terminate
+
 ROOT = Path(__file__).resolve().parent.parent
 MIB = 1024 * 1024
 STATUS_RE = re.compile(r"^\[[^\]]*\]\s+(?P<sim_s>[0-9]+(?:\.[0-9]*)?)s\b")
@@ -152,13 +154,7 @@ def run_in(args: argparse.Namespace, folder: Path) -> int:
         print("interrupted")
         return 1
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        terminate(proc)
         reader.join(timeout=5)
     if proc.returncode != 0 or not summary_path.exists():
         print(f"launch failed (exit {proc.returncode}):\n" + "\n".join(trace.output))
