@@ -273,7 +273,8 @@ class StateAggregator(Component):
         if ahead_of_clock(message.stamp_ns, now, self._future_tolerance_ns):
             self._refuse(Refusal.FUTURE, source,
                          f"stamped {(message.stamp_ns - now) / 1e9:.3g}s ahead of the robot "
-                         f"clock (tolerance {self.future_tolerance_s:g}s)", entry)
+                         f"clock (tolerance {self.future_tolerance_s:g}s){self._clock_hint()}",
+                         entry)
             return False
         if entry is None:
             if len(self.entries) >= self.max_sources and not self._make_room(source, count, now):
@@ -366,6 +367,12 @@ class StateAggregator(Component):
     def quiet_s(entry: SourceEntry, now_ns: int) -> float:
         """How long since the newest sample of ``entry`` arrived (robot clock)."""
         return max(0.0, (now_ns - entry.arrived_ns) / 1e9)
+
+    def _clock_hint(self) -> str:
+        if not getattr(self.bus.clock, "is_simulated", False):
+            return ""
+        return ("; this robot runs on simulated time: stamp with the newest time seen on "
+                "ubf/<robot>/clock, not the host's clock (docs/protocol.md)")
 
     def is_stale(self, entry: SourceEntry, now_ns: int, wall_now_ns: int) -> bool:
         """Whether ``entry`` has been quiet beyond its limit: in robot time, or — so that a
