@@ -47,7 +47,7 @@ from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import SilenceLimit
 from ubf_async.component import Component
 from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
-from ubf_async.protocol import MAX_NAME_CHARS, Message, ProtocolError
+from ubf_async.protocol import MAX_NAME_CHARS, Message, ProtocolError, clip
 from ubf_async.state import Reading, State
 
 log = logging.getLogger(__name__)
@@ -256,9 +256,7 @@ class StateAggregator(Component):
             entry.refused[reason] += 1
         n = self.refused[reason]
         if n == 1 or n % 100 == 0:
-            log.warning("refused sample #%d (%s) of %s: %s", n, reason,
-                        source[:MAX_NAME_CHARS] + ("…" if len(source) > MAX_NAME_CHARS else ""),
-                        detail)
+            log.warning("refused sample #%d (%s) of %s: %s", n, reason, clip(source), detail)
 
     def ingest(self, source: str, message: Message, received_ns: int) -> bool:
         """Store a validated sample (also usable in-process, without the bus); returns
@@ -269,7 +267,10 @@ class StateAggregator(Component):
             return False
         now = self.bus.clock.now_ns()
         entry = self.entries.get(source)
-        count = self._recent.add(source, now)
+        # Recent counts decide evictions: needed for newcomers and for the sources that may be
+        # evicted, never for the robot's own once held (the reflex path skips the hashing).
+        count = (self._recent.add(source, now)
+                 if entry is None or source not in self.protected_sources else 0)
         if ahead_of_clock(message.stamp_ns, now, self._future_tolerance_ns):
             self._refuse(Refusal.FUTURE, source,
                          f"stamped {(message.stamp_ns - now) / 1e9:.3g}s ahead of the robot "

@@ -24,7 +24,7 @@ import contextlib
 import heapq
 import itertools
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -196,9 +196,11 @@ class SimClock:
         await self.sleep_until_ns(self._now + int(max(0.0, seconds) * 1e9))
 
 
-async def every(clock: Clock, period_s: float) -> AsyncIterator[int]:
+async def every(clock: Clock, period_s: float, *,
+                on_overrun: Callable[[], None] | None = None) -> AsyncIterator[int]:
     """Yield the clock's time now and then every ``period_s`` on a fixed schedule (absolute
-    deadlines, so the period never drifts; a late wake-up is not made up with a burst).
+    deadlines, so the period never drifts; a late wake-up is not made up with a burst: the
+    missed slots are skipped, and ``on_overrun()`` is called once for them).
 
     When the clock is reset to a new run (:attr:`Clock.resets` changes), the schedule is
     re-anchored on the new run's time: one yield at once, then every ``period_s`` from there."""
@@ -216,6 +218,8 @@ async def every(clock: Clock, period_s: float) -> AsyncIterator[int]:
         now = clock.now_ns()
         if now >= deadline:  # overslept: skip the missed slots, keep the phase
             deadline += ((now - deadline) // period_ns + 1) * period_ns
+            if on_overrun is not None:
+                on_overrun()
         await clock.sleep_until_ns(deadline)
 
 

@@ -64,6 +64,7 @@ from ubf_async.action import Action
 from ubf_async.aggregator import SourceEntry, StateAggregator
 from ubf_async.behavior import Behavior, Composite, Trace
 from ubf_async.bus import Bus
+from ubf_async.clock import every
 from ubf_async.component import Component
 from ubf_async.protocol import MAX_NAME_CHARS, MAX_WINNERS, clip
 
@@ -74,6 +75,11 @@ REFLEX_SHARE = 0.8
 """Default reflex tick budget as a share of ``rate_hz``."""
 MAX_COUNTED_NAMES = 1024
 """Distinct behaviour names counted in ``winner_ticks`` (later newcomers are not counted)."""
+
+
+def outgoing_names(names: list[str]) -> list[str]:
+    """Behaviour names as a drive command may carry them (count and length bounded)."""
+    return [clip(name, MAX_NAME_CHARS) for name in names[:MAX_WINNERS]]
 
 
 class TickMode(enum.StrEnum):
@@ -245,23 +251,13 @@ class Controller(Component):
                 log.exception("shutdown of the behaviour tree %r raised", self.root.name)
 
     async def _run_periodic(self) -> None:
-        clock = self.bus.clock
-        period_ns = int(1e9 / self.rate_hz)
-        deadline = clock.now_ns()
-        resets = clock.resets
-        while True:
+        # every() re-anchors on a new simulation run's time, not the old run's deadline.
+        async for _ in every(self.bus.clock, 1.0 / self.rate_hz,
+                             on_overrun=self._count_overrun):
             self.tick()
-            if clock.resets != resets:
-                # A new simulation run woke us (or started while we ticked): its time sets
-                # the schedule, not the old run's deadline (which might lie hours ahead).
-                resets = clock.resets
-                deadline = clock.now_ns()
-            deadline += period_ns
-            now = clock.now_ns()
-            if now >= deadline:
-                self.stats.overruns += 1
-                deadline += ((now - deadline) // period_ns + 1) * period_ns
-            await clock.sleep_until_ns(deadline)
+
+    def _count_overrun(self) -> None:
+        self.stats.overruns += 1
 
     def _triggers(self, source: str) -> bool:
         if self.mode is TickMode.SYNC:
@@ -295,16 +291,15 @@ class Controller(Component):
             now = clock.now_ns()
             if 0 <= now - self._last_drive_ns < period_ns:
                 continue  # a tick published lately (a clock that went back re-anchors here)
-            last = self.last_action
             fresh = trigger is not None and self.aggregator.fresh(trigger, now)
-            speed = last.speed if fresh and last is not None and last.speed is not None else 0.0
-            turn = last.turn if fresh and last is not None and last.turn is not None else 0.0
-            winners = self.last_trace.winning_leaves() if fresh and self.last_trace else []
+            last = self.last_action if fresh else None  # a tick always sets both fields
+            trace = self.last_trace if fresh else None
             self.stats.holds += 1
             try:
                 self._drive.publish({
-                    "speed": speed, "turn": turn, "tick": self.stats.ticks, "hold": True,
-                    "winners": [clip(w, MAX_NAME_CHARS) for w in winners[:MAX_WINNERS]],
+                    "speed": last.speed if last else 0.0, "turn": last.turn if last else 0.0,
+                    "tick": self.stats.ticks, "hold": True,
+                    "winners": outgoing_names(trace.winning_leaves() if trace else []),
                 })
             except Exception:
                 self._publish_failed("hold drive command")
@@ -343,7 +338,7 @@ class Controller(Component):
                 "stamp_ns": basis.message.stamp_ns,
             },
             "tick": self.stats.ticks,
-            "winners": [clip(w, MAX_NAME_CHARS) for w in winners[:MAX_WINNERS]],
+            "winners": outgoing_names(winners),
         }
         self._last_drive_ns = state.now_ns
         try:
@@ -392,10 +387,10 @@ class Controller(Component):
             **self.stats.summary(),
             "speed": last.speed if last else None,
             "turn": last.turn if last else None,
-            "winners": [clip(w) for w in self.last_trace.winning_leaves()][:MAX_WINNERS]
+            "winners": outgoing_names(self.last_trace.winning_leaves())
             if self.last_trace else [],
             "explanation": explanation[:MAX_EXPLANATION_CHARS],
-            "quarantined": [clip(q) for q in self.quarantined()][:MAX_WINNERS],
+            "quarantined": outgoing_names(self.quarantined()),
             "refused": self.aggregator.refusals(),
             "sources": [
                 {"source": s.source, "age_s": s.age_s, "stale": s.stale, "schema": s.schema,
