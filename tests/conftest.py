@@ -103,3 +103,22 @@ class SimRobot:
         await self.sim.aclose()
         for c in reversed(self.devices):
             await c.aclose()
+
+
+async def start_seeking_robot(bus: Bus, run: object) -> tuple[object, list[object]]:
+    """The default tree (seek_pink_ball) on a simulation run's devices: devices, aggregator,
+    controller and the run's own components, started in that order. Returns (controller,
+    components); close the components in reverse order."""
+    from components.sim.component import simulated_devices
+    from ubf_async.aggregator import StateAggregator
+    from ubf_async.behaviors import seek_pink_ball
+    from ubf_async.controller import Controller
+
+    devices = simulated_devices(bus=bus, world=run.world, seed=run.seed)  # type: ignore[attr-defined]
+    run.add_devices(devices)  # type: ignore[attr-defined]
+    aggregator = StateAggregator(bus=bus)
+    controller = Controller(bus=bus, aggregator=aggregator, root=seek_pink_ball())
+    components = [aggregator, controller, *devices, *run.components()]  # type: ignore[attr-defined]
+    for component in components:
+        await component.start()
+    return controller, components

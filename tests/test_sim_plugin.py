@@ -9,16 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from components.sim.component import simulated_devices
 from components.sim.remote import RemoteWorld
 from components.sim.world import Arena, BallConfig, WorldConfig
-from tests.conftest import SimRobot, eventually
+from tests.conftest import SimRobot, eventually, start_seeking_robot
 from ubf_async import registry
-from ubf_async.aggregator import StateAggregator
-from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
-from ubf_async.controller import Controller
 from ubf_async.simulation import SimulationOptions, Simulator
 
 
@@ -36,13 +32,7 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
         scenario="ball-in-sight", speed=20, seed=4, duration_s=1.0, summary_path=summary_path))
     assert run.duration_s == 1.0 and run.seed == 4
-    devices = simulated_devices(bus=robot_bus, world=run.world, seed=run.seed)
-    run.add_devices(devices)
-    aggregator = StateAggregator(bus=robot_bus)
-    controller = Controller(bus=robot_bus, aggregator=aggregator, root=seek_pink_ball())
-    components = [aggregator, controller, *devices, *run.components()]
-    for component in components:
-        await component.start()
+    controller, components = await start_seeking_robot(robot_bus, run)
     out = io.StringIO()
     try:
         run.start(controller)

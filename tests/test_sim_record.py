@@ -12,7 +12,6 @@ import cv2
 import pytest
 
 from components.motors.pwm import pulse_widths
-from components.sim.component import simulated_devices
 from components.sim.record import (
     TrajectoryBuffer,
     TrajectoryCsvWriter,
@@ -22,12 +21,10 @@ from components.sim.record import (
     trajectory_sample,
 )
 from components.sim.world import Arena, BallConfig, World, WorldConfig
+from tests.conftest import start_seeking_robot
 from ubf_async import registry
-from ubf_async.aggregator import StateAggregator
-from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
-from ubf_async.controller import Controller
 from ubf_async.simulation import SimulationOptions
 
 PERIOD_S = 0.05  # the runner's sampling period
@@ -149,13 +146,7 @@ async def test_a_recorded_run_streams_every_sample_and_keeps_a_bounded_trajector
         options=SimulationOptions(scenario="ball-in-sight", speed=20, seed=4, duration_s=12.0,
                                   record_dir=folder, record_every_s=4.0))
     run.trajectory = TrajectoryBuffer(capacity=8, recent=50)  # type: ignore[attr-defined]
-    devices = simulated_devices(bus=robot_bus, world=run.world, seed=run.seed)
-    run.add_devices(devices)
-    aggregator = StateAggregator(bus=robot_bus)
-    controller = Controller(bus=robot_bus, aggregator=aggregator, root=seek_pink_ball())
-    components = [aggregator, controller, *devices, *run.components()]
-    for component in components:
-        await component.start()
+    controller, components = await start_seeking_robot(robot_bus, run)
     try:
         run.start(controller)
         await run.until_elapsed(12.0)
