@@ -112,7 +112,7 @@ async def measure_watchdog(trials: int, burst_s: float, timeout_s: float | None)
     try:
         bus.subscribe(bus.keys.sensor("motors", "main"),
                       lambda k, p, t: applied.put_nowait((t, decode(p).stamp_ns,
-                                                          decode(p).data["reason"])),
+                                                          decode(p).data.reason)),
                       latest=False)
         pub = bus.publisher(bus.keys.cmd("drive"), "drive", period_s=0.02)
         await pub.wait_for_subscribers(timeout_s=30)

@@ -230,8 +230,8 @@ def test_conditional_evaluates_only_the_chosen_child() -> None:
         arbiter=Conditional(lambda s: s.value("range/front", "range_mm", 9999) < 200),
         children=[leaf("avoid", -50), leaf("cruise", 50)],
     )
-    near = State.of(range__front={"range_mm": 100})
-    far = State.of(range__front={"range_mm": 900})
+    near = State.of(range__front={"range_mm": 100, "status": "ok"})
+    far = State.of(range__front={"range_mm": 900, "status": "ok"})
     assert c.act(near).speed == -50
     assert c.act(far).speed == 50
     assert calls == ["avoid", "cruise"]

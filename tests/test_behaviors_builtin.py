@@ -67,7 +67,7 @@ def test_every_arbiter_is_built_from_keyword_data(name: str) -> None:
     go = FunctionBehavior(lambda s: Action(speed=30), name="go")
     stop = FunctionBehavior(lambda s: Action(speed=0), name="stop")
     c = Composite(name="c", arbiter=arbiter, children=[go, stop])
-    action = c.act(State.of(camera__front={"bins": [0, 0, 5, 0, 0]}))
+    action = c.act(State.of(camera__front={"bins": [0, 0, 5, 0, 0], "total": 5}))
     assert action is not None and action.speed in (0, 15, 30)
 
 
@@ -112,8 +112,8 @@ def test_conditional_by_name_picks_by_the_predicate() -> None:
     c = Composite(name="if", arbiter=arbiter, children=[
         FunctionBehavior(lambda s: Action(speed=40), name="chase"),
         FunctionBehavior(lambda s: Action(speed=0), name="wait")])
-    assert c.act(State.of(camera__front={"bins": [0, 0, 10, 0, 0]})).speed == 40
-    assert c.act(State.of(camera__front={"bins": [0, 0, 9, 0, 0]})).speed == 0
+    assert c.act(State.of(camera__front={"bins": [0, 0, 10, 0, 0], "total": 10})).speed == 40
+    assert c.act(State.of(camera__front={"bins": [0, 0, 9, 0, 0], "total": 9})).speed == 0
     assert c.act(State()).speed == 0
     assert arbiter.describe() == "Conditional(sees_color(min_pixels=10))"
 
@@ -145,7 +145,7 @@ def test_conditional_refuses_bad_predicate_params_when_built() -> None:
 def test_conditional_predicate_by_module_reference_and_by_callable() -> None:
     by_reference = Conditional(predicate="ubf_async.predicates:source_fresh",
                                predicate_params={"source": "range/front"})
-    assert by_reference.predicate(State.of(range__front={"range_mm": 1}))
+    assert by_reference.predicate(State.of(range__front={"range_mm": 1, "status": "ok"}))
     assert not by_reference.predicate(State())
     by_callable = Conditional(lambda s: True, label="always")
     assert by_callable.describe() == "Conditional(always)"
@@ -270,16 +270,16 @@ def test_predicates_are_registered() -> None:
 
 def test_sees_color() -> None:
     sees = predicate("sees_color")
-    assert sees(State.of(camera__front={"bins": [0, 1, 0, 0, 0]}))
-    assert not sees(State.of(camera__front={"bins": [0, 0, 0, 0, 0]}))
+    assert sees(State.of(camera__front={"bins": [0, 1, 0, 0, 0], "total": 1}))
+    assert not sees(State.of(camera__front={"bins": [0, 0, 0, 0, 0], "total": 0}))
     assert not sees(State())
-    assert not sees(stale(camera__front={"bins": [9, 9, 9, 9, 9]}))
+    assert not sees(stale(camera__front={"bins": [9, 9, 9, 9, 9], "total": 45}))
     rear = predicate("sees_color", source="camera/rear", min_pixels=20)
-    assert rear(State.of(camera__rear={"bins": [10, 10, 0, 0, 0]}))
-    assert not rear(State.of(camera__rear={"bins": [10, 9, 0, 0, 0]}),)
-    assert not rear(State.of(camera__front={"bins": [50, 50, 0, 0, 0]}))
+    assert rear(State.of(camera__rear={"bins": [10, 10, 0, 0, 0], "total": 20}))
+    assert not rear(State.of(camera__rear={"bins": [10, 9, 0, 0, 0], "total": 19}),)
+    assert not rear(State.of(camera__front={"bins": [50, 50, 0, 0, 0], "total": 100}))
     anything = predicate("sees_color", min_pixels=0)
-    assert anything(State.of(camera__front={"bins": [0, 0, 0, 0, 0]}))
+    assert anything(State.of(camera__front={"bins": [0, 0, 0, 0, 0], "total": 0}))
 
 
 def test_obstacle_within() -> None:
@@ -289,7 +289,7 @@ def test_obstacle_within() -> None:
     assert near(State.of(range__left={"range_mm": None, "status": "too_close"}))
     assert not near(State.of(range__left={"range_mm": None, "status": "too_far"}))
     assert not near(stale(range__front={"range_mm": 10, "status": "ok"}))
-    assert not near(State.of(camera__front={"range_mm": 10, "status": "ok"}))  # not range/*
+    assert not near(State.of(sonar__front={"range_mm": 10, "status": "ok"}))  # not range/*
     front = predicate("obstacle_within", near_mm=100, sources=["range/front"])
     assert front(State.of(range__front={"range_mm": 90, "status": "ok"}))
     assert not front(State.of(range__left={"range_mm": 10, "status": "ok"}))
@@ -298,9 +298,9 @@ def test_obstacle_within() -> None:
 
 
 def test_source_fresh() -> None:
-    fresh = predicate("source_fresh", source="encoders/odometry")
-    assert fresh(State.of(encoders__odometry={"x": 0}))
-    assert not fresh(stale(encoders__odometry={"x": 0}))
+    fresh = predicate("source_fresh", source="custom/odometry")
+    assert fresh(State.of(custom__odometry={"x": 0}))
+    assert not fresh(stale(custom__odometry={"x": 0}))
     assert not fresh(State())
     with pytest.raises(ConfigurationError, match="must not be empty"):
         predicate("source_fresh", source="")

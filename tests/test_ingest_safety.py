@@ -166,7 +166,7 @@ async def test_long_name_far_future_sample_does_not_stop_the_drive_commands(
                      and agg.refused[Refusal.FUTURE] >= 1, what="the hostile samples refused")
     before = len(drives)
     await eventually(lambda: len(drives) >= before + 10, what="drive commands after the attack")
-    assert all(m.data["speed"] == 20 for m in drives[before:])
+    assert all(m.data.speed == 20 for m in drives[before:])
     assert not any(s.startswith("ir/") or s.startswith("range/y") for s in agg.entries)
     assert ctl.restarts == 0 and agg.restarts == 0
     assert ctl.stats.errors == 0 and ctl.stats.publish_errors == 0
@@ -216,7 +216,7 @@ async def test_a_command_that_cannot_be_published_becomes_a_stop(robot_bus: Bus)
 
     ctl._drive.publish = failing_once  # type: ignore[method-assign]
     await eventually(lambda: ctl.stats.publish_errors >= 3)
-    assert drives[-1].data["speed"] == 0.0 and ctl.restarts == 0
+    assert drives[-1].data.speed == 0.0 and ctl.restarts == 0
     await ctl.aclose()
     await agg.aclose()
 
@@ -360,7 +360,7 @@ async def test_a_raising_behaviour_is_cut_off_and_quarantined_and_the_tick_publi
     assert root.failures["fragile"] == root.quarantine_after
     before = len(drives)
     await eventually(lambda: len(drives) >= before + 5)
-    assert all(m.data["winners"] == ["steady"] and m.data["speed"] == 20
+    assert all(list(m.data.winners) == ["steady"] and m.data.speed == 20
                for m in drives[before:])
     assert ctl.last_trace is not None
     assert "! fragile [p=5 w=1]: abstain — QUARANTINED" in ctl.last_trace.render()

@@ -237,7 +237,8 @@ def test_formatting_helpers() -> None:
     assert resolve_key(keys, "ubf/other/cmd/drive") == "ubf/other/cmd/drive"
     assert expected_schema(keys, "ubf/r/cmd/drive") == "drive"
     assert expected_schema(keys, "ubf/r/vote/a/b") == "vote"
-    assert expected_schema(keys, "ubf/r/sensor/range/x") is None
+    assert expected_schema(keys, "ubf/r/sensor/range/x") == "range"
+    assert expected_schema(keys, "ubf/r/sensor/sonar/x") is None  # a kind not declared
     # A drive key only takes drive payloads, as on the robot.
     wrong = encode("range", {"range_mm": 1, "status": "ok"}, stamp_ns=1, seq=1)
     assert "ERROR" in format_sample(keys, "ubf/r/cmd/drive", wrong, raw=False, as_json=False)

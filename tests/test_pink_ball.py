@@ -99,7 +99,7 @@ def test_search_counter_restarts_after_pink_seen() -> None:
 def test_missing_or_stale_camera_all_abstain() -> None:
     tree = seek_pink_ball()
     assert tree.act(State.of(now_ns=0)) is None
-    stale = State.of(camera__front={"bins": [0, 0, 200, 0, 0]})
+    stale = State.of(camera__front={"bins": [0, 0, 200, 0, 0], "total": 200})
     reading = stale["camera/front"]
     stale_state = State(
         {"camera/front": type(reading)(value=reading.value, stamp_ns=0, stale=True)}

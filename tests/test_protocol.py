@@ -14,6 +14,7 @@ from ubf_async.protocol import (
     decode,
     encode,
 )
+from ubf_async.topics import Range
 
 
 def envelope(data: object, **overrides: object) -> bytes:
@@ -29,7 +30,9 @@ def test_round_trip() -> None:
     payload = encode("range", GOOD_RANGE, stamp_ns=123, seq=4, period_s=0.05)
     msg = decode(payload)
     assert (msg.schema, msg.stamp_ns, msg.seq, msg.period_s) == ("range", 123, 4, 0.05)
-    assert msg.data == GOOD_RANGE
+    assert msg.data == Range(range_mm=420, status="ok")
+    assert msg.data.range_mm == 420
+    assert msgpack.unpackb(payload)["data"] == GOOD_RANGE  # defaults stay off the wire
 
 
 def test_unknown_schema_accepted_with_generic_checks() -> None:

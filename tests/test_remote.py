@@ -453,7 +453,7 @@ async def test_host_survives_a_raising_behaviour(robot_bus: Bus, peer_bus: Bus) 
                               composite="seek_pink_ball", rate_hz=100)
     votes: list[float] = []
     robot_bus.subscribe(vote_key(robot_bus.keys, "seek_pink_ball", "flaky"),
-                        lambda k, p, t: votes.append(decode(p, schema="vote").data["vote"]),
+                        lambda k, p, t: votes.append(decode(p, schema="vote").data.vote),
                         latest=False)
     async with host:
         await eventually(lambda: host.errors >= 3 and len(votes) >= 6, what="votes")
@@ -538,7 +538,7 @@ class DriveLog:
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
         m = decode(payload, schema="drive")
-        self.drives.append((m.stamp_ns, m.data["speed"], m.data["turn"], m.data["winners"]))
+        self.drives.append((m.stamp_ns, m.data.speed, m.data.turn, list(m.data.winners)))
 
     def now(self) -> tuple[float, float, list[str]] | None:
         return self.drives[-1][1:] if self.drives else None

@@ -222,9 +222,9 @@ class Seen:
         m = decode(payload)
         tail = key.split("/", 2)[2]
         if tail == "cmd/drive":
-            self.drives.append((m.data["speed"], m.data["turn"], tuple(m.data["winners"])))
+            self.drives.append((m.data.speed, m.data.turn, tuple(m.data.winners)))
         elif tail == "sensor/motors/main":
-            self.applied.append((m.data["speed"], m.data["turn"]))
+            self.applied.append((m.data.speed, m.data.turn))
         elif tail == "clock":
             self.clock_samples += 1
             self.clock_max_ns = max(self.clock_max_ns, m.stamp_ns)
@@ -233,7 +233,7 @@ class Seen:
         elif tail == "sim/pulses":
             self.pulses += 1
         elif tail == "status/remotes":
-            self.remotes.update(r["behavior"] for r in m.data["remotes"])
+            self.remotes.update(r["behavior"] for r in m.data.remotes)
 
     def attacked(self) -> dict[str, bool]:
         """Which attacks show in what the observer saw."""

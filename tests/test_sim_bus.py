@@ -87,7 +87,7 @@ async def test_pink_count_falls_with_distance_through_the_bus(robot_bus: Bus) ->
                 entry = await agg.wait_for_update("camera/front", after_version=version)
                 version = entry.version
                 if entry.message.stamp_ns > placed:
-                    peaks.append(max(entry.message.data["bins"]))
+                    peaks.append(max(entry.message.data.bins))
             return sum(peaks) / len(peaks)
 
         near = await mean_peak(0.45, 3)
@@ -265,7 +265,7 @@ async def test_commands_take_no_simulated_time_inside_the_process_at_speed_5(
 
         def on_applied(key: str, payload: bytes, received_ns: int) -> None:
             message = decode(payload)
-            if message.data["reason"] == "command":
+            if message.data.reason == "command":
                 applied.append(message.stamp_ns)
 
         robot_bus.subscribe(robot_bus.keys.sensors_of_kind("motors"), on_applied, latest=False)

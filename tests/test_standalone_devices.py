@@ -171,8 +171,8 @@ async def test_devices_in_their_own_processes_use_the_simulator_in_this_one(
             await eventually(lambda: len(readings) >= 5, timeout_s=10, what="IR readings")
             now_ns, message = readings[-1]
             # The wall is 0.5 m ahead of the robot's centre, 0.45 m from the sensor.
-            assert message.data["model"] == "ir-20-150"
-            assert message.data["range_mm"] == pytest.approx(450, rel=0.15)
+            assert message.data.model == "ir-20-150"
+            assert message.data.range_mm == pytest.approx(450, rel=0.15)
             assert 0 < message.stamp_ns <= now_ns  # stamped on the simulated clock
             await eventually(lambda: len(applied) > 0, what="the motors to arm")
             drive = robot_bus.publisher(robot_bus.keys.cmd("drive"), "drive")

@@ -305,7 +305,7 @@ async def test_outsider_clock_cannot_disable_a_standalone_motors_watchdog(
     applied: list[tuple[int, str]] = []
     robot_bus.subscribe(robot_bus.keys.sensor("motors", "main"),
                         lambda k, p, t: applied.append((decode(p).stamp_ns,
-                                                        decode(p).data["reason"])),
+                                                        decode(p).data.reason)),
                         latest=False)
     async with SimRobot(robot_bus, floor(), speed=1, devices=()) as sim:
         motors = start("-m", "components.motors", "--connect", endpoint, "--robot", robot)
@@ -396,7 +396,7 @@ async def test_motors_stop_in_wall_time_when_simulated_time_stops(
     applied: list[tuple[float, str]] = []
     robot_bus.subscribe(robot_bus.keys.sensor("motors", "main"),
                         lambda k, p, t: applied.append((time.monotonic(),
-                                                        decode(p).data["reason"])),
+                                                        decode(p).data.reason)),
                         latest=False)
     sim = SimRobot(robot_bus, floor(), speed=1, devices=())
     await sim.__aenter__()

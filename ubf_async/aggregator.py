@@ -49,6 +49,7 @@ from ubf_async.component import Component
 from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.protocol import MAX_NAME_CHARS, Message, ProtocolError, clip
 from ubf_async.state import Reading, State
+from ubf_async.topics import sensor_topic
 
 log = logging.getLogger(__name__)
 
@@ -238,14 +239,16 @@ class StateAggregator(Component):
 
     # -- ingest (event loop) -----------------------------------------------------------------
     def _on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key)
-        if message is None:
-            return
         try:
             source = self.bus.keys.source_of(key)
         except ProtocolError as exc:  # cannot happen with our key expression; be safe
             self.malformed[key] = self.malformed.get(key, 0) + 1
             log.warning("ignored sample on %s: %s", key, exc)
+            return
+        # A declared kind (ubf_async.topics) only takes its own schema: behaviours read its
+        # samples as that type. Other kinds take any schema, checked generically.
+        message = decode_or_count(payload, self.malformed, key, topic=sensor_topic(source))
+        if message is None:
             return
         self.ingest(source, message, received_ns)
 

@@ -54,6 +54,7 @@ from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.protocol import INT64_MAX, ROOT, Keys, ProtocolError, decode, encode
 from ubf_async.timesource import ClockAction, ClockFollower
+from ubf_async.topics import CLOCK, Topic
 
 log = logging.getLogger(__name__)
 
@@ -687,8 +688,17 @@ class Bus:
     def robot(self) -> str:
         return self.options.robot
 
-    def publisher(self, key: str, schema: str, *, period_s: float | None = None) -> Publisher:
-        return Publisher(self, key, schema, period_s=period_s)
+    def publisher(self, topic: Topic[Any] | str, *parts: str, period_s: float | None = None,
+                  **named_parts: str) -> Publisher:
+        """A publisher of ``topic`` (:mod:`ubf_async.topics`) on its key for this robot:
+        ``bus.publisher(CAMERA, "front", period_s=0.11)``. For a schema not declared there,
+        give the key and the schema name instead: ``bus.publisher(key, "my.schema")``."""
+        if isinstance(topic, Topic):
+            return Publisher(self, topic.key(self.keys, *parts, **named_parts), topic.schema,
+                             period_s=period_s)
+        if len(parts) != 1 or named_parts:
+            raise TypeError("publisher(key, schema): give the key and one schema name")
+        return Publisher(self, topic, parts[0], period_s=period_s)
 
     def subscribe(
         self, key_expr: str, handler: SampleHandler, *, latest: bool = True,
@@ -820,14 +830,14 @@ def follow_sim_clock(
     to pin an epoch or to read its counters): advance the clock, reset it to a new run's time,
     or nothing (refused, counted and logged by the follower).
     """
-    key = bus.keys.clock
+    key = CLOCK.key(bus.keys)
     policy = follower if follower is not None else ClockFollower(name=f"{bus.robot} clock")
 
     def on_sample(key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, malformed, key, schema="clock")
+        message = decode_or_count(payload, malformed, key, topic=CLOCK)
         if message is None:
             return
-        verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.get("epoch"),
+        verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.epoch,
                                wall_ns=received_ns)
         if verdict.action is ClockAction.ADVANCE:
             clock.advance_to(message.stamp_ns)
@@ -839,14 +849,17 @@ def follow_sim_clock(
 
 def decode_or_count(
     payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
-    decoder: Callable[[bytes], Any] | None = None,
+    topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
 ) -> Any | None:
     """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
     :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
     per key) and return ``None``. ``counter`` keeps at most :data:`MAX_COUNTED_KEYS` keys, so
     junk keys cannot grow it without bound."""
     try:
-        return decoder(payload) if decoder is not None else decode(payload, schema=schema)
+        if decoder is not None:
+            return decoder(payload)
+        return decode(payload, topic=topic) if topic is not None else decode(payload,
+                                                                             schema=schema)
     except ProtocolError as exc:
         n = counter.get(key, 0) + 1
         counter[key] = n

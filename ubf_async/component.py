@@ -28,12 +28,12 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
 from ubf_async.errors import ConfigurationError
+from ubf_async.topics import HEARTBEAT, Topic
 
 log = logging.getLogger(__name__)
 
@@ -97,9 +97,11 @@ class Component:
         """The component's work; runs until cancelled. Override this."""
         raise NotImplementedError
 
-    def publisher(self, key: str, schema: str, *, period_s: float | None = None) -> Publisher:
-        """A publisher closed automatically when this run attempt ends."""
-        pub = self.bus.publisher(key, schema, period_s=period_s)
+    def publisher(self, topic: Topic[Any] | str, *parts: str, period_s: float | None = None,
+                  **named_parts: str) -> Publisher:
+        """A publisher (:meth:`Bus.publisher <ubf_async.bus.Bus.publisher>`) closed
+        automatically when this run attempt ends."""
+        pub = self.bus.publisher(topic, *parts, period_s=period_s, **named_parts)
         self._attempt_resources.append(pub)
         return pub
 
@@ -184,7 +186,7 @@ class Component:
             backoff = min(self.max_backoff_s, backoff * 2)
 
     async def _heartbeat(self) -> None:
-        pub = self.bus.publisher(self.bus.keys.heartbeat(self.name), "heartbeat",
+        pub = self.bus.publisher(HEARTBEAT, self.name,
                                  period_s=self.heartbeat_period_s)
         try:
             lag = 0.0
@@ -257,15 +259,15 @@ class HealthMonitor:
         self.changed.set()
 
     def _on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema="heartbeat")
+        message = decode_or_count(payload, self.malformed, key, topic=HEARTBEAT)
         if message is None:
             return
-        data: Mapping[str, Any] = message.data
+        data = message.data
         entry = self._entry(key.rsplit("/", 1)[-1])
         entry.last_heartbeat_s = received_ns / 1e9
         entry.heartbeat_period_s = message.period_s
-        entry.restarts = int(data.get("restarts", 0))
-        entry.loop_lag_s = float(data.get("loop_lag_s", 0.0))
+        entry.restarts = data.restarts
+        entry.loop_lag_s = data.loop_lag_s
         self.changed.set()
 
     def alive_names(self) -> list[str]:

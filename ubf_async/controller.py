@@ -57,8 +57,9 @@ import logging
 import statistics
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from ubf_async.action import Action
 from ubf_async.aggregator import SourceEntry, StateAggregator
@@ -66,7 +67,21 @@ from ubf_async.behavior import Behavior, Composite, Trace
 from ubf_async.bus import Bus
 from ubf_async.clock import every
 from ubf_async.component import Component
-from ubf_async.protocol import MAX_NAME_CHARS, MAX_WINNERS, clip
+from ubf_async.protocol import clip
+from ubf_async.topics import (
+    CONTROLLER_STATUS,
+    DRIVE,
+    LEDS,
+    MAX_NAME_CHARS,
+    MAX_WINNERS,
+    RADIO_SEND,
+    SEEK_COLOR,
+    BasedOn,
+    Drive,
+    Leds,
+    RadioSend,
+    SeekColor,
+)
 
 log = logging.getLogger(__name__)
 
@@ -217,16 +232,14 @@ class Controller(Component):
         self._sent: dict[str, Any] = {}
 
     async def run(self) -> None:
-        keys = self.bus.keys
         periodic = self.mode is TickMode.PERIODIC
-        self._drive = self.publisher(keys.cmd("drive"), "drive",
-                                     period_s=1.0 / self.rate_hz if periodic else None)
+        self._drive = self.publisher(DRIVE, period_s=1.0 / self.rate_hz if periodic else None)
         self._extras = {
-            "seek_color": self.publisher(keys.cmd("seek_color"), "seek_color"),
-            "message": self.publisher(keys.cmd("radio"), "radio.send"),
-            "leds": self.publisher(keys.cmd("leds"), "leds"),
+            "seek_color": self.publisher(SEEK_COLOR),
+            "message": self.publisher(RADIO_SEND),
+            "leds": self.publisher(LEDS),
         }
-        self._status = self.publisher(keys.status(self.name), "controller.status",
+        self._status = self.publisher(CONTROLLER_STATUS, self.name,
                                       period_s=self.status_period_s)
         self._sent = {}
         loop = {
@@ -296,11 +309,12 @@ class Controller(Component):
             trace = self.last_trace if fresh else None
             self.stats.holds += 1
             try:
-                self._drive.publish({
-                    "speed": last.speed if last else 0.0, "turn": last.turn if last else 0.0,
-                    "tick": self.stats.ticks, "hold": True,
-                    "winners": outgoing_names(trace.winning_leaves() if trace else []),
-                })
+                self._drive.publish(Drive(
+                    speed=last.speed if last and last.speed is not None else 0.0,
+                    turn=last.turn if last and last.turn is not None else 0.0,
+                    tick=self.stats.ticks, hold=True,
+                    winners=tuple(outgoing_names(trace.winning_leaves() if trace else [])),
+                ))
             except Exception:
                 self._publish_failed("hold drive command")
             self._last_drive_ns = now
@@ -330,16 +344,15 @@ class Controller(Component):
         counted = self.stats.winner_ticks
         # Bounded: behaviours of other processes come and go under any name.
         counted.update(w for w in winners if w in counted or len(counted) < MAX_COUNTED_NAMES)
-        command = {
-            "speed": speed,
-            "turn": turn,
-            "based_on": None if basis is None else {
-                "source": clip(basis.source, MAX_NAME_CHARS), "seq": basis.message.seq,
-                "stamp_ns": basis.message.stamp_ns,
-            },
-            "tick": self.stats.ticks,
-            "winners": outgoing_names(winners),
-        }
+        command = Drive(
+            speed=speed,
+            turn=turn,
+            based_on=None if basis is None else BasedOn(
+                source=clip(basis.source, MAX_NAME_CHARS), seq=basis.message.seq,
+                stamp_ns=basis.message.stamp_ns),
+            tick=self.stats.ticks,
+            winners=tuple(outgoing_names(winners)),
+        )
         self._last_drive_ns = state.now_ns
         try:
             self._drive.publish(command)
@@ -347,7 +360,7 @@ class Controller(Component):
             self._publish_failed("tick's drive command; a plain stop goes out instead")
             speed = turn = 0.0
             action = None
-            self._drive.publish({"speed": 0.0, "turn": 0.0, "tick": self.stats.ticks})
+            self._drive.publish(Drive(speed=0.0, turn=0.0, tick=self.stats.ticks))
         if action is not None:
             try:
                 self._publish_extras(action)
@@ -365,18 +378,20 @@ class Controller(Component):
         if n == 1 or n % 100 == 0:
             log.exception("could not publish the %s (publish error #%d)", what, n)
 
+    _EXTRA_MESSAGES: ClassVar[dict[str, Callable[[Any], Any]]] = {
+        "seek_color": lambda value: SeekColor(lo=tuple(value.lo), hi=tuple(value.hi)),
+        "message": lambda value: RadioSend(text=value),
+        "leds": lambda value: Leds(mask=value),
+    }
+    """The command each optional action field becomes."""
+
     def _publish_extras(self, action: Action) -> None:
         for field_name, publisher in self._extras.items():
             value = getattr(action, field_name)
             if value is None or self._sent.get(field_name) == value:
                 continue
             self._sent[field_name] = value
-            if field_name == "seek_color":
-                publisher.publish({"lo": list(value.lo), "hi": list(value.hi)})
-            elif field_name == "message":
-                publisher.publish({"text": value})
-            else:
-                publisher.publish({"mask": value})
+            publisher.publish(self._EXTRA_MESSAGES[field_name](value))
 
     def status(self) -> dict[str, Any]:
         explanation = self.last_trace.render() if self.last_trace is not None else ""

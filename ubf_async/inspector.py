@@ -34,9 +34,10 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import msgpack
+import msgspec
 import yaml
 
-from ubf_async import __version__
+from ubf_async import __version__, topics
 from ubf_async.bus import (
     DEFAULT_LISTEN,
     Bus,
@@ -50,29 +51,15 @@ from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
 from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode
-from ubf_async.remote import VOTE_SCHEMA  # also registers the "vote" schema
 
 PROG = "python -m ubf_async.inspector"
 
-COMMAND_SCHEMAS = {"drive": "drive", "seek_color": "seek_color", "radio": "radio.send",
-                   "leds": "leds"}
-
-
 def expected_schema(keys: Keys, key: str) -> str | None:
-    """The schema a key requires (``cmd/drive`` → ``drive``), ``None`` where any is allowed."""
-    head = keys.prefix + "/"
-    if not key.startswith(head):
-        return None
-    parts = key[len(head):].split("/")
-    if parts[0] == "cmd" and len(parts) == 2:
-        return COMMAND_SCHEMAS.get(parts[1])
-    if parts[0] == "heartbeat" and len(parts) == 2:
-        return "heartbeat"
-    if parts == ["clock"]:
-        return "clock"
-    if parts[0] == "vote" and len(parts) == 3:
-        return VOTE_SCHEMA
-    return None
+    """The schema a key requires (``cmd/drive`` → ``drive``, ``sensor/camera/x`` →
+    ``camera.seekcolor``), from :mod:`ubf_async.topics`; ``None`` where any is allowed (a
+    kind of sensor not declared there, a status key)."""
+    schemas = {topic.schema for topic in topics.matching(keys, key)}
+    return schemas.pop() if len(schemas) == 1 else None
 
 
 def decode_for(keys: Keys, key: str, payload: bytes) -> Message:
@@ -89,6 +76,8 @@ def resolve_key(keys: Keys, key: str) -> str:
 
 
 def _jsonable(value: Any) -> Any:
+    if isinstance(value, msgspec.Struct):  # a typed message: its fields as on the wire
+        return _jsonable(msgspec.to_builtins(value))
     if isinstance(value, bytes):
         return value.hex()
     if isinstance(value, dict):
@@ -430,7 +419,7 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
 
 async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     keys = bus.keys
-    key = keys.status(args.controller)
+    key = topics.CONTROLLER_STATUS.key(keys, args.controller)
     got: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
     errors: list[str] = []
 
@@ -447,9 +436,9 @@ async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
 
     def on_clock(clock_key: str, payload: bytes, received_ns: int) -> None:
         with contextlib.suppress(ProtocolError):
-            sim_now.append(decode(payload, schema="clock").stamp_ns)
+            sim_now.append(decode(payload, topic=topics.CLOCK).stamp_ns)
 
-    bus.subscribe(bus.keys.clock, on_clock)
+    bus.subscribe(topics.CLOCK.key(bus.keys), on_clock)
     bus.subscribe(key, on_sample)
     try:
         message = await asyncio.wait_for(got, args.timeout)

@@ -34,172 +34,41 @@ import time
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+import msgspec
+
 from ubf_async.behavior import Behavior, Composite
 from ubf_async.bus import Bus
 from ubf_async.component import Component
 from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError, ProtocolError, TreeChangeError
-from ubf_async.protocol import (
-    MAX_STR_LEN,
-    Check,
-    array,
-    boolean,
-    decode,
-    encode,
-    integer,
-    number,
-    record,
-    register_schema,
-    text,
-)
+from ubf_async.protocol import decode, encode
 from ubf_async.remote import RemoteBehavior, RemoteBehaviors
 from ubf_async.robotfile import (
-    MAX_WEIGHT,
-    PRIORITY_LIMIT,
     RemoteSlot,
     build_arbiter,
     load_tree_fragment,
 )
+from ubf_async.topics import MAX_TREE_DEPTH as MAX_TREE_DEPTH
+from ubf_async.topics import TREE_OPS, TREE_REPLY, TREE_REQUEST, TreeRequest
 
 log = logging.getLogger(__name__)
 
-REQUEST_SCHEMA = "tree.request"
-REPLY_SCHEMA = "tree.reply"
-OPS = ("show", "set_arbiter", "set_child", "load")
-MAX_NAME_LEN = 128
-MAX_TREE_DEPTH = 64
-"""Deepest tree a reply carries (robot files allow 32 levels)."""
+REQUEST_SCHEMA = TREE_REQUEST.schema
+REPLY_SCHEMA = TREE_REPLY.schema
+OPS = tuple(TREE_OPS)
 MAX_ERROR_CHARS = 2000
-
-
-# ---------------------------------------------------------------------------------------------
-# The "tree.request" and "tree.reply" schemas
-
-
-_NAME = text(MAX_NAME_LEN)
-_PARAMS = record({})  # any str-keyed map of plain values; the arbiter's factory types them
-_ARBITER_SPEC = record({"type": text(200), "params": _PARAMS}, optional=("params",),
-                       extra=False)
-
-
-def _arbiter(value: Any, path: str) -> Any:
-    """An arbiter by name, or ``{"type": NAME, "params": {...}}``."""
-    if isinstance(value, str):
-        return text(200)(value, path)
-    return _ARBITER_SPEC(value, path)
-
-
-def _fragment(value: Any, path: str) -> str | bytes:
-    """A robot-file tree fragment: a str, or UTF-8 bytes (for fragments over 4096 chars,
-    the protocol's longest string). Kept as it came: an encoder must not turn the bytes
-    back into a string too long to decode."""
-    if isinstance(value, bytes):
-        try:
-            value.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise ProtocolError(f"{path}: bytes that are not UTF-8: {exc}") from None
-        return value
-    result: str = text()(value, path)
-    return result
-
-
-REQUEST_FIELDS: dict[str, Check] = {
-    "composite": _NAME,
-    "child": _NAME,
-    "arbiter": _arbiter,
-    "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
-    "weight": number(0.0, MAX_WEIGHT),
-    "tree": _fragment,
-}
-OP_FIELDS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    # op: (required fields, optional fields)
-    "show": ((), ()),
-    "set_arbiter": (("composite", "arbiter"), ()),
-    "set_child": (("composite", "child"), ("priority", "weight")),
-    "load": (("tree",), ()),
-}
-_REQUEST_RECORD = record({"op": text(32, choices=OPS), **REQUEST_FIELDS},
-                         optional=tuple(REQUEST_FIELDS), extra=False)
-
-
-def check_request(value: Any, path: str) -> Any:
-    """The ``"tree.request"`` schema: the fields and, per ``op``, which are required."""
-    data = _REQUEST_RECORD(value, path)
-    required, optional = OP_FIELDS[data["op"]]
-    missing = [name for name in required if name not in data]
-    if missing:
-        raise ProtocolError(f"{path}: op {data['op']!r} needs "
-                            + ", ".join(repr(m) for m in missing))
-    stray = [name for name in data if name != "op" and name not in (*required, *optional)]
-    if stray:
-        raise ProtocolError(f"{path}: op {data['op']!r} takes no "
-                            + ", ".join(repr(s) for s in stray))
-    if data["op"] == "set_child" and "priority" not in data and "weight" not in data:
-        raise ProtocolError(f"{path}: op 'set_child' needs 'priority' and/or 'weight'")
-    return data
-
-
-def check_node(value: Any, path: str, depth: int = 0) -> Any:
-    """One node of a tree in a reply (recursively, at most :data:`MAX_TREE_DEPTH` deep)."""
-    if depth > MAX_TREE_DEPTH:
-        raise ProtocolError(f"{path}: tree deeper than {MAX_TREE_DEPTH}")
-    node = _NODE(value, path)
-    if "children" in node:
-        node["children"] = array(lambda c, p: check_node(c, p, depth + 1))(
-            node["children"], f"{path}.children")
-    return node
-
-
-_NODE = record(
-    {
-        "name": _NAME,
-        "kind": text(16, choices=("composite", "behavior", "remote")),
-        "type": text(200),
-        "arbiter": text(MAX_STR_LEN),
-        "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
-        "weight": number(0.0, MAX_WEIGHT),
-        "children": lambda value, path: value,  # checked by check_node
-    },
-    optional=("type", "arbiter", "priority", "weight", "children"),
-)
-_SLOT = record({"composite": _NAME, "name": _NAME,
-                "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
-                "weight": number(0.0, MAX_WEIGHT)})
-_REPLY_RECORD = record(
-    {
-        "ok": boolean,
-        "op": text(32),
-        "version": integer(0),
-        "error": text(MAX_STR_LEN),
-        "tree": check_node,
-        "slots": array(_SLOT),
-    },
-    optional=("op", "version", "error", "tree", "slots"),
-)
-
-
-def check_reply(value: Any, path: str) -> Any:
-    """The ``"tree.reply"`` schema: ``ok`` with ``tree``, or not ``ok`` with ``error``."""
-    data = _REPLY_RECORD(value, path)
-    if data["ok"] and "tree" not in data:
-        raise ProtocolError(f"{path}: an ok reply carries the tree")
-    if not data["ok"] and "error" not in data:
-        raise ProtocolError(f"{path}: a refusal carries an error")
-    return data
-
-
-register_schema(REQUEST_SCHEMA, check_request)
-register_schema(REPLY_SCHEMA, check_reply)
 
 
 def encode_request(data: Mapping[str, Any], *, seq: int = 1, stamp_ns: int = 0) -> bytes:
     """A ``"tree.request"`` payload (raises :class:`ProtocolError` for a malformed one)."""
-    return encode(REQUEST_SCHEMA, data, stamp_ns=stamp_ns, seq=seq)
+    return encode(TREE_REQUEST, data, stamp_ns=stamp_ns, seq=seq)
 
 
 def decode_reply(payload: bytes) -> dict[str, Any]:
-    """The data of a ``"tree.reply"`` payload (raises :class:`ProtocolError`)."""
-    return decode(payload, schema=REPLY_SCHEMA).data
+    """The data of a ``"tree.reply"`` payload as plain data (raises :class:`ProtocolError`)."""
+    data = decode(payload, topic=TREE_REPLY).data
+    reply: dict[str, Any] = msgspec.msgpack.decode(msgspec.msgpack.encode(data))
+    return reply
 
 
 async def request(bus: Bus, data: Mapping[str, Any], *, timeout_s: float = 5.0,
@@ -213,7 +82,7 @@ async def request(bus: Bus, data: Mapping[str, Any], *, timeout_s: float = 5.0,
     :class:`ProtocolError` for a malformed request or reply. A refusal is a reply: check
     ``reply["ok"]``."""
     payload = encode_request(data, stamp_ns=bus.clock.now_ns())
-    key = bus.keys.tree
+    key = TREE_REQUEST.key(bus.keys)
     deadline = time.monotonic() + timeout_s
     while True:
         remaining = deadline - time.monotonic()
@@ -319,7 +188,7 @@ class TreeService(Component):
 
     @property
     def key(self) -> str:
-        return self.bus.keys.tree
+        return TREE_REQUEST.key(self.bus.keys)
 
     @property
     def root(self) -> Behavior:
@@ -337,14 +206,14 @@ class TreeService(Component):
         """Handle one query: decode, apply, reply. Never raises for a bad request."""
         op = "?"
         try:
-            request = decode(payload, schema=REQUEST_SCHEMA).data
+            request = decode(payload, topic=TREE_REQUEST).data
         except ProtocolError as exc:
             n = self.malformed.get(self.key, 0) + 1
             self.malformed[self.key] = n
             if n == 1 or n % 100 == 0:
                 log.warning("rejected malformed tree request #%d on %s: %s", n, self.key, exc)
             return self._reply({"ok": False, "op": op, "error": f"malformed request: {exc}"})
-        op = request["op"]
+        op = request.op
         try:
             self.handle(request)
         except TreeChangeError as exc:
@@ -361,18 +230,23 @@ class TreeService(Component):
         if "error" in data and len(data["error"]) > MAX_ERROR_CHARS:
             data["error"] = data["error"][:MAX_ERROR_CHARS - 1] + "…"
         self._replies += 1
-        return encode(REPLY_SCHEMA, data, stamp_ns=self.bus.clock.now_ns(), seq=self._replies)
+        return encode(TREE_REPLY, data, stamp_ns=self.bus.clock.now_ns(), seq=self._replies)
 
-    def handle(self, request: Mapping[str, Any]) -> None:
-        """Apply one request already checked against ``"tree.request"``."""
-        op = request["op"]
+    def handle(self, request: TreeRequest) -> None:
+        """Apply one request already checked against ``"tree.request"`` (its ``op`` has the
+        fields it needs)."""
+        op = request.op
         if op == "set_arbiter":
-            self.set_arbiter(request["composite"], request["arbiter"])
+            spec = request.arbiter
+            assert request.composite is not None and spec is not None
+            self.set_arbiter(request.composite,
+                             spec if isinstance(spec, str) else msgspec.structs.asdict(spec))
         elif op == "set_child":
-            self.set_child(request["composite"], request["child"],
-                           priority=request.get("priority"), weight=request.get("weight"))
+            assert request.composite is not None and request.child is not None
+            self.set_child(request.composite, request.child,
+                           priority=request.priority, weight=request.weight)
         elif op == "load":
-            fragment = request["tree"]
+            fragment = request.tree
             self.load(fragment.decode("utf-8") if isinstance(fragment, bytes) else fragment)
 
     # -- operations --------------------------------------------------------------------------
@@ -482,6 +356,6 @@ def _composites(node: Behavior) -> list[str]:
 
 
 __all__ = [
-    "OPS", "REPLY_SCHEMA", "REQUEST_SCHEMA", "TreeService", "check_reply", "check_request",
-    "decode_reply", "encode_request", "render_tree_data", "request", "tree_data",
+    "OPS", "REPLY_SCHEMA", "REQUEST_SCHEMA", "TreeService", "decode_reply", "encode_request",
+    "render_tree_data", "request", "tree_data",
 ]

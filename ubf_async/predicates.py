@@ -24,6 +24,7 @@ from ubf_async.behaviors.obstacles import DEFAULT_NEAR_MM, nearest_obstacle
 from ubf_async.behaviors.params import Millimetres, Pixels, check
 from ubf_async.errors import ConfigurationError
 from ubf_async.state import State
+from ubf_async.topics import require_field
 
 CAMERA_SOURCE = "camera/front"
 
@@ -32,6 +33,7 @@ def sees_color(*, source: str = CAMERA_SOURCE, min_pixels: Pixels = 1) -> Predic
     """True when ``source``'s fresh seekcolor reading has at least ``min_pixels`` pixels of
     the colour in its ``bins`` (so ``min_pixels=0`` means "the camera is reporting")."""
     check("sees_color", "min_pixels", min_pixels, ge=0, integer=True)
+    require_field(source, "bins", who="sees_color")
 
     def predicate(state: State) -> bool:
         bins = state.value(source, "bins")
@@ -48,6 +50,8 @@ def obstacle_within(
     is within ``near_mm``, or reports ``too_close``."""
     check("obstacle_within", "near_mm", near_mm, gt=0, integer=True)
     watched = tuple(sources)
+    for source in watched:
+        require_field(source, "range_mm", who="obstacle_within")
 
     def predicate(state: State) -> bool:
         return nearest_obstacle(state, near_mm, watched) is not None

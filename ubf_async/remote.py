@@ -55,31 +55,37 @@ from ubf_async.component import Component, ensure_name_free
 from ubf_async.errors import ConfigurationError
 from ubf_async.ordering import SampleOrder, ahead_of_clock
 from ubf_async.protocol import (
-    RGB,
-    Check,
     Keys,
     Message,
     ProtocolError,
-    _check_segment,
+    check_segment,
     decode,
-    integer,
-    number,
-    record,
-    register_schema,
-    text,
+    encode_data,
 )
 from ubf_async.state import State
+from ubf_async.topics import (
+    DRIVE,
+    REMOTES_STATUS,
+    VOTE,
+    SeekColor,
+)
+from ubf_async.topics import (
+    MAX_TTL_S as MAX_TTL_S,
+)
+from ubf_async.topics import (
+    MAX_WEIGHT as MAX_WEIGHT,
+)
+from ubf_async.topics import (
+    PRIORITY_LIMIT as PRIORITY_LIMIT,
+)
+from ubf_async.topics import Vote as VoteData
 
 log = logging.getLogger(__name__)
 
-VOTE_SCHEMA = "vote"
-STATUS_SCHEMA = "remotes.status"
+VOTE_SCHEMA = VOTE.schema
+STATUS_SCHEMA = REMOTES_STATUS.schema
 DEFAULT_TTL_S = 0.5
 """How long a vote holds when neither the vote nor the robot says otherwise."""
-MAX_TTL_S = 60.0
-"""Largest ``ttl_s`` the schema accepts (the robot clamps further, see ``max_ttl_s``)."""
-PRIORITY_LIMIT = 1_000_000
-MAX_WEIGHT = 1e6
 MAX_NAME_LEN = 128
 """Longest remote behaviour name accepted: the drive command lists winners as text of at most
 128 characters, so a longer name would make every tick's command invalid."""
@@ -96,8 +102,9 @@ the same simulation time, delivery order) before it is refused."""
 
 def vote_key(keys: Keys, composite: str, behavior: str) -> str:
     """``ubf/<robot>/vote/<composite>/<behaviour>``: where ``behavior`` votes in ``composite``."""
-    return (f"{keys.prefix}/vote/{_check_segment('composite name', composite)}/"
-            f"{_check_segment('behaviour name', behavior)}")
+    check_segment("composite name", composite)
+    check_segment("behaviour name", behavior)
+    return VOTE.key(keys, composite=composite, behavior=behavior)
 
 
 def all_votes(keys: Keys) -> str:
@@ -116,50 +123,19 @@ def parse_vote_key(keys: Keys, key: str) -> tuple[str, str]:
     return parts[0], parts[1]
 
 
-def _seek_color(value: Any, path: str) -> Any:
-    checked = record({"lo": RGB, "hi": RGB}, extra=False, nullable=True)(value, path)
-    if checked is not None and any(a > b for a, b in zip(checked["lo"], checked["hi"],
-                                                          strict=True)):
-        raise ProtocolError(f"{path}: lo {checked['lo']} exceeds hi {checked['hi']}")
-    return checked
-
-
-ACTION_FIELDS: dict[str, Check] = {
-    "speed": number(-100.0, 100.0, nullable=True),
-    "turn": number(-100.0, 100.0, nullable=True),
-    "seek_color": _seek_color,
-    "message": text(256, nullable=True),
-    "leds": integer(0, 255, nullable=True),
-}
-VOTE_CHECK: Check = record(
-    {
-        **ACTION_FIELDS,
-        "vote": number(0.0),
-        "ttl_s": number(1e-3, MAX_TTL_S),
-        "priority": integer(-PRIORITY_LIMIT, PRIORITY_LIMIT),
-        "weight": number(0.0, MAX_WEIGHT),
-    },
-    optional=(*ACTION_FIELDS, "ttl_s", "priority", "weight"),
-)
-"""The ``"vote"`` schema: action fields (unset = absent or nil), ``vote`` (required, finite,
-≥ 0), optional ``ttl_s``, ``priority`` and ``weight``."""
-
-register_schema(VOTE_SCHEMA, VOTE_CHECK)
-
-
-def action_of_vote(data: Mapping[str, Any]) -> Action:
-    """The :class:`Action` a validated vote's data describes (raises :class:`ProtocolError`)."""
-    seek = data.get("seek_color")
+def action_of_vote(data: VoteData) -> Action:
+    """The :class:`Action` a validated vote describes (raises :class:`ProtocolError`)."""
+    seek = data.seek_color
     try:
         return Action(
-            speed=data.get("speed"),
-            turn=data.get("turn"),
-            vote=data["vote"],
-            seek_color=None if seek is None else (tuple(seek["lo"]), tuple(seek["hi"])),
-            message=data.get("message"),
-            leds=data.get("leds"),
+            speed=data.speed,
+            turn=data.turn,
+            vote=data.vote,
+            seek_color=None if seek is None else (seek.lo, seek.hi),
+            message=data.message,
+            leds=data.leds,
         )
-    except (KeyError, TypeError, ValueError) as exc:
+    except (TypeError, ValueError) as exc:
         raise ProtocolError(f"data: not a valid action: {exc}") from None
 
 
@@ -169,25 +145,17 @@ def vote_data(
     ttl_s: float | None = None,
     priority: int | None = None,
     weight: float | None = None,
-) -> dict[str, Any]:
+) -> VoteData:
     """The ``"vote"`` data for ``action`` (``None`` → a vote of 0: abstain)."""
-    out: dict[str, Any] = {"vote": 0.0}
-    if action is not None:
-        out["vote"] = float(action.vote)
-        for name in ("speed", "turn", "message", "leds"):
-            value = getattr(action, name)
-            if value is not None:
-                out[name] = value
-        if action.seek_color is not None:
-            out["seek_color"] = {"lo": list(action.seek_color.lo),
-                                 "hi": list(action.seek_color.hi)}
-    if ttl_s is not None:
-        out["ttl_s"] = float(ttl_s)
-    if priority is not None:
-        out["priority"] = priority
-    if weight is not None:
-        out["weight"] = float(weight)
-    return out
+    if action is None:
+        return VoteData(vote=0.0, ttl_s=ttl_s, priority=priority, weight=weight)
+    seek = action.seek_color
+    return VoteData(
+        vote=float(action.vote), speed=action.speed, turn=action.turn, message=action.message,
+        leds=action.leds,
+        seek_color=None if seek is None else SeekColor(lo=tuple(seek.lo), hi=tuple(seek.hi)),
+        ttl_s=None if ttl_s is None else float(ttl_s), priority=priority,
+        weight=None if weight is None else float(weight))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -209,16 +177,16 @@ class Vote:
     def decode(cls, keys: Keys, key: str, payload: bytes) -> Vote:
         """Parse key and payload (raises :class:`ProtocolError`, nothing else)."""
         composite, behavior = parse_vote_key(keys, key)
-        message = decode(payload, schema=VOTE_SCHEMA)
+        message = decode(payload, topic=VOTE)
         return cls.of_message(composite, behavior, message)
 
     @classmethod
-    def of_message(cls, composite: str, behavior: str, message: Message) -> Vote:
+    def of_message(cls, composite: str, behavior: str, message: Message[VoteData]) -> Vote:
         data = message.data
         return cls(
             composite=composite, behavior=behavior, action=action_of_vote(data),
-            stamp_ns=message.stamp_ns, seq=message.seq, ttl_s=data.get("ttl_s"),
-            priority=data.get("priority"), weight=data.get("weight"), pub=message.pub,
+            stamp_ns=message.stamp_ns, seq=message.seq, ttl_s=data.ttl_s,
+            priority=data.priority, weight=data.weight, pub=message.pub,
         )
 
 
@@ -441,7 +409,7 @@ class RemoteBehaviors(Component):
         keys = self.bus.keys
         self.subscribe(all_votes(keys), self.on_vote)
         watch = self.bus.watch_liveliness(keys.all_alive, self.on_liveliness)
-        status = self.publisher(keys.status(self.name), STATUS_SCHEMA,
+        status = self.publisher(REMOTES_STATUS, self.name,
                                 period_s=self.status_period_s)
         try:
             while True:
@@ -778,7 +746,8 @@ class RemoteBehaviorHost(Component):
         self.ttl_s = ttl_s
         self.priority = priority
         self.weight = weight
-        VOTE_CHECK(vote_data(None, ttl_s=ttl_s, priority=priority, weight=weight), "vote")
+        # The vote's own fields are checked now, not at the first publish.
+        encode_data(VOTE.schema, vote_data(None, ttl_s=ttl_s, priority=priority, weight=weight))
         self.votes = 0
         self.errors = 0
         self.last_action: Action | None = None
@@ -795,9 +764,9 @@ class RemoteBehaviorHost(Component):
         keys = self.bus.keys
         aggregator = StateAggregator(bus=self.bus, name=f"{self.name}-state")
         self.aggregator = aggregator
-        publisher = self.publisher(self.key, VOTE_SCHEMA,
+        publisher = self.publisher(self.key, VOTE.schema,
                                    period_s=None if self.trigger else 1.0 / self.rate_hz)
-        self.subscribe(keys.cmd("drive"), self._on_drive)
+        self.subscribe(DRIVE.key(keys), self._on_drive)
         self.behavior.reset()
         try:
             async with asyncio.TaskGroup() as group:
@@ -844,10 +813,10 @@ class RemoteBehaviorHost(Component):
         return action
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema="drive")
+        message = decode_or_count(payload, self.malformed, key, topic=DRIVE)
         if message is not None:
-            self.robot_action = Action(speed=message.data["speed"], turn=message.data["turn"])
-            self.robot_winners = list(message.data.get("winners", []))
+            self.robot_action = Action(speed=message.data.speed, turn=message.data.turn)
+            self.robot_winners = list(message.data.winners)
 
 
 # ---------------------------------------------------------------------------------------------

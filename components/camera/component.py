@@ -32,6 +32,7 @@ from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
+from ubf_async.topics import CAMERA, SEEK_COLOR
 
 OV9655_LATENCY_S = 0.11
 
@@ -69,9 +70,9 @@ class CameraComponent(Component):
 
     async def run(self) -> None:
         keys = self.bus.keys
-        pub = self.publisher(keys.sensor("camera", self.source_name), "camera.seekcolor",
+        pub = self.publisher(CAMERA, self.source_name,
                              period_s=max(self.latency_s, 0.01))
-        self.subscribe(keys.cmd("seek_color"), self._on_seek_color)
+        self.subscribe(SEEK_COLOR.key(keys), self._on_seek_color)
         clock = self.bus.clock
         latency_ns = int(self.latency_s * 1e9)
         # Simulated time waits while the backend gets ready, whatever the simulation's speed.
@@ -109,10 +110,10 @@ class CameraComponent(Component):
                 await asyncio.sleep(0)  # a zero-latency device must still let others run
 
     def _on_seek_color(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema="seek_color")
+        message = decode_or_count(payload, self.malformed, key, topic=SEEK_COLOR)
         if message is None:
             return
-        lo, hi = message.data["lo"], message.data["hi"]
+        lo, hi = message.data.lo, message.data.hi
         try:
             self.color = ColorRange(lo=tuple(lo), hi=tuple(hi),
                                     require_r_gt_b_gt_g=self.color.require_r_gt_b_gt_g)

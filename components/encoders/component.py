@@ -26,6 +26,7 @@ from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import every
 from ubf_async.component import Component
+from ubf_async.topics import ENCODERS, MOTORS, ODOMETRY
 
 
 class EncodersComponent(Component):
@@ -57,11 +58,11 @@ class EncodersComponent(Component):
 
     async def run(self) -> None:
         keys = self.bus.keys
-        counts_pub = self.publisher(keys.sensor("encoders", self.source_name), "encoders",
+        counts_pub = self.publisher(ENCODERS, self.source_name,
                                     period_s=self.period_s)
-        odom_pub = self.publisher(keys.sensor("odometry", self.source_name), "odometry",
+        odom_pub = self.publisher(ODOMETRY, self.source_name,
                                   period_s=self.period_s)
-        self.subscribe(keys.sensors_of_kind("motors"), self._on_motors)
+        self.subscribe(MOTORS.key_expr(keys), self._on_motors)
         mode = "commanded" if self.mode is DirectionMode.COMMANDED else "phase"
         async for stamp in every(self.bus.clock, self.period_s):
             left_states, right_states = self.backend.read_phases()
@@ -82,11 +83,11 @@ class EncodersComponent(Component):
             )
 
     def _on_motors(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema="motors.applied")
+        message = decode_or_count(payload, self.malformed, key, topic=MOTORS)
         if message is None:
             return
-        self.left.set_commanded_direction(message.data["left_dir"])
-        self.right.set_commanded_direction(message.data["right_dir"])
+        self.left.set_commanded_direction(message.data.left_dir)
+        self.right.set_commanded_direction(message.data.right_dir)
 
 
 def build_device(

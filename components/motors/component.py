@@ -45,6 +45,7 @@ from components.motors.pwm import (
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import SilenceLimit, sleep_until
 from ubf_async.component import Component
+from ubf_async.topics import DRIVE, MOTORS
 
 log = logging.getLogger(__name__)
 
@@ -87,14 +88,12 @@ class MotorsComponent(Component):
 
     async def run(self) -> None:
         keys = self.bus.keys
-        self._applied_pub = self.publisher(
-            keys.sensor("motors", self.source_name), "motors.applied"
-        )
+        self._applied_pub = self.publisher(MOTORS, self.source_name)
         # Arm the drivers with the init pulse (inside both dead zones), then hold still.
         self.backend.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
         self._apply(0.0, 0.0, reason="init")
         self.stopped_by_watchdog = True
-        self.subscribe(keys.cmd("drive"), self._on_drive)
+        self.subscribe(DRIVE.key(keys), self._on_drive)
         clock = self.bus.clock
         timeout_ns = round(self.timeout_s * 1e9)
         while True:
@@ -122,10 +121,10 @@ class MotorsComponent(Component):
         self._apply(0.0, 0.0, reason=reason)
 
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema="drive")
+        message = decode_or_count(payload, self.malformed, key, topic=DRIVE)
         if message is None:
             return
-        speed, turn = message.data["speed"], message.data["turn"]
+        speed, turn = message.data.speed, message.data.turn
         safe_speed, safe_turn = clamp_command(speed, turn)
         if (safe_speed, safe_turn) != (speed, turn):
             self.clamped += 1

@@ -14,6 +14,7 @@ import msgspec
 from components.radio.backend import RadioBackend
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
+from ubf_async.topics import RADIO, RADIO_SEND
 
 
 class RadioComponent(Component):
@@ -35,8 +36,8 @@ class RadioComponent(Component):
 
     async def run(self) -> None:
         keys = self.bus.keys
-        pub = self.publisher(keys.sensor("radio", self.source_name), "radio.message")
-        self.subscribe(keys.cmd("radio"), self._on_send, latest=False)
+        pub = self.publisher(RADIO, self.source_name)
+        self.subscribe(RADIO_SEND.key(keys), self._on_send, latest=False)
         clock = self.bus.clock
         while True:
             for text in self.backend.receive():
@@ -44,9 +45,9 @@ class RadioComponent(Component):
             await clock.sleep(self.period_s)
 
     def _on_send(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema="radio.send")
+        message = decode_or_count(payload, self.malformed, key, topic=RADIO_SEND)
         if message is not None:
-            self.backend.send(message.data["text"])
+            self.backend.send(message.data.text)
             self.sent += 1
 
 

@@ -19,6 +19,7 @@ from components.range.ir import GP2Y0A21, IR_MODELS, IrModel, read_ir
 from ubf_async.bus import Bus
 from ubf_async.clock import every
 from ubf_async.component import Component
+from ubf_async.topics import RANGE
 
 
 class RangeComponent(Component):
@@ -45,7 +46,7 @@ class RangeComponent(Component):
         self.rng = np.random.default_rng(seed)
 
     async def run(self) -> None:
-        pub = self.publisher(self.bus.keys.sensor("range", self.source_name), "range",
+        pub = self.publisher(RANGE, self.source_name,
                              period_s=self.period_s)
         limits = {"model": self.model.name, "min_mm": round(self.model.min_range_m * 1000),
                   "max_mm": round(self.model.max_range_m * 1000)}

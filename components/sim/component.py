@@ -45,12 +45,13 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from components.devices import KINDS, make_backend, make_device
-from components.sim.wire import PULSES_SCHEMA, WORLD_SCHEMA, snapshot_to_data
+from components.sim.wire import snapshot_to_data
 from components.sim.world import World
 from ubf_async.bus import Bus, Publisher, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.simulation import DeviceContext
+from ubf_async.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD
 
 DEVICES = KINDS
 """The devices of the simulated Mini-WHEGS."""
@@ -109,9 +110,9 @@ class SimulatorComponent(Component):
 
     def _on_pulses(self, key: str, payload: bytes, received_ns: int) -> None:
         """Motor pulses from a motors component in another process."""
-        message = decode_or_count(payload, self.malformed, key, schema=PULSES_SCHEMA)
+        message = decode_or_count(payload, self.malformed, key, topic=SIM_PULSES)
         if message is not None:
-            self.world.set_motor_pulses(message.data["left_ms"], message.data["right_ms"])
+            self.world.set_motor_pulses(message.data.left_ms, message.data.right_ms)
 
     def truth(self) -> dict[str, object]:
         snap = self.world.snapshot()
@@ -129,10 +130,10 @@ class SimulatorComponent(Component):
 
     async def run(self) -> None:
         keys = self.bus.keys
-        clock_pub = self.publisher(keys.clock, "clock", period_s=self.step_s)
-        truth_pub = self.publisher(keys.sim("truth"), "sim.truth", period_s=self.truth_period_s)
-        world_pub = self.publisher(keys.sim("world"), WORLD_SCHEMA, period_s=self.world_period_s)
-        self.subscribe(keys.sim("pulses"), self._on_pulses)
+        clock_pub = self.publisher(CLOCK, period_s=self.step_s)
+        truth_pub = self.publisher(SIM_TRUTH, period_s=self.truth_period_s)
+        world_pub = self.publisher(SIM_WORLD, period_s=self.world_period_s)
+        self.subscribe(SIM_PULSES.key(keys), self._on_pulses)
         self.clock.advance_to(round(self.world.time_s * 1e9))
         # Components of this process that are still getting ready (the camera building its
         # renderer's caches) hold the start: time starts, and is measured, once they are done.

@@ -15,9 +15,10 @@ import logging
 
 import numpy as np
 
-from components.sim.wire import PULSES_SCHEMA, WORLD_SCHEMA, snapshot_from_data
+from components.sim.wire import snapshot_from_data
 from components.sim.world import RobotConfig, WorldConfig, WorldSnapshot
 from ubf_async.bus import Bus, Publisher, Subscription, decode_or_count
+from ubf_async.topics import SIM_PULSES, SIM_WORLD
 
 log = logging.getLogger(__name__)
 
@@ -35,8 +36,8 @@ class RemoteWorld:
 
     def start(self) -> None:
         keys = self.bus.keys
-        self._sub = self.bus.subscribe(keys.sim("world"), self._on_world)
-        self._pulses = self.bus.publisher(keys.sim("pulses"), PULSES_SCHEMA)
+        self._sub = self.bus.subscribe(SIM_WORLD.key(keys), self._on_world)
+        self._pulses = self.bus.publisher(SIM_PULSES)
 
     def close(self) -> None:
         if self._sub is not None:
@@ -49,12 +50,13 @@ class RemoteWorld:
             await asyncio.wait_for(self.ready.wait(), timeout_s)
         except TimeoutError:
             raise ConnectionError(
-                f"no simulator is publishing {self.bus.keys.sim('world')} (waited {timeout_s:g} s):"
+                f"no simulator is publishing {SIM_WORLD.key(self.bus.keys)} "
+                f"(waited {timeout_s:g} s):"
                 " start one with python -m ubf_async.launch and pass its endpoint with --connect"
             ) from None
 
     def _on_world(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, schema=WORLD_SCHEMA)
+        message = decode_or_count(payload, self.malformed, key, topic=SIM_WORLD)
         if message is None:
             return
         try:

@@ -19,15 +19,9 @@ from components.sim.world import (
     Wall,
     WorldSnapshot,
 )
-from ubf_async.protocol import number, record, register_schema
 
-WORLD_SCHEMA = "sim.world"
-PULSES_SCHEMA = "sim.pulses"
-
-# A remote motors process's pulses are validated like every command (the world snapshot is
-# checked generically and then by snapshot_from_data).
-register_schema(PULSES_SCHEMA, record({"left_ms": number(0.5, 2.5),
-                                       "right_ms": number(0.5, 2.5)}))
+# The world snapshot's topic (ubf_async.topics.SIM_WORLD) is checked generically on the wire
+# and then by snapshot_from_data.
 
 
 def snapshot_to_data(snapshot: WorldSnapshot) -> dict[str, Any]:

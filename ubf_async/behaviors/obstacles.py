@@ -15,6 +15,7 @@ from ubf_async.action import Action
 from ubf_async.behavior import Behavior
 from ubf_async.behaviors.params import Command, Millimetres, check
 from ubf_async.state import State
+from ubf_async.topics import require_field
 
 RANGE_PREFIX = "range/"
 DEFAULT_NEAR_MM = 250
@@ -27,11 +28,8 @@ def nearest_obstacle(
     ``range/*`` source of the state when empty), or ``None``."""
     best: tuple[str, int] | None = None
     for source in sources or [s for s in state if s.startswith(RANGE_PREFIX)]:
-        reading = state.fresh(source)
-        if reading is None:
-            continue
-        status = reading.value.get("status")
-        mm = reading.value.get("range_mm")
+        status = state.value(source, "status")
+        mm = state.value(source, "range_mm")
         if status == "too_close":
             mm = 0
         elif status != "ok" or mm is None:
@@ -64,6 +62,8 @@ class Avoid(Behavior):
         check("Avoid", "near_mm", near_mm, gt=0, integer=True)
         check("Avoid", "speed", speed, ge=-100, le=100)
         check("Avoid", "turn", turn, ge=-100, le=100)
+        for source in sources:
+            require_field(source, "range_mm", who=f"Avoid {name!r}")
         self.sources = list(sources)
         self.near_mm = near_mm
         self.speed = speed

@@ -34,6 +34,7 @@ from ubf_async.arbiters import PriorityMerge
 from ubf_async.behavior import Behavior, Child, Composite
 from ubf_async.behaviors.params import Command, Pixels, check
 from ubf_async.state import State
+from ubf_async.topics import require_field
 
 CAMERA_SOURCE = "camera/front"
 BIN_TURNS: tuple[float, ...] = (60.0, 30.0, 0.0, -30.0, -60.0)
@@ -66,6 +67,7 @@ class Chase(Behavior):
         super().__init__(name=name)
         check("Chase", "speed", speed, ge=-100, le=100)
         check("Chase", "min_pixels", min_pixels, ge=0, integer=True)
+        require_field(source, "bins", who=f"{type(self).__name__} {name!r}")
         self.source = source
         self.speed = speed
         self.min_pixels = min_pixels
@@ -102,6 +104,7 @@ class Flee(Behavior):
         check("Flee", "start_pixels", start_pixels, ge=0, integer=True)
         check("Flee", "speed_per_pixel", speed_per_pixel, ge=0)
         check("Flee", "min_speed", min_speed, ge=-100, le=0)
+        require_field(source, "bins", who=f"{type(self).__name__} {name!r}")
         self.source = source
         self.start_pixels = start_pixels
         self.speed_per_pixel = speed_per_pixel
@@ -142,6 +145,7 @@ class Search(Behavior):
         check("Search", "speed", speed, ge=-100, le=100)
         check("Search", "turn", turn, ge=-100, le=100)
         check("Search", "period_s", period_s, gt=0)
+        require_field(source, "bins", who=f"{type(self).__name__} {name!r}")
         self.source = source
         self.speed = speed
         self.turn = turn
