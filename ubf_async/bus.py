@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import dataclasses
 import itertools
 import json
@@ -74,6 +73,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_ROBOT = "mini"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+
+_monotonic_ns = time.monotonic_ns
 
 DRAIN_BATCH = 256
 """Samples a subscription hands to its handler in one pass of the event loop."""
@@ -434,63 +435,76 @@ class Subscription:
 
         ``on_loop=True`` (only from the loop's own thread) schedules the drain with
         ``call_soon``, skipping the thread-safe wake-up."""
-        received_ns = time.monotonic_ns()
+        received_ns = _monotonic_ns()
+        stats = self.stats
         with self._lock:
             if self._closed:
                 return
-            self.stats.received += 1
+            stats.received += 1
             if self._latest:
-                if key in self._pending_latest:
-                    self.stats.coalesced += 1
-                elif len(self._pending_latest) >= self._max_pending:
+                pending = self._pending_latest
+                if key in pending:
+                    stats.coalesced += 1
+                elif len(pending) >= self._max_pending:
                     # A flood of distinct keys must not grow memory or the loop's next batch.
-                    self.stats.dropped += 1
+                    stats.dropped += 1
                     return
-                self._pending_latest[key] = (payload, received_ns)
+                pending[key] = (payload, received_ns)
             else:
-                if len(self._pending_queue) == self._pending_queue.maxlen:
-                    self.stats.dropped += 1
-                self._pending_queue.append((key, payload, received_ns))
+                queue = self._pending_queue
+                if len(queue) == self._max_pending:  # full: append drops the oldest
+                    stats.dropped += 1
+                queue.append((key, payload, received_ns))
             if self._scheduled:
                 return
             self._scheduled = True
         if on_loop:
             self._loop.call_soon(self._drain)
             return
-        with contextlib.suppress(RuntimeError):  # a closed loop: nothing left to deliver to
+        try:  # noqa: SIM105 — contextlib.suppress would add ≈ 0.4 µs to every hand-off
             self._loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:  # a closed loop: nothing left to deliver to
+            pass
 
     # event loop --------------------------------------------------------------------------
     def _drain(self) -> None:
         with self._lock:
             if self._latest:
                 pending = self._pending_latest
-                if len(pending) <= DRAIN_BATCH:
-                    batch = [(k, p, t) for k, (p, t) in pending.items()]
+                if len(pending) <= DRAIN_BATCH:  # the usual case: take the whole dict
                     self._pending_latest = {}
+                    batch = [(k, p, t) for k, (p, t) in pending.items()]
+                    more = False
                 else:
                     keys = list(itertools.islice(pending, DRAIN_BATCH))
                     batch = [(k, *pending.pop(k)) for k in keys]
-                more = bool(self._pending_latest)
+                    more = True
             else:
                 queue = self._pending_queue
-                batch = [queue.popleft() for _ in range(min(DRAIN_BATCH, len(queue)))]
-                more = bool(queue)
+                if len(queue) <= DRAIN_BATCH:
+                    batch = list(queue)
+                    queue.clear()
+                    more = False
+                else:
+                    batch = [queue.popleft() for _ in range(DRAIN_BATCH)]
+                    more = True
             # With more waiting the drain stays scheduled, but yields to the loop first:
             # a flood is handled in slices, never in one pass that starves other tasks.
             self._scheduled = more
         if more:
             self._loop.call_soon(self._drain)
+        handler = self._handler
+        stats = self.stats
         for key, payload, received_ns in batch:
             if self._closed:
                 return
             try:
-                self._handler(key, payload, received_ns)
+                handler(key, payload, received_ns)
             except Exception:
-                self.stats.handler_errors += 1
+                stats.handler_errors += 1
                 log.exception("handler of subscription %s failed on %s", self.name, key)
             else:
-                self.stats.delivered += 1
+                stats.delivered += 1
 
     def close(self) -> None:
         """Stop delivering; idempotent."""
