@@ -1,0 +1,275 @@
+"""Unit tests of the aggregator, the controller and remote votes on the in-process transport:
+real buses, real msgpack, a :class:`SimClock` the test advances, and
+``await net.settle()`` instead of waiting — no zenoh session, no sleeps.
+
+Each test wires what would be separate processes as separate buses on one
+:class:`InProcessTransport` (the device's, the robot's, a remote behaviour's host)."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from typing import Any
+
+import msgpack
+import pytest
+import pytest_asyncio
+
+from ubf_async.action import Action
+from ubf_async.aggregator import StateAggregator
+from ubf_async.arbiters import HighestPriority
+from ubf_async.behavior import Behavior, Composite
+from ubf_async.behaviors.basic import Drive
+from ubf_async.bus import Bus
+from ubf_async.clock import SimClock
+from ubf_async.component import Component
+from ubf_async.controller import Controller
+from ubf_async.ordering import Refusal
+from ubf_async.protocol import decode
+from ubf_async.remote import RemoteBehavior, RemoteBehaviorHost, RemoteBehaviors
+from ubf_async.state import State
+from ubf_async.transport import InProcessTransport
+
+START_NS = 10**9
+RANGE_PERIOD_S = 0.2
+"""The device's period: the aggregator calls its samples stale after 1.5 periods (0.3 s)."""
+
+
+class RangeSpeed(Behavior):
+    """Drives at a tenth of the front range while the range is fresh; abstains otherwise."""
+
+    def act(self, state: State) -> Action | None:
+        range_mm = state.value("range/front", "range_mm")
+        return None if range_mm is None else Action(speed=range_mm / 10, turn=0.0)
+
+
+class Rig:
+    """One in-process network: the robot's bus, a device's bus and a watcher's bus, all on
+    one simulated clock (as processes following the simulator's clock would be)."""
+
+    def __init__(self) -> None:
+        self.net = InProcessTransport()
+        self.clock = SimClock(START_NS)
+        self.robot = Bus(transport=self.net, robot="unit", clock=self.clock)
+        self.device = Bus(transport=self.net, robot="unit", clock=self.clock)
+        self.watcher = Bus(transport=self.net, robot="unit", clock=self.clock)
+        self.range = self.device.publisher(self.device.keys.sensor("range", "front"), "range",
+                                           period_s=RANGE_PERIOD_S)
+        self.drives: list[dict[str, Any]] = []
+        self.watcher.subscribe(self.watcher.keys.cmd("drive"), self._on_drive, latest=False)
+        self.components: list[Component] = []
+
+    def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
+        self.drives.append(dict(decode(payload, schema="drive").data))
+
+    async def start(self, *components: Component) -> None:
+        for component in components:
+            await component.start()
+            self.components.append(component)
+        await self.net.settle()
+
+    async def advance_s(self, seconds: float) -> None:
+        self.clock.advance_to(self.clock.now_ns() + round(seconds * 1e9))
+        await self.net.settle()
+
+    async def publish_range(self, range_mm: int) -> None:
+        self.range.publish({"range_mm": range_mm, "status": "ok"})
+        await self.net.settle()
+
+    async def close(self) -> None:
+        for component in reversed(self.components):
+            await component.aclose()
+        for bus in (self.watcher, self.device, self.robot):
+            await bus.aclose()
+
+
+@pytest_asyncio.fixture
+async def rig() -> AsyncIterator[Rig]:
+    rig = Rig()
+    yield rig
+    await rig.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# The aggregator
+
+
+@pytest.mark.asyncio
+async def test_aggregator_keeps_the_newest_sample_and_ages_it_on_the_robot_clock(
+    rig: Rig,
+) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    await rig.start(agg)
+    assert len(agg.snapshot()) == 0
+    await rig.publish_range(420)
+    await rig.publish_range(380)
+    reading = agg.snapshot()["range/front"]
+    assert (reading.value["range_mm"], reading.seq, reading.age_s, reading.stale) == (
+        380, 2, 0.0, False)
+    await rig.advance_s(0.25)  # within 1.5 periods
+    reading = agg.snapshot()["range/front"]
+    assert reading.age_s == pytest.approx(0.25) and not reading.stale
+    await rig.advance_s(0.1)  # 0.35 s quiet: past 0.3 s
+    state = agg.snapshot()
+    assert state["range/front"].stale and state.fresh("range/front") is None
+    await rig.publish_range(300)  # a new sample is fresh again
+    assert agg.snapshot().value("range/front", "range_mm") == 300
+
+
+@pytest.mark.asyncio
+async def test_aggregator_refuses_future_stamps_and_counts_malformed_samples(rig: Rig) -> None:
+    agg = StateAggregator(bus=rig.robot, future_tolerance_s=0.5)
+    await rig.start(agg)
+    rig.range.publish({"range_mm": 100, "status": "ok"}, stamp_ns=START_NS + 2 * 10**9)
+    raw = rig.device._connection.declare_publisher(rig.device.keys.sensor("range", "left"))
+    raw.put(b"\xc1 not msgpack")
+    await rig.net.settle()  # (one key: without it, latest mode would coalesce the two)
+    raw.put(msgpack.packb({"schema": "range", "v": 1, "stamp_ns": START_NS, "seq": 1,
+                           "data": {"range_mm": -5, "status": "ok"}}))  # out of range
+    await rig.net.settle()
+    assert agg.refused[Refusal.FUTURE] == 1
+    assert agg.malformed == {"ubf/unit/sensor/range/left": 2}
+    assert "range/front" not in agg.snapshot() and "range/left" not in agg.snapshot()
+    await rig.publish_range(200)  # it keeps going
+    assert agg.snapshot().value("range/front", "range_mm") == 200
+
+
+# ---------------------------------------------------------------------------------------------
+# The controller
+
+
+def tree() -> Composite:
+    return Composite(name="root", arbiter=HighestPriority(), children=[RangeSpeed(name="range")])
+
+
+@pytest.mark.asyncio
+async def test_periodic_controller_ticks_on_the_sim_clock_and_commands_what_it_decided(
+    rig: Rig,
+) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10)
+    await rig.start(agg, ctl)
+    assert [d["tick"] for d in rig.drives] == [1]  # the schedule starts with a tick
+    assert rig.drives[0]["speed"] == 0.0  # nothing known yet: the tree abstains, a stop
+    await rig.publish_range(420)
+    assert len(rig.drives) == 1  # a sample alone does not tick a periodic controller
+    await rig.advance_s(0.05)
+    assert len(rig.drives) == 1  # half a period
+    await rig.advance_s(0.05)
+    assert [d["tick"] for d in rig.drives] == [1, 2]
+    command = rig.drives[-1]
+    assert command["speed"] == 42.0 and command["winners"] == ["range"]
+    assert command["based_on"]["source"] == "range/front" and command["based_on"]["seq"] == 1
+    for _ in range(3):
+        await rig.advance_s(0.1)
+    assert [d["tick"] for d in rig.drives] == [1, 2, 3, 4, 5]
+    assert rig.drives[-1]["speed"] == 0.0  # the range went stale: the tree abstains
+    assert ctl.stats.periodic == 5 and ctl.stats.triggered == 0
+
+
+@pytest.mark.asyncio
+async def test_a_late_wakeup_skips_missed_ticks_and_counts_an_overrun(rig: Rig) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10)
+    await rig.start(agg, ctl)
+    await rig.advance_s(0.35)  # three deadlines passed at once
+    assert [d["tick"] for d in rig.drives] == [1, 2]
+    assert ctl.stats.overruns == 1
+    await rig.advance_s(0.05)  # the phase is kept: the next slot is at 0.4 s
+    assert [d["tick"] for d in rig.drives] == [1, 2, 3]
+
+
+@pytest.mark.asyncio
+async def test_event_controller_ticks_per_trigger_sample_and_holds_between(rig: Rig) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10, mode="event",
+                     trigger="range/front")
+    await rig.start(agg, ctl)
+    assert rig.drives == []
+    for range_mm in (100, 200, 300):
+        await rig.publish_range(range_mm)
+    assert [(d["speed"], d["based_on"]["seq"]) for d in rig.drives] == [
+        (10.0, 1), (20.0, 2), (30.0, 3)]
+    assert not any(d.get("hold") for d in rig.drives)
+    await rig.advance_s(0.1)  # a period without a trigger: the last decision is held
+    hold = rig.drives[-1]
+    assert hold["hold"] is True and hold["speed"] == 30.0 and hold["tick"] == 3
+    await rig.advance_s(0.3)  # the trigger went stale: a hold is now a stop
+    assert rig.drives[-1]["hold"] is True and rig.drives[-1]["speed"] == 0.0
+
+
+@pytest.mark.asyncio
+async def test_reflex_samples_tick_at_once_within_their_token_bucket(rig: Rig) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10,
+                     reflex_sources=("range/",), reflex_burst=2)
+    await rig.start(agg, ctl)
+    assert len(rig.drives) == 1
+    await rig.publish_range(500)  # no clock advance: the reflex ticks on the sample
+    await rig.publish_range(600)
+    await rig.publish_range(700)  # the bucket (burst 2) is empty at this instant
+    assert [d["speed"] for d in rig.drives] == [0.0, 50.0, 60.0]
+    assert (ctl.stats.triggered, ctl.stats.reflex_limited) == (2, 1)
+    assert rig.drives[-1]["based_on"]["seq"] == 2
+
+
+# ---------------------------------------------------------------------------------------------
+# Remote votes
+
+
+@pytest.mark.asyncio
+async def test_a_remote_vote_from_another_bus_attaches_drives_and_detaches_with_its_token(
+    rig: Rig,
+) -> None:
+    root = tree()
+    agg = StateAggregator(bus=rig.robot)
+    remotes = RemoteBehaviors(bus=rig.robot, root=root)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=root, rate_hz=10)
+    await rig.start(agg, remotes, ctl)
+    host_bus = Bus(transport=rig.net, robot="unit", clock=rig.clock)
+    host = RemoteBehaviorHost(bus=host_bus, behavior=Drive(name="cruise", speed=30.0),
+                              composite="root", rate_hz=10, ttl_s=1.0)
+    await host.start()
+    await rig.net.settle()
+    assert host.votes == 1
+    attached = root.find("cruise")
+    assert isinstance(attached, RemoteBehavior) and attached.alive
+    assert remotes.alive >= {"cruise"}
+    await rig.advance_s(0.1)
+    command = rig.drives[-1]
+    assert command["speed"] == 30.0 and command["winners"] == ["cruise"]
+    # A local child that votes outranks the stranger (its priority is capped below it).
+    await rig.publish_range(800)
+    await rig.advance_s(0.1)
+    assert rig.drives[-1]["speed"] == 80.0 and rig.drives[-1]["winners"] == ["range"]
+    # The host goes away: its token with it, and the robot detaches the child.
+    await host.aclose()
+    await host_bus.aclose()
+    await rig.net.settle()
+    assert root.find("cruise") is None
+    assert "cruise" not in remotes.alive
+    await rig.advance_s(0.5)  # the range is stale and nobody else votes: a stop
+    assert rig.drives[-1]["speed"] == 0.0 and rig.drives[-1]["winners"] == []
+
+
+@pytest.mark.asyncio
+async def test_a_vote_without_a_live_token_waits_and_an_expired_vote_abstains(
+    rig: Rig,
+) -> None:
+    root = tree()
+    remotes = RemoteBehaviors(bus=rig.robot, root=root)
+    await rig.start(remotes)
+    voter = rig.device.publisher(f"{rig.device.keys.prefix}/vote/root/ghost", "vote")
+    voter.publish({"vote": 1.0, "speed": 20.0, "ttl_s": 0.2})
+    await rig.net.settle()
+    assert root.find("ghost") is None  # no token: not attached
+    token = rig.device.declare_token(rig.device.keys.alive("ghost"))
+    await rig.net.settle()
+    ghost = root.find("ghost")
+    assert isinstance(ghost, RemoteBehavior)
+    state = State(now_ns=rig.clock.now_ns())
+    assert ghost.act(state) == Action(speed=20.0, vote=1.0)
+    await rig.advance_s(0.3)  # older than its ttl on the robot clock
+    assert ghost.act(State(now_ns=rig.clock.now_ns())) is None
+    token.undeclare()
+    await rig.net.settle()
+    assert root.find("ghost") is None
