@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from typing import ParamSpec
 
 from ubf_async.action import Action
-from ubf_async.bus import Bus, decode_or_count
+from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SilenceLimit
 from ubf_async.component import Component
 from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
@@ -243,6 +243,8 @@ class StateAggregator(Component):
         self._sample_hooks: list[SampleHook] = []
         self._receive_hooks: list[ReceiveHook] = []
         self._ingest_hooks: list[IngestHook] = []
+        self.subscription: Subscription | None = None
+        """This run's subscription to the sensors (its ``stats``: the bridge's counts)."""
 
     @property
     def refused_sources(self) -> int:
@@ -278,7 +280,7 @@ class StateAggregator(Component):
         return add_hook(self._ingest_hooks, callback)
 
     async def run(self) -> None:
-        self.subscribe(self.bus.keys.all_sensors, self._on_sample)
+        self.subscription = self.subscribe(self.bus.keys.all_sensors, self._on_sample)
         forget_after_s = self.forget_after_s
         if forget_after_s is None:
             await asyncio.Event().wait()  # samples arrive through the subscription
