@@ -40,6 +40,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import sys
 import threading
 import time
@@ -54,6 +55,9 @@ from ubf_async.controller import Controller
 
 AVOID_BELOW_MM = 200
 AVOID_SPEED = -50.0
+PROFILE_ENV = "UBF_BENCH_PROFILE_DIR"
+"""If set, the controller role runs under cProfile and writes ``controller-<mode>-<pid>.prof``
+there (the figures of such a run are slowed by the profiler: read them only relative)."""
 DEFAULT_REFLEX = ("range/",)
 """``python -m ubf_async.launch``'s default ``--reflex``."""
 
@@ -330,7 +334,16 @@ def main(argv: list[str] | None = None) -> int:
     if role == "echo":
         result = echo_role(cfg)
     elif role == "controller":
-        result = asyncio.run(controller_role(cfg))
+        profile_dir = os.environ.get(PROFILE_ENV)
+        if profile_dir:  # cProfile the whole controller process (it slows every figure)
+            import cProfile
+
+            name = "wake_task" if cfg.get("wake_task") else cfg["mode"]
+            with cProfile.Profile() as prof:
+                result = asyncio.run(controller_role(cfg))
+            prof.dump_stats(os.path.join(profile_dir, f"controller-{name}-{os.getpid()}.prof"))
+        else:
+            result = asyncio.run(controller_role(cfg))
     elif role == "simrobot":
         result = asyncio.run(simrobot_role(cfg))
     else:
