@@ -13,7 +13,7 @@ Prints ``READY`` once both components run, serves until its stdin closes, then p
 ``RESULT <json>`` with what the instrumentation saw.
 
 With ``wake_task: true`` the controller ticks the way event mode did before triggered ticks
-moved into the aggregator's listener: its own task awaits
+moved into the aggregator's ``on_sample`` hook: its own task awaits
 :meth:`~ubf_async.aggregator.StateAggregator.wait_for_update` on ``range/front`` and calls
 :meth:`~ubf_async.controller.Controller.tick` (both public), so each sample costs one more
 pass through the event loop. It is kept beside the real event mode for comparison only.
@@ -27,13 +27,12 @@ wall-clock pacing, camera, encoders, IR, motors, radio) plus aggregator and the 
 default controller (periodic at ``rate_hz``, reflexes on ``range/``), for ``duration_s`` of
 wall time; reports tick timing in wall and simulated time.
 
-The instrumentation only reads ``time.monotonic_ns()`` through public hooks and methods: the
-handler given to :meth:`~ubf_async.component.Component.subscribe` is wrapped (its start),
-:meth:`~ubf_async.aggregator.StateAggregator.ingest` (its start: decode is done), a state
-listener registered before the controller's (the sample is stored),
-:meth:`~ubf_async.controller.Controller.tick` (its start and end) and the drive publisher's
-``publish`` (when it returns, wrapped through the public
-:meth:`~ubf_async.component.Component.publisher`). It adds a few µs per sample.
+The components are the framework's own, unmodified: no subclass, no wrapped method. The
+instrumentation (:class:`Recorder`) reads ``time.monotonic_ns()`` in the documented hooks
+only: the aggregator's ``on_receive`` (handler start), ``on_ingest`` (decode and validation
+done), ``on_sample`` (stored; one added before the controller's, one after it for the end of
+a triggered tick) and the controller's ``on_tick`` (right after the drive command's put
+returned; the tick's start is its state's ``now_ns``). It adds a few µs per sample.
 """
 
 from __future__ import annotations
@@ -41,19 +40,24 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from ubf_async import Action, Behavior, Child, Composite, HighestPriority, State
 from ubf_async.aggregator import SourceEntry, StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, ConnectionOptions, Publisher, SampleHandler, Subscription
+from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.controller import Controller
 
 AVOID_BELOW_MM = 200
 AVOID_SPEED = -50.0
+PROFILE_ENV = "UBF_BENCH_PROFILE_DIR"
+"""If set, the controller role runs under cProfile and writes ``controller-<mode>-<pid>.prof``
+there (the figures of such a run are slowed by the profiler: read them only relative)."""
 DEFAULT_REFLEX = ("range/",)
 """``python -m ubf_async.launch``'s default ``--reflex``."""
 
@@ -84,97 +88,108 @@ def reflex_tree(camera_source: str = "camera/front") -> Composite:
 
 
 # ---------------------------------------------------------------------------------------------
-# Instrumented subclasses (public methods and hooks only; see docs/latency.md)
+# Instrumentation through the documented hooks (see docs/latency.md)
 
 
-class TimedAggregator(StateAggregator):
-    """Records, per accepted sample: zenoh callback time (the bridge's ``received_ns``), the
-    loop handler's start, ingest's start (decode and validation done) and the moment the
-    sample is stored (a listener registered before any other, so before the controller's,
-    whose triggered tick runs inside ingest)."""
+def _field(data: Any, name: str) -> Any:
+    """A field of drive data, whether the codec hands out a mapping or a typed struct."""
+    return data.get(name) if isinstance(data, Mapping) else getattr(data, name, None)
 
-    def __init__(self, **kw: Any) -> None:
-        super().__init__(**kw)
+
+class Recorder:
+    """Stamps ``time.monotonic_ns()`` at the framework's hooks, per sample and per tick.
+
+    Per accepted sample: the bridge's ``received_ns`` (its zenoh callback), the
+    aggregator's ``on_receive`` (handler start: the bridge hand-off is over), ``on_ingest``
+    (decoded and validated) and ``on_sample`` (stored; added before the controller's own
+    ``on_sample``, so before its triggered tick).
+
+    Per tick (``Controller.on_tick``, which runs right after the drive command's ``publish``
+    returned): the tick's start (``state.now_ns``: the robot clock is host monotonic time
+    on a wall-clock bus; with ``wall_start=False`` — simulated time — the hook's own stamp
+    stands in), the robot clock, the sample it was based on, the camera sample it saw,
+    whether a sample triggered it (``stats.periodic`` counts clock ticks before the hook
+    runs) and when the drive command's put returned. The tick's end comes from a second
+    ``on_sample`` hook added after the controller started (it runs when the controller's
+    hook — the triggered tick — returns) or from whoever calls :meth:`Controller.tick`
+    (:func:`wake_task_ticks`)."""
+
+    LIMIT = 200_000
+
+    def __init__(self, agg: StateAggregator, ctl: Controller, *, wall_start: bool = True
+                 ) -> None:
         self.samples: list[tuple[str, int, int, int, int, int]] = []
         """(source, seq, received_ns, handler_start_ns, ingest_start_ns, stored_ns)"""
-        self.subscription: Subscription | None = None
+        self.ticks: list[list[Any]] = []
+        """[wall_start_ns, wall_end_ns, robot_now_ns, basis_source, basis_seq,
+        basis_stamp_ns, camera_seq, camera_stamp_ns, triggered, drive_put_returned_ns]"""
+        self._ctl = ctl
+        self._wall_start = wall_start
+        self._camera = ctl.sync_source
         self._handler_ns = 0
         self._ingest_ns = 0
-        self.add_listener(self._stored)
+        self._periodic = 0
+        agg.on_receive(self._received)
+        agg.on_ingest(self._ingested)
+        agg.on_sample(self._stored)
+        ctl.on_tick(self._ticked)
 
-    def subscribe(self, key_expr: str, handler: SampleHandler, *, latest: bool = True
-                  ) -> Subscription:
-        def timed(key: str, payload: bytes, received_ns: int) -> None:
-            self._handler_ns = time.monotonic_ns()
-            handler(key, payload, received_ns)
+    def after_controller_started(self, agg: StateAggregator) -> None:
+        agg.on_sample(self._tick_returned)
 
-        self.subscription = super().subscribe(key_expr, timed, latest=latest)
-        return self.subscription
+    def _received(self, key: str, payload: bytes, received_ns: int) -> None:
+        self._handler_ns = time.monotonic_ns()
 
-    def ingest(self, source: str, message: Any, received_ns: int) -> None:
+    def _ingested(self, source: str, message: Any, received_ns: int) -> None:
         self._ingest_ns = time.monotonic_ns()
-        super().ingest(source, message, received_ns)
 
     def _stored(self, source: str, entry: SourceEntry) -> None:
         stored = time.monotonic_ns()
-        if len(self.samples) < 200_000:
+        if len(self.samples) < self.LIMIT:
             self.samples.append((source, entry.message.seq, entry.received_ns,
                                  self._handler_ns, self._ingest_ns, stored))
 
+    def _ticked(self, state: State, trace: Any, command: Any) -> None:
+        put_returned = time.monotonic_ns()
+        periodic = self._ctl.stats.periodic
+        triggered = periodic == self._periodic
+        self._periodic = periodic
+        if len(self.ticks) >= self.LIMIT:
+            return
+        basis = _field(command, "based_on")
+        camera = state.get(self._camera)
+        self.ticks.append([
+            state.now_ns if self._wall_start else put_returned, None, state.now_ns,
+            None if basis is None else _field(basis, "source"),
+            None if basis is None else _field(basis, "seq"),
+            None if basis is None else _field(basis, "stamp_ns"),
+            -1 if camera is None else camera.seq, -1 if camera is None else camera.stamp_ns,
+            triggered, put_returned,
+        ])
 
-class TimedController(Controller):
-    """Records, per tick: wall start/end, robot-clock time, the sample it was based on,
-    whether a sample triggered it (clock ticks have no ``based_on``) and when the drive
-    command's ``publish`` (stamp, encode, zenoh put) returned."""
+    def tick_ended(self, source: str, seq: int) -> None:
+        """The tick based on sample ``seq`` of ``source``, if it was the last, has returned
+        (its end stamp)."""
+        end = time.monotonic_ns()
+        last = self.ticks[-1] if self.ticks else None
+        if last is not None and last[1] is None and last[4] == seq and last[3] == source:
+            last[1] = end
 
-    def __init__(self, **kw: Any) -> None:
-        super().__init__(**kw)
-        self.ticks: list[tuple[Any, ...]] = []
-        """(wall_start_ns, wall_end_ns, robot_now_ns, basis_source, basis_seq,
-        basis_stamp_ns, camera_seq, camera_stamp_ns, triggered, drive_put_returned_ns)"""
-        self._drive_returned_ns: int | None = None
-
-    def publisher(self, key: str, schema: str, *, period_s: float | None = None) -> Publisher:
-        pub = super().publisher(key, schema, period_s=period_s)
-        if schema == "drive":
-            publish = pub.publish
-
-            def timed_publish(data: Any, *, stamp_ns: int | None = None) -> tuple[int, int]:
-                sent = publish(data, stamp_ns=stamp_ns)
-                self._drive_returned_ns = time.monotonic_ns()
-                return sent
-
-            pub.publish = timed_publish  # type: ignore[method-assign]
-        return pub
-
-    def tick(self, *, based_on: Any = None) -> Any:
-        t0 = time.monotonic_ns()
-        self._drive_returned_ns = None
-        basis = based_on if based_on is not None else self.aggregator.newest()
-        trace = super().tick(based_on=based_on)
-        t1 = time.monotonic_ns()
-        camera = self.aggregator.entries.get(self.sync_source)
-        if len(self.ticks) < 200_000:
-            self.ticks.append((
-                t0, t1, self.stats.tick_starts_ns[-1],
-                None if basis is None else basis.source,
-                None if basis is None else basis.message.seq,
-                None if basis is None else basis.message.stamp_ns,
-                -1 if camera is None else camera.message.seq,
-                -1 if camera is None else camera.message.stamp_ns,
-                based_on is not None, self._drive_returned_ns,
-            ))
-        return trace
+    def _tick_returned(self, source: str, entry: SourceEntry) -> None:
+        self.tick_ended(source, entry.message.seq)
 
 
-async def wake_task_ticks(agg: StateAggregator, ctl: Controller, source: str) -> None:
-    """The pre-listener event mode, from public calls: the controller's own task waits for
-    each new sample of ``source`` (a future resolved inside ingest) and then ticks."""
+async def wake_task_ticks(agg: StateAggregator, ctl: Controller, rec: Recorder,
+                          source: str) -> None:
+    """Event mode as it was before ticks ran in the ``on_sample`` hook, from public calls:
+    the controller's own task waits for each new sample of ``source`` (a future resolved
+    inside ingest) and then ticks."""
     version = 0
     while True:
         entry = await agg.wait_for_update(source, after_version=version)
         version = entry.version
         ctl.tick(based_on=entry)
+        rec.tick_ended(source, entry.message.seq)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -193,13 +208,13 @@ def _stdin_closed_event(loop: asyncio.AbstractEventLoop) -> asyncio.Event:
     return done
 
 
-def build_controller(bus: Bus, agg: StateAggregator, cfg: dict[str, Any]) -> TimedController:
+def build_controller(bus: Bus, agg: StateAggregator, cfg: dict[str, Any]) -> Controller:
     mode, trigger = cfg["mode"], cfg.get("trigger")
     if cfg.get("wake_task"):
-        # Event mode on a source that never publishes: no listener tick; wake_task_ticks
+        # Event mode on a source that never publishes: no hook tick; wake_task_ticks
         # does the ticking.
         mode, trigger = "event", "bench/none"
-    return TimedController(bus=bus, aggregator=agg, root=reflex_tree(), mode=mode,
+    return Controller(bus=bus, aggregator=agg, root=reflex_tree(), mode=mode,
                            rate_hz=cfg.get("rate_hz", 50.0), trigger=trigger,
                            reflex_sources=tuple(cfg.get("reflex") or ()))
 
@@ -208,21 +223,23 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
     options = ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]])
     bus = await Bus.open(options)
     stop = _stdin_closed_event(asyncio.get_running_loop())
-    agg = TimedAggregator(bus=bus)
+    agg = StateAggregator(bus=bus)
     ctl = build_controller(bus, agg, cfg)
+    rec = Recorder(agg, ctl)
     waker: asyncio.Task[None] | None = None
     try:
         for c in (agg, ctl):
             await c.start()
         for c in (agg, ctl):
             await asyncio.wait_for(c.running.wait(), 10)
+        rec.after_controller_started(agg)
         if cfg.get("wake_task"):
-            waker = asyncio.create_task(wake_task_ticks(agg, ctl, "range/front"))
+            waker = asyncio.create_task(wake_task_ticks(agg, ctl, rec, "range/front"))
         print("READY", flush=True)
         await stop.wait()
         bridge = agg.subscription.stats if agg.subscription is not None else None
         return {
-            "samples": agg.samples, "ticks": ctl.ticks, "overruns": ctl.stats.overruns,
+            "samples": rec.samples, "ticks": rec.ticks, "overruns": ctl.stats.overruns,
             "errors": ctl.stats.errors, "triggered": ctl.stats.triggered,
             "malformed": sum(agg.malformed.values()),
             "coalesced": bridge.coalesced if bridge else None,
@@ -250,10 +267,12 @@ async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
     world = World(ball_in_view(seed=0))
     sim = SimulatorComponent(bus=bus, world=world, clock=clock, speed=1.0)
     devices = simulated_devices(bus=bus, world=world, seed=0)
-    agg = TimedAggregator(bus=bus)
-    ctl = TimedController(bus=bus, aggregator=agg, root=reflex_tree(), mode="periodic",
-                          rate_hz=cfg["rate_hz"],
-                          reflex_sources=tuple(cfg.get("reflex", DEFAULT_REFLEX)))
+    agg = StateAggregator(bus=bus)
+    ctl = Controller(bus=bus, aggregator=agg, root=reflex_tree(), mode="periodic",
+                     rate_hz=cfg["rate_hz"],
+                     reflex_sources=tuple(cfg.get("reflex", DEFAULT_REFLEX)))
+    # Simulated time: a tick's wall-clock moment is when its command left (the hook's stamp).
+    rec = Recorder(agg, ctl, wall_start=False)
     components = [agg, *devices, sim, ctl]
     try:
         for c in components:
@@ -261,11 +280,11 @@ async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
         await asyncio.wait_for(clock.started.wait(), 10)
         # Warm-up (wall time): let the camera deliver frames and the controller settle.
         await asyncio.sleep(cfg.get("warmup_s", 1.0))
-        first_tick = len(ctl.ticks)
+        first_tick = len(rec.ticks)
         sim0, wall0 = world.time_s, time.monotonic()
         late0 = sim.late_steps
         await asyncio.sleep(cfg["duration_s"])
-        ticks = ctl.ticks[first_tick:]
+        ticks = rec.ticks[first_tick:]
         return {
             "ticks": ticks,
             "sim_s": world.time_s - sim0, "wall_s": time.monotonic() - wall0,
@@ -315,7 +334,16 @@ def main(argv: list[str] | None = None) -> int:
     if role == "echo":
         result = echo_role(cfg)
     elif role == "controller":
-        result = asyncio.run(controller_role(cfg))
+        profile_dir = os.environ.get(PROFILE_ENV)
+        if profile_dir:  # cProfile the whole controller process (it slows every figure)
+            import cProfile
+
+            name = "wake_task" if cfg.get("wake_task") else cfg["mode"]
+            with cProfile.Profile() as prof:
+                result = asyncio.run(controller_role(cfg))
+            prof.dump_stats(os.path.join(profile_dir, f"controller-{name}-{os.getpid()}.prof"))
+        else:
+            result = asyncio.run(controller_role(cfg))
     elif role == "simrobot":
         result = asyncio.run(simrobot_role(cfg))
     else:

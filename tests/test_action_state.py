@@ -50,8 +50,10 @@ def test_clamp_command() -> None:
 def test_state_fresh_and_stale() -> None:
     state = State(
         {
-            "camera/front": Reading(value={"bins": [1, 2, 3, 4, 5], "total": 15}, stamp_ns=5, age_s=0.1),
-            "range/left": Reading(value={"range_mm": 300, "status": "ok"}, stamp_ns=1, age_s=9.0, stale=True),
+            "camera/front": Reading(value={"bins": [1, 2, 3, 4, 5], "total": 15}, stamp_ns=5,
+                                    age_s=0.1),
+            "range/left": Reading(value={"range_mm": 300, "status": "ok"}, stamp_ns=1,
+                                  age_s=9.0, stale=True),
         },
         now_ns=10,
     )

@@ -218,8 +218,9 @@ BAD_REQUESTS: list[tuple[dict[str, Any] | bytes, str]] = [
      "malformed request: tree.request data: op 'set_child' needs 'priority' and/or 'weight'"),
     ({"op": "set_arbiter", "composite": "root"},
      "malformed request: tree.request data: op 'set_arbiter' needs 'arbiter'"),
-    ({"op": "show", "priority": 1}, "malformed request: tree.request data: op 'show' takes no 'priority'"),
-    ({"op": "explode"}, "malformed request: data.op: 'explode' not one of"),
+    ({"op": "show", "priority": 1},
+     "malformed request: tree.request data: op 'show' takes no 'priority'"),
+    ({"op": "explode"}, "malformed request: tree.request data: Invalid enum value 'explode'"),
     ({"op": "load", "tree": "name: x\narbiter: HighestPriority\nchildren:\n"
                             "  - behavior: no_such_behaviour\n"},
      "cannot load the tree: <fragment>:4: unknown behaviour 'no_such_behaviour'"),

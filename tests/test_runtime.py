@@ -377,7 +377,7 @@ async def test_a_faulty_state_listener_is_cut_off(robot_bus: Bus, peer_bus: Bus)
         calls.append(source)
         raise RuntimeError("listener bug")
 
-    agg.add_listener(faulty)
+    agg.on_sample(faulty)
     async with agg:
         pub = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range")
         await pub.wait_for_subscribers()

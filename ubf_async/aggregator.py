@@ -41,9 +41,10 @@ from array import array
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import ParamSpec
 
 from ubf_async.action import Action
-from ubf_async.bus import Bus, decode_or_count
+from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SilenceLimit
 from ubf_async.component import Component
 from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
@@ -67,7 +68,39 @@ sample before the robot did, by a few ms of wall time — multiplied by the simu
 DEFAULT_FORGET_AFTER_S = 60.0
 """An unprotected source silent this long (robot clock) is dropped from the state."""
 
-Listener = Callable[[str, "SourceEntry"], None]
+P = ParamSpec("P")
+SampleHook = Callable[[str, "SourceEntry"], None]
+"""``callback(source, entry)``: an accepted sample was stored
+(:meth:`StateAggregator.on_sample`)."""
+ReceiveHook = Callable[[str, bytes, int], None]
+"""``callback(key, payload, received_ns)``: a raw sample reached the aggregator."""
+IngestHook = Callable[[str, Message, int], None]
+"""``callback(source, message, received_ns)``: a decoded sample is offered to ingest."""
+
+
+def add_hook(hooks: list[Callable[P, None]], callback: Callable[P, None]) -> Callable[[], None]:
+    """Append ``callback`` to ``hooks``; returns a remover (idempotent)."""
+    hooks.append(callback)
+
+    def remove() -> None:
+        if callback in hooks:
+            hooks.remove(callback)
+
+    return remove
+
+
+def run_hooks(hooks: list[Callable[P, None]], what: str, *args: P.args, **kwargs: P.kwargs
+              ) -> None:
+    """Call each of ``hooks`` in the order they were added. One that raises is logged and
+    removed (it is an observer: its failure must not stop what it observes). Callers check
+    ``if hooks:`` first, so no hook costs one truth test."""
+    for hook in tuple(hooks):
+        try:
+            hook(*args, **kwargs)
+        except Exception:
+            log.exception("%s hook %r raised: removed", what, hook)
+            if hook in hooks:
+                hooks.remove(hook)
 
 
 class RecentCounts:
@@ -208,27 +241,47 @@ class StateAggregator(Component):
         self.forgotten = 0
         """Sources dropped after ``forget_after_s`` of silence."""
         self._pending_waiters: dict[str, list[asyncio.Future[SourceEntry]]] = {}
-        self._listeners: list[Listener] = []
+        self._sample_hooks: list[SampleHook] = []
+        self._receive_hooks: list[ReceiveHook] = []
+        self._ingest_hooks: list[IngestHook] = []
+        self.subscription: Subscription | None = None
+        """This run's subscription to the sensors (its ``stats``: the bridge's counts)."""
 
     @property
     def refused_sources(self) -> int:
         """New sources refused because the table was full of protected ones."""
         return self.refused[Refusal.FULL]
 
-    def add_listener(self, listener: Listener) -> Callable[[], None]:
-        """Call ``listener(source, entry)`` right after each accepted sample is stored, on the
-        event loop, before anything else runs (the controller's reflexes use this). A listener
-        that raises is logged and removed; the aggregator goes on. Returns a remover."""
-        self._listeners.append(listener)
+    # -- hooks -------------------------------------------------------------------------------
+    # Observers of the ingest path, in the order a sample meets them: on_receive (raw bytes),
+    # on_ingest (decoded and valid), on_sample (accepted and stored). Each runs on the event
+    # loop, synchronously, in the order the hooks were added; one that raises is logged and
+    # removed, and the aggregator goes on. Each returns a remover. With none added a sample
+    # pays one truth test per point.
 
-        def remove() -> None:
-            if listener in self._listeners:
-                self._listeners.remove(listener)
+    def on_sample(self, callback: SampleHook) -> Callable[[], None]:
+        """Call ``callback(source, entry)`` right after each accepted sample is stored (entry
+        updated, waiters of :meth:`wait_for_update` resolved), before anything else runs.
+        Not called for a sample that is malformed or refused. The controller's triggered
+        ticks (reflexes, ``sync``, ``event``) run from this hook, so a hook added before the
+        controller starts runs before its tick, one added after it runs after the tick."""
+        return add_hook(self._sample_hooks, callback)
 
-        return remove
+    def on_receive(self, callback: ReceiveHook) -> Callable[[], None]:
+        """Call ``callback(key, payload, received_ns)`` when the bridge hands the aggregator
+        a raw sample from the bus (``received_ns``: host monotonic time of its zenoh
+        callback), before it is decoded: every sample, malformed ones too. Samples given to
+        :meth:`ingest` directly do not pass here."""
+        return add_hook(self._receive_hooks, callback)
+
+    def on_ingest(self, callback: IngestHook) -> Callable[[], None]:
+        """Call ``callback(source, message, received_ns)`` when a decoded, valid sample is
+        offered to :meth:`ingest` (from the bus or in-process), before the aggregator's own
+        checks: the sample may still be refused (future stamp, out of order, table full)."""
+        return add_hook(self._ingest_hooks, callback)
 
     async def run(self) -> None:
-        self.subscribe(self.bus.keys.all_sensors, self._on_sample)
+        self.subscription = self.subscribe(self.bus.keys.all_sensors, self._on_sample)
         forget_after_s = self.forget_after_s
         if forget_after_s is None:
             await asyncio.Event().wait()  # samples arrive through the subscription
@@ -239,6 +292,8 @@ class StateAggregator(Component):
 
     # -- ingest (event loop) -----------------------------------------------------------------
     def _on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
+        if self._receive_hooks:
+            run_hooks(self._receive_hooks, "receive", key, payload, received_ns)
         try:
             source = self.bus.keys.source_of(key)
         except ProtocolError as exc:  # cannot happen with our key expression; be safe
@@ -264,6 +319,8 @@ class StateAggregator(Component):
     def ingest(self, source: str, message: Message, received_ns: int) -> bool:
         """Store a validated sample (also usable in-process, without the bus); returns
         whether it was taken (module docstring for what is refused)."""
+        if self._ingest_hooks:
+            run_hooks(self._ingest_hooks, "ingest", source, message, received_ns)
         if len(source) > MAX_NAME_CHARS:
             self._refuse(Refusal.NAME_TOO_LONG, source,
                          f"{len(source)} characters, at most {MAX_NAME_CHARS}")
@@ -314,12 +371,8 @@ class StateAggregator(Component):
         for future in waiters:
             if not future.done():
                 future.set_result(entry)
-        for listener in tuple(self._listeners):
-            try:
-                listener(source, entry)
-            except Exception:
-                log.exception("state listener %r failed: removed", listener)
-                self._listeners.remove(listener)
+        if self._sample_hooks:
+            run_hooks(self._sample_hooks, "sample", source, entry)
         return True
 
     # -- bounds ------------------------------------------------------------------------------

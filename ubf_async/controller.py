@@ -47,6 +47,10 @@ publishing the command still raises, it is counted in ``publish_errors``, logged
 plain stop is published instead.
 A tick that ends after the next tick was due counts as an overrun; missed ticks are skipped,
 not bunched up.
+
+Observers (recorders, benchmarks, tests) use :meth:`Controller.on_tick` and the aggregator's
+hooks (:meth:`~ubf_async.aggregator.StateAggregator.on_sample` and the others), not
+subclasses or a wrapped ``publish``.
 """
 
 from __future__ import annotations
@@ -62,12 +66,13 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from ubf_async.action import Action
-from ubf_async.aggregator import SourceEntry, StateAggregator
+from ubf_async.aggregator import SourceEntry, StateAggregator, add_hook, run_hooks
 from ubf_async.behavior import Behavior, Composite, Trace
 from ubf_async.bus import Bus
 from ubf_async.clock import every
 from ubf_async.component import Component
 from ubf_async.protocol import clip
+from ubf_async.state import State
 from ubf_async.topics import (
     CONTROLLER_STATUS,
     DRIVE,
@@ -84,6 +89,10 @@ from ubf_async.topics import (
 )
 
 log = logging.getLogger(__name__)
+
+TickHook = Callable[[State, Trace | None, Any], None]
+"""``callback(state, trace, command)`` after a tick's drive command went out
+(:meth:`Controller.on_tick`)."""
 
 MAX_EXPLANATION_CHARS = 4000
 REFLEX_SHARE = 0.8
@@ -230,6 +239,28 @@ class Controller(Component):
         self.ticked = asyncio.Event()
         """Set after every tick (tests and tools clear and await it)."""
         self._sent: dict[str, Any] = {}
+        self._tick_hooks: list[TickHook] = []
+
+    def on_tick(self, callback: TickHook) -> Callable[[], None]:
+        """Call ``callback(state, trace, command)`` after every tick, right after its drive
+        command was published; returns a remover.
+
+        ``state`` is the snapshot the tree evaluated, ``trace`` its trace (``None`` if the
+        root raised) and ``command`` the drive data actually sent — the plain stop when the
+        tick's own command could not be published. It runs for every call of :meth:`tick`:
+        clock ticks, reflex ticks and the triggered ticks of ``sync`` and ``event`` mode
+        (inside the aggregator's :meth:`~ubf_async.aggregator.StateAggregator.on_sample`,
+        so still before anything else runs on the loop). It does **not** run for the holds
+        of ``sync``/``event`` mode: a hold repeats the last decision without a state or an
+        evaluation (counted in ``stats.holds``; watch ``cmd/drive`` to see every command).
+        It runs before the tick publishes ``seek_color``/``radio``/``leds`` and before
+        ``last_action``, ``last_trace``, ``stats.tick_ns`` and ``ticked`` are updated
+        (``stats.ticks`` and ``stats.periodic`` already count the tick), so the time it
+        reads is when the command left. Hooks run in the order they were added, on the
+        event loop: keep them short, a slow hook delays the tick's end. A hook that raises
+        is logged and removed; the tick and the controller go on. With no hook a tick pays
+        one truth test."""
+        return add_hook(self._tick_hooks, callback)
 
     async def run(self) -> None:
         periodic = self.mode is TickMode.PERIODIC
@@ -250,7 +281,7 @@ class Controller(Component):
         try:
             self.root.setup()
             self.root.reset()
-            remove_listener = self.aggregator.add_listener(self._on_sample)
+            remove_listener = self.aggregator.on_sample(self._on_sample)
             try:
                 async with asyncio.TaskGroup() as group:
                     group.create_task(self._publish_status())
@@ -360,7 +391,10 @@ class Controller(Component):
             self._publish_failed("tick's drive command; a plain stop goes out instead")
             speed = turn = 0.0
             action = None
-            self._drive.publish(Drive(speed=0.0, turn=0.0, tick=self.stats.ticks))
+            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks)
+            self._drive.publish(command)
+        if self._tick_hooks:
+            run_hooks(self._tick_hooks, "tick", state, trace, command)
         if action is not None:
             try:
                 self._publish_extras(action)
