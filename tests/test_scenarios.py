@@ -64,11 +64,23 @@ def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str) -> Run:
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads(summary_path.read_text())
+    assert_odometry_tracks_the_heading(summary, label=name)
     samples = read_trajectory_csv(folder / "trajectory.csv")
     print(f"{name}: sim {summary['sim_time_s']:.1f}s at x{summary['real_time_factor']:.2f}, "
           f"final distance {summary['ball_distance_m']}, bearing {summary['ball_bearing_deg']}, "
           f"winners {summary['ticks']['winner_share']}")
     return Run(summary, samples, folder)
+
+
+def assert_odometry_tracks_the_heading(summary: dict[str, Any], *, label: str) -> None:
+    """The encoders' odometry (effective track) ends within 10 % of the angle the robot
+    turned of its true heading; the summary also reports the position error."""
+    odo = summary["odometry"]
+    assert odo is not None, label
+    assert odo["heading_error_deg"] <= 0.10 * odo["turned_deg"], (label, odo)
+    assert 0.0 <= odo["position_error_m"] < 0.10, (label, odo)
+    print(f"{label}: odometry heading error {odo['heading_error_deg']:.2f}° of "
+          f"{odo['turned_deg']:.0f}° turned, position error {odo['position_error_m']:.3f} m")
 
 
 def assert_settled(run: Run, *, label: str) -> None:
