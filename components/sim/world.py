@@ -651,6 +651,31 @@ class World:
             self._space.reindex_shapes_for_body(self._robot)
             self._snapshot = None
 
+    def place_distractor(self, index: int, x_m: float, y_m: float) -> None:
+        """Teleport movable distractor ``index`` (order of ``config.distractors``) to (x, y)
+        and stop it. Raises ``ValueError`` for a static one (its shape is fixed)."""
+        _require_finite(x_m=x_m, y_m=y_m)
+        body = self._distractor_bodies[index]
+        if body is None:
+            raise ValueError(f"distractor {index} is static: only a movable one can be moved")
+        with self._lock:
+            body.position = (x_m, y_m)
+            body.velocity = (0.0, 0.0)
+            body.angular_velocity = 0.0
+            self._space.reindex_shapes_for_body(body)
+            self._snapshot = None
+
+    def shift_robot(self, dx_m: float, dy_m: float, d_heading_rad: float = 0.0) -> None:
+        """Move the robot by (dx, dy) and turn it by ``d_heading_rad`` as a hand pushing it
+        would: its velocities and wheels are left alone (the encoders see nothing)."""
+        _require_finite(dx_m=dx_m, dy_m=dy_m, d_heading_rad=d_heading_rad)
+        with self._lock:
+            x, y = self._robot.position
+            self._robot.position = (x + dx_m, y + dy_m)
+            self._robot.angle = self._robot.angle + d_heading_rad
+            self._space.reindex_shapes_for_body(self._robot)
+            self._snapshot = None
+
     def set_lighting(self, lighting: Lighting) -> None:
         """Change the scene lighting (seen by the camera from the next snapshot on)."""
         with self._lock:
