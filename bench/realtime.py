@@ -6,7 +6,8 @@ in its own process; the figures come from its summary (``docs/scenarios.md``, Ou
 set-ups are measured in the same session, one run of each in turn so a slow patch of the
 machine hits all three:
 
-* **full robot** — every simulated device, the camera rendering 1280×1024 frames;
+* **full robot** — every simulated device, the camera rendering the pixels of its
+  1280×1024 frames that seekcolor reads (the ``camera.sim`` backend's sparse frames);
 * **no camera** — the same run without the camera (``--devices motors,encoders,range,radio``):
   the baseline, what the machine manages when nothing is rendered;
 * **flat out** — the full robot asked to run at ``--flat-out-speed`` (default 100×), which no

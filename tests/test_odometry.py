@@ -132,3 +132,19 @@ def test_bad_input_rejected() -> None:
         Odometry().reset(Pose2D(x_m=math.inf))
     with pytest.raises(ValueError, match="positive"):
         Odometry(MiniWhegsGeometry(track_width_m=0.0))
+
+
+def test_effective_track_scales_the_heading_only() -> None:
+    """A skid-steer robot's odometry integrates the heading with its effective track: the
+    same wheel rotations turn it track/effective times less and drive it as far."""
+    physical, effective = Odometry(), Odometry(effective_track_m=0.42)
+    assert effective.track_m == 0.42 and physical.track_m == MINI_WHEGS.track_width_m
+    for odo in (physical, effective):
+        odo.update(-1.0, 1.0)
+    assert effective.pose.heading_rad == pytest.approx(
+        wrap_angle(physical.pose.heading_rad * MINI_WHEGS.track_width_m / 0.42))
+    a, b = Odometry(), Odometry(effective_track_m=0.42)
+    assert a.update(2.0, 2.0) == b.update(2.0, 2.0)
+    for bad in (0.0, -0.1, math.nan):
+        with pytest.raises(ValueError, match="effective_track_m"):
+            Odometry(effective_track_m=bad)

@@ -98,7 +98,9 @@ async def test_pink_count_falls_with_distance_through_the_bus(robot_bus: Bus) ->
     assert near > 3 * mid > 0
     assert far >= 1, "the ball must still be detectable at 3.6 m"
     assert mid > far
-    assert too_close < 0.1 * near, "below ≈30 cm the ball leaves the view"
+    # Below ≈31 cm the ball's bottom leaves the view, but what stays in view reads pink (the
+    # auto exposure): far more than at 45 cm, so flee keeps winning (issue #15).
+    assert too_close > 2 * near, too_close
 
 
 @pytest.mark.asyncio

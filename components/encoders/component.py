@@ -15,7 +15,7 @@ from typing import Annotated, Literal
 import msgspec
 
 from components.encoders.backend import EncoderBackend
-from components.encoders.odometry import Odometry
+from components.encoders.odometry import EFFECTIVE_TRACK_M, Odometry
 from components.encoders.quadrature import (
     DirectionMode,
     QuadratureDecoder,
@@ -40,6 +40,7 @@ class EncodersComponent(Component):
         mode: DirectionMode = DirectionMode.COMMANDED,
         geometry: MiniWhegsGeometry = MINI_WHEGS,
         initial_states: tuple[int, int] | None = None,
+        effective_track_m: float | None = EFFECTIVE_TRACK_M,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=f"encoders-{name}", **component_options)
@@ -53,7 +54,7 @@ class EncodersComponent(Component):
         left0, right0 = initial_states if initial_states is not None else (None, None)
         self.left = QuadratureDecoder(mode=mode, initial_state=left0)
         self.right = QuadratureDecoder(mode=mode, initial_state=right0)
-        self.odometry = Odometry(geometry)
+        self.odometry = Odometry(geometry, effective_track_m=effective_track_m)
         self.malformed: dict[str, int] = {}
 
     async def run(self) -> None:
@@ -97,6 +98,7 @@ def build_device(
     backend: EncoderBackend,
     period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.02,
     direction: Literal["commanded", "phase"] = "commanded",
+    effective_track_m: Annotated[float, msgspec.Meta(gt=0)] = EFFECTIVE_TRACK_M,
 ) -> EncodersComponent:
     """The ``encoders`` device kind: reads ``backend`` every ``period_s`` (robot clock),
     publishes ``sensor/encoders/<name>`` and ``sensor/odometry/<name>``.
@@ -104,9 +106,13 @@ def build_device(
     ``direction``: ``commanded`` takes each wheel's sign from the motors' command (the
     thesis), ``phase`` decodes it from the A/B phase order. A backend that knows the lines'
     present states (``current_states()``) gives the decoders their start state.
+    ``effective_track_m``: the track odometry integrates the heading with — the skid-steer
+    robot's effective one, fitted by ``python -m components.encoders.calibrate`` (default: the
+    simulated Mini-WHEGS's, ``EFFECTIVE_TRACK_M``; the physical 6 cm would read skid turns
+    ≈7× too large).
     """
     current_states = getattr(backend, "current_states", None)
     initial = current_states() if callable(current_states) else None
     mode = DirectionMode.COMMANDED if direction == "commanded" else DirectionMode.PHASE
     return EncodersComponent(bus=bus, backend=backend, name=name, period_s=period_s, mode=mode,
-                             initial_states=initial)
+                             initial_states=initial, effective_track_m=effective_track_m)

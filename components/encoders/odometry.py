@@ -7,6 +7,13 @@ in which the left wheel turns ``dθl`` and the right ``dθr`` moves the robot al
 * distance of the robot's centre ``ds = r·(dθl + dθr)/2``
 * heading change ``dψ = r·(dθr − dθl)/track`` (REP-103: positive = counter-clockwise = left)
 
+``track`` is the **effective** track: a skid-steer robot's wheel-legs slide sideways in a
+turn, so the body yaws only a fraction of what the physical track (6 cm) implies — about
+1/7 for the Mini-WHEGS, whose heading would otherwise read ≈7× the true yaw. Real skid-steer
+drivers calibrate it (ROS's ``wheel_separation_multiplier``); ``effective_track_m`` defaults to
+:data:`EFFECTIVE_TRACK_M`, measured on the simulated robot with
+``python -m components.encoders.calibrate`` (which also fits it for a real one).
+
 The step is integrated **exactly** for that arc (constant curvature during the step): the
 robot moves along the chord ``2·(ds/dψ)·sin(dψ/2)`` in the direction ``ψ + dψ/2``, which tends
 to ``ds`` along ``ψ`` for a straight step. Splitting a constant arc into many small steps
@@ -38,6 +45,12 @@ class Pose2D:
     """Counter-clockwise from the x axis, in ``(−π, π]``."""
 
 
+EFFECTIVE_TRACK_M = 0.42
+"""The Mini-WHEGS's effective track for odometry, fitted by ``python -m
+components.encoders.calibrate`` on the simulated robot over the thesis's drive commands (the
+physical track is 6 cm; the ground lets the body yaw ≈14 % of the kinematic rate)."""
+
+
 def _sinc(x: float) -> float:
     """``sin(x)/x`` with the removable singularity at 0 handled."""
     if abs(x) < 1e-6:
@@ -49,14 +62,25 @@ class Odometry:
     """Accumulates a :class:`Pose2D` from per-step wheel rotation increments."""
 
     def __init__(
-        self, geometry: MiniWhegsGeometry = MINI_WHEGS, *, pose: Pose2D | None = None
+        self,
+        geometry: MiniWhegsGeometry = MINI_WHEGS,
+        *,
+        pose: Pose2D | None = None,
+        effective_track_m: float | None = None,
     ) -> None:
+        """``effective_track_m``: the track the heading is integrated with (see the module
+        docstring); ``None`` uses the geometry's physical ``track_width_m`` (a robot whose
+        wheels do not slip sideways)."""
         if geometry.wheel_radius_m <= 0.0 or geometry.track_width_m <= 0.0:
             raise ValueError(
                 "geometry needs a positive wheel_radius_m and track_width_m, got "
                 f"{geometry.wheel_radius_m} and {geometry.track_width_m}"
             )
+        track = geometry.track_width_m if effective_track_m is None else effective_track_m
+        if not (math.isfinite(track) and track > 0.0):
+            raise ValueError(f"effective_track_m must be a positive number, got {track!r}")
         self.geometry = geometry
+        self.track_m = track
         self._pose = Pose2D()
         self.reset(pose or Pose2D())
 
@@ -80,7 +104,7 @@ class Odometry:
             )
         r = self.geometry.wheel_radius_m
         ds = r * (d_left_rad + d_right_rad) / 2.0
-        d_heading = r * (d_right_rad - d_left_rad) / self.geometry.track_width_m
+        d_heading = r * (d_right_rad - d_left_rad) / self.track_m
         half = d_heading / 2.0
         chord = ds * _sinc(half)
         direction = self._pose.heading_rad + half

@@ -15,9 +15,17 @@ the ball rolls off to a washed-out pale pink and carries a white glare patch, th
 in the ball's own shadow, and only a band just above that shadow passes the thesis's pink rule.
 With the defaults the largest seekcolor bin reads ≈140 with the ball ≈45 cm in front of the
 camera, falls steadily with distance and still averages a couple of pixels at 3.6 m (the body's
-bob, ``pitch_jitter_deg``, moves the thin far band across the subsampling grid). Because the band
-is at the bottom of the ball it is the first part to leave the view, which happens at ≈31 cm, so
-the count peaks at ≈30 cm and collapses closer in.
+bob, ``pitch_jitter_deg``, moves the thin far band across the subsampling grid). The band is at
+the bottom of the ball, the first part to leave the view (at ≈31 cm); but by then the ball
+covers enough of the view for the auto exposure (``auto_exposure_coverage``, from ≈40 cm) to
+turn the gain of the whole picture down, and the glare with it, so the band moves up the ball
+and the count keeps growing down to contact (the whole view pink).
+
+``render_camera(..., grid=8)`` renders only the pixels seekcolor's subsampler reads (every 8th
+in x and y) into a 160×128 image — the camera device's sparse frames — with the same colours
+as the full frame at those pixels (same noise, same bob; polygons are shrunk so they cover the
+grid pixels they cover in the full frame). Static geometry (wall chunks), the background rows
+and the noise field's grid phases are cached.
 
 Neutral colours (floor, backdrop, default walls and boxes) keep their green channel above the pink
 rule's limit of 120 or well above their blue channel, so noise cannot make them read pink; an
@@ -33,7 +41,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from components.sim.world import Color, Lighting, WorldSnapshot
+from components.sim.world import Color, Lighting, Wall, WorldSnapshot
 
 FRAME_WIDTH_PX = 1280
 FRAME_HEIGHT_PX = 1024
@@ -88,6 +96,21 @@ class CameraParams:
     """Width of the glare patch's soft edge."""
     glare_strength: float = 1.0
     """Whiteness at the centre of the glare patch (0…1)."""
+    glare_exposure_power: float = 3.0
+    """The glare patch is the lamp's reflection saturating the sensor: with the auto
+    exposure's gain ``g`` < 1 its whiteness is ``glare_strength · g ** glare_exposure_power``
+    (at the ≈30 % gain of a ball at contact the highlight no longer saturates and the ball
+    reads pink across)."""
+
+    auto_exposure_coverage: float = 0.07
+    """Auto exposure: the camera is exposed for the room until bright, shiny objects (the
+    spheres: the ball, ball-like distractors) cover more than this fraction of the view; then
+    it turns the gain of the whole picture down (see ``auto_exposure_power``). With the
+    defaults that starts with the ball ≈40 cm in front of the camera."""
+    auto_exposure_power: float = 0.45
+    """Gain at coverage ``c`` above ``auto_exposure_coverage`` = ``(coverage_limit / c) **
+    power``: a ball filling the view (contact) is shown at ≈30 % gain, so its lit top is no
+    longer washed out and the pink band moves up the ball as its bottom leaves the view."""
 
     noise_sigma: float = 2.0
     """Standard deviation of the per-pixel sensor noise (8-bit levels)."""
@@ -97,8 +120,9 @@ class CameraParams:
     wall_chunk_m: float = 0.2
     """Walls are painted as chunks of at most this length (keeps depth sorting sane)."""
     cylinder_sides: int = 16
-    max_sphere_samples: int = 60_000
-    """Spheres larger than this many pixels are shaded at a coarser grid and upscaled."""
+    max_sphere_samples: int = 250_000
+    """Spheres larger than this many pixels are shaded at a coarser grid and upscaled (a ball
+    closer than ≈27 cm in a full frame; a grid image never has that many)."""
 
     def __post_init__(self) -> None:
         if self.width_px <= 0 or self.height_px <= 0:
@@ -109,6 +133,10 @@ class CameraParams:
             raise ValueError("height_m and near_m must be positive")
         if self.noise_sigma < 0.0 or self.noise_clip < 0:
             raise ValueError("noise_sigma and noise_clip must be >= 0")
+        if not 0.0 < self.auto_exposure_coverage <= 1.0 or self.auto_exposure_power < 0.0:
+            raise ValueError("auto_exposure_coverage must be in (0, 1], auto_exposure_power >= 0")
+        if self.glare_exposure_power < 0.0:
+            raise ValueError("glare_exposure_power must be >= 0")
         if self.cylinder_sides < 3 or self.wall_chunk_m <= 0.0 or self.max_sphere_samples < 1:
             raise ValueError("cylinder_sides >= 3, wall_chunk_m > 0, max_sphere_samples >= 1")
 
@@ -142,6 +170,10 @@ class _Cam:
     tan_x: float
     tan_y: float
     near: float
+    grid: int = 1
+    """Pixel pitch of the rendered image in full-frame pixels: 1 renders every pixel, 8
+    renders only the full frame's pixels ``(8·i, 8·j)`` (what seekcolor's subsampler reads)
+    into an image 8× smaller each way. ``f``, ``cx`` and ``cy`` stay in full-frame pixels."""
 
     def to_cam(self, pts: np.ndarray) -> np.ndarray:
         return (pts - self.position) @ self.rot.T
@@ -170,13 +202,15 @@ def camera_pose(
     return pos, np.stack([x_axis, y_axis, z_axis])
 
 
-def _make_cam(snapshot: WorldSnapshot, params: CameraParams, pitch_offset_deg: float) -> _Cam:
+def _make_cam(
+    snapshot: WorldSnapshot, params: CameraParams, pitch_offset_deg: float, grid: int = 1
+) -> _Cam:
     pos, rot = camera_pose(snapshot, params, pitch_offset_deg=pitch_offset_deg)
     f = params.focal_px
     return _Cam(
         position=pos, rot=rot, f=f, cx=params.width_px / 2, cy=params.height_px / 2,
         tan_x=(params.width_px / 2) / f * 1.02, tan_y=(params.height_px / 2) / f * 1.02,
-        near=params.near_m,
+        near=params.near_m, grid=grid,
     )
 
 
@@ -222,10 +256,62 @@ _SUBPIXEL_SHIFT = 4
 
 
 def _project(pts: np.ndarray, cam: _Cam) -> np.ndarray:
-    """Camera-frame points (…×3, z > 0) to fixed-point pixel vertices for fillConvexPoly."""
+    """Camera-frame points (…×3, z > 0) to fixed-point pixel vertices for fillConvexPoly.
+
+    On a grid image (``cam.grid`` = g > 1) full-frame pixel (g·i, g·j) is image pixel (i, j),
+    so the vertices are divided by g, and each polygon (the last two axes: corners × uv) is
+    shrunk by :func:`_erode` so it covers the grid pixels it covers in the full frame."""
     u = cam.cx + cam.f * pts[..., 0] / pts[..., 2]
     v = cam.cy + cam.f * pts[..., 1] / pts[..., 2]
-    return np.round(np.stack([u, v], axis=-1) * float(1 << _SUBPIXEL_SHIFT)).astype(np.int32)
+    uv = np.stack([u, v], axis=-1)
+    if cam.grid > 1:
+        uv = _erode(uv / cam.grid, 0.5 - 0.5 / cam.grid)
+    return np.round(uv * float(1 << _SUBPIXEL_SHIFT)).astype(np.int32)
+
+
+_GONE = -1000.0
+"""Where an eroded-away polygon's corners go: off the image, so nothing is drawn."""
+
+
+def _erode(poly: np.ndarray, delta: float) -> np.ndarray:
+    """Convex polygons (…×N×2, image pixels) moved in by ``delta`` pixels along x and y.
+
+    fillConvexPoly fills a pixel whose centre lies within about half a pixel *outside* a
+    polygon's edge. In the full frame that is half a full pixel; on a grid image it would be
+    half a grid pixel (``g/2`` full pixels), so the grid image's polygons are shrunk by the
+    difference first: each edge moves in by ``delta·(|n_x| + |n_y|)`` (the erosion by a
+    ``2·delta`` square). A polygon thinner than that vanishes (its corners go off-image)."""
+    n = poly.shape[-2]
+    after = (np.arange(n) + 1) % n
+    before = (np.arange(n) - 1) % n
+    nxt = poly[..., after, :]
+    edge = nxt - poly
+    length = np.hypot(edge[..., 0], edge[..., 1])
+    area2 = np.sum(poly[..., 0] * nxt[..., 1] - nxt[..., 0] * poly[..., 1], axis=-1)
+    sign = np.where(area2 >= 0.0, 1.0, -1.0)[..., None, None]
+    safe = np.where(length > 1e-9, length, 1.0)
+    # Inward unit normals (image axes: x right, y down; for positive area2 the inside is to
+    # the right of each edge when walking it, i.e. at (-e_y, e_x)).
+    normal = np.stack([-edge[..., 1], edge[..., 0]], axis=-1) * (sign / safe[..., None])
+    normal = np.where((length > 1e-9)[..., None], normal, 0.0)
+    offset = delta * (np.abs(normal[..., 0]) + np.abs(normal[..., 1]))
+    # Corner k joins edge k-1 (before) and edge k (after): solve x·n1 = d1, x·n2 = d2.
+    n1, d1 = normal[..., before, :], offset[..., before]
+    n2, d2 = normal, offset
+    det = n1[..., 0] * n2[..., 1] - n1[..., 1] * n2[..., 0]
+    ok = np.abs(det) > 1e-6
+    safe_det = np.where(ok, det, 1.0)
+    x = (d1 * n2[..., 1] - d2 * n1[..., 1]) / safe_det
+    y = (n1[..., 0] * d2 - n2[..., 0] * d1) / safe_det
+    # Parallel (or missing) neighbours: move along whichever normal there is.
+    has1 = (np.abs(n1[..., 0]) + np.abs(n1[..., 1])) > 0.0
+    fx = np.where(has1, d1 * n1[..., 0], d2 * n2[..., 0])
+    fy = np.where(has1, d1 * n1[..., 1], d2 * n2[..., 1])
+    moved = poly + np.stack([np.where(ok, x, fx), np.where(ok, y, fy)], axis=-1)
+    nxt2 = moved[..., after, :]
+    area2_new = np.sum(moved[..., 0] * nxt2[..., 1] - nxt2[..., 0] * moved[..., 1], axis=-1)
+    gone = (area2_new * area2 <= 0.0) | (np.abs(area2_new) < 1e-9)
+    return np.where(gone[..., None, None], _GONE, moved)
 
 
 def _fill_projected(frame: np.ndarray, poly: np.ndarray, color: np.ndarray) -> None:
@@ -301,20 +387,62 @@ def _noise_planes(h: int, w: int, sigma: float, clip: int) -> tuple[np.ndarray, 
     return pos, neg
 
 
-def warm_up(params: CameraParams = DEFAULT_CAMERA) -> None:
+@functools.lru_cache(maxsize=4 * (2 * _BG_MARGIN + 1))
+def _background_grid(params: CameraParams, top: int, grid: int) -> np.ndarray:
+    """The background's rows ``top … top + height`` at the grid pixels (cached: the body's
+    bob only ever picks one of ``2·_BG_MARGIN + 1`` offsets)."""
+    image = np.ascontiguousarray(_background(params)[top:top + params.height_px:grid, ::grid])
+    image.setflags(write=False)
+    return image
+
+
+def warm_up(params: CameraParams = DEFAULT_CAMERA, *, grid: int = 1) -> None:
     """Build the cached background and noise field for ``params`` now (they take a few hundred
-    milliseconds the first time; every frame after reuses them)."""
+    milliseconds the first time; every frame after reuses them), and for a grid image
+    (``grid`` > 1) the noise field's grid phases too."""
     _background(params)
     if params.noise_sigma > 0.0 and params.noise_clip > 0:
         _noise_planes(params.height_px, params.width_px, params.noise_sigma, params.noise_clip)
+        if grid > 1:
+            for phase_y in range(grid):
+                for phase_x in range(grid):
+                    _noise_grid(params.height_px, params.width_px, params.noise_sigma,
+                                params.noise_clip, grid, phase_y, phase_x)
 
 
-def _add_noise(frame: np.ndarray, params: CameraParams, rng: np.random.Generator) -> None:
+@functools.lru_cache(maxsize=512)
+def _noise_grid(
+    h: int, w: int, sigma: float, clip: int, grid: int, phase_y: int, phase_x: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The noise field's pixels ``(phase_y + grid·j, phase_x + grid·i)``, contiguous: a grid
+    image at offset ``(oy, ox)`` reads rows/columns ``oy // grid …`` of phase
+    ``(oy % grid, ox % grid)``."""
+    pos, neg = _noise_planes(h, w, sigma, clip)
+    out = (np.ascontiguousarray(pos[phase_y::grid, phase_x::grid]),
+           np.ascontiguousarray(neg[phase_y::grid, phase_x::grid]))
+    for plane in out:
+        plane.setflags(write=False)
+    return out
+
+
+def _add_noise(
+    frame: np.ndarray, params: CameraParams, rng: np.random.Generator, grid: int = 1
+) -> None:
+    """Add the noise field at a random offset; on a grid image (``grid`` > 1) the field's
+    values at the full frame's grid pixels, so both see the same noise."""
     if params.noise_sigma <= 0.0 or params.noise_clip == 0:
         return
     h, w = frame.shape[:2]
-    pos, neg = _noise_planes(h, w, params.noise_sigma, params.noise_clip)
     oy, ox, oy2, ox2 = (int(v) for v in rng.integers(0, _NOISE_PAD + 1, size=4))
+    full_h, full_w = params.height_px, params.width_px
+    if grid == 1:
+        pos, neg = _noise_planes(full_h, full_w, params.noise_sigma, params.noise_clip)
+    else:
+        pos = _noise_grid(full_h, full_w, params.noise_sigma, params.noise_clip, grid,
+                          oy % grid, ox % grid)[0]
+        neg = _noise_grid(full_h, full_w, params.noise_sigma, params.noise_clip, grid,
+                          oy2 % grid, ox2 % grid)[1]
+        oy, ox, oy2, ox2 = oy // grid, ox // grid, oy2 // grid, ox2 // grid
     cv2.add(frame, pos[oy:oy + h, ox:ox + w], dst=frame)
     cv2.subtract(frame, neg[oy2:oy2 + h, ox2:ox2 + w], dst=frame)
 
@@ -384,27 +512,75 @@ def _tone_map(lin: np.ndarray) -> np.ndarray:
     return based + (np.float32(255.0) - based) * (np.float32(1.0) - scale)
 
 
-def _draw_sphere(
-    frame: np.ndarray, cam: _Cam, centre: np.ndarray, radius: float, color: Color,
-    params: CameraParams, lighting: Lighting,
-) -> None:
-    """A shaded sphere: overhead + key light + ambient, over-exposure roll-off, glare patch."""
+def _sphere_disk(cam: _Cam, centre: np.ndarray, radius: float) -> tuple[float, float, float] | None:
+    """The sphere's outline in the full frame: centre ``(u, v)`` and radius in pixels (None
+    when it is behind the camera or the camera is inside it)."""
     xc, yc, zc = cam.to_cam(centre[None, :])[0]
     dist = math.sqrt(xc * xc + yc * yc + zc * zc)
     if zc <= cam.near or dist <= radius:
-        return
+        return None
     rad_px = cam.f * math.tan(math.asin(radius / dist))
-    u0 = cam.cx + cam.f * xc / zc
-    v0 = cam.cy + cam.f * yc / zc
+    return cam.cx + cam.f * xc / zc, cam.cy + cam.f * yc / zc, rad_px
+
+
+_COVERAGE_SAMPLES = 48
+
+
+def _disk_in_frame_px(u0: float, v0: float, rad_px: float, width: int, height: int) -> float:
+    """Area (full-frame pixels) of the disk that lies within the frame, by sampling the part
+    of its bounding box inside the frame on a 48 × 48 grid."""
+    x0, x1 = max(0.0, u0 - rad_px), min(float(width), u0 + rad_px)
+    y0, y1 = max(0.0, v0 - rad_px), min(float(height), v0 + rad_px)
+    if x0 >= x1 or y0 >= y1:
+        return 0.0
+    n = _COVERAGE_SAMPLES
+    xs = x0 + (np.arange(n) + 0.5) * ((x1 - x0) / n) - u0
+    ys = y0 + (np.arange(n) + 0.5) * ((y1 - y0) / n) - v0
+    inside = np.count_nonzero(xs[None, :] ** 2 + ys[:, None] ** 2 < rad_px * rad_px)
+    return float(inside) / (n * n) * (x1 - x0) * (y1 - y0)
+
+
+def auto_exposure_gain(
+    disks: list[tuple[float, float, float]], params: CameraParams = DEFAULT_CAMERA
+) -> float:
+    """The auto exposure's gain (≤ 1) for spheres seen as ``disks`` (``(u, v, radius_px)`` in
+    the full frame): 1 while they cover at most ``auto_exposure_coverage`` of the view (the
+    camera is exposed for the room), ``(limit / coverage) ** auto_exposure_power`` above.
+    Overlaps are counted twice (a second sphere close enough to matter is rare)."""
+    frame_px = float(params.width_px * params.height_px)
+    limit_px = params.auto_exposure_coverage * frame_px
+    if sum(math.pi * r * r for _, _, r in disks) <= limit_px:
+        return 1.0  # cannot exceed the limit: no need to measure
+    covered = sum(_disk_in_frame_px(u, v, r, params.width_px, params.height_px)
+                  for u, v, r in disks)
+    if covered <= limit_px:
+        return 1.0
+    return float((limit_px / covered) ** params.auto_exposure_power)
+
+
+def _draw_sphere(
+    frame: np.ndarray, cam: _Cam, centre: np.ndarray, radius: float, color: Color,
+    params: CameraParams, lighting: Lighting, exposure_gain: float = 1.0,
+) -> None:
+    """A shaded sphere: overhead + key light + ambient, over-exposure roll-off, glare patch."""
+    disk = _sphere_disk(cam, centre, radius)
+    if disk is None:
+        return
+    u0, v0, rad_px = disk
+    # Image pixel (i, j) is full-frame pixel (g·i, g·j); the disk's bounding box in full-frame
+    # pixels, then the image pixels inside it.
+    g = cam.grid
     h, w = frame.shape[:2]
-    x0, x1 = max(0, math.floor(u0 - rad_px)), min(w, math.ceil(u0 + rad_px) + 1)
-    y0, y1 = max(0, math.floor(v0 - rad_px)), min(h, math.ceil(v0 + rad_px) + 1)
+    x0 = max(0, -(-math.floor(u0 - rad_px) // g))
+    x1 = min(w, -(-(math.ceil(u0 + rad_px) + 1) // g))
+    y0 = max(0, -(-math.floor(v0 - rad_px) // g))
+    y1 = min(h, -(-(math.ceil(v0 + rad_px) + 1) // g))
     if x0 >= x1 or y0 >= y1:
         return
     step = max(1, math.ceil(math.sqrt((x1 - x0) * (y1 - y0) / params.max_sphere_samples)))
     # Normalised disk coordinates of the sample pixels' centres (x right, y down).
-    xs = ((np.arange(x0, x1, step, dtype=np.float32) + 0.5 - u0) / rad_px)[None, :]
-    ys = ((np.arange(y0, y1, step, dtype=np.float32) + 0.5 - v0) / rad_px)[:, None]
+    xs = ((np.arange(x0, x1, step, dtype=np.float32) * g + 0.5 - u0) / rad_px)[None, :]
+    ys = ((np.arange(y0, y1, step, dtype=np.float32) * g + 0.5 - v0) / rad_px)[:, None]
     rho2 = xs * xs + ys * ys
     inside = rho2 < 1.0
     if not inside.any():
@@ -434,7 +610,8 @@ def _draw_sphere(
             weight = np.clip((ndoth - np.float32(cos_out)) / np.float32(cos_in - cos_out), 0.0, 1.0)
         else:
             weight = (ndoth >= cos_in).astype(np.float32)
-        weight = (weight * np.float32(params.glare_strength))[..., None]
+        strength = params.glare_strength * exposure_gain ** params.glare_exposure_power
+        weight = (weight * np.float32(strength))[..., None]
         lin = lin + (np.float32(255.0) - lin) * weight
     sprite = np.clip(lin, 0.0, 255.0).astype(np.uint8)
     mask = inside.astype(np.uint8)
@@ -468,19 +645,18 @@ def _box_footprint(x: float, y: float, yaw: float, length: float, width: float) 
     return local @ np.array([[c, s], [-s, c]]) + np.array([x, y])
 
 
-def _wall_items(
-    snapshot: WorldSnapshot, params: CameraParams, cam: _Cam
-) -> list[tuple[float, int, object]]:
-    """Paint items (kind 0) for the wall chunks in view, computed for all chunks at once.
-
-    A chunk wholly outside one frustum plane is dropped; one wholly inside is projected here;
-    only the few that straddle the frustum's edge are clipped polygon by polygon. Each item's
-    payload is ``(camera-frame quad, projected vertices or None, colour)``."""
+@functools.lru_cache(maxsize=16)
+def _wall_chunks(
+    walls: tuple[Wall, ...], chunk_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The walls cut into chunks (static geometry, cached per set of walls): world corners
+    (chunks × 4 × xyz), unit normals (chunks × 2) and colours (chunks × 3); None without
+    walls."""
     quads, normals, colors = [], [], []
-    for wall in snapshot.walls:
+    for wall in walls:
         a = np.array([wall.x1_m, wall.y1_m])
         b = np.array([wall.x2_m, wall.y2_m])
-        n = max(1, math.ceil(wall.length_m / params.wall_chunk_m))
+        n = max(1, math.ceil(wall.length_m / chunk_m))
         pts = a[None, :] + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)[None, :]
         p, q = pts[:-1], pts[1:]
         zero, top = np.zeros(n), np.full(n, wall.height_m)
@@ -492,14 +668,33 @@ def _wall_items(
         normals.append(np.broadcast_to(np.array([edge[1], -edge[0]]) / wall.length_m, (n, 2)))
         colors.append(np.broadcast_to(np.asarray(wall.color, dtype=np.float64), (n, 3)))
     if not quads:
+        return None
+    out = (np.concatenate(quads), np.concatenate(normals), np.concatenate(colors))
+    for array in out:
+        array.setflags(write=False)
+    return out
+
+
+def _wall_items(
+    snapshot: WorldSnapshot, params: CameraParams, cam: _Cam, brightness: float | None = None
+) -> list[tuple[float, int, object]]:
+    """Paint items (kind 0) for the wall chunks in view, computed for all chunks at once.
+
+    A chunk wholly outside one frustum plane is dropped; one wholly inside is projected here;
+    only the few that straddle the frustum's edge are clipped polygon by polygon. Each item's
+    payload is ``(camera-frame quad, projected vertices or None, colour)``."""
+    chunks = _wall_chunks(snapshot.walls, params.wall_chunk_m)
+    if chunks is None:
         return []
-    world = np.concatenate(quads)  # chunks × 4 corners × xyz
+    world, normals, colors = chunks
     to_face = 0.5 * (world[:, 0, :2] + world[:, 1, :2]) - cam.position[:2]
     depth = np.linalg.norm(to_face, axis=1)
     # Flat shading, brighter the more squarely a chunk faces the camera (either side).
-    facing = np.abs(np.einsum("ij,ij->i", np.concatenate(normals), to_face))
+    facing = np.abs(np.einsum("ij,ij->i", normals, to_face))
     factor = np.where(depth > 0.0, 0.8 + 0.2 * facing / np.where(depth > 0.0, depth, 1.0), 1.0)
-    rgb = np.concatenate(colors) * (factor * snapshot.lighting.brightness)[:, None]
+    if brightness is None:
+        brightness = snapshot.lighting.brightness
+    rgb = colors * (factor * brightness)[:, None]
     pts = cam.to_cam(world.reshape(-1, 3)).reshape(world.shape)
     inside = _frustum_distances(pts, cam) >= 0.0  # chunks × corners × planes
     culled = (~inside.any(axis=1)).any(axis=1)  # some plane has every corner outside
@@ -515,27 +710,49 @@ def render_camera(
     snapshot: WorldSnapshot,
     params: CameraParams = DEFAULT_CAMERA,
     rng: np.random.Generator | None = None,
+    *,
+    grid: int = 1,
 ) -> np.ndarray:
     """Render the robot's camera view: an ``H×W×3`` ``uint8`` RGB frame (1024×1280 default).
 
-    ``rng`` drives the per-frame sensor noise; ``None`` renders a noise-free frame.
+    ``rng`` drives the per-frame sensor noise (and the body's bob); ``None`` renders a
+    noise-free frame. ``grid`` > 1 renders only the full frame's pixels ``(grid·i, grid·j)``
+    into an image ``grid`` times smaller each way (``ceil(H/grid)×ceil(W/grid)``): with
+    ``grid = SUBSAMPLE_STEP`` exactly the pixels seekcolor's subsampler reads, at a fraction of
+    the cost. Those pixels get the same colours as in the full frame (same noise, same bob for
+    the same ``rng``), except that a polygon's edge may fall a pixel apart (rounding).
     """
+    if grid < 1:
+        raise ValueError(f"grid must be >= 1, got {grid}")
     jitter_deg = 0.0
     if rng is not None and params.pitch_jitter_deg > 0.0:
         limit = min(3.0 * params.pitch_jitter_deg, _MAX_JITTER_DEG)
         jitter_deg = float(np.clip(rng.normal(0.0, params.pitch_jitter_deg), -limit, limit))
-    cam = _make_cam(snapshot, params, jitter_deg)
+    cam = _make_cam(snapshot, params, jitter_deg, grid)
     # Pitching up moves the horizon down the image: take the background rows higher up.
     f = params.focal_px
     p0 = math.radians(params.pitch_deg)
     shift = round(f * (math.tan(p0 + math.radians(jitter_deg)) - math.tan(p0)))
     top = _BG_MARGIN - shift
-    frame = _background(params)[top:top + params.height_px].copy()
+    if grid == 1:
+        frame = _background(params)[top:top + params.height_px].copy()
+    else:
+        frame = _background_grid(params, top, grid).copy()
+    # Auto exposure: a sphere filling much of the view turns the whole picture's gain down.
+    spheres = [np.array([d.x_m, d.y_m, d.radius_m]) for d in snapshot.distractors
+               if d.kind == "sphere"]
+    if snapshot.ball is not None:
+        spheres.append(np.array([snapshot.ball.x_m, snapshot.ball.y_m, snapshot.ball.radius_m]))
+    disks = [disk for c in spheres if (disk := _sphere_disk(cam, c, float(c[2]))) is not None]
+    gain = auto_exposure_gain(disks, params)
     lighting = snapshot.lighting
+    if gain < 1.0:
+        lighting = Lighting(brightness=lighting.brightness * gain, glare=lighting.glare)
+        cv2.multiply(frame, (gain, gain, gain, 0.0), dst=frame)
     cam_xy = cam.position[:2]
     items: list[tuple[float, int, object]] = []  # (depth, kind, payload)
 
-    items.extend(_wall_items(snapshot, params, cam))
+    items.extend(_wall_items(snapshot, params, cam, lighting.brightness))
 
     for box in snapshot.boxes:
         fp = _box_footprint(box.x_m, box.y_m, box.yaw_rad, box.length_m, box.width_m)
@@ -573,8 +790,8 @@ def render_camera(
             _draw_prism(frame, cam, fp, height, color, lighting.brightness)
         else:
             centre, radius, color = payload  # type: ignore[misc]
-            _draw_sphere(frame, cam, centre, radius, color, params, lighting)
+            _draw_sphere(frame, cam, centre, radius, color, params, lighting, gain)
 
     if rng is not None:
-        _add_noise(frame, params, rng)
+        _add_noise(frame, params, rng, grid)
     return frame

@@ -26,6 +26,30 @@ if TYPE_CHECKING:
     from components.sim.runner import SimulationRun
 
 
+class SimTurnRig:
+    """Drives the simulated Mini-WHEGS in an empty world with fixed pulses; the true yaw is
+    the body's. Each drive starts afresh from rest."""
+
+    def __init__(self, *, step_s: float = 0.005) -> None:
+        self.step_s = step_s
+
+    def drive(self, *, left_ms: float, right_ms: float, settle_s: float,
+              measure_s: float) -> tuple[float, float, float]:
+        from components.sim.world import World
+
+        world = World()
+        world.set_motor_pulses(left_ms, right_ms)
+        for _ in range(round(settle_s / self.step_s)):
+            world.advance(self.step_s)
+        start = world.snapshot().robot
+        for _ in range(round(measure_s / self.step_s)):
+            world.advance(self.step_s)
+        end = world.snapshot().robot
+        return (end.left_wheel_angle_rad - start.left_wheel_angle_rad,
+                end.right_wheel_angle_rad - start.right_wheel_angle_rad,
+                end.heading_unwrapped_rad - start.heading_unwrapped_rad)
+
+
 class MiniWhegsSimulator:
     """The simulated Mini-WHEGS: a pymunk world, an OpenCV-rendered camera, scenarios."""
 
@@ -57,6 +81,11 @@ class MiniWhegsSimulator:
             world.close()
             raise
         return world
+
+    def turn_rig(self) -> SimTurnRig:
+        """A :class:`~components.encoders.calibrate.TurnRig` on an empty simulated world, for
+        ``python -m components.encoders.calibrate``."""
+        return SimTurnRig()
 
     def scenario_names(self) -> list[str]:
         """The built-in scenarios (``components/sim/scenario_files``)."""

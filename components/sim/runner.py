@@ -34,6 +34,7 @@ import cv2
 
 from components.camera.component import CameraComponent
 from components.camera.seekcolor import seekcolor
+from components.encoders.component import EncodersComponent
 from components.sim.backends import SimCameraBackend
 from components.sim.component import RTF_WINDOW_S, SimulatorComponent
 from components.sim.record import (
@@ -47,7 +48,7 @@ from components.sim.record import (
     trajectory_sample,
 )
 from components.sim.scenarios import load_scenario
-from components.sim.world import World
+from components.sim.world import World, wrap_angle
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
@@ -119,6 +120,8 @@ class SimulationRun:
         self._frames_lock = threading.Lock()
         self._tasks: list[asyncio.Task[None]] = []
         self._wall_start = time.monotonic()
+        self._turned_rad = 0.0
+        """Total |yaw| the robot made (summed over the trajectory samples)."""
 
     # -- what launch asks ---------------------------------------------------------------------
     @property
@@ -187,6 +190,9 @@ class SimulationRun:
         last_sample = self.trajectory.last
         if last_sample is not None and last_sample.t_s == snap.time_s:
             return
+        if last_sample is not None:
+            self._turned_rad += abs(wrap_angle(snap.robot.heading_rad
+                                               - last_sample.robot_heading_rad))
         last = controller.last_action
         trace = controller.last_trace
         sample = trajectory_sample(
@@ -288,6 +294,30 @@ class SimulationRun:
         camera = SimCameraBackend(self.world)
         self._write_frame(camera, folder, self.world.time_s)  # the final view
 
+    def odometry_summary(self) -> dict[str, Any] | None:
+        """The encoders' odometry against the true pose (None without an encoders device in
+        this process): odometry starts at the origin of its own frame, which is the robot's
+        start pose. ``heading_error_fraction`` is the heading error over the total angle the
+        robot turned (docs/scenarios.md, Outputs)."""
+        encoders = [d for d in self.devices if isinstance(d, EncodersComponent)]
+        if not encoders:
+            return None
+        odo = encoders[0].odometry.pose
+        start = self.scenario.world.robot_start
+        c, s = math.cos(start.heading_rad), math.sin(start.heading_rad)
+        x = start.x_m + c * odo.x_m - s * odo.y_m
+        y = start.y_m + s * odo.x_m + c * odo.y_m
+        heading = wrap_angle(start.heading_rad + odo.heading_rad)
+        robot = self.world.snapshot().robot
+        error = abs(wrap_angle(heading - robot.heading_rad))
+        return {"x_m": x, "y_m": y, "heading_rad": heading,
+                "effective_track_m": encoders[0].odometry.track_m,
+                "position_error_m": math.hypot(x - robot.x_m, y - robot.y_m),
+                "heading_error_deg": math.degrees(error),
+                "turned_deg": math.degrees(self._turned_rad),
+                "heading_error_fraction": (error / self._turned_rad if self._turned_rad > 0
+                                           else None)}
+
     def summary(self, controller: Controller) -> dict[str, Any]:
         snap = self.world.snapshot()
         robot = snap.robot
@@ -314,6 +344,7 @@ class SimulationRun:
             "trajectory_samples": self.trajectory.count,
             "trajectory_samples_kept": len(samples),
         }
+        out["odometry"] = self.odometry_summary()
         if snap.ball is not None:
             distance, bearing = camera_to_ball(robot.x_m, robot.y_m, robot.heading_rad,
                                                snap.ball.x_m, snap.ball.y_m)

@@ -1,10 +1,13 @@
-"""Scenarios as data: a world, a robot start, a scripted ball and a seed, in a JSON file.
+"""Scenarios as data: a world, a robot start, scripted objects, lighting, pushes and a seed,
+in a JSON file.
 
-The format is documented in ``docs/scenarios.md``. The thesis's four experiments (§4.2) ship
-as built-ins in ``scenario_files/``; :func:`load_scenario` takes a built-in name or a path.
+The format is documented in ``docs/scenarios.md``. The thesis's four experiments (§4.2) and a
+few more situations ship as built-ins in ``scenario_files/``; :func:`load_scenario` takes a
+built-in name or a path.
 
-The ball script moves the ball like the experimenter's hand did: each step starts at
-``at_s`` (simulated seconds) and is one of
+Scripts move objects like the experimenter's hand did: the ball (``ball_script``) and any
+named distractor (``scripts``, which makes it movable). Each step starts at ``at_s``
+(simulated seconds) and is one of
 
 * ``place``      — teleport to ``{"x_m", "y_m"}``;
 * ``move_to``    — walk to ``{"x_m", "y_m"}`` at ``speed_m_s``;
@@ -12,9 +15,18 @@ The ball script moves the ball like the experimenter's hand did: each step start
   at the moment the step starts (``bearing_deg`` positive to the robot's left);
 * ``out_of_view``— walk to ``"left"`` or ``"right"`` of the robot, ``bearing_deg`` (default
   70°) off its heading at ``distance_m`` (default 0.7 m), i.e. across and out of the 35° view;
-* ``hide``       — lift the ball out of the arena (nothing can see it); the next step puts
-  it straight down at its target instead of walking it there;
-a step of a moving ball ends when it arrives (or when the next step starts).
+* ``follow``     — keep ``{"distance_m", "bearing_deg"}`` from the robot's camera as the robot
+  moves (a hand holding the object there, moving at up to ``speed_m_s``) until the next step;
+* ``wave``       — wave it to and fro across the view, ``{"distance_m", "amplitude_deg",
+  "period_s"}`` around the robot's heading at the start, as fast as the hand goes;
+* ``hide``       — lift it out of the arena (nothing can see it); the next step puts it
+  straight down at its target instead of walking it there;
+a walking step ends when the object arrives (or when the next step starts).
+
+``lighting_script`` changes the lighting over time (a dimmer room, a lamp switched on), and
+``pushes`` shove the robot by hand (its wheels do not turn, so its encoders see nothing).
+:func:`parse_scenario` refuses objects placed outside the arena or overlapping the robot at
+its start, naming them.
 """
 
 from __future__ import annotations
@@ -28,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from components.sim.world import (
+    BALL_DIAMETER_M,
     Arena,
     BallConfig,
     BoxObstacle,
@@ -40,8 +53,8 @@ from components.sim.world import (
 )
 from ubf_async.errors import ScenarioError
 
-__all__ = ["BallScript", "BallStep", "Scenario", "ScenarioError", "builtin_names",
-           "load_scenario", "parse_scenario"]
+__all__ = ["BallScript", "BallStep", "LightingChange", "ObjectScript", "Push", "Scenario",
+           "ScenarioError", "builtin_names", "load_scenario", "parse_scenario"]
 
 CAMERA_OFFSET_M = 0.05
 """The camera sits this far ahead of the robot's centre (see camera_render.CameraParams)."""
@@ -52,10 +65,35 @@ BUILTIN_DIR = "scenario_files"
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class BallStep:
+    """One step of an object's script (the ball's or a distractor's)."""
+
     at_s: float
     kind: str
     target: dict[str, float] = field(default_factory=dict)
     speed_m_s: float = 0.3
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LightingChange:
+    """From ``at_s``, ramp the lighting linearly to ``brightness``/``glare`` (``None``: keep)
+    over ``over_s`` (0: at once)."""
+
+    at_s: float
+    brightness: float | None = None
+    glare: float | None = None
+    over_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Push:
+    """From ``at_s``, shove the robot ``forward_m``/``left_m`` (its own frame at the start of
+    the push) and turn it ``turn_deg``, evenly over ``over_s``."""
+
+    at_s: float
+    forward_m: float = 0.0
+    left_m: float = 0.0
+    turn_deg: float = 0.0
+    over_s: float = 0.3
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -68,74 +106,216 @@ class Scenario:
     duration_s: float
     seed: int
     source: str
+    scripts: dict[int, tuple[BallStep, ...]] = field(default_factory=dict)
+    """Scripts of distractors, by their index in ``world.distractors``."""
+    lighting_script: tuple[LightingChange, ...] = ()
+    pushes: tuple[Push, ...] = ()
 
     def install(self, world: World) -> None:
-        """Attach the ball script to ``world`` (a step hook)."""
+        """Attach the scripts, lighting changes and pushes to ``world`` (step hooks)."""
         if self.ball_script:
             world.add_step_hook(BallScript(self.ball_script))
+        for index, steps in sorted(self.scripts.items()):
+            world.add_step_hook(ObjectScript(steps, _DistractorMover(index)))
+        if self.lighting_script:
+            world.add_step_hook(LightingScript(self.lighting_script))
+        if self.pushes:
+            world.add_step_hook(PushScript(self.pushes))
 
 
-class BallScript:
-    """Step hook that plays a ball script on the simulation clock."""
+class _Mover:
+    """Where a scripted object is and how to put it somewhere (the ball by default)."""
 
-    def __init__(self, steps: tuple[BallStep, ...]) -> None:
+    hidden_at: tuple[float, float] = HIDDEN_AT
+
+    def position(self, world: World) -> tuple[float, float] | None:
+        ball = world.snapshot().ball
+        return None if ball is None else (ball.x_m, ball.y_m)
+
+    def place(self, world: World, x_m: float, y_m: float) -> None:
+        world.place_ball(x_m, y_m)
+
+
+class _DistractorMover(_Mover):
+    def __init__(self, index: int) -> None:
+        self.index = index
+        # Hidden objects wait apart from each other (and from the ball).
+        self.hidden_at = (HIDDEN_AT[0] + 2.0 * (index + 1), HIDDEN_AT[1])
+
+    def position(self, world: World) -> tuple[float, float] | None:
+        d = world.snapshot().distractors[self.index]
+        return d.x_m, d.y_m
+
+    def place(self, world: World, x_m: float, y_m: float) -> None:
+        world.place_distractor(self.index, x_m, y_m)
+
+
+def _camera_pose(world: World) -> tuple[float, float, float]:
+    robot = world.snapshot().robot
+    return (robot.x_m + CAMERA_OFFSET_M * math.cos(robot.heading_rad),
+            robot.y_m + CAMERA_OFFSET_M * math.sin(robot.heading_rad), robot.heading_rad)
+
+
+def _from_camera(world: World, distance_m: float, bearing_deg: float) -> tuple[float, float]:
+    cam_x, cam_y, heading = _camera_pose(world)
+    bearing = heading + math.radians(bearing_deg)
+    return cam_x + distance_m * math.cos(bearing), cam_y + distance_m * math.sin(bearing)
+
+
+class ObjectScript:
+    """Step hook that plays an object's script on the simulation clock."""
+
+    def __init__(self, steps: tuple[BallStep, ...], mover: _Mover | None = None) -> None:
         self.steps = sorted(steps, key=lambda s: s.at_s)
+        self.mover = mover if mover is not None else _Mover()
         self.next_index = 0
         self.target: tuple[float, float] | None = None
         self.speed_m_s = 0.0
+        self.follow: BallStep | None = None
+        self.wave: tuple[BallStep, float, float, float, float] | None = None
+        """The wave step, its start time and the camera pose (x, y, heading) it waves around."""
 
     def __call__(self, world: World, dt_s: float) -> None:
         now = world.time_s
         while self.next_index < len(self.steps) and self.steps[self.next_index].at_s <= now:
             self._begin(world, self.steps[self.next_index])
             self.next_index += 1
+        if self.wave is not None:
+            step, t0, cam_x, cam_y, heading = self.wave
+            phase = 2.0 * math.pi * (now - t0) / step.target["period_s"]
+            bearing = heading + math.radians(step.target["amplitude_deg"]) * math.sin(phase)
+            distance = step.target["distance_m"]
+            self.mover.place(world, cam_x + distance * math.cos(bearing),
+                             cam_y + distance * math.sin(bearing))
+            return
+        if self.follow is not None:
+            self.target = _from_camera(world, self.follow.target["distance_m"],
+                                       self.follow.target["bearing_deg"])
         if self.target is None:
             return
-        ball = world.snapshot().ball
-        if ball is None:
+        here = self.mover.position(world)
+        if here is None:
             return
-        dx, dy = self.target[0] - ball.x_m, self.target[1] - ball.y_m
+        dx, dy = self.target[0] - here[0], self.target[1] - here[1]
         remaining = math.hypot(dx, dy)
         stride = self.speed_m_s * dt_s
         if remaining <= stride:
-            world.place_ball(*self.target)
-            self.target = None
+            self.mover.place(world, *self.target)
+            if self.follow is None:
+                self.target = None
         else:
-            world.place_ball(ball.x_m + dx / remaining * stride, ball.y_m + dy / remaining * stride)
+            self.mover.place(world, here[0] + dx / remaining * stride,
+                             here[1] + dy / remaining * stride)
 
     def _begin(self, world: World, step: BallStep) -> None:
+        self.follow = None
+        self.wave = None
         if step.kind == "place":
             self.target = None
-            world.place_ball(step.target["x_m"], step.target["y_m"])
+            self.mover.place(world, step.target["x_m"], step.target["y_m"])
             return
         if step.kind == "hide":
             self.target = None
-            world.place_ball(*HIDDEN_AT)
+            self.mover.place(world, *self.mover.hidden_at)
             return
-        snap = world.snapshot()
-        hidden = snap.ball is not None and (snap.ball.x_m, snap.ball.y_m) == HIDDEN_AT
-        robot = snap.robot
-        cam_x = robot.x_m + CAMERA_OFFSET_M * math.cos(robot.heading_rad)
-        cam_y = robot.y_m + CAMERA_OFFSET_M * math.sin(robot.heading_rad)
+        hidden = self.mover.position(world) == self.mover.hidden_at
+        if step.kind == "wave":
+            cam_x, cam_y, heading = _camera_pose(world)
+            self.target = None
+            self.wave = (step, world.time_s, cam_x, cam_y, heading)
+            return
         if step.kind == "move_to":
             target = (step.target["x_m"], step.target["y_m"])
-        else:  # relative and out_of_view: from the camera, at the moment the step starts
-            bearing = robot.heading_rad + math.radians(step.target["bearing_deg"])
-            distance = step.target["distance_m"]
-            target = (cam_x + distance * math.cos(bearing), cam_y + distance * math.sin(bearing))
-        if hidden:  # a lifted ball is put straight down where it is meant to go
-            self.target = None
-            world.place_ball(*target)
+        else:  # relative, out_of_view, follow: from the camera, at the moment the step starts
+            target = _from_camera(world, step.target["distance_m"], step.target["bearing_deg"])
+        if step.kind == "follow":
+            self.follow = step
+        if hidden:  # a lifted object is put straight down where it is meant to go
+            self.mover.place(world, *target)
+            self.target = target if step.kind == "follow" else None
+            self.speed_m_s = step.speed_m_s
             return
         self.target = target
         self.speed_m_s = step.speed_m_s
+
+
+class BallScript(ObjectScript):
+    """Step hook that plays the ball's script (:class:`ObjectScript` on the ball)."""
+
+    def __init__(self, steps: tuple[BallStep, ...]) -> None:
+        super().__init__(steps)
+
+
+class LightingScript:
+    """Step hook that plays the lighting changes."""
+
+    def __init__(self, changes: tuple[LightingChange, ...]) -> None:
+        self.changes = sorted(changes, key=lambda c: c.at_s)
+        self.next_index = 0
+        self.ramp: tuple[float, float, Lighting, Lighting] | None = None
+        """Start time, duration, from and to."""
+
+    def __call__(self, world: World, dt_s: float) -> None:
+        now = world.time_s
+        while self.next_index < len(self.changes) and self.changes[self.next_index].at_s <= now:
+            change = self.changes[self.next_index]
+            self.next_index += 1
+            current = world.snapshot().lighting
+            goal = Lighting(
+                brightness=current.brightness if change.brightness is None else change.brightness,
+                glare=current.glare if change.glare is None else change.glare)
+            self.ramp = (change.at_s, change.over_s, current, goal)
+        if self.ramp is None:
+            return
+        t0, over_s, start, goal = self.ramp
+        f = 1.0 if over_s <= 0.0 else min(1.0, (now - t0) / over_s)
+        world.set_lighting(Lighting(
+            brightness=start.brightness + f * (goal.brightness - start.brightness),
+            glare=start.glare + f * (goal.glare - start.glare)))
+        if f >= 1.0:
+            self.ramp = None
+
+
+class PushScript:
+    """Step hook that plays the pushes: each moves the robot by an equal share per step."""
+
+    def __init__(self, pushes: tuple[Push, ...]) -> None:
+        self.pushes = sorted(pushes, key=lambda p: p.at_s)
+        self.next_index = 0
+        self.active: list[tuple[float, float, float, float, float]] = []
+        """(end time, dx/s, dy/s, dheading/s, start time) of the pushes under way."""
+
+    def __call__(self, world: World, dt_s: float) -> None:
+        now = world.time_s
+        while self.next_index < len(self.pushes) and self.pushes[self.next_index].at_s <= now:
+            push = self.pushes[self.next_index]
+            self.next_index += 1
+            heading = world.snapshot().robot.heading_rad
+            c, s = math.cos(heading), math.sin(heading)
+            dx = c * push.forward_m - s * push.left_m
+            dy = s * push.forward_m + c * push.left_m
+            if push.over_s <= 0.0:
+                world.shift_robot(dx, dy, math.radians(push.turn_deg))
+                continue
+            over = push.over_s
+            self.active.append((now + over, dx / over, dy / over,
+                                math.radians(push.turn_deg) / over, now))
+        still = []
+        for end, vx, vy, w, _start in self.active:
+            share = min(dt_s, max(0.0, end - now))
+            if share > 0.0:
+                world.shift_robot(vx * share, vy * share, w * share)
+            if now + dt_s < end:
+                still.append((end, vx, vy, w, _start))
+        self.active = still
 
 
 # ---------------------------------------------------------------------------------------------
 # Parsing
 
 _TOP_LEVEL = {"name", "title", "description", "seed", "duration_s", "robot", "ball", "arena",
-              "walls", "obstacles", "distractors", "lighting", "ball_script"}
+              "walls", "obstacles", "distractors", "lighting", "ball_script", "scripts",
+              "lighting_script", "pushes"}
 _DEPRECATED = {"search_period_s"}
 """Fields old scenario files may still have: read (and checked), warned about, not used."""
 
@@ -167,7 +347,7 @@ def _check_keys(data: Any, allowed: set[str], where: str) -> dict[str, Any]:
 
 
 def _ball_step(data: Any, where: str) -> BallStep:
-    kinds = ("place", "move_to", "relative", "out_of_view", "hide")
+    kinds = ("place", "move_to", "relative", "out_of_view", "follow", "wave", "hide")
     data = _check_keys(data, {"at_s", "speed_m_s", *kinds}, where)
     present = [k for k in kinds if k in data]
     if len(present) != 1:
@@ -182,10 +362,20 @@ def _ball_step(data: Any, where: str) -> BallStep:
         body = _check_keys(body, {"x_m", "y_m"}, f"{where}.{kind}")
         target = {"x_m": _number(body, "x_m", f"{where}.{kind}"),
                   "y_m": _number(body, "y_m", f"{where}.{kind}")}
-    elif kind == "relative":
-        body = _check_keys(body, {"distance_m", "bearing_deg"}, f"{where}.relative")
-        target = {"distance_m": _number(body, "distance_m", f"{where}.relative"),
-                  "bearing_deg": _number(body, "bearing_deg", f"{where}.relative", 0.0)}
+    elif kind in ("relative", "follow"):
+        body = _check_keys(body, {"distance_m", "bearing_deg"}, f"{where}.{kind}")
+        target = {"distance_m": _number(body, "distance_m", f"{where}.{kind}"),
+                  "bearing_deg": _number(body, "bearing_deg", f"{where}.{kind}", 0.0)}
+        if target["distance_m"] <= 0:
+            raise ScenarioError(f"{where}.{kind}.distance_m must be > 0")
+    elif kind == "wave":
+        w = f"{where}.wave"
+        body = _check_keys(body, {"distance_m", "amplitude_deg", "period_s"}, w)
+        target = {"distance_m": _number(body, "distance_m", w, 0.5),
+                  "amplitude_deg": _number(body, "amplitude_deg", w, 25.0),
+                  "period_s": _number(body, "period_s", w, 0.8)}
+        if target["distance_m"] <= 0 or target["period_s"] <= 0:
+            raise ScenarioError(f"{w}: distance_m and period_s must be > 0")
     elif kind == "out_of_view":
         if isinstance(body, str):
             body = {"side": body}
@@ -237,22 +427,91 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
     boxes = []
     for i, b in enumerate(data.get("obstacles", [])):
         where = f"obstacles[{i}]"
-        b = _check_keys(b, {"x_m", "y_m", "length_m", "width_m", "yaw_deg"}, where)
-        boxes.append(BoxObstacle(x_m=_number(b, "x_m", where), y_m=_number(b, "y_m", where),
-                                 length_m=_number(b, "length_m", where),
-                                 width_m=_number(b, "width_m", where),
-                                 yaw_rad=math.radians(_number(b, "yaw_deg", where, 0.0))))
+        b = _check_keys(b, {"x_m", "y_m", "length_m", "width_m", "height_m", "yaw_deg"}, where)
+        try:
+            boxes.append(BoxObstacle(x_m=_number(b, "x_m", where), y_m=_number(b, "y_m", where),
+                                     length_m=_number(b, "length_m", where),
+                                     width_m=_number(b, "width_m", where),
+                                     height_m=_number(b, "height_m", where, 0.10),
+                                     yaw_rad=math.radians(_number(b, "yaw_deg", where, 0.0))))
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: {exc}") from exc
+    scripts_data = data.get("scripts", {})
+    if not isinstance(scripts_data, dict):
+        raise ScenarioError("scripts must be an object: a distractor's name → its steps")
     distractors = []
+    names: dict[str, int] = {}
     for i, d in enumerate(data.get("distractors", [])):
         where = f"distractors[{i}]"
-        d = _check_keys(d, {"kind", "x_m", "y_m", "color", "radius_m"}, where)
+        d = _check_keys(d, {"kind", "name", "x_m", "y_m", "color", "radius_m", "length_m",
+                            "width_m", "height_m", "yaw_deg", "movable"}, where)
         kind = d.get("kind", "sphere")
         if kind not in ("sphere", "cylinder", "box"):
             raise ScenarioError(f"{where}.kind must be sphere, cylinder or box")
-        distractors.append(Distractor(
-            kind=kind, x_m=_number(d, "x_m", where), y_m=_number(d, "y_m", where),
-            color=_color(d.get("color", [255, 140, 0]), f"{where}.color"),
-            radius_m=_number(d, "radius_m", where, 0.0325)))
+        name_i = d.get("name", f"distractor{i}")
+        if not isinstance(name_i, str) or not name_i or name_i == "ball" or name_i in names:
+            raise ScenarioError(f"{where}.name must be a unique non-empty string other than "
+                                f"'ball', got {name_i!r}")
+        names[name_i] = i
+        movable = d.get("movable", False)
+        if not isinstance(movable, bool):
+            raise ScenarioError(f"{where}.movable must be true or false")
+        height = d.get("height_m")
+        try:
+            distractors.append(Distractor(
+                kind=kind, x_m=_number(d, "x_m", where), y_m=_number(d, "y_m", where),
+                color=_color(d.get("color", [255, 140, 0]), f"{where}.color"),
+                radius_m=_number(d, "radius_m", where, BALL_DIAMETER_M / 2),
+                length_m=_number(d, "length_m", where, 0.05),
+                width_m=_number(d, "width_m", where, 0.05),
+                height_m=None if height is None else _number(d, "height_m", where),
+                yaw_rad=math.radians(_number(d, "yaw_deg", where, 0.0)),
+                # A scripted object is carried by hand: it must be a body that can move.
+                movable=movable or name_i in scripts_data))
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: {exc}") from exc
+    scripts: dict[int, tuple[BallStep, ...]] = {}
+    for name_s, steps_data in scripts_data.items():
+        if name_s not in names:
+            raise ScenarioError(f"scripts.{name_s}: no distractor is named {name_s!r} (named: "
+                                f"{sorted(names)}; the ball's script is ball_script)")
+        if not isinstance(steps_data, list):
+            raise ScenarioError(f"scripts.{name_s} must be a list of steps")
+        scripts[names[name_s]] = tuple(_ball_step(st, f"scripts.{name_s}[{j}]")
+                                       for j, st in enumerate(steps_data))
+    lighting_script = []
+    ls_data = data.get("lighting_script", [])
+    if not isinstance(ls_data, list):
+        raise ScenarioError("lighting_script must be a list")
+    for i, c in enumerate(ls_data):
+        where = f"lighting_script[{i}]"
+        c = _check_keys(c, {"at_s", "brightness", "glare", "over_s"}, where)
+        if "brightness" not in c and "glare" not in c:
+            raise ScenarioError(f"{where}: needs brightness and/or glare")
+        change = LightingChange(
+            at_s=_number(c, "at_s", where),
+            brightness=_number(c, "brightness", where) if "brightness" in c else None,
+            glare=_number(c, "glare", where) if "glare" in c else None,
+            over_s=_number(c, "over_s", where, 0.0))
+        if (change.brightness is not None and change.brightness <= 0) or (
+                change.glare is not None and change.glare < 0) or change.over_s < 0:
+            raise ScenarioError(f"{where}: brightness must be > 0, glare and over_s >= 0")
+        lighting_script.append(change)
+    pushes = []
+    p_data = data.get("pushes", [])
+    if not isinstance(p_data, list):
+        raise ScenarioError("pushes must be a list")
+    for i, p in enumerate(p_data):
+        where = f"pushes[{i}]"
+        p = _check_keys(p, {"at_s", "forward_m", "left_m", "turn_deg", "over_s"}, where)
+        push = Push(at_s=_number(p, "at_s", where),
+                    forward_m=_number(p, "forward_m", where, 0.0),
+                    left_m=_number(p, "left_m", where, 0.0),
+                    turn_deg=_number(p, "turn_deg", where, 0.0),
+                    over_s=_number(p, "over_s", where, 0.3))
+        if push.over_s < 0:
+            raise ScenarioError(f"{where}.over_s must be >= 0")
+        pushes.append(push)
     light = _check_keys(data.get("lighting", {}), {"brightness", "glare"}, "lighting")
     lighting = Lighting(brightness=_number(light, "brightness", "lighting", 1.0),
                         glare=_number(light, "glare", "lighting", 1.0))
@@ -280,10 +539,129 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
                             seed=seed)
     except ValueError as exc:
         raise ScenarioError(f"scenario {name!r}: {exc}") from exc
+    check_placement(world, ball_script=steps, scripts=scripts, where=f"scenario {name!r}")
     return Scenario(name=name, title=str(data.get("title", name)),
                     description=str(data.get("description", "")), world=world,
                     ball_script=steps, duration_s=duration, seed=seed,
-                    source=source)
+                    source=source, scripts=scripts, lighting_script=tuple(lighting_script),
+                    pushes=tuple(pushes))
+
+
+# ---------------------------------------------------------------------------------------------
+# Placement checks
+
+Polygon = list[tuple[float, float]]
+
+
+def _robot_outline(world: WorldConfig) -> Polygon:
+    geo = world.robot.geometry
+    p = world.robot_start
+    c, s = math.cos(p.heading_rad), math.sin(p.heading_rad)
+    hl, hw = geo.length_m / 2, geo.width_m / 2
+    return [(p.x_m + c * x - s * y, p.y_m + s * x + c * y)
+            for x, y in ((hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw))]
+
+
+def _box_outline(x: float, y: float, yaw: float, length: float, width: float) -> Polygon:
+    c, s = math.cos(yaw), math.sin(yaw)
+    hl, hw = length / 2, width / 2
+    return [(x + c * a - s * b, y + s * a + c * b)
+            for a, b in ((hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw))]
+
+
+def _polygons_overlap(a: Polygon, b: Polygon) -> bool:
+    """Separating-axis test for two convex polygons (touching counts as no overlap)."""
+    for poly in (a, b):
+        for (x1, y1), (x2, y2) in zip(poly, poly[1:] + poly[:1], strict=True):
+            nx, ny = y2 - y1, x1 - x2
+            pa = [nx * x + ny * y for x, y in a]
+            pb = [nx * x + ny * y for x, y in b]
+            if max(pa) <= min(pb) or max(pb) <= min(pa):
+                return False
+    return True
+
+
+def _circle_overlaps_polygon(x: float, y: float, r: float, poly: Polygon) -> bool:
+    inside = True
+    nearest = math.inf
+    for (x1, y1), (x2, y2) in zip(poly, poly[1:] + poly[:1], strict=True):
+        ex, ey = x2 - x1, y2 - y1
+        t = max(0.0, min(1.0, ((x - x1) * ex + (y - y1) * ey) / (ex * ex + ey * ey)))
+        nearest = min(nearest, math.hypot(x - x1 - t * ex, y - y1 - t * ey))
+        if ex * (y - y1) - ey * (x - x1) < 0.0:  # right of a CCW edge: outside
+            inside = False
+    return inside or nearest < r
+
+
+def _ccw(poly: Polygon) -> Polygon:
+    area2 = sum(x1 * y2 - x2 * y1
+                for (x1, y1), (x2, y2) in zip(poly, poly[1:] + poly[:1], strict=True))
+    return poly if area2 >= 0 else poly[::-1]
+
+
+def check_placement(world: WorldConfig, *, ball_script: tuple[BallStep, ...] = (),
+                    scripts: dict[int, tuple[BallStep, ...]] | None = None,
+                    where: str = "scenario") -> None:
+    """Refuse (:class:`~ubf_async.errors.ScenarioError`, naming the object) the robot or an
+    object — ball, distractor, obstacle, or a ``place``/``move_to`` target of a script —
+    outside the arena, and an object overlapping the robot at its start pose."""
+    objects: list[tuple[str, Polygon | None, tuple[float, float, float] | None]] = []
+    if world.ball is not None:
+        objects.append(("the ball", None, (world.ball.x_m, world.ball.y_m,
+                                           world.ball.radius_m)))
+    for i, d in enumerate(world.distractors):
+        label = f"distractors[{i}] ({d.kind})"
+        if d.kind == "box":
+            objects.append((label, _box_outline(d.x_m, d.y_m, d.yaw_rad, d.length_m,
+                                                d.width_m), None))
+        else:
+            objects.append((label, None, (d.x_m, d.y_m, d.radius_m)))
+    for i, b in enumerate(world.boxes):
+        objects.append((f"obstacles[{i}]", _box_outline(b.x_m, b.y_m, b.yaw_rad, b.length_m,
+                                                        b.width_m), None))
+    targets: list[tuple[str, tuple[float, float, float]]] = []
+    radius_of = {-1: world.ball.radius_m if world.ball is not None else 0.0}
+    radius_of.update({i: d.radius_m for i, d in enumerate(world.distractors)})
+    for index, steps in [(-1, ball_script), *sorted((scripts or {}).items())]:
+        label = "ball_script" if index == -1 else f"the script of distractors[{index}]"
+        for j, step in enumerate(steps):
+            if step.kind in ("place", "move_to"):
+                targets.append((f"{label}[{j}] ({step.kind})",
+                                (step.target["x_m"], step.target["y_m"], radius_of[index])))
+    robot = _ccw(_robot_outline(world))
+    arena = world.arena
+    if arena is not None:
+        def outside(px: float, py: float, margin: float = 0.0) -> bool:
+            return not (arena.x_min_m + margin <= px <= arena.x_max_m - margin
+                        and arena.y_min_m + margin <= py <= arena.y_max_m - margin)
+
+        bounds = (f"the arena (x {arena.x_min_m:g}…{arena.x_max_m:g} m, "
+                  f"y {arena.y_min_m:g}…{arena.y_max_m:g} m)")
+        if any(outside(x, y) for x, y in robot):
+            p = world.robot_start
+            raise ScenarioError(f"{where}: the robot at ({p.x_m:g}, {p.y_m:g}) m does not fit "
+                                f"inside {bounds}")
+        for label, poly, circle in objects:
+            if poly is not None and any(outside(x, y) for x, y in poly):
+                cx = sum(x for x, _ in poly) / len(poly)
+                cy = sum(y for _, y in poly) / len(poly)
+                raise ScenarioError(f"{where}: {label} at ({cx:g}, {cy:g}) m lies (partly) "
+                                    f"outside {bounds}")
+            if circle is not None and outside(circle[0], circle[1], circle[2]):
+                raise ScenarioError(f"{where}: {label} at ({circle[0]:g}, {circle[1]:g}) m lies "
+                                    f"(partly) outside {bounds}")
+        for label, (x, y, r) in targets:
+            if outside(x, y, r):
+                raise ScenarioError(f"{where}: {label} puts its object at ({x:g}, {y:g}) m, "
+                                    f"outside {bounds}")
+    for label, poly, circle in objects:
+        hit = (_polygons_overlap(robot, _ccw(poly)) if poly is not None
+               else circle is not None and _circle_overlaps_polygon(*circle, robot))
+        if hit:
+            p = world.robot_start
+            raise ScenarioError(f"{where}: {label} overlaps the robot at its start "
+                                f"({p.x_m:g}, {p.y_m:g}) m, heading "
+                                f"{math.degrees(p.heading_rad):g}°")
 
 
 def builtin_names() -> list[str]:

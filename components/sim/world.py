@@ -510,6 +510,8 @@ class World:
         self._pulses: tuple[float, float] = (rc.left_motor.zero_ms, rc.right_motor.zero_ms)
         self._wheel_speed = [0.0, 0.0]
         self._wheel_angle = [0.0, 0.0]
+        self._alpha: dict[float, float] = {}
+        """The wheels' first-order lag factor per substep length (one or two lengths)."""
 
         # Ball.
         self._ball: _FloorBody | None = None
@@ -566,7 +568,8 @@ class World:
                 space.add(dshape)
                 self._distractor_bodies.append(None)
 
-        self._snapshot = self._make_snapshot()
+        self._snapshot: WorldSnapshot | None = None
+        """Built on demand by :meth:`snapshot` (and dropped when the world changes)."""
 
     def _add_round_body(
         self, x: float, y: float, radius: float, mass: float, *, elasticity: float,
@@ -615,7 +618,7 @@ class World:
     # -- inputs -------------------------------------------------------------------------------
 
     def set_motor_pulses(self, left_ms: float, right_ms: float) -> None:
-        """Set the PWM high time of each motor (ms); takes effect at the next substep."""
+        """Set the PWM high time of each motor (ms); takes effect at the next step."""
         _require_finite(left_ms=left_ms, right_ms=right_ms)
         self._pulses = (float(left_ms), float(right_ms))
 
@@ -625,7 +628,7 @@ class World:
         ball = self._require_ball()
         with self._lock:
             ball.body.velocity = (vx_m_s, vy_m_s)
-            self._snapshot = self._make_snapshot()
+            self._snapshot = None
 
     def place_ball(self, x_m: float, y_m: float) -> None:
         """Teleport the ball to (x, y) and stop it."""
@@ -636,7 +639,7 @@ class World:
             ball.body.velocity = (0.0, 0.0)
             ball.body.angular_velocity = 0.0
             self._space.reindex_shapes_for_body(ball.body)
-            self._snapshot = self._make_snapshot()
+            self._snapshot = None
 
     def place_robot(self, pose: Pose2D) -> None:
         """Teleport the robot to ``pose`` and stop it (wheel angles are kept)."""
@@ -646,13 +649,38 @@ class World:
             self._robot.velocity = (0.0, 0.0)
             self._robot.angular_velocity = 0.0
             self._space.reindex_shapes_for_body(self._robot)
-            self._snapshot = self._make_snapshot()
+            self._snapshot = None
+
+    def place_distractor(self, index: int, x_m: float, y_m: float) -> None:
+        """Teleport movable distractor ``index`` (order of ``config.distractors``) to (x, y)
+        and stop it. Raises ``ValueError`` for a static one (its shape is fixed)."""
+        _require_finite(x_m=x_m, y_m=y_m)
+        body = self._distractor_bodies[index]
+        if body is None:
+            raise ValueError(f"distractor {index} is static: only a movable one can be moved")
+        with self._lock:
+            body.position = (x_m, y_m)
+            body.velocity = (0.0, 0.0)
+            body.angular_velocity = 0.0
+            self._space.reindex_shapes_for_body(body)
+            self._snapshot = None
+
+    def shift_robot(self, dx_m: float, dy_m: float, d_heading_rad: float = 0.0) -> None:
+        """Move the robot by (dx, dy) and turn it by ``d_heading_rad`` as a hand pushing it
+        would: its velocities and wheels are left alone (the encoders see nothing)."""
+        _require_finite(dx_m=dx_m, dy_m=dy_m, d_heading_rad=d_heading_rad)
+        with self._lock:
+            x, y = self._robot.position
+            self._robot.position = (x + dx_m, y + dy_m)
+            self._robot.angle = self._robot.angle + d_heading_rad
+            self._space.reindex_shapes_for_body(self._robot)
+            self._snapshot = None
 
     def set_lighting(self, lighting: Lighting) -> None:
         """Change the scene lighting (seen by the camera from the next snapshot on)."""
         with self._lock:
             self._lighting = lighting
-            self._snapshot = self._make_snapshot()
+            self._snapshot = None
 
     def add_step_hook(self, hook: StepHook) -> Callable[[], None]:
         """Run ``hook(world, dt_s)`` at the start of every step (scripted motion, scenarios).
@@ -679,9 +707,15 @@ class World:
     def step(self, dt_s: float) -> WorldSnapshot:
         """Advance by ``dt_s`` in equal substeps no longer than ``config.substep_s``.
 
-        Simulated time advances by ``dt_s`` rounded to whole nanoseconds. Returns (and
-        publishes) the new snapshot.
+        Simulated time advances by ``dt_s`` rounded to whole nanoseconds. Returns the new
+        snapshot (:meth:`advance` does the same without building it).
         """
+        self.advance(dt_s)
+        return self.snapshot()
+
+    def advance(self, dt_s: float) -> None:
+        """:meth:`step` without building the snapshot: the next :meth:`snapshot` call builds
+        it (the simulator steps many times between two readers)."""
         if not (math.isfinite(dt_s) and dt_s >= 0.0):
             raise ValueError(f"dt_s must be a finite number >= 0, got {dt_s!r}")
         with self._lock:
@@ -690,22 +724,25 @@ class World:
             if dt_s > 0.0:
                 n = max(1, math.ceil(dt_s / self._config.substep_s - 1e-9))
                 h = dt_s / n
+                # The pulses hold for the whole step (set_motor_pulses: "at the next step").
+                targets = (wheel_speed_rad_s(self._motors[0], self._pulses[0]),
+                           wheel_speed_rad_s(self._motors[1], self._pulses[1]))
                 for _ in range(n):
-                    self._substep(h)
+                    self._substep(h, targets)
                 self._time_ns += round(dt_s * 1e9)
             self._step_count += 1
-            snap = self._make_snapshot()
-            self._snapshot = snap
-            return snap
+            self._snapshot = None
 
-    def _substep(self, h: float) -> None:
+    def _substep(self, h: float, targets: tuple[float, float]) -> None:
         cfg = self._config
         rc = cfg.robot
         radius = rc.geometry.wheel_radius_m
-        alpha = 1.0 - math.exp(-h / rc.motor_time_constant_s)
+        alpha = self._alpha.get(h)
+        if alpha is None:
+            alpha = self._alpha[h] = 1.0 - math.exp(-h / rc.motor_time_constant_s)
         surface = [0.0, 0.0]
         for side in (0, 1):
-            target = wheel_speed_rad_s(self._motors[side], self._pulses[side])
+            target = targets[side]
             old = self._wheel_speed[side]
             new = old + (target - old) * alpha
             self._wheel_speed[side] = new
@@ -753,26 +790,37 @@ class World:
 
         # Rolling / sliding losses of free bodies.
         g = cfg.gravity_m_s2
+        spin_decay = math.exp(-5.0 * h)
         for fb in self._floor_bodies:
             b = fb.body
             bvx, bvy = b.velocity
             speed = math.hypot(bvx, bvy)
             coulomb = fb.resistance * g
             if speed <= coulomb * h:
-                b.velocity = (0.0, 0.0)
-            elif speed > 0.0:
+                if speed > 0.0:
+                    b.velocity = (0.0, 0.0)
+            else:
                 decel = fb.damping_per_s * speed + coulomb
                 scale = -b.mass * decel / speed
                 b.force = (bvx * scale, bvy * scale)
-            b.angular_velocity *= math.exp(-5.0 * h)
+            spin = b.angular_velocity
+            if spin != 0.0:
+                b.angular_velocity = spin * spin_decay
 
         self._space.step(h)
 
     # -- snapshot -----------------------------------------------------------------------------
 
     def snapshot(self) -> WorldSnapshot:
-        """The latest immutable snapshot (replaced after every step)."""
-        return self._snapshot
+        """The latest immutable snapshot (replaced after every step; built on first demand)."""
+        snap = self._snapshot
+        if snap is not None:
+            return snap
+        with self._lock:
+            snap = self._snapshot
+            if snap is None:
+                snap = self._snapshot = self._make_snapshot()
+            return snap
 
     def _make_snapshot(self) -> WorldSnapshot:
         cfg = self._config

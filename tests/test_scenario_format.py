@@ -1,0 +1,161 @@
+"""The scenario format's elements (several scripted objects, follow and wave steps, lighting
+over time, pushes) on the real simulated world, and the mistakes it refuses."""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import math
+from typing import Any
+
+import pytest
+
+from components.sim.scenarios import load_scenario, parse_scenario
+from components.sim.world import World
+from ubf_async.errors import ScenarioError
+
+ARENA = {"x_min_m": -1.5, "y_min_m": -1.5, "x_max_m": 1.5, "y_max_m": 1.5}
+PINK = [236, 72, 132]
+
+
+def base(**extra: Any) -> dict[str, Any]:
+    return {"name": "t", "arena": ARENA, "ball": {"x_m": 0.6, "y_m": 0.0}, **extra}
+
+
+def play(data: dict[str, Any], until_s: float, dt_s: float = 0.005) -> World:
+    scenario = parse_scenario(data)
+    world = World(scenario.world)
+    scenario.install(world)
+    while world.time_s < until_s - 1e-9:
+        world.advance(dt_s)
+    return world
+
+
+def camera_view(world: World, x_m: float, y_m: float) -> tuple[float, float]:
+    r = world.snapshot().robot
+    cx, cy = r.x_m + 0.05 * math.cos(r.heading_rad), r.y_m + 0.05 * math.sin(r.heading_rad)
+    bearing = math.degrees(math.atan2(y_m - cy, x_m - cx) - r.heading_rad)
+    return math.hypot(x_m - cx, y_m - cy), (bearing + 180) % 360 - 180
+
+
+def test_several_balls_and_a_moving_distractor() -> None:
+    """A second pink ball and an orange ball, each named and scripted (which makes them
+    movable), move on their own scripts beside the ball's."""
+    data = base(
+        distractors=[{"kind": "sphere", "name": "ball2", "x_m": 0.5, "y_m": 0.5, "color": PINK},
+                     {"kind": "sphere", "name": "orange", "x_m": 1.0, "y_m": -0.5}],
+        scripts={"ball2": [{"at_s": 0.5, "move_to": {"x_m": 0.5, "y_m": 0.1},
+                            "speed_m_s": 1.0}],
+                 "orange": [{"at_s": 0.2, "place": {"x_m": 1.0, "y_m": 0.8}},
+                            {"at_s": 1.0, "hide": True}]},
+        ball_script=[{"at_s": 0.1, "move_to": {"x_m": 0.8, "y_m": 0.0}}])
+    scenario = parse_scenario(data)
+    assert [d.movable for d in scenario.world.distractors] == [True, True]
+    world = play(data, 0.8)
+    ball2, orange = world.snapshot().distractors
+    assert (orange.x_m, orange.y_m) == pytest.approx((1.0, 0.8))
+    assert 0.1 < ball2.y_m < 0.5  # on its way
+    world = play(data, 1.5)
+    ball2, orange = world.snapshot().distractors
+    assert (ball2.x_m, ball2.y_m) == pytest.approx((0.5, 0.1), abs=1e-6)
+    assert orange.x_m > 10  # lifted out of the arena
+    assert world.snapshot().ball.x_m == pytest.approx(0.8, abs=1e-6)
+
+
+def test_follow_keeps_the_ball_where_the_hand_holds_it() -> None:
+    data = base(ball_script=[{"at_s": 0, "follow": {"distance_m": 0.3, "bearing_deg": 10},
+                              "speed_m_s": 2.0}],
+                pushes=[{"at_s": 0.5, "forward_m": -0.2, "left_m": 0.1, "turn_deg": 30,
+                         "over_s": 0.5}])
+    world = play(data, 1.5)
+    ball = world.snapshot().ball
+    assert camera_view(world, ball.x_m, ball.y_m) == pytest.approx((0.3, 10.0), abs=1e-3)
+
+
+def test_wave_sweeps_the_ball_to_and_fro_across_the_view() -> None:
+    data = base(ball_script=[{"at_s": 0, "wave": {"distance_m": 0.5, "amplitude_deg": 30,
+                                                   "period_s": 0.4}}])
+    scenario = parse_scenario(data)
+    world = World(scenario.world)
+    scenario.install(world)
+    bearings = []
+    while world.time_s < 0.8:
+        world.advance(0.005)
+        ball = world.snapshot().ball
+        distance, bearing = camera_view(world, ball.x_m, ball.y_m)
+        assert distance == pytest.approx(0.5, abs=1e-6)
+        bearings.append(bearing)
+    assert max(bearings) == pytest.approx(30, abs=0.5)
+    assert min(bearings) == pytest.approx(-30, abs=0.5)
+    # Out of the 35° view on either side, and across it every half period (0.2, 0.4, 0.6 s).
+    sides = [1 if b > 5 else -1 for b in bearings if abs(b) > 5]
+    assert sum(1 for a, b in itertools.pairwise(sides) if a != b) == 3
+
+
+def test_lighting_changes_over_time() -> None:
+    data = base(lighting={"brightness": 1.0, "glare": 1.0},
+                lighting_script=[{"at_s": 1.0, "brightness": 0.5, "over_s": 1.0},
+                                 {"at_s": 3.0, "glare": 0.0}])
+    assert play(data, 0.9).snapshot().lighting.brightness == 1.0
+    halfway = play(data, 1.5).snapshot().lighting
+    assert halfway.brightness == pytest.approx(0.75, abs=0.01) and halfway.glare == 1.0
+    end = play(data, 3.1).snapshot().lighting
+    assert (end.brightness, end.glare) == pytest.approx((0.5, 0.0))
+
+
+def test_a_push_moves_the_robot_but_not_its_wheels() -> None:
+    """The thesis's caveat: the encoders see the wheels, so a push goes unnoticed."""
+    data = base(robot={"x_m": 0, "y_m": 0, "heading_deg": 90},
+                pushes=[{"at_s": 0.2, "forward_m": 0.1, "left_m": 0.05, "turn_deg": -45}])
+    world = play(data, 1.0)
+    r = world.snapshot().robot
+    assert (r.x_m, r.y_m) == pytest.approx((-0.05, 0.1), abs=2e-3)
+    assert math.degrees(r.heading_rad) == pytest.approx(45, abs=0.5)
+    assert (r.left_wheel_angle_rad, r.right_wheel_angle_rad) == (0.0, 0.0)
+
+
+def test_the_built_in_format_examples_load() -> None:
+    for name in ("ball-held-close", "obstacle-course", "busy-room"):
+        assert load_scenario(name).name == name
+
+
+MISTAKES = [
+    ({"ball": {"x_m": 2.0, "y_m": 0.0}}, "the ball at \\(2, 0\\) m lies \\(partly\\) outside"),
+    ({"ball": {"x_m": 1.49, "y_m": 0.0}}, "the ball .* outside the arena"),
+    ({"distractors": [{"kind": "cylinder", "x_m": 0, "y_m": -1.6}]},
+     "distractors\\[0\\] \\(cylinder\\) .* outside"),
+    ({"distractors": [{"kind": "box", "x_m": 1.45, "y_m": 0, "length_m": 0.2}]},
+     "distractors\\[0\\] \\(box\\) .* outside"),
+    ({"obstacles": [{"x_m": -1.5, "y_m": 0, "length_m": 0.2, "width_m": 0.2}]},
+     "obstacles\\[0\\] .* outside"),
+    ({"robot": {"x_m": 1.47, "y_m": 0}}, "the robot at \\(1.47, 0\\) m does not fit"),
+    ({"ball_script": [{"at_s": 1, "move_to": {"x_m": 0, "y_m": 3}}]},
+     "ball_script\\[0\\] \\(move_to\\) puts its object at \\(0, 3\\) m, outside"),
+    ({"ball": {"x_m": 0.07, "y_m": 0.0}}, "the ball overlaps the robot at its start"),
+    ({"distractors": [{"kind": "sphere", "x_m": 0.0, "y_m": 0.0}]},
+     "distractors\\[0\\] \\(sphere\\) overlaps the robot"),
+    ({"obstacles": [{"x_m": 0.1, "y_m": 0.0, "length_m": 0.2, "width_m": 0.2, "yaw_deg": 45}]},
+     "obstacles\\[0\\] overlaps the robot"),
+    ({"scripts": {"nobody": [{"at_s": 0, "hide": True}]}}, "no distractor is named 'nobody'"),
+    ({"distractors": [{"kind": "sphere", "name": "ball", "x_m": 0.5, "y_m": 0.5}]},
+     "name must be a unique"),
+    ({"ball_script": [{"at_s": 0, "wave": {"period_s": 0}}]}, "period_s must be > 0"),
+    ({"ball_script": [{"at_s": 0, "follow": {"distance_m": -1}}]}, "distance_m must be > 0"),
+    ({"lighting_script": [{"at_s": 1}]}, "needs brightness and/or glare"),
+    ({"lighting_script": [{"at_s": 1, "brightness": 0}]}, "brightness must be > 0"),
+    ({"pushes": [{"at_s": 1, "forward_m": 0.1, "over_s": -1}]}, "over_s must be >= 0"),
+    ({"pushes": [{"at_s": 1, "shove": 1}]}, "unknown field"),
+]
+
+
+@pytest.mark.parametrize(("change", "message"), MISTAKES)
+def test_mistakes_are_refused_with_a_clear_error(change: dict[str, Any], message: str) -> None:
+    data = copy.deepcopy(base())
+    data.update(change)
+    with pytest.raises(ScenarioError, match=message):
+        parse_scenario(data)
+
+
+def test_touching_is_not_overlapping() -> None:
+    """The ball right in front of the robot's nose (3.5 cm from the camera, contact) loads."""
+    parse_scenario(base(ball={"x_m": 0.05 + 0.0326, "y_m": 0.0}))
