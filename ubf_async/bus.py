@@ -59,7 +59,7 @@ from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.protocol import INT64_MAX, ROOT, Keys, ProtocolError, decode, encode
 from ubf_async.timesource import ClockAction, ClockFollower
-from ubf_async.topics import CLOCK, Topic
+from ubf_async.topics import CLOCK, Data, Topic
 from ubf_async.transport import (
     Connection,
     Declaration,
@@ -537,8 +537,10 @@ class Publisher:
         self._out = bus._connection.declare_publisher(key)
         self._closed = False
 
-    def publish(self, data: Mapping[str, Any], *, stamp_ns: int | None = None) -> tuple[int, int]:
-        """Encode and send one sample: to the matching subscriptions of this bus (on the loop)
+    def publish(self, data: Data | Mapping[str, Any], *,
+                stamp_ns: int | None = None) -> tuple[int, int]:
+        """Encode and send one sample (the topic's typed message, or a map of its fields,
+        validated either way): to the matching subscriptions of this bus (on the loop)
         and through the transport to other buses. Returns ``(seq, stamp_ns)`` of what was sent.
         Call it on the bus's event loop."""
         stamp = self._bus.clock.now_ns() if stamp_ns is None else stamp_ns

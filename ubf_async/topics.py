@@ -66,7 +66,7 @@ StampNs = Annotated[int, Meta(ge=0, le=INT64_MAX)]
 Command = Annotated[float, Meta(ge=-100.0, le=100.0)]
 """A drive command in percent of full speed or turn."""
 Byte = Annotated[int, Meta(ge=0, le=255)]
-RGB = Annotated[tuple[Byte, ...], Meta(min_length=3, max_length=3)]
+RGB = tuple[Byte, Byte, Byte]
 Millimetres = Annotated[int, Meta(ge=0, le=100_000)]
 PulseMs = Annotated[float, Meta(ge=0.5, le=2.5)]
 Name = Annotated[str, Meta(max_length=MAX_NAME_CHARS)]
