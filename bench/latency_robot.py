@@ -51,6 +51,7 @@ from ubf_async import Action, Behavior, Child, Composite, HighestPriority, State
 from ubf_async.aggregator import SourceEntry, StateAggregator
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.cli import run_loop
 from ubf_async.controller import Controller
 
 AVOID_BELOW_MM = 200
@@ -340,12 +341,12 @@ def main(argv: list[str] | None = None) -> int:
 
             name = "wake_task" if cfg.get("wake_task") else cfg["mode"]
             with cProfile.Profile() as prof:
-                result = asyncio.run(controller_role(cfg))
+                result = run_loop(controller_role(cfg))
             prof.dump_stats(os.path.join(profile_dir, f"controller-{name}-{os.getpid()}.prof"))
         else:
-            result = asyncio.run(controller_role(cfg))
+            result = run_loop(controller_role(cfg))
     elif role == "simrobot":
-        result = asyncio.run(simrobot_role(cfg))
+        result = run_loop(simrobot_role(cfg))
     else:
         raise SystemExit(f"unknown role {role!r}")
     sys.stdout.write("RESULT " + json.dumps(result) + "\n")

@@ -6,7 +6,9 @@ import asyncio
 import socket
 import time
 from collections.abc import AsyncIterator, Callable
+from typing import Any
 
+import msgspec
 import pytest
 import pytest_asyncio
 
@@ -122,3 +124,10 @@ async def start_seeking_robot(bus: Bus, run: object) -> tuple[object, list[objec
     for component in components:
         await component.start()
     return controller, components
+
+
+def as_dict(data: Any) -> dict[str, Any]:
+    """A decoded message's data as the plain map a msgpack client sees (fields left at their
+    defaults are absent): for tests that collect commands and compare them as maps."""
+    plain: dict[str, Any] = msgspec.msgpack.decode(msgspec.msgpack.encode(data))
+    return plain

@@ -31,7 +31,7 @@ from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun
 EXPECTED_PARAMETERS = {
     "camera": {"latency_s", "hfov_deg"},
     "motors": {"timeout_s"},
-    "encoders": {"period_s", "direction"},
+    "encoders": {"period_s", "direction", "effective_track_m"},
     "range": {"model", "x_m", "y_m", "yaw_deg", "period_s"},
     "radio": {"period_s"},
 }

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from tests.conftest import eventually
+from tests.conftest import as_dict, eventually
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.aggregator import SourceEntry, StateAggregator
 from ubf_async.behavior import Trace
@@ -157,16 +157,16 @@ async def test_on_tick_gets_the_state_trace_and_the_command_that_went_out(
         sent.append(pub.publish({"range_mm": mm, "status": "ok"}))
         await eventually(lambda n=n: len(ticks) == n and ctl.stats.ticks == n,
                          what=f"tick {n}")
-    await eventually(lambda: sum(not d.data.get("hold") for d in drives) == 2)
+    await eventually(lambda: sum(not d.data.hold for d in drives) == 2)
     await ctl.aclose()
     await agg.aclose()
-    commands = [d.data for d in drives if not d.data.get("hold")]
+    commands = [d.data for d in drives if not d.data.hold]
     for (state, trace, command, _), (seq, stamp), drive in zip(
             ticks, sent, commands, strict=True):
         assert state["range/front"].seq == seq
         assert trace is not None and trace.winning_leaves() == ["avoid"]
         assert command == drive  # exactly what went out on cmd/drive
-        assert command["based_on"] == {"source": "range/front", "seq": seq, "stamp_ns": stamp}
+        assert as_dict(command["based_on"]) == {"source": "range/front", "seq": seq, "stamp_ns": stamp}
     assert [t[2]["speed"] for t in ticks] == [-50, 20]
     # It runs before last_action is updated: it sees the previous tick's.
     assert [t[3] for t in ticks] == [None, -50]
@@ -208,7 +208,7 @@ async def test_holds_in_sync_mode_do_not_call_on_tick(robot_bus: Bus, peer_bus: 
     ctl.on_tick(lambda state, trace, command: ticks.append(command))
     drives: list[dict[str, Any]] = []
     robot_bus.subscribe(robot_bus.keys.cmd("drive"),
-                        lambda k, p, t: drives.append(decode(p).data), latest=False)
+                        lambda k, p, t: drives.append(as_dict(decode(p).data)), latest=False)
     await start(agg, ctl)
     await eventually(lambda: ctl.stats.holds >= 3, what="holds without a camera")
     assert ticks == []
@@ -221,7 +221,7 @@ async def test_holds_in_sync_mode_do_not_call_on_tick(robot_bus: Bus, peer_bus: 
     await eventually(lambda: ctl.stats.holds >= holds + 3, what="holds after the tick")
     await ctl.aclose()
     await agg.aclose()
-    assert len(ticks) == 1 and ticks[0]["tick"] == 1 and "hold" not in ticks[0]
+    assert len(ticks) == 1 and ticks[0]["tick"] == 1 and not ticks[0].hold
     assert sum(1 for d in drives if d.get("hold")) >= 6  # the holds did go out
 
 
@@ -242,7 +242,7 @@ async def test_a_raising_tick_hook_is_cut_off_and_the_controller_goes_on(
     ctl.on_tick(lambda state, trace, command: calls.append("good"))
     drives: list[dict[str, Any]] = []
     robot_bus.subscribe(robot_bus.keys.cmd("drive"),
-                        lambda k, p, t: drives.append(decode(p).data), latest=False)
+                        lambda k, p, t: drives.append(as_dict(decode(p).data)), latest=False)
     with caplog.at_level(logging.ERROR, logger="ubf_async.aggregator"):
         await start(agg, ctl)
         await eventually(lambda: len(drives) >= 3, what="three commands")
@@ -278,4 +278,4 @@ async def test_on_tick_gets_the_plain_stop_when_the_command_could_not_go_out(
     await ctl.aclose()
     await agg.aclose()
     stop = commands[-1]
-    assert stop == {"speed": 0.0, "turn": 0.0, "tick": stop["tick"]}
+    assert as_dict(stop) == {"speed": 0.0, "turn": 0.0, "tick": stop["tick"]}

@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator
 import pytest
 import pytest_asyncio
 
-from tests.conftest import eventually, read_until
+from tests.conftest import as_dict, eventually, read_until
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.aggregator import MAX_SOURCES, StateAggregator
 from ubf_async.arbiters import HighestPriority
@@ -192,7 +192,7 @@ async def test_the_controller_clips_what_it_copies_even_if_the_aggregator_let_it
     agg.entries["range/" + "q" * 500] = agg.entries.pop("range/ok")
     agg.entries["range/" + "q" * 500].source = "range/" + "q" * 500
     await eventually(lambda: len(drives) >= 3)
-    last = drives[-1].data
+    last = as_dict(drives[-1].data)
     assert last["speed"] == 20
     assert len(last["based_on"]["source"]) == MAX_NAME_CHARS
     assert last["winners"] == [long_name[:MAX_NAME_CHARS - 1] + "…"]
@@ -248,7 +248,7 @@ async def test_future_stamped_camera_sample_does_not_pin_the_state(
     for total in (150, 160, 170):  # later real frames are used, every one
         frame = {"bins": [0, 0, total, 0, 0], "total": total}
         _, stamp = camera.publish(frame)
-        await eventually(lambda frame=frame: agg.snapshot()["camera/front"].value == frame,
+        await eventually(lambda frame=frame: as_dict(agg.snapshot()["camera/front"].value) == frame,
                          what=f"real frame {total}")
     reading = agg.snapshot()["camera/front"]
     assert not reading.stale and reading.stamp_ns == stamp

@@ -26,7 +26,7 @@ import pytest
 import pytest_asyncio
 import zenoh
 
-from tests.conftest import eventually, read_until
+from tests.conftest import as_dict, eventually, read_until
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.errors import ConfigurationError
 from ubf_async.protocol import decode
@@ -229,7 +229,7 @@ class Seen:
             self.clock_samples += 1
             self.clock_max_ns = max(self.clock_max_ns, m.stamp_ns)
         elif tail == "cmd/seek_color":
-            self.seek_colors.append(m.data)
+            self.seek_colors.append(as_dict(m.data))
         elif tail == "sim/pulses":
             self.pulses += 1
         elif tail == "status/remotes":

@@ -20,7 +20,7 @@ import pytest
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.component import DEVICES
 from components.sim.world import Arena, BallConfig, Pose2D, WorldConfig
-from tests.conftest import SimRobot, eventually
+from tests.conftest import SimRobot, as_dict, eventually
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus
@@ -176,7 +176,8 @@ async def test_watchdog_stops_the_wheels_when_the_controller_is_killed(
     config = open_floor(ball=BallConfig(x_m=1.2, y_m=0.0))
     async with SimRobot(robot_bus, config, speed=1, devices=("motors", "camera")) as sim:
         robot_bus.subscribe(robot_bus.keys.sensors_of_kind("motors"),
-                            lambda k, p, t: applied.append((sim.clock.now_ns(), decode(p).data)),
+                            lambda k, p, t: applied.append(
+                                (sim.clock.now_ns(), as_dict(decode(p).data))),
                             latest=False)
         robot_bus.subscribe(robot_bus.keys.cmd("drive"),
                             lambda k, p, t: drives.append(sim.clock.now_ns()), latest=False)

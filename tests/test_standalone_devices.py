@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from components.sim.world import Arena, Pose2D, WorldConfig
-from tests.conftest import SimRobot, eventually
+from tests.conftest import SimRobot, as_dict, eventually
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.protocol import decode
 
@@ -45,7 +45,7 @@ async def test_range_finder_attached_from_another_process_and_detached(
     sensor = None
     try:
         bus.subscribe(bus.keys.status("controller"),
-                      lambda k, p, t: statuses.append(decode(p).data))
+                      lambda k, p, t: statuses.append(as_dict(decode(p).data)))
         bus.watch_liveliness(bus.keys.all_alive,
                              lambda key, up: alive.__setitem__(key.rsplit("/", 1)[-1], up))
         await eventually(lambda: len(statuses) > 0, timeout_s=20, what="the robot to run")
@@ -123,7 +123,7 @@ async def test_attached_ir_finder_drives_a_remote_avoidance_behaviour(
     drives: list[dict] = []
     helpers: list[subprocess.Popen[str]] = []
     try:
-        bus.subscribe(bus.keys.cmd("drive"), lambda k, p, t: drives.append(decode(p).data),
+        bus.subscribe(bus.keys.cmd("drive"), lambda k, p, t: drives.append(as_dict(decode(p).data)),
                       latest=False)
         await eventually(lambda: len(drives) > 10, timeout_s=20, what="the robot to drive")
         assert all("avoid_obstacles" not in d["winners"] for d in drives)
@@ -158,7 +158,7 @@ async def test_devices_in_their_own_processes_use_the_simulator_in_this_one(
                             lambda k, p, t: readings.append((sim.clock.now_ns(), decode(p))),
                             latest=False)
         robot_bus.subscribe(robot_bus.keys.sensors_of_kind("motors"),
-                            lambda k, p, t: applied.append(decode(p).data), latest=False)
+                            lambda k, p, t: applied.append(as_dict(decode(p).data)), latest=False)
         try:
             for device, *flags in (("range", "--name", "ahead", "--model", "ir-20-150"),
                                    ("motors", "--timeout-s", "5")):

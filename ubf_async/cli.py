@@ -19,10 +19,13 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
+from typing import Any, TypeVar
 
-from ubf_async.errors import UbfError
+from ubf_async.errors import ConfigurationError, UbfError
+
+T = TypeVar("T")
 
 EXIT_ERROR = 2
 """A user's mistake or a problem the program explains (one line on stderr)."""
@@ -134,6 +137,37 @@ class StopGuard:
         os._exit(EXIT_INTERRUPTED)
 
 
+LOOP_ENV = "UBF_LOOP"
+LOOP_HELP = (f"event loop: uvloop when installed (pip install 'ubf-async[fast]'), else asyncio's; "
+             f"{LOOP_ENV}=asyncio or {LOOP_ENV}=uvloop chooses")
+
+
+def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
+    """The event loop programs run on: uvloop where installed (it hands samples from
+    zenoh's threads to the loop faster: docs/latency.md), unless ``UBF_LOOP=asyncio``;
+    ``UBF_LOOP=uvloop`` insists on it. ``None`` means asyncio's default loop."""
+    choice = os.environ.get(LOOP_ENV, "auto").strip().lower()
+    if choice not in ("auto", "asyncio", "uvloop"):
+        raise ConfigurationError(f"{LOOP_ENV}={choice!r}: expected auto, asyncio or uvloop")
+    if choice == "asyncio":
+        return None
+    try:
+        import uvloop
+    except ImportError:
+        if choice == "uvloop":
+            raise ConfigurationError(f"{LOOP_ENV}=uvloop but uvloop is not installed "
+                                     f"(pip install 'ubf-async[fast]')") from None
+        return None
+    factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
+    return factory
+
+
+def run_loop(main: Coroutine[Any, Any, T]) -> T:
+    """``asyncio.run`` on the loop :func:`loop_factory` chooses."""
+    with asyncio.Runner(loop_factory=loop_factory()) as runner:
+        return runner.run(main)
+
+
 def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
     """Run ``main()`` in a new event loop under a :class:`StopGuard`; return the exit status:
     ``main``'s, 0 when stopped by a first signal, 2 for a :class:`UbfError` (or a
@@ -159,9 +193,15 @@ def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
 
+    try:
+        factory = loop_factory()
+    except ConfigurationError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
     with guard.installed():
         try:
-            return asyncio.run(runner())
+            with asyncio.Runner(loop_factory=factory) as loop_runner:
+                return loop_runner.run(runner())
         except KeyboardInterrupt:
             return EXIT_INTERRUPTED
 

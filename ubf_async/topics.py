@@ -76,7 +76,23 @@ Weight = Annotated[float, Meta(ge=0.0, le=MAX_WEIGHT)]
 
 
 class Data(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
-    """Base of every typed message (the ``data`` of an envelope)."""
+    """Base of every typed message (the ``data`` of an envelope).
+
+    Read fields as attributes (``drive.speed``). Reading by name also works, as from the map
+    on the wire (``drive["speed"]``, ``drive.get("hold")``), but only for declared fields:
+    a name the message does not have raises :class:`KeyError` naming the fields."""
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self.__struct_fields__:
+            raise KeyError(f"{type(self).__name__} has no field {name!r} (fields: "
+                           f"{', '.join(self.__struct_fields__)})")
+        return getattr(self, name)
+
+    def get(self, name: str, default: Any = None) -> Any:
+        """The field ``name`` (``default`` when it is unset, ``None``); a name the message
+        does not declare raises :class:`KeyError`."""
+        value = self[name]
+        return default if value is None else value
 
 
 # ---------------------------------------------------------------------------------------------
