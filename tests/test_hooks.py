@@ -166,7 +166,8 @@ async def test_on_tick_gets_the_state_trace_and_the_command_that_went_out(
         assert state["range/front"].seq == seq
         assert trace is not None and trace.winning_leaves() == ["avoid"]
         assert command == drive  # exactly what went out on cmd/drive
-        assert as_dict(command["based_on"]) == {"source": "range/front", "seq": seq, "stamp_ns": stamp}
+        assert as_dict(command["based_on"]) == {"source": "range/front", "seq": seq,
+                                                "stamp_ns": stamp}
     assert [t[2]["speed"] for t in ticks] == [-50, 20]
     # It runs before last_action is updated: it sees the previous tick's.
     assert [t[3] for t in ticks] == [None, -50]

@@ -233,7 +233,7 @@ class Seen:
         elif tail == "sim/pulses":
             self.pulses += 1
         elif tail == "status/remotes":
-            self.remotes.update(r["behavior"] for r in m.data.remotes)
+            self.remotes.update(r["behavior"] for r in m.data["remotes"])
 
     def attacked(self) -> dict[str, bool]:
         """Which attacks show in what the observer saw."""

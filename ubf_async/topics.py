@@ -172,8 +172,9 @@ class BasedOn(Data, frozen=True, kw_only=True):
     stamp_ns: StampNs
 
 
-class Drive(Data, frozen=True, kw_only=True):
-    """Speed and turn for the motors; ``hold`` repeats the last command between sync ticks."""
+class Drive(Data, frozen=True, kw_only=True, omit_defaults=False):
+    """Speed and turn for the motors; ``hold`` repeats the last command between sync ticks.
+    Every field goes on the wire, defaults included: simple clients read them by name."""
 
     speed: Command
     turn: Command
