@@ -229,7 +229,7 @@ async def test_sync_mode_holds_the_last_decision_between_frames_and_stops_when_s
     held = [d for d in drives[mark:] if d.get("hold")]
     # Between frames the motors get the last decision again, at the controller's rate, with
     # the tick it came from and no based_on (latency tools match commands to samples by it).
-    assert held[0]["speed"] == 30 and held[0]["tick"] == 1 and "based_on" not in held[0]
+    assert held[0]["speed"] == 30 and held[0]["tick"] == 1 and held[0]["based_on"] is None
     # Once the camera is stale (1.5 periods = 0.3 s without a frame) a hold is a stop.
     await eventually(lambda: drives[-1].get("hold") and drives[-1]["speed"] == 0,
                      timeout_s=5, what="a stop once the camera is stale")

@@ -138,26 +138,25 @@ class StopGuard:
 
 
 LOOP_ENV = "UBF_LOOP"
-LOOP_HELP = (f"event loop: uvloop when installed (pip install 'ubf-async[fast]'), else asyncio's; "
-             f"{LOOP_ENV}=asyncio or {LOOP_ENV}=uvloop chooses")
+LOOP_HELP = (f"event loop: asyncio's; {LOOP_ENV}=uvloop runs on uvloop instead "
+             f"(pip install 'ubf-async[fast]'; docs/latency.md has what it changes)")
 
 
 def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
-    """The event loop programs run on: uvloop where installed (it hands samples from
-    zenoh's threads to the loop faster: docs/latency.md), unless ``UBF_LOOP=asyncio``;
-    ``UBF_LOOP=uvloop`` insists on it. ``None`` means asyncio's default loop."""
-    choice = os.environ.get(LOOP_ENV, "auto").strip().lower()
-    if choice not in ("auto", "asyncio", "uvloop"):
-        raise ConfigurationError(f"{LOOP_ENV}={choice!r}: expected auto, asyncio or uvloop")
+    """The event loop programs run on: asyncio's (``None``), or uvloop with
+    ``UBF_LOOP=uvloop``. Not the default even where installed: it hands samples from
+    zenoh's threads to the loop a few µs faster, but no faster end to end on the reflex path
+    (docs/latency.md), and under it a second Ctrl-C does not cut a stuck shutdown short."""
+    choice = os.environ.get(LOOP_ENV, "asyncio").strip().lower() or "asyncio"
+    if choice not in ("asyncio", "uvloop"):
+        raise ConfigurationError(f"{LOOP_ENV}={choice!r}: expected asyncio or uvloop")
     if choice == "asyncio":
         return None
     try:
         import uvloop
     except ImportError:
-        if choice == "uvloop":
-            raise ConfigurationError(f"{LOOP_ENV}=uvloop but uvloop is not installed "
-                                     f"(pip install 'ubf-async[fast]')") from None
-        return None
+        raise ConfigurationError(f"{LOOP_ENV}=uvloop but uvloop is not installed "
+                                 f"(pip install 'ubf-async[fast]')") from None
     factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
     return factory
 

@@ -48,7 +48,7 @@ from ubf_async.bus import (
     connection_options,
     follow_sim_clock,
 )
-from ubf_async.cli import run_main
+from ubf_async.cli import LOOP_HELP, run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
@@ -80,6 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
             f"(the shipped '{DEFAULT_ROBOT_FILE}' file). Other processes attach over zenoh "
             "with --connect <the endpoint printed at start> and the same --robot."
         ),
+        epilog=f"Environment: {LOOP_HELP}.",
         formatter_class=HelpFormatter,
     )
     parser.add_argument(
