@@ -174,8 +174,11 @@ class Message(msgspec.Struct, Generic[T], frozen=True, kw_only=True, gc=False):
 PublisherId = Annotated[int, Meta(ge=1, le=INT64_MAX)]
 
 
+MAX_SCHEMA_CHARS = 64
+
+
 class _Envelope(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
-    schema: Annotated[str, Meta(max_length=64)]
+    schema: Annotated[str, Meta(max_length=MAX_SCHEMA_CHARS)]
     v: Annotated[int, Meta(ge=1, le=1000)]
     stamp_ns: StampNs
     seq: Annotated[int, Meta(ge=0, le=INT64_MAX)]
@@ -274,7 +277,9 @@ def encode_data(schema: str, data: Any) -> bytes:
             return _ENCODER.encode(msgspec.convert(dict(data), kind))
     except msgspec.MsgspecError as exc:
         raise ProtocolError(f"{schema} data: {_where(exc, 'data')}") from None
-    except (ValueError, TypeError) as exc:
+    except RecursionError:
+        raise ProtocolError(f"{schema} data: nested too deeply") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # OverflowError: an int beyond uint64
         raise ProtocolError(f"{schema} data: {exc}") from None
     raise ProtocolError(f"{schema} data: expected {kind.__name__} or a map of its fields, "
                         f"got {type(data).__name__}")
@@ -293,7 +298,7 @@ def encode(
     is validated like incoming data, so this side never publishes what it would itself
     reject (raises :class:`ProtocolError`). ``pub`` is the publisher's identity
     (:class:`~ubf_async.bus.Publisher` sets it)."""
-    name = schema.schema if isinstance(schema, Topic) else schema
+    name = schema.schema if isinstance(schema, Topic) else _check_schema(schema)
     raw = encode_data(name, data)
     return encode_raw(name, raw, stamp_ns=stamp_ns, seq=seq, period_s=period_s, pub=pub)
 
@@ -301,6 +306,7 @@ def encode(
 def encode_raw(schema: str, raw: bytes, *, stamp_ns: int, seq: int,
                period_s: float | None = None, pub: int | None = None) -> bytes:
     """An envelope around data already encoded and validated by :func:`encode_data`."""
+    _check_schema(schema)
     if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or not (
             0 <= stamp_ns <= INT64_MAX):
         raise ProtocolError(f"stamp_ns: {stamp_ns!r} is not an integer in [0, 2**63-1]")
@@ -309,8 +315,21 @@ def encode_raw(schema: str, raw: bytes, *, stamp_ns: int, seq: int,
     if pub is not None and (isinstance(pub, bool) or not isinstance(pub, int)
                             or not 1 <= pub <= INT64_MAX):
         raise ProtocolError(f"pub: {pub!r} is not an integer in [1, 2**63-1]")
-    if period_s is not None and not 1e-6 <= period_s <= 3600.0:
-        raise ProtocolError(f"period_s: {period_s!r} outside [1e-6, 3600]")
-    return _ENCODER.encode(_Envelope(
+    if period_s is not None and (isinstance(period_s, bool)
+                                 or not isinstance(period_s, int | float)
+                                 or not 1e-6 <= period_s <= 3600.0):
+        raise ProtocolError(f"period_s: {period_s!r} is not a number in [1e-6, 3600]")
+    payload = _ENCODER.encode(_Envelope(
         schema=schema, v=PROTOCOL_VERSION, stamp_ns=stamp_ns, seq=seq, data=msgspec.Raw(raw),
         period_s=None if period_s is None else float(period_s), pub=pub))
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    return payload
+
+
+def _check_schema(schema: object) -> str:
+    """``schema`` if it is a name receivers accept in an envelope."""
+    if not isinstance(schema, str) or len(schema) > MAX_SCHEMA_CHARS:
+        raise ProtocolError(f"schema: {schema!r:.80} is not a string of at most "
+                            f"{MAX_SCHEMA_CHARS} characters")
+    return schema
