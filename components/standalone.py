@@ -11,6 +11,11 @@ kind. When the backend needs a simulator (its ``requires_simulator``), the proce
 simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from
 that simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running
 simulated robot at any time. This module knows no simulator by name.
+
+Any other backend (real hardware, the radio on a terminal) stamps on the robot's clock too:
+with ``--clock auto`` (the default) it follows ``ubf/<robot>/clock`` when a simulator
+publishes one within ``--clock-wait-s``, else the host's ``CLOCK_MONOTONIC``, and its start-up
+line says which (:func:`ubf_async.clockdomain.follow_robot_clock`).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from components.devices import make_backend, make_device, requires_simulator
-from ubf_async import registry
+from ubf_async import clockdomain, registry
 from ubf_async.bus import (
     DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
@@ -86,6 +91,12 @@ def run_device(
     run.add_argument("--wait-for-sim-s", type=float, default=10.0, metavar="S",
                      help="with a simulated backend: how long to wait for the simulator's "
                           "world before giving up")
+    run.add_argument("--clock", choices=("auto", "wall", "sim"), default="auto",
+                     help="with a backend that needs no simulator: the robot clock to stamp "
+                          "with: wall (CLOCK_MONOTONIC), sim (follow ubf/<robot>/clock), auto "
+                          "(sim if a simulator speaks within --clock-wait-s)")
+    run.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
+                     metavar="S", help="with --clock auto: how long to listen for a simulator")
     run.add_argument("--log-level", default="WARNING",
                      choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     args = parser.parse_args(argv)
@@ -94,7 +105,8 @@ def run_device(
     device = Device(kind=kind, name=args.name, backend=args.backend,
                     params=device_params(args), backend_params=backend_params(args),
                     seed=seed(args), wait_for_sim_s=args.wait_for_sim_s,
-                    wait_for_robot_s=args.wait_for_robot_s)
+                    wait_for_robot_s=args.wait_for_robot_s, clock=args.clock,
+                    clock_wait_s=args.clock_wait_s)
     return run_main(lambda: device.serve(args, duration_s=args.duration), prog=prog)
 
 
@@ -110,6 +122,9 @@ class Device:
     seed: int = 0
     wait_for_sim_s: float = 10.0
     wait_for_robot_s: float = DEFAULT_ATTACH_TIMEOUT_S
+    clock: clockdomain.ClockMode = "auto"
+    """The robot clock for a backend that needs no simulator (``--clock``)."""
+    clock_wait_s: float = clockdomain.DEFAULT_CLOCK_WAIT_S
 
     async def serve(self, args: argparse.Namespace, *, duration_s: float | None) -> int:
         """Attach to the robot on the bus ``args`` names; run for ``duration_s`` wall
@@ -134,6 +149,9 @@ class Device:
                 follow_sim_clock(bus, clock, {})
                 world = await simulator.attach(bus=bus, seed=self.seed,
                                                wait_s=self.wait_for_sim_s)
+            else:  # stamp on the robot's clock all the same: simulated time if it has one
+                clock = await clockdomain.follow_robot_clock(bus, mode=self.clock,
+                                                             wait_s=self.clock_wait_s)
             context = DeviceContext(bus=bus, clock=clock, seed=self.seed, simulation=world)
             backend = make_backend(self.kind, self.backend, context=context,
                                    params=self.backend_params)
@@ -143,7 +161,9 @@ class Device:
                                    hint=f"start it with another --name than {self.name!r}")
             await component.start()
             print(f"{component.name}: attached to robot {options.robot!r}"
-                  + (" (simulated)" if simulator is not None else ""), flush=True)
+                  + (" (simulated)" if simulator is not None else "")
+                  + f", stamping with {clockdomain.describe(clock, robot=options.robot)}",
+                  flush=True)
             forever = asyncio.Event()  # never set: we run until cancelled (SIGTERM/Ctrl-C)
             if duration_s is None:
                 await forever.wait()

@@ -2,7 +2,10 @@
 
     python examples/plain_range_sensor.py --connect tcp/127.0.0.1:7447 --robot mini
 
-It declares its liveliness token, then publishes a fixed (or sweeping) IR range reading on
+It learns which clock the robot is on (docs/protocol.md, "The robot clock"): when a simulator
+publishes ``ubf/<robot>/clock`` within ``--clock-wait-s`` it stamps every sample with the
+newest simulated time heard there, else with this host's ``CLOCK_MONOTONIC``, and says which.
+Then it declares its liveliness token and publishes a fixed IR range reading on
 ``ubf/<robot>/sensor/range/<name>`` at ``--rate-hz`` until interrupted.
 """
 
@@ -11,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import threading
 import time
 
 import msgpack
@@ -27,6 +31,9 @@ def main() -> int:
     parser.add_argument("--range-mm", type=int, default=250)
     parser.add_argument("--rate-hz", type=float, default=20.0)
     parser.add_argument("--count", type=int, default=0, help="stop after N samples (0: never)")
+    parser.add_argument("--clock-wait-s", type=float, default=1.0,
+                        help="how long to listen for a simulator's clock before stamping "
+                             "with CLOCK_MONOTONIC")
     args = parser.parse_args()
 
     conf = zenoh.Config()
@@ -49,6 +56,31 @@ def main() -> int:
     period_s = 1.0 / args.rate_hz
     with zenoh.open(conf) as session:
         prefix = f"ubf/{args.robot}"
+        # The robot clock: the newest simulated time on ubf/<robot>/clock if a simulator
+        # publishes one (a sample every 5 ms of simulated time), else CLOCK_MONOTONIC.
+        sim_ns = [0]
+        simulated = threading.Event()
+
+        def on_clock(sample: zenoh.Sample) -> None:
+            try:
+                stamp = msgpack.unpackb(sample.payload.to_bytes())["stamp_ns"]
+            except (ValueError, TypeError, KeyError):
+                return  # not a clock sample: ignore it
+            if isinstance(stamp, int):
+                sim_ns[0] = stamp
+                simulated.set()
+
+        clock_sub = session.declare_subscriber(f"{prefix}/clock", on_clock)
+        if simulated.wait(args.clock_wait_s):
+            print(f"stamping with the simulated time on {prefix}/clock", flush=True)
+        else:
+            clock_sub.undeclare()
+            print(f"no sample on {prefix}/clock within {args.clock_wait_s:g}s: the robot is "
+                  f"on wall time, stamping with CLOCK_MONOTONIC", flush=True)
+
+        def now_ns() -> int:
+            return sim_ns[0] if simulated.is_set() else time.monotonic_ns()
+
         token = session.liveliness().declare_token(f"{prefix}/alive/{args.name}")
         pub = session.declare_publisher(f"{prefix}/sensor/range/{args.name}")
         print(f"publishing {prefix}/sensor/range/{args.name}", flush=True)
@@ -58,7 +90,7 @@ def main() -> int:
             payload = msgpack.packb({
                 "schema": "range",            # a schema the robot knows (docs/protocol.md)
                 "v": 1,                       # protocol version
-                "stamp_ns": time.monotonic_ns(),  # the robot clock: CLOCK_MONOTONIC
+                "stamp_ns": now_ns(),         # the robot clock (above)
                 "seq": seq,
                 "period_s": period_s,         # lets the robot decide when we are stale
                 "data": {"range_mm": args.range_mm, "status": "ok", "model": "ir-10-80"},

@@ -43,6 +43,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import ParamSpec
 
+from ubf_async import clockdomain
 from ubf_async.action import Action
 from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SilenceLimit
@@ -246,6 +247,9 @@ class StateAggregator(Component):
         self._ingest_hooks: list[IngestHook] = []
         self.subscription: Subscription | None = None
         """This run's subscription to the sensors (its ``stats``: the bridge's counts)."""
+        self.clock_domain = clockdomain.watch(bus)
+        """Samples stamped on another clock than the robot's, per source
+        (:mod:`ubf_async.clockdomain`; shared with everything else on this bus)."""
 
     @property
     def refused_sources(self) -> int:
@@ -331,6 +335,8 @@ class StateAggregator(Component):
         # evicted, never for the robot's own once held (the reflex path skips the hashing).
         count = (self._recent.add(source, now)
                  if entry is None or source not in self.protected_sources else 0)
+        if not -clockdomain.CLOSE_NS <= message.stamp_ns - now <= clockdomain.CLOSE_NS:
+            self.clock_domain.check_on(self.bus, source, message.stamp_ns, now)  # then judged
         if ahead_of_clock(message.stamp_ns, now, self._future_tolerance_ns):
             self._refuse(Refusal.FUTURE, source,
                          f"stamped {(message.stamp_ns - now) / 1e9:.3g}s ahead of the robot "

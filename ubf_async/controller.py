@@ -446,6 +446,7 @@ class Controller(Component):
                  "refused": sum(s.refused.values())}
                 for s in self.aggregator.sources()[:256]
             ],
+            "clock_domain": self.aggregator.clock_domain.status(),
         }
 
     def quarantined(self) -> list[str]:

@@ -408,6 +408,7 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
     refusals = {k: v for k, v in (status.get("refused") or {}).items() if v}
     if refusals:
         lines.append("refused: " + ", ".join(f"{k} {v}" for k, v in refusals.items()))
+    lines.extend(format_clock_domain(status.get("clock_domain")))
     quarantined = status.get("quarantined") or []
     if quarantined:
         lines.append("quarantined (failing tick after tick, cut off): " + ", ".join(quarantined))
@@ -415,6 +416,22 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
     lines.append("last tick ('*' = won; [p=priority w=weight] <arbiter>):")
     lines.extend(f"  {line}" for line in str(explanation).splitlines())
     return "\n".join(lines)
+
+
+def format_clock_domain(foreign: Any) -> list[str]:
+    """The status's ``clock_domain`` (:mod:`ubf_async.clockdomain`): sources whose stamps
+    are on another clock than the robot's, so their ages mean nothing."""
+    if not isinstance(foreign, list) or not foreign:
+        return []
+    lines = ["stamped on another clock (ages meaningless; see docs/protocol.md "
+             "'The robot clock'):"]
+    for f in foreign:
+        if isinstance(f, dict):
+            offset = f.get("offset_s")
+            off = f"{offset:+.3g} s" if isinstance(offset, int | float) else "?"
+            lines.append(f"  {f.get('source', '?')}  {f.get('samples', '?')} samples, "
+                         f"like the {f.get('clock', '?')}, last {off} off")
+    return lines
 
 
 async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:

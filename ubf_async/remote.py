@@ -35,6 +35,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TextIO
 
+from ubf_async import clockdomain
 from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behavior import Behavior, Composite
@@ -400,6 +401,9 @@ class RemoteBehaviors(Component):
         """Valid votes refused (unknown composite, name clash, not configured, full), per key."""
         self.future: dict[str, int] = {}
         """Votes refused for a stamp more than ``max_future_s`` ahead of the robot clock."""
+        self.clock_domain = clockdomain.watch(bus)
+        """Votes stamped on another clock (:mod:`ubf_async.clockdomain`; shared with the
+        robot's aggregator on this bus)."""
         self.changed = asyncio.Event()
         """Set whenever a remote is attached or detached (tests and tools clear and await it)."""
         self._entries: dict[tuple[str, str], _Entry] = {}
@@ -433,8 +437,11 @@ class RemoteBehaviors(Component):
         """Take a validated vote: create/attach its remote child as needed."""
         key = key or f"{vote.composite}/{vote.behavior}"
         ident = (vote.composite, vote.behavior)
-        ahead_ns = vote.stamp_ns - self.bus.clock.now_ns()
-        if ahead_of_clock(vote.stamp_ns, self.bus.clock.now_ns(), int(self.max_future_s * 1e9)):
+        now_ns = self.bus.clock.now_ns()
+        ahead_ns = vote.stamp_ns - now_ns
+        self.clock_domain.check_on(self.bus, f"vote/{vote.composite}/{vote.behavior}",
+                                   vote.stamp_ns, now_ns)  # reported, then judged as below
+        if ahead_of_clock(vote.stamp_ns, now_ns, int(self.max_future_s * 1e9)):
             return self._reject(key, f"stamped {ahead_ns / 1e9:.3g} s ahead of the robot clock "
                                      f"(more than max_future_s {self.max_future_s:g})",
                                 counter=self.future)
