@@ -47,7 +47,6 @@ from ubf_async.bus import (
     add_connection_arguments,
     connection_options,
     decode_or_count,
-    follow_sim_clock,
     wait_for_robot,
 )
 from ubf_async.cli import run_main
@@ -886,25 +885,12 @@ def remote_parser(
     return parser
 
 
-async def choose_clock(bus: Bus, mode: str, *, wait_s: float = 1.0) -> Clock:
-    """The clock a remote process stamps with: wall, or the simulation time that a simulator
-    publishes on ``ubf/<robot>/clock`` (``auto``: sim if a clock sample arrives within
-    ``wait_s``), followed under :class:`~ubf_async.timesource.ClockFollower`'s rules (one
-    run at a time, never backwards, no implausible jumps). Sets ``bus.clock`` and returns
-    it."""
-    if mode == "wall":
-        return bus.clock
-    sim = SimClock()
-    follow_sim_clock(bus, sim, {})
-    if mode == "auto":
-        try:
-            await asyncio.wait_for(sim.started.wait(), wait_s)
-        except TimeoutError:
-            return bus.clock
-    else:
-        await sim.started.wait()
-    bus.clock = sim
-    return sim
+async def choose_clock(bus: Bus, mode: clockdomain.ClockMode, *,
+                       wait_s: float = 1.0) -> Clock:
+    """The clock a remote process stamps with (``wall``, ``sim`` or ``auto``): the robot's,
+    as :func:`ubf_async.clockdomain.follow_robot_clock` finds it. Sets ``bus.clock`` and
+    returns it."""
+    return await clockdomain.follow_robot_clock(bus, mode=mode, wait_s=wait_s)
 
 
 async def host_remote_behavior(
