@@ -32,11 +32,15 @@ from msgspec import Meta
 from ubf_async.errors import ProtocolError as ProtocolError
 from ubf_async.topics import (
     BY_SCHEMA,
+    CLOCK,
+    CONTROLLER_STATUS,
+    HEARTBEAT,
     INT64_MAX,
     MAX_CONTAINER_LEN,
     MAX_DEPTH,
     MAX_NAME_CHARS,
     MAX_STR_LEN,
+    TREE_REQUEST,
     PlainData,
     StampNs,
     Topic,
@@ -109,16 +113,16 @@ class Keys:
         return key.rsplit("/", 1)[-1]
 
     def heartbeat(self, component: str) -> str:
-        return f"{self.prefix}/heartbeat/{check_segment('component name', component)}"
+        return HEARTBEAT.key(self, component)
 
     @property
     def all_heartbeats(self) -> str:
-        return f"{self.prefix}/heartbeat/*"
+        return HEARTBEAT.key_expr(self)
 
     @property
     def clock(self) -> str:
         """Simulation time, published by a simulator (absent in wall-clock runs)."""
-        return f"{self.prefix}/clock"
+        return CLOCK.key(self)
 
     def sim(self, topic: str) -> str:
         """A simulator's own topics, outside ``sensor/`` so behaviours never see them:
@@ -127,12 +131,12 @@ class Keys:
         return f"{self.prefix}/sim/{check_segment('sim topic', topic)}"
 
     def status(self, component: str) -> str:
-        return f"{self.prefix}/status/{check_segment('component name', component)}"
+        return CONTROLLER_STATUS.key(self, component)
 
     @property
     def tree(self) -> str:
         """The robot's live-tree queryable (:mod:`ubf_async.live`)."""
-        return f"{self.prefix}/tree"
+        return TREE_REQUEST.key(self)
 
     @property
     def everything(self) -> str:
