@@ -416,6 +416,34 @@ def plain(value: Any, path: str = "data", depth: int = 0) -> Any:
 
 
 
+MAX_TRACE_NODES = 512
+"""Most behaviours one tick's trace lists."""
+
+
+class TraceNode(Data, frozen=True, kw_only=True):
+    """One behaviour's part in a tick; a trace lists them depth first (the root at depth 0)."""
+
+    name: Name
+    depth: Annotated[int, Meta(ge=0, le=MAX_TREE_DEPTH)]
+    won: bool = False
+    """This behaviour's action contributed to its parent's result."""
+    arbiter: Name | None = None
+    """For a composite, its arbiter's name."""
+    speed: Command | None = None
+    turn: Command | None = None
+    vote: NonNegative | None = None
+    """The action's vote; all three unset when the behaviour had no opinion."""
+    fault: Text256 | None = None
+    """Why the behaviour did not run properly (it raised, or is quarantined)."""
+
+
+class TickTrace(Data, frozen=True, kw_only=True):
+    """The behaviour tree's trace of one controller tick (why the robot did what it did)."""
+
+    tick: Count
+    nodes: Annotated[tuple[TraceNode, ...], Meta(max_length=MAX_TRACE_NODES)]
+
+
 # ---------------------------------------------------------------------------------------------
 # Topics
 
@@ -507,12 +535,14 @@ SIM_WORLD = Topic("sim_world", "sim/world", "sim.world", PlainData,
                   "the simulator's full snapshot, for sim-backed devices in other processes")
 SIM_PULSES = Topic("sim_pulses", "sim/pulses", "sim.pulses", SimPulses,
                    "motor pulses from a motors process to the simulator")
+TRACE = Topic("trace", "trace", "controller.trace", TickTrace,
+              "the behaviour tree's trace of each tick, published after its command")
 
 TOPICS: tuple[Topic[Any], ...] = (
     CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, RADIO,
     DRIVE, SEEK_COLOR, RADIO_SEND, LEDS,
     HEARTBEAT, CLOCK, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
-    TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES,
+    TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE,
 )
 """Every declared topic."""
 
