@@ -268,3 +268,24 @@ async def test_construction_checks() -> None:
     assert not bus.reached_peers()
     await bus.aclose()
     await bus.aclose()  # idempotent
+
+
+@pytest.mark.asyncio
+async def test_closed_subscriptions_and_queryables_are_forgotten() -> None:
+    # A bus that outlives many component restarts must not keep what each restart declared.
+    net = InProcessTransport()
+    bus = Bus(transport=net, robot="r1")
+    seen = Seen()
+    for _ in range(50):
+        bus.subscribe("ubf/r1/sensor/**", seen).close()
+        bus.watch_liveliness("ubf/r1/alive/**", lambda key, alive: None).close()
+        bus.declare_queryable("ubf/r1/tree", lambda key, payload: b"").close()
+    kept = bus.subscribe("ubf/r1/sensor/**", seen, latest=False)
+    assert bus._subscriptions == [kept]
+    assert bus._queryables == []
+    pub = bus.publisher(bus.keys.sensor("range", "front"), "range")
+    pub.publish(RANGE)
+    await net.settle()
+    assert seen.samples == [("ubf/r1/sensor/range/front", 1)]  # once: closed ones deliver nothing
+    await bus.aclose()
+    await bus.aclose()

@@ -612,6 +612,7 @@ class Queryable:
         self._lock = threading.Lock()
         self._closed = False
         self._declaration: Declaration | None = None
+        self._on_close: Callable[[Queryable], None] | None = None
         self.stats = QueryStats()
 
     @property
@@ -675,6 +676,8 @@ class Queryable:
             if self._closed:
                 return
             self._closed = True
+        if self._on_close is not None:
+            self._on_close(self)
         if self._declaration is not None:
             self._declaration.undeclare()
 
@@ -787,15 +790,20 @@ class Bus:
         # Samples from this bus arrive through Publisher.publish instead (module docstring).
         sub._declaration = self._connection.declare_subscriber(key_expr,
                                                                self._bridge_callback(sub))
-        sub._on_close = self._forget_local
+        sub._on_close = self._forget
         self._subscriptions.append(sub)
         self._local.append((key_expr, sub))
         self._local_by_key.clear()
         return sub
 
-    def _forget_local(self, sub: Subscription) -> None:
-        self._local = [(expr, s) for expr, s in self._local if s is not sub]
-        self._local_by_key.clear()
+    def _forget(self, sub: Subscription) -> None:
+        """Drop a closed subscription, so a bus that outlives many component restarts does
+        not keep every subscription it ever made."""
+        if sub in self._subscriptions:
+            self._subscriptions.remove(sub)
+        if any(s is sub for _, s in self._local):
+            self._local = [(expr, s) for expr, s in self._local if s is not sub]
+            self._local_by_key.clear()
 
     def _local_subscriptions(self, key: str) -> list[Subscription]:
         """The open subscriptions of this bus whose key expression matches ``key``."""
@@ -826,6 +834,7 @@ class Bus:
             push(key, b"+" if alive else b"-")
 
         sub._declaration = self._connection.declare_liveliness_subscriber(key_expr, on_token)
+        sub._on_close = self._forget
         self._subscriptions.append(sub)
         return sub
 
@@ -841,6 +850,7 @@ class Bus:
         queryable = Queryable(self._loop, key, handler, max_pending=max_pending,
                               callbacks_on_loop=self._connection.callbacks_on_loop)
         queryable._declaration = self._connection.declare_queryable(key, queryable.on_query)
+        queryable._on_close = self._queryables.remove
         self._queryables.append(queryable)
         return queryable
 
@@ -869,9 +879,9 @@ class Bus:
         if self._closed:
             return
         self._closed = True
-        for sub in self._subscriptions:
+        for sub in list(self._subscriptions):
             sub.close()
-        for queryable in self._queryables:
+        for queryable in list(self._queryables):
             queryable.close()
         await self._connection.close()
 
