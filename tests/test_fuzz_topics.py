@@ -475,8 +475,7 @@ def test_every_field_of_every_topic_is_bounded(topic: Topic[Any]) -> None:
             assert (t.ge is not None or t.gt is not None) and (
                 t.le is not None or t.lt is not None), f"{path}: unbounded int"
         elif isinstance(t, mi.StrType | mi.BytesType):
-            generic_key = path.endswith("<key>") and topic.type is PlainData
-            assert t.max_length is not None or generic_key, f"{path}: no max_length"
+            assert t.max_length is not None, f"{path}: no max_length"
         elif isinstance(t, mi.VarTupleType | mi.ListType):
             assert t.max_length is not None, f"{path}: array without max_length"
             walk(t.item_type, f"{path}[]")

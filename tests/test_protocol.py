@@ -79,6 +79,16 @@ def test_bad_payloads_raise_protocol_error_only(name: str) -> None:
         decode(BAD_PAYLOADS[name])
 
 
+def test_generic_data_bounds_map_keys_and_schemas_are_named() -> None:
+    with pytest.raises(ProtocolError, match="map key"):
+        decode(envelope({"k" * 129: 1}, schema="light"))
+    assert decode(envelope({"k" * 128: 1}, schema="light")).data == {"k" * 128: 1}
+    with pytest.raises(ProtocolError, match="schema"):
+        decode(envelope({"lux": 1.0}, schema=""))
+    with pytest.raises(ProtocolError, match="schema"):
+        encode("", {"lux": 1.0}, stamp_ns=1, seq=1)
+
+
 def test_schema_required_by_key() -> None:
     with pytest.raises(ProtocolError, match="expected 'drive'"):
         decode(envelope(GOOD_RANGE), schema="drive")

@@ -182,7 +182,7 @@ MAX_SCHEMA_CHARS = 64
 
 
 class _Envelope(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
-    schema: Annotated[str, Meta(max_length=MAX_SCHEMA_CHARS)]
+    schema: Annotated[str, Meta(min_length=1, max_length=MAX_SCHEMA_CHARS)]
     v: Annotated[int, Meta(ge=1, le=1000)]
     stamp_ns: StampNs
     seq: Annotated[int, Meta(ge=0, le=INT64_MAX)]
@@ -333,7 +333,7 @@ def encode_raw(schema: str, raw: bytes, *, stamp_ns: int, seq: int,
 
 def _check_schema(schema: object) -> str:
     """``schema`` if it is a name receivers accept in an envelope."""
-    if not isinstance(schema, str) or len(schema) > MAX_SCHEMA_CHARS:
-        raise ProtocolError(f"schema: {schema!r:.80} is not a string of at most "
+    if not isinstance(schema, str) or not 0 < len(schema) <= MAX_SCHEMA_CHARS:
+        raise ProtocolError(f"schema: {schema!r:.80} is not a string of 1 to "
                             f"{MAX_SCHEMA_CHARS} characters")
     return schema

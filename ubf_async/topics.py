@@ -379,7 +379,8 @@ def tree_depth(node: TreeNode) -> int:
 def plain(value: Any, path: str = "data", depth: int = 0) -> Any:
     """Generic check for data of undeclared schemas: nil, bool, int64, finite float, str
     (at most :data:`MAX_STR_LEN` characters), bytes, arrays (at most
-    :data:`MAX_CONTAINER_LEN` items) and str-keyed maps, nested at most :data:`MAX_DEPTH`
+    :data:`MAX_CONTAINER_LEN` items) and maps keyed by strings of at most
+    :data:`MAX_NAME_CHARS` characters, nested at most :data:`MAX_DEPTH`
     deep. Returns the value with tuples as lists; raises
     :class:`~ubf_async.errors.ProtocolError`."""
     if depth > MAX_DEPTH:
@@ -409,6 +410,8 @@ def plain(value: Any, path: str = "data", depth: int = 0) -> Any:
         for k, v in value.items():
             if not isinstance(k, str):
                 raise ProtocolError(f"{path}: map key {k!r} is not a string")
+            if len(k) > MAX_NAME_CHARS:
+                raise ProtocolError(f"{path}: map key {k[:40]!r}… longer than {MAX_NAME_CHARS}")
             out[k] = plain(v, f"{path}.{k}", depth + 1)
         return out
     raise ProtocolError(f"{path}: unsupported type {type(value).__name__}")
@@ -449,7 +452,7 @@ class TickTrace(Data, frozen=True, kw_only=True):
 
 T = TypeVar("T")
 
-PlainData = dict[str, Any]
+PlainData = dict[Annotated[str, Meta(max_length=MAX_NAME_CHARS)], Any]
 """The data of a schema not declared here: a map of plain values, checked generically
 (:func:`ubf_async.protocol.plain`)."""
 
