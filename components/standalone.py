@@ -28,6 +28,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import yaml
+
 from components.devices import make_backend, make_device, requires_simulator
 from ubf_async import clockdomain, registry
 from ubf_async.bus import (
@@ -54,9 +56,26 @@ def _no_params(args: argparse.Namespace) -> dict[str, Any]:
 
 def add_backend_argument(group: argparse._ArgumentGroup, kind: str, *, default: str,
                          help: str) -> None:
-    """``--backend``: the backends registered for ``kind`` (entry points ``<kind>.<name>``)."""
+    """``--backend``: the backends registered for ``kind`` (entry points ``<kind>.<name>``),
+    and ``--backend-params``: their parameters, as a robot file gives them."""
     group.add_argument("--backend", choices=registry.backends_for(kind), default=default,
                        help=help)
+    group.add_argument("--backend-params", type=_yaml_mapping, default={}, metavar="YAML",
+                       help="the backend's parameters as in a robot file's backend_params, "
+                            "e.g. '{left_pin: GPIO12, right_pin: GPIO13}' (docs/hardware.md)")
+
+
+def _yaml_mapping(text: str) -> dict[str, Any]:
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise argparse.ArgumentTypeError(f"not YAML: {exc}") from None
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a mapping like '{{key: value}}', got "
+                                         f"{text!r}")
+    return value
 
 
 def run_device(
@@ -103,7 +122,9 @@ def run_device(
     logging.basicConfig(level=args.log_level,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     device = Device(kind=kind, name=args.name, backend=args.backend,
-                    params=device_params(args), backend_params=backend_params(args),
+                    params=device_params(args),
+                    backend_params={**backend_params(args),
+                                    **getattr(args, "backend_params", {})},
                     seed=seed(args), wait_for_sim_s=args.wait_for_sim_s,
                     wait_for_robot_s=args.wait_for_robot_s, clock=args.clock,
                     clock_wait_s=args.clock_wait_s)
@@ -173,10 +194,9 @@ class Device:
             return 0
         finally:
             if component is not None:
-                await component.aclose()
-            close = getattr(backend, "close", None)
-            if callable(close):
-                close()
+                await component.aclose()  # closes its backend too
+            elif callable(close := getattr(backend, "close", None)):
+                close()  # built, but its device was not
             if world is not None:
                 world.close()
             await bus.aclose()

@@ -30,13 +30,20 @@ from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun
 
 EXPECTED_PARAMETERS = {
     "camera": {"latency_s", "hfov_deg"},
-    "motors": {"timeout_s"},
+    "motors": {"timeout_s", "left", "right"},
     "encoders": {"period_s", "direction", "effective_track_m"},
     "range": {"model", "x_m", "y_m", "yaw_deg", "period_s"},
     "radio": {"period_s"},
 }
-EXPECTED_BACKENDS = {"camera": {"sim", "video"}, "motors": {"sim"}, "encoders": {"sim"},
-                     "range": {"sim"}, "radio": {"sim", "stdio"}}
+EXPECTED_BACKENDS = {"camera": {"sim", "video"}, "motors": {"sim", "gpio"},
+                     "encoders": {"sim", "gpio"}, "range": {"sim", "i2c", "ads1115"},
+                     "radio": {"sim", "stdio"}}
+REQUIRED_BACKEND_PARAMS = {
+    ("motors", "gpio"): {"left_pin": "GPIO12", "right_pin": "GPIO13"},
+    ("encoders", "gpio"): {"left_a": "GPIO5", "left_b": "GPIO6", "right_a": "GPIO16",
+                           "right_b": "GPIO26"},
+    ("range", "ads1115"): {"sensor": "ir-10-80"},
+}
 WRONG = [1, 2]
 """A value of the wrong type for every parameter: a list where a number, a string, a bool or
 one of a few names is expected."""
@@ -100,9 +107,13 @@ def test_every_backend_loads_and_says_which_simulator_it_needs() -> None:
             expected = "mini-whegs" if name == "sim" and kind != "radio" else None
             assert requires_simulator(factory) == expected, (kind, name)
             struct = registry.parameters_of(factory, injected=BACKEND_INJECTED)
-            msgspec.convert({}, struct)
+            required = REQUIRED_BACKEND_PARAMS.get((kind, name), {})
+            for field in required:  # real hardware: where it is wired must be said
+                with pytest.raises(msgspec.ValidationError, match=f"required field `{field}`"):
+                    msgspec.convert({k: v for k, v in required.items() if k != field}, struct)
+            msgspec.convert(required, struct)
             with pytest.raises(msgspec.ValidationError, match="unknown field"):
-                msgspec.convert({"bogus": 1}, struct)
+                msgspec.convert({**required, "bogus": 1}, struct)
 
 
 def test_backend_parameters_are_checked() -> None:

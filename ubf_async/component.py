@@ -28,6 +28,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,6 +92,7 @@ class Component:
         self._attempt_resources: list[Publisher | Subscription] = []
         self._started = False
         self._closed = False
+        self._on_close: list[Callable[[], object]] = []
 
     # -- for subclasses ----------------------------------------------------------------------
     async def run(self) -> None:
@@ -112,6 +114,12 @@ class Component:
         sub = self.bus.subscribe(key_expr, handler, latest=latest)
         self._attempt_resources.append(sub)
         return sub
+
+    def close_on_exit(self, close: Callable[[], object]) -> None:
+        """Call ``close`` when this component closes, after its run has stopped (a device's
+        backend is closed with its device: releasing pins only once nothing drives them).
+        One that raises is logged; the others still run."""
+        self._on_close.append(close)
 
     # -- lifecycle ---------------------------------------------------------------------------
     async def start(self) -> None:
@@ -141,6 +149,12 @@ class Component:
             with contextlib.suppress(Exception):
                 self._token.undeclare()
             self._token = None
+        closers, self._on_close = self._on_close, []
+        for close in closers:
+            try:
+                close()
+            except Exception:
+                log.exception("component %s: closing %r failed", self.name, close)
 
     async def __aenter__(self) -> Component:
         await self.start()

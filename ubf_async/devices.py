@@ -56,4 +56,7 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
     if not isinstance(component, Component):
         raise ConfigurationError(f"device kind {kind!r} returned {type(component).__name__}, "
                                  f"not a Component")
+    close = getattr(backend, "close", None)
+    if callable(close):  # the device owns its backend: closed with it, after its last command
+        component.close_on_exit(close)
     return component

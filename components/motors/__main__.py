@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from components.motors.component import DEFAULT_TIMEOUT_S
@@ -16,7 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--timeout-s", type=float, default=DEFAULT_TIMEOUT_S,
                        help="stop the wheels when no drive command arrived for this long")
     add_backend_argument(group, "motors", default="sim",
-                         help="sim: drive the running simulator's motors over the bus")
+                         help="sim: drive the running simulator's motors over the bus; gpio: "
+                              "real PWM pins (--backend-params '{left_pin: GPIO12, right_pin: "
+                              "GPIO13}'). Check a real robot's wiring with --check "
+                              "--robot-file FILE")
 
 
 def device_params(args: argparse.Namespace) -> dict[str, Any]:
@@ -24,6 +28,10 @@ def device_params(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main() -> int:
+    if "--check" in sys.argv[1:]:  # the wiring check drives the pins directly: no bus
+        from components.motors.check import main as check
+
+        return check(sys.argv[1:])
     return run_device(kind="motors", prog="python -m components.motors",
                       description="The Mini-WHEGS motor driver (cmd/drive → PWM) as its own "
                                   "process, with the command watchdog.",

@@ -94,6 +94,14 @@ class MotorsComponent(Component):
         self._apply(0.0, 0.0, reason="init")
         self.stopped_by_watchdog = True
         self.subscribe(DRIVE.key(keys), self._on_drive)
+        try:
+            await self._guard()
+        finally:  # closed (SIGTERM, Ctrl-C, the run's end) or failed: the wheels stop
+            self.stopped_by_watchdog = True
+            self._apply(0.0, 0.0, reason="stopped")
+
+    async def _guard(self) -> None:
+        """The watchdog: stop the wheels when commands stop coming."""
         clock = self.bus.clock
         timeout_ns = round(self.timeout_s * 1e9)
         while True:
@@ -148,14 +156,45 @@ class MotorsComponent(Component):
         })
 
 
+class MotorTrim(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """One motor's calibration, as a robot file gives it (``docs/hardware.md``): the pulse it
+    stands still at, its dead zone ``[lo, hi]`` (any wheel command ≠ 0 starts from its edge,
+    so it always moves the wheel) and the pulses of full reverse and full forward; between
+    them the pulse grows linearly with the wheel command."""
+
+    zero_ms: Annotated[float, msgspec.Meta(ge=0.5, le=2.5)]
+    dead_zone_ms: tuple[Annotated[float, msgspec.Meta(ge=0.5, le=2.5)],
+                        Annotated[float, msgspec.Meta(ge=0.5, le=2.5)]]
+    reverse_ms: Annotated[float, msgspec.Meta(ge=0.5, le=2.5)] = DEFAULT_PWM.min_ms
+    forward_ms: Annotated[float, msgspec.Meta(ge=0.5, le=2.5)] = DEFAULT_PWM.max_ms
+
+    def __post_init__(self) -> None:
+        self.calibration()  # refuse an inconsistent table when the robot file loads
+
+    def calibration(self) -> MotorCalibration:
+        lo, hi = self.dead_zone_ms
+        if not lo <= self.zero_ms <= hi:
+            raise ValueError(f"zero_ms {self.zero_ms} lies outside dead_zone_ms [{lo}, {hi}]")
+        return MotorCalibration(
+            points=((-100.0, self.reverse_ms), (0.0, self.zero_ms), (100.0, self.forward_ms)),
+            breakaway_ms=(lo, hi))
+
+
 def build_device(
     *,
     bus: Bus,
     name: str,
     backend: MotorBackend,
     timeout_s: Annotated[float, msgspec.Meta(gt=0)] = DEFAULT_TIMEOUT_S,
+    left: MotorTrim | None = None,
+    right: MotorTrim | None = None,
 ) -> MotorsComponent:
     """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
     wheels when no drive command arrived for ``timeout_s`` (robot clock; also in wall time
-    when the clock stalls, see :class:`~ubf_async.clock.SilenceLimit`)."""
-    return MotorsComponent(bus=bus, backend=backend, name=name, timeout_s=timeout_s)
+    when the clock stalls, see :class:`~ubf_async.clock.SilenceLimit`) and when it closes.
+    ``left`` / ``right``: each motor's calibration (:class:`MotorTrim`); default: the
+    thesis's measured Mini-WHEGS motors."""
+    return MotorsComponent(
+        bus=bus, backend=backend, name=name, timeout_s=timeout_s,
+        left=left.calibration() if left is not None else DEFAULT_LEFT_CALIBRATION,
+        right=right.calibration() if right is not None else DEFAULT_RIGHT_CALIBRATION)

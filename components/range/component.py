@@ -8,18 +8,22 @@ range is reported as ``too_close``/``too_far`` with ``range_mm`` nil, never as a
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import math
 from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
 
-from components.range.backend import MountPose, RangeBackend
-from components.range.ir import GP2Y0A21, IR_MODELS, IrModel, read_ir
+from components.range.backend import MountPose, RangeBackend, RangeReadError
+from components.range.ir import GP2Y0A21, IR_MODELS, IrModel, limit_ir, read_ir
 from ubf_async.bus import Bus
 from ubf_async.clock import every
 from ubf_async.component import Component
 from ubf_async.topics import RANGE
+
+log = logging.getLogger(__name__)
 
 
 class RangeComponent(Component):
@@ -44,15 +48,32 @@ class RangeComponent(Component):
         self.mount = mount or MountPose()
         self.period_s = period_s
         self.rng = np.random.default_rng(seed)
+        self.read_errors = 0
+        """Reads a real sensor failed (bus errors), each skipping one sample."""
 
     async def run(self) -> None:
         pub = self.publisher(RANGE, self.source_name,
                              period_s=self.period_s)
         limits = {"model": self.model.name, "min_mm": round(self.model.min_range_m * 1000),
                   "max_mm": round(self.model.max_range_m * 1000)}
+        measured = bool(getattr(self.backend, "measured", False))
+        blocking = bool(getattr(self.backend, "blocking", False))
         async for stamp in every(self.bus.clock, self.period_s):
-            true_m = self.backend.distance_m(self.mount, max_range_m=self.model.max_range_m)
-            reading = read_ir(self.model, true_m, rng=self.rng)
+            try:
+                if blocking:  # a bus transaction: off the loop
+                    distance_m = await asyncio.to_thread(
+                        self.backend.distance_m, self.mount, max_range_m=self.model.max_range_m)
+                else:
+                    distance_m = self.backend.distance_m(self.mount,
+                                                         max_range_m=self.model.max_range_m)
+            except RangeReadError as exc:
+                self.read_errors += 1
+                if self.read_errors == 1 or self.read_errors % 100 == 0:
+                    log.warning("%s: cannot read the sensor (%d failed reads so far): %s",
+                                self.name, self.read_errors, exc)
+                continue
+            reading = (limit_ir(self.model, distance_m) if measured
+                       else read_ir(self.model, distance_m, rng=self.rng))
             pub.publish({"range_mm": reading.range_mm, "status": str(reading.status), **limits},
                         stamp_ns=stamp)
 

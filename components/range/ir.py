@@ -86,3 +86,13 @@ def read_ir(
     error = rng.uniform(lo, hi) * (1.0 if rng.random() < 0.5 else -1.0)
     measured_m = min(max(true_distance_m * (1.0 + error), model.min_range_m), model.max_range_m)
     return IrReading(range_mm=round(measured_m * 1000.0), status="ok")
+
+
+def limit_ir(model: IrModel, measured_distance_m: float | None) -> IrReading:
+    """What the device reports for a real sensor's own measurement: the model's limits
+    applied (out of range is a status, not a number), no simulated error added."""
+    if measured_distance_m is None or not measured_distance_m <= model.max_range_m:
+        return IrReading(range_mm=None, status="too_far")  # None, beyond the range, or NaN
+    if measured_distance_m < model.min_range_m:
+        return IrReading(range_mm=None, status="too_close")
+    return IrReading(range_mm=round(measured_distance_m * 1000.0), status="ok")

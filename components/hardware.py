@@ -1,0 +1,69 @@
+"""What the real-hardware backends share: the optional libraries and the GPIO pin factory.
+
+The hardware libraries (gpiozero, smbus2) are the ``hardware`` extra
+(``pip install -e ".[hardware]"``): only the backends that drive real pins or buses import
+them, through :func:`require`, so a robot without them still installs and runs.
+
+GPIO goes through gpiozero's pin factories, chosen as gpiozero chooses them: the
+``pin_factory`` parameter of a backend names one (``lgpio``, ``rpigpio``, ``pigpio``,
+``native``, ``mock``); left unset, gpiozero's default applies (the ``GPIOZERO_PIN_FACTORY``
+environment variable, else the first that loads). All the backends of one process share one
+factory per name, so a test driving the ``mock`` factory's pins reaches the pins the backends
+use. ``mock`` takes its pin class from ``GPIOZERO_MOCK_PIN_CLASS`` (``mockpwmpin`` for PWM
+outputs), as gpiozero does.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from types import ModuleType
+from typing import Any
+
+from ubf_async.errors import ConfigurationError
+
+EXTRA = 'pip install -e ".[hardware]"'
+"""How to install the hardware libraries (said in every error about them)."""
+
+_FACTORIES: dict[str, Any] = {}
+_LOCK = threading.Lock()
+
+
+def require(module: str, *, who: str) -> ModuleType:
+    """Import ``module`` for backend ``who``, or say how to install it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise ConfigurationError(f"{who} needs {module.partition('.')[0]} ({exc}); install "
+                                 f"the hardware extra: {EXTRA}") from None
+
+
+def pin_factory(name: str | None, *, who: str) -> Any:
+    """The gpiozero pin factory ``name`` (``None``: gpiozero's default), one per process."""
+    devices = require("gpiozero.devices", who=who)
+    with _LOCK:
+        key = name or ""
+        factory = _FACTORIES.get(key)
+        if factory is not None:
+            return factory
+        try:
+            if name is None:
+                factory = devices.Device.pin_factory or devices.Device._default_pin_factory()
+                devices.Device.pin_factory = factory
+            else:
+                factory = _load_factory(name)
+        except Exception as exc:  # gpiozero's BadPinFactory, or the library's own error
+            raise ConfigurationError(f"{who}: no GPIO pin factory {name or '(default)'!r}: "
+                                     f"{exc}") from None
+        _FACTORIES[key] = factory
+        return factory
+
+
+def _load_factory(name: str) -> Any:
+    from importlib.metadata import entry_points
+
+    found = {ep.name: ep for ep in entry_points(group="gpiozero_pin_factories")}
+    entry = found.get(name) or found.get(name.lower())
+    if entry is None:
+        raise ValueError(f"gpiozero knows {', '.join(sorted(found))}")
+    return entry.load()()
