@@ -38,6 +38,20 @@ def require(module: str, *, who: str) -> ModuleType:
                                  f"the hardware extra: {EXTRA}") from None
 
 
+def gpio_errors() -> tuple[type[BaseException], ...]:
+    """gpiozero's exception root (gpiozero is installed once a pin factory was had)."""
+    from gpiozero.exc import GPIOZeroError
+
+    return (GPIOZeroError,)
+
+
+def pins_error(who: str, exc: BaseException) -> ConfigurationError:
+    """A one-line error for pins that cannot be had (taken, wrong name, no permission)."""
+    return ConfigurationError(f"{who}: cannot set up the pins: {exc} (pin names as gpiozero "
+                              f"knows them, e.g. GPIO12; are you in the gpio group? "
+                              f"docs/hardware.md)")
+
+
 def pin_factory(name: str | None, *, who: str) -> Any:
     """The gpiozero pin factory ``name`` (``None``: gpiozero's default), one per process."""
     devices = require("gpiozero.devices", who=who)

@@ -108,8 +108,11 @@ def gpio_backend(
     factory (``lgpio``, ``pigpio``, ``rpigpio``, ``native``, ``mock``; default: gpiozero's
     choice, ``GPIOZERO_PIN_FACTORY``)."""
     factory = hardware.pin_factory(pin_factory, who="motors.gpio")
-    return GpioMotorBackend(left_pin=left_pin, right_pin=right_pin, factory=factory,
-                            period_ms=period_ms)
+    try:
+        return GpioMotorBackend(left_pin=left_pin, right_pin=right_pin, factory=factory,
+                                period_ms=period_ms)
+    except (OSError, ValueError, *hardware.gpio_errors()) as exc:
+        raise hardware.pins_error("motors.gpio", exc) from None
 
 
 gpio_backend.requires_simulator = None  # type: ignore[attr-defined]

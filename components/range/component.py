@@ -1,9 +1,13 @@
 """The IR range-finder component: one sensor of a thesis model at a mounting pose.
 
-Every ``period_s`` (robot clock) it asks its backend for the true distance along the beam,
-applies the model's range limits and 5–10 % error (:func:`components.range.ir.read_ir`) and
-publishes ``sensor/range/<name>`` (schema ``range``): ``range_mm`` and ``status`` — out of
-range is reported as ``too_close``/``too_far`` with ``range_mm`` nil, never as a number.
+Every ``period_s`` (robot clock) it asks its backend for the distance along the beam. For a
+simulated backend (the true distance) it applies the model's range limits and 5–10 % error
+(:func:`components.range.ir.read_ir`); for a real sensor (``measured``) only the limits
+(:func:`~components.range.ir.limit_ir`), reading a ``blocking`` one in a worker thread; a
+failed read (:class:`~components.range.backend.RangeReadError`) is counted in
+``read_errors`` and skips that sample. It publishes ``sensor/range/<name>`` (schema
+``range``): ``range_mm`` and ``status`` — out of range is reported as
+``too_close``/``too_far`` with ``range_mm`` nil, never as a number.
 """
 
 from __future__ import annotations
