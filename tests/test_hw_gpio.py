@@ -154,9 +154,12 @@ def test_quadrature_edges_on_mock_pins_decode_in_both_modes(factory: MockFactory
     assert commanded.feed(left) == -42
     assert phase.errors == commanded.errors == 0
     # Edges on the right encoder stay on the right; an empty read is "no edges".
+    assert encoders.last_edge_ticks[1] is None
     turn_wheel(factory, RIGHT_PINS, 7)
     left, right = encoders.read_phases()
     assert left.size == 0 and right.size == 7
+    # Each edge keeps the pin factory's time stamp (the kernel's, on lgpio).
+    assert encoders.last_edge_ticks[1] == max(factory.pin(p)._last_change for p in RIGHT_PINS)
     assert encoders.read_phases()[1].size == 0
     encoders.close()
     encoders.close()
