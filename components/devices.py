@@ -30,10 +30,10 @@ from ubf_async.simulation import DeviceContext
 __all__ = ["BACKEND_INJECTED", "DEFAULT_NAMES", "DEVICE_INJECTED", "KINDS", "checked",
            "make_backend", "make_device", "requires_simulator"]
 
-KINDS = ("motors", "encoders", "camera", "range", "radio")
+KINDS = ("motors", "encoders", "camera", "range", "radio", "leds")
 """The built-in device kinds."""
 DEFAULT_NAMES: dict[str, str] = {"camera": "front", "motors": "main", "encoders": "wheels",
-                                 "range": "front", "radio": "link"}
+                                 "range": "front", "radio": "link", "leds": "panel"}
 """Each built-in kind's usual source name (``sensor/<kind>/<name>``)."""
 
 

@@ -262,8 +262,11 @@ def _post_init_fixups() -> dict[type, Callable[[dict[str, Any]], dict[str, Any]]
             d["error"] = "refused"
         return d
 
+    def led_state(d: dict[str, Any]) -> dict[str, Any]:
+        return {**d, "mask": d["mask"] & ((1 << d["count"]) - 1)}
+
     return {topics.SeekColor: seek_color, topics.TreeRequest: tree_request,
-            topics.TreeReply: tree_reply}
+            topics.TreeReply: tree_reply, topics.LedState: led_state}
 
 
 FIXUPS = _post_init_fixups()
@@ -839,6 +842,7 @@ VALID_EXAMPLES: dict[str, tuple[str, dict[str, Any]]] = {
                                   "right_ms": 1.3, "left_dir": 1, "right_dir": -1,
                                   "reason": "command"}),
     "radio": ("radio.message", {"text": "hello"}),
+    "leds": ("leds.state", {"mask": 1, "count": 2}),
 }
 
 def test_every_sensor_topic_has_a_plain_client_example() -> None:

@@ -199,7 +199,7 @@ def test_shipped_default_robot_file_loads() -> None:
     assert robot.name == "mini"
     assert {(d.kind, d.name) for d in robot.devices} == {
         ("motors", "main"), ("encoders", "wheels"), ("camera", "front"), ("range", "front"),
-        ("radio", "link")}
+        ("radio", "link"), ("leds", "panel")}
     assert robot.simulators() == ["mini-whegs"]
     assert [c.behavior.name for c in robot.root.children] == ["search", "chase", "flee"]
 

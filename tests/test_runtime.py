@@ -181,6 +181,7 @@ async def test_controller_keeps_its_rate_while_a_sensor_floods(
             sent[0] += 1
 
     await start(agg, ctl)
+    bridge = robot_bus._subscriptions[0].stats  # the aggregator's (closed subscriptions go)
     await pub.wait_for_subscribers()
     flooder = threading.Thread(target=flood)
     flooder.start()
@@ -194,7 +195,6 @@ async def test_controller_keeps_its_rate_while_a_sensor_floods(
         flooder.join()
         await ctl.aclose()
         await agg.aclose()
-    bridge = robot_bus._subscriptions[0].stats
     assert bridge.coalesced > 0  # the flood really outpaced the loop and was coalesced
     assert 35 <= ticks <= 55, f"controller ticked {ticks} times in 1 s at 50 Hz under flood"
 

@@ -64,6 +64,7 @@ from ubf_async.robotfile import (
     load_robot,
 )
 from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun, Simulator
+from ubf_async.topics import LED_STATE, sensor_topic
 
 log = logging.getLogger("ubf_async.launch")
 
@@ -283,7 +284,8 @@ def format_status(
     sources = aggregator.sources()
     if sources:
         parts.append(" ".join(
-            f"{s.source} {s.age_s * 1e3:.0f}ms{' STALE' if s.stale else ''}" for s in sources
+            f"{s.source}{_reading(aggregator, s.source)} {s.age_s * 1e3:.0f}ms"
+            f"{' STALE' if s.stale else ''}" for s in sources
         ))
     else:
         parts.append(f"no sensors yet (waiting on ubf/{robot}/sensor/*/*)")
@@ -305,6 +307,15 @@ def format_status(
     if unhealthy:
         parts.append("UNHEALTHY " + ",".join(unhealthy))
     return " | ".join(parts)
+
+
+def _reading(aggregator: StateAggregator, source: str) -> str:
+    """What the status line shows of a source's newest sample besides its age: the LEDs, lit
+    ● or dark ○ (LED 0 first)."""
+    if sensor_topic(source) is not LED_STATE:
+        return ""
+    leds = aggregator.entries[source].message.data
+    return " " + "".join("●" if leds.mask >> i & 1 else "○" for i in range(leds.count))
 
 
 class ResultsNotSavedError(UbfError, OSError):

@@ -154,6 +154,17 @@ class MotorsApplied(Data, frozen=True, kw_only=True):
     reason: Annotated[str, Meta(max_length=32)] | None = None
 
 
+class LedState(Data, frozen=True, kw_only=True):
+    """Which of a bank's LEDs are lit (bit ``i`` = LED ``i``)."""
+
+    mask: Byte
+    count: Annotated[int, Meta(ge=1, le=8)]
+
+    def __post_init__(self) -> None:
+        if self.mask >> self.count:
+            raise ValueError(f"mask {self.mask:#04x} lights LEDs beyond the bank's {self.count}")
+
+
 class RadioMessage(Data, frozen=True, kw_only=True):
     """A message the radio received."""
 
@@ -510,6 +521,8 @@ ODOMETRY = Topic("odometry", "sensor/odometry/{name}", "odometry", Odometry,
                  "dead-reckoned pose")
 MOTORS = Topic("motors", "sensor/motors/{name}", "motors.applied", MotorsApplied,
                "what the motors applied")
+LED_STATE = Topic("led_state", "sensor/leds/{name}", "leds.state", LedState,
+                  "which LEDs are lit")
 RADIO = Topic("radio", "sensor/radio/{name}", "radio.message", RadioMessage,
               "a message the radio received")
 
@@ -542,7 +555,7 @@ TRACE = Topic("trace", "trace", "controller.trace", TickTrace,
               "the behaviour tree's trace of each tick, published after its command")
 
 TOPICS: tuple[Topic[Any], ...] = (
-    CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, RADIO,
+    CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, LED_STATE, RADIO,
     DRIVE, SEEK_COLOR, RADIO_SEND, LEDS,
     HEARTBEAT, CLOCK, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
     TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE,

@@ -341,3 +341,34 @@ def radio_backend(*, context: DeviceContext) -> SimRadioBackend:
 
 
 radio_backend.requires_simulator = None  # type: ignore[attr-defined]
+
+
+class SimLedBackend:
+    """LEDs in memory: ``mask`` is what is lit. The simulator draws them on its recorded
+    camera frames from the LED device's ``sensor/leds/<name>`` samples, so a ``leds.sim``
+    device in another process shows there too. Thread-safe."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._mask = 0
+        self.changes = 0
+
+    def set_leds(self, mask: int) -> None:
+        with self._lock:
+            if mask != self._mask:
+                self.changes += 1
+            self._mask = mask
+
+    @property
+    def mask(self) -> int:
+        with self._lock:
+            return self._mask
+
+
+def leds_backend(*, context: DeviceContext) -> SimLedBackend:
+    """``leds.sim``: LEDs in memory (drawn on the simulator's recorded frames). It needs
+    nothing of the world, so it does not require the simulator."""
+    return SimLedBackend()
+
+
+leds_backend.requires_simulator = None  # type: ignore[attr-defined]

@@ -13,7 +13,7 @@ import itertools
 import math
 import threading
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TextIO
@@ -24,6 +24,7 @@ import numpy as np
 from components.camera.seekcolor import BIN_COUNT, SUBSAMPLE_STEP, SeekResult, subsample
 from components.sim.scenarios import CAMERA_OFFSET_M
 from components.sim.world import WorldSnapshot
+from ubf_async.topics import LedState
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,10 +237,15 @@ _PINK_BGR = (150, 60, 235)
 _ROBOT_BGR = (180, 90, 20)
 
 
+LED_LIT_BGR = (40, 40, 255)
+LED_DARK_BGR = (60, 60, 60)
+
+
 def annotate_frame(frame_rgb: np.ndarray, result: SeekResult, *, t_s: float,
-                   scale: int = 4) -> np.ndarray:
+                   scale: int = 4, leds: Mapping[str, LedState] | None = None) -> np.ndarray:
     """The 160×128 subsample the robot sees, enlarged, with the five seekcolor bins drawn as
-    vertical green lines (like the thesis's figure 4.1) and the pink count of each bin."""
+    vertical green lines (like the thesis's figure 4.1) and the pink count of each bin; the
+    robot's LEDs (``leds``: each LED device's state by name) as a row of dots, lit red."""
     small = np.ascontiguousarray(subsample(frame_rgb, SUBSAMPLE_STEP))
     h, w = small.shape[:2]
     image = cv2.resize(cv2.cvtColor(small, cv2.COLOR_RGB2BGR), (w * scale, h * scale),
@@ -257,7 +263,23 @@ def annotate_frame(frame_rgb: np.ndarray, result: SeekResult, *, t_s: float,
     cv2.rectangle(image, (0, h * scale - 34), (330, h * scale), (0, 0, 0), -1)
     cv2.putText(image, label, (10, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
                 (255, 255, 255), 1, cv2.LINE_AA)
+    _draw_leds(image, leds or {})
     return image
+
+
+def _draw_leds(image: np.ndarray, leds: Mapping[str, LedState]) -> None:
+    """Each LED device's LEDs as dots at the bottom right, lit ones filled red."""
+    h, w = image.shape[:2]
+    x = w - 14
+    for name in sorted(leds, reverse=True):
+        state = leds[name]
+        for i in reversed(range(state.count)):
+            lit = bool(state.mask >> i & 1)
+            cv2.circle(image, (x, h - 17), 9, (0, 0, 0), -1)
+            cv2.circle(image, (x, h - 17), 7, LED_LIT_BGR if lit else LED_DARK_BGR,
+                       -1 if lit else 2)
+            x -= 24
+        x -= 12
 
 
 def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *,

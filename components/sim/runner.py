@@ -49,12 +49,13 @@ from components.sim.record import (
 )
 from components.sim.scenarios import load_scenario
 from components.sim.world import World, wrap_angle
-from ubf_async.bus import Bus
+from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import SimulationOptions
+from ubf_async.topics import LED_STATE, LedState
 
 log = logging.getLogger(__name__)
 
@@ -121,6 +122,10 @@ class SimulationRun:
         self._tasks: list[asyncio.Task[None]] = []
         self._wall_start = time.monotonic()
         self._turned_rad = 0.0
+        self.leds: dict[str, LedState] = {}
+        """What each LED device reports lit (``sensor/leds/<name>``), while recording."""
+        self._leds_malformed: dict[str, int] = {}
+        self._led_sub: Subscription | None = None
         """Total |yaw| the robot made (summed over the trajectory samples)."""
 
     # -- what launch asks ---------------------------------------------------------------------
@@ -183,6 +188,10 @@ class SimulationRun:
             self._csv = TrajectoryCsvWriter(self.options.record_dir / "trajectory.csv")
         self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
         if self.options.record_dir is not None:
+            # The LEDs as their devices report them (in this process or another): drawn on
+            # the recorded frames.
+            self._led_sub = self.bus.subscribe(LED_STATE.key_expr(self.bus.keys),
+                                               self._on_leds)
             self._tasks.append(asyncio.create_task(self._record_frames(), name="sim:frames"))
 
     def _take_sample(self, controller: Controller) -> None:
@@ -245,9 +254,15 @@ class SimulationRun:
             await asyncio.to_thread(self._write_frame, camera, folder, t_s)
             await self.clock.sleep(self.options.record_every_s)
 
+    def _on_leds(self, key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(payload, self._leds_malformed, key, topic=LED_STATE)
+        if message is not None:
+            self.leds[key.rsplit("/", 1)[-1]] = message.data
+
     def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float) -> None:
         frame = camera.capture()
-        image = annotate_frame(frame, seekcolor(frame), t_s=t_s)
+        leds = dict(self.leds)  # as lit now (the loop may update it meanwhile)
+        image = annotate_frame(frame, seekcolor(frame), t_s=t_s, leds=leds)
         path = folder / f"frame_{t_s:07.2f}s.png"
         cv2.imwrite(str(path), image)
         with self._frames_lock:  # the final frame may overlap a cancelled periodic one
@@ -259,6 +274,8 @@ class SimulationRun:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self._led_sub is not None:
+            self._led_sub.close()
         await self.simulator.aclose()  # freeze the world: summary and trajectory end together
         self._take_sample(controller)
         summary = self.summary(controller)

@@ -19,6 +19,8 @@ from ubf_async.errors import ConfigurationError
 Command = Annotated[float, msgspec.Meta(ge=-COMMAND_LIMIT, le=COMMAND_LIMIT)]
 """A speed or turn, −100…+100 (percent of full scale)."""
 Pixels = Annotated[int, msgspec.Meta(ge=0)]
+LedMask = Annotated[int, msgspec.Meta(ge=0, le=255)]
+"""A bit mask of LEDs to light (bit ``i`` = LED ``i``)."""
 """A count of image pixels (≥ 0)."""
 Millimetres = Annotated[int, msgspec.Meta(gt=0)]
 """A distance in millimetres (> 0)."""

@@ -32,7 +32,7 @@ import msgspec
 from ubf_async.action import Action
 from ubf_async.arbiters import PriorityMerge
 from ubf_async.behavior import Behavior, Child, Composite
-from ubf_async.behaviors.params import Command, Pixels, check
+from ubf_async.behaviors.params import Command, LedMask, Pixels, check
 from ubf_async.state import State
 from ubf_async.topics import require_field
 
@@ -53,7 +53,8 @@ class Chase(Behavior):
     """Drive at the pink: speed +40, turn 0 / ±30 / ±60 toward the most populated bin.
 
     Acts only when at least ``min_pixels`` pink pixels are seen. On equal counts the bin
-    nearer the centre wins (turn less when unsure).
+    nearer the centre wins (turn less when unsure). ``leds``, when given, is lit while it
+    chases (the LEDs show that the robot sees pink).
     """
 
     def __init__(
@@ -63,14 +64,18 @@ class Chase(Behavior):
         source: str = CAMERA_SOURCE,
         speed: Command = 40.0,
         min_pixels: Pixels = 1,
+        leds: LedMask | None = None,
     ) -> None:
         super().__init__(name=name)
         check("Chase", "speed", speed, ge=-100, le=100)
         check("Chase", "min_pixels", min_pixels, ge=0, integer=True)
+        if leds is not None:
+            check("Chase", "leds", leds, ge=0, le=255, integer=True)
         require_field(source, "bins", who=f"{type(self).__name__} {name!r}")
         self.source = source
         self.speed = speed
         self.min_pixels = min_pixels
+        self.leds = leds
 
     def act(self, state: State) -> Action | None:
         bins = pink_bins(state, self.source)
@@ -79,7 +84,7 @@ class Chase(Behavior):
         # Centre first, then inner, then outer: max() keeps the first of equal counts.
         order = (2, 1, 3, 0, 4)
         best = max(order, key=lambda i: bins[i])
-        return Action(speed=self.speed, turn=BIN_TURNS[best])
+        return Action(speed=self.speed, turn=BIN_TURNS[best], leds=self.leds)
 
 
 class Flee(Behavior):
@@ -128,7 +133,8 @@ class Search(Behavior):
     previous action's turn, i.e. toward where the ball was last seen). If there was no turn
     it sits still (speed 0, turn 0). A counter of ``period_s`` (robot clock) starts when it
     becomes active; each time it elapses a random direction is drawn from ``rng``. Any pink
-    deactivates it and the counter restarts on the next activation.
+    deactivates it and the counter restarts on the next activation. ``leds``, when given,
+    is what the LEDs show while it searches (``0``: all off).
     """
 
     def __init__(
@@ -139,10 +145,14 @@ class Search(Behavior):
         speed: Command = 10.0,
         turn: Command = 80.0,
         period_s: Annotated[float, msgspec.Meta(gt=0)] = 4.0,
+        leds: LedMask | None = None,
         rng: random.Random | None = None,
     ) -> None:
         super().__init__(name=name)
         check("Search", "speed", speed, ge=-100, le=100)
+        if leds is not None:
+            check("Search", "leds", leds, ge=0, le=255, integer=True)
+        self.leds = leds
         check("Search", "turn", turn, ge=-100, le=100)
         check("Search", "period_s", period_s, gt=0)
         require_field(source, "bins", who=f"{type(self).__name__} {name!r}")
@@ -175,8 +185,8 @@ class Search(Behavior):
             self.direction = self.rng.choice((-1, 1))
             self.next_pick_ns = now + self.period_ns
         if self.direction == 0:
-            return Action(speed=0.0, turn=0.0)
-        return Action(speed=self.speed, turn=self.turn * self.direction)
+            return Action(speed=0.0, turn=0.0, leds=self.leds)
+        return Action(speed=self.speed, turn=self.turn * self.direction, leds=self.leds)
 
 
 def seek_pink_ball(

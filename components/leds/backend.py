@@ -1,0 +1,11 @@
+"""What the LED component drives: anything that lights LEDs from a bit mask."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+
+class LedBackend(Protocol):
+    def set_leds(self, mask: int) -> None:
+        """Light exactly the LEDs whose bits are set (bit ``i`` = LED ``i``); non-blocking."""
+        ...

@@ -1,0 +1,81 @@
+"""The LED component: ``cmd/leds`` in, lit LEDs out.
+
+* Subscribes to ``ubf/<robot>/cmd/leds`` (schema ``leds``; newest command only). A malformed
+  command is rejected and counted; bits beyond the bank's ``count`` LEDs are dropped and
+  counted (``clamped``), never passed on.
+* Lights the LEDs through its :class:`~components.leds.backend.LedBackend`; all off on start
+  and when it closes.
+* Publishes what is lit on ``sensor/leds/<name>`` (schema ``leds.state``) on every change and
+  every ``period_s`` (robot clock), so the state, the status line and recordings show it.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+from components.leds.backend import LedBackend
+from components.leds.bank import MAX_LEDS, LedBank
+from ubf_async.bus import Bus, decode_or_count
+from ubf_async.clock import every
+from ubf_async.component import Component
+from ubf_async.topics import LED_STATE, LEDS
+
+
+class LedsComponent(Component):
+    def __init__(self, *, bus: Bus, backend: LedBackend, name: str = "panel", count: int = 2,
+                 period_s: float = 0.5, **component_options: float) -> None:
+        super().__init__(bus=bus, name=f"leds-{name}", **component_options)
+        if not period_s > 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        self.source_name = name
+        self.backend = backend
+        self.bank = LedBank(count=count)
+        self.period_s = period_s
+        self.malformed: dict[str, int] = {}
+        self.clamped = 0
+        """Commands that lit LEDs beyond the bank (those bits were dropped)."""
+
+    async def run(self) -> None:
+        self._pub = self.publisher(LED_STATE, self.source_name, period_s=self.period_s)
+        self._light(0)
+        self.subscribe(LEDS.key(self.bus.keys), self._on_leds)
+        try:
+            async for _ in every(self.bus.clock, self.period_s):
+                self._publish()  # repeated, so the source never goes stale
+        finally:
+            self._light(0)
+            self._publish()
+
+    def _on_leds(self, key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(payload, self.malformed, key, topic=LEDS)
+        if message is None:
+            return
+        mask, dropped = self.bank.fit(message.data.mask)
+        if dropped:
+            self.clamped += 1
+        if mask != self.bank.mask:
+            self._light(mask)
+            self._publish()
+
+    def _light(self, mask: int) -> None:
+        self.bank.set_all(mask)
+        self.backend.set_leds(mask)
+
+    def _publish(self) -> None:
+        self._pub.publish({"mask": self.bank.mask, "count": self.bank.count})
+
+
+def build_device(
+    *,
+    bus: Bus,
+    name: str,
+    backend: LedBackend,
+    count: Annotated[int, msgspec.Meta(ge=1, le=MAX_LEDS)] = 2,
+    period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5,
+) -> LedsComponent:
+    """The ``leds`` device kind: ``count`` LEDs lit from ``cmd/leds`` through ``backend``;
+    what is lit is published on ``sensor/leds/<name>`` on each change and every
+    ``period_s`` (robot clock)."""
+    return LedsComponent(bus=bus, backend=backend, name=name, count=count, period_s=period_s)

@@ -1,0 +1,137 @@
+"""The LED device: the bank's access functions, cmd/leds through the bus to the simulated
+backend and back as sensor/leds samples, a behaviour lighting LED 0 while the robot sees pink
+(through the real launch path), and the LEDs on the recorded camera frames."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from components.camera.seekcolor import seekcolor
+from components.leds.bank import LedBank
+from components.leds.component import LedsComponent
+from components.sim.backends import SimLedBackend
+from components.sim.record import LED_LIT_BGR, annotate_frame
+from tests.conftest import as_dict, eventually
+from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.protocol import ProtocolError, decode, encode
+from ubf_async.topics import LED_STATE, LEDS, LedState
+from ubf_async.transport import InProcessTransport
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_bank_access_functions() -> None:
+    bank = LedBank(count=3)
+    bank.on(0)
+    bank.on(2)
+    assert (bank.mask, bank.lit(), bank.is_on(1)) == (0b101, [0, 2], False)
+    bank.toggle(2)
+    bank.off(0)
+    assert bank.mask == 0
+    bank.set_all(0b110)
+    assert bank.lit() == [1, 2]
+    assert bank.fit(0b11111) == (0b111, 2)  # two bits beyond the bank, dropped
+    with pytest.raises(ValueError, match="beyond the bank's 3"):
+        bank.set_all(0b1000)
+    with pytest.raises(IndexError, match=r"LEDs 0\.\.2"):
+        bank.on(3)
+    with pytest.raises(ValueError, match=r"0\.\.255"):
+        bank.fit(256)
+    with pytest.raises(ValueError, match="1 to 8"):
+        LedBank(count=9)
+
+
+def test_led_state_on_the_wire_is_checked() -> None:
+    payload = encode(LED_STATE, {"mask": 1, "count": 2}, stamp_ns=1, seq=1)
+    assert decode(payload, topic=LED_STATE).data == LedState(mask=1, count=2)
+    with pytest.raises(ProtocolError, match="beyond the bank"):
+        encode(LED_STATE, {"mask": 4, "count": 2}, stamp_ns=1, seq=1)
+
+
+@pytest.mark.asyncio
+async def test_cmd_leds_lights_the_backend_and_is_reported() -> None:
+    net = InProcessTransport()
+    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    backend = SimLedBackend()
+    leds = LedsComponent(bus=robot, backend=backend, name="panel", count=2, period_s=0.05)
+    reported: list[tuple[int, int]] = []
+    tool.subscribe(LED_STATE.key(tool.keys, "panel"),
+                   lambda k, p, t: reported.append((decode(p).data.mask, decode(p).data.count)),
+                   latest=False)
+    await leds.start()
+    await eventually(lambda: reported[-1:] == [(0, 2)], what="all off on start")
+    command = tool.publisher(LEDS)
+    command.publish({"mask": 0b01})
+    await eventually(lambda: backend.mask == 1 and reported[-1] == (1, 2), what="LED 0 lit")
+    command.publish({"mask": 0b110})  # LED 2 does not exist: dropped, counted, LED 1 lit
+    await eventually(lambda: backend.mask == 0b10, what="LED 1 lit alone")
+    assert leds.clamped == 1
+    raw = tool._connection.declare_publisher(LEDS.key(tool.keys))
+    raw.put(msgpack.packb({"schema": "leds", "v": 1, "stamp_ns": 1, "seq": 1,
+                           "data": {"mask": "all"}}))  # malformed
+    await eventually(lambda: sum(leds.malformed.values()) == 1, what="the malformed command")
+    assert backend.mask == 0b10
+    count = len(reported)
+    await eventually(lambda: len(reported) >= count + 2, what="the state repeated")
+    assert reported[-1] == (0b10, 2)
+    await leds.aclose()
+    assert backend.mask == 0 and reported[-1] == (0, 2)  # off when it closes
+    await robot.aclose()
+    await tool.aclose()
+
+
+def test_recorded_frames_draw_the_leds() -> None:
+    frame = np.full((1024, 1280, 3), 128, dtype=np.uint8)
+    image = annotate_frame(frame, seekcolor(frame), t_s=1.0,
+                           leds={"panel": LedState(mask=0b01, count=2)})
+    h, w = image.shape[:2]
+    led1, led0 = image[h - 17, w - 14], image[h - 17, w - 38]  # LED 0 is left of LED 1
+    assert tuple(led0) == LED_LIT_BGR
+    assert tuple(led1) == (0, 0, 0)  # dark: a ring around a black centre
+    plain = annotate_frame(frame, seekcolor(frame), t_s=1.0)
+    assert tuple(plain[h - 17, w - 38]) != LED_LIT_BGR
+
+
+def test_chase_lights_led_0_while_the_robot_sees_pink(tmp_path: Path, endpoint: str) -> None:
+    # The shipped robot: chase lights LED 0, search turns it off. In ball-in-sight the ball is
+    # ahead from the start; the status line and the recorded frames show the LEDs.
+    result = subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight",
+         "--speed", "4", "--duration", "4", "--listen", endpoint, "--record", str(tmp_path),
+         "--record-every-s", "1", "--status-period-s", "0.2"],
+        cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"}, capture_output=True,
+        text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    status = [line for line in result.stdout.splitlines() if "leds/panel" in line]
+    assert status and "leds/panel ●○ " in status[-1]
+    frames = sorted(tmp_path.glob("frame_*.png"))
+    assert frames
+
+
+@pytest.mark.asyncio
+async def test_led_state_reaches_another_process(endpoint: str, robot: str) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-behind", "--speed", "2",
+         "--duration", "20", "--listen", endpoint, "--robot", robot, "--quiet"],
+        cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"}, stdout=subprocess.DEVNULL)
+    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+    masks: list[int] = []
+    try:
+        bus.subscribe(LED_STATE.key(bus.keys, "panel"),
+                      lambda k, p, t: masks.append(as_dict(decode(p).data)["mask"]),
+                      latest=False)
+        # The ball starts behind the robot: LED off while it searches, lit once it sees pink.
+        await eventually(lambda: 0 in masks, timeout_s=30, what="the LED off while searching")
+        await eventually(lambda: 1 in masks[masks.index(0):], timeout_s=40,
+                         what="LED 0 lit once the ball is in sight")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+        await bus.aclose()
