@@ -221,6 +221,26 @@ async def test_a_command_that_cannot_be_published_becomes_a_stop(robot_bus: Bus)
     await agg.aclose()
 
 
+@pytest.mark.asyncio
+async def test_a_drive_publisher_that_always_fails_never_fails_a_tick(robot_bus: Bus) -> None:
+    # Not even the plain stop goes out: the tick still ends normally (the motors' watchdog
+    # stops the wheels), the controller keeps ticking and is never restarted.
+    agg, ctl = robot_parts(robot_bus, FunctionBehavior(forward))
+    await started(agg, ctl)
+    await eventually(lambda: ctl.stats.ticks >= 1)
+
+    def failing(data: object, **kw: object) -> tuple[int, int]:
+        raise ProtocolError("injected")
+
+    ctl._drive.publish = failing  # type: ignore[method-assign]
+    ticks = ctl.stats.ticks
+    await eventually(lambda: ctl.stats.publish_errors >= 6 and ctl.stats.ticks >= ticks + 3)
+    assert ctl.restarts == 0 and ctl.stats.errors == 0
+    assert ctl.last_action is not None and ctl.last_action.speed == 0.0
+    await ctl.aclose()
+    await agg.aclose()
+
+
 # ---------------------------------------------------------------------------------------------
 # (b) a future-stamped camera sample
 

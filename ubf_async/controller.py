@@ -392,7 +392,10 @@ class Controller(Component):
             speed = turn = 0.0
             action = None
             command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks)
-            self._drive.publish(command)
+            try:
+                self._drive.publish(command)
+            except Exception:  # nothing goes out: the motors' watchdog stops the wheels
+                self._publish_failed("plain stop either")
         if self._tick_hooks:
             run_hooks(self._tick_hooks, "tick", state, trace, command)
         if action is not None:
