@@ -28,6 +28,7 @@ from ubf_async.ordering import Refusal
 from ubf_async.protocol import decode
 from ubf_async.remote import RemoteBehavior, RemoteBehaviorHost, RemoteBehaviors
 from ubf_async.state import State
+from ubf_async.topics import TRACE, TickTrace
 from ubf_async.transport import InProcessTransport
 
 START_NS = 10**9
@@ -140,6 +141,34 @@ async def test_aggregator_refuses_future_stamps_and_counts_malformed_samples(rig
 
 def tree() -> Composite:
     return Composite(name="root", arbiter=HighestPriority(), children=[RangeSpeed(name="range")])
+
+
+@pytest.mark.asyncio
+async def test_controller_publishes_each_ticks_trace_only_while_someone_listens(
+    rig: Rig,
+) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10)
+    await rig.start(agg, ctl)
+    await rig.publish_range(420)
+    await rig.advance_s(0.1)
+    assert ctl._trace.seq == 0  # nobody listens: no trace is built or sent
+    traces: list[TickTrace] = []
+    sub = rig.watcher.subscribe(TRACE.key(rig.watcher.keys),
+                                lambda k, p, t: traces.append(decode(p, topic=TRACE).data),
+                                latest=False)
+    await rig.advance_s(0.1)
+    tick = traces[-1]
+    assert tick.tick == rig.drives[-1]["tick"]  # the trace of the command just sent
+    root, *children = tick.nodes
+    assert (root.name, root.depth, root.arbiter, root.speed) == ("root", 0, "HighestPriority",
+                                                                 42.0)
+    assert [(c.name, c.depth, c.won, c.speed) for c in children] == [("range", 1, True, 42.0)]
+    sub.close()
+    await rig.net.settle()
+    sent = ctl._trace.seq
+    await rig.advance_s(0.2)
+    assert ctl._trace.seq == sent  # nobody listens again
 
 
 @pytest.mark.asyncio

@@ -29,7 +29,10 @@ and publishes:
   and ``based_on``: the source, seq and stamp of the sample the tick was based on (the
   trigger in ``sync``/``event`` mode, the newest sample in ``periodic`` mode), so latency
   can be measured end to end;
-* ``cmd/seek_color``, ``cmd/radio``, ``cmd/leds`` when the action sets them to a new value.
+* ``cmd/seek_color``, ``cmd/radio``, ``cmd/leds`` when the action sets them to a new value;
+* ``trace`` after the command, while anyone subscribes to it (a recorder, a viewer): the
+  tick's behaviours depth first, with who won and what each proposed (``TickTrace``). With no
+  subscriber it costs one check.
 
 Lifecycle of the tree (the hooks are described in :mod:`ubf_async.behavior`): each time the
 component runs — its start, and again after a restart — the controller calls
@@ -78,14 +81,19 @@ from ubf_async.topics import (
     DRIVE,
     LEDS,
     MAX_NAME_CHARS,
+    MAX_TRACE_NODES,
+    MAX_TREE_DEPTH,
     MAX_WINNERS,
     RADIO_SEND,
     SEEK_COLOR,
+    TRACE,
     BasedOn,
     Drive,
     Leds,
     RadioSend,
     SeekColor,
+    TickTrace,
+    TraceNode,
 )
 
 log = logging.getLogger(__name__)
@@ -104,6 +112,25 @@ MAX_COUNTED_NAMES = 1024
 def outgoing_names(names: list[str]) -> list[str]:
     """Behaviour names as a drive command may carry them (count and length bounded)."""
     return [clip(name, MAX_NAME_CHARS) for name in names[:MAX_WINNERS]]
+
+
+def trace_nodes(trace: Trace) -> tuple[TraceNode, ...]:
+    """One tick's trace as the ``trace`` topic carries it: depth first, names clipped, at most
+    :data:`~ubf_async.topics.MAX_TRACE_NODES` behaviours."""
+    nodes: list[TraceNode] = []
+    stack = [(trace, 0)]
+    while stack and len(nodes) < MAX_TRACE_NODES:
+        node, depth = stack.pop()
+        action = node.action
+        nodes.append(TraceNode(
+            name=clip(node.name, MAX_NAME_CHARS), depth=min(depth, MAX_TREE_DEPTH),
+            won=node.won, arbiter=node.arbiter and clip(node.arbiter, MAX_NAME_CHARS),
+            speed=action.speed if action is not None else None,
+            turn=action.turn if action is not None else None,
+            vote=action.vote if action is not None else None,
+            fault=node.fault and clip(node.fault, 256)))
+        stack.extend((child, depth + 1) for child in reversed(node.children))
+    return tuple(nodes)
 
 
 class TickMode(enum.StrEnum):
@@ -272,6 +299,7 @@ class Controller(Component):
         }
         self._status = self.publisher(CONTROLLER_STATUS, self.name,
                                       period_s=self.status_period_s)
+        self._trace = self.publisher(TRACE)
         self._sent = {}
         loop = {
             TickMode.PERIODIC: self._run_periodic,
@@ -403,6 +431,11 @@ class Controller(Component):
                 self._publish_extras(action)
             except Exception:
                 self._publish_failed("tick's seek_color/radio/leds command")
+        if trace is not None and self._trace.has_subscribers():
+            try:
+                self._trace.publish(TickTrace(tick=self.stats.ticks, nodes=trace_nodes(trace)))
+            except Exception:
+                self._publish_failed("tick's trace")
         self.last_action = Action(speed=speed, turn=turn)
         self.last_trace = trace
         self.stats.tick_ns.append(time.perf_counter_ns() - t0)
