@@ -54,6 +54,7 @@ from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.live import TreeService
+from ubf_async.record import McapRecorder
 from ubf_async.registry import SIMULATORS
 from ubf_async.remote import RemoteBehaviors, remote_spec
 from ubf_async.robotfile import (
@@ -136,7 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
                      help="write a JSON summary of the run when it ends")
     sim.add_argument("--record", type=Path, default=None, metavar="DIR",
-                     help="write trajectory.csv, trajectory.png and annotated camera frames")
+                     help="record every message on the robot's keys to DIR/<robot>.mcap "
+                          "(docs/recording.md; simulated or not) and, for a simulated run, "
+                          "write trajectory.csv, trajectory.png and annotated camera frames")
     sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
                      help="simulated seconds between recorded camera frames")
     run = parser.add_argument_group("run")
@@ -233,8 +236,7 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
             record_every_s=args.record_every_s)
     if simulator is None:
         given = [flag for flag, value in (("--scenario", args.scenario),
-                                          ("--summary", args.summary),
-                                          ("--record", args.record)) if value is not None]
+                                          ("--summary", args.summary)) if value is not None]
         if given:
             why = ("--no-sim is given" if args.no_sim
                    else f"no device of {robot.source} is simulated")
@@ -339,6 +341,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     health = HealthMonitor(bus)
     sim_run: SimulationRun | None = None
     controller: Controller | None = None
+    recorder: McapRecorder | None = None
     try:
         endpoints = " ".join(options.listen) or "(not listening)"
         print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
@@ -346,6 +349,11 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         if options.listen:
             print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
                   file=out)
+        if args.record is not None:  # first started, last closed: it sees the whole run
+            recorder = McapRecorder(bus=bus, out=args.record)
+            await recorder.start()
+            components.append(recorder)
+            print(f"  recording the bus to {recorder.path}", file=out)
         seed = robot.spec.seed or 0
         if plan.simulator is not None and plan.sim_options is not None:
             assert isinstance(clock, SimClock)
@@ -419,6 +427,13 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         if sim_run is not None and controller is not None:
             failure = await save_results(sim_run, controller, out)
         await _close_all(components, health, bus)
+        if recorder is not None:
+            stats = recorder.stats
+            print(f"  recorded {stats.written} messages to "
+                  f"{', '.join(str(p) for p in stats.files)}"
+                  + (f" ({stats.dropped} dropped: the disk did not keep up)"
+                     if stats.dropped else "")
+                  + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
         print("ubf_async: stopped", file=out)
         out.flush()
         if failure is not None:

@@ -1,0 +1,222 @@
+"""MCAP recording of the bus: a scenario run recorded by launch and read back by the mcap
+library alone (no ubf_async import: every message checked against the schema stored in the
+file), a killed recorder's file recovered by a streaming reader, drops counted when the disk
+does not keep up, and files split by size."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import eventually
+from ubf_async.bus import Bus
+from ubf_async.clock import SimClock
+from ubf_async.record import McapRecorder
+from ubf_async.transport import InProcessTransport
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+READ_WITH_MCAP_ALONE = r'''
+import collections, json, sys
+import jsonschema, msgpack
+from mcap.reader import make_reader
+assert not any(m.startswith("ubf_async") for m in sys.modules)
+channels = collections.Counter()
+stamps = collections.defaultdict(list)
+invalid = []
+with open(sys.argv[1], "rb") as f:
+    reader = make_reader(f)
+    summary = reader.get_summary()
+    metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    validators = {}
+    for schema, channel, message in reader.iter_messages():
+        assert schema.encoding == "jsonschema" and channel.message_encoding == "msgpack"
+        if schema.id not in validators:
+            validators[schema.id] = jsonschema.Draft202012Validator(json.loads(schema.data))
+        envelope = msgpack.unpackb(message.data)
+        errors = [e.message for e in validators[schema.id].iter_errors(envelope)]
+        if errors:
+            invalid.append((channel.topic, errors[:2]))
+        channels[channel.topic] += 1
+        stamps[channel.topic].append((message.log_time, message.publish_time,
+                                      envelope["stamp_ns"], envelope["seq"]))
+print(json.dumps({"channels": channels, "stamps": stamps, "invalid": invalid,
+                  "metadata": metadata, "schemas": len(summary.schemas)}))
+'''
+
+
+def read_alone(path: Path) -> dict:
+    result = subprocess.run([sys.executable, "-c", READ_WITH_MCAP_ALONE, str(path)],
+                            capture_output=True, text=True, timeout=120, check=True)
+    return json.loads(result.stdout)
+
+
+def test_a_scenario_run_recorded_by_launch_reads_back_with_mcap_alone(tmp_path: Path) -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight", "--speed",
+         "5", "--duration", "4", "--quiet", "--listen", "tcp/127.0.0.1:0", "--record",
+         str(tmp_path)], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    path = tmp_path / "mini.mcap"
+    assert f"recording the bus to {path}" in result.stdout
+    read = read_alone(path)
+    assert read["invalid"] == []  # every message matches the schema stored in the file
+    assert read["metadata"]["ubf_async"]["clock"] == "simulated"
+    channels = read["channels"]
+    for key in ("sensor/camera/front", "sensor/range/front", "sensor/encoders/wheels",
+                "sensor/odometry/wheels", "sensor/motors/main", "sensor/leds/panel",
+                "cmd/drive", "clock", "trace", "heartbeat/controller", "status/controller"):
+        assert f"ubf/mini/{key}" in channels, key
+    # 4 simulated seconds: the controller at 50 Hz plus a reflex tick on each IR sample
+    # (25 Hz), the camera every 0.11 s, a trace per tick.
+    assert 280 <= channels["ubf/mini/cmd/drive"] <= 320
+    assert 30 <= channels["ubf/mini/sensor/camera/front"] <= 40
+    assert abs(channels["ubf/mini/trace"] - channels["ubf/mini/cmd/drive"]) <= 2
+    assert f"recorded {sum(channels.values())} messages" in result.stdout
+    for key, rows in read["stamps"].items():
+        log_times = [row[0] for row in rows]
+        assert log_times == sorted(log_times), key  # received in order, on the robot's clock
+        assert all(0 <= t <= 4.2e9 for t in log_times), key  # simulated time of the run
+        assert all(row[1] == row[2] for row in rows), key  # publish_time is the stamp
+        if key.startswith("ubf/mini/sensor/") or key == "ubf/mini/cmd/drive":
+            assert all(row[0] - row[1] <= 0.2e9 for row in rows), key  # arrived on time
+            seqs = [row[3] for row in rows]
+            assert seqs == sorted(seqs), key
+
+
+def test_a_killed_recorder_leaves_a_file_a_streaming_reader_recovers(
+        tmp_path: Path, endpoint: str, robot: str) -> None:
+    robot_proc = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", "--listen", endpoint, "--robot", robot,
+         "--quiet", "--duration", "60"], cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL)
+    recorder = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.record", "--connect", endpoint, "--robot", robot,
+         "--out", str(tmp_path), "--flush-s", "0.3", "--progress"],
+        cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert recorder.stdout is not None
+        flushed: list[int] = []
+        while len(flushed) < 4:
+            line = recorder.stdout.readline()
+            assert line, "the recorder ended early"
+            if line.startswith("recorded "):
+                flushed.append(int(line.split()[1]))
+        recorder.send_signal(signal.SIGKILL)
+    finally:
+        for proc in (recorder, robot_proc):
+            if proc.poll() is None:
+                proc.kill()
+            proc.communicate(timeout=30)
+    path = tmp_path / f"{robot}.mcap"
+    recovered, complete = recover(path)
+    assert not complete  # killed: no footer, no index
+    # Everything flushed before the kill is there: at most the last flush_s was lost.
+    assert recovered >= flushed[-1] > flushed[0] > 0
+
+
+def recover(path: Path) -> tuple[int, bool]:
+    """Messages a streaming (non-seeking) reader gets from a possibly truncated file, and
+    whether the file ended properly."""
+    from mcap.exceptions import McapError
+    from mcap.records import Footer, Message
+    from mcap.stream_reader import StreamReader
+
+    count, complete = 0, False
+    with path.open("rb") as f:
+        try:
+            for record in StreamReader(f, emit_chunks=False).records:
+                count += isinstance(record, Message)
+                complete = complete or isinstance(record, Footer)
+        except (McapError, EOFError, ValueError):
+            pass  # the torn end: a chunk that was being written
+    return count, complete
+
+
+@pytest.mark.asyncio
+async def test_drops_are_counted_when_the_writer_does_not_keep_up(tmp_path: Path) -> None:
+    # The writer thread stalls in its progress callback after its first flush, as it would on
+    # a stalled disk: the bounded queue fills, the rest is dropped and counted, the loop goes on.
+    stalled, release = threading.Event(), threading.Event()
+
+    def slow_progress(stats: object) -> None:
+        stalled.set()
+        release.wait(timeout=30)
+
+    net = InProcessTransport()
+    robot, device = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    recorder = McapRecorder(bus=robot, out=tmp_path, max_queue=10, flush_s=0.01,
+                            on_flush=slow_progress)
+    await recorder.start()
+    sensor = device.publisher(device.keys.sensor("light", "x"), "light")
+    sensor.publish({"lux": -1.0})
+    await net.settle()
+    await asyncio.to_thread(stalled.wait, 30)
+    for i in range(50):
+        sensor.publish({"lux": float(i)})
+        await net.settle()
+    stats = recorder.stats  # (it records its own heartbeats too)
+    assert stats.dropped >= 40 and stats.received >= 51
+    release.set()
+    await recorder.aclose()
+    await recorder.aclose()  # harmless twice
+    read = read_alone(tmp_path / "r1.mcap")
+    assert sum(read["channels"].values()) == stats.written == stats.received - stats.dropped
+    assert 9 <= read["channels"]["ubf/r1/sensor/light/x"] <= 11  # (≤ 1 taken, 10 queued)
+    await robot.aclose()
+    await device.aclose()
+
+
+@pytest.mark.asyncio
+async def test_a_file_that_cannot_be_written_stops_the_recording_and_says_why(
+        tmp_path: Path) -> None:
+    (tmp_path / "taken").write_text("a file where the directory should be")
+    net = InProcessTransport()
+    robot = Bus(transport=net, robot="r1")
+    recorder = McapRecorder(bus=robot, out=tmp_path / "taken" / "r1.mcap")
+    with pytest.raises(OSError):
+        await recorder.start()  # the directory cannot be made: said at once
+    recorder = McapRecorder(bus=robot, out=tmp_path / "r1.mcap")
+    (tmp_path / "r1.mcap").mkdir()  # the file itself cannot be opened
+    await recorder.start()
+    await eventually(lambda: recorder.stats.error is not None, what="the writer's error")
+    assert "Is a directory" in (recorder.stats.error or "")
+    await recorder.aclose()
+    await robot.aclose()
+
+
+@pytest.mark.asyncio
+async def test_files_are_split_by_size_and_each_is_complete(tmp_path: Path) -> None:
+    net = InProcessTransport()
+    clock = SimClock(10**9)
+    robot = Bus(transport=net, robot="r1", clock=clock)
+    device = Bus(transport=net, robot="r1", clock=clock)
+    recorder = McapRecorder(bus=robot, out=tmp_path, flush_s=0.05, split_bytes=1 << 16)
+    await recorder.start()
+    await net.settle()
+    sensor = device.publisher(device.keys.sensor("blob", "x"), "blob")
+    for _batch in range(6):
+        for _ in range(20):  # incompressible: 20 × 2 KiB a batch
+            sensor.publish({"noise": os.urandom(2048)})
+        await net.settle()
+        flushes = recorder.stats.flushes
+        await eventually(lambda f=flushes: recorder.stats.flushes > f + 1,
+                         what="the writer to flush the batch")
+    await recorder.aclose()
+    files = recorder.stats.files
+    assert len(files) >= 2 and files[0] == tmp_path / "r1.mcap"
+    assert files[1] == tmp_path / "r1_1.mcap"
+    counts = [read_alone(f)["channels"].get("ubf/r1/sensor/blob/x", 0) for f in files]
+    assert sum(counts) == 120 and all(counts[:-1])
+    for f in files:
+        assert recover(f)[1]  # each part finished with its footer
+    await robot.aclose()
+    await device.aclose()

@@ -1,0 +1,354 @@
+"""Recording a robot's bus to MCAP: ``python -m ubf_async.record``, or ``launch --record DIR``.
+
+Every message on the robot's keys (``ubf/<robot>/**``: samples, commands, votes, heartbeats,
+status, the clock and each tick's trace) goes into an `MCAP <https://mcap.dev>`_ file with its
+**original bytes**: one channel per key (the channel's topic is the zenoh key), message
+encoding ``msgpack``, and for each schema name a ``jsonschema`` schema of the whole envelope
+(``schema``, ``v``, ``stamp_ns``, ``seq``, *opt* ``pub``, ``period_s``, and the topic's
+``data``), generated from :mod:`ubf_async.topics` — so any MCAP reader can list, decode and
+check the messages without this package. ``log_time`` is when the recorder received the
+message on the robot's clock (simulated time on a simulated robot), ``publish_time`` the
+envelope's ``stamp_ns`` (the ``log_time`` for a message that is not a valid envelope: those are
+recorded too, and counted).
+
+Nothing of it runs on the event loop but a queue put: a writer thread encodes, compresses
+(zstd, per chunk) and writes. The queue is bounded (``max_queue``); when the disk cannot keep
+up, messages are dropped, counted (``stats.dropped``), logged and reported when the recording
+ends — never silently. The writer closes its chunk every ``flush_s`` (1 s), so a recorder that
+is killed (``SIGKILL``, a power cut) leaves a file whose complete chunks any MCAP reader
+recovers, streaming: at most the last ``flush_s`` of messages, plus those still queued, are
+lost. ``split_bytes`` starts a new file (``<name>_1.mcap``, ``_2``…) when one grows past it, so
+a long run never needs one huge file; memory stays bounded by the queue and one chunk either
+way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import queue
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import msgspec
+from mcap.writer import CompressionType, Writer
+
+from ubf_async import __version__, clockdomain
+from ubf_async.bus import (
+    DEFAULT_ATTACH_TIMEOUT_S,
+    Bus,
+    HelpFormatter,
+    add_connection_arguments,
+    connection_options,
+    wait_for_robot,
+)
+from ubf_async.cli import run_main
+from ubf_async.component import Component, ensure_name_free
+from ubf_async.errors import ConfigurationError, ProtocolError
+from ubf_async.protocol import PROTOCOL_VERSION, decode
+from ubf_async.topics import BY_SCHEMA, PlainData, Topic
+
+log = logging.getLogger(__name__)
+
+MESSAGE_ENCODING = "msgpack"
+SCHEMA_ENCODING = "jsonschema"
+GENERIC_SCHEMA_NAME = "ubf.generic"
+"""The schema of messages whose schema name :mod:`ubf_async.topics` does not declare."""
+DEFAULT_FLUSH_S = 1.0
+DEFAULT_MAX_QUEUE = 20_000
+DEFAULT_CHUNK_BYTES = 1 << 20
+
+
+def envelope_schema(topic: Topic[Any] | None) -> dict[str, Any]:
+    """The JSON Schema of a whole envelope carrying ``topic``'s data (any map of plain
+    values for ``None``: an undeclared schema)."""
+    data_type: Any = topic.type if topic is not None else PlainData
+    (data,), components = msgspec.json.schema_components([data_type],
+                                                         ref_template="#/$defs/{name}")
+    properties: dict[str, Any] = {
+        "schema": ({"const": topic.schema} if topic is not None
+                   else {"type": "string", "minLength": 1, "maxLength": 64}),
+        "v": {"type": "integer", "minimum": 1},
+        "stamp_ns": {"type": "integer", "minimum": 0,
+                     "description": "when the data was true, on the robot's clock (ns)"},
+        "seq": {"type": "integer", "minimum": 0},
+        "pub": {"type": "integer", "minimum": 1, "description": "the publisher's identity"},
+        "period_s": {"type": "number", "description": "the publisher's nominal period"},
+        "data": data,
+    }
+    schema: dict[str, Any] = {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": topic.schema if topic is not None else GENERIC_SCHEMA_NAME,
+        "description": (f"ubf_async envelope (protocol v{PROTOCOL_VERSION}), msgpack-encoded: "
+                        + (topic.doc if topic is not None else "data of an undeclared schema")),
+        "type": "object",
+        "properties": properties,
+        "required": ["schema", "v", "stamp_ns", "seq", "data"],
+    }
+    if components:
+        schema["$defs"] = components
+    return schema
+
+
+@dataclass
+class RecorderStats:
+    """What a recorder did (read from any thread; written by the loop and the writer)."""
+
+    received: int = 0
+    written: int = 0
+    dropped: int = 0
+    """Messages the writer could not keep up with (the queue was full)."""
+    invalid: int = 0
+    """Messages that are not a valid envelope (recorded all the same)."""
+    flushes: int = 0
+    files: list[Path] = field(default_factory=list)
+    error: str | None = None
+    """Why writing stopped, if it did (a full disk)."""
+
+
+class McapRecorder(Component):
+    """Records every message on the robot's keys to MCAP (module docstring).
+
+    ``out`` is a directory (the file is ``<robot>.mcap`` in it) or a ``.mcap`` file.
+    Start it before the components whose messages it should catch; closing it (``aclose``,
+    idempotent) writes what is queued and finishes the file with its index.
+    """
+
+    def __init__(self, *, bus: Bus, out: Path, name: str = "recorder",
+                 flush_s: float = DEFAULT_FLUSH_S, split_bytes: int | None = None,
+                 max_queue: int = DEFAULT_MAX_QUEUE, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                 on_flush: Any = None) -> None:
+        super().__init__(bus=bus, name=name)
+        if not flush_s > 0:
+            raise ConfigurationError(f"flush_s must be > 0, got {flush_s}")
+        if split_bytes is not None and split_bytes < 1 << 16:
+            raise ConfigurationError(f"split_bytes must be at least 64 KiB, got {split_bytes}")
+        self.path = out / f"{bus.robot}.mcap" if out.suffix != ".mcap" else out
+        self.flush_s = flush_s
+        self.split_bytes = split_bytes
+        self.chunk_bytes = chunk_bytes
+        self.stats = RecorderStats()
+        self._queue: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=max_queue)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._on_flush = on_flush
+        """Called on the writer thread after each flush with the stats (progress output)."""
+
+    async def start(self) -> None:
+        """Start the writer, then subscribe. A folder that cannot be made raises ``OSError``
+        here; a file that cannot be written stops the writer (``stats.error``, logged)."""
+        if self._thread is None and not self.closed:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._thread = threading.Thread(target=self._write_all, name=f"{self.name}:mcap",
+                                            daemon=True)
+            self._thread.start()
+        await super().start()
+
+    async def run(self) -> None:
+        self.subscribe(f"{self.bus.keys.prefix}/**", self._on_message, latest=False)
+        await asyncio.Event().wait()  # until closed: the subscription does the work
+
+    def _on_message(self, key: str, payload: bytes, received_ns: int) -> None:
+        self.stats.received += 1
+        try:
+            self._queue.put_nowait((key, payload, self.bus.clock.now_ns()))
+        except queue.Full:
+            self.stats.dropped += 1
+            if self.stats.dropped == 1 or self.stats.dropped % 1000 == 0:
+                log.warning("%s: the writer is behind; %d messages dropped so far", self.name,
+                            self.stats.dropped)
+
+    async def aclose(self) -> None:
+        if self.closed:
+            return
+        await super().aclose()  # no more messages arrive
+        self._stop.set()
+        if self._thread is not None:
+            await asyncio.to_thread(self._thread.join)
+            self._thread = None
+        if self.stats.dropped:
+            log.warning("%s: %d of %d messages dropped (the writer could not keep up)",
+                        self.name, self.stats.dropped, self.stats.received)
+
+    # -- the writer thread ---------------------------------------------------------------------
+    def _write_all(self) -> None:
+        file: _File | None = None
+        try:
+            file = _File(self, 0)
+            last_flush = time.monotonic()
+            while True:
+                try:
+                    item = self._queue.get(timeout=self.flush_s / 4)
+                except queue.Empty:
+                    item = None
+                if item is not None:
+                    file.write(*item)
+                    self.stats.written += 1
+                if time.monotonic() - last_flush >= self.flush_s:
+                    file.flush()
+                    last_flush = time.monotonic()
+                    if self.split_bytes is not None and file.size() >= self.split_bytes:
+                        file.finish()
+                        file = _File(self, len(self.stats.files))
+                if item is None and self._stop.is_set() and self._queue.empty():
+                    break
+        except OSError as exc:
+            self.stats.error = str(exc)
+            log.error("%s: writing %s failed: %s; recording stopped", self.name,
+                      file.path if file is not None else self.path, exc)
+        finally:
+            if file is not None:
+                with contextlib.suppress(OSError):
+                    file.finish()
+
+
+class _File:
+    """One MCAP file of a recording, used by the writer thread only."""
+
+    def __init__(self, recorder: McapRecorder, index: int) -> None:
+        self.recorder = recorder
+        base = recorder.path
+        self.path = base if index == 0 else base.with_name(f"{base.stem}_{index}{base.suffix}")
+        self.stream: IO[bytes] = self.path.open("wb")
+        recorder.stats.files.append(self.path)
+        self.writer = Writer(self.stream, chunk_size=recorder.chunk_bytes,
+                             compression=CompressionType.ZSTD)
+        self.writer.start(profile="", library=f"ubf_async {__version__}")
+        self.writer.add_metadata("ubf_async", {
+            "robot": recorder.bus.robot, "version": __version__,
+            "protocol": str(PROTOCOL_VERSION), "part": str(index),
+            "clock": "simulated" if getattr(recorder.bus.clock, "is_simulated", False)
+            else "monotonic"})
+        self.schemas: dict[str, int] = {}
+        self.channels: dict[tuple[str, int], int] = {}
+        self.sequence = 0
+        self.finished = False
+
+    def _schema_id(self, name: str) -> int:
+        topic = BY_SCHEMA.get(name)
+        key = name if topic is not None else GENERIC_SCHEMA_NAME
+        found = self.schemas.get(key)
+        if found is None:
+            found = self.writer.register_schema(
+                name=key, encoding=SCHEMA_ENCODING,
+                data=json.dumps(envelope_schema(topic)).encode())
+            self.schemas[key] = found
+        return found
+
+    def write(self, key: str, payload: bytes, log_ns: int) -> None:
+        try:
+            message = decode(payload)
+            schema_name, publish_ns = message.schema, message.stamp_ns
+        except ProtocolError:
+            self.recorder.stats.invalid += 1
+            schema_name, publish_ns = GENERIC_SCHEMA_NAME, log_ns
+        schema_id = self._schema_id(schema_name)
+        channel = self.channels.get((key, schema_id))
+        if channel is None:
+            channel = self.writer.register_channel(topic=key, message_encoding=MESSAGE_ENCODING,
+                                                   schema_id=schema_id)
+            self.channels[(key, schema_id)] = channel
+        self.sequence += 1
+        self.writer.add_message(channel_id=channel, log_time=log_ns, data=payload,
+                                publish_time=publish_ns, sequence=self.sequence)
+
+    def flush(self) -> None:
+        self.writer.flush()  # closes the chunk: from here on a reader recovers it
+        self.recorder.stats.flushes += 1
+        if self.recorder._on_flush is not None:
+            self.recorder._on_flush(self.recorder.stats)
+
+    def size(self) -> int:
+        return self.stream.tell()
+
+    def finish(self) -> None:
+        if self.finished:
+            return
+        self.finished = True
+        try:
+            self.writer.finish()
+        finally:
+            self.stream.close()
+
+
+# -- python -m ubf_async.record --------------------------------------------------------------
+
+PROG = "python -m ubf_async.record"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=HelpFormatter,
+        description="Record every message on a running robot's keys to an MCAP file "
+                    "(docs/recording.md), from another process. Ctrl-C or SIGTERM ends the "
+                    "recording and finishes the file.")
+    add_connection_arguments(parser)
+    parser.add_argument("--out", type=Path, default=Path("recordings"), metavar="DIR|FILE",
+                        help="a directory (the file is <robot>.mcap in it) or a .mcap file")
+    parser.add_argument("--duration", type=float, default=None, metavar="S",
+                        help="stop after S wall-clock seconds (default: until Ctrl-C/SIGTERM)")
+    parser.add_argument("--flush-s", type=float, default=DEFAULT_FLUSH_S, metavar="S",
+                        help="close a chunk every S seconds: a killed recorder loses at most "
+                             "that much")
+    parser.add_argument("--split-mb", type=float, default=None, metavar="MB",
+                        help="start a new file when one grows past MB megabytes")
+    parser.add_argument("--name", default="recorder",
+                        help="the recorder's component name on the robot")
+    parser.add_argument("--progress", action="store_true",
+                        help="print a line after every flush: messages written and dropped")
+    parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
+                        metavar="S", help="with --connect: how long to wait for the robot")
+    return parser
+
+
+async def record(args: argparse.Namespace) -> int:
+    options = connection_options(args)
+    bus = await Bus.open(options)
+    recorder: McapRecorder | None = None
+    try:
+        await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
+        await clockdomain.follow_robot_clock(bus, mode="auto")  # log times on the robot's
+        await ensure_name_free(bus, args.name, hint="give this recorder another --name")
+
+        def progress(stats: RecorderStats) -> None:
+            print(f"recorded {stats.written} messages ({stats.dropped} dropped) to "
+                  f"{stats.files[-1]}", flush=True)
+
+        recorder = McapRecorder(
+            bus=bus, out=args.out, name=args.name, flush_s=args.flush_s,
+            split_bytes=None if args.split_mb is None else int(args.split_mb * 1e6),
+            on_flush=progress if args.progress else None)
+        await recorder.start()
+        print(f"{PROG}: recording robot {options.robot!r} to {recorder.path}", flush=True)
+        stop = asyncio.Event()
+        if args.duration is None:
+            await stop.wait()
+        else:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), args.duration)
+        return 0
+    finally:
+        if recorder is not None:
+            await recorder.aclose()
+            stats = recorder.stats
+            print(f"{PROG}: {stats.written} messages in {', '.join(map(str, stats.files))}"
+                  + (f"; {stats.dropped} dropped" if stats.dropped else "")
+                  + (f"; writing failed: {stats.error}" if stats.error else ""), flush=True)
+        await bus.aclose()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level="WARNING", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run_main(lambda: record(args), prog=PROG)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
