@@ -682,6 +682,26 @@ class Queryable:
             self._declaration.undeclare()
 
 
+class RawPublisher:
+    """Puts payloads on one key as they are (:meth:`Bus.raw_publisher`)."""
+
+    def __init__(self, bus: Bus, key: str) -> None:
+        self._bus = bus
+        self.key = key
+        self._out = bus._connection.declare_publisher(key)
+
+    def put(self, payload: bytes) -> None:
+        local = self._bus._local_subscriptions(self.key)
+        if local:
+            on_loop = threading.get_ident() == self._bus._loop_thread
+            for sub in local:
+                sub.push(self.key, payload, on_loop=on_loop)
+        self._out.put(payload)
+
+    def close(self) -> None:
+        self._out.undeclare()
+
+
 class Bus:
     """One robot's view of the network, used from one event loop.
 
@@ -780,6 +800,11 @@ class Bus:
         if len(parts) != 1 or named_parts:
             raise TypeError("publisher(key, schema): give the key and one schema name")
         return Publisher(self, topic, parts[0], period_s=period_s)
+
+    def raw_publisher(self, key: str) -> RawPublisher:
+        """A publisher of payloads exactly as given (no encoding, no checks: a tool replaying
+        recorded messages); subscribers of this bus receive them too."""
+        return RawPublisher(self, key)
 
     def subscribe(
         self, key_expr: str, handler: SampleHandler, *, latest: bool = True,

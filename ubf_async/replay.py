@@ -1,0 +1,200 @@
+"""Replaying a recording onto the bus: ``python -m ubf_async.replay FILE.mcap``.
+
+A recording of :mod:`ubf_async.record` is published back with its **original bytes** and
+**original timing**: message ``i`` goes out ``(log_timeᵢ − log_time₀) / K`` wall seconds after
+the first at ``--speed K`` (1 by default), or as fast as the bus takes them with ``--fast``.
+A simulated run's recording carries the simulator's clock (``ubf/<robot>/clock``), so a fresh
+controller that follows it — ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time`` —
+runs on the recorded simulated time, whatever the pace.
+
+By default only what a controller **takes in** is replayed: sensor samples, remote votes and
+the clock (``sensor/**``, ``vote/**``, ``clock``). The commands, traces, heartbeats and status
+of the recorded run are what a re-run produces, so they are left out (``--only`` chooses other
+keys, relative to ``ubf/<robot>/``). The messages go to the keys of ``--robot`` (the
+connection flags' robot, ``mini`` by default), whichever robot was recorded.
+
+In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
+the re-run's :class:`~ubf_async.clock.SimClock` and a ``settle`` (the in-process transport's),
+:func:`replay` advances the clock to each message's time itself and waits until everything
+delivered has been handled — a deterministic re-run, tick for tick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import time
+from collections.abc import Awaitable, Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from ubf_async.bus import (
+    DEFAULT_ATTACH_TIMEOUT_S,
+    Bus,
+    HelpFormatter,
+    RawPublisher,
+    add_connection_arguments,
+    connection_options,
+    wait_for_robot,
+)
+from ubf_async.cli import run_main
+from ubf_async.clock import SimClock
+from ubf_async.errors import ConfigurationError
+from ubf_async.transport import intersects
+
+log = logging.getLogger(__name__)
+
+CONTROLLER_INPUTS = ("sensor/**", "vote/**", "clock")
+"""What is replayed by default: what a controller takes in (keys under ``ubf/<robot>/``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    key: str
+    payload: bytes
+    log_time_ns: int
+
+
+class Recording:
+    """The messages of an MCAP recording of ``robot`` (``None``: the file's) whose keys match
+    ``only`` (key expressions relative to ``ubf/<robot>/``), in log-time order."""
+
+    def __init__(self, path: Path, *, only: Sequence[str] = CONTROLLER_INPUTS,
+                 robot: str | None = None) -> None:
+        self.path = path
+        try:
+            with path.open("rb") as f:
+                reader = make_reader(f)
+                metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        except (OSError, ValueError, McapError) as exc:
+            raise ConfigurationError(f"{path}: not a readable MCAP recording ({exc})") from None
+        recorded = metadata.get("ubf_async", {}).get("robot")
+        if recorded is None:
+            raise ConfigurationError(f"{path}: not a ubf_async recording (no ubf_async "
+                                     f"metadata)")
+        self.recorded_robot = recorded
+        self.robot = robot or recorded
+        self.simulated = metadata["ubf_async"].get("clock") == "simulated"
+        self._from = f"ubf/{recorded}/"
+        self._patterns = [self._from + o.strip("/") for o in only]
+
+    def __iter__(self) -> Iterator[Recorded]:
+        to = f"ubf/{self.robot}/"
+        with self.path.open("rb") as f:
+            for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+                key = channel.topic
+                if any(intersects(p, key) for p in self._patterns):
+                    yield Recorded(to + key[len(self._from):], message.data, message.log_time)
+
+
+Settle = Callable[[], Awaitable[None]]
+
+
+@dataclass
+class ReplayStats:
+    published: int = 0
+    late_s: float = 0.0
+    """How far behind the recording's timing the replay fell at worst (paced replays)."""
+
+
+async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
+                 clock: SimClock | None = None, settle: Settle | None = None) -> ReplayStats:
+    """Publish ``recording`` on ``bus``: paced at ``speed`` × the recorded timing (``None``:
+    as fast as possible). With ``clock``, each message is published at its recorded time on
+    that clock (advanced here); with ``settle``, each message is handled before the next."""
+    if speed is not None and not speed > 0:
+        raise ConfigurationError(f"speed must be > 0, got {speed}")
+    publishers: dict[str, RawPublisher] = {}
+    stats = ReplayStats()
+    first_ns: int | None = None
+    wall_start = time.monotonic()
+    try:
+        for message in recording:
+            if first_ns is None:
+                first_ns = message.log_time_ns
+            if speed is not None:
+                due = wall_start + (message.log_time_ns - first_ns) / 1e9 / speed
+                delay = due - time.monotonic()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                else:
+                    stats.late_s = max(stats.late_s, -delay)
+            if clock is not None and message.log_time_ns > clock.now_ns():
+                clock.advance_to(message.log_time_ns)
+                if settle is not None:
+                    await settle()  # what was due by then runs before the message arrives
+            publisher = publishers.get(message.key)
+            if publisher is None:
+                publisher = publishers[message.key] = bus.raw_publisher(message.key)
+            publisher.put(message.payload)
+            stats.published += 1
+            if settle is not None:
+                await settle()
+            elif speed is None and stats.published % 64 == 0:
+                await asyncio.sleep(0)  # let the loop breathe
+    finally:
+        for publisher in publishers.values():
+            publisher.close()
+    return stats
+
+
+# -- python -m ubf_async.replay --------------------------------------------------------------
+
+PROG = "python -m ubf_async.replay"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=HelpFormatter,
+        description="Publish an MCAP recording (python -m ubf_async.record, launch --record) "
+                    "back onto the bus with its original bytes and timing, so a controller "
+                    "or a behaviour can be re-run on recorded inputs (docs/recording.md). A "
+                    "simulated run's clock is replayed too: re-run the controller with "
+                    "'python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time'.")
+    parser.add_argument("file", type=Path, metavar="FILE.mcap")
+    add_connection_arguments(parser)
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=float, default=1.0, metavar="K",
+                      help="K times the recorded pace")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    parser.add_argument("--only", default=",".join(CONTROLLER_INPUTS), metavar="KEYS",
+                        help="comma-separated key expressions under ubf/<robot>/ to replay "
+                             "(default: what a controller takes in; '**' for everything)")
+    parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
+                        metavar="S", help="with --connect: how long to wait for the robot")
+    return parser
+
+
+async def _main(args: argparse.Namespace) -> int:
+    only = [k for k in args.only.split(",") if k.strip()]
+    recording = Recording(args.file, only=only, robot=args.robot)
+    bus = await Bus.open(connection_options(args))
+    try:
+        await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
+        print(f"{PROG}: replaying {args.file} onto robot {recording.robot!r} "
+              f"({'as fast as possible' if args.fast else f'{args.speed:g}x'}; "
+              f"{', '.join(only)})", flush=True)
+        stats = await replay(recording, bus=bus, speed=None if args.fast else args.speed)
+        print(f"{PROG}: {stats.published} messages replayed"
+              + (f", at worst {stats.late_s * 1e3:.0f} ms behind" if stats.late_s > 0.01
+                 else ""), flush=True)
+        return 0
+    finally:
+        await bus.aclose()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.fast and not args.speed > 0:
+        parser.error(f"--speed must be > 0, got {args.speed:g}")
+    logging.basicConfig(level="WARNING", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run_main(lambda: _main(args), prog=PROG)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
