@@ -65,7 +65,7 @@ from ubf_async.robotfile import (
     load_robot,
 )
 from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun, Simulator
-from ubf_async.topics import LED_STATE, sensor_topic
+from ubf_async.status import StatusWriter, status_fields
 
 log = logging.getLogger("ubf_async.launch")
 
@@ -274,52 +274,6 @@ def check_outputs(summary: Path | None, record: Path | None) -> None:
             raise ConfigurationError(f"{flag}: cannot write in {folder}: {reason}") from None
 
 
-def format_status(
-    robot: str, elapsed_s: float, controller: Controller, aggregator: StateAggregator,
-    health: HealthMonitor,
-) -> str:
-    stats = controller.stats
-    rate = stats.rate_hz()
-    parts = [f"[{robot}] {elapsed_s:6.1f}s",
-             f"tick {rate:5.1f}Hz" if rate else "tick   --  ",
-             f"overruns {stats.overruns}"]
-    sources = aggregator.sources()
-    if sources:
-        parts.append(" ".join(
-            f"{s.source}{_reading(aggregator, s.source)} {s.age_s * 1e3:.0f}ms"
-            f"{' STALE' if s.stale else ''}" for s in sources
-        ))
-    else:
-        parts.append(f"no sensors yet (waiting on ubf/{robot}/sensor/*/*)")
-    last = controller.last_action
-    if last is not None:
-        winners = ",".join(controller.last_trace.winning_leaves()) if controller.last_trace else ""
-        parts.append(f"drive {last.speed:+4.0f}/{last.turn:+4.0f} ({winners or 'stop'})")
-    bad = sum(aggregator.malformed.values())
-    if bad:
-        parts.append(f"rejected {bad}")
-    refused = {reason: n for reason, n in aggregator.refusals().items()
-               if n and reason != "malformed"}
-    if refused:
-        parts.append("refused " + ",".join(f"{reason} {n}" for reason, n in refused.items()))
-    quarantined = controller.quarantined()
-    if quarantined:
-        parts.append("QUARANTINED " + ",".join(quarantined))
-    unhealthy = health.unhealthy()
-    if unhealthy:
-        parts.append("UNHEALTHY " + ",".join(unhealthy))
-    return " | ".join(parts)
-
-
-def _reading(aggregator: StateAggregator, source: str) -> str:
-    """What the status line shows of a source's newest sample besides its age: the LEDs, lit
-    ● or dark ○ (LED 0 first)."""
-    if sensor_topic(source) is not LED_STATE:
-        return ""
-    leds = aggregator.entries[source].message.data
-    return " " + "".join("●" if leds.mask >> i & 1 else "○" for i in range(leds.count))
-
-
 class ResultsNotSavedError(UbfError, OSError):
     """The run's summary or recording could not be written at the end of the run; the summary
     was printed instead (the message says where writing failed)."""
@@ -409,7 +363,13 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             await component.start()
         if sim_run is not None:
             sim_run.start(controller)
-        rate = f" at {settings.rate_hz:g} Hz" if settings.mode is TickMode.PERIODIC else ""
+        rate = {
+            TickMode.PERIODIC: f" at {settings.rate_hz:g} Hz"
+            + (f" + a reflex tick on each {', '.join(settings.reflex)} sample"
+               if settings.reflex else ""),
+            TickMode.SYNC: f" (one tick per {settings.sync_source} sample, the thesis's loop)",
+            TickMode.EVENT: f" (one tick per {settings.trigger} sample)",
+        }[settings.mode]
         here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
         print(f"  devices: {here or 'none here'}", file=out)
         print(f"  controller: {settings.mode.value}{rate}, tree:", file=out)
@@ -421,8 +381,6 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
         return 0
     finally:
-        if not args.quiet and out.isatty():
-            out.write("\n")
         failure = None
         if sim_run is not None and controller is not None:
             failure = await save_results(sim_run, controller, out)
@@ -501,18 +459,17 @@ async def _run_until_done(
     def elapsed() -> float:
         return sim_run.elapsed_s() if sim_run is not None else time.monotonic() - wall_start
 
+    writer = StatusWriter(out)
+
     async def report() -> None:
-        interactive = out.isatty()
-        while True:
-            await asyncio.sleep(args.status_period_s)
-            line = format_status(robot, elapsed(), controller, aggregator, health)
-            if sim_run is not None and (suffix := sim_run.status_suffix()):
-                line += f" | {suffix}"
-            if interactive:
-                out.write("\r\x1b[2K" + line[:200])
-            else:
-                out.write(line + "\n")
-            out.flush()
+        try:
+            while True:
+                await asyncio.sleep(args.status_period_s)
+                writer.write(status_fields(
+                    robot, elapsed(), controller, aggregator, health,
+                    simulation=sim_run.status_suffix() if sim_run is not None else ""))
+        finally:
+            writer.end()
 
     if duration is None:
         await (asyncio.Event().wait() if args.quiet else report())

@@ -1,0 +1,135 @@
+"""The launch status line: fitted to the terminal's width (80 and 200 columns) with the
+important fields first, tick rates labelled by what ran them, redrawn in place on a terminal
+and one plain line per period otherwise."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import pty
+import re
+import select
+import struct
+import subprocess
+import sys
+import termios
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.test_inprocess_units import RANGE_PERIOD_S, Rig, tree
+from ubf_async.aggregator import StateAggregator
+from ubf_async.controller import Controller, TickMode
+from ubf_async.status import fit, tick_label
+
+ROOT = Path(__file__).resolve().parent.parent
+FIELDS = ["[mini] 12.3s", "drive +40/+30 (chase,flee)", "tick 50.0Hz +reflex 24.9Hz",
+          "sim 12.3s x1.00", "camera/front 130ms", "encoders/wheels 10ms",
+          "leds/panel ●○ 230ms", "motors/main 10ms", "odometry/wheels 10ms",
+          "range/front 30ms", "range/left 12ms STALE"]
+
+
+@pytest.mark.parametrize("width", [80, 200])
+def test_fit_keeps_every_line_within_the_width_and_the_important_fields_first(
+        width: int) -> None:
+    lines = fit(FIELDS, width)
+    assert 1 <= len(lines) <= 2
+    assert all(len(line) <= width for line in lines)
+    assert lines[0].startswith("[mini] 12.3s | drive +40/+30 (chase,flee) | tick 50.0Hz")
+    shown = " | ".join(lines)
+    assert "sim 12.3s x1.00" in shown  # the real-time factor is never pushed out
+    more = re.search(r"\+(\d+) more", shown)
+    left = int(more.group(1)) if more else 0
+    assert sum(f in shown for f in FIELDS) + left == len(FIELDS)  # every field accounted for
+    if width == 200:
+        assert left == 0 and len(lines) == 2  # all of it, wrapped to a second line
+    else:
+        assert left > 0  # what does not fit in two lines is counted, not run off the edge
+
+
+def test_fit_cuts_a_field_longer_than_a_line() -> None:
+    lines = fit(["x" * 300, "drive +0/+0 (stop)"], 80)
+    assert lines == ["x" * 79 + "…", "drive +0/+0 (stop)"]
+
+
+@pytest.mark.asyncio
+async def test_tick_rates_are_labelled_by_what_ran_them() -> None:
+    rig = Rig()
+    agg = StateAggregator(bus=rig.robot)
+    periodic = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10,
+                          reflex_sources=("range/",))
+    await rig.start(agg, periodic)
+    for step in range(30):  # 3 s: ticks at 10 Hz, IR samples at 5 Hz
+        if step % 2 == 0:
+            await rig.publish_range(400)
+        await rig.advance_s(0.1)
+    label = tick_label(periodic)
+    match = re.fullmatch(r"tick (\S+)Hz \+reflex (\S+)Hz", label)
+    assert match, label
+    assert float(match.group(1)) == pytest.approx(10, abs=0.5)
+    assert float(match.group(2)) == pytest.approx(5, abs=0.5)
+    await rig.close()
+    rig = Rig()
+    agg = StateAggregator(bus=rig.robot)
+    sync = Controller(bus=rig.robot, aggregator=agg, root=tree(), mode=TickMode.SYNC,
+                      sync_source="range/front")
+    await rig.start(agg, sync)
+    for _ in range(int(3 / RANGE_PERIOD_S)):
+        await rig.publish_range(400)
+        await rig.advance_s(RANGE_PERIOD_S)
+    label = tick_label(sync)
+    assert label.startswith("sync ") and label.endswith("(range/front)"), label
+    assert float(label.split()[1].removesuffix("Hz")) == pytest.approx(5, abs=0.5)
+    await rig.close()
+
+
+def visible_lines(raw: str) -> list[str]:
+    """What a terminal shows line by line, escape sequences and carriage returns resolved
+    to their effect on line length (each \\r starts the line over)."""
+    text = re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "\n", raw)
+    return [part for line in text.split("\n") for part in line.split("\r")]
+
+
+def test_on_an_80_column_terminal_no_line_is_longer_than_the_terminal() -> None:
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", "--duration", "3", "--speed", "2",
+         "--status-period-s", "0.2", "--listen", "tcp/127.0.0.1:0"],
+        cwd=ROOT, stdin=follower, stdout=follower, stderr=follower,
+        env={**os.environ, "PYTHONUNBUFFERED": "1", "COLUMNS": "80"})
+    os.close(follower)
+    raw = b""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([leader], [], [], 1.0)
+        if ready:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # the child closed the terminal
+                break
+            if not chunk:
+                break
+            raw += chunk
+        elif proc.poll() is not None:
+            break
+    os.close(leader)
+    assert proc.wait(timeout=30) == 0
+    text = raw.decode(errors="replace")
+    status = [line for line in visible_lines(text) if line.startswith("[mini]")]
+    assert len(status) >= 5  # redrawn every 0.2 s
+    assert all(len(line) <= 80 for line in status), max(status, key=len)
+    assert all("drive " in line and "tick " in line for line in status if "0.0s" not in line)
+
+
+def test_without_a_terminal_each_period_is_one_plain_line() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", "--duration", "2", "--speed", "2",
+         "--status-period-s", "0.25", "--listen", "tcp/127.0.0.1:0"], cwd=ROOT,
+        capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    status = [line for line in result.stdout.splitlines() if line.startswith("[mini]")]
+    assert 3 <= len(status) <= 5  # 1 s of wall time, a line every 0.25 s
+    assert "\r" not in result.stdout and "\x1b" not in result.stdout
+    assert all(" | tick 50.0Hz +reflex " in line or "tick --" in line for line in status)
