@@ -159,3 +159,22 @@ def test_mistakes_are_refused_with_a_clear_error(change: dict[str, Any], message
 def test_touching_is_not_overlapping() -> None:
     """The ball right in front of the robot's nose (3.5 cm from the camera, contact) loads."""
     parse_scenario(base(ball={"x_m": 0.05 + 0.0326, "y_m": 0.0}))
+
+
+def test_expected_outcomes_are_checked_when_the_scenario_loads() -> None:
+    from components.sim.scenarios import parse_scenario
+
+    base = {"name": "x", "ball": {"x_m": 0.6, "y_m": 0.0}}
+    scenario = parse_scenario({**base, "expect": {
+        "outcome": "settles", "criteria": {"|ball_bearing_deg|": [0, 10]}}})
+    assert scenario.expect is not None
+    judged = scenario.expect.judge({"ball_bearing_deg": -12.5})
+    assert judged["pass"] is False and judged["criteria"][0]["value"] == -12.5
+    assert scenario.expect.judge({"ball_bearing_deg": -9})["pass"] is True
+    assert scenario.expect.judge({})["pass"] is False  # a number the run did not report
+    for bad, message in (({"criteria": {}}, "outcome"),
+                         ({"outcome": "x", "criteria": {"a": [2, 1]}}, r"\[low, high\]"),
+                         ({"outcome": "x", "criteria": {"a": [0, "1"]}}, r"\[low, high\]"),
+                         ({"outcome": "x", "when": 1}, "unknown field")):
+        with pytest.raises(ScenarioError, match=message):
+            parse_scenario({**base, "expect": bad})

@@ -233,7 +233,8 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
         options = SimulationOptions(
             scenario=args.scenario, speed=args.speed, seed=args.seed,
             duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
-            record_every_s=args.record_every_s)
+            record_every_s=args.record_every_s,
+            command_line=("python", "-m", "ubf_async.launch", *sys.argv[1:]))
     if simulator is None:
         given = [flag for flag, value in (("--scenario", args.scenario),
                                           ("--summary", args.summary)) if value is not None]

@@ -42,6 +42,8 @@ class SimulationOptions:
     summary_path: Path | None = None
     record_dir: Path | None = None
     record_every_s: float = 2.0
+    command_line: tuple[str, ...] = ()
+    """How the run was started (for its summary)."""
 
 
 @dataclass(kw_only=True)

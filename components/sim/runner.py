@@ -49,6 +49,7 @@ from components.sim.record import (
 )
 from components.sim.scenarios import load_scenario
 from components.sim.world import World, wrap_angle
+from ubf_async import __version__
 from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
@@ -56,6 +57,22 @@ from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import SimulationOptions
 from ubf_async.topics import LED_STATE, LedState
+
+SLOW_SHARE = 0.95
+"""A run is reported slow when it reached less than this share of the speed asked for."""
+SIGNIFICANT_DIGITS = 6
+"""Numbers in the summary keep this many significant digits."""
+
+
+def rounded(value: Any) -> Any:
+    """``value`` with every float rounded to :data:`SIGNIFICANT_DIGITS` significant digits."""
+    if isinstance(value, float):
+        return float(f"{value:.{SIGNIFICANT_DIGITS}g}") if math.isfinite(value) else value
+    if isinstance(value, dict):
+        return {k: rounded(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [rounded(v) for v in value]
+    return value
 
 log = logging.getLogger(__name__)
 
@@ -295,8 +312,16 @@ class SimulationRun:
                                     "errors": self._recording_errors}
             print(f"  recorded {self.trajectory.count} samples and {self.frames_written} "
                   f"frames in {folder}", file=out)
+        summary = rounded(summary)
+        expected = summary.get("expected")
+        if expected is not None:
+            failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
+            print(f"  expected: {expected['outcome']} — "
+                  + ("met" if not failed else f"NOT met ({', '.join(failed)})"), file=out)
+        for warning in summary["warnings"]:
+            print(f"  warning: {warning}", file=out)
         if self.options.summary_path is not None:
-            text = json.dumps(summary, indent=2)
+            text = json.dumps(summary, indent=2, ensure_ascii=False)
             await asyncio.to_thread(self.options.summary_path.write_text, text, "utf-8")
             print(f"  summary written to {self.options.summary_path}", file=out)
         return summary
@@ -368,4 +393,14 @@ class SimulationRun:
             out["ball"] = {"x_m": snap.ball.x_m, "y_m": snap.ball.y_m}
             out["ball_distance_m"] = distance
             out["ball_bearing_deg"] = bearing
+        expect = self.scenario.expect
+        out["expected"] = expect.judge(out) if expect is not None else None
+        out["warnings"] = []
+        rtf = out["real_time_factor"]
+        if rtf is not None and rtf < SLOW_SHARE * self.options.speed:
+            out["warnings"].append(
+                f"the run reached {rtf:.2f}x real time, short of the {self.options.speed:g}x "
+                f"asked for (--speed): the machine could not keep up")
+        out["command_line"] = list(self.options.command_line)
+        out["version"] = __version__
         return out

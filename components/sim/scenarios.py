@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -96,6 +97,39 @@ class Push:
     over_s: float = 0.3
 
 
+@dataclass(frozen=True, slots=True)
+class Criterion:
+    """One number of the run's summary that must lie within ``[low, high]`` (``path`` is
+    dotted: ``motion_last_2s.max_offset_m``; ``abs`` judges the magnitude)."""
+
+    path: str
+    low: float
+    high: float
+    absolute: bool = False
+
+    def judge(self, summary: Mapping[str, Any]) -> dict[str, Any]:
+        value: Any = summary
+        for part in self.path.split("."):
+            value = value.get(part) if isinstance(value, Mapping) else None
+        ok = isinstance(value, int | float) and math.isfinite(value) and (
+            self.low <= (abs(value) if self.absolute else value) <= self.high)
+        return {"criterion": f"{'|' + self.path + '|' if self.absolute else self.path}",
+                "range": [self.low, self.high], "value": value, "pass": ok}
+
+
+@dataclass(frozen=True, slots=True)
+class Expectation:
+    """What the thesis says a scenario ends with, and the numbers that show it."""
+
+    outcome: str
+    criteria: tuple[Criterion, ...] = ()
+
+    def judge(self, summary: Mapping[str, Any]) -> dict[str, Any]:
+        verdicts = [c.judge(summary) for c in self.criteria]
+        return {"outcome": self.outcome, "criteria": verdicts,
+                "pass": all(v["pass"] for v in verdicts)}
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Scenario:
     name: str
@@ -110,6 +144,8 @@ class Scenario:
     """Scripts of distractors, by their index in ``world.distractors``."""
     lighting_script: tuple[LightingChange, ...] = ()
     pushes: tuple[Push, ...] = ()
+    expect: Expectation | None = None
+    """The expected outcome (``expect`` in the file), judged in the run's summary."""
 
     def install(self, world: World) -> None:
         """Attach the scripts, lighting changes and pushes to ``world`` (step hooks)."""
@@ -315,7 +351,7 @@ class PushScript:
 
 _TOP_LEVEL = {"name", "title", "description", "seed", "duration_s", "robot", "ball", "arena",
               "walls", "obstacles", "distractors", "lighting", "ball_script", "scripts",
-              "lighting_script", "pushes"}
+              "lighting_script", "pushes", "expect"}
 _DEPRECATED = {"search_period_s"}
 """Fields old scenario files may still have: read (and checked), warned about, not used."""
 
@@ -544,7 +580,33 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
                     description=str(data.get("description", "")), world=world,
                     ball_script=steps, duration_s=duration, seed=seed,
                     source=source, scripts=scripts, lighting_script=tuple(lighting_script),
-                    pushes=tuple(pushes))
+                    pushes=tuple(pushes), expect=_expectation(data.get("expect")))
+
+
+def _expectation(data: Any) -> Expectation | None:
+    """``expect``: ``{"outcome": TEXT, "criteria": {"PATH": [LOW, HIGH], "|PATH|": [..]}}``."""
+    if data is None:
+        return None
+    data = _check_keys(data, {"outcome", "criteria"}, "expect")
+    outcome = data.get("outcome")
+    if not isinstance(outcome, str) or not outcome:
+        raise ScenarioError("expect.outcome must be a non-empty string")
+    criteria_data = data.get("criteria", {})
+    if not isinstance(criteria_data, dict):
+        raise ScenarioError("expect.criteria must be an object: a summary field → [low, high]")
+    criteria = []
+    for key, bounds in criteria_data.items():
+        where = f"expect.criteria.{key}"
+        absolute = key.startswith("|") and key.endswith("|")
+        path = key.strip("|")
+        if not path or not isinstance(bounds, list) or len(bounds) != 2 or not all(
+                isinstance(b, int | float) and not isinstance(b, bool) and math.isfinite(b)
+                for b in bounds) or bounds[0] > bounds[1]:
+            raise ScenarioError(f"{where}: expected [low, high] with finite low <= high, got "
+                                f"{bounds!r}")
+        criteria.append(Criterion(path=path, low=float(bounds[0]), high=float(bounds[1]),
+                                  absolute=absolute))
+    return Expectation(outcome=outcome, criteria=tuple(criteria))
 
 
 # ---------------------------------------------------------------------------------------------
