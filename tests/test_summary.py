@@ -62,3 +62,33 @@ def test_a_run_that_settles_meets_it_and_a_run_too_slow_is_warned_about(
         f"the run reached {rtf:.2f}x real time, short of the 500x asked for (--speed): the "
         f"machine could not keep up"]
     assert "warning: the run reached" in out
+
+
+def test_the_trajectory_plot_is_in_metres_with_time_marks_events_and_winners(
+        tmp_path: Path) -> None:
+    from components.sim.plots import save_run_plot
+    from components.sim.record import read_trajectory_csv
+    from components.sim.scenarios import load_scenario
+    from components.sim.world import World
+
+    result = subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "keep-away", "--speed", "20",
+         "--duration", "25", "--quiet", "--listen", "tcp/127.0.0.1:0", "--record",
+         str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert (tmp_path / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    scenario = load_scenario("keep-away")
+    samples = read_trajectory_csv(tmp_path / "trajectory.csv")
+    events = [(step.at_s, f"ball: {step.kind}") for step in scenario.ball_script
+              if step.at_s <= 25]
+    figure = save_run_plot(tmp_path / "again.png", samples, World(scenario.world).snapshot(),
+                           title="keep-away", events=events)
+    ax = figure.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (m)", "y (m)")
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert {"search", "chase"} <= set(legend) and "ball" in legend
+    notes = [t.get_text() for t in ax.texts]
+    assert "0s" in notes and "10s" in notes and "20s" in notes  # time marks along the path
+    assert sum(n.startswith("ball: ") for n in notes) == len(events) >= 1
+    # Framed on what happened: the ball lifted out of the world is not in view.
+    assert ax.get_xlim()[1] < 5 and ax.get_ylim()[1] < 5

@@ -233,8 +233,6 @@ def read_trajectory_csv(path: Path) -> list[TrajectorySample]:
 # ---------------------------------------------------------------------------------------------
 # Pictures (BGR for OpenCV)
 
-_PINK_BGR = (150, 60, 235)
-_ROBOT_BGR = (180, 90, 20)
 
 
 LED_LIT_BGR = (40, 40, 255)
@@ -282,81 +280,8 @@ def _draw_leds(image: np.ndarray, leds: Mapping[str, LedState]) -> None:
         x -= 12
 
 
-def plot_trajectory(samples: Sequence[TrajectorySample], world: WorldSnapshot, *,
-                    title: str, size_px: int = 800) -> np.ndarray:
-    """Top-down view: walls, obstacles, distractors, the robot's path (darker = later), the
-    ball's path, start and end poses, a 0.5 m grid and a scale bar."""
-    # Frame what happened (robot and visible ball, plus a margin); walls are clipped.
-    xs = [s.robot_x_m for s in samples] + [s.ball_x_m for s in samples if _on_stage(s)]
-    ys = [s.robot_y_m for s in samples] + [s.ball_y_m for s in samples if _on_stage(s)]
-    xs, ys = xs or [0.0], ys or [0.0]
-    span = max(max(xs) - min(xs), max(ys) - min(ys), 0.6) + 0.6
-    x0 = (max(xs) + min(xs)) / 2 - span / 2
-    y0 = (max(ys) + min(ys)) / 2 - span / 2
-    x1, y1 = x0 + span, y0 + span
-    margin = 40
-    k = (size_px - 2 * margin) / span
-
-    def px(x: float, y: float) -> tuple[int, int]:
-        return (int(margin + (x - x0) * k), int(size_px - margin - (y - y0) * k))
-
-    image = np.full((size_px, size_px, 3), 250, np.uint8)
-    g = math.floor(x0 * 2) / 2
-    while g <= x1:
-        cv2.line(image, px(g, y0), px(g, y0 + span), (225, 225, 225), 1)
-        g += 0.5
-    g = math.floor(y0 * 2) / 2
-    while g <= y1:
-        cv2.line(image, px(x0, g), px(x0 + span, g), (225, 225, 225), 1)
-        g += 0.5
-    for wall in world.walls:
-        cv2.line(image, px(wall.x1_m, wall.y1_m), px(wall.x2_m, wall.y2_m), (60, 60, 60), 3)
-    for box in world.boxes:
-        pts = np.array([px(x, y) for x, y in box.corners()], np.int32)
-        cv2.fillPoly(image, [pts], (120, 120, 120))
-    for d in world.distractors:
-        r, gg, b = d.color
-        cv2.circle(image, px(d.x_m, d.y_m), max(3, int(d.radius_m * k)), (b, gg, r), -1)
-    n = len(samples)
-    for i, (a, b) in enumerate(itertools.pairwise(samples)):
-        shade = int(200 - 170 * i / max(1, n - 1))
-        cv2.line(image, px(a.robot_x_m, a.robot_y_m), px(b.robot_x_m, b.robot_y_m),
-                 (shade, int(shade * 0.6), 20), 2)
-        if _on_stage(a) and _on_stage(b):
-            cv2.line(image, px(a.ball_x_m, a.ball_y_m), px(b.ball_x_m, b.ball_y_m),
-                     _PINK_BGR, 1)
-    if samples:
-        first, last = samples[0], samples[-1]
-        _robot_marker(image, px(first.robot_x_m, first.robot_y_m), first.robot_heading_rad,
-                      (160, 160, 160))
-        _robot_marker(image, px(last.robot_x_m, last.robot_y_m), last.robot_heading_rad,
-                      _ROBOT_BGR)
-        if _on_stage(last):
-            cv2.circle(image, px(last.ball_x_m, last.ball_y_m), max(4, int(0.0325 * k)),
-                       _PINK_BGR, -1)
-    cv2.putText(image, title, (margin, 26), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1,
-                cv2.LINE_AA)
-    bar = int(0.5 * k)
-    cv2.line(image, (size_px - margin - bar, size_px - 15), (size_px - margin, size_px - 15),
-             (0, 0, 0), 2)
-    cv2.putText(image, "0.5 m", (size_px - margin - bar, size_px - 20),
-                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(image, "robot path: light = early, dark = late; pink = ball; grey = start",
-                (margin, size_px - 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
-                cv2.LINE_AA)
-    return image
-
-
-def _on_stage(s: TrajectorySample) -> bool:
+def ball_on_stage(s: TrajectorySample) -> bool:
     """The ball is in the world (not lifted out of it by a scenario's ``hide``)."""
     return s.ball_x_m is not None and s.ball_y_m is not None and abs(s.ball_x_m) < 20 \
         and abs(s.ball_y_m) < 20
 
-
-def _robot_marker(image: np.ndarray, centre: tuple[int, int], heading_rad: float,
-                  color: tuple[int, int, int]) -> None:
-    cx, cy = centre
-    tip = (int(cx + 14 * math.cos(heading_rad)), int(cy - 14 * math.sin(heading_rad)))
-    left = (int(cx + 8 * math.cos(heading_rad + 2.5)), int(cy - 8 * math.sin(heading_rad + 2.5)))
-    right = (int(cx + 8 * math.cos(heading_rad - 2.5)), int(cy - 8 * math.sin(heading_rad - 2.5)))
-    cv2.fillPoly(image, [np.array([tip, left, right], np.int32)], color)

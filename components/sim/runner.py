@@ -37,6 +37,7 @@ from components.camera.seekcolor import seekcolor
 from components.encoders.component import EncodersComponent
 from components.sim.backends import SimCameraBackend
 from components.sim.component import RTF_WINDOW_S, SimulatorComponent
+from components.sim.plots import save_run_plot
 from components.sim.record import (
     TrajectoryBuffer,
     TrajectoryCsvWriter,
@@ -44,7 +45,6 @@ from components.sim.record import (
     annotate_frame,
     camera_to_ball,
     motion_over,
-    plot_trajectory,
     trajectory_sample,
 )
 from components.sim.scenarios import load_scenario
@@ -330,9 +330,9 @@ class SimulationRun:
         if self._csv is not None:
             self._csv.write(rest)
             self._csv.close()
-        image = plot_trajectory(self.samples, self.world.snapshot(),
-                                title=f"{self.scenario.title} (seed {self.seed})")
-        cv2.imwrite(str(folder / "trajectory.png"), image)
+        events = [(step.at_s, f"ball: {step.kind}") for step in self.scenario.ball_script]
+        save_run_plot(folder / "trajectory.png", self.samples, self.world.snapshot(),
+                      title=f"{self.scenario.title} (seed {self.seed})", events=events)
         camera = SimCameraBackend(self.world)
         self._write_frame(camera, folder, self.world.time_s)  # the final view
 
