@@ -25,11 +25,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import itertools
 import json
+import statistics
 import sys
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections import deque
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -37,7 +40,7 @@ import msgpack
 import msgspec
 import yaml
 
-from ubf_async import __version__, topics
+from ubf_async import clockdomain, topics
 from ubf_async.bus import (
     DEFAULT_LISTEN,
     Bus,
@@ -50,7 +53,8 @@ from ubf_async.component import HealthMonitor
 from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
-from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode
+from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode, encode
+from ubf_async.transport import intersects
 
 PROG = "python -m ubf_async.inspector"
 
@@ -95,7 +99,10 @@ def _json(value: Any) -> str:
 # Command line
 
 
-def _common_parser() -> argparse.ArgumentParser:
+def _common_parser(*, suppress: bool = False) -> argparse.ArgumentParser:
+    """The connection flags. ``suppress``: defaults left out, for the subcommands, so that
+    flags given before the subcommand (parsed by the top level, with the defaults) are not
+    overwritten by the subcommand's defaults — the flags work before or after it."""
     common = argparse.ArgumentParser(add_help=False)
     add_connection_arguments(common)
     for action in common._actions:  # the tool's defaults differ from a component's
@@ -108,13 +115,17 @@ def _common_parser() -> argparse.ArgumentParser:
                            "unless --listen is given)")
     common.add_argument("--timeout", type=float, default=5.0, metavar="S",
                         help="how long to wait for the robot to answer (default: 5)")
+    if suppress:
+        for action in common._actions:
+            if not isinstance(action, argparse._VersionAction):
+                action.default = argparse.SUPPRESS
     return common
 
 
 def build_parser() -> argparse.ArgumentParser:
-    common = _common_parser()
+    common = _common_parser(suppress=True)
     parser = argparse.ArgumentParser(
-        prog=PROG,
+        prog=PROG, parents=[_common_parser()],
         description="Inspect a running ubf_async robot over zenoh: its live components, "
                     "its keys and their rates, decoded samples, and the controller's state "
                     "with the last tick's explanation.",
@@ -127,10 +138,15 @@ def build_parser() -> argparse.ArgumentParser:
                f"  {PROG} tree set-arbiter seek_pink_ball MonteCarlo --param hold_ticks=5\n"
                f"  {PROG} tree set-child seek_pink_ball chase --priority 3\n"
                f"  {PROG} tree load my-tree.yaml\n"
+               f"  {PROG} hz cmd/drive\n"
+               f"  {PROG} bw 'sensor/**'\n"
+               f"  {PROG} info sensor/camera/front\n"
+               f"  {PROG} pub cmd/leds '{{mask: 1}}'\n"
+               f"  {PROG} state --watch\n"
+               f"connection flags (--connect, --robot, ...) go before or after COMMAND.\n"
                f"run `{PROG} COMMAND --help` for a command's options.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     components = sub.add_parser(
         "components", parents=[common], help="list the live components (liveliness tokens)",
@@ -173,8 +189,60 @@ def build_parser() -> argparse.ArgumentParser:
     state.add_argument("--controller", default="controller", metavar="NAME",
                        help="the controller component's name (default: controller)")
     state.add_argument("--json", action="store_true", help="print the status as JSON")
+    add_watch_arguments(state)
     add_tree_parser(sub, common)
+    add_rate_parsers(sub, common)
     return parser
+
+
+def add_watch_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--watch", "-w", action="store_true",
+                        help="refresh in place (one block per refresh when not a terminal)")
+    parser.add_argument("--interval", type=float, default=1.0, metavar="S",
+                        help="with --watch: seconds between refreshes (default: 1)")
+    parser.add_argument("--count", "-n", type=int, default=0, metavar="N",
+                        help="with --watch: stop after N refreshes (default: until Ctrl-C)")
+
+
+def add_rate_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
+    key_help = ("a key or key expression, relative to ubf/<robot>/ unless it starts with ubf/ "
+                "(e.g. cmd/drive, 'sensor/**')")
+    for name, what in (("hz", "the rate of a key's messages (like ros2 topic hz)"),
+                       ("bw", "the bandwidth of a key's messages (like ros2 topic bw)")):
+        verb = sub.add_parser(
+            name, parents=[common], help=what,
+            description=f"Print {what}, once a second, one line per key: over the last "
+                        f"--window messages of each key.")
+        verb.add_argument("key", metavar="KEY", help=key_help)
+        verb.add_argument("--window", type=int, default=100, metavar="N",
+                          help="messages each figure is computed over (default: 100)")
+        verb.add_argument("--count", "-n", type=int, default=0, metavar="N",
+                          help="stop after N reports (default: until Ctrl-C)")
+        verb.add_argument("--seconds", type=float, default=None, metavar="S",
+                          help="stop after S seconds")
+    info = sub.add_parser(
+        "info", parents=[common], help="what a key carries: schema, fields, publishers, rate",
+        description="Print the declared topic(s) a key belongs to (schema, every field with "
+                    "its type and bounds), the robot's live components, and what was heard on "
+                    "the key over --seconds: messages, rate, publishers (by their pub id).")
+    info.add_argument("key", metavar="KEY", help=key_help)
+    info.add_argument("--seconds", type=float, default=1.0, metavar="S",
+                      help="how long to listen (default: 1)")
+    pub = sub.add_parser(
+        "pub", parents=[common], help="publish a message on a key, checked first",
+        description="Publish DATA (YAML or JSON: a map of the message's fields) on KEY, "
+                    "checked first exactly as the robot checks it: a message the robot would "
+                    "refuse (an unknown field, a value out of range) is refused here with the "
+                    "reason, and nothing is sent (exit status 2). Stamped on the robot's "
+                    "clock. In secure mode only identities allowed to publish on KEY can.")
+    pub.add_argument("key", metavar="KEY", help=key_help.replace(" or key expression", ""))
+    pub.add_argument("data", metavar="DATA", help="e.g. '{speed: 20, turn: 0}'")
+    pub.add_argument("--schema", default=None,
+                     help="the schema name, for a key no declared topic covers")
+    pub.add_argument("--rate", type=float, default=None, metavar="HZ",
+                     help="publish repeatedly at HZ (with --count, or until Ctrl-C)")
+    pub.add_argument("--count", "-n", type=int, default=1, metavar="N",
+                     help="how many messages (default: 1; 0 with --rate: until Ctrl-C)")
 
 
 def param(text: str) -> tuple[str, Any]:
@@ -230,6 +298,7 @@ def add_tree_parser(sub: Any, common: argparse.ArgumentParser) -> None:
     load.add_argument("fragment", type=Path, metavar="FRAGMENT.yaml")
     for verb in (show, arbiter, child, load):
         verb.add_argument("--json", action="store_true", help="print the reply as JSON")
+    add_watch_arguments(show)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -437,44 +506,73 @@ def format_clock_domain(foreign: Any) -> list[str]:
 async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     keys = bus.keys
     key = topics.CONTROLLER_STATUS.key(keys, args.controller)
-    got: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
+    latest: list[Message] = []
     errors: list[str] = []
+    arrived = asyncio.Event()
 
     def on_sample(k: str, payload: bytes, received_ns: int) -> None:
         try:
-            message = decode(payload)
+            latest.append(decode(payload))
         except ProtocolError as exc:
             errors.append(str(exc))
             return
-        if not got.done():
-            got.set_result(message)
+        del latest[:-1]
+        arrived.set()
 
     sim_now: list[int] = []
 
     def on_clock(clock_key: str, payload: bytes, received_ns: int) -> None:
         with contextlib.suppress(ProtocolError):
             sim_now.append(decode(payload, topic=topics.CLOCK).stamp_ns)
+            del sim_now[:-1]
 
     bus.subscribe(topics.CLOCK.key(bus.keys), on_clock)
     bus.subscribe(key, on_sample)
-    try:
-        message = await asyncio.wait_for(got, args.timeout)
-    except TimeoutError:
-        why = f" (malformed: {errors[-1]})" if errors else ""
-        print(f"error: no status on {key} within {args.timeout:g}s{why}: is the robot's "
-              f"controller running (--controller, --robot)?", file=sys.stderr)
-        return 1
-    if args.json:
-        print(_json({"key": key, "stamp_ns": message.stamp_ns, "status": message.data}),
-              file=out)
-        return 0
-    # The status is stamped on the robot clock: simulation time when a simulator publishes
-    # one (then compare with the newest simulation time seen), else CLOCK_MONOTONIC.
-    now_ns = max(sim_now) if sim_now else time.monotonic_ns()
-    age = (now_ns - message.stamp_ns) / 1e9
-    print(format_state(message.data, robot=bus.robot, controller=args.controller,
-                       status_age_s=age if 0 <= age < 3600 else None), file=out)
-    return 0
+
+    async def block() -> str | None:
+        try:
+            await asyncio.wait_for(arrived.wait(), args.timeout)
+        except TimeoutError:
+            why = f" (malformed: {errors[-1]})" if errors else ""
+            print(f"error: no status on {key} within {args.timeout:g}s{why}: is the robot's "
+                  f"controller running (--controller, --robot)?", file=sys.stderr)
+            return None
+        arrived.clear()
+        message = latest[-1]
+        if args.json:
+            return _json({"key": key, "stamp_ns": message.stamp_ns, "status": message.data})
+        # The status is stamped on the robot clock: simulation time when a simulator publishes
+        # one (then compare with the newest simulation time seen), else CLOCK_MONOTONIC.
+        now_ns = max(sim_now) if sim_now else time.monotonic_ns()
+        age = (now_ns - message.stamp_ns) / 1e9
+        return format_state(message.data, robot=bus.robot, controller=args.controller,
+                            status_age_s=age if 0 <= age < 3600 else None)
+
+    return await watch(block, args, out)
+
+
+async def watch(block: Callable[[], Awaitable[str | None]], args: argparse.Namespace,
+                out: TextIO) -> int:
+    """Print ``block()`` once, or with ``--watch`` every ``--interval`` (``--count`` times):
+    redrawn in place on a terminal, one block after another otherwise. Exit status 1 when a
+    block could not be had."""
+    refreshes = 0
+    interactive = out.isatty()
+    while True:
+        text = await block()
+        if text is None:
+            return 1
+        if args.watch and interactive:
+            out.write("\x1b[H\x1b[2J")  # the top of a cleared screen
+        elif args.watch and refreshes:
+            out.write("\n")
+        stamp = f"# {time.strftime('%H:%M:%S')} (every {args.interval:g}s)\n" if args.watch else ""
+        out.write(stamp + text + "\n")
+        out.flush()
+        refreshes += 1
+        if not args.watch or (args.count and refreshes >= args.count):
+            return 0
+        await asyncio.sleep(args.interval)
 
 
 def tree_request_data(args: argparse.Namespace) -> dict[str, Any]:
@@ -511,39 +609,245 @@ async def cmd_tree(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     except ValueError as exc:  # ProtocolError is a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if getattr(args, "watch", False):
+        async def block() -> str | None:
+            code, text = await _tree_once(bus, args, data)
+            if code:
+                print(text, file=sys.stderr)
+                return None
+            return text
+
+        return 2 if await watch(block, args, out) else 0
+    code, text = await _tree_once(bus, args, data)
+    print(text, file=sys.stderr if code else out)
+    return code
+
+
+async def _tree_once(bus: Bus, args: argparse.Namespace, data: dict[str, Any]
+                     ) -> tuple[int, str]:
+    """One tree request: the exit status and what to print."""
     try:
         reply = await tree_request(bus, data, timeout_s=args.timeout)
     except TimeoutError:
-        print(f"error: no robot {bus.robot!r} answered on ubf/{bus.robot}/tree within "
-              f"{args.timeout:g}s: is it running, with its tree service (--robot, "
-              f"--connect)?", file=sys.stderr)
-        return 2
+        return 2, (f"error: no robot {bus.robot!r} answered on ubf/{bus.robot}/tree within "
+                   f"{args.timeout:g}s: is it running, with its tree service (--robot, "
+                   f"--connect)?")
     except (QueryError, ProtocolError) as exc:
-        print(f"error: robot {bus.robot!r} gave no usable reply: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(_json(reply), file=out)
+        return 2, f"error: robot {bus.robot!r} gave no usable reply: {exc}"
     if not reply["ok"]:
-        print(f"error: robot {bus.robot!r} refused {args.tree_command}: {reply['error']} "
-              f"(tree unchanged, version {reply.get('version', '?')})", file=sys.stderr)
-        return 1
+        return 1, (f"error: robot {bus.robot!r} refused {args.tree_command}: "
+                   f"{reply['error']} (tree unchanged, version {reply.get('version', '?')})")
     if args.json:
-        return 0
+        return 0, _json(reply)
     version = reply.get("version", "?")
-    if args.tree_command == "show":
-        print(f"robot {bus.robot!r}: tree version {version}", file=out)
+    lines = [f"robot {bus.robot!r}: tree version {version}" if args.tree_command == "show"
+             else f"robot {bus.robot!r}: {args.tree_command} applied, tree version {version}",
+             render_tree_data(reply["tree"])]
+    lines.extend(f"remote slot {slot['composite']}/{slot['name']} [p={slot['priority']} "
+                 f"w={slot['weight']:g}]" for slot in reply.get("slots") or ())
+    return 0, "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+# hz, bw, info, pub
+
+
+@dataclass
+class KeyWindow:
+    """The last ``window`` messages of one key: arrival times (wall) and sizes."""
+
+    window: int
+    times_ns: deque[int] = field(init=False)
+    sizes: deque[int] = field(init=False)
+    count: int = 0
+    publishers: set[int] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        self.times_ns = deque(maxlen=self.window + 1)
+        self.sizes = deque(maxlen=self.window)
+
+    def add(self, received_ns: int, payload: bytes) -> None:
+        self.count += 1
+        self.times_ns.append(received_ns)
+        self.sizes.append(len(payload))
+
+    def hz_line(self) -> str:
+        gaps = [(b - a) / 1e9 for a, b in itertools.pairwise(self.times_ns)]
+        if not gaps:
+            return "1 message, no rate yet"
+        mean = statistics.fmean(gaps)
+        std = statistics.pstdev(gaps)
+        return (f"average rate {1 / mean if mean > 0 else float('inf'):.2f} Hz  "
+                f"min {min(gaps):.4f}s max {max(gaps):.4f}s std dev {std:.5f}s "
+                f"window {len(gaps)}")
+
+    def bw_line(self) -> str:
+        span_s = (self.times_ns[-1] - self.times_ns[0]) / 1e9 if len(self.times_ns) > 1 else 0.0
+        total = sum(list(self.sizes)[-(len(self.times_ns) - 1):]) if span_s else 0
+        rate = f"{total / span_s:.0f} B/s" if span_s else "-- B/s"
+        return (f"{rate}  mean {statistics.fmean(self.sizes):.0f} B min {min(self.sizes)} B "
+                f"max {max(self.sizes)} B window {len(self.sizes)}")
+
+
+async def cmd_rate(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    """``hz`` and ``bw``: one line per key, once a second."""
+    try:
+        key_expr = resolve_key(bus.keys, args.key)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.window < 2:
+        print("error: --window must be at least 2", file=sys.stderr)
+        return 2
+    seen: dict[str, KeyWindow] = {}
+
+    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
+        window = seen.get(key)
+        if window is None:
+            window = seen[key] = KeyWindow(args.window)
+        window.add(received_ns, payload)
+
+    bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
+    line = KeyWindow.hz_line if args.command == "hz" else KeyWindow.bw_line
+    reports = 0
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    while not args.count or reports < args.count:
+        await asyncio.sleep(1.0)
+        if deadline is not None and time.monotonic() > deadline:
+            break
+        if not seen:
+            print(f"# no messages on {key_expr} yet", file=out)
+        for key in sorted(seen):
+            print(f"{key}: {line(seen[key])}", file=out)
+        out.flush()
+        reports += 1
+    return 0 if seen else 1
+
+
+def describe_type(info: msgspec.inspect.Type) -> str:
+    """A field's type with its bounds, as a reader of the protocol wants them."""
+    mi = msgspec.inspect
+    if isinstance(info, mi.UnionType):
+        return " | ".join(describe_type(t) for t in info.types)
+    if isinstance(info, mi.NoneType):
+        return "nil"
+    if isinstance(info, mi.LiteralType):
+        return " | ".join(json.dumps(v) for v in info.values)
+    bounds = []
+    for name, sign in (("ge", "≥"), ("gt", ">"), ("le", "≤"), ("lt", "<")):
+        value = getattr(info, name, None)
+        if value is not None:
+            bounds.append(f"{sign} {value:g}" if isinstance(value, float) else f"{sign} {value}")
+    for name, sign in (("min_length", "length ≥"), ("max_length", "length ≤")):
+        value = getattr(info, name, None)
+        if value is not None:
+            bounds.append(f"{sign} {value}")
+    if isinstance(info, mi.VarTupleType | mi.ListType):
+        base = f"array of {describe_type(info.item_type)}"
+    elif isinstance(info, mi.TupleType):
+        base = "[" + ", ".join(describe_type(t) for t in info.item_types) + "]"
+    elif isinstance(info, mi.StructType):
+        base = "map {" + ", ".join(f.name for f in info.fields) + "}"
+    elif isinstance(info, mi.DictType):
+        base = "map"
     else:
-        print(f"robot {bus.robot!r}: {args.tree_command} applied, tree version {version}",
+        base = {mi.IntType: "int", mi.FloatType: "number", mi.StrType: "str",
+                mi.BoolType: "bool", mi.BytesType: "bytes"}.get(type(info), type(info).__name__)
+    return base + (f" ({', '.join(bounds)})" if bounds else "")
+
+
+async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    try:
+        key_expr = resolve_key(bus.keys, args.key)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    seen: dict[str, KeyWindow] = {}
+
+    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
+        window = seen.setdefault(key, KeyWindow(1000))
+        window.add(received_ns, payload)
+        with contextlib.suppress(ProtocolError):
+            pub = decode(payload).pub
+            if pub is not None and len(window.publishers) < 64:
+                window.publishers.add(pub)
+
+    bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
+    declared = [t for t in topics.TOPICS if intersects(t.key_expr(bus.keys), key_expr)]
+    print(f"key: {key_expr}", file=out)
+    if not declared:
+        print("declared topic: none (an undeclared kind: any schema, data a map of plain "
+              "values; docs/protocol.md)", file=out)
+    for topic in declared:
+        print(f"declared topic: {topic.name} — {topic.doc}\n  key: {topic.key_expr(bus.keys)}"
+              f"\n  schema: {topic.schema}", file=out)
+        type_info = msgspec.inspect.type_info(topic.type)
+        if isinstance(type_info, msgspec.inspect.StructType):
+            for f in type_info.fields:
+                need = "" if f.required else " (optional)"
+                print(f"  {f.name}: {describe_type(f.type)}{need}", file=out)
+        else:
+            print("  data: a map of plain values (checked generically)", file=out)
+    tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=args.timeout)
+    components = sorted({bus.keys.component_of_alive(t) for t in tokens})
+    print(f"live components ({len(components)}): {', '.join(components) or 'none'}", file=out)
+    await asyncio.sleep(args.seconds)
+    if not seen:
+        print(f"heard: nothing on {key_expr} in {args.seconds:g}s", file=out)
+        return 0
+    for key in sorted(seen):
+        window = seen[key]
+        print(f"heard on {key}: {window.count} messages in {args.seconds:g}s "
+              f"({window.count / args.seconds:.1f} Hz), from {len(window.publishers)} "
+              f"publisher(s) (pub ids {', '.join(map(str, sorted(window.publishers))) or '-'})",
               file=out)
-    print(render_tree_data(reply["tree"]), file=out)
-    for slot in reply.get("slots") or ():
-        print(f"remote slot {slot['composite']}/{slot['name']} [p={slot['priority']} "
-              f"w={slot['weight']:g}]", file=out)
+    return 0
+
+
+async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    try:
+        key = resolve_key(bus.keys, args.key)
+        if "*" in key:
+            raise ValueError(f"{args.key}: pub needs one key, not a key expression")
+        data = yaml.safe_load(args.data)
+        if not isinstance(data, dict):
+            raise ValueError(f"DATA must be a map of the message's fields, got {args.data!r}")
+        schema = args.schema or expected_schema(bus.keys, key)
+        if schema is None:
+            raise ValueError(f"{key}: no declared topic covers this key; give --schema NAME")
+        required = expected_schema(bus.keys, key)
+        if required is not None and schema != required:
+            raise ValueError(f"{key} takes schema {required!r}, not {schema!r}")
+        encode(schema, data, stamp_ns=0, seq=1)  # the robot's checks, before anything is sent
+        fields = topic.fields if (topic := topics.BY_SCHEMA.get(schema)) else ()
+        unknown = sorted(map(str, set(data) - set(fields))) if fields else []
+        if unknown:  # the robot ignores unknown fields: a typo would go unnoticed
+            raise ValueError(f"{schema} has no field(s) {', '.join(unknown)} (the robot would "
+                             f"ignore them); its fields: {', '.join(fields)}")
+    except (ValueError, yaml.YAMLError) as exc:  # ProtocolError is a ValueError
+        print(f"error: refused, nothing sent: {exc}", file=sys.stderr)
+        return 2
+    if args.rate is not None and not args.rate > 0:
+        print("error: --rate must be > 0", file=sys.stderr)
+        return 2
+    await clockdomain.follow_robot_clock(bus, mode="auto")
+    publisher = bus.publisher(key, schema)
+    with contextlib.suppress(TimeoutError):  # nobody listening yet: publish all the same
+        await publisher.wait_for_subscribers(timeout_s=min(args.timeout, 2.0))
+    sent = 0
+    while True:
+        publisher.publish(data)
+        sent += 1
+        if args.count and sent >= args.count:
+            break
+        await asyncio.sleep(1.0 / args.rate if args.rate else 0.1)
+    print(f"sent {sent} {schema} message(s) on {key}", file=out)
     return 0
 
 
 COMMANDS = {"components": cmd_components, "keys": cmd_keys, "echo": cmd_echo,
-            "state": cmd_state, "tree": cmd_tree}
+            "state": cmd_state, "tree": cmd_tree, "hz": cmd_rate, "bw": cmd_rate,
+            "info": cmd_info, "pub": cmd_pub}
 
 
 async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:

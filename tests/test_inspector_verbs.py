@@ -1,0 +1,133 @@
+"""The inspector's ROS-2-style verbs against a running robot in another process: hz, bw,
+info, pub (checked before it sends), state/tree --watch, and connection flags before or after
+the subcommand."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import eventually, free_port
+from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.inspector import build_parser
+from ubf_async.protocol import decode
+from ubf_async.topics import LEDS
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def robot_endpoint() -> Iterator[str]:
+    """One simulated robot for the module (seeking the ball, 50 Hz + IR reflex ticks)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "ubf_async.launch", "--listen", endpoint,
+                             "--robot", "insp", "--quiet"], cwd=ROOT,
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if "controller:" in line:
+            break
+    try:
+        yield endpoint
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=30)
+
+
+def inspect(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ubf_async.inspector", "--connect", endpoint,
+                           "--robot", "insp", *args], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60)
+
+
+def test_connection_flags_go_before_or_after_the_subcommand() -> None:
+    parser = build_parser()
+    for argv in (["--connect", "tcp/h:1", "--robot", "r2", "components"],
+                 ["components", "--connect", "tcp/h:1", "--robot", "r2"],
+                 ["--robot", "r2", "tree", "show", "--connect", "tcp/h:1"]):
+        args = parser.parse_args(argv)
+        assert (args.connect, args.robot) == (["tcp/h:1"], "r2"), argv
+    defaults = parser.parse_args(["state"])
+    assert defaults.robot == "mini" and defaults.mode == "client" and defaults.timeout == 5.0
+    after = parser.parse_args(["--timeout", "9", "state", "--robot", "r3"])
+    assert (after.timeout, after.robot) == (9.0, "r3")  # neither side undoes the other
+
+
+def test_hz_measures_the_drive_command_rate(robot_endpoint: str) -> None:
+    result = inspect(robot_endpoint, "hz", "cmd/drive", "--count", "2")
+    assert result.returncode == 0, result.stderr
+    rates = [float(m) for m in re.findall(r"average rate ([\d.]+) Hz", result.stdout)]
+    assert len(rates) == 2, result.stdout
+    # 50 Hz periodic ticks plus a reflex tick on each IR sample (25 Hz): about 75 Hz.
+    assert 50 <= rates[-1] <= 110, result.stdout
+    assert result.stdout.startswith("ubf/insp/cmd/drive: ")
+
+
+def test_bw_is_consistent_with_message_sizes(robot_endpoint: str) -> None:
+    result = inspect(robot_endpoint, "bw", "sensor/camera/front", "--count", "2")
+    assert result.returncode == 0, result.stderr
+    last = result.stdout.strip().splitlines()[-1]
+    match = re.search(r": (\d+) B/s  mean (\d+) B min (\d+) B max (\d+) B", last)
+    assert match, last
+    rate, mean, low, high = map(int, match.groups())
+    assert low <= mean <= high
+    assert 0.5 * mean / 0.11 <= rate <= 1.5 * mean / 0.11  # a frame every 0.11 s
+
+
+def test_info_names_the_schema_fields_and_live_components(robot_endpoint: str) -> None:
+    result = inspect(robot_endpoint, "info", "cmd/drive")
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert "schema: drive" in out and "speed: number (≥ -100, ≤ 100)" in out
+    assert re.search(r"live components \(\d+\): .*controller", out)
+    heard = re.search(r"heard on ubf/insp/cmd/drive: (\d+) messages .* from 1 publisher", out)
+    assert heard and int(heard.group(1)) > 20, out
+
+
+@pytest.mark.asyncio
+async def test_pub_refuses_what_the_robot_would_and_sends_what_it_takes(
+        robot_endpoint: str) -> None:
+    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
+    masks: list[int] = []
+    try:
+        bus.subscribe(LEDS.key(bus.keys), lambda k, p, t: masks.append(decode(p).data.mask),
+                      latest=False)
+        await eventually(lambda: bus.reached_peers(), what="the robot")
+        refused = await asyncio.to_thread(inspect, robot_endpoint, "pub", "cmd/drive",
+                                          "{speed: 500, turn: 0}")
+        assert refused.returncode == 2
+        assert "refused, nothing sent" in refused.stderr and "data.speed" in refused.stderr
+        assert "100" in refused.stderr  # the limit is named
+        bad = await asyncio.to_thread(inspect, robot_endpoint, "pub", "cmd/leds", "{mask: 300}")
+        assert bad.returncode == 2 and "data.mask" in bad.stderr
+        unknown = await asyncio.to_thread(inspect, robot_endpoint, "pub", "cmd/leds",
+                                          "{mask: 1, colour: red}")
+        assert unknown.returncode == 2 and "colour" in unknown.stderr
+        before = list(masks)
+        sent = await asyncio.to_thread(inspect, robot_endpoint, "pub", "cmd/leds",
+                                       '{"mask": 2}', "--count", "3", "--rate", "20")
+        assert sent.returncode == 0, sent.stderr
+        assert "sent 3 leds message(s) on ubf/insp/cmd/leds" in sent.stdout
+        await eventually(lambda: masks.count(2) >= 3, what="the published commands")
+        assert 300 not in masks and not [m for m in before if m == 2]
+    finally:
+        await bus.aclose()
+
+
+def test_state_and_tree_watch_refresh(robot_endpoint: str) -> None:
+    state = inspect(robot_endpoint, "state", "--watch", "--count", "2", "--interval", "0.3")
+    assert state.returncode == 0, state.stderr
+    blocks = state.stdout.split("\n# ")
+    assert len(blocks) == 2 and state.stdout.startswith("# ")
+    assert all("drive: speed" in block and "last tick" in block for block in blocks)
+    assert "\x1b" not in state.stdout  # not a terminal: plain blocks, no screen control
+    tree = inspect(robot_endpoint, "tree", "show", "--watch", "--count", "2",
+                   "--interval", "0.2")
+    assert tree.returncode == 0, tree.stderr
+    assert tree.stdout.count("tree version") == 2 and "seek_pink_ball" in tree.stdout
