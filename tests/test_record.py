@@ -6,6 +6,7 @@ does not keep up, and files split by size."""
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import os
 import signal
@@ -28,6 +29,7 @@ ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
 READ_WITH_MCAP_ALONE = r'''
 import collections, json, sys
 import jsonschema, msgpack
+from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
 from mcap.reader import make_reader
 assert not any(m.startswith("ubf_async") for m in sys.modules)
 channels = collections.Counter()
@@ -38,7 +40,33 @@ with open(sys.argv[1], "rb") as f:
     summary = reader.get_summary()
     metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     validators = {}
+    live = collections.Counter()
+    live_samples = {}
+    classes = {}
     for schema, channel, message in reader.iter_messages():
+        if channel.message_encoding == "protobuf":  # the live view's Foxglove channels
+            assert schema.encoding == "protobuf" and schema.name.startswith("foxglove.")
+            if schema.id not in classes:
+                files = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+                pool = descriptor_pool.DescriptorPool()
+                for file in files.file:
+                    pool.Add(file)
+                classes[schema.id] = message_factory.GetMessageClass(
+                    pool.FindMessageTypeByName(schema.name))
+            decoded = classes[schema.id].FromString(message.data)
+            live[channel.topic] += 1
+            live_samples[channel.topic] = [schema.name, json_format.MessageToDict(decoded)]
+            continue
+        if channel.message_encoding == "json":
+            assert schema.encoding == "jsonschema" and channel.topic.startswith("/ubf/")
+            if schema.id not in validators:
+                validators[schema.id] = jsonschema.Draft202012Validator(json.loads(schema.data))
+            body = json.loads(message.data)
+            errors = [e.message for e in validators[schema.id].iter_errors(body)]
+            if errors:
+                invalid.append((channel.topic, errors[:2]))
+            live[channel.topic] += 1
+            continue
         assert schema.encoding == "jsonschema" and channel.message_encoding == "msgpack"
         if schema.id not in validators:
             validators[schema.id] = jsonschema.Draft202012Validator(json.loads(schema.data))
@@ -49,7 +77,8 @@ with open(sys.argv[1], "rb") as f:
         channels[channel.topic] += 1
         stamps[channel.topic].append((message.log_time, message.publish_time,
                                       envelope["stamp_ns"], envelope["seq"]))
-print(json.dumps({"channels": channels, "stamps": stamps, "invalid": invalid,
+print(json.dumps({"channels": channels, "stamps": stamps, "invalid": invalid, "live": live,
+                  "live_samples": live_samples,
                   "metadata": metadata, "schemas": len(summary.schemas)}))
 '''
 
@@ -82,6 +111,28 @@ def test_a_scenario_run_recorded_by_launch_reads_back_with_mcap_alone(tmp_path: 
     assert 30 <= channels["ubf/mini/sensor/camera/front"] <= 40
     assert abs(channels["ubf/mini/trace"] - channels["ubf/mini/cmd/drive"]) <= 2
     assert f"recorded {sum(channels.values())} messages" in result.stdout
+    # Beside them, the live view's channels, decoded with the protobuf schemas in the file:
+    # the recording opens in Foxglove with the live layout.
+    live, samples = read["live"], read["live_samples"]
+    assert f"and {sum(live.values())} in the live view's Foxglove channels" in result.stdout
+    layout = (ROOT / "docs" / "foxglove-layout.json").read_text("utf-8")
+    for topic, schema in (("/camera/front/image", "foxglove.CompressedImage"),
+                          ("/robot/pose", "foxglove.PoseInFrame"),
+                          ("/tf", "foxglove.FrameTransform"),
+                          ("/robot/trail", "foxglove.SceneUpdate"),
+                          ("/arena", "foxglove.SceneUpdate"),
+                          ("/ir/front", "foxglove.SceneUpdate")):
+        assert samples[topic][0] == schema, topic
+    assert 30 <= live["/camera/front/image"] <= 40  # a view of every frame
+    image = samples["/camera/front/image"][1]
+    assert image["format"] == "jpeg" and image["frameId"] == "camera_front"
+    assert base64.b64decode(image["data"])[:2] == b"\xff\xd8"  # a JPEG
+    assert samples["/robot/pose"][1]["frameId"] == "world"
+    arena = {e["id"]: e for e in samples["/arena"][1]["entities"]}
+    assert len(arena["arena"]["cubes"]) >= 4 and arena["objects"]["spheres"]  # walls, ball
+    assert live["/ubf/cmd/drive"] == channels["ubf/mini/cmd/drive"]
+    for topic in ("/camera/front/image", "/arena", "/ir/front", "/ubf/cmd/drive", "/ubf/trace"):
+        assert f'"{topic}' in layout, topic  # the shipped layout shows them
     for key, rows in read["stamps"].items():
         log_times = [row[0] for row in rows]
         assert log_times == sorted(log_times), key  # received in order, on the robot's clock

@@ -54,6 +54,8 @@ from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.live import TreeService
+from ubf_async.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
+from ubf_async.liveview import FoxgloveServer, add_host_argument
 from ubf_async.record import McapRecorder
 from ubf_async.registry import SIMULATORS
 from ubf_async.remote import RemoteBehaviors, remote_spec
@@ -142,6 +144,12 @@ def build_parser() -> argparse.ArgumentParser:
                           "write trajectory.csv, trajectory.png and annotated camera frames")
     sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
                      help="simulated seconds between recorded camera frames")
+    view = parser.add_argument_group("live view")
+    view.add_argument("--foxglove", type=int, nargs="?", const=DEFAULT_FOXGLOVE_PORT,
+                      default=None, metavar="PORT",
+                      help="serve the robot live to Foxglove on ws://HOST:PORT (PORT default "
+                           f"{DEFAULT_FOXGLOVE_PORT}, 0: any free port; docs/liveview.md)")
+    add_host_argument(view)
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S seconds (simulated seconds when simulating; default: "
@@ -309,6 +317,12 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             await recorder.start()
             components.append(recorder)
             print(f"  recording the bus to {recorder.path}", file=out)
+        if args.foxglove is not None:
+            live = FoxgloveServer(bus=bus, port=args.foxglove, host=args.foxglove_host)
+            await live.start()
+            components.append(live)
+            print(f"  live in Foxglove on {live.url} (layout: docs/foxglove-layout.json)",
+                  file=out)
         seed = robot.spec.seed or 0
         if plan.simulator is not None and plan.sim_options is not None:
             assert isinstance(clock, SimClock)
@@ -388,8 +402,10 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         await _close_all(components, health, bus)
         if recorder is not None:
             stats = recorder.stats
-            print(f"  recorded {stats.written} messages to "
-                  f"{', '.join(str(p) for p in stats.files)}"
+            print(f"  recorded {stats.written} messages"
+                  + (f" and {stats.live} in the live view's Foxglove channels"
+                     if stats.live else "")
+                  + f" to {', '.join(str(p) for p in stats.files)}"
                   + (f" ({stats.dropped} dropped: the disk did not keep up)"
                      if stats.dropped else "")
                   + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)

@@ -6,10 +6,14 @@ status, the clock and each tick's trace) goes into an `MCAP <https://mcap.dev>`_
 encoding ``msgpack``, and for each schema name a ``jsonschema`` schema of the whole envelope
 (``schema``, ``v``, ``stamp_ns``, ``seq``, *opt* ``pub``, ``period_s``, and the topic's
 ``data``), generated from :mod:`ubf_async.topics` — so any MCAP reader can list, decode and
-check the messages without this package. ``log_time`` is when the recorder received the
-message on the robot's clock (simulated time on a simulated robot), ``publish_time`` the
-envelope's ``stamp_ns`` (the ``log_time`` for a message that is not a valid envelope: those are
-recorded too, and counted).
+check the messages without this package. Beside them go the live view's Foxglove channels
+(:mod:`ubf_async.liveview`: the camera's image, the robot's pose and trail, the arena, the IR
+beams as protobuf ``foxglove.*`` messages, and every message as JSON on ``/ubf/<key>``), so a
+recording opens in Foxglove with the live layout (``docs/foxglove-layout.json``); their topics
+start with ``/``, the keys never do. ``--no-live-channels`` leaves them out. ``log_time`` is
+when the recorder received the message on the robot's clock (simulated time on a simulated
+robot), ``publish_time`` the envelope's ``stamp_ns`` (the ``log_time`` for a message that is
+not a valid envelope: those are recorded too, and counted).
 
 Nothing of it runs on the event loop but a queue put: a writer thread encodes, compresses
 (zstd, per chunk) and writes. The queue is bounded (``max_queue``); when the disk cannot keep
@@ -52,7 +56,8 @@ from ubf_async.bus import (
 from ubf_async.cli import run_main
 from ubf_async.component import Component, ensure_name_free
 from ubf_async.errors import ConfigurationError, ProtocolError
-from ubf_async.protocol import PROTOCOL_VERSION, decode
+from ubf_async.liveview import LiveMessage, LiveView
+from ubf_async.protocol import PROTOCOL_VERSION, Message, decode
 from ubf_async.topics import BY_SCHEMA, PlainData, Topic
 
 log = logging.getLogger(__name__)
@@ -83,6 +88,7 @@ def envelope_schema(topic: Topic[Any] | None) -> dict[str, Any]:
         "period_s": {"type": "number", "description": "the publisher's nominal period"},
         "data": data,
     }
+    data, components = _msgpack_bytes(data), _msgpack_bytes(components)
     schema: dict[str, Any] = {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": topic.schema if topic is not None else GENERIC_SCHEMA_NAME,
@@ -97,6 +103,18 @@ def envelope_schema(topic: Topic[Any] | None) -> dict[str, Any]:
     return schema
 
 
+def _msgpack_bytes(node: Any) -> Any:
+    """JSON Schema has no bytes: msgspec writes them as base64 strings, msgpack carries them
+    as ``bin``. Such a field is described (``x-msgpack: bin``) and left unconstrained."""
+    if isinstance(node, dict):
+        if node.get("contentEncoding") == "base64":
+            return {"description": "bytes (msgpack bin)", "x-msgpack": "bin"}
+        return {k: _msgpack_bytes(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_msgpack_bytes(v) for v in node]
+    return node
+
+
 @dataclass
 class RecorderStats:
     """What a recorder did (read from any thread; written by the loop and the writer)."""
@@ -108,6 +126,8 @@ class RecorderStats:
     invalid: int = 0
     """Messages that are not a valid envelope (recorded all the same)."""
     flushes: int = 0
+    live: int = 0
+    """Messages of the live view's Foxglove channels written beside them."""
     files: list[Path] = field(default_factory=list)
     error: str | None = None
     """Why writing stopped, if it did (a full disk)."""
@@ -124,7 +144,7 @@ class McapRecorder(Component):
     def __init__(self, *, bus: Bus, out: Path, name: str = "recorder",
                  flush_s: float = DEFAULT_FLUSH_S, split_bytes: int | None = None,
                  max_queue: int = DEFAULT_MAX_QUEUE, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 on_flush: Any = None) -> None:
+                 on_flush: Any = None, live_channels: bool = True) -> None:
         super().__init__(bus=bus, name=name)
         if not flush_s > 0:
             raise ConfigurationError(f"flush_s must be > 0, got {flush_s}")
@@ -140,6 +160,9 @@ class McapRecorder(Component):
         self._thread: threading.Thread | None = None
         self._on_flush = on_flush
         """Called on the writer thread after each flush with the stats (progress output)."""
+        self.live_view = LiveView(robot_prefix=bus.keys.prefix) if live_channels else None
+        """Converts on the writer thread what it records into the live view's Foxglove
+        channels (:mod:`ubf_async.liveview`), written beside the original messages."""
 
     async def start(self) -> None:
         """Start the writer, then subscribe. A folder that cannot be made raises ``OSError``
@@ -243,12 +266,13 @@ class _File:
         return found
 
     def write(self, key: str, payload: bytes, log_ns: int) -> None:
+        message: Message[Any] | None
         try:
             message = decode(payload)
             schema_name, publish_ns = message.schema, message.stamp_ns
         except ProtocolError:
             self.recorder.stats.invalid += 1
-            schema_name, publish_ns = GENERIC_SCHEMA_NAME, log_ns
+            message, schema_name, publish_ns = None, GENERIC_SCHEMA_NAME, log_ns
         schema_id = self._schema_id(schema_name)
         channel = self.channels.get((key, schema_id))
         if channel is None:
@@ -257,6 +281,29 @@ class _File:
             self.channels[(key, schema_id)] = channel
         self.sequence += 1
         self.writer.add_message(channel_id=channel, log_time=log_ns, data=payload,
+                                publish_time=publish_ns, sequence=self.sequence)
+        if self.recorder.live_view is not None and message is not None:
+            for live in self.recorder.live_view.convert(key, message, log_ns):
+                self._write_live(live, publish_ns)
+
+    def _write_live(self, live: LiveMessage, publish_ns: int) -> None:
+        """A live view's message, on its own channel (its topic starts with ``/``; the
+        original messages' topics are the keys, which never do)."""
+        schema_key = f"{live.schema.encoding}:{live.schema.name}"
+        schema_id = self.schemas.get(schema_key)
+        if schema_id is None:
+            schema_id = self.writer.register_schema(
+                name=live.schema.name, encoding=live.schema.encoding, data=live.schema.data)
+            self.schemas[schema_key] = schema_id
+        channel = self.channels.get((live.topic, schema_id))
+        if channel is None:
+            channel = self.writer.register_channel(topic=live.topic,
+                                                   message_encoding=live.encoding,
+                                                   schema_id=schema_id)
+            self.channels[(live.topic, schema_id)] = channel
+        self.sequence += 1
+        self.recorder.stats.live += 1
+        self.writer.add_message(channel_id=channel, log_time=live.log_time_ns, data=live.data,
                                 publish_time=publish_ns, sequence=self.sequence)
 
     def flush(self) -> None:
@@ -299,6 +346,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "that much")
     parser.add_argument("--split-mb", type=float, default=None, metavar="MB",
                         help="start a new file when one grows past MB megabytes")
+    parser.add_argument("--no-live-channels", dest="live_channels", action="store_false",
+                        help="record only the original messages, not the live view's Foxglove "
+                             "channels beside them")
     parser.add_argument("--name", default="recorder",
                         help="the recorder's component name on the robot")
     parser.add_argument("--progress", action="store_true",
@@ -324,7 +374,7 @@ async def record(args: argparse.Namespace) -> int:
         recorder = McapRecorder(
             bus=bus, out=args.out, name=args.name, flush_s=args.flush_s,
             split_bytes=None if args.split_mb is None else int(args.split_mb * 1e6),
-            on_flush=progress if args.progress else None)
+            on_flush=progress if args.progress else None, live_channels=args.live_channels)
         await recorder.start()
         print(f"{PROG}: recording robot {options.robot!r} to {recorder.path}", flush=True)
         stop = asyncio.Event()
@@ -338,7 +388,10 @@ async def record(args: argparse.Namespace) -> int:
         if recorder is not None:
             await recorder.aclose()
             stats = recorder.stats
-            print(f"{PROG}: {stats.written} messages in {', '.join(map(str, stats.files))}"
+            print(f"{PROG}: {stats.written} messages"
+                  + (f" and {stats.live} in the live view's Foxglove channels"
+                     if stats.live else "")
+                  + f" in {', '.join(map(str, stats.files))}"
                   + (f"; {stats.dropped} dropped" if stats.dropped else "")
                   + (f"; writing failed: {stats.error}" if stats.error else ""), flush=True)
         await bus.aclose()

@@ -165,6 +165,23 @@ class LedState(Data, frozen=True, kw_only=True):
             raise ValueError(f"mask {self.mask:#04x} lights LEDs beyond the bank's {self.count}")
 
 
+MAX_IMAGE_BYTES = 192 * 1024
+"""An image on the bus is at most this big (the envelope's limit is 256 KiB)."""
+
+
+class CameraView(Data, frozen=True, kw_only=True):
+    """What a camera sees, for people and tools: the image seekcolor reads, compressed, with
+    the matching pixels and the five bins marked. Published only while someone subscribes."""
+
+    format: Literal["jpeg", "png"]
+    data: Annotated[bytes, Meta(max_length=MAX_IMAGE_BYTES)]
+    width: Annotated[int, Meta(ge=1, le=1 << 14)]
+    height: Annotated[int, Meta(ge=1, le=1 << 14)]
+    bins: Annotated[tuple[Annotated[int, Meta(ge=0, le=1 << 24)], ...],
+                    Meta(min_length=5, max_length=5)]
+    """The seekcolor bins of the same frame (as on ``sensor/camera/<name>``)."""
+
+
 class RadioMessage(Data, frozen=True, kw_only=True):
     """A message the radio received."""
 
@@ -551,6 +568,9 @@ SIM_WORLD = Topic("sim_world", "sim/world", "sim.world", PlainData,
                   "the simulator's full snapshot, for sim-backed devices in other processes")
 SIM_PULSES = Topic("sim_pulses", "sim/pulses", "sim.pulses", SimPulses,
                    "motor pulses from a motors process to the simulator")
+CAMERA_VIEW = Topic("camera_view", "view/camera/{name}", "camera.view", CameraView,
+                    "the camera's image with the pink pixels and the bins marked, while "
+                    "anyone subscribes")
 TRACE = Topic("trace", "trace", "controller.trace", TickTrace,
               "the behaviour tree's trace of each tick, published after its command")
 
@@ -558,7 +578,7 @@ TOPICS: tuple[Topic[Any], ...] = (
     CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, LED_STATE, RADIO,
     DRIVE, SEEK_COLOR, RADIO_SEND, LEDS,
     HEARTBEAT, CLOCK, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
-    TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE,
+    TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE, CAMERA_VIEW,
 )
 """Every declared topic."""
 

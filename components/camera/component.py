@@ -9,7 +9,9 @@ the GIL, and the event loop never waits on them), then holds the result until th
 capture latency has passed (``latency_s``, ≈0.11 s for the OV9655, on the robot clock, so a
 simulation running K× faster shortens it K×) and publishes it on ``sensor/camera/<name>``
 (schema ``camera.seekcolor``) with ``stamp_ns`` = capture time. The next capture starts right
-after, so the camera delivers a frame every ``latency_s``.
+after, so the camera delivers a frame every ``latency_s``. While anyone subscribes to
+``view/camera/<name>`` (a live view, a recorder), the worker thread also draws the frame
+(:mod:`components.camera.view`) and it is published there as JPEG, with the same stamp.
 
 With a simulator in the same process, simulated time does not reach the end of the latency
 before the frame is ready, and the wake-up at that deadline is booked at the stamp: the
@@ -30,9 +32,10 @@ import msgspec
 
 from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
+from components.camera.view import DEFAULT_VIEW_SCALE, draw_view, encode_jpeg
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
-from ubf_async.topics import CAMERA, SEEK_COLOR
+from ubf_async.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
 
 OV9655_LATENCY_S = 0.11
 
@@ -49,6 +52,7 @@ class CameraComponent(Component):
         latency_s: float = OV9655_LATENCY_S,
         color: ColorRange = PINK,
         hfov_deg: float = DEFAULT_HFOV_DEG,
+        view_scale: int = DEFAULT_VIEW_SCALE,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=f"camera-{name}", **component_options)
@@ -59,19 +63,31 @@ class CameraComponent(Component):
         self.latency_s = latency_s
         self.color = color
         self.hfov_deg = hfov_deg
+        if not 1 <= view_scale <= 8:
+            raise ValueError(f"view_scale must be 1..8, got {view_scale}")
+        self.view_scale = view_scale
         self.malformed: dict[str, int] = {}
         self.frames = 0
         self.last_frame_shape: tuple[int, ...] | None = None
 
-    def _capture(self, color: ColorRange) -> tuple[SeekResult, tuple[int, ...]]:
-        """Runs in a worker thread."""
+    def _capture(self, color: ColorRange, *,
+                 with_view: bool) -> tuple[SeekResult, tuple[int, ...], CameraView | None]:
+        """Runs in a worker thread: capture, seekcolor and, when asked, the drawn view."""
         frame = self.backend.capture()
-        return seekcolor(frame, color, hfov_deg=self.hfov_deg), frame.shape
+        result = seekcolor(frame, color, hfov_deg=self.hfov_deg)
+        if not with_view:
+            return result, frame.shape, None
+        image = draw_view(frame, result, color=color, scale=self.view_scale)
+        view = CameraView(format="jpeg", data=encode_jpeg(image), width=image.shape[1],
+                          height=image.shape[0], bins=result.bins)
+        return result, frame.shape, view
 
     async def run(self) -> None:
         keys = self.bus.keys
         pub = self.publisher(CAMERA, self.source_name,
                              period_s=max(self.latency_s, 0.01))
+        view_pub = self.publisher(CAMERA_VIEW, self.source_name,
+                                  period_s=max(self.latency_s, 0.01))
         self.subscribe(SEEK_COLOR.key(keys), self._on_seek_color)
         clock = self.bus.clock
         latency_ns = int(self.latency_s * 1e9)
@@ -92,8 +108,11 @@ class CameraComponent(Component):
             hold = clock.hold(deadline - 1)
             wake = asyncio.ensure_future(clock.sleep_until_ns(deadline))
             self.backend.expose()
+            # Drawing and compressing the view costs ≈1 ms: only while someone looks.
+            with_view = view_pub.has_subscribers()
             try:
-                result, shape = await asyncio.to_thread(self._capture, self.color)
+                result, shape, view = await asyncio.to_thread(self._capture, self.color,
+                                                              with_view=with_view)
                 hold.release()
                 await wake
             finally:
@@ -106,6 +125,8 @@ class CameraComponent(Component):
                 "bearing_rad": result.bearing_rad, "latency_s": self.latency_s,
                 "width": shape[1], "height": shape[0],
             }, stamp_ns=stamp)
+            if view is not None:
+                view_pub.publish(view, stamp_ns=stamp)
             if latency_ns == 0:
                 await asyncio.sleep(0)  # a zero-latency device must still let others run
 
@@ -129,13 +150,15 @@ def build_device(
     backend: CameraBackend,
     latency_s: Annotated[float, msgspec.Meta(ge=0)] = OV9655_LATENCY_S,
     hfov_deg: Annotated[float, msgspec.Meta(gt=0, lt=180)] = DEFAULT_HFOV_DEG,
+    view_scale: Annotated[int, msgspec.Meta(ge=1, le=8)] = DEFAULT_VIEW_SCALE,
 ) -> CameraComponent:
     """The ``camera`` device kind: captures from ``backend``, publishes
     ``sensor/camera/<name>``.
 
     ``latency_s``: capture latency on the robot clock (the thesis's OV9655: 0.11 s; a real
     camera whose driver has its own latency: 0). ``hfov_deg``: horizontal field of view the
-    bearing is computed with.
+    bearing is computed with. ``view_scale``: how much the 160×128 view published on
+    ``view/camera/<name>`` is enlarged.
     """
     return CameraComponent(bus=bus, backend=backend, name=name, latency_s=latency_s,
-                           hfov_deg=hfov_deg)
+                           hfov_deg=hfov_deg, view_scale=view_scale)

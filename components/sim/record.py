@@ -21,7 +21,8 @@ from typing import TextIO
 import cv2
 import numpy as np
 
-from components.camera.seekcolor import BIN_COUNT, SUBSAMPLE_STEP, SeekResult, subsample
+from components.camera.seekcolor import SeekResult
+from components.camera.view import draw_view
 from components.sim.scenarios import CAMERA_OFFSET_M
 from components.sim.world import WorldSnapshot
 from ubf_async.topics import LedState
@@ -241,22 +242,12 @@ LED_DARK_BGR = (60, 60, 60)
 
 def annotate_frame(frame_rgb: np.ndarray, result: SeekResult, *, t_s: float,
                    scale: int = 4, leds: Mapping[str, LedState] | None = None) -> np.ndarray:
-    """The 160×128 subsample the robot sees, enlarged, with the five seekcolor bins drawn as
-    vertical green lines (like the thesis's figure 4.1) and the pink count of each bin; the
-    robot's LEDs (``leds``: each LED device's state by name) as a row of dots, lit red."""
-    small = np.ascontiguousarray(subsample(frame_rgb, SUBSAMPLE_STEP))
-    h, w = small.shape[:2]
-    image = cv2.resize(cv2.cvtColor(small, cv2.COLOR_RGB2BGR), (w * scale, h * scale),
-                       interpolation=cv2.INTER_NEAREST)
-    edges = np.linspace(0, w, BIN_COUNT + 1).astype(int)
-    for x in edges[1:-1]:
-        cv2.line(image, (x * scale, 0), (x * scale, h * scale), (0, 200, 0), 2)
-    for i, (a, b) in enumerate(itertools.pairwise(edges)):
-        cx = (a + b) * scale // 2
-        cv2.putText(image, str(result.bins[i]), (cx - 18, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
-                    (0, 0, 0), 4, cv2.LINE_AA)
-        cv2.putText(image, str(result.bins[i]), (cx - 18, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
-                    (255, 255, 255), 1, cv2.LINE_AA)
+    """The camera's view (:func:`components.camera.view.draw_view`: the 160×128 subsample the
+    robot sees, enlarged, with the five seekcolor bins and their counts), with the time and the
+    pink count below and the robot's LEDs (``leds``: each LED device's state by name) as a row
+    of dots, lit red."""
+    image = draw_view(frame_rgb, result, scale=scale, mark_matches=False)
+    h = image.shape[0] // scale
     label = f"t = {t_s:.1f} s   pink = {result.total}"
     cv2.rectangle(image, (0, h * scale - 34), (330, h * scale), (0, 0, 0), -1)
     cv2.putText(image, label, (10, h * scale - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.7,
