@@ -29,7 +29,7 @@ from ubf_async.errors import ConfigurationError, PluginError, ScenarioError
 from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun
 
 EXPECTED_PARAMETERS = {
-    "camera": {"latency_s", "hfov_deg"},
+    "camera": {"latency_s", "hfov_deg", "view_scale"},
     "motors": {"timeout_s", "left", "right"},
     "encoders": {"period_s", "direction", "effective_track_m"},
     "range": {"model", "x_m", "y_m", "yaw_deg", "period_s"},

@@ -87,6 +87,8 @@ class Recording:
         with self.path.open("rb") as f:
             for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
                 key = channel.topic
+                if channel.message_encoding != "msgpack" or not key.startswith(self._from):
+                    continue  # the live view's Foxglove channels: derived, not replayed
                 if any(intersects(p, key) for p in self._patterns):
                     yield Recorded(to + key[len(self._from):], message.data, message.log_time)
 
