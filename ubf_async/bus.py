@@ -93,6 +93,11 @@ QueryHandler = Callable[[str, bytes], bytes]
 # ---------------------------------------------------------------------------------------------
 # Connection options shared by every entry point (the zenoh examples' flags)
 
+RECONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
+"""How often a session retries a lost connection (zenoh's ``connect/retry``): from 250 ms,
+backing off to at most 1 s — zenoh's default backs off to 4 s — so a client whose router
+restarts is back within about a second of the router's return (``docs/fleet.md``)."""
+
 
 @dataclass(kw_only=True)
 class ConnectionOptions:
@@ -134,6 +139,8 @@ class ConnectionOptions:
             conf.insert_json5("listen/endpoints", json.dumps(self.listen))
         if not self.multicast_scouting:
             conf.insert_json5("scouting/multicast/enabled", "false")
+        if conf.get_json("connect/retry") == "null":  # the file's own retry wins
+            conf.insert_json5("connect/retry", json.dumps(RECONNECT_RETRY))
         if self.secure is not None:
             from ubf_async import secure  # only secure mode needs it
 
@@ -173,7 +180,7 @@ def add_connection_arguments(
     listen_help = "endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)"
     if default_listen:
         listen_help += (f"; default: {' '.join(default_listen)} unless the --config file "
-                        "sets listen endpoints")
+                        "sets listen endpoints or --mode is client")
     group.add_argument("--listen", "-l", action="append", default=None, metavar="ENDPOINT",
                        help=listen_help)
     group.add_argument("--config", type=Path, default=None, metavar="FILE",
@@ -202,7 +209,8 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     starts) and only the flags actually given override it: ``--listen`` replaces its
     ``listen/endpoints`` and ``--connect`` its ``connect/endpoints``; without the flag, the
     file's endpoints (and ``mode``, when ``--mode`` defaults to ``None``) are kept, and the
-    entry point's default listen endpoint (launch's) applies only when neither sets one.
+    entry point's default listen endpoint (launch's) applies only when neither sets one, and
+    not to a ``client`` (it joins a router).
     Raises :class:`~ubf_async.errors.ConfigurationError`.
     """
     file_conf = load_zenoh_config(args.config) if args.config is not None else None
@@ -212,8 +220,8 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     listen = args.listen
     if listen is None:
         from_file = _config_endpoints(file_conf, "listen", mode)
-        listen = from_file if from_file is not None else list(
-            getattr(args, "_default_listen", []))
+        default = [] if mode == "client" else getattr(args, "_default_listen", [])
+        listen = from_file if from_file is not None else list(default)  # clients: the router
     connect = list(args.connect) or _config_endpoints(file_conf, "connect", mode) or []
     try:
         Keys(args.robot)
@@ -346,7 +354,8 @@ def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
 
 
-async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S) -> None:
+async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
+                         any_robot: bool = False) -> None:
     """For a process attaching to a running robot: wait until the session reaches another
     zenoh node and one of the robot's components is alive there (its liveliness token
     ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
@@ -354,7 +363,7 @@ async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_
 
     Returns at once for a session that only listens (in ``peer`` mode without ``connect``
     endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
-    anything."""
+    anything. ``any_robot``: any robot's component will do (a tool looking at a fleet)."""
     options = bus.options
     if not options.connect and options.mode != "client":
         return
@@ -363,7 +372,8 @@ async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_
     reached = False
     while True:
         reached = reached or bus.reached_peers()
-        if reached and await bus.alive_tokens(bus.keys.all_alive, timeout_s=1.0):
+        alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
+        if reached and await bus.alive_tokens(alive, timeout_s=1.0):
             return
         if time.monotonic() >= deadline:
             break

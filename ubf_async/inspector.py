@@ -2,6 +2,8 @@
 
 ROS-2-like subcommands, each a separate short-lived zenoh session:
 
+* ``robots`` — every robot alive on the network (a fleet's router): components, tick rates,
+  who wins;
 * ``components`` — the live components: one name per line, sorted, from the liveliness
   tokens ``ubf/<robot>/alive/*`` (``--long`` adds heartbeat health);
 * ``keys`` — the keys that carry samples, with message counts and rates over ``--seconds``;
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import itertools
 import json
 import statistics
@@ -53,7 +56,7 @@ from ubf_async.component import HealthMonitor
 from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
-from ubf_async.protocol import MAX_PAYLOAD_BYTES, Keys, Message, ProtocolError, decode, encode
+from ubf_async.protocol import MAX_PAYLOAD_BYTES, ROOT, Keys, Message, ProtocolError, decode, encode
 from ubf_async.transport import intersects
 
 PROG = "python -m ubf_async.inspector"
@@ -190,6 +193,17 @@ def build_parser() -> argparse.ArgumentParser:
                        help="the controller component's name (default: controller)")
     state.add_argument("--json", action="store_true", help="print the status as JSON")
     add_watch_arguments(state)
+    robots = sub.add_parser(
+        "robots", parents=[common], help="list the live robots on a router (a fleet)",
+        description="List every robot alive on the zenoh network this joins (a fleet's "
+                    "router, docs/fleet.md), whatever --robot says: its live components "
+                    "(liveliness tokens ubf/*/alive/*) and, from its controller's status "
+                    "heard over --seconds, the tick rate (all ticks, and those of the "
+                    "periodic clock), mode and who wins the drive command now.")
+    robots.add_argument("--seconds", type=float, default=1.2, metavar="S",
+                        help="how long to listen for the controllers' status (published "
+                             "every 0.5 s)")
+    robots.add_argument("--json", action="store_true", help="print the list as JSON")
     add_tree_parser(sub, common)
     add_rate_parsers(sub, common)
     return parser
@@ -313,7 +327,8 @@ async def open_bus(args: argparse.Namespace) -> Bus:
         options.connect = [DEFAULT_LISTEN]
     bus = await Bus.open(options)
     try:
-        await wait_for_robot(bus, timeout_s=args.timeout)
+        await wait_for_robot(bus, timeout_s=args.timeout,
+                             any_robot=args.command == "robots")
     except BaseException:
         await bus.aclose()
         raise
@@ -845,7 +860,62 @@ async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
-COMMANDS = {"components": cmd_components, "keys": cmd_keys, "echo": cmd_echo,
+@dataclass
+class RobotRow:
+    robot: str
+    components: int = 0
+    mode: str | None = None
+    tick_hz: float | None = None
+    periodic_hz: float | None = None
+    winners: list[str] = field(default_factory=list)
+
+
+async def cmd_robots(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
+    rows: dict[str, RobotRow] = {}
+
+    def on_status(key: str, payload: bytes, received_ns: int) -> None:
+        try:
+            message = decode(payload, topic=topics.CONTROLLER_STATUS)
+        except ProtocolError:
+            return  # another component's status, or malformed: not a controller's
+        status = message.data
+        row = rows.setdefault(key.split("/")[1], RobotRow(robot=key.split("/")[1]))
+        row.mode = str(status.get("mode")) if status.get("mode") is not None else None
+        row.tick_hz = _number(status.get("rate_hz"))
+        row.periodic_hz = _number(status.get("periodic_rate_hz"))
+        row.winners = [str(w) for w in status.get("winners") or []]
+
+    subscription = bus.subscribe(f"{ROOT}/*/status/*", on_status,
+                                 latest=False)
+    await asyncio.sleep(args.seconds)  # a listening window: the statuses heard in it
+    subscription.close()
+    for token in await bus.alive_tokens(f"{ROOT}/*/alive/*", timeout_s=args.timeout):
+        robot = token.split("/")[1]
+        rows.setdefault(robot, RobotRow(robot=robot)).components += 1
+    listed = sorted(rows.values(), key=lambda row: row.robot)
+    if args.json:
+        print(_json({"robots": [dataclasses.asdict(row) for row in listed]}), file=out)
+        return 0
+    if not listed:
+        print("no robot alive", file=out)
+        return 0
+    width = max(5, *(len(row.robot) for row in listed))
+    print(f"{'ROBOT':{width}}  COMPONENTS  PERIODIC Hz  ALL TICKS Hz  MODE      WINNING", file=out)
+    for row in listed:
+        def hz(value: float | None) -> str:
+            return f"{value:.1f}" if value is not None else "--"
+
+        print(f"{row.robot:{width}}  {row.components:>10}  {hz(row.periodic_hz):>11}  "
+              f"{hz(row.tick_hz):>12}  {row.mode or '--':8}  "
+              f"{', '.join(row.winners) or ('(stop)' if row.mode else '--')}", file=out)
+    return 0
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) else None
+
+
+COMMANDS = {"robots": cmd_robots, "components": cmd_components, "keys": cmd_keys, "echo": cmd_echo,
             "state": cmd_state, "tree": cmd_tree, "hz": cmd_rate, "bw": cmd_rate,
             "info": cmd_info, "pub": cmd_pub}
 

@@ -53,6 +53,7 @@ from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
 from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.hostclock import RobotTimeBeacon
 from ubf_async.live import TreeService
 from ubf_async.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.liveview import FoxgloveServer, add_host_argument
@@ -306,12 +307,19 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     controller: Controller | None = None
     recorder: McapRecorder | None = None
     try:
-        endpoints = " ".join(options.listen) or "(not listening)"
-        print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
-              f"{endpoints}", file=out)
-        if options.listen:
-            print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
-                  file=out)
+        if options.mode == "client":
+            routers = " ".join(options.connect) or "(the --config file's router)"
+            print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, a client of "
+                  f"the router at {routers}", file=out)
+            print(f"  attach with: --mode client --connect {routers.split()[0]} --robot "
+                  f"{options.robot}", file=out)
+        else:
+            endpoints = " ".join(options.listen) or "(not listening)"
+            print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
+                  f"{endpoints}", file=out)
+            if options.listen:
+                print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
+                      file=out)
         if args.record is not None:  # first started, last closed: it sees the whole run
             recorder = McapRecorder(bus=bus, out=args.record)
             await recorder.start()
@@ -368,6 +376,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
                                    slots=robot.remotes)
         components += [aggregator, controller, remotes, tree_service, *devices]
+        if isinstance(clock, WallClock):  # its clock, for processes on other hosts
+            components.append(RobotTimeBeacon(bus=bus))
         if sim_run is not None:
             sim_run.add_devices(devices)
             components += sim_run.components()
