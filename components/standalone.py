@@ -14,8 +14,9 @@ simulated robot at any time. This module knows no simulator by name.
 
 Any other backend (real hardware, the radio on a terminal) stamps on the robot's clock too:
 with ``--clock auto`` (the default) it follows ``ubf/<robot>/clock`` when a simulator
-publishes one within ``--clock-wait-s``, else the host's ``CLOCK_MONOTONIC``, and its start-up
-line says which (:func:`ubf_async.clockdomain.follow_robot_clock`).
+publishes one within ``--clock-wait-s``, the robot host's clock (``ubf/<robot>/time``) when
+the robot runs on wall time on another host, else this host's ``CLOCK_MONOTONIC``; its
+start-up line says which (:func:`ubf_async.clockdomain.follow_robot_clock`).
 """
 
 from __future__ import annotations
@@ -110,12 +111,15 @@ def run_device(
     run.add_argument("--wait-for-sim-s", type=float, default=10.0, metavar="S",
                      help="with a simulated backend: how long to wait for the simulator's "
                           "world before giving up")
-    run.add_argument("--clock", choices=("auto", "wall", "sim"), default="auto",
+    run.add_argument("--clock", choices=("auto", "wall", "sim", "robot"), default="auto",
                      help="with a backend that needs no simulator: the robot clock to stamp "
-                          "with: wall (CLOCK_MONOTONIC), sim (follow ubf/<robot>/clock), auto "
-                          "(sim if a simulator speaks within --clock-wait-s)")
+                          "with: wall (this host's CLOCK_MONOTONIC), sim (follow "
+                          "ubf/<robot>/clock), robot (the robot host's clock through "
+                          "ubf/<robot>/time: on another host), auto (whichever the robot "
+                          "publishes within --clock-wait-s, else wall)")
     run.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
-                     metavar="S", help="with --clock auto: how long to listen for a simulator")
+                     metavar="S", help="with --clock auto: how long to listen for the robot's "
+                                       "clock")
     run.add_argument("--log-level", default="WARNING",
                      choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     args = parser.parse_args(argv)

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import time
 import weakref
 from collections import OrderedDict
@@ -53,6 +54,7 @@ from typing import Any, Literal
 from ubf_async.bus import Bus, follow_sim_clock
 from ubf_async.clock import Clock, SimClock
 from ubf_async.protocol import clip
+from ubf_async.topics import ROBOT_TIME
 
 log = logging.getLogger(__name__)
 
@@ -213,40 +215,70 @@ def watch(bus: Bus) -> ClockDomainWatch:
 # ---------------------------------------------------------------------------------------------
 # Learning the robot's clock
 
-ClockMode = Literal["auto", "wall", "sim"]
+ClockMode = Literal["auto", "wall", "sim", "robot"]
 DEFAULT_CLOCK_WAIT_S = 1.0
-"""How long ``auto`` listens for a simulator's clock before taking the wall clock. A
-simulator publishes a clock sample every step (5 ms of simulated time)."""
+"""How long ``auto`` listens for the robot's clock before taking this host's. A simulator
+publishes a clock sample every step (5 ms of simulated time), a wall-time robot its host's
+clock every 0.1 s (:mod:`ubf_async.hostclock`)."""
 
 
 async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
                              wait_s: float = DEFAULT_CLOCK_WAIT_S) -> Clock:
-    """Put ``bus`` on the robot's clock and return it: ``wall`` keeps ``bus.clock``; ``sim``
-    waits for ``ubf/<robot>/clock`` and follows it (under
-    :class:`~ubf_async.timesource.ClockFollower`'s rules); ``auto`` follows it if a clock
-    sample arrives within ``wait_s``, else keeps ``bus.clock`` (the robot is on wall time).
+    """Put ``bus`` on the robot's clock and return it:
+
+    * ``wall`` keeps ``bus.clock`` (this host's ``CLOCK_MONOTONIC``: right on the robot's
+      host);
+    * ``sim`` waits for ``ubf/<robot>/clock`` and follows it (under
+      :class:`~ubf_async.timesource.ClockFollower`'s rules);
+    * ``robot`` waits for ``ubf/<robot>/time`` and follows the robot host's clock through its
+      offset (:class:`~ubf_async.hostclock.RobotTimeClock`: for a process on another host);
+    * ``auto`` takes whichever of the two speaks first within ``wait_s`` — the robot time
+      only from another host (the beacon names its host; on the robot's own host the local
+      clock *is* the robot's) — else keeps ``bus.clock``.
+
     Either way it is logged which clock was taken and why."""
+    from ubf_async.hostclock import RobotTimeClock  # its beacon is a component
+
     if mode == "wall":
         return bus.clock
     sim = SimClock()
-    subscription = follow_sim_clock(bus, sim, {})
-    if mode == "auto":
-        try:
-            await asyncio.wait_for(sim.started.wait(), wait_s)
-        except TimeoutError:
-            subscription.close()
-            log.info("no sample on %s within %g s: the robot is on wall time; stamping with "
-                     "CLOCK_MONOTONIC", bus.keys.clock, wait_s)
-            return bus.clock
-    else:
-        await sim.started.wait()
-    log.info("following the simulated time on %s", bus.keys.clock)
-    bus.clock = sim
-    return sim
+    robot_time = RobotTimeClock()
+    sim_sub = follow_sim_clock(bus, sim, {}) if mode in ("auto", "sim") else None
+    time_sub = robot_time.follow(bus) if mode in ("auto", "robot") else None
+    waits = [asyncio.ensure_future(event.wait()) for event, sub in
+             ((sim.started, sim_sub), (robot_time.ready, time_sub)) if sub is not None]
+    try:
+        await asyncio.wait(waits, timeout=wait_s if mode == "auto" else None,
+                           return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for waiting in waits:
+            waiting.cancel()
+    if sim.started.is_set():
+        if time_sub is not None:
+            time_sub.close()
+        log.info("following the simulated time on %s", bus.keys.clock)
+        bus.clock = sim
+        return sim
+    if sim_sub is not None:
+        sim_sub.close()
+    if robot_time.ready.is_set() and (mode == "robot"
+                                      or robot_time.host != socket.gethostname()):
+        log.info("following the clock of the robot's host %s on %s (offset %+.3f s)",
+                 robot_time.host or "(unnamed)", ROBOT_TIME.key(bus.keys),
+                 robot_time.estimator.offset_ns / 1e9)
+        bus.clock = robot_time
+        return robot_time
+    if time_sub is not None:
+        time_sub.close()
+    log.info("no robot clock on %s or %s from another host within %g s: stamping with this "
+             "host's CLOCK_MONOTONIC", bus.keys.clock, ROBOT_TIME.key(bus.keys), wait_s)
+    return bus.clock
 
 
 def describe(clock: Clock, *, robot: str) -> str:
     """Which clock a process stamps with, for its start-up line."""
     if getattr(clock, "is_simulated", False):
         return f"simulated time (ubf/{robot}/clock)"
+    if hasattr(clock, "estimator"):
+        return f"the robot host's clock (ubf/{robot}/time, offset learned)"
     return "wall clock (CLOCK_MONOTONIC)"

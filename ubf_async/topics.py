@@ -251,6 +251,13 @@ class Clock(Data, frozen=True, kw_only=True):
     epoch: Annotated[str, Meta(max_length=64)] | None = None
 
 
+class RobotTime(Data, frozen=True, kw_only=True):
+    """The robot host's clock (``CLOCK_MONOTONIC``) is the envelope's ``stamp_ns``; a process
+    on another host learns its offset from it (:mod:`ubf_async.hostclock`)."""
+
+    host: Annotated[str, Meta(max_length=253)] | None = None
+
+
 class Vote(Data, frozen=True, kw_only=True):
     """A remote behaviour's action and vote; unset action fields are ``None``."""
 
@@ -552,6 +559,9 @@ LEDS = Topic("leds", "cmd/leds", "leds", Leds, "which LEDs are lit")
 HEARTBEAT = Topic("heartbeat", "heartbeat/{component}", "heartbeat", Heartbeat,
                   "a component's heartbeat")
 CLOCK = Topic("clock", "clock", "clock", Clock, "simulated time (absent on wall-clock robots)")
+ROBOT_TIME = Topic("robot_time", "time", "robot.time", RobotTime,
+                   "the robot host's clock, for processes on other hosts (absent when "
+                   "simulating)")
 VOTE = Topic("vote", "vote/{composite}/{behavior}", "vote", Vote,
              "a remote behaviour's vote in a composite")
 CONTROLLER_STATUS = Topic("controller_status", "status/{component}", "controller.status",
@@ -577,7 +587,7 @@ TRACE = Topic("trace", "trace", "controller.trace", TickTrace,
 TOPICS: tuple[Topic[Any], ...] = (
     CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, LED_STATE, RADIO,
     DRIVE, SEEK_COLOR, RADIO_SEND, LEDS,
-    HEARTBEAT, CLOCK, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
+    HEARTBEAT, CLOCK, ROBOT_TIME, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
     TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE, CAMERA_VIEW,
 )
 """Every declared topic."""
