@@ -52,14 +52,11 @@ from typing import Any, Protocol
 
 import msgspec
 
-from ubf_async import clockdomain
+from ubf_async.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.bus import (
-    DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
     HelpFormatter,
     add_connection_arguments,
-    connection_options,
-    wait_for_robot,
 )
 from ubf_async.cli import run_main
 from ubf_async.component import Component
@@ -538,12 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--port", type=int, default=DEFAULT_PORT,
                         help="the Foxglove WebSocket server's port (0: any free port)")
     add_host_argument(parser)
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="stop after S wall-clock seconds (default: until Ctrl-C/SIGTERM)")
-    parser.add_argument("--name", default="foxglove",
-                        help="the live view's component name on the robot")
-    parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
-                        metavar="S", help="with --connect: how long to wait for the robot")
+    add_attach_arguments(parser, name="foxglove", who="the live view")
     parser.add_argument("--layout", type=Path, default=None, metavar="FILE",
                         help="write the Foxglove layout to FILE (- for stdout) and exit")
     return parser
@@ -551,31 +543,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 async def serve(args: argparse.Namespace, *,
                 ready: Callable[[FoxgloveServer], None] | None = None) -> int:
-    options = connection_options(args)
-    bus = await Bus.open(options)
-    server: FoxgloveServer | None = None
-    try:
-        await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
-        await clockdomain.follow_robot_clock(bus, mode="auto")  # log times on the robot's
+    async with attached_bus(args) as bus:
         server = FoxgloveServer(bus=bus, port=args.port, host=args.foxglove_host,
                                 name=args.name)
         await server.start()
-        print(f"{PROG}: robot {options.robot!r} live on {server.url} (Foxglove: open "
-              f"connection → Foxglove WebSocket)", flush=True)
-        if ready is not None:
-            ready(server)
-        stop = asyncio.Event()
-        if args.duration is None:
-            await stop.wait()
-        else:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), args.duration)
-        return 0
-    finally:
-        if server is not None:
+        try:
+            print(f"{PROG}: robot {bus.robot!r} live on {server.url} (Foxglove: open "
+                  f"connection → Foxglove WebSocket)", flush=True)
+            if ready is not None:
+                ready(server)
+            await run_until_stopped(args.duration)
+            return 0
+        finally:
             await server.aclose()
             print(f"{PROG}: {server.stats.logged} messages served", flush=True)
-        await bus.aclose()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

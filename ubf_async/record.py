@@ -44,14 +44,12 @@ from typing import IO, Any
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from ubf_async import __version__, clockdomain
+from ubf_async import __version__
+from ubf_async.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.bus import (
-    DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
     HelpFormatter,
     add_connection_arguments,
-    connection_options,
-    wait_for_robot,
 )
 from ubf_async.cli import run_main
 from ubf_async.component import Component, ensure_name_free
@@ -339,8 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_connection_arguments(parser)
     parser.add_argument("--out", type=Path, default=Path("recordings"), metavar="DIR|FILE",
                         help="a directory (the file is <robot>.mcap in it) or a .mcap file")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="stop after S wall-clock seconds (default: until Ctrl-C/SIGTERM)")
+    add_attach_arguments(parser, name="recorder", who="the recorder")
     parser.add_argument("--flush-s", type=float, default=DEFAULT_FLUSH_S, metavar="S",
                         help="close a chunk every S seconds: a killed recorder loses at most "
                              "that much")
@@ -349,22 +346,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-live-channels", dest="live_channels", action="store_false",
                         help="record only the original messages, not the live view's Foxglove "
                              "channels beside them")
-    parser.add_argument("--name", default="recorder",
-                        help="the recorder's component name on the robot")
     parser.add_argument("--progress", action="store_true",
                         help="print a line after every flush: messages written and dropped")
-    parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
-                        metavar="S", help="with --connect: how long to wait for the robot")
     return parser
 
 
 async def record(args: argparse.Namespace) -> int:
-    options = connection_options(args)
-    bus = await Bus.open(options)
-    recorder: McapRecorder | None = None
-    try:
-        await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
-        await clockdomain.follow_robot_clock(bus, mode="auto")  # log times on the robot's
+    async with attached_bus(args) as bus:
         await ensure_name_free(bus, args.name, hint="give this recorder another --name")
 
         def progress(stats: RecorderStats) -> None:
@@ -376,16 +364,11 @@ async def record(args: argparse.Namespace) -> int:
             split_bytes=None if args.split_mb is None else int(args.split_mb * 1e6),
             on_flush=progress if args.progress else None, live_channels=args.live_channels)
         await recorder.start()
-        print(f"{PROG}: recording robot {options.robot!r} to {recorder.path}", flush=True)
-        stop = asyncio.Event()
-        if args.duration is None:
-            await stop.wait()
-        else:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), args.duration)
-        return 0
-    finally:
-        if recorder is not None:
+        try:
+            print(f"{PROG}: recording robot {bus.robot!r} to {recorder.path}", flush=True)
+            await run_until_stopped(args.duration)
+            return 0
+        finally:
             await recorder.aclose()
             stats = recorder.stats
             print(f"{PROG}: {stats.written} messages"
@@ -394,7 +377,6 @@ async def record(args: argparse.Namespace) -> int:
                   + f" in {', '.join(map(str, stats.files))}"
                   + (f"; {stats.dropped} dropped" if stats.dropped else "")
                   + (f"; writing failed: {stats.error}" if stats.error else ""), flush=True)
-        await bus.aclose()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
