@@ -115,6 +115,11 @@ class Component:
         self._attempt_resources.append(sub)
         return sub
 
+    def keep(self, resource: Publisher | Subscription) -> None:
+        """Close ``resource`` (made on another bus than the component's, say) when this run
+        attempt ends, as :meth:`publisher` and :meth:`subscribe` do for theirs."""
+        self._attempt_resources.append(resource)
+
     def close_on_exit(self, close: Callable[[], object]) -> None:
         """Call ``close`` when this component closes, after its run has stopped (a device's
         backend is closed with its device: releasing pins only once nothing drives them).

@@ -15,7 +15,7 @@ robot file needs it, so a robot whose devices are real or remote runs without on
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TextIO, runtime_checkable
@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from ubf_async.clock import Clock, SimClock
     from ubf_async.component import Component
     from ubf_async.controller import Controller
+    from ubf_async.robotfile import ResolvedDevice
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -106,6 +107,19 @@ class SimulationRun(Protocol):
         ...
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FleetMember:
+    """One robot of a fleet, as the world process hosts it: its name, its devices whose
+    backends need the simulator (built on its own bus ``ubf/<name>/…``), and where it
+    starts."""
+
+    name: str
+    devices: tuple[ResolvedDevice, ...]
+    x_m: float
+    y_m: float
+    heading_deg: float = 0.0
+
+
 class Simulator(Protocol):
     """A simulator plug-in (what a ``ubf_async.simulators`` entry point names)."""
 
@@ -123,4 +137,12 @@ class Simulator(Protocol):
 
     def scenario_names(self) -> list[str]:
         """Built-in scenarios, for ``--help``."""
+        ...
+
+    async def host_fleet(self, *, buses: Sequence[Bus], clock: SimClock,
+                         members: Sequence[FleetMember], options: SimulationOptions,
+                         out: TextIO) -> dict[str, Any]:
+        """Run one world holding every member (``buses[i]`` is member ``i``'s, all on
+        ``clock``), their simulated devices and simulated time, until ``options.duration_s``
+        (or cancelled); return a summary per robot (``python -m ubf_async.fleet``)."""
         ...

@@ -41,7 +41,8 @@ import asyncio
 import secrets
 import time
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from components.devices import KINDS, make_backend, make_device
@@ -67,6 +68,17 @@ the camera's deadline wake-up → its publish → the aggregator's handler, wher
 tick publishes a drive command → the motors' handler → their applied sample's handler."""
 
 
+@dataclass(slots=True, kw_only=True)
+class _Served:
+    """What the simulator publishes for one robot of its world."""
+
+    robot: int
+    clock: Publisher
+    truth: Publisher
+    world: Publisher
+    clock_followed: bool = True
+
+
 class SimulatorComponent(Component):
     def __init__(
         self,
@@ -79,9 +91,18 @@ class SimulatorComponent(Component):
         truth_period_s: float = 0.05,
         world_period_s: float = 0.02,
         name: str = "sim",
+        more_robots: Sequence[Bus] = (),
         **component_options: float,
     ) -> None:
+        """``more_robots``: a fleet's further robots of ``world`` (robot ``i`` on
+        ``more_robots[i - 1]``, a bus of that robot's name sharing ``clock``): each gets the
+        clock, its truth and its view of the world on its own keys, and its pulses from
+        there."""
         super().__init__(bus=bus, name=name, **component_options)
+        if len(more_robots) != world.robot_count - 1:
+            raise ValueError(f"the world has {world.robot_count} robots: give a bus for each "
+                             f"but the first ({world.robot_count - 1}), not {len(more_robots)}")
+        self.more_robots = tuple(more_robots)
         if not speed > 0:
             raise ValueError(f"speed must be > 0, got {speed}")
         self.world = world
@@ -111,14 +132,18 @@ class SimulatorComponent(Component):
         wall = end - self.wall_started_s
         return (self.world.time_s - self.sim_started_s) / wall if wall > 0 else None
 
-    def _on_pulses(self, key: str, payload: bytes, received_ns: int) -> None:
-        """Motor pulses from a motors component in another process."""
-        message = decode_or_count(payload, self.malformed, key, topic=SIM_PULSES)
-        if message is not None:
-            self.world.set_motor_pulses(message.data.left_ms, message.data.right_ms)
+    def _pulses_handler(self, robot: int) -> Callable[[str, bytes, int], None]:
+        def on_pulses(key: str, payload: bytes, received_ns: int) -> None:
+            """Motor pulses from a motors component in another process."""
+            message = decode_or_count(payload, self.malformed, key, topic=SIM_PULSES)
+            if message is not None:
+                self.world.set_motor_pulses(message.data.left_ms, message.data.right_ms,
+                                            robot=robot)
 
-    def truth(self) -> dict[str, object]:
-        snap = self.world.snapshot()
+        return on_pulses
+
+    def truth(self, robot: int = 0) -> dict[str, object]:
+        snap = self.world.snapshot_for(robot)
         robot = snap.robot
         out: dict[str, object] = {
             "time_s": snap.time_s,
@@ -132,11 +157,8 @@ class SimulatorComponent(Component):
         return out
 
     async def run(self) -> None:
-        keys = self.bus.keys
-        clock_pub = self.publisher(CLOCK, period_s=self.step_s)
-        truth_pub = self.publisher(SIM_TRUTH, period_s=self.truth_period_s)
-        world_pub = self.publisher(SIM_WORLD, period_s=self.world_period_s)
-        self.subscribe(SIM_PULSES.key(keys), self._on_pulses)
+        served = [self._serve(bus, robot)
+                  for robot, bus in enumerate((self.bus, *self.more_robots))]
         self.clock.advance_to(round(self.world.time_s * 1e9))
         # Components of this process that are still getting ready (the camera building its
         # renderer's caches) hold the start: time starts, and is measured, once they are done.
@@ -145,18 +167,27 @@ class SimulatorComponent(Component):
         self.sim_started_s = self.world.time_s
         self.wall_stopped_s = None
         try:
-            await self._step_forever(clock_pub, truth_pub, world_pub, self.wall_started_s)
+            await self._step_forever(served, self.wall_started_s)
         finally:
             self.wall_stopped_s = time.monotonic()
 
-    async def _step_forever(self, clock_pub: Publisher, truth_pub: Publisher,
-                            world_pub: Publisher, started_s: float) -> None:
+    def _serve(self, bus: Bus, robot: int) -> _Served:
+        """Publishers of one robot's clock, truth and world, and its pulses' subscription
+        (closed when the run attempt ends)."""
+        served = _Served(robot=robot, clock=bus.publisher(CLOCK, period_s=self.step_s),
+                         truth=bus.publisher(SIM_TRUTH, period_s=self.truth_period_s),
+                         world=bus.publisher(SIM_WORLD, period_s=self.world_period_s))
+        for resource in (served.clock, served.truth, served.world,
+                         bus.subscribe(SIM_PULSES.key(bus.keys), self._pulses_handler(robot))):
+            self.keep(resource)
+        return served
+
+    async def _step_forever(self, served: list[_Served], started_s: float) -> None:
         next_truth_s = next_world_s = self.world.time_s
         step_ns = round(self.step_s * 1e9)
         schedule_origin_s = started_s  # wall time at which sim time started
         window_wall_s, window_sim_s = started_s, self.world.time_s
         steps = 0
-        clock_followed = True
         while True:
             next_ns = self.clock.now_ns() + step_ns
             held_until = self.clock.held_until_ns()
@@ -176,21 +207,26 @@ class SimulatorComponent(Component):
             # The clock sample costs an encoding and a put every step: only when some process
             # follows it (checked every CLOCK_MATCH_STEPS steps, zenoh's check is not free).
             steps += 1
-            if steps % CLOCK_MATCH_STEPS == 1:
-                clock_followed = clock_pub.has_subscribers()
-            if clock_followed:
-                rtf = self.real_time_factor()
-                clock_pub.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch},
-                                  stamp_ns=now_ns)
-            # Truth and the world snapshot cost encoding time on the loop: build them only
-            # when some process listens (zenoh knows its matching subscribers).
-            if now_s >= next_truth_s:
-                if truth_pub.has_subscribers():
-                    truth_pub.publish(self.truth(), stamp_ns=now_ns)
+            check_followers = steps % CLOCK_MATCH_STEPS == 1
+            truth_due = now_s >= next_truth_s
+            world_due = now_s >= next_world_s
+            for robot in served:
+                if check_followers:
+                    robot.clock_followed = robot.clock.has_subscribers()
+                if robot.clock_followed:
+                    rtf = self.real_time_factor()
+                    robot.clock.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch},
+                                        stamp_ns=now_ns)
+                # Truth and the world snapshot cost encoding time on the loop: build them
+                # only when some process listens (zenoh knows its matching subscribers).
+                if truth_due and robot.truth.has_subscribers():
+                    robot.truth.publish(self.truth(robot.robot), stamp_ns=now_ns)
+                if world_due and robot.world.has_subscribers():
+                    robot.world.publish(snapshot_to_data(self.world.snapshot_for(robot.robot)),
+                                        stamp_ns=now_ns)
+            if truth_due:
                 next_truth_s += self.truth_period_s
-            if now_s >= next_world_s:
-                if world_pub.has_subscribers():
-                    world_pub.publish(snapshot_to_data(self.world.snapshot()), stamp_ns=now_ns)
+            if world_due:
                 next_world_s += self.world_period_s
             target = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
             delay = target - time.monotonic()

@@ -8,18 +8,21 @@
   are given;
 * :meth:`~MiniWhegsSimulator.attach` gives a device started in its own process
   (``python -m components.<device>``) the world of a simulator running elsewhere, seen through
-  the bus (:class:`~components.sim.remote.RemoteWorld`).
+  the bus (:class:`~components.sim.remote.RemoteWorld`);
+* :meth:`~MiniWhegsSimulator.host_fleet` runs one world holding a fleet of robots
+  (:mod:`components.sim.fleet`, for ``python -m ubf_async.fleet``).
 
 Importing this module is cheap: the simulator's modules (pymunk, OpenCV) load on first use.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, TextIO
 
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
-from ubf_async.simulation import SimulationOptions
+from ubf_async.simulation import FleetMember, SimulationOptions
 
 if TYPE_CHECKING:
     from components.sim.remote import RemoteWorld
@@ -86,6 +89,15 @@ class MiniWhegsSimulator:
         """A :class:`~components.encoders.calibrate.TurnRig` on an empty simulated world, for
         ``python -m components.encoders.calibrate``."""
         return SimTurnRig()
+
+    async def host_fleet(self, *, buses: Sequence[Bus], clock: SimClock,
+                         members: Sequence[FleetMember], options: SimulationOptions,
+                         out: TextIO) -> dict[str, Any]:
+        """One world holding every robot of a fleet (:mod:`components.sim.fleet`)."""
+        from components.sim.fleet import host_fleet
+
+        return await host_fleet(buses=buses, clock=clock, members=members, options=options,
+                                out=out)
 
     def scenario_names(self) -> list[str]:
         """The built-in scenarios (``components/sim/scenario_files``)."""

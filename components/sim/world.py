@@ -89,6 +89,9 @@ WALL_COLOR: Color = (200, 194, 160)
 BOX_COLOR: Color = (180, 168, 128)
 """Default box-obstacle colour (cardboard), also neutral."""
 ORANGE: Color = (255, 140, 0)
+ROBOT_COLOR: Color = (70, 72, 86)
+"""The Mini-WHEGS's dark shell, as other robots' cameras see it."""
+ROBOT_HEIGHT_M = 0.05
 """A typical distractor colour (an orange ball) that must never read as pink."""
 
 BALL_DIAMETER_M = 0.065
@@ -338,6 +341,10 @@ class WorldConfig:
 
     robot_start: Pose2D = field(default_factory=Pose2D)
     robot: RobotConfig = field(default_factory=RobotConfig)
+    more_robots: tuple[Pose2D, ...] = ()
+    """Start poses of further robots of the same make in this world (a fleet): robot ``i``
+    (1, 2, …) starts at ``more_robots[i - 1]``; robot 0 at ``robot_start``. Each sees the
+    others in its camera and IR (:meth:`World.snapshot_for`)."""
     ball: BallConfig | None = None
     arena: Arena | None = None
     walls: tuple[Wall, ...] = ()
@@ -442,6 +449,16 @@ def _box_corners(
 
 
 @dataclass(slots=True)
+class _RobotBody:
+    """One Mini-WHEGS's body and drive state."""
+
+    body: pymunk.Body
+    pulses: tuple[float, float]
+    wheel_speed: list[float]
+    wheel_angle: list[float]
+
+
+@dataclass(slots=True)
 class _FloorBody:
     """A dynamic body that rolls or slides on the floor (the ball, movable distractors)."""
 
@@ -480,18 +497,11 @@ class World:
         space.iterations = 20
         self._space = space
 
-        # Robot.
+        # Robots: robot 0 at robot_start, then the fleet's.
         rc = cfg.robot
         geo = rc.geometry
-        moment = pymunk.moment_for_box(geo.mass_kg, (geo.length_m, geo.width_m))
-        robot = pymunk.Body(geo.mass_kg, moment)
-        robot.position = (cfg.robot_start.x_m, cfg.robot_start.y_m)
-        robot.angle = cfg.robot_start.heading_rad
-        shell = pymunk.Poly.create_box(robot, (geo.length_m, geo.width_m), radius=0.001)
-        shell.friction = rc.body_friction
-        shell.elasticity = 0.1
-        space.add(robot, shell)
-        self._robot = robot
+        self._robots = [self._add_robot(pose) for pose in (cfg.robot_start, *cfg.more_robots)]
+        self._robot = self._robots[0].body
         half_track = geo.track_width_m / 2
         half_base = rc.wheelbase_m / 2
         # Wheel-leg contacts (x, y, side) in the body frame; side 0 = left (+y), 1 = right.
@@ -507,9 +517,6 @@ class World:
         self._inv_slip_long = 1.0 / rc.longitudinal_slip_m_s
         self._inv_slip_lat = 1.0 / rc.lateral_slip_m_s
         self._motors = (rc.left_motor, rc.right_motor)
-        self._pulses: tuple[float, float] = (rc.left_motor.zero_ms, rc.right_motor.zero_ms)
-        self._wheel_speed = [0.0, 0.0]
-        self._wheel_angle = [0.0, 0.0]
         self._alpha: dict[float, float] = {}
         """The wheels' first-order lag factor per substep length (one or two lengths)."""
 
@@ -568,8 +575,23 @@ class World:
                 space.add(dshape)
                 self._distractor_bodies.append(None)
 
-        self._snapshot: WorldSnapshot | None = None
-        """Built on demand by :meth:`snapshot` (and dropped when the world changes)."""
+        self._snapshots: dict[int, WorldSnapshot] = {}
+        """Per robot, built on demand by :meth:`snapshot_for` (dropped when the world
+        changes)."""
+
+    def _add_robot(self, pose: Pose2D) -> _RobotBody:
+        rc = self._config.robot
+        geo = rc.geometry
+        moment = pymunk.moment_for_box(geo.mass_kg, (geo.length_m, geo.width_m))
+        body = pymunk.Body(geo.mass_kg, moment)
+        body.position = (pose.x_m, pose.y_m)
+        body.angle = pose.heading_rad
+        shell = pymunk.Poly.create_box(body, (geo.length_m, geo.width_m), radius=0.001)
+        shell.friction = rc.body_friction
+        shell.elasticity = 0.1
+        self._space.add(body, shell)
+        return _RobotBody(body=body, pulses=(rc.left_motor.zero_ms, rc.right_motor.zero_ms),
+                          wheel_speed=[0.0, 0.0], wheel_angle=[0.0, 0.0])
 
     def _add_round_body(
         self, x: float, y: float, radius: float, mass: float, *, elasticity: float,
@@ -612,15 +634,27 @@ class World:
 
     @property
     def motor_pulses(self) -> tuple[float, float]:
-        """The last pulses set, ``(left_ms, right_ms)``."""
-        return self._pulses
+        """Robot 0's last pulses set, ``(left_ms, right_ms)``."""
+        return self._robots[0].pulses
+
+    @property
+    def robot_count(self) -> int:
+        """Robots in this world (1 + ``config.more_robots``)."""
+        return len(self._robots)
+
+    def robot(self, index: int) -> RobotView:
+        """What the device backends use of a world, for robot ``index``."""
+        if not 0 <= index < len(self._robots):
+            raise IndexError(f"robot {index}: this world has robots 0…{len(self._robots) - 1}")
+        return RobotView(self, index)
 
     # -- inputs -------------------------------------------------------------------------------
 
-    def set_motor_pulses(self, left_ms: float, right_ms: float) -> None:
-        """Set the PWM high time of each motor (ms); takes effect at the next step."""
+    def set_motor_pulses(self, left_ms: float, right_ms: float, *, robot: int = 0) -> None:
+        """Set the PWM high time of each motor (ms) of ``robot``; takes effect at the next
+        step."""
         _require_finite(left_ms=left_ms, right_ms=right_ms)
-        self._pulses = (float(left_ms), float(right_ms))
+        self._robots[robot].pulses = (float(left_ms), float(right_ms))
 
     def set_ball_velocity(self, vx_m_s: float, vy_m_s: float) -> None:
         """Give the ball a velocity (it then rolls and slows down on its own)."""
@@ -628,7 +662,7 @@ class World:
         ball = self._require_ball()
         with self._lock:
             ball.body.velocity = (vx_m_s, vy_m_s)
-            self._snapshot = None
+            self._snapshots = {}
 
     def place_ball(self, x_m: float, y_m: float) -> None:
         """Teleport the ball to (x, y) and stop it."""
@@ -639,17 +673,18 @@ class World:
             ball.body.velocity = (0.0, 0.0)
             ball.body.angular_velocity = 0.0
             self._space.reindex_shapes_for_body(ball.body)
-            self._snapshot = None
+            self._snapshots = {}
 
-    def place_robot(self, pose: Pose2D) -> None:
-        """Teleport the robot to ``pose`` and stop it (wheel angles are kept)."""
+    def place_robot(self, pose: Pose2D, *, robot: int = 0) -> None:
+        """Teleport ``robot`` to ``pose`` and stop it (wheel angles are kept)."""
         with self._lock:
-            self._robot.position = (pose.x_m, pose.y_m)
-            self._robot.angle = pose.heading_rad
-            self._robot.velocity = (0.0, 0.0)
-            self._robot.angular_velocity = 0.0
-            self._space.reindex_shapes_for_body(self._robot)
-            self._snapshot = None
+            body = self._robots[robot].body
+            body.position = (pose.x_m, pose.y_m)
+            body.angle = pose.heading_rad
+            body.velocity = (0.0, 0.0)
+            body.angular_velocity = 0.0
+            self._space.reindex_shapes_for_body(body)
+            self._snapshots = {}
 
     def place_distractor(self, index: int, x_m: float, y_m: float) -> None:
         """Teleport movable distractor ``index`` (order of ``config.distractors``) to (x, y)
@@ -663,7 +698,7 @@ class World:
             body.velocity = (0.0, 0.0)
             body.angular_velocity = 0.0
             self._space.reindex_shapes_for_body(body)
-            self._snapshot = None
+            self._snapshots = {}
 
     def shift_robot(self, dx_m: float, dy_m: float, d_heading_rad: float = 0.0) -> None:
         """Move the robot by (dx, dy) and turn it by ``d_heading_rad`` as a hand pushing it
@@ -674,13 +709,13 @@ class World:
             self._robot.position = (x + dx_m, y + dy_m)
             self._robot.angle = self._robot.angle + d_heading_rad
             self._space.reindex_shapes_for_body(self._robot)
-            self._snapshot = None
+            self._snapshots = {}
 
     def set_lighting(self, lighting: Lighting) -> None:
         """Change the scene lighting (seen by the camera from the next snapshot on)."""
         with self._lock:
             self._lighting = lighting
-            self._snapshot = None
+            self._snapshots = {}
 
     def add_step_hook(self, hook: StepHook) -> Callable[[], None]:
         """Run ``hook(world, dt_s)`` at the start of every step (scripted motion, scenarios).
@@ -725,32 +760,31 @@ class World:
                 n = max(1, math.ceil(dt_s / self._config.substep_s - 1e-9))
                 h = dt_s / n
                 # The pulses hold for the whole step (set_motor_pulses: "at the next step").
-                targets = (wheel_speed_rad_s(self._motors[0], self._pulses[0]),
-                           wheel_speed_rad_s(self._motors[1], self._pulses[1]))
+                targets = [(wheel_speed_rad_s(self._motors[0], r.pulses[0]),
+                            wheel_speed_rad_s(self._motors[1], r.pulses[1]))
+                           for r in self._robots]
                 for _ in range(n):
                     self._substep(h, targets)
                 self._time_ns += round(dt_s * 1e9)
             self._step_count += 1
-            self._snapshot = None
+            self._snapshots = {}
 
-    def _substep(self, h: float, targets: tuple[float, float]) -> None:
-        cfg = self._config
-        rc = cfg.robot
-        radius = rc.geometry.wheel_radius_m
-        alpha = self._alpha.get(h)
-        if alpha is None:
-            alpha = self._alpha[h] = 1.0 - math.exp(-h / rc.motor_time_constant_s)
+    def _drive(self, robot: _RobotBody, h: float, targets: tuple[float, float],
+               alpha: float) -> None:
+        """One robot's wheels and ground contact forces over a substep of ``h``."""
+        radius = self._config.robot.geometry.wheel_radius_m
         surface = [0.0, 0.0]
+        wheel_speed, wheel_angle = robot.wheel_speed, robot.wheel_angle
         for side in (0, 1):
             target = targets[side]
-            old = self._wheel_speed[side]
+            old = wheel_speed[side]
             new = old + (target - old) * alpha
-            self._wheel_speed[side] = new
-            self._wheel_angle[side] += 0.5 * (old + new) * h
+            wheel_speed[side] = new
+            wheel_angle[side] += 0.5 * (old + new) * h
             surface[side] = new * radius
 
         # Ground contact forces on the robot, computed in the body frame (module docstring).
-        body = self._robot
+        body = robot.body
         heading = body.angle
         c, s = math.cos(heading), math.sin(heading)
         vx, vy = body.velocity
@@ -788,6 +822,15 @@ class World:
         body.force = (c * fx_sum - s * fy_sum, s * fx_sum + c * fy_sum)
         body.torque = torque
 
+    def _substep(self, h: float, targets: list[tuple[float, float]]) -> None:
+        cfg = self._config
+        rc = cfg.robot
+        alpha = self._alpha.get(h)
+        if alpha is None:
+            alpha = self._alpha[h] = 1.0 - math.exp(-h / rc.motor_time_constant_s)
+        for robot, target in zip(self._robots, targets, strict=True):
+            self._drive(robot, h, target, alpha)
+
         # Rolling / sliding losses of free bodies.
         g = cfg.gravity_m_s2
         spin_decay = math.exp(-5.0 * h)
@@ -812,19 +855,27 @@ class World:
     # -- snapshot -----------------------------------------------------------------------------
 
     def snapshot(self) -> WorldSnapshot:
-        """The latest immutable snapshot (replaced after every step; built on first demand)."""
-        snap = self._snapshot
+        """Robot 0's latest immutable snapshot (replaced after every step; built on first
+        demand)."""
+        return self.snapshot_for(0)
+
+    def snapshot_for(self, robot: int) -> WorldSnapshot:
+        """The world as robot ``robot`` senses it: itself as ``robot``, the other robots
+        among the ``distractors`` (dark boxes, after the configured ones), so its camera and
+        IR see them."""
+        snap = self._snapshots.get(robot)
         if snap is not None:
             return snap
         with self._lock:
-            snap = self._snapshot
+            snap = self._snapshots.get(robot)
             if snap is None:
-                snap = self._snapshot = self._make_snapshot()
+                snap = self._snapshots[robot] = self._make_snapshot(robot)
             return snap
 
-    def _make_snapshot(self) -> WorldSnapshot:
+    def _make_snapshot(self, index: int) -> WorldSnapshot:
         cfg = self._config
-        body = self._robot
+        me = self._robots[index]
+        body = me.body
         geo = cfg.robot.geometry
         x, y = body.position
         vx, vy = body.velocity
@@ -832,11 +883,11 @@ class World:
             x_m=float(x), y_m=float(y),
             heading_rad=wrap_angle(body.angle), heading_unwrapped_rad=float(body.angle),
             vx_m_s=float(vx), vy_m_s=float(vy), yaw_rate_rad_s=float(body.angular_velocity),
-            left_wheel_angle_rad=self._wheel_angle[0],
-            right_wheel_angle_rad=self._wheel_angle[1],
-            left_wheel_speed_rad_s=self._wheel_speed[0],
-            right_wheel_speed_rad_s=self._wheel_speed[1],
-            left_pulse_ms=self._pulses[0], right_pulse_ms=self._pulses[1],
+            left_wheel_angle_rad=me.wheel_angle[0],
+            right_wheel_angle_rad=me.wheel_angle[1],
+            left_wheel_speed_rad_s=me.wheel_speed[0],
+            right_wheel_speed_rad_s=me.wheel_speed[1],
+            left_pulse_ms=me.pulses[0], right_pulse_ms=me.pulses[1],
             length_m=geo.length_m, width_m=geo.width_m,
         )
         ball_state = None
@@ -861,6 +912,13 @@ class World:
                     color=d.color,
                 )
             )
+        for other in self._robots:
+            if other is not me:
+                ox, oy = other.body.position
+                distractors.append(DistractorState(
+                    kind="box", x_m=float(ox), y_m=float(oy), yaw_rad=float(other.body.angle),
+                    radius_m=geo.width_m / 2, length_m=geo.length_m, width_m=geo.width_m,
+                    height_m=ROBOT_HEIGHT_M, color=ROBOT_COLOR))
         return WorldSnapshot(
             time_s=self._time_ns / 1e9,
             step_count=self._step_count,
@@ -871,6 +929,39 @@ class World:
             distractors=tuple(distractors),
             lighting=self._lighting,
         )
+
+
+class RobotView:
+    """One robot of a :class:`World`, as the device backends use a world (``snapshot()``,
+    ``set_motor_pulses()``, ``config``, ``make_rng()``): each robot of a fleet gets its own
+    devices on the one world. Its random streams differ from the other robots'."""
+
+    def __init__(self, world: World, index: int) -> None:
+        self.world = world
+        self.index = index
+
+    @property
+    def config(self) -> WorldConfig:
+        return self.world.config
+
+    @property
+    def time_s(self) -> float:
+        return self.world.time_s
+
+    def snapshot(self) -> WorldSnapshot:
+        return self.world.snapshot_for(self.index)
+
+    def set_motor_pulses(self, left_ms: float, right_ms: float) -> None:
+        self.world.set_motor_pulses(left_ms, right_ms, robot=self.index)
+
+    @property
+    def motor_pulses(self) -> tuple[float, float]:
+        return self.world._robots[self.index].pulses
+
+    def make_rng(self, stream: int) -> np.random.Generator:
+        if self.index == 0:
+            return self.world.make_rng(stream)
+        return np.random.default_rng([self.world.config.seed, stream, self.index])
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,114 @@
+"""One simulated world, many robots: the world process of a fleet.
+
+``python -m ubf_async.fleet FLEET.yaml`` starts a router, this world, and one controller process
+per robot (``launch ROBOT_FILE --no-sim --sim-time --robot NAME``). The world holds every robot
+of the fleet in one pymunk space — they collide, and each sees the others in its camera and IR
+(:meth:`~components.sim.world.World.snapshot_for`: the other robots are dark boxes) — with the
+scenario's arena, ball and scripts; the robots' start poses come from the fleet file. Each
+robot's simulated devices run here, each on its robot's own bus (``ubf/<robot>/…``), all on one
+simulated clock, which the simulator publishes on every robot's ``ubf/<robot>/clock``: the
+controllers, in their own processes, follow it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any, TextIO
+
+from components.sim.component import SimulatorComponent
+from components.sim.runner import DEFAULT_SCENARIO, rounded
+from components.sim.scenarios import check_placement, load_scenario
+from components.sim.world import Pose2D, World, WorldConfig
+from ubf_async.bus import Bus
+from ubf_async.clock import SimClock
+from ubf_async.component import Component
+from ubf_async.errors import ConfigurationError, ScenarioError
+from ubf_async.simulation import DeviceContext, FleetMember, SimulationOptions
+
+MIN_SEPARATION_M = 0.13
+"""Closest two robots' centres may start (a Mini-WHEGS is 10 × 7 cm: its diagonal, rounded
+up)."""
+
+
+def fleet_world_config(base: WorldConfig, members: Sequence[FleetMember], *,
+                       seed: int | None) -> WorldConfig:
+    """``base`` (a scenario's world) with the members' start poses; refuses
+    (:class:`ScenarioError`) a robot outside the arena, on an object, or on another robot."""
+    if not members:
+        raise ConfigurationError("a fleet needs at least one robot")
+    poses = [Pose2D(x_m=m.x_m, y_m=m.y_m, heading_rad=math.radians(m.heading_deg))
+             for m in members]
+    for member, pose in zip(members, poses, strict=True):
+        check_placement(replace(base, robot_start=pose), where=f"robot {member.name}")
+    for i, a in enumerate(members):
+        for b in members[i + 1:]:
+            gap = math.hypot(a.x_m - b.x_m, a.y_m - b.y_m)
+            if gap < MIN_SEPARATION_M:
+                raise ScenarioError(f"robots {a.name} and {b.name} start {gap:.3f} m apart: "
+                                    f"they would overlap (keep ≥ {MIN_SEPARATION_M} m)")
+    config = replace(base, robot_start=poses[0], more_robots=tuple(poses[1:]))
+    return config if seed is None else replace(config, seed=seed)
+
+
+async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence[FleetMember],
+                     options: SimulationOptions, out: TextIO) -> dict[str, Any]:
+    """The world of ``members`` (see the module docstring) until ``options.duration_s``
+    simulated seconds have passed, or until cancelled; returns the world's summary."""
+    if len(buses) != len(members):
+        raise ValueError(f"{len(members)} robots but {len(buses)} buses")
+    if not options.speed > 0:
+        raise ConfigurationError(f"--speed must be > 0, got {options.speed:g}")
+    scenario = load_scenario(options.scenario or DEFAULT_SCENARIO)
+    config = fleet_world_config(scenario.world, members, seed=options.seed)
+    world = World(config)
+    scenario.install(world)
+    simulator = SimulatorComponent(bus=buses[0], world=world, clock=clock, speed=options.speed,
+                                   more_robots=buses[1:])
+    components: list[Component] = []
+    for index, (member, bus) in enumerate(zip(members, buses, strict=True)):
+        context = DeviceContext(bus=bus, clock=clock, seed=config.seed,
+                                simulation=world.robot(index))
+        components += [device.build(context=context) for device in member.devices]
+    components.append(simulator)  # last: time starts once the devices hold it
+    start_poses = [world.snapshot_for(i).robot for i in range(world.robot_count)]
+    travelled = [0.0] * world.robot_count
+    print(f"world: {scenario.name!r} with {len(members)} robots "
+          f"({', '.join(m.name for m in members)}), {options.speed:g}x real time, "
+          f"seed {config.seed}", file=out, flush=True)
+    try:
+        for component in components:
+            await component.start()
+        end_ns = None if options.duration_s is None else round(
+            (world.time_s + options.duration_s) * 1e9)
+        last = [(p.x_m, p.y_m) for p in start_poses]
+        while end_ns is None or clock.now_ns() < end_ns:
+            # Sample the paths every 0.1 simulated seconds (distance travelled per robot).
+            await clock.sleep(0.1)
+            for i in range(world.robot_count):
+                now = world.snapshot_for(i).robot
+                travelled[i] += math.hypot(now.x_m - last[i][0], now.y_m - last[i][1])
+                last[i] = (now.x_m, now.y_m)
+    finally:
+        for component in reversed(components):
+            await component.aclose()
+    ends = [world.snapshot_for(i).robot for i in range(world.robot_count)]
+    rtf = simulator.real_time_factor()
+    summary = {
+        "scenario": scenario.name,
+        "sim_time_s": world.time_s,
+        "real_time_factor": rtf,
+        "robots": {
+            member.name: {
+                "start": {"x_m": s.x_m, "y_m": s.y_m,
+                          "heading_deg": math.degrees(s.heading_rad)},
+                "end": {"x_m": e.x_m, "y_m": e.y_m, "heading_deg": math.degrees(e.heading_rad)},
+                "travelled_m": travelled[i],
+            }
+            for i, (member, s, e) in enumerate(zip(members, start_poses, ends, strict=True))
+        },
+    }
+    print(f"world: {world.time_s:.1f} simulated s at {rtf or 0:.2f}x real time", file=out,
+          flush=True)
+    return rounded(summary)  # type: ignore[no-any-return]

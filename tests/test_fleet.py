@@ -1,0 +1,239 @@
+"""A fleet in one simulated world (issue 16, item 2): robots that see and bump into each
+other, fleet files, and four robots whose controllers run in their own processes over a router
+— real processes, real zenoh on loopback, the real simulator."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from components.range.backend import MountPose
+from components.sim.camera_render import render_camera
+from components.sim.ranging import beam_distance_m
+from components.sim.world import ROBOT_COLOR, Arena, Pose2D, World, WorldConfig
+from tests.conftest import eventually, free_port, read_until
+from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.errors import ConfigurationError
+from ubf_async.fleet import load_fleet
+from ubf_async.protocol import decode
+from ubf_async.topics import DRIVE, MOTORS
+
+ROOT = Path(__file__).resolve().parent.parent
+ARENA = Arena(x_min_m=-2, x_max_m=2, y_min_m=-2, y_max_m=2)
+
+
+def two_robots(gap_m: float = 0.5) -> World:
+    """Robot 0 at the origin facing +x, robot 1 ``gap_m`` ahead facing it."""
+    return World(WorldConfig(arena=ARENA, more_robots=(
+        Pose2D(x_m=gap_m, y_m=0.0, heading_rad=math.pi),)))
+
+
+def test_robots_see_each_other_in_ir_and_camera() -> None:
+    world = two_robots(0.5)
+    ahead = MountPose(x_m=0.05, y_m=0.0, yaw_rad=0.0)
+    # Robot 1's shell is 0.5 m − its half length (5 cm) ahead of the centre; the sensor sits
+    # 5 cm forward: 0.40 m to robot 1's face. Robot 1 sees robot 0 the same way.
+    assert beam_distance_m(world.snapshot_for(0), ahead, 1.5) == pytest.approx(0.40, abs=1e-3)
+    assert beam_distance_m(world.snapshot_for(1), ahead, 1.5) == pytest.approx(0.40, abs=1e-3)
+    alone = World(WorldConfig(arena=ARENA))
+    assert beam_distance_m(alone.snapshot_for(0), ahead, 1.5) is None  # nothing there alone
+
+    def dark_pixels(snapshot: object) -> int:
+        frame = render_camera(snapshot, grid=8)  # type: ignore[arg-type]
+        close = np.abs(frame.astype(int) - np.array(ROBOT_COLOR)).max(axis=2) < 40
+        return int(close.sum())
+
+    # The other robot is a dark box in the middle of the picture; alone, nothing is.
+    assert dark_pixels(world.snapshot_for(0)) > 20 * dark_pixels(alone.snapshot_for(0)) + 20
+    assert world.snapshot_for(0).robot.x_m == 0.0 and world.snapshot_for(1).robot.x_m == 0.5
+
+
+def test_robots_bump_into_each_other_and_each_drives_its_own_wheels() -> None:
+    world = two_robots(0.3)
+    world.set_motor_pulses(1.943, 2.0, robot=0)  # robot 0 full ahead: speed 100, turn 0
+    for _ in range(600):  # 3 s
+        world.advance(0.005)
+    me, other = world.snapshot_for(0).robot, world.snapshot_for(1).robot
+    assert other.x_m > 0.3 + 0.2, "robot 1 was pushed back"
+    assert other.x_m - me.x_m >= 0.099, "the shells do not pass through each other"
+    assert (other.left_pulse_ms, other.right_pulse_ms) == world.robot(1).motor_pulses
+    assert other.left_wheel_speed_rad_s == 0.0 and other.right_wheel_speed_rad_s == 0.0
+    with pytest.raises(IndexError):
+        world.robot(2)
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("robots: []", "length >= 1"),
+    ("robots: [{name: a, start: {x_m: 0, y_m: 0}}, {name: a, start: {x_m: 1, y_m: 0}}]",
+     "unique; twice: a"),
+    ("robots: [{name: a, start: {x_m: 0, y_m: 0}, colour: red}]", "unknown field `colour`"),
+    ("robots: [{name: 'a/b', start: {x_m: 0, y_m: 0}}]", "robot 'a/b'"),
+    ("robots: [{name: a, robot_file: nowhere.yaml, start: {x_m: 0, y_m: 0}}]", "nowhere"),
+])
+def test_fleet_files_with_mistakes_are_refused_clearly(tmp_path: Path, text: str,
+                                                       message: str) -> None:
+    with pytest.raises(ConfigurationError, match=message.replace("(", r"\(")):
+        load_fleet(write(tmp_path / "fleet.yaml", text))
+
+
+@pytest.mark.asyncio
+async def test_robots_placed_on_each_other_or_outside_the_arena_are_refused(
+    tmp_path: Path,
+) -> None:
+    from components.sim.fleet import fleet_world_config
+    from components.sim.scenarios import load_scenario
+    from ubf_async.errors import ScenarioError
+    from ubf_async.simulation import FleetMember
+
+    base = load_scenario("ball-in-sight").world
+
+    def member(name: str, x: float, y: float) -> FleetMember:
+        return FleetMember(name=name, devices=(), x_m=x, y_m=y)
+
+    with pytest.raises(ScenarioError, match=r"robots a and b start 0\.050 m apart"):
+        fleet_world_config(base, [member("a", 0, 0), member("b", 0.05, 0)], seed=None)
+    with pytest.raises(ScenarioError, match=r"robot far: .* does not fit inside the arena"):
+        fleet_world_config(base, [member("a", 0, 0), member("far", 50, 0)], seed=None)
+    config = fleet_world_config(base, [member("a", 0, 0), member("b", -0.4, 0.5)], seed=7)
+    assert config.seed == 7 and len(config.more_robots) == 1
+
+
+async def spawn(*args: str) -> asyncio.subprocess.Process:
+    return await asyncio.create_subprocess_exec(
+        sys.executable, *args, cwd=ROOT, stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT)
+
+
+async def stop(proc: asyncio.subprocess.Process) -> None:
+    with contextlib.suppress(ProcessLookupError):
+        proc.kill()
+    await proc.wait()
+
+
+FOUR_ROBOTS = """
+world: {{scenario: ball-in-sight, speed: 1}}
+router: {router}
+robots:
+  - {{name: {p}1, start: {{x_m: 0.0, y_m: 0.0, heading_deg: 0}}}}
+  - {{name: {p}2, start: {{x_m: -0.4, y_m: 0.5, heading_deg: -45}}}}
+  - {{name: {p}3, start: {{x_m: -0.4, y_m: -0.5, heading_deg: 45}}}}
+  - {{name: {p}4, start: {{x_m: -0.8, y_m: 0.0, heading_deg: 180}}}}
+"""
+
+
+@pytest.mark.asyncio
+async def test_four_robots_each_controller_in_its_own_process(tmp_path: Path) -> None:
+    """Router, world and four controllers, each its own process: all tick, each robot's
+    commands reach only its own motors, and killing one controller stops only its wheels."""
+    router = f"tcp/127.0.0.1:{free_port()}"
+    prefix = f"q{free_port()}r"
+    names = [f"{prefix}{i}" for i in range(1, 5)]
+    fleet = write(tmp_path / "fleet.yaml", FOUR_ROBOTS.format(router=router, p=prefix))
+    procs: dict[str, asyncio.subprocess.Process] = {}
+    tool: Bus | None = None
+    try:
+        procs["router"] = await spawn("-m", "ubf_async.router", "--listen", router, "--quiet")
+        await read_until(procs["router"], "join with")
+        for name in names:
+            procs[name] = await spawn("-m", "ubf_async.launch", "--no-sim", "--sim-time",
+                                      "--robot", name, "--mode", "client", "--connect", router,
+                                      "--quiet")
+        for name in names:
+            await read_until(procs[name], "controller:")
+        procs["world"] = await spawn("-m", "ubf_async.fleet", str(fleet), "--world-only")
+        await read_until(procs["world"], "with 4 robots")
+
+        tool = await Bus.open(ConnectionOptions(mode="client", connect=[router]))
+        drives: dict[str, list[tuple[float, float]]] = {n: [] for n in names}
+        applied: dict[str, list[tuple[float, float, str | None]]] = {n: [] for n in names}
+
+        def on_drive(key: str, payload: bytes, received_ns: int) -> None:
+            data = decode(payload, topic=DRIVE).data
+            drives[key.split("/")[1]].append((data.speed, data.turn))
+
+        def on_applied(key: str, payload: bytes, received_ns: int) -> None:
+            data = decode(payload, topic=MOTORS).data
+            applied[key.split("/")[1]].append((data.speed, data.turn, data.reason))
+
+        tool.subscribe("ubf/*/cmd/drive", on_drive, latest=False)
+        tool.subscribe("ubf/*/sensor/motors/*", on_applied, latest=False)
+        # All tick and drive; the robot facing the ball chases it, the others search.
+        await eventually(lambda: all(len(drives[n]) > 50 and len(applied[n]) > 50
+                                     for n in names), timeout_s=30,
+                         what="every robot's commands and its motors' applied samples")
+
+        def applied_matches_own_commands(name: str) -> bool:
+            own = set(drives[name])
+            recent = [a for a in applied[name][-20:] if a[2] == "command"]
+            return bool(recent) and all((s, t) in own for s, t, _ in recent)
+
+        await eventually(lambda: all(applied_matches_own_commands(n) for n in names),
+                         timeout_s=10, what="each robot's motors applying its own commands")
+        # No cross-talk: a searching robot's motors never applied the chaser's commands.
+        searching = {n for n in names if drives[n][-1][0] == 0.0}
+        chasing = set(names) - searching
+        assert searching and chasing, drives
+        chase_commands = {d for n in chasing for d in drives[n] if d[0] != 0.0}
+        for n in searching:
+            assert not {(s, t) for s, t, _ in applied[n]} & chase_commands
+
+        # Kill one robot's controller: its wheels stop on their watchdog, the others go on.
+        victim, others = names[1], [n for n in names if n != names[1]]
+        procs[victim].kill()
+        await procs[victim].wait()
+        await eventually(lambda: applied[victim][-1][2] == "timeout", timeout_s=5,
+                         what="the killed robot's motors to stop on their watchdog")
+        assert applied[victim][-1][:2] == (0.0, 0.0)
+        counts = {n: len(applied[n]) for n in others}
+        await eventually(lambda: all(len(applied[n]) > counts[n] + 20 for n in others),
+                         timeout_s=10, what="the other robots' motors to go on")
+        for n in others:
+            assert all(reason != "timeout" for _, _, reason in applied[n][-20:]), n
+    finally:
+        if tool is not None:
+            await tool.aclose()
+        for proc in procs.values():
+            await stop(proc)
+
+
+def test_the_fleet_launcher_runs_a_fleet_and_summarises_it(tmp_path: Path) -> None:
+    import subprocess
+
+    router = f"tcp/127.0.0.1:{free_port()}"
+    fleet = write(tmp_path / "fleet.yaml", f"""
+world: {{scenario: ball-in-sight, speed: 2, duration_s: 4}}
+router: {router}
+robots:
+  - {{name: f1, start: {{x_m: 0.0, y_m: 0.0, heading_deg: 0}}}}
+  - {{name: f2, start: {{x_m: -0.4, y_m: 0.5, heading_deg: -45}}}}
+""")
+    summary = tmp_path / "summary.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "ubf_async.fleet", str(fleet), "--summary", str(summary),
+         "--log-dir", str(tmp_path / "logs"), "--status-period-s", "0.5"],
+        cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "fleet t=" in done.stdout and "| f1 " in done.stdout and "| f2 " in done.stdout
+    result = json.loads(summary.read_text())
+    assert result["sim_time_s"] == pytest.approx(4.0, abs=0.01)
+    assert result["scenario"] == "ball-in-sight"
+    for name in ("f1", "f2"):
+        robot = result["robots"][name]
+        assert robot["ticks"] > 100 and 40 <= robot["periodic_rate_hz"] <= 60, robot
+        assert robot["travelled_m"] >= 0.0 and "end" in robot
+    assert "chase" in result["robots"]["f1"]["winner_share"]  # f1 faces the ball
+    assert "search" in result["robots"]["f2"]["winner_share"]
+    for log in ("router", "world", "f1", "f2"):
+        assert (tmp_path / "logs" / f"{log}.log").is_file()

@@ -1,0 +1,409 @@
+"""A fleet: ``python -m ubf_async.fleet FLEET.yaml`` — router, one simulated world, robots.
+
+A fleet file (YAML, ``docs/fleet.md``) lists the robots — a name, a robot file and a start pose
+each — and the world they share (a scenario's arena, ball and scripts, the speed, the seed)::
+
+    world: {scenario: ball-in-sight, speed: 1, duration_s: 30}
+    robots:
+      - {name: r1, robot_file: mini-whegs, start: {x_m: 0.0, y_m: 0.0, heading_deg: 0}}
+      - {name: r2, start: {x_m: -0.4, y_m: 0.5, heading_deg: -45}}
+
+The launcher starts, each in its own process:
+
+1. a zenoh router (``python -m ubf_async.router``) on the file's ``router`` endpoint — unless
+   ``--router EP`` names one already running;
+2. one controller per robot: ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time
+   --robot NAME --mode client --connect ROUTER`` (its devices run in the world; it follows the
+   world's simulated time);
+3. the world (``python -m ubf_async.fleet FLEET.yaml --world-only``): the simulator plug-in the
+   robots' devices need holds every robot in one world and runs their simulated devices, each
+   on its robot's keys. It waits for every robot's controller before time starts, so a run is
+   the same however long the processes took to start.
+
+While it runs it prints one status line per period for the whole fleet (each robot's periodic
+tick rate and who wins its drive command, from its controller's status), and at the end a
+summary per robot (``--summary FILE.json``). The world's duration ends the run; Ctrl-C ends it
+early. Each process's output goes to a log file in ``--log-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import dataclasses
+import json
+import os
+import signal
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated, Any, TextIO
+
+import msgspec
+from msgspec import Meta
+
+from ubf_async.bus import (
+    ROOT,
+    Bus,
+    ConnectionOptions,
+    HelpFormatter,
+    decode_or_count,
+    follow_sim_clock,
+)
+from ubf_async.cli import run_main
+from ubf_async.clock import SimClock
+from ubf_async.errors import ConfigurationError
+from ubf_async.protocol import Keys, ProtocolError
+from ubf_async.registry import SIMULATORS
+from ubf_async.robotfile import Robot, load_robot
+from ubf_async.simulation import FleetMember, SimulationOptions
+from ubf_async.topics import CONTROLLER_STATUS
+
+PROG = "python -m ubf_async.fleet"
+MAX_ROBOTS = 32
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+CONTROLLERS_WAIT_S = 60.0
+"""How long the world waits for every robot's controller before giving up."""
+
+Finite = Annotated[float, Meta(ge=-1e6, le=1e6)]
+
+
+class StartPose(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    x_m: Finite
+    y_m: Finite
+    heading_deg: Annotated[float, Meta(ge=-360.0, le=360.0)] = 0.0
+
+
+class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    name: Annotated[str, Meta(min_length=1, max_length=64)]
+    start: StartPose
+    robot_file: str = "mini-whegs"
+
+
+class FleetWorld(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    scenario: str | None = None
+    """A built-in scenario or a scenario file: the arena, ball and scripts (its robot start is
+    replaced by the robots'); ``None``: the simulator's default."""
+    speed: Annotated[float, Meta(gt=0.0, le=1000.0)] = 1.0
+    seed: int | None = None
+    duration_s: Annotated[float, Meta(gt=0.0, le=1e6)] | None = None
+
+
+class FleetFile(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    robots: Annotated[list[FleetRobot], Meta(min_length=1, max_length=MAX_ROBOTS)]
+    world: FleetWorld = FleetWorld()
+    router: str = DEFAULT_ROUTER
+    """The router's endpoint: where the launcher starts one, and where everyone connects."""
+
+
+@dataclasses.dataclass(slots=True)
+class Fleet:
+    """A fleet file, checked: every robot file loaded, names unique, one simulator."""
+
+    spec: FleetFile
+    source: Path
+    robots: dict[str, Robot]
+    simulator: str
+
+
+def load_fleet(path: Path) -> Fleet:
+    """Read and check a fleet file; :class:`ConfigurationError` naming what is wrong."""
+    if not path.is_file():
+        raise ConfigurationError(f"no fleet file {path}")
+    try:
+        spec = msgspec.yaml.decode(path.read_bytes(), type=FleetFile)
+    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        raise ConfigurationError(f"{path}: {exc}") from None
+    names = [r.name for r in spec.robots]
+    doubled = sorted({n for n in names if names.count(n) > 1})
+    if doubled:
+        raise ConfigurationError(f"{path}: robot names must be unique; twice: "
+                                 f"{', '.join(doubled)}")
+    robots: dict[str, Robot] = {}
+    simulators: set[str] = set()
+    for entry in spec.robots:
+        try:
+            Keys(entry.name)
+        except ProtocolError as exc:
+            raise ConfigurationError(f"{path}: robot {entry.name!r}: {exc}") from None
+        robot_file = entry.robot_file
+        if not Path(robot_file).is_absolute() and (path.parent / robot_file).is_file():
+            robot_file = str(path.parent / robot_file)  # relative to the fleet file
+        robot = load_robot(robot_file, seed=spec.world.seed)
+        needs = {d.requires_simulator for d in robot.devices if d.requires_simulator}
+        if not needs:
+            raise ConfigurationError(f"{path}: robot {entry.name}'s file {robot.source} has no "
+                                     f"simulated device: nothing for the world to host")
+        simulators |= needs
+        robots[entry.name] = dataclasses.replace(robot, source=robot_file)
+    if len(simulators) != 1:
+        raise ConfigurationError(f"{path}: the robots need several simulators "
+                                 f"({', '.join(sorted(simulators))}); a fleet shares one world")
+    return Fleet(spec=spec, source=path, robots=robots, simulator=simulators.pop())
+
+
+# ---------------------------------------------------------------------------------------------
+# The world process
+
+
+async def run_world(fleet: Fleet, *, router: str, out: TextIO,
+                    summary_path: Path | None) -> int:
+    spec = fleet.spec
+    clock = SimClock()
+    buses: list[Bus] = []
+    try:
+        for entry in spec.robots:
+            buses.append(await Bus.open(ConnectionOptions(robot=entry.name, mode="client",
+                                                          connect=[router]), clock=clock))
+        await wait_for_controllers(buses[0], [r.name for r in spec.robots],
+                                   timeout_s=CONTROLLERS_WAIT_S)
+        members = [FleetMember(name=entry.name, x_m=entry.start.x_m, y_m=entry.start.y_m,
+                               heading_deg=entry.start.heading_deg,
+                               devices=tuple(d for d in fleet.robots[entry.name].devices
+                                             if d.requires_simulator))
+                   for entry in spec.robots]
+        options = SimulationOptions(scenario=spec.world.scenario, speed=spec.world.speed,
+                                    seed=spec.world.seed, duration_s=spec.world.duration_s)
+        simulator = SIMULATORS.get(fleet.simulator)()
+        summary = await simulator.host_fleet(buses=buses, clock=clock, members=members,
+                                             options=options, out=out)
+        if summary_path is not None:
+            await asyncio.to_thread(summary_path.write_text,
+                                    json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        return 0
+    finally:
+        for bus in buses:
+            await bus.aclose()
+
+
+async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: float) -> None:
+    """Until every robot's controller is alive (its liveliness token); a
+    :class:`ConnectionError` naming the missing after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    missing = list(robots)
+    while missing:
+        alive = {key.split("/")[1] for key in await bus.alive_tokens(
+            f"{ROOT}/*/alive/controller", timeout_s=1.0)}
+        missing = [r for r in robots if r not in alive]
+        if not missing:
+            return
+        if time.monotonic() > deadline:
+            raise ConnectionError(f"no controller of {', '.join(missing)} came up within "
+                                  f"{timeout_s:g} s (see their logs)")
+        await asyncio.sleep(0.1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The launcher
+
+
+@dataclasses.dataclass(slots=True)
+class RobotView:
+    """What the fleet's status line knows of one robot (its controller's last status)."""
+
+    status: dict[str, Any] = dataclasses.field(default_factory=dict)
+    heard_s: float | None = None
+
+
+class FleetStatus:
+    """Every robot's controller status, from ``ubf/<robot>/status/controller``."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.robots = {name: RobotView() for name in names}
+        self.malformed: dict[str, int] = {}
+
+    def on_status(self, key: str, payload: bytes, received_ns: int) -> None:
+        robot = key.split("/")[1]
+        view = self.robots.get(robot)
+        message = decode_or_count(payload, self.malformed, key, topic=CONTROLLER_STATUS)
+        if view is None or message is None:
+            return
+        view.status = dict(message.data)
+        view.heard_s = time.monotonic()
+
+    def line(self, *, sim_s: float | None) -> str:
+        parts = []
+        for name, view in self.robots.items():
+            status = view.status
+            rate = status.get("periodic_rate_hz")
+            hz = f"{rate:.0f}Hz" if isinstance(rate, int | float) else "--"
+            winners = ",".join(status.get("winners") or []) or ("stop" if status else "--")
+            parts.append(f"{name} {hz} {winners}")
+        head = f"fleet t={sim_s:.1f}s" if sim_s is not None else "fleet"
+        return f"{head} | " + " | ".join(parts)
+
+
+async def spawn(args: Sequence[str], log: Path) -> asyncio.subprocess.Process:
+    with log.open("wb") as sink:  # the child keeps its own descriptor
+        return await asyncio.create_subprocess_exec(
+            sys.executable, *args, stdout=sink, stderr=asyncio.subprocess.STDOUT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
+async def stop(proc: asyncio.subprocess.Process, *, grace_s: float = 10.0) -> int:
+    """SIGTERM (a launch saves its results), then SIGKILL after ``grace_s``."""
+    if proc.returncode is None:
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGTERM)
+        try:
+            await asyncio.wait_for(proc.wait(), grace_s)
+        except TimeoutError:
+            with contextlib.suppress(ProcessLookupError):
+                proc.kill()
+            await proc.wait()
+    return proc.returncode if proc.returncode is not None else -1
+
+
+async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
+    spec = fleet.spec
+    router = args.router or spec.router
+    logs = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix="ubf-fleet-"))
+    logs.mkdir(parents=True, exist_ok=True)
+    world_summary = logs / "world-summary.json"
+    procs: dict[str, asyncio.subprocess.Process] = {}
+    tool: Bus | None = None
+    try:
+        if args.router is None:
+            procs["router"] = await spawn(["-m", "ubf_async.router", "--listen", router,
+                                           "--quiet"], logs / "router.log")
+        print(f"fleet: {len(spec.robots)} robots on the router at {router}; logs in {logs}",
+              file=out, flush=True)
+        # The launcher's own session (on the first robot's keys, for the world's clock): it
+        # retries until the router listens.
+        tool = await open_when_up(router, robot=spec.robots[0].name, timeout_s=20.0)
+        for entry in spec.robots:
+            procs[entry.name] = await spawn(
+                ["-m", "ubf_async.launch", fleet.robots[entry.name].source, "--no-sim",
+                 "--sim-time", "--robot", entry.name, "--mode", "client", "--connect", router,
+                 "--quiet"], logs / f"{entry.name}.log")
+        world_args = ["-m", "ubf_async.fleet", str(fleet.source), "--world-only", "--router",
+                      router, "--summary", str(world_summary)]
+        procs["world"] = world = await spawn(world_args, logs / "world.log")
+        status = FleetStatus([r.name for r in spec.robots])
+        tool.subscribe(f"{ROOT}/*/status/controller", status.on_status, latest=False)
+        clock = SimClock()
+        follow_sim_clock(tool, clock, {})
+        while world.returncode is None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(world.wait(), args.status_period_s)
+            if not args.quiet:
+                print(status.line(sim_s=clock.now_ns() / 1e9 if clock.started.is_set()
+                                  else None), file=out, flush=True)
+            for name, proc in procs.items():
+                if name not in ("world",) and proc.returncode is not None:
+                    print(f"fleet: {name} exited with status {proc.returncode} "
+                          f"(log: {logs / (name + '.log')})", file=out, flush=True)
+                    procs.pop(name)
+                    break
+        if world.returncode != 0:
+            print(f"fleet: the world exited with status {world.returncode}: "
+                  f"{tail(logs / 'world.log')}", file=sys.stderr)
+        return await asyncio.to_thread(finish, fleet, status, world_summary, args, out,
+                                       world.returncode or 0)
+    finally:
+        if tool is not None:
+            await tool.aclose()
+        for name, proc in procs.items():
+            if name not in ("router", "world"):
+                await stop(proc)
+        if "world" in procs:
+            await stop(procs["world"])
+        if "router" in procs:
+            await stop(procs["router"])
+
+
+async def open_when_up(router: str, *, robot: str, timeout_s: float) -> Bus:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return await Bus.open(ConnectionOptions(robot=robot, mode="client",
+                                                    connect=[router]))
+        except ConnectionError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.1)
+
+
+def tail(path: Path, lines: int = 3) -> str:
+    with contextlib.suppress(OSError):
+        return " / ".join(path.read_text(errors="replace").strip().splitlines()[-lines:])
+    return ""
+
+
+def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argparse.Namespace,
+           out: TextIO, code: int) -> int:
+    world: dict[str, Any] = {}
+    with contextlib.suppress(OSError, ValueError):
+        world = json.loads(world_summary.read_text(encoding="utf-8"))
+    robots: dict[str, Any] = {}
+    for entry in fleet.spec.robots:
+        s = status.robots[entry.name].status
+        robots[entry.name] = {
+            "robot_file": entry.robot_file,
+            "ticks": s.get("ticks"), "periodic_rate_hz": s.get("periodic_rate_hz"),
+            "overruns": s.get("overruns"), "errors": s.get("errors"),
+            "winner_share": s.get("winner_share"),
+            **(world.get("robots", {}).get(entry.name, {})),
+        }
+        share = s.get("winner_share") or {}
+        top = ", ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1]))
+        travelled = robots[entry.name].get("travelled_m")
+        print(f"  {entry.name}: {s.get('ticks', '?')} ticks, "
+              f"{travelled if travelled is not None else '?'} m travelled; won: {top or '--'}",
+              file=out)
+    summary = {"fleet": str(fleet.source), "scenario": world.get("scenario"),
+               "sim_time_s": world.get("sim_time_s"),
+               "real_time_factor": world.get("real_time_factor"), "robots": robots}
+    if args.summary is not None:
+        args.summary.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return code
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=HelpFormatter,
+        description="Run a fleet of robots in one simulated world (docs/fleet.md): a zenoh "
+                    "router, the world with every robot's simulated devices, and one "
+                    "controller process per robot.")
+    parser.add_argument("fleet_file", type=Path, metavar="FLEET.yaml")
+    parser.add_argument("--router", default=None, metavar="ENDPOINT",
+                        help="use the router already running at ENDPOINT instead of starting "
+                             "one (default: start one on the fleet file's `router`)")
+    parser.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
+                        help="write a summary per robot when the run ends")
+    parser.add_argument("--log-dir", default=None, metavar="DIR",
+                        help="where each process's output goes (default: a new temporary "
+                             "directory, printed)")
+    parser.add_argument("--status-period-s", type=float, default=2.0, metavar="S",
+                        help="how often the fleet's status line is printed")
+    parser.add_argument("--quiet", action="store_true", help="no status lines")
+    parser.add_argument("--check", action="store_true",
+                        help="load and check the fleet file and every robot file, and exit")
+    parser.add_argument("--world-only", action="store_true",
+                        help="run only the world (what the launcher starts as its own process)")
+    return parser
+
+
+async def main_async(args: argparse.Namespace, out: TextIO) -> int:
+    fleet = load_fleet(args.fleet_file)
+    if args.check:
+        for entry in fleet.spec.robots:
+            print(f"{entry.name}: {fleet.robots[entry.name].source} at ({entry.start.x_m:g}, "
+                  f"{entry.start.y_m:g}) m, heading {entry.start.heading_deg:g}°", file=out)
+        return 0
+    if args.world_only:
+        return await run_world(fleet, router=args.router or fleet.spec.router, out=out,
+                               summary_path=args.summary)
+    return await run_fleet(fleet, args, out)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_main(lambda: main_async(args, sys.stdout), prog=PROG)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
