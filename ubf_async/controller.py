@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import asyncio
 import enum
+import itertools
 import logging
 import statistics
 import time
@@ -157,6 +158,8 @@ class TickStats:
     """Drive commands repeating the last decision between triggered ticks (sync/event)."""
     periodic_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
     """Robot-clock start time of recent ticks not run by a sample."""
+    periodic_wall_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+    """Wall-clock (``perf_counter_ns``) start of the same ticks: their jitter in real time."""
     tick_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
     """How long recent ticks took (snapshot, evaluate, publish)."""
     tick_starts_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
@@ -177,6 +180,17 @@ class TickStats:
         """Rate of the recent ticks run by the clock (reflex ticks left out)."""
         return self._rate(self.periodic_starts_ns)
 
+    def periodic_jitter_ms_p99(self) -> float | None:
+        """p99 of how far the wall-clock intervals between recent ticks of the clock stray
+        from their median (ms): the ticks' jitter in real time, whatever the clock's rate."""
+        starts = list(self.periodic_wall_ns)
+        if len(starts) < 3:
+            return None
+        gaps = [b - a for a, b in itertools.pairwise(starts)]
+        middle = statistics.median(gaps)
+        strays = sorted(abs(gap - middle) for gap in gaps)
+        return strays[min(len(strays) - 1, round(0.99 * (len(strays) - 1)))] / 1e6
+
     def summary(self) -> dict[str, Any]:
         durations = list(self.tick_ns)
         return {
@@ -189,6 +203,7 @@ class TickStats:
             "holds": self.holds,
             "rate_hz": self.rate_hz(),
             "periodic_rate_hz": self.periodic_rate_hz(),
+            "periodic_jitter_ms_p99": self.periodic_jitter_ms_p99(),
             "tick_us_p50": statistics.median(durations) / 1e3 if durations else None,
             "tick_us_max": max(durations) / 1e3 if durations else None,
             "winner_share": {
@@ -386,6 +401,7 @@ class Controller(Component):
         if based_on is None:
             self.stats.periodic += 1
             self.stats.periodic_starts_ns.append(state.now_ns)
+            self.stats.periodic_wall_ns.append(t0)
         try:
             trace: Trace | None = self.root.evaluate(state)
         except Exception:

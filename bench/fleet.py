@@ -1,0 +1,180 @@
+"""How a fleet scales on this machine: N robots in one simulated world, each controller in its
+own process, over a zenoh router, at 50 Hz and 1× real time.
+
+Run ``python -m bench.fleet [--robots 1,2,4,8] [--duration 20] [--json FILE]``. For each N it
+starts what ``python -m ubf_async.fleet`` starts — a router, N controllers
+(``launch --no-sim --sim-time --robot rI --mode client``) and the world holding the N robots
+and their simulated devices (camera, IR, encoders, motors…) — runs the world for
+``--duration`` simulated seconds at 1×, and reports, per N:
+
+* **tick Hz** — each robot's rate of clock ticks (its controller's ``periodic_rate_hz`` over
+  its last 1000 ticks), the worst robot's;
+* **jitter p99** — each robot's p99 of how far the wall-clock gaps between those ticks stray
+  from their median (``periodic_jitter_ms_p99``), the worst robot's;
+* **world ×** — the world's real-time factor (simulated s per wall s; 1.0 keeps up);
+* **CPU/robot** — the CPU time of each controller process over the run, as a share of one
+  core (the worst robot's), and the world process's CPU divided by N (its devices are the
+  robots' too: that is the world's share per robot).
+
+``--json FILE`` writes ``{"runs": [{"robots": N, "tick_hz_min", "jitter_p99_ms_max",
+"world_real_time_factor", "cpu_percent_per_robot", "world_cpu_percent_per_robot"}, …]}`` so
+the figures can be compared across commits. The aim (issue 16): 8 robots hold 50 Hz with p99
+jitter < 5 ms and the world at 1.0×.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import socket
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.fleet import FleetStatus
+
+ROOT = Path(__file__).resolve().parent.parent
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+# Start poses in the ball-in-sight arena (3 × 3 m, ball 0.64 m ahead of the first robot).
+POSES = [(0.0, 0.0, 0), (-0.4, 0.5, -45), (-0.4, -0.5, 45), (-0.8, 0.0, 0),
+         (-1.0, 0.9, -30), (-1.0, -0.9, 30), (0.3, 0.9, -90), (0.3, -0.9, 90)]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+async def spawn(args: list[str], log: Path) -> asyncio.subprocess.Process:
+    with log.open("wb") as sink:
+        return await asyncio.create_subprocess_exec(
+            sys.executable, *args, cwd=ROOT, stdout=sink, stderr=asyncio.subprocess.STDOUT)
+
+
+async def read(path: Path) -> str:
+    return await asyncio.to_thread(path.read_text, errors="replace")
+
+
+async def wait_for_line(log: Path, text: str, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while text not in (printed := await read(log)):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"timed out waiting for {text!r} in {log}:\n{printed}")
+        await asyncio.sleep(0.05)
+
+
+async def run_fleet(n: int, *, duration_s: float, folder: Path) -> dict[str, Any]:
+    router = f"tcp/127.0.0.1:{free_port()}"
+    names = [f"r{i + 1}" for i in range(n)]
+    fleet = folder / f"fleet-{n}.yaml"
+    robots = "\n".join(f"  - {{name: {name}, start: {{x_m: {x}, y_m: {y}, heading_deg: {h}}}}}"
+                       for name, (x, y, h) in zip(names, POSES, strict=False))
+    fleet.write_text(f"world: {{scenario: ball-in-sight, speed: 1, duration_s: {duration_s}}}\n"
+                     f"router: {router}\nrobots:\n{robots}\n")
+    procs: dict[str, asyncio.subprocess.Process] = {}
+    tool: Bus | None = None
+    try:
+        procs["router"] = await spawn(["-m", "ubf_async.router", "--listen", router, "--quiet"],
+                                      folder / "router.log")
+        await wait_for_line(folder / "router.log", "join with")
+        for name in names:
+            procs[name] = await spawn(
+                ["-m", "ubf_async.launch", "--no-sim", "--sim-time", "--robot", name, "--mode",
+                 "client", "--connect", router, "--quiet"], folder / f"{name}-{n}.log")
+        for name in names:
+            await wait_for_line(folder / f"{name}-{n}.log", "controller:")
+        tool = await Bus.open(ConnectionOptions(mode="client", connect=[router]))
+        status = FleetStatus(names)
+        tool.subscribe("ubf/*/status/controller", status.on_status, latest=False)
+        summary = folder / f"world-{n}.json"
+        world_log = folder / f"world-{n}.log"
+        procs["world"] = world = await spawn(
+            ["-m", "ubf_async.fleet", str(fleet), "--world-only", "--summary", str(summary)],
+            world_log)
+        await wait_for_line(world_log, "robots (")
+        cpu0 = cpu1 = {name: cpu_s(p.pid) for name, p in procs.items()}
+        wall0 = wall1 = time.monotonic()
+        # The last status of each controller is the one heard just before the world ends.
+        last: dict[str, dict[str, Any]] = {}
+        while world.returncode is None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(world.wait(), 0.25)
+            if world.returncode is None:
+                cpu1 = {name: cpu_s(p.pid) for name, p in procs.items()}
+                wall1 = time.monotonic()
+                last = {name: dict(view.status) for name, view in status.robots.items()}
+        if world.returncode != 0:
+            raise SystemExit(f"the world failed:\n{await read(world_log)}")
+        result = json.loads(await read(summary))
+        wall = wall1 - wall0
+        cpu = {name: (cpu1[name] - cpu0[name]) / wall * 100 for name in cpu1}
+        rows = {name: {"tick_hz": last.get(name, {}).get("periodic_rate_hz"),
+                       "jitter_p99_ms": last.get(name, {}).get("periodic_jitter_ms_p99"),
+                       "cpu_percent": cpu[name]} for name in names}
+        return {
+            "robots": n,
+            "tick_hz_min": min(r["tick_hz"] or 0.0 for r in rows.values()),
+            "jitter_p99_ms_max": max(r["jitter_p99_ms"] or float("inf") for r in rows.values()),
+            "world_real_time_factor": result["real_time_factor"],
+            "cpu_percent_per_robot": max(cpu[name] for name in names),
+            "world_cpu_percent_per_robot": cpu["world"] / n,
+            "per_robot": rows,
+        }
+    finally:
+        if tool is not None:
+            await tool.aclose()
+        for proc in procs.values():
+            with contextlib.suppress(ProcessLookupError):
+                proc.kill()
+            await proc.wait()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.fleet", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--robots", default="1,2,4,8",
+                        help="fleet sizes to run, comma-separated (at most 8)")
+    parser.add_argument("--duration", type=float, default=20.0, metavar="S",
+                        help="simulated seconds per run")
+    parser.add_argument("--json", type=Path, default=None, metavar="FILE")
+    args = parser.parse_args(argv)
+    sizes = [int(n) for n in args.robots.split(",")]
+    if not all(1 <= n <= len(POSES) for n in sizes):
+        parser.error(f"--robots: each size from 1 to {len(POSES)}")
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
+        for n in sizes:
+            run = asyncio.run(run_fleet(n, duration_s=args.duration, folder=Path(tmp)))
+            runs.append(run)
+            print(f"{n} robot(s): tick {run['tick_hz_min']:.1f} Hz (worst robot), jitter p99 "
+                  f"{run['jitter_p99_ms_max']:.2f} ms (worst), world "
+                  f"{run['world_real_time_factor']:.3f}x, CPU {run['cpu_percent_per_robot']:.1f}"
+                  f" % per controller + {run['world_cpu_percent_per_robot']:.1f} % of the "
+                  f"world's per robot", flush=True)
+    print(f"\n{'robots':>6} {'tick Hz min':>11} {'jitter p99 ms':>13} {'world x':>8} "
+          f"{'CPU %/ctl':>9} {'world CPU %/robot':>17}")
+    for run in runs:
+        print(f"{run['robots']:>6} {run['tick_hz_min']:>11.1f} {run['jitter_p99_ms_max']:>13.2f} "
+              f"{run['world_real_time_factor']:>8.3f} {run['cpu_percent_per_robot']:>9.1f} "
+              f"{run['world_cpu_percent_per_robot']:>17.1f}")
+    print(f"\ncores: {os.cpu_count()}; aim: 8 robots at 50 Hz, jitter p99 < 5 ms, world 1.0x")
+    if args.json is not None:
+        args.json.write_text(json.dumps({"runs": runs}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
