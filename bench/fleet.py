@@ -16,6 +16,13 @@ and their simulated devices (camera, IR, encoders, motors…) — runs the world
   core (the worst robot's), and the world process's CPU divided by N (its devices are the
   robots' too: that is the world's share per robot).
 
+``--search`` measures the cooperative search instead (``docs/fleet.md``): N robots of
+``examples/robots/fleet-whegs.yaml`` in the ``fleet-search`` room, the first placed in the far
+corner, the others spread across the room, through the real launch path
+(``python -m ubf_async.fleet``); it reports when the ball was first found and when every robot
+had found it, and the same for a fleet that does not talk (the same tree without
+``report_ball`` and ``go_to_report``).
+
 ``--json FILE`` writes ``{"runs": [{"robots": N, "tick_hz_min", "jitter_p99_ms_max",
 "world_real_time_factor", "cpu_percent_per_robot", "world_cpu_percent_per_robot"}, …]}`` so
 the figures can be compared across commits. The aim (issue 16): 8 robots hold 50 Hz with p99
@@ -50,6 +57,85 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+SEARCH_POSES = [(-2.5, -2.5, 45), (2.5, -2.5, 135), (-2.5, 2.5, -45), (0.0, 0.0, -90),
+                (0.0, -2.5, 90), (-2.5, 0.0, 0), (1.2, -1.2, 180), (-1.2, 1.2, -90)]
+"""Start poses in the fleet-search room (6 × 6 m, the ball at (2.4, 2.4)): the far corner
+first, then spreading across the room."""
+COOPERATIVE = ROOT / "examples" / "robots" / "fleet-whegs.yaml"
+
+
+def silent_robot_file(folder: Path) -> Path:
+    """The cooperative robot file without its two fleet behaviours (the control)."""
+    lines = COOPERATIVE.read_text().splitlines()
+    out, skip = [], 0
+    for line in lines:
+        if skip:
+            skip -= 1
+            continue
+        if line.split("#")[0].strip() in ("- behavior: report_ball",
+                                           "- behavior: go_to_report"):
+            skip = 2  # its priority and params lines
+            continue
+        out.append(line)
+    path = folder / "silent-whegs.yaml"
+    path.write_text("\n".join(out) + "\n")
+    return path
+
+
+def run_search(n: int, *, robot_file: Path, duration_s: float, folder: Path) -> dict[str, Any]:
+    import subprocess
+
+    fleet = folder / f"search-{n}-{robot_file.stem}.yaml"
+    robots = "\n".join(
+        f"  - {{name: s{i + 1}, robot_file: {robot_file}, start: {{x_m: {x}, y_m: {y}, "
+        f"heading_deg: {h}}}}}" for i, (x, y, h) in enumerate(SEARCH_POSES[:n]))
+    fleet.write_text(f"world: {{scenario: fleet-search, speed: 1, duration_s: {duration_s}}}\n"
+                     f"router: tcp/127.0.0.1:{free_port()}\nrobots:\n{robots}\n")
+    summary = folder / f"{fleet.stem}.json"
+    done = subprocess.run([sys.executable, "-m", "ubf_async.fleet", str(fleet), "--summary",
+                           str(summary), "--quiet", "--log-dir", str(folder / fleet.stem)],
+                          cwd=ROOT, capture_output=True, text=True,
+                          timeout=duration_s * 4 + 120)
+    if done.returncode != 0:
+        raise SystemExit(f"the fleet failed:\n{done.stdout}\n{done.stderr}")
+    result = json.loads(summary.read_text())
+    return {"robots": n, "first_found_s": result["first_found_s"],
+            "all_found_s": result["all_found_s"],
+            "found": sum(r["found_s"] is not None for r in result["robots"].values()),
+            "real_time_factor": result["real_time_factor"]}
+
+
+def search_main(sizes: list[int], duration_s: float, json_path: Path | None) -> int:
+    def when(value: float | None) -> str:
+        return f"{value:.1f} s" if value is not None else "never"
+
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="bench-search-") as tmp:
+        folder = Path(tmp)
+        silent = silent_robot_file(folder)
+        for n in sizes:
+            talking = run_search(n, robot_file=COOPERATIVE, duration_s=duration_s,
+                                 folder=folder)
+            quiet = run_search(n, robot_file=silent, duration_s=duration_s, folder=folder)
+            rows.append({"robots": n, "cooperative": talking, "silent": quiet})
+            print(f"{n} robot(s): first found {when(talking['first_found_s'])}, all "
+                  f"{when(talking['all_found_s'])} ({talking['found']}/{n}); without the "
+                  f"radio: first {when(quiet['first_found_s'])}, all "
+                  f"{when(quiet['all_found_s'])} ({quiet['found']}/{n})", flush=True)
+    print(f"\n{'robots':>6} {'first found':>12} {'all found':>10} {'found':>6}   "
+          f"{'silent: first':>13} {'all':>8} {'found':>6}")
+    for row in rows:
+        c, q = row["cooperative"], row["silent"]
+        print(f"{row['robots']:>6} {when(c['first_found_s']):>12} {when(c['all_found_s']):>10} "
+              f"{c['found']:>4}/{row['robots']}   {when(q['first_found_s']):>13} "
+              f"{when(q['all_found_s']):>8} {q['found']:>4}/{row['robots']}")
+    print(f"\n(simulated seconds, {duration_s:g} s per run; found: within 1 m of the ball, "
+          f"facing it)")
+    if json_path is not None:
+        json_path.write_text(json.dumps({"search": rows}, indent=2) + "\n")
+    return 0
 
 
 def cpu_s(pid: int) -> float:
@@ -150,10 +236,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=20.0, metavar="S",
                         help="simulated seconds per run")
     parser.add_argument("--json", type=Path, default=None, metavar="FILE")
+    parser.add_argument("--search", action="store_true",
+                        help="time the cooperative search instead (--duration default 90)")
     args = parser.parse_args(argv)
     sizes = [int(n) for n in args.robots.split(",")]
     if not all(1 <= n <= len(POSES) for n in sizes):
         parser.error(f"--robots: each size from 1 to {len(POSES)}")
+    if args.search:
+        return search_main(sizes, args.duration if args.duration != 20.0 else 90.0, args.json)
     runs = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         for n in sizes:

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import socket
+import sys
 import time
 from collections.abc import AsyncIterator, Callable
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -41,6 +44,24 @@ async def eventually(
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s}s waiting for {what}")
         await asyncio.sleep(0.005)
+
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+
+
+async def spawn(*args: str) -> asyncio.subprocess.Process:
+    """``python ARGS`` from the repository's root, its stdout and stderr on a pipe (read it
+    with :func:`read_until`)."""
+    return await asyncio.create_subprocess_exec(
+        sys.executable, *args, cwd=REPOSITORY,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+
+
+async def stop(proc: asyncio.subprocess.Process) -> None:
+    """Kill ``proc`` (if it still runs) and reap it."""
+    with contextlib.suppress(ProcessLookupError):
+        proc.kill()
+    await proc.wait()
 
 
 async def read_until(proc: asyncio.subprocess.Process, text: str, *,

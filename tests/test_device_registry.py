@@ -31,14 +31,15 @@ from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun
 EXPECTED_PARAMETERS = {
     "camera": {"latency_s", "hfov_deg", "view_scale"},
     "motors": {"timeout_s", "left", "right"},
-    "encoders": {"period_s", "direction", "effective_track_m"},
+    "encoders": {"period_s", "direction", "effective_track_m", "origin_x_m", "origin_y_m",
+                 "origin_heading_deg"},
     "range": {"model", "x_m", "y_m", "yaw_deg", "period_s"},
     "radio": {"period_s"},
     "leds": {"count", "period_s"},
 }
 EXPECTED_BACKENDS = {"camera": {"sim", "video"}, "motors": {"sim", "gpio"},
                      "encoders": {"sim", "gpio"}, "range": {"sim", "i2c", "ads1115"},
-                     "radio": {"sim", "stdio"}, "leds": {"sim"}}
+                     "radio": {"sim", "stdio", "air"}, "leds": {"sim"}}
 REQUIRED_BACKEND_PARAMS = {
     ("motors", "gpio"): {"left_pin": "GPIO12", "right_pin": "GPIO13"},
     ("encoders", "gpio"): {"left_a": "GPIO5", "left_b": "GPIO6", "right_a": "GPIO16",
@@ -105,8 +106,8 @@ def test_every_backend_loads_and_says_which_simulator_it_needs() -> None:
         for name in names:
             factory = registry.get_backend(kind, name)
             assert hasattr(factory, "requires_simulator"), (kind, name)
-            expected = ("mini-whegs" if name == "sim" and kind not in ("radio", "leds")
-                        else None)
+            expected = ("mini-whegs" if (name == "sim" and kind not in ("radio", "leds"))
+                        or (kind, name) == ("radio", "air") else None)
             assert requires_simulator(factory) == expected, (kind, name)
             struct = registry.parameters_of(factory, injected=BACKEND_INJECTED)
             required = REQUIRED_BACKEND_PARAMS.get((kind, name), {})

@@ -5,7 +5,6 @@ other, fleet files, and four robots whose controllers run in their own processes
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import math
 import sys
@@ -18,7 +17,7 @@ from components.range.backend import MountPose
 from components.sim.camera_render import render_camera
 from components.sim.ranging import beam_distance_m
 from components.sim.world import ROBOT_COLOR, Arena, Pose2D, World, WorldConfig
-from tests.conftest import eventually, free_port, read_until
+from tests.conftest import eventually, free_port, read_until, spawn, stop
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.errors import ConfigurationError
 from ubf_async.fleet import load_fleet
@@ -108,18 +107,6 @@ async def test_robots_placed_on_each_other_or_outside_the_arena_are_refused(
         fleet_world_config(base, [member("a", 0, 0), member("far", 50, 0)], seed=None)
     config = fleet_world_config(base, [member("a", 0, 0), member("b", -0.4, 0.5)], seed=7)
     assert config.seed == 7 and len(config.more_robots) == 1
-
-
-async def spawn(*args: str) -> asyncio.subprocess.Process:
-    return await asyncio.create_subprocess_exec(
-        sys.executable, *args, cwd=ROOT, stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.STDOUT)
-
-
-async def stop(proc: asyncio.subprocess.Process) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        proc.kill()
-    await proc.wait()
 
 
 FOUR_ROBOTS = """
@@ -237,3 +224,12 @@ robots:
     assert "search" in result["robots"]["f2"]["winner_share"]
     for log in ("router", "world", "f1", "f2"):
         assert (tmp_path / "logs" / f"{log}.log").is_file()
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "examples" / "fleets").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_the_shipped_fleet_files_load(path: Path) -> None:
+    fleet = load_fleet(path)
+    assert fleet.simulator == "mini-whegs" and len(fleet.robots) >= 2
+    for robot in fleet.robots.values():
+        assert Path(robot.source).is_file() or robot.source == "mini-whegs"

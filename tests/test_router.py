@@ -7,14 +7,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import sys
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import eventually, free_port, read_until
+from tests.conftest import eventually, free_port, read_until, spawn, stop
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.router import FleetRoster, router_options
 
@@ -52,18 +51,6 @@ def test_the_router_is_a_router_with_the_shared_flags(tmp_path: Path) -> None:
     default = json.loads(ConnectionOptions(mode="client").zenoh_config().get_json(
         "connect/retry"))
     assert default["period_max_ms"] <= 1000  # zenoh's own backs off to 4 s
-
-
-async def spawn(*args: str) -> asyncio.subprocess.Process:
-    return await asyncio.create_subprocess_exec(
-        sys.executable, *args, cwd=ROOT, stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.STDOUT)
-
-
-async def stop(proc: asyncio.subprocess.Process) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        proc.kill()
-    await proc.wait()
 
 
 @contextlib.asynccontextmanager

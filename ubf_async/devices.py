@@ -46,8 +46,13 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
                  params: Mapping[str, Any], context: DeviceContext) -> Component:
     """The component of device kind ``kind`` (its factory ``factory``) reading or driving
     ``backend``, with already checked ``params``; the run's seed and clock go to a factory
-    that takes them."""
-    extra: dict[str, Any] = {}
+    that takes them, and so does each of ``context.extras`` the robot file does not set (a
+    fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …)."""
+    # What the run knows fills the parameters the robot file left unset (None).
+    extra: dict[str, Any] = {
+        key: value for key, value in context.extras.items()
+        if params.get(key) is None and accepts(factory, key)}
+    params = {key: value for key, value in params.items() if key not in extra}
     if accepts(factory, "seed"):
         extra["seed"] = context.seed
     if accepts(factory, "clock"):

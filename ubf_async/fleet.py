@@ -351,12 +351,21 @@ def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argpars
         share = s.get("winner_share") or {}
         top = ", ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1]))
         travelled = robots[entry.name].get("travelled_m")
+        found_at = robots[entry.name].get("found_s")
+        found = f"found the ball at {found_at} s" if found_at is not None else "no ball found"
         print(f"  {entry.name}: {s.get('ticks', '?')} ticks, "
-              f"{travelled if travelled is not None else '?'} m travelled; won: {top or '--'}",
-              file=out)
+              f"{travelled if travelled is not None else '?'} m travelled, {found}; "
+              f"won: {top or '--'}", file=out)
     summary = {"fleet": str(fleet.source), "scenario": world.get("scenario"),
                "sim_time_s": world.get("sim_time_s"),
-               "real_time_factor": world.get("real_time_factor"), "robots": robots}
+               "real_time_factor": world.get("real_time_factor"),
+               "first_found_s": world.get("first_found_s"),
+               "all_found_s": world.get("all_found_s"), "robots": robots}
+    if world.get("first_found_s") is not None:
+        everyone = (f"all {len(robots)} by {world['all_found_s']} s"
+                    if world.get("all_found_s") is not None else "not all of them")
+        print(f"  the ball: first found at {world['first_found_s']} s (simulated), "
+              f"{everyone}", file=out)
     if args.summary is not None:
         args.summary.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return code

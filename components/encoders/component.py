@@ -10,12 +10,13 @@ or from the phase order), integrates odometry, and publishes
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 import msgspec
 
 from components.encoders.backend import EncoderBackend
-from components.encoders.odometry import EFFECTIVE_TRACK_M, Odometry
+from components.encoders.odometry import EFFECTIVE_TRACK_M, Odometry, Pose2D
 from components.encoders.quadrature import (
     DirectionMode,
     QuadratureDecoder,
@@ -41,6 +42,7 @@ class EncodersComponent(Component):
         geometry: MiniWhegsGeometry = MINI_WHEGS,
         initial_states: tuple[int, int] | None = None,
         effective_track_m: float | None = EFFECTIVE_TRACK_M,
+        origin: Pose2D | None = None,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=f"encoders-{name}", **component_options)
@@ -54,7 +56,7 @@ class EncodersComponent(Component):
         left0, right0 = initial_states if initial_states is not None else (None, None)
         self.left = QuadratureDecoder(mode=mode, initial_state=left0)
         self.right = QuadratureDecoder(mode=mode, initial_state=right0)
-        self.odometry = Odometry(geometry, effective_track_m=effective_track_m)
+        self.odometry = Odometry(geometry, pose=origin, effective_track_m=effective_track_m)
         self.malformed: dict[str, int] = {}
 
     async def run(self) -> None:
@@ -99,6 +101,9 @@ def build_device(
     period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.02,
     direction: Literal["commanded", "phase"] = "commanded",
     effective_track_m: Annotated[float, msgspec.Meta(gt=0)] = EFFECTIVE_TRACK_M,
+    origin_x_m: Annotated[float, msgspec.Meta(ge=-1e4, le=1e4)] | None = None,
+    origin_y_m: Annotated[float, msgspec.Meta(ge=-1e4, le=1e4)] | None = None,
+    origin_heading_deg: Annotated[float, msgspec.Meta(ge=-360, le=360)] | None = None,
 ) -> EncodersComponent:
     """The ``encoders`` device kind: reads ``backend`` every ``period_s`` (robot clock),
     publishes ``sensor/encoders/<name>`` and ``sensor/odometry/<name>``.
@@ -110,9 +115,14 @@ def build_device(
     robot's effective one, fitted by ``python -m components.encoders.calibrate`` (default: the
     simulated Mini-WHEGS's, ``EFFECTIVE_TRACK_M``; the physical 6 cm would read skid turns
     ≈7× too large).
+    ``origin_*``: the pose odometry starts from (unset: the origin — odometry in the robot's
+    start frame); a fleet's world sets each robot's start pose in the world where the robot
+    file leaves them unset, so the fleet's odometry shares one frame.
     """
     current_states = getattr(backend, "current_states", None)
     initial = current_states() if callable(current_states) else None
     mode = DirectionMode.COMMANDED if direction == "commanded" else DirectionMode.PHASE
     return EncodersComponent(bus=bus, backend=backend, name=name, period_s=period_s, mode=mode,
-                             initial_states=initial, effective_track_m=effective_track_m)
+                             initial_states=initial, effective_track_m=effective_track_m,
+                             origin=Pose2D(x_m=origin_x_m or 0.0, y_m=origin_y_m or 0.0,
+                                           heading_rad=math.radians(origin_heading_deg or 0.0)))

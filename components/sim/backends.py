@@ -24,6 +24,7 @@ import numpy as np
 
 from components.camera.seekcolor import SUBSAMPLE_STEP
 from components.range.backend import MountPose
+from components.sim.air import RadioAir
 from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
 from components.sim.ranging import beam_distance_m
 from components.sim.world import WorldConfig, WorldSnapshot
@@ -341,6 +342,36 @@ def radio_backend(*, context: DeviceContext) -> SimRadioBackend:
 
 
 radio_backend.requires_simulator = None  # type: ignore[attr-defined]
+
+
+class SimAirRadioBackend:
+    """A radio on the air of a simulated world (:class:`~components.sim.air.RadioAir`): what it
+    sends, every other robot of the world receives."""
+
+    def __init__(self, air: RadioAir, robot: int) -> None:
+        self.air = air
+        self.robot = robot
+
+    def send(self, text: str) -> None:
+        if not isinstance(text, str):
+            raise TypeError(f"radio messages are text, got {type(text).__name__}")
+        self.air.broadcast(self.robot, text)
+
+    def receive(self) -> list[str]:
+        return self.air.take(self.robot)
+
+
+@_on_simulator
+def radio_air_backend(*, context: DeviceContext) -> SimAirRadioBackend:
+    """``radio.air``: a radio the other robots of the same simulated world hear (a fleet,
+    ``python -m ubf_async.fleet``); alone in its world it hears nothing."""
+    world = _world(context, "radio.air")
+    air = getattr(world, "air", None)
+    if not isinstance(air, RadioAir):
+        raise ConfigurationError("backend 'radio.air' needs the simulated world in its own "
+                                 "process (launch, or a fleet's world), not one seen over "
+                                 "the bus")
+    return SimAirRadioBackend(air, getattr(world, "index", 0))
 
 
 class SimLedBackend:

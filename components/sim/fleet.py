@@ -20,13 +20,17 @@ from typing import Any, TextIO
 from components.sim.component import SimulatorComponent
 from components.sim.runner import DEFAULT_SCENARIO, rounded
 from components.sim.scenarios import check_placement, load_scenario
-from components.sim.world import Pose2D, World, WorldConfig
+from components.sim.world import Pose2D, World, WorldConfig, WorldSnapshot
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.errors import ConfigurationError, ScenarioError
 from ubf_async.simulation import DeviceContext, FleetMember, SimulationOptions
 
+FOUND_DISTANCE_M = 1.0
+FOUND_BEARING_DEG = 30.0
+"""A robot has found the ball once it is within ``FOUND_DISTANCE_M`` of it, facing it within
+``FOUND_BEARING_DEG`` (judged on the simulator's truth every 0.1 simulated s)."""
 MIN_SEPARATION_M = 0.13
 """Closest two robots' centres may start (a Mini-WHEGS is 10 × 7 cm: its diagonal, rounded
 up)."""
@@ -52,6 +56,17 @@ def fleet_world_config(base: WorldConfig, members: Sequence[FleetMember], *,
     return config if seed is None else replace(config, seed=seed)
 
 
+def found(snapshot: WorldSnapshot) -> bool:
+    """Whether the robot of ``snapshot`` has found its ball (near it and facing it)."""
+    robot, ball = snapshot.robot, snapshot.ball
+    if ball is None:
+        return False
+    dx, dy = ball.x_m - robot.x_m, ball.y_m - robot.y_m
+    bearing = math.degrees(math.atan2(dy, dx) - robot.heading_rad)
+    bearing = (bearing + 180.0) % 360.0 - 180.0
+    return math.hypot(dx, dy) <= FOUND_DISTANCE_M and abs(bearing) <= FOUND_BEARING_DEG
+
+
 async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence[FleetMember],
                      options: SimulationOptions, out: TextIO) -> dict[str, Any]:
     """The world of ``members`` (see the module docstring) until ``options.duration_s``
@@ -68,28 +83,36 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                                    more_robots=buses[1:])
     components: list[Component] = []
     for index, (member, bus) in enumerate(zip(members, buses, strict=True)):
+        # Odometry in the world's frame: each robot's encoders start from its start pose.
+        origin = {"origin_x_m": member.x_m, "origin_y_m": member.y_m,
+                  "origin_heading_deg": member.heading_deg}
         context = DeviceContext(bus=bus, clock=clock, seed=config.seed,
-                                simulation=world.robot(index))
+                                simulation=world.robot(index), extras=origin)
         components += [device.build(context=context) for device in member.devices]
     components.append(simulator)  # last: time starts once the devices hold it
     start_poses = [world.snapshot_for(i).robot for i in range(world.robot_count)]
     travelled = [0.0] * world.robot_count
+    found_s: list[float | None] = [None] * world.robot_count
     print(f"world: {scenario.name!r} with {len(members)} robots "
           f"({', '.join(m.name for m in members)}), {options.speed:g}x real time, "
           f"seed {config.seed}", file=out, flush=True)
     try:
         for component in components:
             await component.start()
+        start_s = world.time_s
         end_ns = None if options.duration_s is None else round(
-            (world.time_s + options.duration_s) * 1e9)
+            (start_s + options.duration_s) * 1e9)
         last = [(p.x_m, p.y_m) for p in start_poses]
         while end_ns is None or clock.now_ns() < end_ns:
             # Sample the paths every 0.1 simulated seconds (distance travelled per robot).
             await clock.sleep(0.1)
             for i in range(world.robot_count):
-                now = world.snapshot_for(i).robot
+                snapshot = world.snapshot_for(i)
+                now = snapshot.robot
                 travelled[i] += math.hypot(now.x_m - last[i][0], now.y_m - last[i][1])
                 last[i] = (now.x_m, now.y_m)
+                if found_s[i] is None and snapshot.ball is not None and found(snapshot):
+                    found_s[i] = world.time_s - start_s
     finally:
         for component in reversed(components):
             await component.aclose()
@@ -99,12 +122,15 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
         "scenario": scenario.name,
         "sim_time_s": world.time_s,
         "real_time_factor": rtf,
+        "first_found_s": min((f for f in found_s if f is not None), default=None),
+        "all_found_s": None if None in found_s else max(f for f in found_s if f is not None),
         "robots": {
             member.name: {
                 "start": {"x_m": s.x_m, "y_m": s.y_m,
                           "heading_deg": math.degrees(s.heading_rad)},
                 "end": {"x_m": e.x_m, "y_m": e.y_m, "heading_deg": math.degrees(e.heading_rad)},
                 "travelled_m": travelled[i],
+                "found_s": found_s[i],
             }
             for i, (member, s, e) in enumerate(zip(members, start_poses, ends, strict=True))
         },

@@ -78,6 +78,7 @@ from components.motors.pwm import (
     pulse_widths,
     wheel_speed_rad_s,
 )
+from components.sim.air import RadioAir
 
 Color = tuple[int, int, int]
 """An 8-bit RGB colour."""
@@ -502,6 +503,8 @@ class World:
         geo = rc.geometry
         self._robots = [self._add_robot(pose) for pose in (cfg.robot_start, *cfg.more_robots)]
         self._robot = self._robots[0].body
+        self.air = RadioAir(len(self._robots))
+        """What the robots' ``radio.air`` backends send each other."""
         half_track = geo.track_width_m / 2
         half_base = rc.wheelbase_m / 2
         # Wheel-leg contacts (x, y, side) in the body frame; side 0 = left (+y), 1 = right.
@@ -939,6 +942,7 @@ class RobotView:
     def __init__(self, world: World, index: int) -> None:
         self.world = world
         self.index = index
+        self.air = world.air
 
     @property
     def config(self) -> WorldConfig:
