@@ -13,8 +13,11 @@ and their simulated devices (camera, IR, encoders, motors…) — runs the world
   from their median (``periodic_jitter_ms_p99``), the worst robot's;
 * **world ×** — the world's real-time factor (simulated s per wall s; 1.0 keeps up);
 * **CPU/robot** — the CPU time of each controller process over the run, as a share of one
-  core (the worst robot's), and the world process's CPU divided by N (its devices are the
-  robots' too: that is the world's share per robot).
+  core (the worst robot's; a process of K controllers counts 1/K each), and the world
+  process's CPU divided by N (its devices are the robots' too: the world's share per robot).
+
+``--controllers-per-process K`` runs the controllers K to a process, as
+``python -m ubf_async.fleet --controllers-per-process K`` does (for small machines).
 
 ``--search`` measures the cooperative search instead (``docs/fleet.md``): N robots of
 ``examples/robots/fleet-whegs.yaml`` in the ``fleet-search`` room, the first placed in the far
@@ -154,15 +157,18 @@ async def read(path: Path) -> str:
     return await asyncio.to_thread(path.read_text, errors="replace")
 
 
-async def wait_for_line(log: Path, text: str, timeout_s: float = 60.0) -> None:
+async def wait_for_line(log: Path, text: str, timeout_s: float = 60.0, *,
+                        times: int = 1) -> None:
+    """Until ``log`` holds ``text`` ``times`` times."""
     deadline = time.monotonic() + timeout_s
-    while text not in (printed := await read(log)):
+    while (printed := await read(log)).count(text) < times:
         if time.monotonic() > deadline:
             raise SystemExit(f"timed out waiting for {text!r} in {log}:\n{printed}")
         await asyncio.sleep(0.05)
 
 
-async def run_fleet(n: int, *, duration_s: float, folder: Path) -> dict[str, Any]:
+async def run_fleet(n: int, *, duration_s: float, folder: Path,
+                    per_process: int = 1) -> dict[str, Any]:
     router = f"tcp/127.0.0.1:{free_port()}"
     names = [f"r{i + 1}" for i in range(n)]
     fleet = folder / f"fleet-{n}.yaml"
@@ -176,12 +182,18 @@ async def run_fleet(n: int, *, duration_s: float, folder: Path) -> dict[str, Any
         procs["router"] = await spawn(["-m", "ubf_async.router", "--listen", router, "--quiet"],
                                       folder / "router.log")
         await wait_for_line(folder / "router.log", "join with")
-        for name in names:
-            procs[name] = await spawn(
-                ["-m", "ubf_async.launch", "--no-sim", "--sim-time", "--robot", name, "--mode",
-                 "client", "--connect", router, "--quiet"], folder / f"{name}-{n}.log")
-        for name in names:
-            await wait_for_line(folder / f"{name}-{n}.log", "controller:")
+        groups = [names[i:i + per_process] for i in range(0, n, per_process)]
+        for group in groups:
+            label = "+".join(group)
+            command = (["-m", "ubf_async.launch", "--no-sim", "--sim-time", "--robot", group[0],
+                        "--mode", "client", "--connect", router, "--quiet"]
+                       if per_process == 1 else
+                       ["-m", "ubf_async.fleet", str(fleet), "--controllers-only",
+                        ",".join(group), "--router", router])
+            procs[label] = await spawn(command, folder / f"{label}-{n}.log")
+        for group in groups:
+            await wait_for_line(folder / f"{'+'.join(group)}-{n}.log", "controller:",
+                                times=len(group))
         tool = await Bus.open(ConnectionOptions(mode="client", connect=[router]))
         status = FleetStatus(names)
         tool.subscribe("ubf/*/status/controller", status.on_status, latest=False)
@@ -206,16 +218,19 @@ async def run_fleet(n: int, *, duration_s: float, folder: Path) -> dict[str, Any
             raise SystemExit(f"the world failed:\n{await read(world_log)}")
         result = json.loads(await read(summary))
         wall = wall1 - wall0
-        cpu = {name: (cpu1[name] - cpu0[name]) / wall * 100 for name in cpu1}
+        cpu = {label: (cpu1[label] - cpu0[label]) / wall * 100 for label in cpu1}
+        per_robot_cpu = {name: cpu[label] / len(group) for group in groups
+                         for label in ["+".join(group)] for name in group}
         rows = {name: {"tick_hz": last.get(name, {}).get("periodic_rate_hz"),
                        "jitter_p99_ms": last.get(name, {}).get("periodic_jitter_ms_p99"),
-                       "cpu_percent": cpu[name]} for name in names}
+                       "cpu_percent": per_robot_cpu[name]} for name in names}
         return {
             "robots": n,
             "tick_hz_min": min(r["tick_hz"] or 0.0 for r in rows.values()),
             "jitter_p99_ms_max": max(r["jitter_p99_ms"] or float("inf") for r in rows.values()),
             "world_real_time_factor": result["real_time_factor"],
-            "cpu_percent_per_robot": max(cpu[name] for name in names),
+            "controllers_per_process": per_process,
+            "cpu_percent_per_robot": max(per_robot_cpu.values()),
             "world_cpu_percent_per_robot": cpu["world"] / n,
             "per_robot": rows,
         }
@@ -236,6 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=20.0, metavar="S",
                         help="simulated seconds per run")
     parser.add_argument("--json", type=Path, default=None, metavar="FILE")
+    parser.add_argument("--controllers-per-process", type=int, default=1, metavar="K",
+                        help="run the controllers K to a process (python -m ubf_async.fleet "
+                             "--controllers-per-process)")
     parser.add_argument("--search", action="store_true",
                         help="time the cooperative search instead (--duration default 90)")
     args = parser.parse_args(argv)
@@ -247,7 +265,8 @@ def main(argv: list[str] | None = None) -> int:
     runs = []
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
         for n in sizes:
-            run = asyncio.run(run_fleet(n, duration_s=args.duration, folder=Path(tmp)))
+            run = asyncio.run(run_fleet(n, duration_s=args.duration, folder=Path(tmp),
+                                        per_process=min(n, args.controllers_per_process)))
             runs.append(run)
             print(f"{n} robot(s): tick {run['tick_hz_min']:.1f} Hz (worst robot), jitter p99 "
                   f"{run['jitter_p99_ms_max']:.2f} ms (worst), world "

@@ -195,7 +195,9 @@ async def test_four_robots_each_controller_in_its_own_process(tmp_path: Path) ->
             await stop(proc)
 
 
-def test_the_fleet_launcher_runs_a_fleet_and_summarises_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("per_process", [1, 2], ids=["a process each", "two in one"])
+def test_the_fleet_launcher_runs_a_fleet_and_summarises_it(tmp_path: Path,
+                                                          per_process: int) -> None:
     import subprocess
 
     router = f"tcp/127.0.0.1:{free_port()}"
@@ -209,7 +211,8 @@ robots:
     summary = tmp_path / "summary.json"
     done = subprocess.run(
         [sys.executable, "-m", "ubf_async.fleet", str(fleet), "--summary", str(summary),
-         "--log-dir", str(tmp_path / "logs"), "--status-period-s", "0.5"],
+         "--log-dir", str(tmp_path / "logs"), "--status-period-s", "0.5",
+         "--controllers-per-process", str(per_process)],
         cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "fleet t=" in done.stdout and "| f1 " in done.stdout and "| f2 " in done.stdout
@@ -222,7 +225,8 @@ robots:
         assert robot["travelled_m"] >= 0.0 and "end" in robot
     assert "chase" in result["robots"]["f1"]["winner_share"]  # f1 faces the ball
     assert "search" in result["robots"]["f2"]["winner_share"]
-    for log in ("router", "world", "f1", "f2"):
+    processes = ["f1", "f2"] if per_process == 1 else ["f1+f2"]
+    for log in ("router", "world", *processes):
         assert (tmp_path / "logs" / f"{log}.log").is_file()
 
 

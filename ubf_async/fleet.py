@@ -196,6 +196,33 @@ async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: fl
         await asyncio.sleep(0.1)
 
 
+async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
+                          out: TextIO) -> int:
+    """Several robots' controllers in this one process, each exactly as
+    ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time --robot NAME --mode client``
+    runs it (its own session, aggregator, controller, remote behaviours, tree service), all
+    on this process's event loop."""
+    from ubf_async import launch  # the composition root of one robot
+
+    unknown = sorted(set(names) - set(fleet.robots))
+    if unknown:
+        raise ConfigurationError(f"--controllers-only: no robot {', '.join(unknown)} in "
+                                 f"{fleet.source}")
+    runs = []
+    for name in names:
+        args = launch.build_parser().parse_args(
+            [fleet.robots[name].source, "--no-sim", "--sim-time", "--robot", name, "--mode",
+             "client", "--connect", router, "--quiet"])
+        runs.append(launch.run_robot(launch.plan_launch(args), args, out))
+    tasks = [asyncio.ensure_future(run) for run in runs]
+    try:
+        return max(await asyncio.gather(*tasks))
+    finally:  # one failing (or a Ctrl-C) ends them all, each saving and closing as launch does
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+
 # ---------------------------------------------------------------------------------------------
 # The launcher
 
@@ -274,11 +301,15 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
         # The launcher's own session (on the first robot's keys, for the world's clock): it
         # retries until the router listens.
         tool = await open_when_up(router, robot=spec.robots[0].name, timeout_s=20.0)
-        for entry in spec.robots:
-            procs[entry.name] = await spawn(
-                ["-m", "ubf_async.launch", fleet.robots[entry.name].source, "--no-sim",
-                 "--sim-time", "--robot", entry.name, "--mode", "client", "--connect", router,
-                 "--quiet"], logs / f"{entry.name}.log")
+        per = args.controllers_per_process
+        for group in (spec.robots[i:i + per] for i in range(0, len(spec.robots), per)):
+            names = [entry.name for entry in group]
+            command = (["-m", "ubf_async.launch", fleet.robots[names[0]].source, "--no-sim",
+                        "--sim-time", "--robot", names[0], "--mode", "client", "--connect",
+                        router, "--quiet"] if per == 1 else
+                       ["-m", "ubf_async.fleet", str(fleet.source), "--controllers-only",
+                        ",".join(names), "--router", router])
+            procs["+".join(names)] = await spawn(command, logs / f"{'+'.join(names)}.log")
         world_args = ["-m", "ubf_async.fleet", str(fleet.source), "--world-only", "--router",
                       router, "--summary", str(world_summary)]
         procs["world"] = world = await spawn(world_args, logs / "world.log")
@@ -393,6 +424,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help="load and check the fleet file and every robot file, and exit")
     parser.add_argument("--world-only", action="store_true",
                         help="run only the world (what the launcher starts as its own process)")
+    parser.add_argument("--controllers-per-process", type=int, default=1, metavar="K",
+                        help="run the robots' controllers K to a process (fewer processes for "
+                             "a small machine; 1: each its own, as launch runs one)")
+    parser.add_argument("--controllers-only", default=None, metavar="NAME,...",
+                        help="run only these robots' controllers, in this one process (what the "
+                             "launcher starts with --controllers-per-process above 1)")
     return parser
 
 
@@ -406,6 +443,12 @@ async def main_async(args: argparse.Namespace, out: TextIO) -> int:
     if args.world_only:
         return await run_world(fleet, router=args.router or fleet.spec.router, out=out,
                                summary_path=args.summary)
+    if args.controllers_only is not None:
+        return await run_controllers(fleet, args.controllers_only.split(","),
+                                     router=args.router or fleet.spec.router, out=out)
+    if args.controllers_per_process < 1:
+        raise ConfigurationError(f"--controllers-per-process must be ≥ 1, got "
+                                 f"{args.controllers_per_process}")
     return await run_fleet(fleet, args, out)
 
 

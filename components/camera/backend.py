@@ -11,6 +11,10 @@ class CameraBackend(Protocol):
     """A frame source. ``capture()`` blocks (the component calls it from a worker thread).
 
     Returns an ``H×W×3`` ``uint8`` RGB frame (1280×1024 for the OV9655 model).
+
+    A backend whose capture is CPU work in Python (rendering) sets ``renders_in_python =
+    True``: the component then captures on the process's one render thread, so several such
+    cameras take turns instead of contending for the GIL; others capture in a thread each.
     """
 
     def prepare(self) -> None:

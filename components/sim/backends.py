@@ -185,6 +185,9 @@ class SimCameraBackend:
         self._world = world
         self._params = params
         self._grid = grid
+        self.renders_in_python = True
+        """Captures are CPU work under the GIL: the camera component runs them on the
+        process's one render thread (:data:`components.camera.component._RENDERS`)."""
         self._rng = rng if rng is not None else world.make_rng(CAMERA_RNG_STREAM)
         self._lock = threading.Lock()
         self._closed = False
