@@ -8,6 +8,7 @@ import asyncio
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -188,6 +189,20 @@ async def test_four_robots_each_controller_in_its_own_process(tmp_path: Path) ->
                          timeout_s=10, what="the other robots' motors to go on")
         for n in others:
             assert all(reason != "timeout" for _, _, reason in applied[n][-20:]), n
+
+        # The router restarts: the world, the controllers and this tool are all back within
+        # 2 s of it listening again (every session retries at most 1 s apart).
+        await stop(procs["router"])
+        await asyncio.sleep(1.0)  # the outage itself, not a wait for anything
+        procs["router"] = await spawn("-m", "ubf_async.router", "--listen", router, "--quiet")
+        await read_until(procs["router"], "join with")
+        up_at = time.monotonic()
+        sent = {n: len(drives[n]) for n in others}
+        done = {n: len(applied[n]) for n in others}
+        await eventually(lambda: all(len(drives[n]) > sent[n] and len(applied[n]) > done[n]
+                                     for n in others), timeout_s=10,
+                         what="every robot's commands through the restarted router")
+        assert time.monotonic() - up_at <= 2.0 + 0.1  # + this check's own polling
     finally:
         if tool is not None:
             await tool.aclose()
