@@ -15,7 +15,15 @@ import msgspec
 import pytest
 import pytest_asyncio
 
+from ubf_async import lending
 from ubf_async.bus import Bus, ConnectionOptions
+
+
+def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
+                                  ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
+    """Async tests run on the event loop every entry point runs on
+    (:func:`ubf_async.cli.loop_factory`'s default), which lends itself to zenoh's threads."""
+    return {"lending": lending.new_event_loop}
 
 
 def free_port() -> int:

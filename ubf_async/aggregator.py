@@ -285,7 +285,8 @@ class StateAggregator(Component):
         return add_hook(self._ingest_hooks, callback)
 
     async def run(self) -> None:
-        self.subscription = self.subscribe(self.bus.keys.all_sensors, self._on_sample)
+        self.subscription = self.subscribe(self.bus.keys.all_sensors, self._on_sample,
+                                           direct=True)
         forget_after_s = self.forget_after_s
         if forget_after_s is None:
             await asyncio.Event().wait()  # samples arrive through the subscription

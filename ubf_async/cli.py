@@ -23,6 +23,7 @@ from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
 from typing import Any, TypeVar
 
+from ubf_async import lending
 from ubf_async.errors import ConfigurationError, UbfError
 
 T = TypeVar("T")
@@ -138,18 +139,26 @@ class StopGuard:
 
 
 LOOP_ENV = "UBF_LOOP"
-LOOP_HELP = (f"event loop: asyncio's; {LOOP_ENV}=uvloop runs on uvloop instead "
-             f"(pip install 'ubf-async[fast]'; docs/latency.md has what it changes)")
+LOOP_CHOICES = ("lending", "asyncio", "uvloop")
+LOOP_HELP = (f"event loop: asyncio's, lending itself to zenoh's threads while idle so a "
+             f"reflex is answered on the thread that brought its sample; {LOOP_ENV}=asyncio "
+             f"for asyncio's plain loop, {LOOP_ENV}=uvloop for uvloop "
+             f"(pip install 'ubf-async[fast]'); docs/latency.md has what each changes")
 
 
 def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
-    """The event loop programs run on: asyncio's (``None``), or uvloop with
-    ``UBF_LOOP=uvloop``. Not the default even where installed: it hands samples from
-    zenoh's threads to the loop a few µs faster, but no faster end to end on the reflex path
-    (docs/latency.md), and under it a second Ctrl-C does not cut a stuck shutdown short."""
-    choice = os.environ.get(LOOP_ENV, "asyncio").strip().lower() or "asyncio"
-    if choice not in ("asyncio", "uvloop"):
-        raise ConfigurationError(f"{LOOP_ENV}={choice!r}: expected asyncio or uvloop")
+    """The event loop programs run on: by default a
+    :class:`~ubf_async.lending.LendingEventLoop` (asyncio's selector loop, which lets
+    zenoh's threads run short handlers while it waits: :mod:`ubf_async.lending`);
+    ``UBF_LOOP=asyncio``: asyncio's plain loop (``None``); ``UBF_LOOP=uvloop``: uvloop, which
+    hands samples to the loop a few µs faster than asyncio but cannot lend itself, and under
+    which a second Ctrl-C does not cut a stuck shutdown short (docs/latency.md)."""
+    choice = os.environ.get(LOOP_ENV, "lending").strip().lower() or "lending"
+    if choice not in LOOP_CHOICES:
+        raise ConfigurationError(f"{LOOP_ENV}={choice!r}: expected one of "
+                                 f"{', '.join(LOOP_CHOICES)}")
+    if choice == "lending":
+        return lending.new_event_loop
     if choice == "asyncio":
         return None
     try:

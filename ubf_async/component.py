@@ -108,10 +108,12 @@ class Component:
         return pub
 
     def subscribe(
-        self, key_expr: str, handler: SampleHandler, *, latest: bool = True
+        self, key_expr: str, handler: SampleHandler, *, latest: bool = True,
+        direct: bool = False,
     ) -> Subscription:
-        """A subscription closed automatically when this run attempt ends."""
-        sub = self.bus.subscribe(key_expr, handler, latest=latest)
+        """A subscription closed automatically when this run attempt ends (``direct``: see
+        :meth:`Bus.subscribe <ubf_async.bus.Bus.subscribe>`)."""
+        sub = self.bus.subscribe(key_expr, handler, latest=latest, direct=direct)
         self._attempt_resources.append(sub)
         return sub
 

@@ -93,7 +93,7 @@ class MotorsComponent(Component):
         self.backend.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
         self._apply(0.0, 0.0, reason="init")
         self.stopped_by_watchdog = True
-        self.subscribe(DRIVE.key(keys), self._on_drive)
+        self.subscribe(DRIVE.key(keys), self._on_drive, direct=True)
         try:
             await self._guard()
         finally:  # closed (SIGTERM, Ctrl-C, the run's end) or failed: the wheels stop

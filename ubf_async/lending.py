@@ -1,0 +1,156 @@
+"""An asyncio event loop that lends itself to the transport's threads while it waits.
+
+zenoh runs subscriber callbacks on its own threads. The usual bridge
+(:class:`~ubf_async.bus.Subscription`) hands each sample to the event loop with
+``call_soon_threadsafe``: the loop thread, asleep in ``epoll``, is woken through its
+self-pipe and handles the sample. On a small machine that wake-up is the largest single part
+of a reflex's time in the controller (``docs/latency.md``): a second thread must be
+scheduled, often on an idle CPU.
+
+:class:`LendingEventLoop` skips it when it can. The loop thread holds the loop's *run lock*
+whenever it runs anything, and lets go of it only while it waits in ``select()`` for I/O or
+a timer. A transport thread that brings a sample may take the lock **if it is free** — the
+loop is idle — and run the subscription's handler itself, at once, as the loop thread would
+have run it:
+
+* nothing else runs loop code meanwhile: should the loop thread's ``select()`` return, it
+  waits for the lock before running anything;
+* :func:`asyncio.get_running_loop` answers this loop;
+* whatever the handler schedules (``call_soon``, ``call_later``, a future's done callbacks,
+  an :class:`asyncio.Event` set) is run by the loop thread, which is woken for it as soon as
+  the handler returns.
+
+When the loop is busy the sample takes the usual road. Either way one handler runs at a time
+and never beside loop code, so code written for the loop needs nothing new, with two
+exceptions: it must not rely on the identity of the thread it runs on
+(``threading.get_ident()``; a publisher that does simply takes the thread-safe road), and it
+should not add or remove the loop's readers and writers.
+
+Only subscriptions that ask for it are handled this way (``Bus.subscribe(..., direct=True)``):
+the state aggregator's, so a reflex is answered on the thread that brought its sample, and
+the motors' drive commands. Their handlers are short. Lending is off in asyncio's debug mode
+(its thread checks would refuse it) and on any other loop (uvloop, a test framework's):
+:func:`run_if_idle` then gives ``None`` and every sample goes the usual way.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextvars
+import selectors
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVarTuple
+
+Ts = TypeVarTuple("Ts")
+
+__all__ = ["LendingEventLoop", "new_event_loop", "run_if_idle"]
+
+
+def _take(lock: threading.Lock) -> None:
+    """``lock.acquire()`` that always ends holding the lock: a signal handler that raises
+    while it waits (Ctrl-C's ``KeyboardInterrupt``) is re-raised once the lock is held."""
+    interrupted: BaseException | None = None
+    while True:
+        try:
+            lock.acquire()
+        except BaseException as exc:  # a signal handler raised while we waited
+            interrupted = exc
+            continue
+        break
+    if interrupted is not None:
+        raise interrupted
+
+
+class _LendingSelector(selectors.DefaultSelector):
+    """The platform's default selector, letting go of the run lock while it waits."""
+
+    def __init__(self, loop: LendingEventLoop) -> None:
+        super().__init__()
+        self._loop = loop
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        if timeout is not None and timeout <= 0:  # a poll, not a wait: nothing to lend
+            return super().select(timeout)
+        loop = self._loop
+        loop._wanted = False
+        loop._run_lock.release()
+        try:
+            return super().select(timeout)
+        finally:
+            # No new borrower from now on: the loop thread waits for one at most, however
+            # many threads bring samples (a flood must not starve the loop).
+            loop._wanted = True
+            _take(loop._run_lock)
+
+
+class LendingEventLoop(asyncio.SelectorEventLoop):
+    """asyncio's selector event loop, which other threads may borrow while it waits (module
+    docstring). Everything else is asyncio's own."""
+
+    def __init__(self) -> None:
+        self._run_lock = threading.Lock()
+        self._run_lock.acquire()  # held except while the loop waits in select()
+        self._wanted = True
+        """The loop thread runs, or wants to: borrowers keep away."""
+        self._lent = False
+        self._scheduled_while_lent = False
+        self.lent_runs = 0
+        """Callbacks run by a borrowing thread so far."""
+        super().__init__(selector=_LendingSelector(self))
+
+    # What a borrower schedules must wake the loop thread: it sleeps in select() with a
+    # timeout computed before the borrower came. (call_later goes through call_at.)
+    def call_soon(self, callback: Callable[[*Ts], object], *args: *Ts,
+                  context: contextvars.Context | None = None) -> asyncio.Handle:
+        if self._lent:
+            self._scheduled_while_lent = True
+        return super().call_soon(callback, *args, context=context)
+
+    def call_at(self, when: float, callback: Callable[[*Ts], object], *args: *Ts,
+                context: contextvars.Context | None = None) -> asyncio.TimerHandle:
+        if self._lent:
+            self._scheduled_while_lent = True
+        return super().call_at(when, callback, *args, context=context)
+
+    def run_if_idle(self, callback: Callable[..., object], *args: Any) -> bool:
+        """Run ``callback(*args)`` now, on the calling thread, as the loop would run it — if
+        the loop waits in ``select()`` — and return ``True``; return ``False`` at once if
+        the loop is busy, not running, closed or in debug mode. On the loop's own thread it
+        always returns ``False`` (the loop is busy: it is running the caller). An exception
+        from ``callback`` propagates to the caller, after the loop is given back."""
+        if self._wanted or self.get_debug() or not self._run_lock.acquire(blocking=False):
+            return False
+        if self._wanted:  # the loop thread woke meanwhile: it goes first
+            self._run_lock.release()
+            return False
+        previous = asyncio._get_running_loop()
+        asyncio._set_running_loop(self)
+        self._lent = True
+        self.lent_runs += 1
+        try:
+            callback(*args)
+        finally:
+            self._lent = False
+            asyncio._set_running_loop(previous)
+            wake = self._scheduled_while_lent
+            self._scheduled_while_lent = False
+            self._run_lock.release()
+            if wake and not self.is_closed():
+                self.call_soon_threadsafe(_nothing)  # wakes select() through the self-pipe
+        return True
+
+
+def _nothing() -> None:
+    """A callback that only wakes the loop."""
+
+
+def new_event_loop() -> LendingEventLoop:
+    """A new :class:`LendingEventLoop` (what :func:`ubf_async.cli.loop_factory` makes by
+    default)."""
+    return LendingEventLoop()
+
+
+def run_if_idle(loop: asyncio.AbstractEventLoop) -> Callable[..., bool] | None:
+    """``loop.run_if_idle`` for a :class:`LendingEventLoop`, ``None`` for any other loop."""
+    return loop.run_if_idle if isinstance(loop, LendingEventLoop) else None
