@@ -1,5 +1,6 @@
 """The bridge hand-off: what it costs to get a sample from a transport thread to a handler on
-the event loop, piece by piece, on asyncio's default loop and on uvloop (when installed).
+the event loop, piece by piece, on the lending loop every entry point runs on
+(:mod:`ubf_async.lending`), on asyncio's plain loop and on uvloop (when installed).
 
     python -m bench.handoff [--n 3000] [--baseline OLD_BUS_PY] [--json FILE]
 
@@ -12,7 +13,8 @@ Sections (medians, p99 and max in µs):
   (the call that pays for the wake-up) and already scheduled (a burst's later samples);
 * ``hand-off, idle loop`` — from just before ``push()`` on a foreign thread to the handler on
   the loop, one sample at a time (the loop sleeps in between, as it does between sensor
-  samples): what the reflex path pays;
+  samples): what the reflex path pays. The subscription is ``direct`` (as the aggregator's):
+  on the lending loop the handler then runs on the pushing thread at once;
 * ``zenoh put → bus handler`` — a plain zenoh session puts, a :class:`Bus` on another session
   (loopback TCP) delivers to its handler: the hand-off with zenoh's own thread in front.
 
@@ -40,6 +42,7 @@ from typing import Any
 import zenoh
 
 from ubf_async import bus as current_bus
+from ubf_async import lending
 from ubf_async.bus import Bus, ConnectionOptions
 
 SAMPLE = bytes(60)
@@ -57,7 +60,8 @@ def summarize(values_ns: list[int]) -> dict[str, float]:
 
 
 def loops() -> dict[str, LoopFactory]:
-    out: dict[str, LoopFactory] = {"asyncio": asyncio.new_event_loop}
+    out: dict[str, LoopFactory] = {"lending": lending.new_event_loop,
+                                   "asyncio": asyncio.new_event_loop}
     try:
         import uvloop
     except ImportError:
@@ -163,7 +167,10 @@ async def idle_handoff(module: ModuleType, n: int, warm: int = 200) -> dict[str,
         lags.append(time.perf_counter_ns() - sent[0])
         handled.set()
 
-    sub = module.Subscription(loop, handler, latest=True)
+    try:  # direct, as the aggregator's (a baseline bus.py may not know it)
+        sub = module.Subscription(loop, handler, latest=True, direct=True)
+    except TypeError:
+        sub = module.Subscription(loop, handler, latest=True)
 
     def pusher() -> None:
         for _ in range(n + warm):
@@ -196,7 +203,7 @@ async def zenoh_handoff(n: int, warm: int = 200) -> dict[str, dict[str, float]]:
         bridge.append(time.monotonic_ns() - received_ns)  # push() on zenoh's thread → here
         handled.set()
 
-    bus.subscribe(f"ubf/{robot}/sensor/range/front", handler)
+    bus.subscribe(f"ubf/{robot}/sensor/range/front", handler, direct=True)
     conf = ConnectionOptions(robot=robot, connect=[endpoint]).zenoh_config()
     session = await asyncio.to_thread(zenoh.open, conf)
     pub = session.declare_publisher(f"ubf/{robot}/sensor/range/front")

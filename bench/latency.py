@@ -10,12 +10,13 @@ Sections (each prints n, median, p90, p99 and max, and the ratios the issue asks
              controller process (event mode, trigger range/front: the tick runs inside the
              aggregator's ingest, through its on_sample hook) turns each into a
              ``cmd/drive``; the sensor matches it through ``based_on.seq`` and records the
-             round trip. Ratio to the floor (aim ≤ 1.25×), and where the time goes. Beside
-             it, for comparison, the path event mode had before ticks moved into the
-             listener: the controller's own task woken through ``wait_for_update`` (built
-             from public calls). 1 and 2 run at the same time from one sensor process, their
-             samples interleaved (3.3 ms apart at 100 Hz; taking turns back-to-back), so the
-             ratio compares them under the same load on the host.
+             round trip. Ratio to the floor (aim ≤ 1.25×), for the controller as it runs
+             (no observers); the same controller observed through its hooks shows where the
+             time goes, and on asyncio's plain loop what the lending loop saves. Beside them
+             the Python floor: the echo running the same tree in its zenoh callback (decode,
+             store, evaluate, encode; nothing else). 1 and 2 run at the same time from one
+             sensor process, their samples interleaved (2 ms apart at 100 Hz; taking turns
+             back-to-back), so every ratio compares them under the same load on the host.
 3. periodic  age of a sample when the first command based on it is published, periodic mode
              (no reflexes) at 50 and 100 Hz (samples at random moments, slower than the
              tick); tick jitter with the whole simulated robot (simulator, camera, encoders,
@@ -185,12 +186,20 @@ def serve_and_measure(server_cfgs: list[dict[str, Any]], sensor_cfg: dict[str, A
 
 SERVERS = {
     "echo": {"role": "echo"},
+    "as_run": {"role": "controller", "mode": "event", "trigger": "range/front",
+               "instrument": False},
     "controller": {"role": "controller", "mode": "event", "trigger": "range/front"},
-    "wake_task": {"role": "controller", "mode": "event", "wake_task": True},
+    "plain_loop": {"role": "controller", "mode": "event", "trigger": "range/front",
+                   "loop": "asyncio"},
+    "tree_echo": {"role": "tree_echo"},
 }
-"""What answers the round trips: the raw echo (the floor), the controller in event mode
-(its tick runs inside ingest), and the path event mode had before (the tick in the
-controller's own task, woken through ``wait_for_update``)."""
+"""What answers the round trips: the raw echo (the floor); the controller in event mode (its
+tick runs inside ingest) as it runs for a user (``as_run``: no observers), the same observed
+through its hooks (``controller``: where the time goes) and observed on asyncio's plain loop
+(``plain_loop``: every sample handed to the loop thread); and the Python floor
+(``tree_echo``: the same tree evaluated in the echo's zenoh callback)."""
+
+REFLEX_SERVERS = ("echo", "as_run", "controller", "plain_loop", "tree_echo")
 
 CONTROLLERS = {
     # Section 4's controllers: (label, server config).
@@ -226,9 +235,10 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
         "rtt": summarize(r[3] - r[1] for r in answered),
         "rtt_ns": [r[3] - r[1] for r in answered],
     }
-    if server != "echo":
-        out["controller"] = {k: served[k] for k in ("overruns", "errors", "malformed",
-                                                    "coalesced", "received", "triggered")}
+    if "triggered" in served:  # a controller
+        out["controller"] = {k: served.get(k) for k in (
+            "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct")}
+    if served.get("samples"):  # observed through the hooks
         out["segments"] = reflex_segments(answered, served)
         # Account for every unanswered sample: superseded by a newer one before the loop
         # got to it (the bridge keeps the newest per key), skipped by the controller (the
@@ -264,8 +274,7 @@ def reflex_segments(rows: list[list[int]], served: dict[str, Any]) -> dict[str, 
 
     The drive command's stamp is taken inside ``publish``, before encoding; ``put`` is when
     that call returned (the controller's ``on_tick`` hook runs right after it). ``stored →
-    tick start`` is the ``on_sample`` hook dispatch when the tick runs inside ingest (event
-    mode now: no task wake-up at all) and the controller task's wake-up on the older path."""
+    tick start`` is the ``on_sample`` hook dispatch (the tick runs inside ingest)."""
     samples = {s[1]: s for s in served["samples"] if s[0] == "range/front"}
     ticks = {t[4]: t for t in served["ticks"] if t[3] == "range/front"}
     seg: dict[str, list[int]] = {k: [] for k in SEGMENTS}
@@ -546,16 +555,16 @@ def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None]) -> d
         log(f"[{step}] {what} …")
 
     if "floor" in sections or "reflex" in sections:
-        names = ("echo", "controller", "wake_task") if "reflex" in sections else ("echo",)
+        names = REFLEX_SERVERS if "reflex" in sections else ("echo",)
         progress(f"{', '.join(names)}, interleaved, 100 Hz")
         at_rate = measure_rtt(*names, rate_hz=100, warmup=c["warm"], count=c["rtt"])
         progress(f"{', '.join(names)}, interleaved, back-to-back")
         b2b = measure_rtt(*names, rate_hz=0, warmup=c["warm"], count=c["b2b"])
         res["floor_100hz"], res["floor_b2b"] = at_rate["echo"], b2b["echo"]
-        if "controller" in names:
-            res["reflex_100hz"], res["reflex_b2b"] = at_rate["controller"], b2b["controller"]
-            res["wake_task_100hz"], res["wake_task_b2b"] = (at_rate["wake_task"],
-                                                            b2b["wake_task"])
+        if "as_run" in names:
+            res["reflex_100hz"], res["reflex_b2b"] = at_rate["as_run"], b2b["as_run"]
+            for name in ("controller", "plain_loop", "tree_echo"):
+                res[f"{name}_100hz"], res[f"{name}_b2b"] = at_rate[name], b2b[name]
     if "periodic" in sections:
         for hz in (50, 100):
             progress(f"periodic mode {hz} Hz (no reflex), sample age at command")
@@ -592,7 +601,10 @@ def ratios(res: dict[str, Any]) -> dict[str, Any]:
     put("reflex_over_floor_median", "reflex_100hz", "floor_100hz")
     put("reflex_over_floor_p99", "reflex_100hz", "floor_100hz", "p99_us")
     put("reflex_over_floor_b2b_median", "reflex_b2b", "floor_b2b")
-    put("wake_task_over_floor_median", "wake_task_100hz", "floor_100hz")
+    put("observed_over_floor_median", "controller_100hz", "floor_100hz")
+    put("plain_loop_over_floor_median", "plain_loop_100hz", "floor_100hz")
+    put("python_floor_over_floor_median", "tree_echo_100hz", "floor_100hz")
+    put("reflex_over_python_floor_median", "reflex_100hz", "tree_echo_100hz")
     put("sync_over_default_median", "obstacle_sync", "obstacle_default", field="reaction")
     put("sync_over_periodic50_no_reflex_median", "obstacle_sync", "obstacle_periodic",
         field="reaction")
@@ -641,39 +653,47 @@ def report(res: dict[str, Any]) -> str:
                 lost_note(res["floor_b2b"])))
     if "reflex_100hz" in res:
         r, rb = res["reflex_100hz"], res["reflex_b2b"]
+        floor, floor_b2b = res["floor_100hz"]["rtt"], res["floor_b2b"]["rtt"]
         add("2. Reflex path: sensor process → controller (event mode, tick inside ingest) → "
             "sensor process (interleaved with 1)")
         add(row("at 100 Hz", r["rtt"], lost_note(r)))
         add(row("back-to-back (servers taking turns)", rb["rtt"], lost_note(rb)))
-        q = ratio(r["rtt"], res["floor_100hz"]["rtt"])
+        q = ratio(r["rtt"], floor)
         verdict = _aim(q, f"≤ {REFLEX_AIM}×", (q or 9) <= REFLEX_AIM)
         add(f"     ratio to the floor at 100 Hz, median: {verdict}")
-        q99 = ratio(r["rtt"], res["floor_100hz"]["rtt"], "p99_us")
-        qb = ratio(rb["rtt"], res["floor_b2b"]["rtt"])
+        q99 = ratio(r["rtt"], floor, "p99_us")
+        qb = ratio(rb["rtt"], floor_b2b)
         add(f"     p99 ratio {q99:.2f}×; back-to-back median ratio {qb:.2f}×"
             if q99 and qb else None)
         ctl = r["controller"]
         add(f"     controller: coalesced {ctl['coalesced']}, malformed {ctl['malformed']}, "
-            f"errors {ctl['errors']}, triggered ticks {ctl['triggered']}")
-        w = res.get("wake_task_100hz")
-        if w is not None:
-            add(row("old path: task woken per sample, 100 Hz", w["rtt"],
-                    lost_note(w)))
-            add(row("old path, back-to-back", res["wake_task_b2b"]["rtt"],
-                    lost_note(res["wake_task_b2b"])))
-            qw = ratio(w["rtt"], res["floor_100hz"]["rtt"])
-            add(f"     old path's ratio to the floor at 100 Hz, median: {qw:.2f}×" if qw else None)
+            f"errors {ctl['errors']}, triggered ticks {ctl['triggered']}, handled on "
+            f"zenoh's thread (loop lent) {ctl['direct']}/{ctl['received']}")
+        o, ob = res["controller_100hz"], res["controller_b2b"]
+        p, pb = res["plain_loop_100hz"], res["plain_loop_b2b"]
+        t, tb = res["tree_echo_100hz"], res["tree_echo_b2b"]
+        for label, x, xb in (("observed through its hooks (the breakdown below)", o, ob),
+                             ("observed, on asyncio's plain loop (nothing lent)", p, pb),
+                             ("Python floor: the tree in the echo's callback", t, tb)):
+            add(f"  {label}")
+            add(row("  at 100 Hz", x["rtt"], lost_note(x)))
+            add(row("  back-to-back", xb["rtt"], lost_note(xb)))
+            qx = ratio(x["rtt"], floor)
+            add(f"       ratio to the floor at 100 Hz, median: {qx:.2f}×" if qx else None)
+        qt = ratio(r["rtt"], t["rtt"])
+        add(f"     the framework beyond the Python floor (reflex / Python floor), median: "
+            f"{qt:.2f}×" if qt else None)
         add("   where the time goes (per sample, joined by seq across both processes):")
-        add(f"    {'':<42} {'event 100 Hz':>12} {'p90':>8} {'b2b':>8} {'p90':>8}"
-            f" {'old 100 Hz':>11} {'p90':>8}")
-        for k, v in r["segments"].items():
-            b = rb["segments"][k]
-            o = w["segments"][k] if w is not None else {}
+        add(f"    {'':<42} {'lent 100 Hz':>12} {'p90':>8} {'b2b':>8} {'p90':>8}"
+            f" {'plain 100 Hz':>12} {'p90':>8}")
+        for k, v in o["segments"].items():
+            b = ob["segments"][k]
+            w = p["segments"][k]
             add(f"    {k:<42} {fmt_us(v.get('median_us')):>12} {fmt_us(v.get('p90_us')):>8} "
                 f"{fmt_us(b.get('median_us')):>8} {fmt_us(b.get('p90_us')):>8} "
-                f"{fmt_us(o.get('median_us')):>11} {fmt_us(o.get('p90_us')):>8}")
-        add("    (stored → tick start: event mode has no task wake-up — the tick runs in the "
-            "on_sample hook; old path: the task's wake-up)")
+                f"{fmt_us(w.get('median_us')):>12} {fmt_us(w.get('p90_us')):>8}")
+        add("    (lent: handled on zenoh's thread while the loop waits; plain: through the "
+            "self-pipe to the loop thread)")
     for hz in (50, 100):
         p = res.get(f"periodic_{hz}hz")
         if p is None:

@@ -12,15 +12,19 @@ controller's ``reflex_sources``; ``python -m ubf_async.launch`` defaults to ``["
 Prints ``READY`` once both components run, serves until its stdin closes, then prints
 ``RESULT <json>`` with what the instrumentation saw.
 
-With ``wake_task: true`` the controller ticks the way event mode did before triggered ticks
-moved into the aggregator's ``on_sample`` hook: its own task awaits
-:meth:`~ubf_async.aggregator.StateAggregator.wait_for_update` on ``range/front`` and calls
-:meth:`~ubf_async.controller.Controller.tick` (both public), so each sample costs one more
-pass through the event loop. It is kept beside the real event mode for comparison only.
+``instrument: false`` leaves the hooks alone (the controller as it runs for a user; only the
+round trip is measured); ``loop`` chooses the event loop (``lending`` — the default of every
+entry point — or ``asyncio``'s plain loop, :func:`ubf_async.cli.loop_factory`).
 
 ``role: "echo"`` — the transport floor's responder: raw zenoh, no asyncio, no ubf_async
 runtime. Its subscriber callback (on zenoh's thread) unpacks the sample and puts a minimal
 ``drive``-shaped msgpack reply with ``based_on`` at once.
+
+``role: "tree_echo"`` — the Python floor: the echo doing the controller's essential work in
+its zenoh callback — decode and validate the sample (``ubf_async.protocol``), store it in a
+:class:`~ubf_async.aggregator.StateAggregator`, snapshot, evaluate :func:`reflex_tree`, encode
+the ``drive`` command — with no bus, no event loop, no hooks, no bookkeeping: what any Python
+controller of this tree pays at least.
 
 ``role: "simrobot"`` — the full simulated robot in this process (simulator at speed 1 on
 wall-clock pacing, camera, encoders, IR, motors, radio) plus aggregator and the launch's
@@ -38,7 +42,6 @@ returned; the tick's start is its state's ``now_ns``). It adds a few µs per sam
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import os
 import sys
@@ -112,8 +115,7 @@ class Recorder:
     whether a sample triggered it (``stats.periodic`` counts clock ticks before the hook
     runs) and when the drive command's put returned. The tick's end comes from a second
     ``on_sample`` hook added after the controller started (it runs when the controller's
-    hook — the triggered tick — returns) or from whoever calls :meth:`Controller.tick`
-    (:func:`wake_task_ticks`)."""
+    hook — the triggered tick — returns)."""
 
     LIMIT = 200_000
 
@@ -168,29 +170,13 @@ class Recorder:
             triggered, put_returned,
         ])
 
-    def tick_ended(self, source: str, seq: int) -> None:
-        """The tick based on sample ``seq`` of ``source``, if it was the last, has returned
-        (its end stamp)."""
+    def _tick_returned(self, source: str, entry: SourceEntry) -> None:
+        """The tick based on this sample, if it was the last, has returned (its end stamp)."""
         end = time.monotonic_ns()
         last = self.ticks[-1] if self.ticks else None
-        if last is not None and last[1] is None and last[4] == seq and last[3] == source:
+        if (last is not None and last[1] is None and last[4] == entry.message.seq
+                and last[3] == source):
             last[1] = end
-
-    def _tick_returned(self, source: str, entry: SourceEntry) -> None:
-        self.tick_ended(source, entry.message.seq)
-
-
-async def wake_task_ticks(agg: StateAggregator, ctl: Controller, rec: Recorder,
-                          source: str) -> None:
-    """Event mode as it was before ticks ran in the ``on_sample`` hook, from public calls:
-    the controller's own task waits for each new sample of ``source`` (a future resolved
-    inside ingest) and then ticks."""
-    version = 0
-    while True:
-        entry = await agg.wait_for_update(source, after_version=version)
-        version = entry.version
-        ctl.tick(based_on=entry)
-        rec.tick_ended(source, entry.message.seq)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -210,14 +196,9 @@ def _stdin_closed_event(loop: asyncio.AbstractEventLoop) -> asyncio.Event:
 
 
 def build_controller(bus: Bus, agg: StateAggregator, cfg: dict[str, Any]) -> Controller:
-    mode, trigger = cfg["mode"], cfg.get("trigger")
-    if cfg.get("wake_task"):
-        # Event mode on a source that never publishes: no hook tick; wake_task_ticks
-        # does the ticking.
-        mode, trigger = "event", "bench/none"
-    return Controller(bus=bus, aggregator=agg, root=reflex_tree(), mode=mode,
-                           rate_hz=cfg.get("rate_hz", 50.0), trigger=trigger,
-                           reflex_sources=tuple(cfg.get("reflex") or ()))
+    return Controller(bus=bus, aggregator=agg, root=reflex_tree(), mode=cfg["mode"],
+                      rate_hz=cfg.get("rate_hz", 50.0), trigger=cfg.get("trigger"),
+                      reflex_sources=tuple(cfg.get("reflex") or ()))
 
 
 async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
@@ -226,31 +207,27 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
     stop = _stdin_closed_event(asyncio.get_running_loop())
     agg = StateAggregator(bus=bus)
     ctl = build_controller(bus, agg, cfg)
-    rec = Recorder(agg, ctl)
-    waker: asyncio.Task[None] | None = None
+    rec = Recorder(agg, ctl) if cfg.get("instrument", True) else None
     try:
         for c in (agg, ctl):
             await c.start()
         for c in (agg, ctl):
             await asyncio.wait_for(c.running.wait(), 10)
-        rec.after_controller_started(agg)
-        if cfg.get("wake_task"):
-            waker = asyncio.create_task(wake_task_ticks(agg, ctl, rec, "range/front"))
+        if rec is not None:
+            rec.after_controller_started(agg)
         print("READY", flush=True)
         await stop.wait()
         bridge = agg.subscription.stats if agg.subscription is not None else None
         return {
-            "samples": rec.samples, "ticks": rec.ticks, "overruns": ctl.stats.overruns,
+            "samples": rec.samples if rec else [], "ticks": rec.ticks if rec else [],
+            "overruns": ctl.stats.overruns,
             "errors": ctl.stats.errors, "triggered": ctl.stats.triggered,
             "malformed": sum(agg.malformed.values()),
             "coalesced": bridge.coalesced if bridge else None,
             "received": bridge.received if bridge else None,
+            "direct": bridge.direct if bridge else None,
         }
     finally:
-        if waker is not None:
-            waker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await waker
         await ctl.aclose()
         await agg.aclose()
         await bus.aclose()
@@ -329,17 +306,62 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
     return {"replies": count[0]}
 
 
+def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
+    import zenoh
+
+    from ubf_async.clock import WallClock
+    from ubf_async.protocol import Keys, decode, encode
+    from ubf_async.topics import RANGE, BasedOn, Drive
+
+    class StandInBus:  # what StateAggregator.ingest and snapshot read
+        clock = WallClock()
+        keys = Keys(cfg["robot"])
+
+    agg = StateAggregator(bus=StandInBus())  # type: ignore[arg-type]
+    tree = reflex_tree()
+    session = zenoh.open(ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]])
+                         .zenoh_config())
+    pub = session.declare_publisher(StandInBus.keys.cmd("drive"))
+    count = [0]
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        received = time.monotonic_ns()
+        message = decode(sample.payload.to_bytes(), topic=RANGE)
+        agg.ingest("range/front", message, received)
+        trace = tree.evaluate(agg.snapshot())
+        action = trace.action if trace is not None else None
+        count[0] += 1
+        pub.put(encode("drive", Drive(
+            speed=action.speed if action is not None and action.speed is not None else 0.0,
+            turn=action.turn if action is not None and action.turn is not None else 0.0,
+            based_on=BasedOn(source="range/front", seq=message.seq, stamp_ns=message.stamp_ns),
+            tick=count[0]), stamp_ns=time.monotonic_ns(), seq=count[0]))
+
+    sub = session.declare_subscriber(StandInBus.keys.sensor("range", "front"), on_sample)
+    print("READY", flush=True)
+    sys.stdin.read()
+    sub.undeclare()
+    pub.undeclare()
+    session.close()
+    return {"replies": count[0]}
+
+
 def main(argv: list[str] | None = None) -> int:
     cfg = json.loads((argv or sys.argv[1:])[0])
     role = cfg["role"]
+    if "loop" in cfg:  # the event loop this controller runs on (ubf_async.cli.loop_factory)
+        os.environ["UBF_LOOP"] = cfg["loop"]
+
     if role == "echo":
         result = echo_role(cfg)
+    elif role == "tree_echo":
+        result = tree_echo_role(cfg)
     elif role == "controller":
         profile_dir = os.environ.get(PROFILE_ENV)
         if profile_dir:  # cProfile the whole controller process (it slows every figure)
             import cProfile
 
-            name = "wake_task" if cfg.get("wake_task") else cfg["mode"]
+            name = f"{cfg['mode']}-{cfg.get('loop', 'lending')}"
             with cProfile.Profile() as prof:
                 result = run_loop(controller_role(cfg))
             prof.dump_stats(os.path.join(profile_dir, f"controller-{name}-{os.getpid()}.prof"))

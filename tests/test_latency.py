@@ -26,7 +26,15 @@ pytestmark = pytest.mark.slow
 
 
 def test_reflex_at_100hz_every_command_matched_none_lost() -> None:
-    r = measure_rtt("controller", rate_hz=100, warmup=20, count=150)["controller"]
+    both = measure_rtt("controller", "as_run", rate_hz=100, warmup=20, count=150)
+    r = both["controller"]
+    # The controller as it runs (no observers) answers the same way, and its aggregator
+    # handled samples on zenoh's thread while the loop was idle (the lending loop).
+    plain = both["as_run"]
+    assert (plain["duplicates"], plain["unmatched"], plain["mismatched"]) == (0, 0, 0)
+    assert plain["answered"] >= 0.85 * plain["sent"]
+    assert plain["controller"]["direct"] > 0
+    assert plain["controller"]["triggered"] >= plain["answered"]
     assert r["sent"] == 150
     assert (r["duplicates"], r["unmatched"], r["mismatched"]) == (0, 0, 0)
     # No command is lost: a sample goes unanswered only when a newer one superseded it in
