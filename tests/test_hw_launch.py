@@ -249,7 +249,7 @@ async def test_wiring_check_ends_on_a_stop_signal_with_the_wheels_stopped(
     proc = await spawn_logged(pins, "components.motors", "--backend", "gpio", "--check",
                               "--robot-file", str(PI_WHEGS), "--spin-s", "60")
     try:
-        printed = await read_until(proc, "left forward:")  # spinning for a minute
+        printed = await read_until(proc, "left forward:")  # said once it spins, for 60 s
         code, out = await end(proc, sig)
     finally:
         if proc.returncode is None:

@@ -130,11 +130,11 @@ def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: Moto
             for direction in (1, -1):
                 pulse = calibrations[wheel].pulse_ms(direction * u)
                 name = "forward" if direction > 0 else "reverse"
-                # Said before it spins: the builder watching the robot knows which wheel
-                # should be turning.
+                motors.apply_pulses(**{**stop, f"{wheel}_ms": pulse})
+                # Said as it spins: the builder watching the robot knows which wheel should
+                # be turning.
                 print(f"{wheel} {name}: {pulse:.3f} ms for {spin_s:g} s ...", file=out,
                       flush=True)
-                motors.apply_pulses(**{**stop, f"{wheel}_ms": pulse})
                 sleep(spin_s)
                 motors.apply_pulses(**stop)
                 sleep(settle_s)
