@@ -16,6 +16,7 @@ outputs), as gpiozero does.
 from __future__ import annotations
 
 import importlib
+import sys
 import threading
 from types import ModuleType
 from typing import Any
@@ -45,11 +46,25 @@ def gpio_errors() -> tuple[type[BaseException], ...]:
     return (GPIOZeroError,)
 
 
+def describe(exc: BaseException) -> str:
+    """An exception as ``TypeName: message``: several of gpiozero's carry no message at all
+    (``PinPWMUnsupported()``), and its type is then all that says what went wrong."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
 def pins_error(who: str, exc: BaseException) -> ConfigurationError:
-    """A one-line error for pins that cannot be had (taken, wrong name, no permission)."""
-    return ConfigurationError(f"{who}: cannot set up the pins: {exc} (pin names as gpiozero "
-                              f"knows them, e.g. GPIO12; are you in the gpio group? "
-                              f"docs/hardware.md)")
+    """A one-line error for pins that cannot be had (taken, wrong name, no permission, no PWM),
+    with a hint at the likely cause."""
+    gpio_exc = sys.modules.get("gpiozero.exc")  # loaded if gpiozero raised it
+    if gpio_exc is not None and isinstance(exc, gpio_exc.PinPWMUnsupported):
+        hint = ("this pin factory cannot do PWM on these pins: use lgpio or pigpio (docs/"
+                "hardware.md); gpiozero's mock factory needs GPIOZERO_MOCK_PIN_CLASS="
+                "mockpwmpin")
+    else:
+        hint = ("pin names as gpiozero knows them, e.g. GPIO12; are you in the gpio group? "
+                "docs/hardware.md")
+    return ConfigurationError(f"{who}: cannot set up the pins: {describe(exc)} ({hint})")
 
 
 def pin_factory(name: str | None, *, who: str) -> Any:
@@ -68,7 +83,8 @@ def pin_factory(name: str | None, *, who: str) -> Any:
                 factory = _load_factory(name)
         except Exception as exc:  # gpiozero's BadPinFactory, or the library's own error
             raise ConfigurationError(f"{who}: no GPIO pin factory {name or '(default)'!r}: "
-                                     f"{exc}") from None
+                                     f"{describe(exc)} (docs/hardware.md, Pin factories)"
+                                     ) from None
         _FACTORIES[key] = factory
         return factory
 

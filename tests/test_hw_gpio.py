@@ -1,29 +1,42 @@
 """The GPIO backends (motors.gpio, encoders.gpio) on gpiozero's own mock pin factory:
-pulse widths for speed/turn, the stop on start, on the watchdog and on close, quadrature edges
-driven on mock pins decoded in both direction modes, and the wiring check."""
+pulse widths for speed/turn, the stop on start, on the watchdog and on close, how long the init
+and stop pulses are held (from the mock pins' state history), quadrature edges driven on mock
+pins decoded in both direction modes, wheel speed from the edges' time stamps, the edge
+buffer's overflow, and the wiring check."""
 
 from __future__ import annotations
 
 import asyncio
 import io
+import math
+import signal
 import threading
+import time
 from collections.abc import Iterator
 
 import msgspec
 import pytest
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
-from components.encoders.component import EncodersComponent
-from components.encoders.gpio import GpioEncoderBackend
+from components import hardware
+from components.encoders.backend import EdgeTiming
+from components.encoders.component import EncodersComponent, wheel_speed_rad_s
+from components.encoders.gpio import MAX_EDGE_GAP_S, GpioEncoderBackend
 from components.encoders.quadrature import FORWARD_SEQUENCE, DirectionMode, QuadratureDecoder
-from components.motors.check import run_check
+from components.motors.check import Interrupted, run_check
 from components.motors.component import MotorsComponent, MotorTrim
-from components.motors.gpio import GpioMotorBackend
+from components.motors.gpio import GpioMotorBackend, gpio_backend
 from components.motors.pwm import DEFAULT_PWM, pulse_widths
 from tests.conftest import eventually
+from tests.pinlog import holds
 from ubf_async.bus import Bus
-from ubf_async.topics import DRIVE, ENCODERS
+from ubf_async.errors import ConfigurationError
+from ubf_async.protocol import decode
+from ubf_async.topics import DRIVE, ENCODERS, MOTORS, Encoders
 from ubf_async.transport import InProcessTransport
+
+HOLD_S = 2 * DEFAULT_PWM.period_ms / 1000.0
+"""Two 20 ms periods: how long the init and stop pulses must stay on the pins."""
 
 LEFT_TRIM = MotorTrim(zero_ms=1.55, dead_zone_ms=(1.48, 1.62))
 RIGHT_TRIM = MotorTrim(zero_ms=1.56, dead_zone_ms=(1.46, 1.66), reverse_ms=1.05,
@@ -107,6 +120,7 @@ async def test_motors_component_stops_on_start_watchdog_and_close(factory: MockF
     net = InProcessTransport()
     robot, teleop = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
     backend = motors_on(factory)
+    assert backend.hold_s == pytest.approx(HOLD_S)
     motors = MotorsComponent(bus=robot, backend=backend, timeout_s=0.11,
                              left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
     motors.close_on_exit(backend.close)
@@ -115,8 +129,11 @@ async def test_motors_component_stops_on_start_watchdog_and_close(factory: MockF
     await motors.start()
     zero = (1.55, 1.56)
     await eventually(lambda: motors.applied is not None, what="the start-up pulses")
-    duties = [s.state for s in left_pin.states]
-    assert DEFAULT_PWM.init_ms / 20.0 in duties  # the init pulse arms the driver, then stop
+    init = DEFAULT_PWM.init_ms / 20.0
+    # The init pulse arms the driver for whole periods, then the stop pulse.
+    assert [s for s, _ in holds(left_pin.states)][-2:] == [0.0, pytest.approx(init)]
+    assert left_pin.state == pytest.approx(zero[0] / 20.0)
+    assert holds(left_pin.states)[-1][1] >= HOLD_S
     assert backend.last_ms == zero
     drive = teleop.publisher(DRIVE)
     drive.publish({"speed": 40.0, "turn": 0.0})
@@ -130,11 +147,90 @@ async def test_motors_component_stops_on_start_watchdog_and_close(factory: MockF
     drive.publish({"speed": -60.0, "turn": 20.0})
     await eventually(lambda: backend.last_ms != zero, what="a second command")
     await motors.aclose()  # closing applies the stop pulse before the pins are released
-    duties = [s.state for s in left_pin.states]
-    assert duties[-2:] == [pytest.approx(zero[0] / 20.0), 0]
+    history = holds(left_pin.states)
+    assert [s for s, _ in history][-1] == pytest.approx(zero[0] / 20.0)
+    assert history[-1][1] >= HOLD_S  # held two whole periods, then released
+    assert left_pin.states[-1].state == 0
     assert backend.last_ms == zero
     await robot.aclose()
     await teleop.aclose()
+
+
+@pytest.mark.asyncio
+async def test_pulses_are_held_on_the_loop_without_blocking_it(factory: MockFactory) -> None:
+    # The holds are awaited: this test's own coroutine sees the init pulse and the stop pulse
+    # on the pins while they are held (a blocking wait would only let it see what came after),
+    # and a command that arrives while the stop pulse is held is not applied.
+    net = InProcessTransport()
+    robot, teleop = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    backend = motors_on(factory)
+    motors = MotorsComponent(bus=robot, backend=backend, timeout_s=5.0,
+                             left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
+    motors.close_on_exit(backend.close)
+    pins = factory.pin("GPIO12"), factory.pin("GPIO13")
+    init = DEFAULT_PWM.init_ms
+    await motors.start()
+    await eventually(lambda: backend.last_ms == (init, init), what="the init pulse")
+    assert motors.applied is None  # still holding it
+    await eventually(lambda: motors.applied is not None, what="the end of the init hold")
+    drive = teleop.publisher(DRIVE)
+    drive.publish({"speed": 70.0, "turn": 0.0})
+    moving = pulse_widths(70, 0, left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
+    await eventually(lambda: backend.last_ms == (moving.left_ms, moving.right_ms),
+                     what="the command's pulses")
+    closing = asyncio.create_task(motors.aclose())
+    zero = (1.55, 1.56)
+    await eventually(lambda: backend.last_ms == zero, what="the stop pulse")
+    assert not closing.done() and pins[0].state == pytest.approx(zero[0] / 20.0)
+    drive.publish({"speed": 70.0, "turn": 0.0})  # during the hold: ignored
+    await eventually(lambda: motors.ignored == 1, what="the command to arrive")
+    assert not closing.done() and backend.last_ms == zero
+    await closing
+    for pin, stop in zip(pins, zero, strict=True):
+        (*_, (held, held_s)) = holds(pin.states)
+        assert held == pytest.approx(stop / 20.0) and held_s >= HOLD_S
+        assert pin.state == 0
+    await robot.aclose()
+    await teleop.aclose()
+
+
+@pytest.mark.asyncio
+async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
+        factory: MockFactory) -> None:
+    net = InProcessTransport()
+    robot = Bus(transport=net, robot="r1")
+    backend = motors_on(factory)
+    motors = MotorsComponent(bus=robot, backend=backend)
+    await motors.start()
+    await eventually(lambda: motors.applied is not None, what="the start-up pulses")
+    backend.apply_pulses(left_ms=1.9, right_ms=1.9)  # as if driving
+    run = next(t for t in motors._tasks if t.get_name().endswith(":run"))
+    run.cancel()
+    await eventually(lambda: backend.last_ms == (1.55, 1.55), what="the stop pulse")
+    run.cancel()  # again, while the stop pulse is held
+    with pytest.raises(asyncio.CancelledError):
+        await run
+    backend.close()
+    (*_, (stop, held_s)) = holds(factory.pin("GPIO12").states)
+    assert stop == pytest.approx(1.55 / 20.0) and held_s >= HOLD_S
+    await motors.aclose()
+    await robot.aclose()
+
+
+def test_a_pin_factory_without_pwm_is_named_with_a_hint(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
+    # gpiozero's PinPWMUnsupported has no message: the error names its type and the fix.
+    monkeypatch.setattr(hardware, "_FACTORIES", {})
+    monkeypatch.delenv("GPIOZERO_MOCK_PIN_CLASS", raising=False)  # plain MockPin: no PWM
+    with pytest.raises(ConfigurationError) as error:
+        gpio_backend(context=None, left_pin="GPIO12", right_pin="GPIO13", pin_factory="mock")
+    message = str(error.value)
+    assert "motors.gpio: cannot set up the pins: PinPWMUnsupported (" in message
+    assert "GPIOZERO_MOCK_PIN_CLASS=mockpwmpin" in message
+    hardware._FACTORIES["mock"].close()
+    # Other errors keep their message, with the type in front.
+    assert str(hardware.pins_error("x", ValueError("GPIO99 is not a valid pin"))).startswith(
+        "x: cannot set up the pins: ValueError: GPIO99 is not a valid pin (pin names")
 
 
 def test_quadrature_edges_on_mock_pins_decode_in_both_modes(factory: MockFactory) -> None:
@@ -196,6 +292,144 @@ async def test_encoders_component_counts_edges_driven_from_another_thread(
     await tool.aclose()
 
 
+def turn_wheel_timed(factory: MockFactory, pins: tuple[str, str], steps: int, *,
+                     state: int = 0) -> tuple[int, list[float]]:
+    """:func:`turn_wheel` one edge at a time, returning the state reached and each edge's
+    time stamp as the mock pin factory gave it to the backend (the pin's last change)."""
+    stamps = []
+    for _ in range(abs(steps)):
+        state = turn_wheel(factory, pins, 1 if steps > 0 else -1, state=state)
+        stamps.append(max(factory.pin(p)._last_change for p in pins))
+    return state, stamps
+
+
+def test_edge_timing_from_the_pin_factorys_stamps(factory: MockFactory) -> None:
+    encoders = encoders_on(factory)
+    # From standing: the batch is timed from its first edge (39 intervals for 40 edges).
+    state, stamps = turn_wheel_timed(factory, LEFT_PINS, 40)
+    encoders.read_phases()
+    left, right = encoders.edge_timing
+    assert left == EdgeTiming(edges=40, span_s=stamps[-1] - stamps[0], intervals=39)
+    assert right == EdgeTiming(edges=0, span_s=None, intervals=0)
+    # Moving on: timed from the newest edge before the batch (every interval counted).
+    state, more = turn_wheel_timed(factory, LEFT_PINS, -12, state=state)
+    encoders.read_phases()
+    assert encoders.edge_timing[0] == EdgeTiming(edges=12, span_s=more[-1] - stamps[-1],
+                                                 intervals=12)
+    # A period without edges, then one edge: standing still, so its time is not known.
+    encoders.read_phases()
+    state, one = turn_wheel_timed(factory, LEFT_PINS, 1, state=state)
+    encoders.read_phases()
+    assert encoders.edge_timing[0] == EdgeTiming(edges=1, span_s=None, intervals=0)
+    # An edge long after the one before is a new start too, even between two busy reads.
+    late_after = one[-1] + MAX_EDGE_GAP_S
+    while time.monotonic() <= late_after:  # the signal's own timing: edges 0.1 s apart
+        time.sleep(late_after - time.monotonic() + 1e-4)
+    state, late = turn_wheel_timed(factory, LEFT_PINS, 3, state=state)
+    encoders.read_phases()
+    assert encoders.edge_timing[0] == EdgeTiming(edges=3, span_s=late[-1] - late[0],
+                                                 intervals=2)
+    encoders.close()
+
+
+def encoder_samples(tool: Bus) -> list[Encoders]:
+    samples: list[Encoders] = []
+    tool.subscribe(ENCODERS.key(tool.keys, "wheels"),
+                   lambda k, p, t: samples.append(decode(p, topic=ENCODERS).data),
+                   latest=False)
+    return samples
+
+
+@pytest.mark.asyncio
+async def test_encoders_component_publishes_wheel_speed_from_edge_times(
+        factory: MockFactory) -> None:
+    net = InProcessTransport()
+    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    backend = encoders_on(factory)
+    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
+                                 mode=DirectionMode.PHASE, initial_states=backend.current_states())
+    samples = encoder_samples(tool)
+    await encoders.start()
+    await eventually(lambda: len(samples) >= 2, what="samples of standing wheels")
+    assert samples[-1].left_rad_s == samples[-1].right_rad_s == 0.0
+    # Edges driven on the loop, between two reads: one batch per wheel.
+    _, left = turn_wheel_timed(factory, LEFT_PINS, 80)
+    _, right = turn_wheel_timed(factory, RIGHT_PINS, -20)
+    await eventually(lambda: samples[-1].left_edges == 80, what="the batch's sample")
+    sample = next(s for s in samples if s.left_edges == 80)
+    edge_rad = 2 * math.pi / 4096
+    assert sample.left_rad_s == pytest.approx(79 * edge_rad / (left[-1] - left[0]))
+    assert sample.right_rad_s == pytest.approx(-19 * edge_rad / (right[-1] - right[0]))
+    assert sample.left_rad_s > 0 > sample.right_rad_s
+    # The next period has no edges: the wheels turned less than one edge.
+    await eventually(lambda: samples[-1] is not sample, what="the next sample")
+    assert samples[-1].left_rad_s == 0.0 and samples[-1].dropped == 0
+    assert wheel_speed_rad_s(5, EdgeTiming(edges=5, span_s=None, intervals=0)) is None
+    await encoders.aclose()
+    await robot.aclose()
+    await tool.aclose()
+
+
+@pytest.mark.asyncio
+async def test_encoders_component_on_mock_pins_in_commanded_mode(factory: MockFactory) -> None:
+    # The thesis's mode: the sign comes from the motors' command, not from the A/B order.
+    net = InProcessTransport()
+    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    backend = encoders_on(factory)
+    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
+                                 mode=DirectionMode.COMMANDED,
+                                 initial_states=backend.current_states())
+    samples = encoder_samples(tool)
+    await encoders.start()
+    await eventually(lambda: bool(samples), what="the first sample")
+    assert samples[-1].mode == "commanded"
+    tool.publisher(MOTORS, "main").publish({
+        "speed": 0.0, "turn": 60.0, "left_ms": 1.3, "right_ms": 1.8, "left_dir": -1,
+        "right_dir": 1, "reason": "command"})
+    await eventually(lambda: (encoders.left.commanded_direction,
+                              encoders.right.commanded_direction) == (-1, 1),
+                     what="the commanded directions")
+    turn_wheel(factory, LEFT_PINS, 40)  # the A/B order says forward ...
+    turn_wheel(factory, RIGHT_PINS, -24)  # ... and backward
+    await eventually(lambda: (samples[-1].left_edges, samples[-1].right_edges)
+                     == (-40, 24), what="edges with the commanded signs")
+    sample = next(s for s in samples if s.left_edges == -40)
+    assert sample.left_rad_s is not None and sample.right_rad_s is not None
+    assert sample.left_rad_s < 0 < sample.right_rad_s  # the speed has the commanded sign too
+    assert samples[-1].errors == 0
+    await encoders.aclose()
+    await robot.aclose()
+    await tool.aclose()
+
+
+@pytest.mark.asyncio
+async def test_encoders_component_counts_edges_the_buffer_dropped(factory: MockFactory) -> None:
+    net = InProcessTransport()
+    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    backend = GpioEncoderBackend(factory=factory, left_a=LEFT_PINS[0], left_b=LEFT_PINS[1],
+                                 right_a=RIGHT_PINS[0], right_b=RIGHT_PINS[1], pull="down",
+                                 max_pending=16)
+    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
+                                 mode=DirectionMode.PHASE, initial_states=backend.current_states())
+    samples = encoder_samples(tool)
+    await encoders.start()
+    await eventually(lambda: bool(samples), what="the first sample")
+    turn_wheel(factory, LEFT_PINS, 100)  # between two reads: 84 more than the buffer holds
+    await eventually(lambda: samples[-1].dropped > 0, what="the overflow's sample")
+    sample = samples[-1]
+    # 84 dropped edges are a whole number of cycles: the decoder sees valid steps and counts
+    # only the 16 kept, without an error — ``dropped`` is what says the count is short.
+    assert (sample.dropped, sample.left_edges, sample.errors) == (84, 16, 0)
+    assert sample.left_rad_s is None  # edges missing: no speed from this batch
+    assert backend.overflowed == 84
+    turn_wheel(factory, LEFT_PINS, 8, state=0)
+    await eventually(lambda: samples[-1].left_edges == 24, what="counting on")
+    assert samples[-1].dropped == 84
+    await encoders.aclose()
+    await robot.aclose()
+    await tool.aclose()
+
+
 class WiredRobot:
     """Mock wiring for the check: while a motor's pulse is outside its dead zone, a thread
     turns that wheel's encoder (the right one's A/B swapped when ``swap_right``)."""
@@ -242,8 +476,20 @@ def test_wiring_check_passes_on_good_wiring(
         ("left", 1, True), ("left", -1, True), ("right", 1, True), ("right", -1, True)]
     assert steps[0].edges["left"] > 40 and steps[0].edges["right"] == 0
     assert steps[3].edges["right"] < -40
-    assert "FAIL" not in out.getvalue()
+    report = out.getvalue()
+    assert "FAIL" not in report
+    # Counts (four edges each) are what it reports, the edges beside them.
+    left = steps[0].edges["left"]
+    assert steps[0].counts == {"left": left / 4, "right": 0.0}
+    assert f"left {left / 4:+8.2f} counts ({left:+d} edges)" in report
+    assert report.startswith("left forward: ")  # said before the wheel spins
     assert backend_pulses(factory) == (1.55, 1.56)  # stopped at the end
+    # The init pulse armed the drivers for two whole periods before the first stop pulse.
+    first = holds(factory.pin("GPIO12").states)
+    init = next(i for i, (duty, _) in enumerate(first)
+                if duty == pytest.approx(DEFAULT_PWM.init_ms / 20.0))
+    assert first[init][1] >= HOLD_S
+    assert first[init + 1][0] == pytest.approx(1.55 / 20.0)
 
 
 def backend_pulses(factory: MockFactory) -> tuple[float, float]:
@@ -259,3 +505,29 @@ def test_wiring_check_names_a_swapped_encoder(factory: MockFactory) -> None:
     assert [s.passed for s in steps] == [True, True, False, False]
     assert "swap right_a and right_b" in steps[2].advice
     assert "FAIL: the right wheel counted backwards" in out.getvalue()
+
+
+def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory) -> None:
+    # SIGTERM or Ctrl-C arrives as Interrupted wherever the check is (here: while the left
+    # wheel spins); the stop pulse is applied and held two periods before it is raised.
+    motors = motors_on(factory)
+    sleeps: list[float] = []
+
+    def sleep(seconds: float) -> None:
+        sleeps.append(seconds)
+        if len(sleeps) == 3:  # init hold, settle, then the first spin
+            raise Interrupted(signal.SIGTERM)
+        time.sleep(seconds)
+
+    with pytest.raises(Interrupted):
+        run_check(motors=motors, encoders=encoders_on(factory), left=LEFT_TRIM.calibration(),
+                  right=RIGHT_TRIM.calibration(), spin_s=10.0, settle_s=0.05, out=io.StringIO(),
+                  sleep=sleep)
+    assert sleeps[:3] == [HOLD_S, 0.05, 10.0]
+    motors.close()
+    history = holds(factory.pin("GPIO12").states)
+    spin = LEFT_TRIM.calibration().pulse_ms(30)
+    assert [duty for duty, _ in history][-2:] == [pytest.approx(spin / 20.0),
+                                                   pytest.approx(1.55 / 20.0)]
+    assert history[-1][1] >= HOLD_S  # the stop pulse, held, then the pins released
+    assert factory.pin("GPIO12").state == 0

@@ -4,21 +4,34 @@
 * the device packages and ``components/standalone.py`` import neither the simulator
   (``components.sim``) nor launch (``ubf_async.launch``): they find a simulator, like any
   backend, through the registry;
-* only the simulator imports pymunk.
+* only the simulator imports pymunk;
+* only the hardware backends (and ``components/hardware.py``, what they share) import the
+  hardware libraries, gpiozero and smbus2: they are an optional extra, and a robot without
+  them (the simulated one) runs — checked by running it with both made unimportable.
 
 Static imports only (``import``/``from … import`` anywhere in a module, including inside
-functions and ``if TYPE_CHECKING:``); a plug-in loaded by name at run time is the point.
+functions and ``if TYPE_CHECKING:``), and imports by a literal name
+(``importlib.import_module("x")``, ``hardware.require("x", ...)``); a plug-in loaded by name at
+run time is the point.
 """
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 DEVICE_PACKAGES = ("camera", "motors", "encoders", "range", "radio")
+HARDWARE_LIBRARIES = ("gpiozero", "smbus2")
+HARDWARE_BACKENDS = ("components/hardware.py", "components/motors/gpio.py",
+                     "components/encoders/gpio.py", "components/range/i2c.py")
+"""The modules that may import the hardware libraries."""
+IMPORTERS = {"import_module", "require", "__import__"}
+"""Calls whose first argument, a literal, names a module they import."""
 
 
 def imported_modules(path: Path) -> set[str]:
@@ -27,7 +40,14 @@ def imported_modules(path: Path) -> set[str]:
     package = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
     found: set[str] = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
+        if isinstance(node, ast.Call) and node.args:
+            func = node.func
+            called = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            first = node.args[0]
+            if called in IMPORTERS and isinstance(first, ast.Constant) \
+                    and isinstance(first.value, str):
+                found.add(first.value)
+        elif isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
             if node.level:
@@ -80,11 +100,114 @@ def test_only_the_simulator_imports_pymunk() -> None:
     assert offending(modules_under("components", "sim"), "pymunk"), "the check finds nothing"
 
 
+def project_sources() -> list[Path]:
+    """Every module of the project but its tests (which use the libraries' own test
+    facilities, gpiozero's mock pins among them)."""
+    skip = {".venv", ".git", "build", "tests"}
+    return [p for p in ROOT.rglob("*.py") if not skip & set(p.relative_to(ROOT).parts)]
+
+
+def test_only_the_hardware_backends_import_the_hardware_libraries() -> None:
+    allowed = {ROOT / p for p in HARDWARE_BACKENDS}
+    outside = [p for p in project_sources() if p not in allowed]
+    assert offending(outside, *HARDWARE_LIBRARIES) == {}
+    found = offending(sorted(allowed), *HARDWARE_LIBRARIES)
+    # The check finds what the backends import, statically and by name.
+    assert "gpiozero" in found["components/motors/gpio.py"]
+    assert "smbus2" in found["components/range/i2c.py"]  # hardware.require("smbus2", ...)
+
+
 def test_the_checker_sees_relative_and_nested_imports(tmp_path: Path) -> None:
     module = ROOT / "components" / "camera" / "_probe_for_test.py"
-    source = "def f():\n    from ..sim import world\n    import pymunk\n"
+    source = ("def f():\n    from ..sim import world\n    import pymunk\n"
+              "    hardware.require('gpiozero.pins', who='x')\n"
+              "    importlib.import_module('smbus2')\n")
     try:
         module.write_text(source, "utf-8")
-        assert {"components.sim", "components.sim.world", "pymunk"} <= imported_modules(module)
+        assert {"components.sim", "components.sim.world", "pymunk", "gpiozero.pins",
+                "smbus2"} <= imported_modules(module)
     finally:
         module.unlink()
+
+
+BLOCKER = """
+import os
+import sys
+
+
+class Blocker:
+    \"\"\"gpiozero and smbus2 as if not installed; every attempt to import them is logged.\"\"\"
+
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in ("gpiozero", "smbus2"):
+            with open(os.environ["UBF_TEST_BLOCKED_LOG"], "a") as log:
+                log.write(name + "\\n")
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+
+
+sys.meta_path.insert(0, Blocker())
+"""
+
+
+def without_hardware_libraries(tmp_path: Path) -> tuple[dict[str, str], Path]:
+    """An environment whose Python cannot import gpiozero or smbus2 (a meta path blocker in a
+    ``sitecustomize`` on ``PYTHONPATH``), and the file logging each attempt."""
+    import os
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(BLOCKER)
+    log = tmp_path / "blocked.log"
+    log.touch()
+    env = {**os.environ, "PYTHONPATH": str(site), "UBF_TEST_BLOCKED_LOG": str(log)}
+    return env, log
+
+
+def test_a_simulated_robot_runs_without_the_hardware_libraries(tmp_path: Path,
+                                                               endpoint: str) -> None:
+    env, log = without_hardware_libraries(tmp_path)
+    probe = subprocess.run([sys.executable, "-c", "import gpiozero"], cwd=ROOT, env=env,
+                           capture_output=True, text=True, timeout=60)
+    assert "ModuleNotFoundError: No module named 'gpiozero'" in probe.stderr  # blocked
+    log.write_text("")
+    result = subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", "--duration", "1", "--quiet",
+         "--listen", endpoint, "--summary", str(tmp_path / "summary.json")],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "ubf_async: stopped" in result.stdout
+    assert (tmp_path / "summary.json").exists()
+    assert log.read_text() == ""  # nothing even tried to import them
+
+
+def test_hardware_backends_say_how_to_install_what_they_need(tmp_path: Path) -> None:
+    # The framework, the device kinds and the backends' modules load without the libraries;
+    # building a hardware backend says which extra to install.
+    env, log = without_hardware_libraries(tmp_path)
+    code = """
+import ubf_async.launch, components.motors.component, components.encoders.component
+import components.range.component, components.motors.gpio, components.encoders.gpio
+import components.range.i2c
+from ubf_async.robotfile import load_robot
+load_robot("mini-whegs")
+from ubf_async.errors import ConfigurationError
+from components.range.i2c import i2c_backend
+from components.motors.gpio import gpio_backend
+for build in (lambda: i2c_backend(context=None),
+              lambda: gpio_backend(context=None, left_pin="GPIO12", right_pin="GPIO13")):
+    try:
+        build()
+    except ConfigurationError as exc:
+        print(exc)
+"""
+    result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 2
+    assert lines[0].startswith("range.i2c needs smbus2")
+    assert lines[1].startswith("motors.gpio needs gpiozero")
+    assert all(line.endswith('install the hardware extra: pip install -e ".[hardware]"')
+               for line in lines)
+    assert log.read_text().split() == ["smbus2", "gpiozero"]  # only when a backend is built

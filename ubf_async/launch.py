@@ -352,7 +352,13 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             robot = robot.reseeded(seed)
         context = DeviceContext(bus=bus, clock=clock, seed=seed,
                                 simulation=sim_run.world if sim_run is not None else None)
-        devices = [device.build(context=context) for device in plan.devices]
+        devices: list[Component] = []
+        try:
+            for device in plan.devices:
+                devices.append(device.build(context=context))
+        except BaseException:  # the ones built hold their pins and buses: release them
+            await _close_all(devices, None, None)
+            raise
         spec = robot.spec
         settings = plan.controller
         # The robot's own sources are never evicted to make room for unknown ones.
@@ -459,16 +465,20 @@ async def save_results(sim_run: SimulationRun, controller: Controller, out: Text
     return failure
 
 
-async def _close_all(components: list[Component], health: HealthMonitor, bus: Bus) -> None:
-    """Close the components (last started first), the health monitor and the session; a
-    step that fails is logged and the others still run (a session left open would keep the
-    process from exiting)."""
+async def _close_all(components: list[Component], health: HealthMonitor | None,
+                     bus: Bus | None) -> None:
+    """Close the components (last started first), the health monitor and the session (those
+    given); a step that fails is logged and the others still run (a session left open would
+    keep the process from exiting)."""
     for component in reversed(components):
         try:
             await component.aclose()
         except Exception:
             log.exception("closing component %s failed", component.name)
-    health.close()
+    if health is not None:
+        health.close()
+    if bus is None:
+        return
     try:
         await bus.aclose()
     except Exception:

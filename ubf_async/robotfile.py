@@ -362,10 +362,17 @@ class ResolvedDevice:
         return requires_simulator(self.backend_factory)
 
     def build(self, *, context: DeviceContext) -> Component:
-        """Build the backend and the device component (launch calls this)."""
+        """Build the backend and the device component (launch calls this). A device that
+        refuses its backend closes it (pins and buses are not left held)."""
         backend = self.backend_factory(context=context, **self.backend_params)
-        return build_device(self.factory, kind=self.kind, name=self.name, backend=backend,
-                            params=self.params, context=context)
+        try:
+            return build_device(self.factory, kind=self.kind, name=self.name, backend=backend,
+                                params=self.params, context=context)
+        except BaseException:
+            close = getattr(backend, "close", None)
+            if callable(close):
+                close()
+            raise
 
 
 @dataclass(slots=True)

@@ -132,6 +132,11 @@ class Encoders(Data, frozen=True, kw_only=True):
     right_counts: Finite | None = None
     errors: Count = 0
     mode: Literal["commanded", "phase"] | None = None
+    left_rad_s: Finite | None = None
+    """Wheel speed from the edges' time stamps, where the backend stamps them."""
+    right_rad_s: Finite | None = None
+    dropped: Count = 0
+    """Edges lost because they came faster than they were read (the backend's buffer)."""
 
 
 class Odometry(Data, frozen=True, kw_only=True):

@@ -2,9 +2,31 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EdgeTiming:
+    """How long one wheel's edges of one :meth:`EncoderBackend.read_phases` batch took, by the
+    edges' own time stamps (the pin factory's, the kernel's on lgpio).
+
+    Only differences between edge stamps are used: the stamps' clock differs between pin
+    factories and kernels (monotonic, real time, a wrapping µs counter), so they are never
+    compared with the robot's clock."""
+
+    edges: int
+    """Edges in the batch."""
+    span_s: float | None
+    """Seconds the batch's edges took: from the newest edge before the batch (if the wheel
+    was moving: at most :data:`components.encoders.gpio.MAX_EDGE_GAP_S` before the batch's
+    first) or else from the batch's first edge, to its newest. ``None`` when unknown: no
+    edges, a single edge after standing still, or edges dropped from the batch."""
+    intervals: int
+    """Edge-to-edge intervals ``span_s`` covers: ``edges``, or ``edges − 1`` when it starts at
+    the batch's first edge."""
 
 
 class EncoderBackend(Protocol):
@@ -15,6 +37,11 @@ class EncoderBackend(Protocol):
     level change (a real line may glitch: false edges appear as a state and its immediate
     reversal). The decoder remembers the last state of the previous batch, so an empty array
     simply means "no edges".
+
+    Optional, for a backend that stamps edges: ``edge_timing``, one :class:`EdgeTiming` per
+    wheel (left, right) for the batch the last ``read_phases()`` returned — the encoders
+    component turns it into each wheel's speed; and ``overflowed``, the edges dropped so far
+    because they came faster than they were read.
     """
 
     def read_phases(self) -> tuple[np.ndarray, np.ndarray]:

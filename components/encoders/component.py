@@ -6,6 +6,14 @@ or from the phase order), integrates odometry, and publishes
 ``sensor/encoders/<name>`` (schema ``encoders``) and ``sensor/odometry/<name>`` (schema
 ``odometry``). The commanded directions come from the motors' ``motors.applied`` samples
 (``sensor/motors/*``); malformed ones are counted and ignored.
+
+A backend that stamps its edges (``encoders.gpio``: ``edge_timing``) also gives each wheel's
+speed, ``left_rad_s`` / ``right_rad_s``: the period's decoded edges over the time those edges
+took by their stamps (:func:`wheel_speed_rad_s`) — at low speed a period holds a few edges or
+none, and edges per period would jump between 0 and a few times the true speed. A period
+without edges reads 0 (the wheel turned less than one edge: under 2π/4096 rad per period);
+``None`` when the time is not known (a single edge after standing still, dropped edges). Its
+dropped edges (``overflowed``) are published as ``dropped``.
 """
 
 from __future__ import annotations
@@ -15,7 +23,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from components.encoders.backend import EncoderBackend
+from components.encoders.backend import EdgeTiming, EncoderBackend
 from components.encoders.odometry import EFFECTIVE_TRACK_M, Odometry, Pose2D
 from components.encoders.quadrature import (
     DirectionMode,
@@ -28,6 +36,19 @@ from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import every
 from ubf_async.component import Component
 from ubf_async.topics import ENCODERS, MOTORS, ODOMETRY
+
+
+def wheel_speed_rad_s(edges: int, timing: EdgeTiming,
+                      geometry: MiniWhegsGeometry = MINI_WHEGS) -> float | None:
+    """A wheel's speed from ``edges`` decoded (signed) edges of one batch and how long the
+    batch's edges took; 0 for a batch without edges, ``None`` when the time is unknown."""
+    if timing.edges == 0:
+        return 0.0
+    if timing.span_s is None or not timing.span_s > 0 or timing.intervals <= 0:
+        return None
+    # ``edges`` is the net of the batch's edges; the span covers ``intervals`` of them.
+    per_interval = edges / timing.edges
+    return edges_to_radians(per_interval * timing.intervals, geometry) / timing.span_s
 
 
 class EncodersComponent(Component):
@@ -74,12 +95,21 @@ class EncodersComponent(Component):
             pose = self.odometry.update(
                 edges_to_radians(d_left, self.geometry), edges_to_radians(d_right, self.geometry)
             )
-            counts_pub.publish({
+            counts = {
                 "left_edges": self.left.edges, "right_edges": self.right.edges,
                 "left_counts": edges_to_counts(self.left.edges, self.geometry),
                 "right_counts": edges_to_counts(self.right.edges, self.geometry),
                 "errors": self.left.errors + self.right.errors, "mode": mode,
-            }, stamp_ns=stamp)
+            }
+            timing = getattr(self.backend, "edge_timing", None)
+            if timing is not None:  # a backend that stamps its edges
+                left_timing, right_timing = timing
+                counts["left_rad_s"] = wheel_speed_rad_s(d_left, left_timing, self.geometry)
+                counts["right_rad_s"] = wheel_speed_rad_s(d_right, right_timing, self.geometry)
+            dropped = getattr(self.backend, "overflowed", None)
+            if dropped is not None:
+                counts["dropped"] = int(dropped)
+            counts_pub.publish(counts, stamp_ns=stamp)
             odom_pub.publish(
                 {"x_m": pose.x_m, "y_m": pose.y_m, "heading_rad": pose.heading_rad},
                 stamp_ns=stamp,

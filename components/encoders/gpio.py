@@ -9,8 +9,16 @@ never handled on the event loop. The encoders component takes the batch every ``
 :class:`~components.encoders.quadrature.QuadratureDecoder`, in either direction mode.
 
 A buffer that fills between two reads (more than ``max_pending`` edges: a component stalled
-for a long time) drops the oldest edges and counts them in ``overflowed``; the decoder then
-sees a jump, which it counts as an error rather than guessing.
+for a long time) drops the oldest edges and counts them in ``overflowed`` (the encoders
+component publishes it as ``dropped``); the decoder then sees a jump, which it counts as an
+error rather than guessing, or — when a multiple of four edges was dropped — a valid step,
+which is why the count of dropped edges is the number to watch.
+
+Edge times: each batch's :class:`~components.encoders.backend.EdgeTiming` (``edge_timing``)
+says how long its edges took, from the edges' own stamps — differences only, through the pin
+factory's ``ticks_diff`` (the stamps' clock differs between factories and kernels; pigpio's
+wraps). The encoders component divides each wheel's decoded edges by it: the wheel's speed,
+finer than counting edges per period at low speed, where a period holds a few edges or none.
 """
 
 from __future__ import annotations
@@ -24,11 +32,17 @@ import msgspec
 import numpy as np
 
 from components import hardware
+from components.encoders.backend import EdgeTiming
 from ubf_async.simulation import DeviceContext
 
 log = logging.getLogger(__name__)
 
 Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
+
+MAX_EDGE_GAP_S = 0.1
+"""An edge this long or longer after the one before it starts a movement: the wait is not
+counted into the speed (a wheel standing still, then turning, would otherwise read slow for a
+period). At one edge per 0.1 s the Mini-WHEGS wheel turns 0.015 rad/s: slower is standing."""
 
 
 class _Wheel:
@@ -47,7 +61,12 @@ class _Wheel:
         self._states: deque[int] = deque(maxlen=max_pending)
         self._ticks: deque[Any] = deque(maxlen=max_pending)
         self.overflowed = 0
+        self._dropped = 0  # of the batch being gathered
         self.edges_seen = 0
+        self.newest_tick: Any = None
+        """The stamp of the newest edge taken so far (in an earlier batch)."""
+        self.moving = False
+        """Whether the last batch taken had edges."""
         for pin in (self.a, self.b):
             pin.input_with_pull(pull)
             pin.edges = "both"
@@ -76,17 +95,38 @@ class _Wheel:
                 self._b = b
             if len(self._states) == self._states.maxlen:
                 self.overflowed += 1
+                self._dropped += 1
             self._states.append((self._a << 1) | self._b)
             self._ticks.append(ticks)
             self.edges_seen += 1
 
-    def take(self) -> tuple[np.ndarray, list[Any]]:
+    def take(self) -> tuple[np.ndarray, EdgeTiming]:
+        """The states since the last take, and how long their edges took."""
         with self._lock:
             states = np.fromiter(self._states, dtype=np.uint8, count=len(self._states))
             ticks = list(self._ticks)
+            dropped, self._dropped = self._dropped, 0
             self._states.clear()
             self._ticks.clear()
-        return states, ticks
+        timing = self._timing(ticks, dropped=dropped)
+        if ticks:
+            self.newest_tick = ticks[-1]
+        self.moving = bool(ticks)
+        return states, timing
+
+    def _timing(self, ticks: list[Any], *, dropped: int) -> EdgeTiming:
+        edges = len(ticks)
+        if not ticks or dropped:  # nothing to time, or edges missing from what is counted
+            return EdgeTiming(edges=edges, span_s=None, intervals=0)
+        diff = self.factory.ticks_diff
+        if self.moving and self.newest_tick is not None \
+                and diff(ticks[0], self.newest_tick) < MAX_EDGE_GAP_S:
+            return EdgeTiming(edges=edges, span_s=diff(ticks[-1], self.newest_tick),
+                              intervals=edges)
+        if edges >= 2:  # the wheel started within this batch: time it from its first edge
+            return EdgeTiming(edges=edges, span_s=diff(ticks[-1], ticks[0]),
+                              intervals=edges - 1)
+        return EdgeTiming(edges=edges, span_s=None, intervals=0)
 
     def close(self) -> None:
         for pin in (self.a, self.b):
@@ -114,8 +154,9 @@ class GpioEncoderBackend:
         except Exception:
             self.left.close()
             raise
-        self.last_edge_ticks: tuple[Any, Any] = (None, None)
-        """The pin factory's time of each wheel's newest edge (kernel-stamped on lgpio)."""
+        self.edge_timing: tuple[EdgeTiming, EdgeTiming] = (
+            EdgeTiming(edges=0, span_s=None, intervals=0),) * 2
+        """How long each wheel's edges of the last :meth:`read_phases` batch took."""
         self._closed = False
 
     def current_states(self) -> tuple[int, int]:
@@ -123,10 +164,14 @@ class GpioEncoderBackend:
         return self.left.state(), self.right.state()
 
     def read_phases(self) -> tuple[np.ndarray, np.ndarray]:
-        (left, left_ticks), (right, right_ticks) = self.left.take(), self.right.take()
-        self.last_edge_ticks = (left_ticks[-1] if left_ticks else self.last_edge_ticks[0],
-                                right_ticks[-1] if right_ticks else self.last_edge_ticks[1])
+        (left, left_timing), (right, right_timing) = self.left.take(), self.right.take()
+        self.edge_timing = (left_timing, right_timing)
         return left, right
+
+    @property
+    def last_edge_ticks(self) -> tuple[Any, Any]:
+        """The pin factory's stamp of each wheel's newest edge read (``None``: none yet)."""
+        return self.left.newest_tick, self.right.newest_tick
 
     @property
     def overflowed(self) -> int:

@@ -21,6 +21,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                               "real PWM pins (--backend-params '{left_pin: GPIO12, right_pin: "
                               "GPIO13}'). Check a real robot's wiring with --check "
                               "--robot-file FILE")
+    # Only for --help: main() hands a command line with --check to the check before parsing.
+    check = parser.add_argument_group("wiring check (instead of running the driver)")
+    check.add_argument("--check", action="store_true",
+                       help="spin each wheel of a real robot briefly, one at a time, and report "
+                            "the encoder counts it produced, to verify the wiring: --check "
+                            "--robot-file FILE (lift the robot first; --check --help lists "
+                            "the check's options)")
 
 
 def device_params(args: argparse.Namespace) -> dict[str, Any]:

@@ -10,6 +10,12 @@ class MotorBackend(Protocol):
 
     The HAL has already mapped speed/turn to pulse widths and compensated each motor with its
     calibration table; the backend applies them as they are.
+
+    A backend that drives real PWM outputs also has ``hold_s`` (seconds): how long the init
+    pulse and the stop pulse must stay on its pins for the motor controllers to see them
+    (:data:`components.motors.pwm.HOLD_PERIODS` periods). The motors component holds each that
+    long — awaiting, never blocking the event loop — before the next pulse and before the
+    backend is closed. A backend without it (the simulator's) applies a pulse at once.
     """
 
     def apply_pulses(self, *, left_ms: float, right_ms: float) -> None:

@@ -2,29 +2,90 @@
 
 Spins each wheel briefly forward and backward, one at a time, through the robot file's
 ``motors`` and ``encoders`` backends (real pins; nothing else of the robot starts, no zenoh),
-and reports the encoder edges each wheel produced. A step passes when the commanded wheel
-moved (at least ``--min-edges``), the other one did not, and its edges had the commanded
-sign; a failed step says what to fix (pins, A/B order, the motor's dead zone). The wheels are
-stopped after each step and at the end, whatever ends the check.
+and reports the encoder counts (and edges) each wheel produced. A step passes when the
+commanded wheel moved (at least ``--min-edges``), the other one did not, and its edges had the
+commanded sign; a failed step says what to fix (pins, A/B order, the motor's dead zone). The
+wheels are stopped after each step and at the end, whatever ends the check.
 
 Lift the robot (wheels off the ground) before running it.
+
+Stopping: SIGTERM or Ctrl-C (SIGINT) raises :class:`Interrupted` in the check wherever it is;
+the check then applies the stop pulses, holds them for the backend's ``hold_s`` (two PWM
+periods) and releases the pins, and exits with 128 + the signal's number. Signals after the
+first are ignored while that bounded shutdown runs, so they cannot cut the stop pulse short.
+The check runs on no event loop: its waits are plain sleeps.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from types import FrameType
 from typing import Any, TextIO
 
-from components.encoders.quadrature import DirectionMode, QuadratureDecoder
+from components.encoders.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
 from components.miniwhegs import MINI_WHEGS
-from components.motors.pwm import DEFAULT_PWM, MotorCalibration
+from components.motors.pwm import DEFAULT_PWM, MotorCalibration, hold_s
 from ubf_async.errors import ConfigurationError, UbfError
 
 WHEELS = ("left", "right")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(BaseException):
+    """SIGTERM or Ctrl-C during the check. A ``BaseException``, like ``KeyboardInterrupt``, so
+    that no ``except Exception`` on the way swallows it."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+
+@contextlib.contextmanager
+def signals_interrupt() -> Iterator[None]:
+    """While the block runs (in the main thread), the first SIGINT or SIGTERM raises
+    :class:`Interrupted`; later ones are ignored (the shutdown they would interrupt is the
+    stop pulse's bounded hold and the release of the pins)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals reach only the main thread
+        return
+    received: list[int] = []
+
+    def handle(signum: int, frame: FrameType | None) -> None:
+        received.append(signum)
+        if len(received) == 1:
+            raise Interrupted(signum)
+
+    previous = {sig: signal.signal(sig, handle) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def hold(seconds: float, sleep: Callable[[float], None] = time.sleep) -> None:
+    """Sleep ``seconds`` of wall time in full, even through an :class:`Interrupted`, which is
+    raised once the time is up: a pulse being held is never cut short."""
+    deadline = time.monotonic() + seconds
+    interrupted: Interrupted | None = None
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            sleep(left)
+        except Interrupted as exc:
+            interrupted = exc
+    if interrupted is not None:
+        raise interrupted
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -38,26 +99,42 @@ class Step:
     passed: bool
     advice: str
 
+    @property
+    def counts(self) -> dict[str, float]:
+        """Signed encoder counts per wheel (full quadrature cycles: four edges each)."""
+        return {w: edges_to_counts(e, MINI_WHEGS) for w, e in self.edges.items()}
+
 
 def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: MotorCalibration,
               u: float = 30.0, spin_s: float = 1.0, settle_s: float = 0.3,
               min_edges: int = 40, out: TextIO = sys.stdout,
               sleep: Callable[[float], None] = time.sleep) -> list[Step]:
-    """Spin each wheel at wheel command ``±u`` for ``spin_s`` and judge the encoders."""
+    """Spin each wheel at wheel command ``±u`` for ``spin_s`` and judge the encoders.
+
+    The init pulse and the final stop pulse are held for the motors' ``hold_s`` (two PWM
+    periods) with ``sleep``, whatever ends the check: the caller may release the pins as soon
+    as this returns or raises."""
     calibrations = {"left": left, "right": right}
     stop = {"left_ms": left.zero_ms, "right_ms": right.zero_ms}
+    held = float(getattr(motors, "hold_s", hold_s(DEFAULT_PWM.period_ms)))
     decoders = {w: QuadratureDecoder(mode=DirectionMode.PHASE, initial_state=s)
                 for w, s in zip(WHEELS, encoders.current_states(), strict=True)}
     steps: list[Step] = []
     try:
         motors.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
+        sleep(held)  # the drivers arm on whole periods of the init pulse
         motors.apply_pulses(**stop)
         sleep(settle_s)
         encoders.read_phases()  # forget what arming the drivers moved
         for wheel in WHEELS:
             for direction in (1, -1):
                 pulse = calibrations[wheel].pulse_ms(direction * u)
+                name = "forward" if direction > 0 else "reverse"
                 motors.apply_pulses(**{**stop, f"{wheel}_ms": pulse})
+                # Said as it spins: the builder watching the robot knows which wheel should
+                # be turning.
+                print(f"{wheel} {name}: {pulse:.3f} ms for {spin_s:g} s ...", file=out,
+                      flush=True)
                 sleep(spin_s)
                 motors.apply_pulses(**stop)
                 sleep(settle_s)
@@ -65,14 +142,16 @@ def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: Moto
                 edges = {w: decoders[w].feed(phases[w]) for w in WHEELS}
                 step = _judge(wheel, direction, edges, min_edges=min_edges)
                 steps.append(step)
+                counts = step.counts
                 revs = edges[wheel] / MINI_WHEGS.edges_per_rev
-                print(f"{wheel:>5} {'forward' if direction > 0 else 'reverse':<8} "
-                      f"({pulse:.3f} ms): left {edges['left']:+6d} edges, right "
-                      f"{edges['right']:+6d} edges ({revs:+.2f} rev)  "
+                print(f"  left {counts['left']:+8.2f} counts ({edges['left']:+d} edges), "
+                      f"right {counts['right']:+8.2f} counts ({edges['right']:+d} edges): "
+                      f"{revs:+.2f} rev of the {wheel} wheel  "
                       f"{'ok' if step.passed else 'FAIL: ' + step.advice}", file=out,
                       flush=True)
     finally:
         motors.apply_pulses(**stop)
+        hold(held, sleep)  # whole periods of the stop pulse before the pins can be released
     return steps
 
 
@@ -112,25 +191,43 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 0 < args.u <= 100:
         parser.error(f"--u must be within (0, 100], got {args.u}")
-    try:
-        motors, encoders, left, right = _backends(args.robot_file)
-    except UbfError as exc:
-        print(f"{parser.prog}: {exc}", file=sys.stderr)
-        return 2
-    print(f"checking the wiring of {args.robot_file}: each wheel {args.spin_s:g} s forward, "
-          f"then reverse, at u={args.u:g} (Ctrl-C stops the wheels and ends it)", flush=True)
-    try:
-        steps = run_check(motors=motors, encoders=encoders, left=left, right=right, u=args.u,
-                          spin_s=args.spin_s, min_edges=args.min_edges)
-    except KeyboardInterrupt:
-        print("stopped", file=sys.stderr)
-        return 130
-    finally:
-        encoders.close()
-        motors.close()
+    with signals_interrupt():
+        try:
+            steps = _check(args)
+        except UbfError as exc:
+            print(f"{parser.prog}: {exc}", file=sys.stderr)
+            return 2
+        except Interrupted as stop:
+            print(f"{parser.prog}: {stop.name}: the wheels were stopped and the pins released",
+                  file=sys.stderr)
+            return 128 + stop.signum
     failed = [s for s in steps if not s.passed]
     print("wiring ok" if not failed else f"{len(failed)} of {len(steps)} steps failed")
     return 0 if not failed else 1
+
+
+def _check(args: argparse.Namespace) -> list[Step]:
+    motors, encoders, left, right = _backends(args.robot_file)
+    try:
+        print(f"checking the wiring of {args.robot_file}: each wheel {args.spin_s:g} s "
+              f"forward, then reverse, at u={args.u:g} (Ctrl-C or SIGTERM stops the wheels "
+              f"and ends it)", flush=True)
+        return run_check(motors=motors, encoders=encoders, left=left, right=right, u=args.u,
+                         spin_s=args.spin_s, min_edges=args.min_edges)
+    finally:  # run_check has held the stop pulse: the pins can go
+        release(encoders.close, motors.close)
+
+
+def release(*closers: Callable[[], object]) -> None:
+    """Call every closer, even if an :class:`Interrupted` arrives during one (raised after)."""
+    interrupted: Interrupted | None = None
+    for close in closers:
+        try:
+            close()
+        except Interrupted as exc:
+            interrupted = exc
+    if interrupted is not None:
+        raise interrupted
 
 
 def _backends(robot_file: str) -> tuple[Any, Any, MotorCalibration, MotorCalibration]:
@@ -150,7 +247,7 @@ def _backends(robot_file: str) -> tuple[Any, Any, MotorCalibration, MotorCalibra
     motors = motors_dev.backend_factory(context=None, **motors_dev.backend_params)
     try:
         encoders = encoders_dev.backend_factory(context=None, **encoders_dev.backend_params)
-    except Exception:
+    except BaseException:  # Interrupted too: the motor pins are released either way
         motors.close()
         raise
     left, right = motors_dev.params.get("left"), motors_dev.params.get("right")

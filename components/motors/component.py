@@ -20,6 +20,12 @@
   leaves both 90 ms of lag; the watchdog sleeps until the exact deadline (no polling), so
   on an idle host the stop comes ≈ ``T`` + 1–2 ms after the last command
   (``python -m bench.margins`` measures it end to end).
+* **Start and close:** the init pulse arms the drivers, then the stop pulse; closing (or a
+  failure of the run) applies the stop pulse. A real backend's ``hold_s`` (two PWM periods,
+  :data:`~components.motors.pwm.HOLD_PERIODS`) is awaited after the init pulse and after the
+  closing stop pulse, so that the backend is closed (its pins released) only once the drivers
+  have seen whole periods of it; the wait never blocks the event loop, and a second
+  cancellation does not cut it short.
 * Publishes what it applied on ``ubf/<robot>/sensor/motors/<name>`` (schema
   ``motors.applied``), including each wheel's commanded direction, which the encoders use.
 """
@@ -78,6 +84,8 @@ class MotorsComponent(Component):
         self.malformed: dict[str, int] = {}
         self.clamped = 0
         self.timeouts = 0
+        self.ignored = 0
+        """Drive commands that arrived while the stop pulse was held on closing: not applied."""
         self.applied: PulseCommand | None = None
         self.stopped_by_watchdog = True
         self.limit = SilenceLimit(limit_s=timeout_s)
@@ -85,20 +93,48 @@ class MotorsComponent(Component):
         self._last_command_wall_ns = 0
         self._command_resets = 0
         self._armed = asyncio.Event()
+        self._stopping = False
 
     async def run(self) -> None:
         keys = self.bus.keys
         self._applied_pub = self.publisher(MOTORS, self.source_name)
-        # Arm the drivers with the init pulse (inside both dead zones), then hold still.
-        self.backend.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
-        self._apply(0.0, 0.0, reason="init")
-        self.stopped_by_watchdog = True
-        self.subscribe(DRIVE.key(keys), self._on_drive, direct=True)
+        self._stopping = False
         try:
+            # Arm the drivers with the init pulse (inside both dead zones), held for whole
+            # periods so that they see it, then hold still.
+            self.backend.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
+            await self._hold()
+            self._apply(0.0, 0.0, reason="init")
+            self.stopped_by_watchdog = True
+            self.subscribe(DRIVE.key(keys), self._on_drive, direct=True)
             await self._guard()
         finally:  # closed (SIGTERM, Ctrl-C, the run's end) or failed: the wheels stop
+            self._stopping = True  # a command arriving during the hold must not move them
             self.stopped_by_watchdog = True
             self._apply(0.0, 0.0, reason="stopped")
+            # The backend is closed (its pins released) only after this: hold the stop pulse
+            # for whole periods first, even if a second cancellation arrives meanwhile.
+            await self._hold(through_cancel=True)
+
+    async def _hold(self, *, through_cancel: bool = False) -> None:
+        """Wait the backend's ``hold_s`` (wall time: the pins do not run on simulated time)
+        without blocking the loop. With ``through_cancel`` a cancellation waits for the end
+        of the hold (at most ``hold_s``) and is raised after it."""
+        hold_s = float(getattr(self.backend, "hold_s", 0.0))
+        if hold_s <= 0:
+            return
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + hold_s
+        cancelled: asyncio.CancelledError | None = None
+        while (left := deadline - loop.time()) > 0:
+            try:
+                await asyncio.sleep(left)
+            except asyncio.CancelledError as exc:
+                if not through_cancel:
+                    raise
+                cancelled = exc
+        if cancelled is not None:
+            raise cancelled
 
     async def _guard(self) -> None:
         """The watchdog: stop the wheels when commands stop coming."""
@@ -131,6 +167,9 @@ class MotorsComponent(Component):
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key, topic=DRIVE)
         if message is None:
+            return
+        if self._stopping:
+            self.ignored += 1
             return
         speed, turn = message.data.speed, message.data.turn
         safe_speed, safe_turn = clamp_command(speed, turn)

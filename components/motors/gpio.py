@@ -9,9 +9,17 @@ counted: nothing beyond full reverse/forward ever reaches a controller.
 
 Stopping: the motors component applies its calibrated stop pulses on start (after the init
 pulse), on the watchdog and when it closes, whatever ended the process (exception, SIGTERM,
-Ctrl-C all close it). Closing the backend then releases the pins, which ends the pulses; a
-servo-style speed controller without pulses holds still. gpiozero's own exit handler releases
-the pins if the process ends any other way short of ``SIGKILL``.
+Ctrl-C all close it). The init pulse and the closing stop pulse are held for
+:data:`~components.motors.pwm.HOLD_PERIODS` whole periods (:attr:`GpioMotorBackend.hold_s`,
+40 ms at 20 ms) before the next pulse or the release. Closing the backend then releases the
+pins, which ends the pulses; a servo-style speed controller without pulses holds still.
+gpiozero's own exit handler releases the pins if the process ends any other way short of
+``SIGKILL``.
+
+Who holds: :meth:`GpioMotorBackend.close` releases at once and never waits. It is called from
+the motors component's close, on the event loop, where a 40 ms blocking wait would stall every
+other component of the process; the component awaits the hold before it closes the backend.
+Code off the loop (the wiring check, a script) holds with a plain sleep of ``hold_s``.
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ from typing import Annotated, Any
 import msgspec
 
 from components import hardware
-from components.motors.pwm import DEFAULT_PWM
+from components.motors.pwm import DEFAULT_PWM, hold_s
 from ubf_async.simulation import DeviceContext
 
 log = logging.getLogger(__name__)
@@ -46,6 +54,8 @@ class GpioMotorBackend:
         from gpiozero import PWMOutputDevice
 
         self.period_ms = period_ms
+        self.hold_s = hold_s(period_ms)
+        """How long the init and stop pulses stay on the pins (two whole periods)."""
         self.min_ms = min_ms
         self.max_ms = max_ms
         self.clipped = 0
@@ -89,7 +99,10 @@ class GpioMotorBackend:
             return (self._left.value * self.period_ms, self._right.value * self.period_ms)
 
     def close(self) -> None:
-        """Release both pins (the pulses end); calling it again does nothing."""
+        """Release both pins (the pulses end) at once; calling it again does nothing.
+
+        It does not wait: hold the stop pulse for :attr:`hold_s` first (the module docstring
+        says why the caller holds)."""
         with self._lock:
             for device in (self._left, self._right):
                 device.close()

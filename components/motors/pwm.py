@@ -102,6 +102,20 @@ class PwmConfig:
 
 DEFAULT_PWM = PwmConfig()
 
+HOLD_PERIODS = 2
+"""Whole PWM periods the init pulse and the stop pulse stay on the pins before the next pulse
+(after the init pulse) or before the pins are released (after the stop pulse).
+
+A servo-style speed controller measures one pulse per period, and a duty cycle changed in the
+middle of a period can make that period's pulse neither the old width nor the new one: two
+periods guarantee at least one whole period of the new width. Hold times are wall time (the
+pins do not run on simulated time)."""
+
+
+def hold_s(period_ms: float) -> float:
+    """Seconds that :data:`HOLD_PERIODS` periods of ``period_ms`` last."""
+    return HOLD_PERIODS * period_ms / 1000.0
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MotorCharacteristic:

@@ -25,6 +25,7 @@ from components.range.ir import GP2Y0A21, IR_MODELS, IrModel, limit_ir, read_ir
 from ubf_async.bus import Bus
 from ubf_async.clock import every
 from ubf_async.component import Component
+from ubf_async.errors import ConfigurationError
 from ubf_async.topics import RANGE
 
 log = logging.getLogger(__name__)
@@ -100,11 +101,19 @@ def build_device(
 ) -> RangeComponent:
     """The ``range`` device kind: one IR range finder publishing ``sensor/range/<name>``.
 
-    ``model``: a thesis model by range in cm. Mount in the robot frame (REP-103): ``x_m``
-    ahead of the robot's centre, ``y_m`` to its left, ``yaw_deg`` the beam's direction, + to
-    the left of straight ahead. ``period_s``: time between readings (robot clock). ``seed``
-    (the run's, injected) seeds the model's 5–10 % error.
+    ``model``: a thesis model by range in cm; a backend that reads a given model (its
+    ``model``, e.g. ``range.ads1115``'s ``sensor``) must read this one. Mount in the robot
+    frame (REP-103): ``x_m`` ahead of the robot's centre, ``y_m`` to its left, ``yaw_deg``
+    the beam's direction, + to the left of straight ahead. ``period_s``: time between
+    readings (robot clock). ``seed`` (the run's, injected) seeds the model's 5–10 % error.
     """
+    measures = getattr(backend, "model", None)
+    if measures is not None and measures != model:
+        # The backend reads one model's curve, the device applies this model's limits: a
+        # reading of the one judged by the other's range would be wrong without a sign.
+        raise ConfigurationError(
+            f"range {name!r}: its backend reads model {measures} but the device's model is "
+            f"{model}: give both the same model (backend_params sensor, params model)")
     mount = MountPose(x_m=x_m, y_m=y_m, yaw_rad=math.radians(yaw_deg))
     return RangeComponent(bus=bus, backend=backend, name=name, model=IR_MODELS[model],
                           mount=mount, period_s=period_s, seed=seed)

@@ -152,12 +152,15 @@ class Ads1115Ranger(_I2cDevice):
     MAX_POLLS = 20
 
     def __init__(self, *, bus: SMBusLike, address: int, channel: int, curve: SharpCurve,
-                 owns_bus: bool = False) -> None:
+                 owns_bus: bool = False, model: str | None = None) -> None:
         super().__init__(bus=bus, address=address, owns_bus=owns_bus)
         if channel not in range(4):
             raise ValueError(f"ADS1115 channel must be 0–3, got {channel}")
         self.channel = channel
         self.curve = curve
+        self.model = model
+        """The ranger model whose curve this reads (the range device checks that its own
+        ``model``, whose limits it applies, is the same)."""
         # Start a single conversion (OS), AINx against GND, ±4.096 V, single-shot, 860 SPS,
         # comparator off.
         self.config = (1 << 15) | ((4 + channel) << 12) | (1 << 9) | (1 << 8) | (7 << 5) | 3
@@ -217,10 +220,13 @@ def ads1115_backend(
     bus: Annotated[int, msgspec.Meta(ge=0, le=255)] = 1,
     address: Address = 0x48,
 ) -> Ads1115Ranger:
-    """``range.ads1115``: a Sharp analog ranger (``sensor``: the thesis model, as the
-    device's ``model``) on ``channel`` of an ADS1115 at ``address`` on ``/dev/i2c-<bus>``."""
+    """``range.ads1115``: a Sharp analog ranger (``sensor``: the thesis model, whose
+    voltage → distance curve it reads; it must be the device's ``model``, whose limits apply —
+    the device refuses another) on ``channel`` of an ADS1115 at ``address`` on
+    ``/dev/i2c-<bus>``."""
     return Ads1115Ranger(bus=_open_bus(bus, who="range.ads1115"), address=address,
-                         channel=channel, curve=SHARP_CURVES[sensor], owns_bus=True)
+                         channel=channel, curve=SHARP_CURVES[sensor], owns_bus=True,
+                         model=sensor)
 
 
 i2c_backend.requires_simulator = None  # type: ignore[attr-defined]
