@@ -30,11 +30,12 @@ import contextlib
 import dataclasses
 import itertools
 import json
+import signal
 import statistics
 import sys
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -57,6 +58,7 @@ from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
 from ubf_async.protocol import MAX_PAYLOAD_BYTES, ROOT, Keys, Message, ProtocolError, decode, encode
+from ubf_async.status import tick_rates
 from ubf_async.transport import intersects
 
 PROG = "python -m ubf_async.inspector"
@@ -249,14 +251,18 @@ def add_rate_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
                     "refuse (an unknown field, a value out of range) is refused here with the "
                     "reason, and nothing is sent (exit status 2). Stamped on the robot's "
                     "clock. In secure mode only identities allowed to publish on KEY can.")
-    pub.add_argument("key", metavar="KEY", help=key_help.replace(" or key expression", ""))
+    pub.add_argument("key", metavar="KEY",
+                     help="one key (not a key expression), relative to ubf/<robot>/ unless it "
+                          "starts with ubf/ (e.g. cmd/leds, sensor/range/left)")
     pub.add_argument("data", metavar="DATA", help="e.g. '{speed: 20, turn: 0}'")
     pub.add_argument("--schema", default=None,
                      help="the schema name, for a key no declared topic covers")
-    pub.add_argument("--rate", type=float, default=None, metavar="HZ",
-                     help="publish repeatedly at HZ (with --count, or until Ctrl-C)")
-    pub.add_argument("--count", "-n", type=int, default=1, metavar="N",
-                     help="how many messages (default: 1; 0 with --rate: until Ctrl-C)")
+    pub.add_argument("--rate", "-r", type=float, default=None, metavar="HZ",
+                     help="publish at HZ until Ctrl-C or SIGTERM (or --count messages), like "
+                          "ros2 topic pub -r")
+    pub.add_argument("--count", "-n", type=int, default=None, metavar="N",
+                     help="how many messages (default: 1 without --rate, until stopped with "
+                          "it)")
 
 
 def param(text: str) -> tuple[str, Any]:
@@ -274,7 +280,7 @@ def param(text: str) -> tuple[str, Any]:
 
 def add_tree_parser(sub: Any, common: argparse.ArgumentParser) -> None:
     tree = sub.add_parser(
-        "tree", help="show the running behaviour tree, or change it live",
+        "tree", parents=[common], help="show the running behaviour tree, or change it live",
         description="Show the robot's running behaviour tree or change it while it runs, "
                     "through its tree service (ubf/<robot>/tree; docs/protocol.md, 'Live tree "
                     "changes'). A change applies between two ticks, after the robot has "
@@ -467,9 +473,15 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
 
     lines = []
     age = f", status {status_age_s * 1e3:.0f} ms old" if status_age_s is not None else ""
-    lines.append(f"robot {robot!r}, {controller}: {status.get('mode', '?')} mode, "
-                 f"tick {num(status.get('rate_hz'), '.1f')} Hz "
-                 f"(target {num(status.get('rate_hz_target'), 'g')}), "
+    mode = str(status.get("mode", "?"))
+    # The status line's labels: the clock's ticks apart from the reflex ticks (periodic), or
+    # one tick per sample (sync, event).
+    rates = tick_rates(mode, _number(status.get("rate_hz")),
+                       _number(status.get("periodic_rate_hz")))
+    target = _number(status.get("rate_hz_target"))
+    if target is not None:
+        rates += f" (clock target {target:g}Hz)"
+    lines.append(f"robot {robot!r}, {controller}: {mode} mode, {rates}, "
                  f"{status.get('ticks', '?')} ticks, {status.get('overruns', '?')} overruns, "
                  f"{status.get('errors', '?')} errors, "
                  f"tick p50 {num(status.get('tick_us_p50'), '.0f')} us{age}")
@@ -845,19 +857,45 @@ async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     if args.rate is not None and not args.rate > 0:
         print("error: --rate must be > 0", file=sys.stderr)
         return 2
+    if args.count is not None and args.count < 1:
+        print("error: --count must be at least 1", file=sys.stderr)
+        return 2
+    count = args.count if args.count is not None else (None if args.rate else 1)
     await clockdomain.follow_robot_clock(bus, mode="auto")
     publisher = bus.publisher(key, schema)
     with contextlib.suppress(TimeoutError):  # nobody listening yet: publish all the same
         await publisher.wait_for_subscribers(timeout_s=min(args.timeout, 2.0))
     sent = 0
-    while True:
-        publisher.publish(data)
-        sent += 1
-        if args.count and sent >= args.count:
-            break
-        await asyncio.sleep(1.0 / args.rate if args.rate else 0.1)
-    print(f"sent {sent} {schema} message(s) on {key}", file=out)
+    with _stopped_by_signals() as stopped:
+        started = time.monotonic()
+        while not stopped.is_set():
+            publisher.publish(data)
+            sent += 1
+            if count is not None and sent >= count:
+                break
+            # Paced on the schedule, not from the last send, so the rate does not drift.
+            delay = started + sent / (args.rate or 10.0) - time.monotonic()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stopped.wait(), max(0.0, delay))
+    print(f"sent {sent} {schema} message(s) on {key}"
+          + (" (stopped)" if stopped.is_set() else ""), file=out)
     return 0
+
+
+@contextlib.contextmanager
+def _stopped_by_signals() -> Iterator[asyncio.Event]:
+    """An event set by the first Ctrl-C or SIGTERM while inside (the normal end of a
+    ``pub --rate``: the count sent is still printed); the handlers are removed on exit."""
+    loop = asyncio.get_running_loop()
+    stopped = asyncio.Event()
+    signals = (signal.SIGINT, signal.SIGTERM)
+    for signum in signals:
+        loop.add_signal_handler(signum, stopped.set)
+    try:
+        yield stopped
+    finally:
+        for signum in signals:
+            loop.remove_signal_handler(signum)
 
 
 @dataclass

@@ -68,7 +68,7 @@ from ubf_async.robotfile import (
     load_robot,
 )
 from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun, Simulator
-from ubf_async.status import StatusWriter, status_fields
+from ubf_async.status import StatusWriter, planned_ticks, status_fields
 
 log = logging.getLogger("ubf_async.launch")
 
@@ -187,6 +187,11 @@ class ControllerSettings:
         reflex = spec.reflex if args.reflex is None else args.reflex
         return cls(mode=mode, rate_hz=rate_hz, reflex=tuple(p for p in reflex if p),
                    sync_source=spec.sync_source, trigger=trigger)
+
+    def planned(self) -> str:
+        """What will tick the controller, in the status line's terms."""
+        return planned_ticks(self.mode, rate_hz=self.rate_hz, reflex=self.reflex,
+                             sync_source=self.sync_source, trigger=self.trigger)
 
 
 def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
@@ -388,16 +393,9 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             await component.start()
         if sim_run is not None:
             sim_run.start(controller)
-        rate = {
-            TickMode.PERIODIC: f" at {settings.rate_hz:g} Hz"
-            + (f" + a reflex tick on each {', '.join(settings.reflex)} sample"
-               if settings.reflex else ""),
-            TickMode.SYNC: f" (one tick per {settings.sync_source} sample, the thesis's loop)",
-            TickMode.EVENT: f" (one tick per {settings.trigger} sample)",
-        }[settings.mode]
         here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
         print(f"  devices: {here or 'none here'}", file=out)
-        print(f"  controller: {settings.mode.value}{rate}, tree:", file=out)
+        print(f"  controller: {settings.planned()}; tree:", file=out)
         for line in root.render_tree().splitlines():
             print(f"    {line}", file=out)
         for slot in robot.remotes:
@@ -519,8 +517,7 @@ def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
         sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
         print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
     settings = plan.controller
-    print(f"  controller: {settings.mode.value} at {settings.rate_hz:g} Hz, reflex "
-          f"{', '.join(settings.reflex) or 'none'}", file=out)
+    print(f"  controller: {settings.planned()}", file=out)
     for line in robot.root.render_tree().splitlines():
         print(f"    {line}", file=out)
     for slot in robot.remotes:
