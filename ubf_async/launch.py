@@ -149,7 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--foxglove", type=int, nargs="?", const=DEFAULT_FOXGLOVE_PORT,
                       default=None, metavar="PORT",
                       help="serve the robot live to Foxglove on ws://HOST:PORT (PORT default "
-                           f"{DEFAULT_FOXGLOVE_PORT}, 0: any free port; docs/liveview.md)")
+                           f"{DEFAULT_FOXGLOVE_PORT}, 0: any free port; docs/liveview.md); a "
+                           "word after it that is not a number is not its PORT (--foxglove "
+                           "ROBOT_FILE runs ROBOT_FILE)")
     add_host_argument(view)
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
@@ -311,6 +313,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     sim_run: SimulationRun | None = None
     controller: Controller | None = None
     recorder: McapRecorder | None = None
+    live: FoxgloveServer | None = None
     try:
         if options.mode == "client":
             routers = " ".join(options.connect) or "(the --config file's router)"
@@ -417,6 +420,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
                   + (f" ({stats.dropped} dropped: the disk did not keep up)"
                      if stats.dropped else "")
                   + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
+        if live is not None:
+            print(f"  live view: {live.stats.summary()}", file=out)
         print("ubf_async: stopped", file=out)
         out.flush()
         if failure is not None:
@@ -524,9 +529,29 @@ def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
         print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
 
 
+def optional_port_only_if_numeric(argv: Sequence[str]) -> list[str]:
+    """``--foxglove [PORT]``: argparse gives an optional value whatever word follows, so
+    ``launch --foxglove my_robot.yaml`` would read the robot file as the port. The word after
+    ``--foxglove`` is its PORT only if it is a number; otherwise the flag stands alone."""
+    out = list(argv)
+    for i, word in enumerate(out[:-1]):
+        if word == "--":
+            break
+        following = out[i + 1]
+        if (word == "--foxglove" and not following.startswith("-")
+                and not following.strip().isdigit()):
+            out[i] = f"--foxglove={DEFAULT_FOXGLOVE_PORT}"
+    return out
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The command line (``sys.argv[1:]`` by default), parsed by :func:`build_parser`."""
+    words = sys.argv[1:] if argv is None else argv
+    return build_parser().parse_args(optional_port_only_if_numeric(words))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
     # Deprecations in what a user wrote (old scenario fields …) are for the user to see.
     warnings.filterwarnings("default", category=DeprecationWarning,
                             module=r"(ubf_async|components)(\.|$)")
