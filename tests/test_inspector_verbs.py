@@ -19,7 +19,7 @@ from tests.conftest import eventually, free_port
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.inspector import build_parser
 from ubf_async.protocol import decode
-from ubf_async.topics import LEDS
+from ubf_async.topics import HEARTBEAT, LEDS, RANGE
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -107,14 +107,59 @@ def test_bw_is_consistent_with_message_sizes(robot_endpoint: str) -> None:
     assert 0.5 * mean / 0.11 <= rate <= 1.5 * mean / 0.11  # a frame every 0.11 s
 
 
-def test_info_names_the_schema_fields_and_live_components(robot_endpoint: str) -> None:
+def test_info_names_the_schema_fields_and_what_was_heard(robot_endpoint: str) -> None:
     result = inspect(robot_endpoint, "info", "cmd/drive")
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert "schema: drive" in out and "speed: number (≥ -100, ≤ 100)" in out
-    assert re.search(r"live components \(\d+\): .*controller", out)
     heard = re.search(r"heard on ubf/insp/cmd/drive: (\d+) messages .* from 1 publisher", out)
     assert heard and int(heard.group(1)) > 20, out
+
+
+@pytest.mark.asyncio
+async def test_info_names_the_live_components_that_announce_the_key(
+        robot_endpoint: str) -> None:
+    # Another process with two components on the robot: one announces its range finder in its
+    # heartbeat, one left (its token gone) still announcing it; a third publisher on the key
+    # announces nothing.
+    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
+    key = bus.keys.sensor("range", "side")
+    side = bus.publisher(RANGE, "side", period_s=0.05)
+    stray = bus.publisher(RANGE, "side", period_s=0.05)
+    beats = {name: bus.publisher(HEARTBEAT, name, period_s=0.2) for name in ("side", "gone")}
+    token = bus.declare_token(bus.keys.alive("side"))
+
+    async def run() -> None:
+        while True:
+            for publisher in (side, stray):
+                publisher.publish({"range_mm": 300, "status": "ok"})
+            for name, beat in beats.items():
+                beat.publish({"component": name, "publishes": [{"key": key, "pub": side.pub}]})
+            await asyncio.sleep(0.05)
+
+    running = asyncio.create_task(run())
+    try:
+        await eventually(lambda: bus.reached_peers(), what="the robot")
+        result = await asyncio.to_thread(inspect, robot_endpoint, "info", "sensor/range/side",
+                                         "--seconds", "1.5")
+    finally:
+        running.cancel()
+        token.undeclare()
+        await bus.aclose()
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    line = next(line for line in out.splitlines() if line.startswith("publishers"))
+    # Only the live one ("gone" has no liveliness token); the robot's own components are
+    # alive but do not announce what they publish, and are counted as such.
+    assert re.fullmatch(r"publishers \(live components announcing it\): side "
+                        r"\(insp/sensor/range/side\); (\d+) of the (\d+) live components "
+                        r"announce nothing .*", line), line
+    heard = next(line for line in out.splitlines() if line.startswith("heard on"))
+    assert heard.startswith("heard on ubf/insp/sensor/range/side: ")
+    assert "from 2 publisher(s): " in heard
+    assert f"side (pub {side.pub})" in heard
+    assert f"pub {stray.pub}, announced by no live component" in heard
+    assert "gone" not in out
 
 
 @pytest.mark.asyncio

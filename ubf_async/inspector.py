@@ -239,11 +239,14 @@ def add_rate_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
     info = sub.add_parser(
         "info", parents=[common], help="what a key carries: schema, fields, publishers, rate",
         description="Print the declared topic(s) a key belongs to (schema, every field with "
-                    "its type and bounds), the robot's live components, and what was heard on "
-                    "the key over --seconds: messages, rate, publishers (by their pub id).")
+                    "its type and bounds), its publishers — the live components (liveliness "
+                    "tokens) whose heartbeat announces the key — and what was heard on it over "
+                    "--seconds: messages, rate, and each publisher by its pub id, named by the "
+                    "component announcing it.")
     info.add_argument("key", metavar="KEY", help=key_help)
     info.add_argument("--seconds", type=float, default=1.0, metavar="S",
-                      help="how long to listen (default: 1)")
+                      help="how long to listen, at least 1 s: two heartbeats of every "
+                           "component (default: 1)")
     pub = sub.add_parser(
         "pub", parents=[common], help="publish a message on a key, checked first",
         description="Publish DATA (YAML or JSON: a map of the message's fields) on KEY, "
@@ -783,6 +786,32 @@ def describe_type(info: msgspec.inspect.Type) -> str:
     return base + (f" ({', '.join(bounds)})" if bounds else "")
 
 
+@dataclass
+class Announcements:
+    """What the live components' heartbeats say they publish (``publishes``, docs/protocol.md):
+    the newest heartbeat of each component."""
+
+    by_component: dict[str, tuple[topics.Published, ...] | None] = field(default_factory=dict)
+    """``None``: a heartbeat that announces nothing (a component that does not say)."""
+
+    def on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
+        with contextlib.suppress(ProtocolError):
+            data = decode(payload, topic=topics.HEARTBEAT).data
+            if len(self.by_component) < 4096 or data.component in self.by_component:
+                self.by_component[data.component] = data.publishes or None
+
+    def publishers(self, key_expr: str, alive: set[str]) -> dict[str, list[topics.Published]]:
+        """The live components announcing a key matching ``key_expr``, with what they announce
+        there (a component whose liveliness token is gone is not a publisher any more)."""
+        found: dict[str, list[topics.Published]] = {}
+        for component, published in self.by_component.items():
+            if component in alive:
+                hits = [p for p in published or () if intersects(key_expr, p.key)]
+                if hits:
+                    found[component] = hits
+        return found
+
+
 async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     try:
         key_expr = resolve_key(bus.keys, args.key)
@@ -799,6 +828,8 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
             if pub is not None and len(window.publishers) < 64:
                 window.publishers.add(pub)
 
+    announced = Announcements()
+    bus.subscribe(bus.keys.all_heartbeats, announced.on_heartbeat)
     bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
     declared = [t for t in topics.TOPICS if intersects(t.key_expr(bus.keys), key_expr)]
     print(f"key: {key_expr}", file=out)
@@ -815,20 +846,45 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
                 print(f"  {f.name}: {describe_type(f.type)}{need}", file=out)
         else:
             print("  data: a map of plain values (checked generically)", file=out)
+    out.flush()
+    # Heartbeats come every 0.5 s: listening at least a second hears every live component.
+    listen_s = max(args.seconds, 1.0)
+    await asyncio.sleep(listen_s)
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=args.timeout)
-    components = sorted({bus.keys.component_of_alive(t) for t in tokens})
-    print(f"live components ({len(components)}): {', '.join(components) or 'none'}", file=out)
-    await asyncio.sleep(args.seconds)
+    alive = {bus.keys.component_of_alive(t) for t in tokens}
+    publishers = announced.publishers(key_expr, alive)
+    print(format_publishers(publishers, alive=alive, announcing={
+        c for c, p in announced.by_component.items() if p is not None and c in alive}),
+        file=out)
+    by_pub = {p.pub: component for component, found in publishers.items() for p in found}
     if not seen:
-        print(f"heard: nothing on {key_expr} in {args.seconds:g}s", file=out)
+        print(f"heard: nothing on {key_expr} in {listen_s:g}s", file=out)
         return 0
     for key in sorted(seen):
         window = seen[key]
-        print(f"heard on {key}: {window.count} messages in {args.seconds:g}s "
-              f"({window.count / args.seconds:.1f} Hz), from {len(window.publishers)} "
-              f"publisher(s) (pub ids {', '.join(map(str, sorted(window.publishers))) or '-'})",
-              file=out)
+        ids = sorted(window.publishers)
+        named = [f"{by_pub[i]} (pub {i})" if i in by_pub else f"pub {i}, announced by no live "
+                 f"component" for i in ids]
+        print(f"heard on {key}: {window.count} messages in {listen_s:g}s "
+              f"({window.count / listen_s:.1f} Hz), from {len(ids)} publisher(s)"
+              + (f": {'; '.join(named)}" if named else ""), file=out)
     return 0
+
+
+def format_publishers(publishers: dict[str, list[topics.Published]], *, alive: set[str],
+                      announcing: set[str]) -> str:
+    """The ``publishers`` line of ``info``: the live components whose heartbeat announces the
+    key, and how many live components say nothing (they may publish it unannounced)."""
+    silent = len(alive - announcing)
+    unsaid = (f"; {silent} of the {len(alive)} live components announce nothing (a component "
+              f"that does not list what it publishes in its heartbeat, docs/protocol.md)"
+              if silent else "")
+    if not publishers:
+        return f"publishers (live components announcing it): none{unsaid}"
+    names = ", ".join(
+        f"{component} ({', '.join(p.key.removeprefix('ubf/') for p in found)})"
+        for component, found in sorted(publishers.items()))
+    return f"publishers (live components announcing it): {names}{unsaid}"
 
 
 async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
