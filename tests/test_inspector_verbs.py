@@ -153,7 +153,7 @@ async def test_info_names_the_live_components_that_announce_the_key(
     # alive but do not announce what they publish, and are counted as such.
     assert re.fullmatch(r"publishers \(live components announcing it\): side "
                         r"\(insp/sensor/range/side\); (\d+) of the (\d+) live components "
-                        r"announce nothing .*", line), line
+                        r"announce no publisher .*", line), line
     heard = next(line for line in out.splitlines() if line.startswith("heard on"))
     assert heard.startswith("heard on ubf/insp/sensor/range/side: ")
     assert "from 2 publisher(s): " in heard

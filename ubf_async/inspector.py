@@ -874,10 +874,11 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
 def format_publishers(publishers: dict[str, list[topics.Published]], *, alive: set[str],
                       announcing: set[str]) -> str:
     """The ``publishers`` line of ``info``: the live components whose heartbeat announces the
-    key, and how many live components say nothing (they may publish it unannounced)."""
+    key, and how many live components announce no publisher at all (they may publish it
+    unannounced)."""
     silent = len(alive - announcing)
-    unsaid = (f"; {silent} of the {len(alive)} live components announce nothing (a component "
-              f"that does not list what it publishes in its heartbeat, docs/protocol.md)"
+    unsaid = (f"; {silent} of the {len(alive)} live components announce no publisher (they "
+              f"publish nothing, or do not say so in their heartbeat: docs/protocol.md)"
               if silent else "")
     if not publishers:
         return f"publishers (live components announcing it): none{unsaid}"
