@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import queue
 import threading
@@ -159,6 +160,10 @@ class Recording:
                     yield message
         finally:
             stop.set()
+            # Wake a get still waiting in its worker thread (a cancelled replay), so that the
+            # loop's executor can shut down; a full queue has nobody waiting on it.
+            with contextlib.suppress(queue.Full):
+                ahead.put_nowait(None)
 
 
 Settle = Callable[[], Awaitable[None]]
