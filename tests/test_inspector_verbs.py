@@ -4,8 +4,10 @@ the subcommand."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import re
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -17,7 +19,7 @@ from tests.conftest import eventually, free_port
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.inspector import build_parser
 from ubf_async.protocol import decode
-from ubf_async.topics import LEDS
+from ubf_async.topics import HEARTBEAT, LEDS, RANGE
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -50,13 +52,38 @@ def test_connection_flags_go_before_or_after_the_subcommand() -> None:
     parser = build_parser()
     for argv in (["--connect", "tcp/h:1", "--robot", "r2", "components"],
                  ["components", "--connect", "tcp/h:1", "--robot", "r2"],
-                 ["--robot", "r2", "tree", "show", "--connect", "tcp/h:1"]):
+                 ["--robot", "r2", "tree", "show", "--connect", "tcp/h:1"],
+                 ["tree", "--connect", "tcp/h:1", "--robot", "r2", "show"],
+                 ["tree", "--connect", "tcp/h:1", "set-child", "root", "chase", "--priority",
+                  "3", "--robot", "r2"]):
         args = parser.parse_args(argv)
         assert (args.connect, args.robot) == (["tcp/h:1"], "r2"), argv
     defaults = parser.parse_args(["state"])
     assert defaults.robot == "mini" and defaults.mode == "client" and defaults.timeout == 5.0
     after = parser.parse_args(["--timeout", "9", "state", "--robot", "r3"])
     assert (after.timeout, after.robot) == (9.0, "r3")  # neither side undoes the other
+
+
+def test_every_command_takes_the_connection_flags_before_or_after_it() -> None:
+    parser = build_parser()
+    positionals = {"echo": ["k"], "hz": ["k"], "bw": ["k"], "info": ["k"], "pub": ["k", "{}"]}
+    for command in ("components", "keys", "echo", "state", "robots", "hz", "bw", "info", "pub",
+                    "tree"):
+        words = ([command, "show"] if command == "tree"
+                 else [command, *positionals.get(command, [])])
+        flags = ["--connect", "tcp/h:1", "--robot", "r2", "--timeout", "3"]
+        for argv in (flags + words, words + flags, words[:1] + flags + words[1:]):
+            args = parser.parse_args(argv)
+            assert (args.connect, args.robot, args.timeout) == (["tcp/h:1"], "r2", 3.0), argv
+
+
+def test_tree_takes_the_connection_flags_between_tree_and_its_verb(
+        robot_endpoint: str) -> None:
+    result = subprocess.run([sys.executable, "-m", "ubf_async.inspector", "tree", "--connect",
+                             robot_endpoint, "--robot", "insp", "show"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert "robot 'insp': tree version" in result.stdout and "seek_pink_ball" in result.stdout
 
 
 def test_hz_measures_the_drive_command_rate(robot_endpoint: str) -> None:
@@ -80,14 +107,59 @@ def test_bw_is_consistent_with_message_sizes(robot_endpoint: str) -> None:
     assert 0.5 * mean / 0.11 <= rate <= 1.5 * mean / 0.11  # a frame every 0.11 s
 
 
-def test_info_names_the_schema_fields_and_live_components(robot_endpoint: str) -> None:
+def test_info_names_the_schema_fields_and_what_was_heard(robot_endpoint: str) -> None:
     result = inspect(robot_endpoint, "info", "cmd/drive")
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert "schema: drive" in out and "speed: number (≥ -100, ≤ 100)" in out
-    assert re.search(r"live components \(\d+\): .*controller", out)
     heard = re.search(r"heard on ubf/insp/cmd/drive: (\d+) messages .* from 1 publisher", out)
     assert heard and int(heard.group(1)) > 20, out
+
+
+@pytest.mark.asyncio
+async def test_info_names_the_live_components_that_announce_the_key(
+        robot_endpoint: str) -> None:
+    # Another process with two components on the robot: one announces its range finder in its
+    # heartbeat, one left (its token gone) still announcing it; a third publisher on the key
+    # announces nothing.
+    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
+    key = bus.keys.sensor("range", "side")
+    side = bus.publisher(RANGE, "side", period_s=0.05)
+    stray = bus.publisher(RANGE, "side", period_s=0.05)
+    beats = {name: bus.publisher(HEARTBEAT, name, period_s=0.2) for name in ("side", "gone")}
+    token = bus.declare_token(bus.keys.alive("side"))
+
+    async def run() -> None:
+        while True:
+            for publisher in (side, stray):
+                publisher.publish({"range_mm": 300, "status": "ok"})
+            for name, beat in beats.items():
+                beat.publish({"component": name, "publishes": [{"key": key, "pub": side.pub}]})
+            await asyncio.sleep(0.05)
+
+    running = asyncio.create_task(run())
+    try:
+        await eventually(lambda: bus.reached_peers(), what="the robot")
+        result = await asyncio.to_thread(inspect, robot_endpoint, "info", "sensor/range/side",
+                                         "--seconds", "1.5")
+    finally:
+        running.cancel()
+        token.undeclare()
+        await bus.aclose()
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    line = next(line for line in out.splitlines() if line.startswith("publishers"))
+    # Only the live one ("gone" has no liveliness token); the robot's own components are
+    # alive but do not announce what they publish, and are counted as such.
+    assert re.fullmatch(r"publishers \(live components announcing it\): side "
+                        r"\(insp/sensor/range/side\); (\d+) of the (\d+) live components "
+                        r"announce no publisher .*", line), line
+    heard = next(line for line in out.splitlines() if line.startswith("heard on"))
+    assert heard.startswith("heard on ubf/insp/sensor/range/side: ")
+    assert "from 2 publisher(s): " in heard
+    assert f"side (pub {side.pub})" in heard
+    assert f"pub {stray.pub}, announced by no live component" in heard
+    assert "gone" not in out
 
 
 @pytest.mark.asyncio
@@ -118,6 +190,47 @@ async def test_pub_refuses_what_the_robot_would_and_sends_what_it_takes(
         assert 300 not in masks and not [m for m in before if m == 2]
     finally:
         await bus.aclose()
+
+
+@pytest.mark.asyncio
+async def test_pub_with_a_rate_publishes_until_stopped(robot_endpoint: str) -> None:
+    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
+    masks: list[int] = []
+    try:
+        bus.subscribe(LEDS.key(bus.keys), lambda k, p, t: masks.append(decode(p).data.mask),
+                      latest=False)
+        await eventually(lambda: bus.reached_peers(), what="the robot")
+        pub = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "ubf_async.inspector", "--connect", robot_endpoint,
+            "--robot", "insp", "pub", "cmd/leds", "{mask: 5}", "--rate", "20", cwd=ROOT,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        # No --count: it goes on (far past one message) until it is stopped.
+        await eventually(lambda: masks.count(5) >= 10, timeout_s=30,
+                         what="ten messages of one pub --rate")
+        assert pub.returncode is None
+        pub.send_signal(signal.SIGINT)  # Ctrl-C: the normal end of pub --rate
+        out, err = await asyncio.wait_for(pub.communicate(), 30)
+        assert pub.returncode == 0, err.decode()
+        sent = re.fullmatch(r"sent (\d+) leds message\(s\) on ubf/insp/cmd/leds \(stopped\)\n",
+                            out.decode())
+        assert sent and int(sent.group(1)) >= 10, out.decode()
+        await eventually(lambda: masks.count(5) == int(sent.group(1)),
+                         what="every message it says it sent")
+    finally:
+        await bus.aclose()
+
+
+def test_pub_help_offers_no_key_expression() -> None:
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    text = sub.choices["pub"].format_help()
+    assert "sensor/**" not in text and "not a key expression" in text
+    assert "until Ctrl-C" in text and "ros2 topic pub -r" in text
+    refused = subprocess.run([sys.executable, "-m", "ubf_async.inspector", "pub", "cmd/leds",
+                              "{mask: 1}", "--count", "0", "--connect", "tcp/127.0.0.1:1",
+                              "--timeout", "0.5"], cwd=ROOT, capture_output=True, text=True,
+                             timeout=60)
+    assert refused.returncode == 2
 
 
 def test_state_and_tree_watch_refresh(robot_endpoint: str) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -151,10 +152,53 @@ def test_the_standalone_bridge_serves_a_running_robot(running: Any, endpoint: st
     robot_proc = running("ubf_async.launch", "--listen", endpoint, "--robot", robot, "--quiet")
     assert robot_proc.stdout is not None
     read_line_with(robot_proc.stdout, "attach with")
-    bridge = running("ubf_async.liveview", "--connect", endpoint, "--robot", robot, "--port",
-                     str(free_port()))
-    assert bridge.stdout is not None
-    check_live(url_in(read_line_with(bridge.stdout, "live on")))
+    # Nobody connects to this one: it says so at the end, rather than "N messages served".
+    idle = subprocess.run(
+        [sys.executable, "-m", "ubf_async.liveview", "--connect", endpoint, "--robot", robot,
+         "--port", str(free_port()), "--name", "foxglove-idle", "--duration", "1"],
+        cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=60)
+    assert idle.returncode == 0, idle.stdout + idle.stderr
+    ending = idle.stdout.splitlines()[-1]
+    assert re.fullmatch(r"python -m ubf_async\.liveview: no Foxglove client subscribed: "
+                        r"[1-9]\d* messages converted, none sent", ending), ending
+    bridge = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.liveview", "--connect", endpoint, "--robot", robot,
+         "--port", str(free_port())], cwd=ROOT, env=ENV, text=True, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT)
+    try:
+        assert bridge.stdout is not None
+        check_live(url_in(read_line_with(bridge.stdout, "live on")))
+        bridge.send_signal(signal.SIGINT)
+        out, _ = bridge.communicate(timeout=30)
+    finally:
+        if bridge.poll() is None:
+            bridge.kill()
+            bridge.communicate(timeout=30)
+    assert bridge.returncode == 0, out
+    served = re.search(r"liveview: (\d+) of (\d+) messages converted went to 1 Foxglove "
+                       r"client\(s\)", out)
+    assert served, out
+    sent, converted = int(served[1]), int(served[2])
+    assert 0 < sent < converted  # what the client subscribed to, not every channel
+
+
+def test_foxglove_without_a_port_leaves_the_robot_file_alone() -> None:
+    from ubf_async.launch import parse_args
+
+    pi = "examples/robots/pi-whegs.yaml"
+    for argv, port, robot_file in (
+            (["--foxglove", pi], 8765, pi),
+            ([pi, "--foxglove"], 8765, pi),
+            (["--foxglove", "0", pi], 0, pi),
+            (["--foxglove", "9000"], 9000, "mini-whegs"),
+            (["--foxglove", "--quiet", pi], 8765, pi)):
+        args = parse_args(argv)
+        assert (args.foxglove, str(args.robot_file)) == (port, robot_file), argv
+    # As a user runs it: the robot file is loaded, not read as a port.
+    check = subprocess.run([sys.executable, "-m", "ubf_async.launch", "--foxglove", pi,
+                            "--check"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert check.returncode == 0, check.stderr
+    assert check.stdout.startswith(f"{pi}: robot 'pi-whegs' — OK")
 
 
 def test_a_port_in_use_is_a_clear_error(endpoint: str, robot: str) -> None:

@@ -1,10 +1,12 @@
 """Replaying a recording: a fresh controller with the same tree, fed the recorded inputs on
 the recorded simulated time, commands exactly what the original run commanded; the thesis's
-synchronous loop and the periodic controller compared on the same inputs; and the replay tool
-feeding a launched controller in another process over zenoh."""
+synchronous loop and the periodic controller compared on the same inputs; the replay tool
+feeding a launched controller in another process over zenoh; and a replay with nobody to take
+it failing clearly instead of reporting success."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import subprocess
@@ -16,16 +18,13 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
-from tests.conftest import eventually
 from ubf_async.aggregator import StateAggregator
-from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.bus import Bus, ConnectionOptions, NoRobotError
 from ubf_async.clock import SimClock
 from ubf_async.controller import Controller, TickMode
 from ubf_async.errors import ConfigurationError
-from ubf_async.protocol import decode
-from ubf_async.replay import Recording, replay
+from ubf_async.replay import Recording, replay, wait_for_listeners
 from ubf_async.robotfile import load_robot
-from ubf_async.topics import DRIVE
 from ubf_async.transport import InProcessTransport
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -124,35 +123,104 @@ def test_recording_refuses_a_file_that_is_not_a_recording(tmp_path: Path) -> Non
         Recording(bogus)
 
 
-@pytest.mark.asyncio
-async def test_the_replay_tool_feeds_a_launched_controller_over_zenoh(
-        recorded: tuple[Path, int], endpoint: str) -> None:
+def test_the_replay_tool_feeds_a_launched_controller_over_zenoh(
+        recorded: tuple[Path, int], endpoint: str, tmp_path: Path) -> None:
     path, _ = recorded
     original = recorded_drives(path)
+    # The re-run records its own bus (in its process: no subscriber of ours to race with).
     robot = subprocess.Popen(
         [sys.executable, "-m", "ubf_async.launch", "--no-sim", "--sim-time", "--listen",
-         endpoint, "--quiet"], cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL)
-    bus = await Bus.open(ConnectionOptions(robot="mini", connect=[endpoint]))
-    drives: list[Any] = []
+         endpoint, "--quiet", "--record", str(tmp_path)], cwd=ROOT, env=ENV,
+        stdout=subprocess.DEVNULL)
     try:
-        bus.subscribe(DRIVE.key(bus.keys), lambda k, p, t: drives.append(decode(p, topic=DRIVE)),
-                      latest=False)
-        await eventually(lambda: bus.reached_peers(), timeout_s=20, what="the robot")
+        # Started with the robot, not after it: the replay waits for the robot and for its
+        # subscriptions before its first message, so none of the recording is lost.
         result = subprocess.run(
             [sys.executable, "-m", "ubf_async.replay", str(path), "--speed", "2", "--connect",
-             endpoint], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
+             endpoint, "--wait-for-robot-s", "60"], cwd=ROOT, env=ENV, capture_output=True,
+            text=True, timeout=120)
         assert result.returncode == 0, result.stdout + result.stderr
+        assert "7 keys)" in result.stdout  # every replayed key had a subscriber
         assert "messages replayed" in result.stdout
-        await eventually(lambda: any("chase" in d.data.winners for d in drives),
-                         what="the re-run controller to chase the recorded ball")
     finally:
-        robot.terminate()
+        robot.terminate()  # SIGTERM: the robot stops and finishes its recording
         robot.wait(timeout=30)
-        await bus.aclose()
+    assert robot.returncode == 0
+    rerun = recorded_drives(tmp_path / "mini.mcap")
     # On the recorded simulated time: ticks stamped within the run, chasing from about when the
-    # original did (across processes the exact tick phase is not reproduced).
-    stamps = [d.stamp_ns for d in drives if d.stamp_ns > 0]
+    # original did (across processes the exact tick phase is not reproduced), and from the
+    # recording's start (a replay that began before the robot listened would have lost it).
+    stamps = [t for t, *_ in rerun if t > 0]
     assert stamps and max(stamps) <= original[-1][0] + 0.1e9
-    first = next(d.stamp_ns for d in drives if "chase" in d.data.winners)
+    assert min(stamps) <= original[0][0] + 0.1e9
+    first = next(t for t, _, winners, _, _ in rerun if "chase" in winners)
     first_original = next(t for t, _, winners, _, _ in original if "chase" in winners)
     assert abs(first - first_original) <= 0.25e9
+
+
+def run_replay(path: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ubf_async.replay", str(path),
+                           "--wait-for-robot-s", "1", *args],
+                          cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=60)
+
+
+def test_a_replay_with_nobody_at_the_endpoint_fails_clearly(
+        recorded: tuple[Path, int], endpoint: str) -> None:
+    result = run_replay(recorded[0], "--connect", endpoint)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stdout == ""  # nothing replayed, no success claimed
+    (line,) = result.stderr.splitlines()
+    assert f"no robot to connect to: nothing answered at {endpoint} within 1s" in line
+
+
+def test_a_replay_nobody_subscribes_to_fails_clearly(recorded: tuple[Path, int]) -> None:
+    # Listening only (what a replay without --connect did): nobody comes, nothing is sent.
+    result = run_replay(recorded[0], "--listen", "tcp/127.0.0.1:0")
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stdout == ""
+    (line,) = result.stderr.splitlines()
+    assert "nobody subscribes to what this would replay (7 keys under ubf/mini/: clock, " \
+           "sensor/camera/front, sensor/encoders/wheels and 4 more) within 1s" in line
+
+
+@pytest.mark.asyncio
+async def test_a_robot_alive_but_taking_nothing_is_no_one_to_replay_to(
+        recorded: tuple[Path, int], endpoint: str) -> None:
+    # A robot's component is alive (its liveliness token), but nothing subscribes to what the
+    # replay publishes: refused, as nobody would receive it.
+    bus = await Bus.open(ConnectionOptions(robot="mini", listen=[endpoint]))
+    token = bus.declare_token(bus.keys.alive("lonely"))
+    bus.subscribe(bus.keys.prefix + "/cmd/**", lambda k, p, t: None)  # not what is replayed
+    try:
+        result = await asyncio.to_thread(run_replay, recorded[0], "--connect", endpoint)
+    finally:
+        token.undeclare()
+        await bus.aclose()
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stdout == "" and "nobody subscribes" in result.stderr
+
+
+def test_a_replay_of_nothing_is_refused(recorded: tuple[Path, int]) -> None:
+    result = run_replay(recorded[0], "--only", "sensor/sonar/*", "--connect",
+                        "tcp/127.0.0.1:1")
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert "nothing to replay: no message of robot 'mini' on sensor/sonar/*" in result.stderr
+
+
+@pytest.mark.asyncio
+async def test_waiting_for_listeners_returns_when_they_are_there() -> None:
+    net = InProcessTransport()
+    player, robot = Bus(transport=net, robot="r"), Bus(transport=net, robot="r")
+    keys = ["ubf/r/clock", "ubf/r/sensor/range/front"]
+    with pytest.raises(NoRobotError, match=r"nobody subscribes .* within 0\.05s"):
+        await wait_for_listeners(player, keys, timeout_s=0.05)
+    robot.subscribe("ubf/r/clock", lambda k, p, t: None)
+    # One key taken: the other gets its settling time, then is reported.
+    assert await wait_for_listeners(player, keys, timeout_s=5,
+                                    settle_s=0.05) == ["ubf/r/sensor/range/front"]
+    robot.subscribe("ubf/r/sensor/**", lambda k, p, t: None)
+    started = asyncio.get_running_loop().time()
+    assert await wait_for_listeners(player, keys, timeout_s=5, settle_s=5) == []
+    assert asyncio.get_running_loop().time() - started < 1  # all there: no settling wait
+    await player.aclose()
+    await robot.aclose()

@@ -133,3 +133,30 @@ def test_without_a_terminal_each_period_is_one_plain_line() -> None:
     assert 3 <= len(status) <= 5  # 1 s of wall time, a line every 0.25 s
     assert "\r" not in result.stdout and "\x1b" not in result.stdout
     assert all(" | tick 50.0Hz +reflex " in line or "tick --" in line for line in status)
+
+
+def test_the_plan_and_the_inspector_use_the_status_lines_labels() -> None:
+    from ubf_async.inspector import format_state
+    from ubf_async.status import planned_ticks
+
+    # launch --check: a sync controller does not tick at the clock's rate, nor take reflexes.
+    check = subprocess.run([sys.executable, "-m", "ubf_async.launch", "--check", "--tick",
+                            "sync"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert check.returncode == 0, check.stderr
+    (line,) = [line for line in check.stdout.splitlines() if "controller:" in line]
+    assert line.strip() == ("controller: sync on each camera/front sample (the thesis's loop; "
+                            "between ticks the decision is re-sent at 50 Hz)")
+    assert "reflex" not in line
+    assert planned_ticks(TickMode.PERIODIC, rate_hz=50, reflex=("range/",)) == \
+        "periodic tick 50Hz +reflex on each range/ sample"
+    assert planned_ticks(TickMode.PERIODIC, rate_hz=20) == "periodic tick 20Hz (no reflex)"
+    # inspector state: the clock's ticks apart from the reflex ticks, as the status line.
+    periodic = format_state({"mode": "periodic", "rate_hz": 75.0, "periodic_rate_hz": 50.0,
+                             "rate_hz_target": 50}, robot="r", controller="controller",
+                            status_age_s=None).splitlines()[0]
+    assert "periodic mode, tick 50.0Hz +reflex 25.0Hz (clock target 50Hz)," in periodic
+    assert "75.0" not in periodic  # the reflex ticks are not passed off as the clock's
+    sync = format_state({"mode": "sync", "rate_hz": 9.1, "periodic_rate_hz": None,
+                         "rate_hz_target": None}, robot="r", controller="controller",
+                        status_age_s=None).splitlines()[0]
+    assert "sync mode, sync 9.1Hz," in sync and "target" not in sync and "50Hz" not in sync

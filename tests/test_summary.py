@@ -5,10 +5,13 @@ for, and numbers rounded to sensible precision."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
+
+from matplotlib.text import Text
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -87,8 +90,30 @@ def test_the_trajectory_plot_is_in_metres_with_time_marks_events_and_winners(
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (m)", "y (m)")
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
     assert {"search", "chase"} <= set(legend) and "ball" in legend
-    notes = [t.get_text() for t in ax.texts]
-    assert "0s" in notes and "10s" in notes and "20s" in notes  # time marks along the path
-    assert sum(n.startswith("ball: ") for n in notes) == len(events) >= 1
+    labels = [t for t in ax.texts if t.get_text()]  # (the start and end arrows have none)
+    notes = [t.get_text() for t in labels]
+    # Time marks along the path, every 5 s of the 25: those the robot passed standing still
+    # share a label ("10–15s").
+    marked: set[float] = set()
+    for note in notes:
+        if (span := re.fullmatch(r"([\d.]+)(?:–([\d.]+))?s", note)) is not None:
+            first, last = float(span[1]), float(span[2] or span[1])
+            marked.update(t for t in (0, 5, 10, 15, 20, 25) if first <= t <= last)
+    assert marked >= {0, 5, 10, 15, 20}, notes
+    # Every step of the ball's script, once (steps at one place share a label).
+    assert sum(n.count(" at ") for n in notes if n.startswith("ball: ")) == len(events) >= 1
+    # No label covers another, the legend, or leaves the plot.
+    renderer = figure.canvas.get_renderer()  # type: ignore[attr-defined]
+    boxes = []
+    for label in labels:
+        label.update_positions(renderer)
+        boxes.append(Text.get_window_extent(label, renderer))
+    area = ax.get_window_extent(renderer)
+    legend_box = ax.get_legend().get_window_extent(renderer)
+    for i, box in enumerate(boxes):
+        assert area.contains(box.x0, box.y0) and area.contains(box.x1, box.y1), notes[i]
+        assert not box.overlaps(legend_box), notes[i]
+        for j in range(i):
+            assert not box.overlaps(boxes[j]), (notes[i], notes[j])
     # Framed on what happened: the ball lifted out of the world is not in view.
     assert ax.get_xlim()[1] < 5 and ax.get_ylim()[1] < 5

@@ -30,11 +30,12 @@ import contextlib
 import dataclasses
 import itertools
 import json
+import signal
 import statistics
 import sys
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -57,6 +58,7 @@ from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
 from ubf_async.live import request as tree_request
 from ubf_async.protocol import MAX_PAYLOAD_BYTES, ROOT, Keys, Message, ProtocolError, decode, encode
+from ubf_async.status import tick_rates
 from ubf_async.transport import intersects
 
 PROG = "python -m ubf_async.inspector"
@@ -237,11 +239,14 @@ def add_rate_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
     info = sub.add_parser(
         "info", parents=[common], help="what a key carries: schema, fields, publishers, rate",
         description="Print the declared topic(s) a key belongs to (schema, every field with "
-                    "its type and bounds), the robot's live components, and what was heard on "
-                    "the key over --seconds: messages, rate, publishers (by their pub id).")
+                    "its type and bounds), its publishers — the live components (liveliness "
+                    "tokens) whose heartbeat announces the key — and what was heard on it over "
+                    "--seconds: messages, rate, and each publisher by its pub id, named by the "
+                    "component announcing it.")
     info.add_argument("key", metavar="KEY", help=key_help)
     info.add_argument("--seconds", type=float, default=1.0, metavar="S",
-                      help="how long to listen (default: 1)")
+                      help="how long to listen, at least 1 s: two heartbeats of every "
+                           "component (default: 1)")
     pub = sub.add_parser(
         "pub", parents=[common], help="publish a message on a key, checked first",
         description="Publish DATA (YAML or JSON: a map of the message's fields) on KEY, "
@@ -249,14 +254,18 @@ def add_rate_parsers(sub: Any, common: argparse.ArgumentParser) -> None:
                     "refuse (an unknown field, a value out of range) is refused here with the "
                     "reason, and nothing is sent (exit status 2). Stamped on the robot's "
                     "clock. In secure mode only identities allowed to publish on KEY can.")
-    pub.add_argument("key", metavar="KEY", help=key_help.replace(" or key expression", ""))
+    pub.add_argument("key", metavar="KEY",
+                     help="one key (not a key expression), relative to ubf/<robot>/ unless it "
+                          "starts with ubf/ (e.g. cmd/leds, sensor/range/left)")
     pub.add_argument("data", metavar="DATA", help="e.g. '{speed: 20, turn: 0}'")
     pub.add_argument("--schema", default=None,
                      help="the schema name, for a key no declared topic covers")
-    pub.add_argument("--rate", type=float, default=None, metavar="HZ",
-                     help="publish repeatedly at HZ (with --count, or until Ctrl-C)")
-    pub.add_argument("--count", "-n", type=int, default=1, metavar="N",
-                     help="how many messages (default: 1; 0 with --rate: until Ctrl-C)")
+    pub.add_argument("--rate", "-r", type=float, default=None, metavar="HZ",
+                     help="publish at HZ until Ctrl-C or SIGTERM (or --count messages), like "
+                          "ros2 topic pub -r")
+    pub.add_argument("--count", "-n", type=int, default=None, metavar="N",
+                     help="how many messages (default: 1 without --rate, until stopped with "
+                          "it)")
 
 
 def param(text: str) -> tuple[str, Any]:
@@ -274,7 +283,7 @@ def param(text: str) -> tuple[str, Any]:
 
 def add_tree_parser(sub: Any, common: argparse.ArgumentParser) -> None:
     tree = sub.add_parser(
-        "tree", help="show the running behaviour tree, or change it live",
+        "tree", parents=[common], help="show the running behaviour tree, or change it live",
         description="Show the robot's running behaviour tree or change it while it runs, "
                     "through its tree service (ubf/<robot>/tree; docs/protocol.md, 'Live tree "
                     "changes'). A change applies between two ticks, after the robot has "
@@ -467,9 +476,15 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
 
     lines = []
     age = f", status {status_age_s * 1e3:.0f} ms old" if status_age_s is not None else ""
-    lines.append(f"robot {robot!r}, {controller}: {status.get('mode', '?')} mode, "
-                 f"tick {num(status.get('rate_hz'), '.1f')} Hz "
-                 f"(target {num(status.get('rate_hz_target'), 'g')}), "
+    mode = str(status.get("mode", "?"))
+    # The status line's labels: the clock's ticks apart from the reflex ticks (periodic), or
+    # one tick per sample (sync, event).
+    rates = tick_rates(mode, _number(status.get("rate_hz")),
+                       _number(status.get("periodic_rate_hz")))
+    target = _number(status.get("rate_hz_target"))
+    if target is not None:
+        rates += f" (clock target {target:g}Hz)"
+    lines.append(f"robot {robot!r}, {controller}: {mode} mode, {rates}, "
                  f"{status.get('ticks', '?')} ticks, {status.get('overruns', '?')} overruns, "
                  f"{status.get('errors', '?')} errors, "
                  f"tick p50 {num(status.get('tick_us_p50'), '.0f')} us{age}")
@@ -771,6 +786,32 @@ def describe_type(info: msgspec.inspect.Type) -> str:
     return base + (f" ({', '.join(bounds)})" if bounds else "")
 
 
+@dataclass
+class Announcements:
+    """What the live components' heartbeats say they publish (``publishes``, docs/protocol.md):
+    the newest heartbeat of each component."""
+
+    by_component: dict[str, tuple[topics.Published, ...] | None] = field(default_factory=dict)
+    """``None``: a heartbeat that announces nothing (a component that does not say)."""
+
+    def on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
+        with contextlib.suppress(ProtocolError):
+            data = decode(payload, topic=topics.HEARTBEAT).data
+            if len(self.by_component) < 4096 or data.component in self.by_component:
+                self.by_component[data.component] = data.publishes or None
+
+    def publishers(self, key_expr: str, alive: set[str]) -> dict[str, list[topics.Published]]:
+        """The live components announcing a key matching ``key_expr``, with what they announce
+        there (a component whose liveliness token is gone is not a publisher any more)."""
+        found: dict[str, list[topics.Published]] = {}
+        for component, published in self.by_component.items():
+            if component in alive:
+                hits = [p for p in published or () if intersects(key_expr, p.key)]
+                if hits:
+                    found[component] = hits
+        return found
+
+
 async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     try:
         key_expr = resolve_key(bus.keys, args.key)
@@ -787,6 +828,8 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
             if pub is not None and len(window.publishers) < 64:
                 window.publishers.add(pub)
 
+    announced = Announcements()
+    bus.subscribe(bus.keys.all_heartbeats, announced.on_heartbeat)
     bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
     declared = [t for t in topics.TOPICS if intersects(t.key_expr(bus.keys), key_expr)]
     print(f"key: {key_expr}", file=out)
@@ -803,20 +846,46 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
                 print(f"  {f.name}: {describe_type(f.type)}{need}", file=out)
         else:
             print("  data: a map of plain values (checked generically)", file=out)
+    out.flush()
+    # Heartbeats come every 0.5 s: listening at least a second hears every live component.
+    listen_s = max(args.seconds, 1.0)
+    await asyncio.sleep(listen_s)
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=args.timeout)
-    components = sorted({bus.keys.component_of_alive(t) for t in tokens})
-    print(f"live components ({len(components)}): {', '.join(components) or 'none'}", file=out)
-    await asyncio.sleep(args.seconds)
+    alive = {bus.keys.component_of_alive(t) for t in tokens}
+    publishers = announced.publishers(key_expr, alive)
+    print(format_publishers(publishers, alive=alive, announcing={
+        c for c, p in announced.by_component.items() if p is not None and c in alive}),
+        file=out)
+    by_pub = {p.pub: component for component, found in publishers.items() for p in found}
     if not seen:
-        print(f"heard: nothing on {key_expr} in {args.seconds:g}s", file=out)
+        print(f"heard: nothing on {key_expr} in {listen_s:g}s", file=out)
         return 0
     for key in sorted(seen):
         window = seen[key]
-        print(f"heard on {key}: {window.count} messages in {args.seconds:g}s "
-              f"({window.count / args.seconds:.1f} Hz), from {len(window.publishers)} "
-              f"publisher(s) (pub ids {', '.join(map(str, sorted(window.publishers))) or '-'})",
-              file=out)
+        ids = sorted(window.publishers)
+        named = [f"{by_pub[i]} (pub {i})" if i in by_pub else f"pub {i}, announced by no live "
+                 f"component" for i in ids]
+        print(f"heard on {key}: {window.count} messages in {listen_s:g}s "
+              f"({window.count / listen_s:.1f} Hz), from {len(ids)} publisher(s)"
+              + (f": {'; '.join(named)}" if named else ""), file=out)
     return 0
+
+
+def format_publishers(publishers: dict[str, list[topics.Published]], *, alive: set[str],
+                      announcing: set[str]) -> str:
+    """The ``publishers`` line of ``info``: the live components whose heartbeat announces the
+    key, and how many live components announce no publisher at all (they may publish it
+    unannounced)."""
+    silent = len(alive - announcing)
+    unsaid = (f"; {silent} of the {len(alive)} live components announce no publisher (they "
+              f"publish nothing, or do not say so in their heartbeat: docs/protocol.md)"
+              if silent else "")
+    if not publishers:
+        return f"publishers (live components announcing it): none{unsaid}"
+    names = ", ".join(
+        f"{component} ({', '.join(p.key.removeprefix('ubf/') for p in found)})"
+        for component, found in sorted(publishers.items()))
+    return f"publishers (live components announcing it): {names}{unsaid}"
 
 
 async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
@@ -845,19 +914,45 @@ async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     if args.rate is not None and not args.rate > 0:
         print("error: --rate must be > 0", file=sys.stderr)
         return 2
+    if args.count is not None and args.count < 1:
+        print("error: --count must be at least 1", file=sys.stderr)
+        return 2
+    count = args.count if args.count is not None else (None if args.rate else 1)
     await clockdomain.follow_robot_clock(bus, mode="auto")
     publisher = bus.publisher(key, schema)
     with contextlib.suppress(TimeoutError):  # nobody listening yet: publish all the same
         await publisher.wait_for_subscribers(timeout_s=min(args.timeout, 2.0))
     sent = 0
-    while True:
-        publisher.publish(data)
-        sent += 1
-        if args.count and sent >= args.count:
-            break
-        await asyncio.sleep(1.0 / args.rate if args.rate else 0.1)
-    print(f"sent {sent} {schema} message(s) on {key}", file=out)
+    with _stopped_by_signals() as stopped:
+        started = time.monotonic()
+        while not stopped.is_set():
+            publisher.publish(data)
+            sent += 1
+            if count is not None and sent >= count:
+                break
+            # Paced on the schedule, not from the last send, so the rate does not drift.
+            delay = started + sent / (args.rate or 10.0) - time.monotonic()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stopped.wait(), max(0.0, delay))
+    print(f"sent {sent} {schema} message(s) on {key}"
+          + (" (stopped)" if stopped.is_set() else ""), file=out)
     return 0
+
+
+@contextlib.contextmanager
+def _stopped_by_signals() -> Iterator[asyncio.Event]:
+    """An event set by the first Ctrl-C or SIGTERM while inside (the normal end of a
+    ``pub --rate``: the count sent is still printed); the handlers are removed on exit."""
+    loop = asyncio.get_running_loop()
+    stopped = asyncio.Event()
+    signals = (signal.SIGINT, signal.SIGTERM)
+    for signum in signals:
+        loop.add_signal_handler(signum, stopped.set)
+    try:
+        yield stopped
+    finally:
+        for signum in signals:
+            loop.remove_signal_handler(signum)
 
 
 @dataclass

@@ -68,7 +68,7 @@ from ubf_async.robotfile import (
     load_robot,
 )
 from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun, Simulator
-from ubf_async.status import StatusWriter, status_fields
+from ubf_async.status import StatusWriter, planned_ticks, status_fields
 
 log = logging.getLogger("ubf_async.launch")
 
@@ -149,7 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--foxglove", type=int, nargs="?", const=DEFAULT_FOXGLOVE_PORT,
                       default=None, metavar="PORT",
                       help="serve the robot live to Foxglove on ws://HOST:PORT (PORT default "
-                           f"{DEFAULT_FOXGLOVE_PORT}, 0: any free port; docs/liveview.md)")
+                           f"{DEFAULT_FOXGLOVE_PORT}, 0: any free port; docs/liveview.md); a "
+                           "word after it that is not a number is not its PORT (--foxglove "
+                           "ROBOT_FILE runs ROBOT_FILE)")
     add_host_argument(view)
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
@@ -187,6 +189,11 @@ class ControllerSettings:
         reflex = spec.reflex if args.reflex is None else args.reflex
         return cls(mode=mode, rate_hz=rate_hz, reflex=tuple(p for p in reflex if p),
                    sync_source=spec.sync_source, trigger=trigger)
+
+    def planned(self) -> str:
+        """What will tick the controller, in the status line's terms."""
+        return planned_ticks(self.mode, rate_hz=self.rate_hz, reflex=self.reflex,
+                             sync_source=self.sync_source, trigger=self.trigger)
 
 
 def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
@@ -306,6 +313,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     sim_run: SimulationRun | None = None
     controller: Controller | None = None
     recorder: McapRecorder | None = None
+    live: FoxgloveServer | None = None
     try:
         if options.mode == "client":
             routers = " ".join(options.connect) or "(the --config file's router)"
@@ -394,16 +402,9 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             await component.start()
         if sim_run is not None:
             sim_run.start(controller)
-        rate = {
-            TickMode.PERIODIC: f" at {settings.rate_hz:g} Hz"
-            + (f" + a reflex tick on each {', '.join(settings.reflex)} sample"
-               if settings.reflex else ""),
-            TickMode.SYNC: f" (one tick per {settings.sync_source} sample, the thesis's loop)",
-            TickMode.EVENT: f" (one tick per {settings.trigger} sample)",
-        }[settings.mode]
         here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
         print(f"  devices: {here or 'none here'}", file=out)
-        print(f"  controller: {settings.mode.value}{rate}, tree:", file=out)
+        print(f"  controller: {settings.planned()}; tree:", file=out)
         for line in root.render_tree().splitlines():
             print(f"    {line}", file=out)
         for slot in robot.remotes:
@@ -425,6 +426,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
                   + (f" ({stats.dropped} dropped: the disk did not keep up)"
                      if stats.dropped else "")
                   + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
+        if live is not None:
+            print(f"  live view: {live.stats.summary()}", file=out)
         print("ubf_async: stopped", file=out)
         out.flush()
         if failure is not None:
@@ -529,17 +532,36 @@ def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
         sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
         print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
     settings = plan.controller
-    print(f"  controller: {settings.mode.value} at {settings.rate_hz:g} Hz, reflex "
-          f"{', '.join(settings.reflex) or 'none'}", file=out)
+    print(f"  controller: {settings.planned()}", file=out)
     for line in robot.root.render_tree().splitlines():
         print(f"    {line}", file=out)
     for slot in robot.remotes:
         print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
 
 
+def optional_port_only_if_numeric(argv: Sequence[str]) -> list[str]:
+    """``--foxglove [PORT]``: argparse gives an optional value whatever word follows, so
+    ``launch --foxglove my_robot.yaml`` would read the robot file as the port. The word after
+    ``--foxglove`` is its PORT only if it is a number; otherwise the flag stands alone."""
+    out = list(argv)
+    for i, word in enumerate(out[:-1]):
+        if word == "--":
+            break
+        following = out[i + 1]
+        if (word == "--foxglove" and not following.startswith("-")
+                and not following.strip().isdigit()):
+            out[i] = f"--foxglove={DEFAULT_FOXGLOVE_PORT}"
+    return out
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The command line (``sys.argv[1:]`` by default), parsed by :func:`build_parser`."""
+    words = sys.argv[1:] if argv is None else argv
+    return build_parser().parse_args(optional_port_only_if_numeric(words))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
     # Deprecations in what a user wrote (old scenario fields …) are for the user to see.
     warnings.filterwarnings("default", category=DeprecationWarning,
                             module=r"(ubf_async|components)(\.|$)")

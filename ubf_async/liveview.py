@@ -43,12 +43,13 @@ import contextlib
 import functools
 import logging
 import math
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import msgspec
 
@@ -63,6 +64,9 @@ from ubf_async.component import Component
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.protocol import Message, decode
 from ubf_async.topics import BY_SCHEMA, PlainData
+
+if TYPE_CHECKING:
+    from foxglove.websocket import ChannelView, Client, ServerListener
 
 log = logging.getLogger(__name__)
 
@@ -389,6 +393,60 @@ class LiveViewStats:
     malformed: int = 0
     """Messages that were not valid envelopes (skipped)."""
     logged: int = 0
+    """Live messages converted and logged to their Foxglove channel."""
+    sent: int = 0
+    """Of those, the ones logged while a client subscribed to their channel (the server sends
+    a channel's messages only to its subscribers)."""
+    clients: set[int] = field(default_factory=set)
+    """The clients (ids) that ever subscribed to a channel."""
+
+    def summary(self) -> str:
+        """What was served, truthfully: nothing, when no client ever subscribed."""
+        if not self.clients:
+            return (f"no Foxglove client subscribed: {self.logged} messages converted, none "
+                    f"sent")
+        return (f"{self.sent} of {self.logged} messages converted went to "
+                f"{len(self.clients)} Foxglove client(s)")
+
+
+class _Subscriptions:
+    """Which channels have a subscriber now, as the server tells its listener
+    (:meth:`listener`). Written on the SDK's threads, read on the loop: a lock keeps it
+    whole."""
+
+    def __init__(self, stats: LiveViewStats) -> None:
+        self._lock = threading.Lock()
+        self._stats = stats
+        self._by_topic: dict[str, set[int]] = {}
+
+    def subscribed(self, topic: str, client: int) -> None:
+        with self._lock:
+            self._by_topic.setdefault(topic, set()).add(client)
+            self._stats.clients.add(client)
+
+    def unsubscribed(self, topic: str, client: int) -> None:
+        with self._lock:
+            self._by_topic.get(topic, set()).discard(client)
+
+    def watched(self, topic: str) -> bool:
+        with self._lock:
+            return bool(self._by_topic.get(topic))
+
+    def listener(self) -> ServerListener:
+        """The SDK's listener reporting to this (built here: the SDK is imported only by a
+        process that serves)."""
+        from foxglove.websocket import ServerListener
+
+        subscriptions = self
+
+        class Listener(ServerListener):
+            def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+                subscriptions.subscribed(channel.topic, client.id)
+
+            def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+                subscriptions.unsubscribed(channel.topic, client.id)
+
+        return Listener()
 
 
 class FoxgloveServer(Component):
@@ -405,6 +463,7 @@ class FoxgloveServer(Component):
         self.requested_port = port
         self.view = view if view is not None else LiveView(robot_prefix=bus.keys.prefix)
         self.stats = LiveViewStats()
+        self._subscriptions = _Subscriptions(self.stats)
         self._server: Any = None
         self._context: Any = None
         self._channels: dict[str, Any] = {}
@@ -427,7 +486,8 @@ class FoxgloveServer(Component):
             try:
                 self._server = foxglove.start_server(
                     name=f"ubf_async robot {self.bus.robot}", host=self.host,
-                    port=self.requested_port, context=self._context)
+                    port=self.requested_port, context=self._context,
+                    server_listener=self._subscriptions.listener())
             except RuntimeError as exc:
                 raise ConfigurationError(
                     f"Foxglove server on {self.host}:{self.requested_port}: {exc}") from None
@@ -447,6 +507,8 @@ class FoxgloveServer(Component):
         for live in self.view.convert(key, message, self.bus.clock.now_ns()):
             self._channel(live).log(live.data, log_time=live.log_time_ns)
             self.stats.logged += 1
+            if self._subscriptions.watched(live.topic):
+                self.stats.sent += 1
 
     def _channel(self, live: LiveMessage) -> Any:
         channel = self._channels.get(live.topic)
@@ -556,7 +618,7 @@ async def serve(args: argparse.Namespace, *,
             return 0
         finally:
             await server.aclose()
-            print(f"{PROG}: {server.stats.logged} messages served", flush=True)
+            print(f"{PROG}: {server.stats.summary()}", flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -18,12 +18,13 @@ not a valid envelope: those are recorded too, and counted).
 Nothing of it runs on the event loop but a queue put: a writer thread encodes, compresses
 (zstd, per chunk) and writes. The queue is bounded (``max_queue``); when the disk cannot keep
 up, messages are dropped, counted (``stats.dropped``), logged and reported when the recording
-ends — never silently. The writer closes its chunk every ``flush_s`` (1 s), so a recorder that
-is killed (``SIGKILL``, a power cut) leaves a file whose complete chunks any MCAP reader
-recovers, streaming: at most the last ``flush_s`` of messages, plus those still queued, are
-lost. ``split_bytes`` starts a new file (``<name>_1.mcap``, ``_2``…) when one grows past it, so
-a long run never needs one huge file; memory stays bounded by the queue and one chunk either
-way.
+ends — never silently. The writer closes its chunk every ``flush_s`` (1 s) and syncs the file
+to the disk (``fsync``, on the writer thread: ≈0.4–0.7 ms once per flush on this project's
+machine), so a recorder that is killed (``SIGKILL``, a crash) or loses its power leaves a file
+whose complete chunks any MCAP reader recovers, streaming: at most the last ``flush_s`` of
+messages, plus those still queued, are lost. ``split_bytes`` starts a new file
+(``<name>_1.mcap``, ``_2``…) when one grows past it, so a long run never needs one huge file;
+memory stays bounded by the queue and one chunk either way.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import os
 import queue
 import threading
 import time
@@ -124,6 +126,9 @@ class RecorderStats:
     invalid: int = 0
     """Messages that are not a valid envelope (recorded all the same)."""
     flushes: int = 0
+    """Chunks closed and synced to the disk (``fsync``)."""
+    sync_s_max: float = 0.0
+    """The longest ``fsync`` so far (s): what durability costs the writer."""
     live: int = 0
     """Messages of the live view's Foxglove channels written beside them."""
     files: list[Path] = field(default_factory=list)
@@ -185,6 +190,12 @@ class McapRecorder(Component):
             if self.stats.dropped == 1 or self.stats.dropped % 1000 == 0:
                 log.warning("%s: the writer is behind; %d messages dropped so far", self.name,
                             self.stats.dropped)
+
+    @property
+    def queued(self) -> int:
+        """Messages received and not yet written (what a kill now would lose besides the
+        last ``flush_s``)."""
+        return self._queue.qsize()
 
     async def aclose(self) -> None:
         if self.closed:
@@ -251,6 +262,7 @@ class _File:
         self.channels: dict[tuple[str, int], int] = {}
         self.sequence = 0
         self.finished = False
+        self.synced_dir = False
 
     def _schema_id(self, name: str) -> int:
         topic = BY_SCHEMA.get(name)
@@ -305,8 +317,17 @@ class _File:
                                 publish_time=publish_ns, sequence=self.sequence)
 
     def flush(self) -> None:
-        self.writer.flush()  # closes the chunk: from here on a reader recovers it
-        self.recorder.stats.flushes += 1
+        self.writer.flush()  # closes the chunk and writes it out of Python's buffers
+        # ... and onto the disk: without fsync a power cut loses what the kernel still caches
+        # (a killed process does not). On the writer thread, never on the event loop.
+        started = time.monotonic()
+        os.fsync(self.stream.fileno())
+        if not self.synced_dir:  # the new file's directory entry too, once
+            self.synced_dir = True
+            _fsync_dir(self.path.parent)
+        stats = self.recorder.stats
+        stats.sync_s_max = max(stats.sync_s_max, time.monotonic() - started)
+        stats.flushes += 1
         if self.recorder._on_flush is not None:
             self.recorder._on_flush(self.recorder.stats)
 
@@ -319,8 +340,20 @@ class _File:
         self.finished = True
         try:
             self.writer.finish()
+            os.fsync(self.stream.fileno())
         finally:
             self.stream.close()
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a new file's directory entry durable (POSIX: fsync the directory). Some file
+    systems refuse it; the file's own data is synced regardless."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 # -- python -m ubf_async.record --------------------------------------------------------------
@@ -339,15 +372,16 @@ def build_parser() -> argparse.ArgumentParser:
                         help="a directory (the file is <robot>.mcap in it) or a .mcap file")
     add_attach_arguments(parser, name="recorder", who="the recorder")
     parser.add_argument("--flush-s", type=float, default=DEFAULT_FLUSH_S, metavar="S",
-                        help="close a chunk every S seconds: a killed recorder loses at most "
-                             "that much")
+                        help="close a chunk and fsync the file every S seconds: a killed "
+                             "recorder loses at most the last S seconds, plus what is queued")
     parser.add_argument("--split-mb", type=float, default=None, metavar="MB",
                         help="start a new file when one grows past MB megabytes")
     parser.add_argument("--no-live-channels", dest="live_channels", action="store_false",
-                        help="record only the original messages, not the live view's Foxglove "
-                             "channels beside them")
+                        help="record only the original messages (by default the live view's "
+                             "Foxglove channels are recorded beside them)")
     parser.add_argument("--progress", action="store_true",
-                        help="print a line after every flush: messages written and dropped")
+                        help="print a line after every flush: messages written (on the disk), "
+                             "dropped and still queued")
     return parser
 
 
@@ -356,8 +390,9 @@ async def record(args: argparse.Namespace) -> int:
         await ensure_name_free(bus, args.name, hint="give this recorder another --name")
 
         def progress(stats: RecorderStats) -> None:
-            print(f"recorded {stats.written} messages ({stats.dropped} dropped) to "
-                  f"{stats.files[-1]}", flush=True)
+            # After the flush: the written messages are on the disk; the queued ones not yet.
+            print(f"recorded {stats.written} messages ({stats.dropped} dropped, "
+                  f"{recorder.queued} queued) to {stats.files[-1]}", flush=True)
 
         recorder = McapRecorder(
             bus=bus, out=args.out, name=args.name, flush_s=args.flush_s,

@@ -13,6 +13,12 @@ of the recorded run are what a re-run produces, so they are left out (``--only``
 keys, relative to ``ubf/<robot>/``). The messages go to the keys of ``--robot`` (the
 connection flags' robot, ``mini`` by default), whichever robot was recorded.
 
+Before the first message goes out the tool waits until the robot is there (it connects to
+``tcp/127.0.0.1:7447``, where ``launch`` listens, unless given ``--connect`` or ``--listen``)
+**and** something subscribes to what it replays: zenoh delivers a sample only to the
+subscribers known when it is put, so a replay into nobody would publish into the void and
+report success. Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
+
 In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
 the re-run's :class:`~ubf_async.clock.SimClock` and a ``settle`` (the in-process transport's),
 :func:`replay` advances the clock to each message's time itself and waits until everything
@@ -23,9 +29,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
+import queue
+import threading
 import time
-from collections.abc import Awaitable, Callable, Iterator, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,8 +43,10 @@ from mcap.reader import make_reader
 
 from ubf_async.bus import (
     DEFAULT_ATTACH_TIMEOUT_S,
+    DEFAULT_LISTEN,
     Bus,
     HelpFormatter,
+    NoRobotError,
     RawPublisher,
     add_connection_arguments,
     connection_options,
@@ -92,6 +103,68 @@ class Recording:
                 if any(intersects(p, key) for p in self._patterns):
                     yield Recorded(to + key[len(self._from):], message.data, message.log_time)
 
+    def keys(self) -> list[str]:
+        """The keys (under ``ubf/<robot>/``) this recording publishes on, sorted. Reads the
+        file's summary; a file without one (a killed recorder's) is read through."""
+        to = f"ubf/{self.robot}/"
+        with self.path.open("rb") as f:
+            summary = make_reader(f).get_summary()
+        if summary is not None:
+            topics = {c.topic for c in summary.channels.values()
+                      if c.message_encoding == "msgpack" and c.topic.startswith(self._from)}
+            return sorted(to + t[len(self._from):] for t in topics
+                          if any(intersects(p, t) for p in self._patterns))
+        return sorted({m.key for m in self})
+
+    async def read_ahead(self, *, batch: int = 256, batches: int = 8
+                         ) -> AsyncIterator[Recorded]:
+        """:meth:`__iter__` with the file read and decompressed on a thread (never on the
+        event loop), at most ``batches`` × ``batch`` messages ahead of the consumer."""
+        ahead: queue.Queue[list[Recorded] | BaseException | None] = queue.Queue(batches)
+        stop = threading.Event()
+
+        def put(item: list[Recorded] | BaseException | None) -> bool:
+            while not stop.is_set():  # bounded, and called off when the consumer leaves
+                try:
+                    ahead.put(item, timeout=0.1)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+
+        def read() -> None:
+            try:
+                chunk: list[Recorded] = []
+                for message in self:
+                    chunk.append(message)
+                    if len(chunk) == batch:
+                        if not put(chunk):
+                            return
+                        chunk = []
+                if chunk and not put(chunk):
+                    return
+                put(None)
+            except BaseException as exc:  # handed over: raised on the loop, in the consumer
+                put(exc)
+
+        reader = threading.Thread(target=read, name=f"replay:{self.path.name}", daemon=True)
+        reader.start()
+        try:
+            while True:
+                item = await asyncio.to_thread(ahead.get)
+                if item is None:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                for message in item:
+                    yield message
+        finally:
+            stop.set()
+            # Wake a get still waiting in its worker thread (a cancelled replay), so that the
+            # loop's executor can shut down; a full queue has nobody waiting on it.
+            with contextlib.suppress(queue.Full):
+                ahead.put_nowait(None)
+
 
 Settle = Callable[[], Awaitable[None]]
 
@@ -115,7 +188,7 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
     first_ns: int | None = None
     wall_start = time.monotonic()
     try:
-        for message in recording:
+        async for message in recording.read_ahead():
             if first_ns is None:
                 first_ns = message.log_time_ns
             if speed is not None:
@@ -159,6 +232,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "'python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time'.")
     parser.add_argument("file", type=Path, metavar="FILE.mcap")
     add_connection_arguments(parser)
+    for action in parser._actions:  # a tool's default: the robot's endpoint
+        if action.dest == "connect":
+            action.help = (f"endpoint of the robot (repeatable; default: {DEFAULT_LISTEN}, "
+                           "where launch listens, unless --listen is given)")
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=float, default=1.0, metavar="K",
                       help="K times the recorded pace")
@@ -167,19 +244,74 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated key expressions under ubf/<robot>/ to replay "
                              "(default: what a controller takes in; '**' for everything)")
     parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
-                        metavar="S", help="with --connect: how long to wait for the robot")
+                        metavar="S",
+                        help="how long to wait for the robot and for a subscriber of what is "
+                             "replayed before giving up (exit status 2)")
     return parser
+
+
+PROBE_SCHEMA = "replay.probe"
+"""The schema named by the publishers :func:`wait_for_listeners` declares to learn who
+subscribes (they never publish)."""
+SETTLE_S = 1.0
+"""Once a key has a subscriber, how long the others get to show theirs (a robot starting up
+declares its subscriptions within milliseconds of each other)."""
+
+
+async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
+                             settle_s: float = SETTLE_S, poll_s: float = 0.01) -> list[str]:
+    """Wait until something subscribes to ``keys``: return as soon as every key has a
+    subscriber, or ``settle_s`` after the first one had (the keys still without one are
+    returned). :class:`~ubf_async.bus.NoRobotError` when none has after ``timeout_s``.
+
+    zenoh delivers a sample only to the subscribers its publisher knows when it is put
+    (declarations travel asynchronously), so a replay that started before the robot's
+    subscriptions had arrived would publish into nothing."""
+    probes = [bus.publisher(key, PROBE_SCHEMA) for key in keys]
+    try:
+        deadline = time.monotonic() + timeout_s
+        settled: float | None = None
+        while True:
+            missing = [p.key for p in probes if not p.has_subscribers()]
+            now = time.monotonic()
+            if not missing:
+                return []
+            if len(missing) < len(probes):
+                settled = settled if settled is not None else now + settle_s
+                if now >= settled:
+                    return missing
+            elif now >= deadline:
+                raise NoRobotError(
+                    f"nobody subscribes to what this would replay ({len(keys)} keys under "
+                    f"ubf/{bus.robot}/: {_some(keys, bus.keys.prefix)}) within "
+                    f"{timeout_s:g}s: start the "
+                    f"robot to feed first, e.g. `python -m ubf_async.launch ROBOT_FILE "
+                    f"--no-sim --sim-time`, and check --connect and --robot")
+            await asyncio.sleep(poll_s)  # polling zenoh's matching status, as Publisher does
+    finally:
+        for probe in probes:
+            probe.close()
 
 
 async def _main(args: argparse.Namespace) -> int:
     only = [k for k in args.only.split(",") if k.strip()]
-    recording = Recording(args.file, only=only, robot=args.robot)
-    bus = await Bus.open(connection_options(args))
+    recording = await asyncio.to_thread(Recording, args.file, only=only, robot=args.robot)
+    keys = await asyncio.to_thread(recording.keys)
+    if not keys:
+        raise ConfigurationError(f"{args.file}: nothing to replay: no message of robot "
+                                 f"{recording.recorded_robot!r} on {', '.join(only)}")
+    options = connection_options(args)
+    if not options.connect and not options.listen:  # the robot's endpoint, as tools do
+        options.connect = [DEFAULT_LISTEN]
+    bus = await Bus.open(options)
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
+        unheard = await wait_for_listeners(bus, keys, timeout_s=args.wait_for_robot_s)
         print(f"{PROG}: replaying {args.file} onto robot {recording.robot!r} "
               f"({'as fast as possible' if args.fast else f'{args.speed:g}x'}; "
-              f"{', '.join(only)})", flush=True)
+              f"{', '.join(only)}: {len(keys)} keys"
+              + (f", {len(unheard)} with no subscriber: {_some(unheard, bus.keys.prefix)}"
+                 if unheard else "") + ")", flush=True)
         stats = await replay(recording, bus=bus, speed=None if args.fast else args.speed)
         print(f"{PROG}: {stats.published} messages replayed"
               + (f", at worst {stats.late_s * 1e3:.0f} ms behind" if stats.late_s > 0.01
@@ -187,6 +319,11 @@ async def _main(args: argparse.Namespace) -> int:
         return 0
     finally:
         await bus.aclose()
+
+
+def _some(keys: Sequence[str], prefix: str, shown: int = 3) -> str:
+    short = [k.removeprefix(prefix + "/") for k in keys[:shown]]
+    return ", ".join(short) + (f" and {len(keys) - shown} more" if len(keys) > shown else "")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,7 +8,9 @@ of the terminal's width: a field never runs off the edge, and what does not fit 
 
 The tick rate says what ticked: ``tick 50.0Hz`` is the clock's periodic ticks, ``+reflex
 24.9Hz`` the ticks run at once by a reflex sample, ``sync 9.1Hz`` the thesis's loop (one tick
-per frame of its sync source), ``event`` a triggered controller's.
+per frame of its sync source), ``event`` a triggered controller's. The same labels name the
+plan before a run (:func:`planned_ticks`: the launch banner, ``launch --check``) and a running
+controller seen from another process (``inspector state``, :func:`tick_rates`).
 """
 
 from __future__ import annotations
@@ -25,21 +27,43 @@ SEPARATOR = " | "
 MAX_LINES = 2
 
 
-def tick_label(controller: Controller) -> str:
-    """The tick rates, each named by what ran the ticks."""
-    stats = controller.stats
-    total = stats.rate_hz()
-    if controller.mode is TickMode.PERIODIC:
-        periodic = stats.periodic_rate_hz()
-        label = f"tick {periodic:.1f}Hz" if periodic else "tick --"
-        reflex = (total or 0.0) - (periodic or 0.0)
-        if controller.reflex_sources and reflex >= 0.05:
-            label += f" +reflex {reflex:.1f}Hz"
+def tick_rates(mode: str, total_hz: float | None, periodic_hz: float | None, *,
+               reflex: bool = True, source: str | None = None) -> str:
+    """The tick rates, each named by what ran the ticks: ``tick 50.0Hz +reflex 24.9Hz``
+    (periodic: the clock's ticks, then those run at once by a reflex sample), ``sync 9.1Hz
+    (camera/front)``, ``event 25.0Hz (range/front)``. ``reflex``: whether reflex ticks can
+    happen (the gap between all ticks and the clock's is shown only then)."""
+    if mode == TickMode.PERIODIC.value:
+        label = f"tick {periodic_hz:.1f}Hz" if periodic_hz else "tick --"
+        extra = (total_hz or 0.0) - (periodic_hz or 0.0)
+        if reflex and extra >= 0.05:
+            label += f" +reflex {extra:.1f}Hz"
         return label
-    name = "sync" if controller.mode is TickMode.SYNC else "event"
+    rate = f"{total_hz:.1f}Hz" if total_hz else "--"
+    return f"{mode} {rate}" + (f" ({source})" if source else "")
+
+
+def tick_label(controller: Controller) -> str:
+    """The controller's tick rates now (:func:`tick_rates`)."""
+    stats = controller.stats
     source = controller.sync_source if controller.mode is TickMode.SYNC else controller.trigger
-    rate = f"{total:.1f}Hz" if total else "--"
-    return f"{name} {rate} ({source})"
+    return tick_rates(controller.mode.value, stats.rate_hz(), stats.periodic_rate_hz(),
+                      reflex=bool(controller.reflex_sources), source=source)
+
+
+def planned_ticks(mode: TickMode, *, rate_hz: float, reflex: Sequence[str] = (),
+                  sync_source: str = "", trigger: str | None = None) -> str:
+    """What will tick a controller, in the status line's terms, before it runs (the launch
+    banner, ``launch --check``). Only a periodic controller ticks at ``rate_hz``: a sync or
+    event controller ticks per sample and re-sends its last decision at ``rate_hz`` between
+    ticks (a hold), and it takes no reflex ticks."""
+    if mode is TickMode.PERIODIC:
+        return (f"periodic tick {rate_hz:g}Hz"
+                + (f" +reflex on each {', '.join(reflex)} sample" if reflex else " (no reflex)"))
+    source = sync_source if mode is TickMode.SYNC else trigger
+    loop = "the thesis's loop; " if mode is TickMode.SYNC else ""
+    return (f"{mode.value} on each {source} sample ({loop}between ticks the decision is "
+            f"re-sent at {rate_hz:g} Hz)")
 
 
 def status_fields(robot: str, elapsed_s: float, controller: Controller,

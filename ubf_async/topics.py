@@ -242,11 +242,25 @@ class Leds(Data, frozen=True, kw_only=True):
 # Infrastructure
 
 
+MAX_ANNOUNCED = 64
+"""Publishers a heartbeat may announce."""
+
+
+class Published(Data, frozen=True, kw_only=True):
+    """One of a component's publishers, as its heartbeat announces it: the key and the
+    ``pub`` identity its envelopes carry (``inspector info`` names a key's publishers by it)."""
+
+    key: Text256
+    pub: Annotated[int, Meta(ge=1, le=INT64_MAX)]
+
+
 class Heartbeat(Data, frozen=True, kw_only=True):
     component: Name
     restarts: Count = 0
     loop_lag_s: NonNegative = 0.0
     running: Literal["yes", "no"] = "yes"
+    publishes: Annotated[tuple[Published, ...], Meta(max_length=MAX_ANNOUNCED)] = ()
+    """Optional: what the component publishes now (absent: it does not say)."""
 
 
 class Clock(Data, frozen=True, kw_only=True):
