@@ -114,6 +114,9 @@ def test_info_names_the_schema_fields_and_what_was_heard(robot_endpoint: str) ->
     assert "schema: drive" in out and "speed: number (≥ -100, ≤ 100)" in out
     heard = re.search(r"heard on ubf/insp/cmd/drive: (\d+) messages .* from 1 publisher", out)
     assert heard and int(heard.group(1)) > 20, out
+    # The robot's components announce what they publish in their heartbeats.
+    line = next(line for line in out.splitlines() if line.startswith("publishers"))
+    assert re.match(r"publishers \(live components announcing it\): controller \(", line), line
 
 
 @pytest.mark.asyncio
@@ -149,8 +152,8 @@ async def test_info_names_the_live_components_that_announce_the_key(
     assert result.returncode == 0, result.stderr
     out = result.stdout
     line = next(line for line in out.splitlines() if line.startswith("publishers"))
-    # Only the live one ("gone" has no liveliness token); the robot's own components are
-    # alive but do not announce what they publish, and are counted as such.
+    # Only the live one ("gone" has no liveliness token); the robot's own components that
+    # publish nothing on the key are not named.
     assert re.fullmatch(r"publishers \(live components announcing it\): side "
                         r"\(insp/sensor/range/side\); (\d+) of the (\d+) live components "
                         r"announce no publisher .*", line), line

@@ -34,7 +34,7 @@ from typing import Any
 
 from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
 from ubf_async.errors import ConfigurationError
-from ubf_async.topics import HEARTBEAT, Topic
+from ubf_async.topics import HEARTBEAT, MAX_ANNOUNCED, Topic
 
 log = logging.getLogger(__name__)
 
@@ -206,6 +206,12 @@ class Component:
             await asyncio.sleep(backoff)  # real time: backoff protects the host, not the sim
             backoff = min(self.max_backoff_s, backoff * 2)
 
+    def _announced(self) -> list[dict[str, Any]]:
+        """What this run attempt publishes (the heartbeat's ``publishes``: tools name a key's
+        publishers by it, docs/protocol.md)."""
+        return [{"key": r.key, "pub": r.pub} for r in self._attempt_resources
+                if isinstance(r, Publisher) and len(r.key) <= 256][:MAX_ANNOUNCED]
+
     async def _heartbeat(self) -> None:
         pub = self.bus.publisher(HEARTBEAT, self.name,
                                  period_s=self.heartbeat_period_s)
@@ -217,6 +223,7 @@ class Component:
                     "restarts": self.restarts,
                     "loop_lag_s": lag,
                     "running": "yes" if self.running.is_set() else "no",
+                    "publishes": self._announced(),
                 })
                 expected = time.monotonic() + self.heartbeat_period_s
                 await asyncio.sleep(self.heartbeat_period_s)
