@@ -47,7 +47,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from ubf_async import Action, Behavior, Child, Composite, HighestPriority, State
@@ -276,8 +276,10 @@ async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
         await bus.aclose()
 
 
-def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
-    import msgpack
+def serve_raw(cfg: dict[str, Any], answer: Callable[[bytes, int], bytes]) -> dict[str, Any]:
+    """A raw zenoh session (no asyncio, no bus) answering each ``range/front`` sample in its
+    subscriber callback, on zenoh's thread, with ``answer(payload, count)`` put on
+    ``cmd/drive``; serves until stdin closes."""
     import zenoh
 
     from ubf_async.protocol import Keys
@@ -289,13 +291,8 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
     count = [0]
 
     def on_sample(sample: zenoh.Sample) -> None:
-        msg = msgpack.unpackb(sample.payload.to_bytes())
         count[0] += 1
-        pub.put(msgpack.packb({
-            "schema": "drive", "v": 1, "stamp_ns": time.monotonic_ns(), "seq": count[0],
-            "data": {"speed": 0.0, "turn": 0.0, "based_on": {
-                "source": "range/front", "seq": msg["seq"], "stamp_ns": msg["stamp_ns"]}},
-        }))
+        pub.put(answer(sample.payload.to_bytes(), count[0]))
 
     sub = session.declare_subscriber(keys.sensor("range", "front"), on_sample)
     print("READY", flush=True)
@@ -306,9 +303,21 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
     return {"replies": count[0]}
 
 
-def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
-    import zenoh
+def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
+    import msgpack
 
+    def answer(payload: bytes, count: int) -> bytes:
+        msg = msgpack.unpackb(payload)
+        return bytes(msgpack.packb({
+            "schema": "drive", "v": 1, "stamp_ns": time.monotonic_ns(), "seq": count,
+            "data": {"speed": 0.0, "turn": 0.0, "based_on": {
+                "source": "range/front", "seq": msg["seq"], "stamp_ns": msg["stamp_ns"]}},
+        }))
+
+    return serve_raw(cfg, answer)
+
+
+def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
     from ubf_async.clock import WallClock
     from ubf_async.protocol import Keys, decode, encode
     from ubf_async.topics import RANGE, BasedOn, Drive
@@ -319,31 +328,20 @@ def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
     agg = StateAggregator(bus=StandInBus())  # type: ignore[arg-type]
     tree = reflex_tree()
-    session = zenoh.open(ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]])
-                         .zenoh_config())
-    pub = session.declare_publisher(StandInBus.keys.cmd("drive"))
-    count = [0]
 
-    def on_sample(sample: zenoh.Sample) -> None:
+    def answer(payload: bytes, count: int) -> bytes:
         received = time.monotonic_ns()
-        message = decode(sample.payload.to_bytes(), topic=RANGE)
+        message = decode(payload, topic=RANGE)
         agg.ingest("range/front", message, received)
         trace = tree.evaluate(agg.snapshot())
         action = trace.action if trace is not None else None
-        count[0] += 1
-        pub.put(encode("drive", Drive(
+        return encode("drive", Drive(
             speed=action.speed if action is not None and action.speed is not None else 0.0,
             turn=action.turn if action is not None and action.turn is not None else 0.0,
             based_on=BasedOn(source="range/front", seq=message.seq, stamp_ns=message.stamp_ns),
-            tick=count[0]), stamp_ns=time.monotonic_ns(), seq=count[0]))
+            tick=count), stamp_ns=time.monotonic_ns(), seq=count)
 
-    sub = session.declare_subscriber(StandInBus.keys.sensor("range", "front"), on_sample)
-    print("READY", flush=True)
-    sys.stdin.read()
-    sub.undeclare()
-    pub.undeclare()
-    session.close()
-    return {"replies": count[0]}
+    return serve_raw(cfg, answer)
 
 
 def main(argv: list[str] | None = None) -> int:
