@@ -6,9 +6,12 @@ It reads the robot's IR range finders (every ``range/*`` source of the state, or
 ``--source`` ones) from the same samples the robot sees. When something is within
 ``--near-mm`` (250 mm) it backs away and turns — away from the side of the sensor when its
 name says ``left`` or ``right``, else to the left — with a vote that grows as the obstacle
-gets nearer; otherwise it abstains. It joins the robot's ``seek_pink_ball`` composite at
-priority 3, above search (2) and chase/flee (1), so it interrupts seeking only while an
-obstacle is near.
+gets nearer, and keeps doing so for ``--hold-s`` (1.5 s) after the last such reading, so the
+robot's body, not just the thin IR beam, turns clear of the obstacle's edge; otherwise it
+abstains. It joins the robot's ``seek_pink_ball`` composite at priority 3, above search (2)
+and chase/flee (1), so it interrupts seeking only while an obstacle is near. In the built-in
+``obstacle-course`` scenario it is what gets the robot round the box
+(``python -m ubf_async.launch --scenario obstacle-course``, then this).
 
 The behaviour itself is the built-in ``avoid`` (ubf_async/behaviors/obstacles.py), which a
 robot file can also run inside the robot; this example runs it in a process of its own. The
@@ -23,7 +26,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ubf_async.behavior import Behavior
-from ubf_async.behaviors.obstacles import Avoid
+from ubf_async.behaviors.obstacles import DEFAULT_HOLD_S, Avoid
 from ubf_async.remote import remote_parser, run_remote_behavior
 
 
@@ -51,12 +54,15 @@ def build_parser() -> argparse.ArgumentParser:
                        help="speed while avoiding (negative: back away)")
     avoid.add_argument("--avoid-turn", type=float, default=60.0,
                        help="turn while avoiding (sign chosen from the sensor's side)")
+    avoid.add_argument("--hold-s", type=float, default=DEFAULT_HOLD_S,
+                       help="keep backing and turning this long after the last near reading "
+                            "(0: let go at once)")
     return parser
 
 
 def make_behavior(args: argparse.Namespace) -> Behavior:
     return AvoidObstacles(name=args.name, sources=args.source, near_mm=args.near_mm,
-                          speed=args.back_speed, turn=args.avoid_turn)
+                          speed=args.back_speed, turn=args.avoid_turn, hold_s=args.hold_s)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -66,6 +72,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--near-mm must be > 0")
     if not (-100 <= args.back_speed <= 100 and 0 <= args.avoid_turn <= 100):
         parser.error("--back-speed must be within ±100 and --avoid-turn within 0..100")
+    if not 0 <= args.hold_s <= 60:
+        parser.error("--hold-s must be within 0..60")
     return run_remote_behavior(make_behavior, args)
 
 

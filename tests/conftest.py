@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import socket
 import sys
 import time
@@ -57,11 +58,20 @@ async def eventually(
 REPOSITORY = Path(__file__).resolve().parent.parent
 
 
+def repository_env() -> dict[str, str]:
+    """The environment for a child process that runs this repository's code: ``python -m``
+    from the root finds it first anyway, but a script (``python examples/x.py``) puts its
+    own folder first and would import the installed package, maybe another checkout's."""
+    paths = [str(REPOSITORY), *filter(None, [os.environ.get("PYTHONPATH")])]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(paths), "PYTHONUNBUFFERED": "1"}
+
+
 async def spawn(*args: str) -> asyncio.subprocess.Process:
-    """``python ARGS`` from the repository's root, its stdout and stderr on a pipe (read it
-    with :func:`read_until`)."""
+    """``python ARGS`` from the repository's root, running this repository's code
+    (:func:`repository_env`), its stdout and stderr on a pipe (read it with
+    :func:`read_until`)."""
     return await asyncio.create_subprocess_exec(
-        sys.executable, *args, cwd=REPOSITORY,
+        sys.executable, *args, cwd=REPOSITORY, env=repository_env(),
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
 
 

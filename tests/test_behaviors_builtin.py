@@ -194,6 +194,8 @@ OUT_OF_RANGE = [
     ("flee", {"min_speed": 5}, "min_speed"),
     ("flee", {"speed_per_pixel": -1}, "speed_per_pixel"),
     ("avoid", {"near_mm": 0}, "near_mm"),
+    ("avoid", {"hold_s": -1}, "hold_s"),
+    ("avoid", {"hold_s": 61}, "hold_s"),
     ("drive", {"turn": -100.5}, "turn"),
     ("stop", {"vote": -1}, "vote"),
 ]
@@ -237,11 +239,34 @@ def test_stop_and_drive() -> None:
 
 
 def test_avoid_from_data() -> None:
-    avoid = build(registry.BEHAVIORS, "avoid", {"sources": ["range/left"], "near_mm": 200})
+    avoid = build(registry.BEHAVIORS, "avoid", {"sources": ["range/left"], "near_mm": 200,
+                                                 "hold_s": 0})
     assert avoid.act(State.of(range__front={"range_mm": 10, "status": "ok"})) is None
     near = avoid.act(State.of(range__left={"range_mm": 100, "status": "ok"}))
     assert (near.speed, near.turn, near.vote) == (-30, -60, 1.5)  # on the left: turn right
     assert avoid.act(stale(range__left={"range_mm": 10, "status": "ok"})) is None
+
+
+def test_avoid_keeps_backing_away_for_its_hold() -> None:
+    """Once the beam has met an obstacle within near_mm, avoid keeps backing and turning for
+    hold_s (1.5 s by default) after the last such reading — so the body, not just the beam,
+    turns clear of an edge — then lets go; a new reading renews the hold."""
+    avoid = Avoid()
+    assert avoid.hold_ns == 1_500_000_000
+    s = 1_000_000_000
+    clear = {"range_mm": 700, "status": "ok"}
+    assert avoid.act(State.of(now_ns=0, range__front=clear)) is None
+    near = avoid.act(State.of(now_ns=1 * s, range__front={"range_mm": 125, "status": "ok"}))
+    assert near is not None and (near.speed, near.turn, near.vote) == (-30, 60, 1.5)
+    held = avoid.act(State.of(now_ns=2 * s, range__front=clear))
+    assert held is not None and (held.speed, held.turn, held.vote) == (-30, 60, 1.0)
+    assert avoid.act(State.of(now_ns=int(2.49 * s), range__front=clear)) == held
+    assert avoid.act(State.of(now_ns=int(2.5 * s), range__front=clear)) is None
+    assert avoid.act(State.of(now_ns=int(2.6 * s), range__front=clear)) is None
+    avoid.act(State.of(now_ns=3 * s, range__front={"range_mm": 0, "status": "too_close"}))
+    assert avoid.act(State.of(now_ns=4 * s, range__front=clear)) == held
+    avoid.reset()
+    assert avoid.act(State.of(now_ns=4 * s, range__front=clear)) is None
 
 
 def test_the_example_still_runs_the_moved_behaviour_under_its_old_name() -> None:
@@ -255,6 +280,9 @@ def test_the_example_still_runs_the_moved_behaviour_under_its_old_name() -> None
     args = example.build_parser().parse_args(["--source", "range/front", "--near-mm", "300"])
     made = example.make_behavior(args)
     assert (made.name, made.sources, made.near_mm) == ("avoid_obstacles", ["range/front"], 300)
+    assert made.hold_ns == Avoid().hold_ns  # the built-in's hold unless told otherwise
+    args = example.build_parser().parse_args(["--hold-s", "0.25"])
+    assert example.make_behavior(args).hold_ns == 250_000_000
 
 
 # -- predicates --------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import msgpack
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from components.camera.seekcolor import seekcolor
 from components.leds.bank import LedBank
 from components.leds.component import LedsComponent
 from components.sim.backends import SimLedBackend
-from components.sim.record import LED_LIT_BGR, annotate_frame
+from components.sim.record import LED_DARK_BGR, LED_LIT_BGR, annotate_frame, read_trajectory_csv
 from tests.conftest import as_dict, eventually
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.protocol import ProtocolError, decode, encode
@@ -100,19 +101,40 @@ def test_recorded_frames_draw_the_leds() -> None:
 
 
 def test_chase_lights_led_0_while_the_robot_sees_pink(tmp_path: Path, endpoint: str) -> None:
-    # The shipped robot: chase lights LED 0, search turns it off. In ball-in-sight the ball is
-    # ahead from the start; the status line and the recorded frames show the LEDs.
+    """The shipped robot: chase lights LED 0, search turns it off. In ball-behind the robot
+    searches (sits still, then turns) until it finds the ball, then chases it: the recorded
+    frames show LED 0 dark while it searches and lit while it chases (where the renderer
+    draws it: bottom right, LED 0 left of LED 1), and the status line shows the LEDs too."""
     result = subprocess.run(
-        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight",
-         "--speed", "4", "--duration", "4", "--listen", endpoint, "--record", str(tmp_path),
-         "--record-every-s", "1", "--status-period-s", "0.2"],
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-behind",
+         "--speed", "4", "--duration", "12", "--listen", endpoint, "--record", str(tmp_path),
+         "--record-every-s", "0.5", "--status-period-s", "0.2"],
         cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"}, capture_output=True,
         text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
     status = [line for line in result.stdout.splitlines() if "leds/panel" in line]
     assert status and "leds/panel ●○ " in status[-1]
-    frames = sorted(tmp_path.glob("frame_*.png"))
-    assert frames
+    samples = read_trajectory_csv(tmp_path / "trajectory.csv")
+    shown: dict[str, list[float]] = {"search": [], "chase": []}
+    for path in sorted(tmp_path.glob("frame_*.png")):
+        t_s = float(path.stem.removeprefix("frame_").removesuffix("s"))
+        # Judged only where one behaviour has acted alone for the last half second: the LED
+        # state reaches the recorder over the bus a tick or two after the command.
+        recent = {s.winners for s in samples if t_s - 0.5 <= s.t_s <= t_s}
+        if recent == {"search"} or (recent and all("chase" in w for w in recent)):
+            image = cv2.imread(str(path))
+            h, w = image.shape[:2]
+            centre, ring = image[h - 17, w - 38], image[h - 17, w - 38 + 7]
+            if recent == {"search"}:
+                assert tuple(centre) == (0, 0, 0), path.name  # dark: a ring, black inside
+                assert tuple(ring) == LED_DARK_BGR, path.name
+                shown["search"].append(t_s)
+            else:
+                assert tuple(centre) == LED_LIT_BGR, path.name
+                shown["chase"].append(t_s)
+    # Searching first (from 0.5 s: the first LED state has arrived), chasing later.
+    assert len(shown["search"]) >= 4 and len(shown["chase"]) >= 4, shown
+    assert max(shown["search"]) < min(shown["chase"]), shown
 
 
 @pytest.mark.asyncio

@@ -148,3 +148,20 @@ def test_effective_track_scales_the_heading_only() -> None:
     for bad in (0.0, -0.1, math.nan):
         with pytest.raises(ValueError, match="effective_track_m"):
             Odometry(effective_track_m=bad)
+
+
+def test_unwrapped_heading_counts_full_turns() -> None:
+    """Three and a half turns to the left, then one back: the pose's heading wraps, the
+    unwrapped heading counts every turn (an error past 180° must stay visible)."""
+    odo = Odometry(pose=Pose2D(heading_rad=0.5))
+    quarter = (math.pi / 2) * TRACK / (2 * R)  # wheel angle for a quarter turn in place
+    for _ in range(14):
+        odo.update(-quarter, quarter)
+    assert odo.heading_unwrapped_rad == pytest.approx(0.5 + 7 * math.pi)
+    assert odo.pose.heading_rad == pytest.approx(wrap_angle(0.5 + 7 * math.pi))
+    for _ in range(4):
+        odo.update(quarter, -quarter)
+    assert odo.heading_unwrapped_rad == pytest.approx(0.5 + 5 * math.pi)
+    odo.reset(Pose2D(heading_rad=3 * math.pi))
+    assert odo.heading_unwrapped_rad == pytest.approx(3 * math.pi)
+    assert odo.pose.heading_rad == pytest.approx(math.pi)

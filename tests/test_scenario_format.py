@@ -123,9 +123,9 @@ MISTAKES = [
     ({"ball": {"x_m": 2.0, "y_m": 0.0}}, "the ball at \\(2, 0\\) m lies \\(partly\\) outside"),
     ({"ball": {"x_m": 1.49, "y_m": 0.0}}, "the ball .* outside the arena"),
     ({"distractors": [{"kind": "cylinder", "x_m": 0, "y_m": -1.6}]},
-     "distractors\\[0\\] \\(cylinder\\) .* outside"),
+     "distractors\\[0\\] \\(cylinder, 'distractor0'\\) .* outside"),
     ({"distractors": [{"kind": "box", "x_m": 1.45, "y_m": 0, "length_m": 0.2}]},
-     "distractors\\[0\\] \\(box\\) .* outside"),
+     "distractors\\[0\\] \\(box, 'distractor0'\\) .* outside"),
     ({"obstacles": [{"x_m": -1.5, "y_m": 0, "length_m": 0.2, "width_m": 0.2}]},
      "obstacles\\[0\\] .* outside"),
     ({"robot": {"x_m": 1.47, "y_m": 0}}, "the robot at \\(1.47, 0\\) m does not fit"),
@@ -133,10 +133,25 @@ MISTAKES = [
      "ball_script\\[0\\] \\(move_to\\) puts its object at \\(0, 3\\) m, outside"),
     ({"ball": {"x_m": 0.07, "y_m": 0.0}}, "the ball overlaps the robot at its start"),
     ({"distractors": [{"kind": "sphere", "x_m": 0.0, "y_m": 0.0}]},
-     "distractors\\[0\\] \\(sphere\\) overlaps the robot"),
+     "distractors\\[0\\] \\(sphere, 'distractor0'\\) overlaps the robot"),
     ({"obstacles": [{"x_m": 0.1, "y_m": 0.0, "length_m": 0.2, "width_m": 0.2, "yaw_deg": 45}]},
      "obstacles\\[0\\] overlaps the robot"),
     ({"scripts": {"nobody": [{"at_s": 0, "hide": True}]}}, "no distractor is named 'nobody'"),
+    ({"walls": [{"x1_m": -0.5, "y1_m": 0.01, "x2_m": 0.5, "y2_m": 0.01}]},
+     "walls\\[0\\] from \\(-0.5, 0.01\\) to \\(0.5, 0.01\\) m overlaps the robot"),
+    ({"walls": [{"x1_m": 0.0, "y1_m": 0.0, "x2_m": 0.01, "y2_m": 0.0}]},
+     "walls\\[0\\] .* overlaps the robot"),  # wholly inside the body
+    ({"ball_script": [{"at_s": 0, "place": {"x_m": 0.02, "y_m": 0.0}}]},
+     "ball_script\\[0\\] \\(place\\) puts its object at \\(0.02, 0\\) m at the start, "
+     "onto the robot"),
+    ({"distractors": [{"kind": "sphere", "name": "red", "x_m": 0.5, "y_m": 0.5}],
+      "scripts": {"red": [{"at_s": 0, "place": {"x_m": -0.03, "y_m": 0.02}}]}},
+     "scripts.red\\[0\\] \\(place\\) puts its object .* onto the robot"),
+    ({"ball_script": [{"at_s": 0, "follow": {"distance_m": 0.01}}]},
+     "ball_script\\[0\\] \\(follow\\) .* onto the robot"),
+    ({"distractors": [{"kind": "sphere", "name": "red", "x_m": 0.5, "y_m": 0.5}],
+      "scripts": {"red": [{"at_s": 3, "move_to": {"x_m": 3.0, "y_m": 0.0}}]}},
+     "scripts.red\\[0\\] \\(move_to\\) puts its object at \\(3, 0\\) m, outside"),
     ({"distractors": [{"kind": "sphere", "name": "ball", "x_m": 0.5, "y_m": 0.5}]},
      "name must be a unique"),
     ({"ball_script": [{"at_s": 0, "wave": {"period_s": 0}}]}, "period_s must be > 0"),
@@ -157,8 +172,13 @@ def test_mistakes_are_refused_with_a_clear_error(change: dict[str, Any], message
 
 
 def test_touching_is_not_overlapping() -> None:
-    """The ball right in front of the robot's nose (3.5 cm from the camera, contact) loads."""
+    """The ball right in front of the robot's nose (3.5 cm from the camera, contact) loads;
+    so does a wall along its side, a ball placed against its nose at the start and one placed
+    on the robot's start later (the robot has moved on by then)."""
     parse_scenario(base(ball={"x_m": 0.05 + 0.0326, "y_m": 0.0}))
+    parse_scenario(base(walls=[{"x1_m": -0.5, "y1_m": 0.035, "x2_m": 0.5, "y2_m": 0.035}]))
+    parse_scenario(base(ball_script=[{"at_s": 0, "place": {"x_m": 0.0827, "y_m": 0.0}}]))
+    parse_scenario(base(ball_script=[{"at_s": 5, "place": {"x_m": 0.0, "y_m": 0.0}}]))
 
 
 def test_expected_outcomes_are_checked_when_the_scenario_loads() -> None:

@@ -8,6 +8,7 @@ Distances and bearings are from the robot's camera to the ball's centre.
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import json
 import math
@@ -26,7 +27,8 @@ from components.sim.record import (
     motion_over,
     read_trajectory_csv,
 )
-from components.sim.scenarios import Expectation, load_scenario
+from components.sim.scenarios import Expectation, builtin_names, load_scenario
+from tests.conftest import free_port, read_until, spawn, stop
 
 ROOT = Path(__file__).resolve().parent.parent
 SPEED = "5"
@@ -56,14 +58,26 @@ class Run:
                               s.ball_y_m)
 
 
-ODOMETRY_UNCHECKED = {"obstacle-course", "busy-room"}
-"""Scenarios where the robot pushes against an obstacle or is pushed by hand: its wheels turn
-without the body turning (or the other way round), which no odometry from the wheels can see
-(the summary still reports the error)."""
+POSITION_NOT_BOUNDED = {
+    "obstacle-course": "with avoid the robot may brush a corner of the box in passing (its wheels "
+                       "drive on while the body is held: odometry runs ahead of the body)",
+    "busy-room": "a hand shoves the robot 10 cm and turns it 30°: its wheels never see it, and "
+                 "every later step of the odometry is laid down 30° off",
+    "fleet-search": "the robot creeps 6 m in stops and starts: the encoders take the direction "
+                    "from the command (the thesis's HAL), so the edges of a wheel coasting to a "
+                    "stop after a stop command are counted in no direction — odometry falls "
+                    "short by ≈ 10 %",
+}
+"""Built-in scenarios whose ``expect`` does not bound the odometry's position error, and why
+(the heading is bounded in every one: over the undisturbed periods, docs/scenarios.md)."""
 
 
 def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str, *extra: str,
-                 speed: str = SPEED, robot_file: Path | None = None) -> Run:
+                 speed: str = SPEED, robot_file: Path | None = None,
+                 expect_met: bool = True) -> Run:
+    """Launch ``name`` (a subprocess, as a user would) and read its summary and trajectory.
+    Every run is checked against the odometry rule (:func:`assert_odometry_tracks_the_heading`)
+    and, unless ``expect_met`` is false, against its scenario file's ``expect``."""
     folder = tmp_path / "-".join([name, *extra]).replace("/", "_")
     summary_path = folder / "summary.json"
     proc = subprocess.run(
@@ -76,9 +90,8 @@ def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str, *extra: s
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads(summary_path.read_text())
-    if name not in ODOMETRY_UNCHECKED:
-        assert_odometry_tracks_the_heading(summary, label=name)
-        assert summary["expected"]["pass"], (name, summary["expected"])  # the file's expect
+    assert_odometry_tracks_the_heading(summary, label=name)
+    assert summary["expected"]["pass"] is expect_met, (name, summary["expected"])
     samples = read_trajectory_csv(folder / "trajectory.csv")
     print(f"{name}: sim {summary['sim_time_s']:.1f}s at x{summary['real_time_factor']:.2f}, "
           f"final distance {summary['ball_distance_m']}, bearing {summary['ball_bearing_deg']}, "
@@ -87,14 +100,44 @@ def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str, *extra: s
 
 
 def assert_odometry_tracks_the_heading(summary: dict[str, Any], *, label: str) -> None:
-    """The encoders' odometry (effective track) ends within 10 % of the angle the robot
-    turned of its true heading; the summary also reports the position error."""
-    odo = summary["odometry"]
+    """The odometry rule, for every run of every built-in scenario: over the sample intervals
+    in which nothing touched or pushed the robot, the encoders' odometry (effective track)
+    gains a heading error of at most 10 % of the angle the robot turned over them (headings
+    unwrapped: full turns count). Without any contact or push that is the whole run. While
+    something holds or shoves the robot its wheels cannot tell (the thesis's caveat: the
+    encoders take the direction from the command), so those periods are reported — in
+    ``contacts`` and as ``odometry.disturbed_heading_error_deg`` — not judged."""
+    odo, contacts = summary["odometry"], summary["contacts"]
     assert odo is not None, label
-    assert odo["heading_error_deg"] <= 0.10 * odo["turned_deg"], (label, odo)
-    assert 0.0 <= odo["position_error_m"] < 0.10, (label, odo)
-    print(f"{label}: odometry heading error {odo['heading_error_deg']:.2f}° of "
-          f"{odo['turned_deg']:.0f}° turned, position error {odo['position_error_m']:.3f} m")
+    free = odo["undisturbed"]
+    assert free["heading_error_deg"] <= 0.10 * free["turned_deg"], (label, odo)
+    if contacts["count"] == 0:
+        assert contacts["time_s"] == 0 and odo["disturbed_heading_error_deg"] == 0, label
+        assert free == pytest.approx({k: odo[k] for k in free}, rel=1e-5), (label, odo)
+    assert odo["position_error_m"] >= 0.0, (label, odo)  # reported; bounded by the files
+    print(f"{label}: odometry heading error {free['heading_error_deg']:.2f}° of "
+          f"{free['turned_deg']:.0f}° turned undisturbed ({odo['heading_error_deg']:.1f}° of "
+          f"{odo['turned_deg']:.0f}° in all, {contacts['count']} contacts/pushes for "
+          f"{contacts['time_s']:.2f} s), position error {odo['position_error_m']:.3f} m")
+
+
+def test_every_built_in_scenario_is_run_and_judged() -> None:
+    """No built-in scenario goes unchecked: each is launched by a test of this module (those
+    below; fleet-search's fleet runs in tests/test_fleet_search.py too), and each file's
+    ``expect`` has criteria — a heading criterion of the odometry among them, and a position
+    criterion unless :data:`POSITION_NOT_BOUNDED` says why not."""
+    launched_here = {"ball-in-sight", "ball-in-sight-orange", "ball-behind", "keep-away", "dance",
+                     "ball-held-close", "obstacle-course", "busy-room", "fleet-search"}
+    assert set(builtin_names()) == launched_here
+    source = Path(__file__).read_text("utf-8")
+    for name in builtin_names():
+        assert f'run_scenario("{name}"' in source, name
+        expect = load_scenario(name).expect
+        assert expect is not None and expect.criteria, name
+        paths = {c.path for c in expect.criteria}
+        assert paths & {"odometry.heading_error_fraction",
+                        "odometry.undisturbed.heading_error_fraction"}, name
+        assert ("odometry.position_error_m" in paths) != (name in POSITION_NOT_BOUNDED), name
 
 
 SETTLED = Expectation(
@@ -257,28 +300,140 @@ def test_ball_held_close_makes_the_robot_back_away(seed: int, tmp_path: Path, en
     assert min(run.ball_view(s)[0] for s in run.samples) > 0.14
 
 
-def test_obstacle_course_needs_the_avoid_behaviour(tmp_path: Path, endpoint: str,
-                                                  robot: str) -> None:
-    """A low box lies across the way to the ball. The default robot (search, chase, flee)
-    drives into it and pushes against it to the end; with the avoid behaviour at the place
-    examples/avoid_obstacles.py takes (priority 3; here the same behaviour run inside the
-    robot, ``behavior: avoid``) it works its way round and settles at the ball."""
-    default = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
-    text = default.read_text("utf-8")
+def with_avoid_robot_file(tmp_path: Path) -> Path:
+    """The shipped robot with the built-in avoid behaviour in the place
+    examples/avoid_obstacles.py takes (priority 3), run inside the robot."""
+    text = (ROOT / "ubf_async" / "robots" / "mini-whegs.yaml").read_text("utf-8")
     slot = "    - remote: avoid_obstacles\n      priority: 3\n"
     assert slot in text
-    with_avoid = tmp_path / "with-avoid.yaml"
-    with_avoid.write_text(text.replace(slot, "    - behavior: avoid\n      priority: 3\n"),
-                          "utf-8")
-    stuck = run_scenario("obstacle-course", tmp_path / "plain", endpoint, robot, speed="100")
+    path = tmp_path / "with-avoid.yaml"
+    path.write_text(text.replace(slot, "    - behavior: avoid\n      priority: 3\n"), "utf-8")
+    return path
+
+
+def assert_pushes_against_the_box(run: Run) -> None:
+    """The thesis's tree alone: nose on the box to the end, short of the ball — the course's
+    ``expect`` not met, on exactly the criteria that say so."""
     box = load_scenario("obstacle-course").world.boxes[0]
-    near_face_x = box.x_m - box.length_m / 2
-    last = stuck.samples[-1]
-    assert stuck.summary["ball_distance_m"] > 0.65
-    assert last.robot_x_m + 0.05 == pytest.approx(near_face_x, abs=0.01)  # nose on the box
-    assert stuck.summary["motion_last_2s"]["max_offset_m"] < 0.01
-    around = run_scenario("obstacle-course", tmp_path / "avoid", endpoint, robot, speed="100",
-                          robot_file=with_avoid)
-    assert_settled(around, label="obstacle-course with avoid")
-    assert around.summary["ticks"]["winner_share"].get("avoid", 0) > 0.05
-    assert max(s.robot_x_m for s in around.samples) > box.x_m + box.length_m / 2
+    last = run.samples[-1]
+    assert last.robot_x_m + 0.05 == pytest.approx(box.x_m - box.length_m / 2, abs=0.01)
+    failed = {c["criterion"] for c in run.summary["expected"]["criteria"] if not c["pass"]}
+    assert failed == {"ball_distance_m", "contacts.longest_s",
+                      "odometry.heading_error_fraction"}, run.summary["expected"]
+    contacts = run.summary["contacts"]
+    assert set(contacts["by"]) == {"obstacles[0]"} and contacts["periods"][-1]["to_s"] > 59.9
+    # Against the box the wheels turn as commanded, the body does not: huge heading error
+    # in the contact, none to speak of before it.
+    assert run.summary["odometry"]["disturbed_heading_error_deg"] > 100
+
+
+def assert_gets_round_the_box(run: Run, *, avoid: str) -> None:
+    """With avoid: the course's ``expect`` met (settled at the ball, never more than 2 s
+    against the box), avoid acting, and past the box's far face."""
+    box = load_scenario("obstacle-course").world.boxes[0]
+    assert run.summary["expected"]["pass"], run.summary["expected"]
+    assert run.summary["ticks"]["winner_share"].get(avoid, 0) > 0.05
+    assert max(s.robot_x_m for s in run.samples) > box.x_m + box.length_m / 2
+    assert set(run.summary["contacts"]["by"]) <= {"obstacles[0]"}
+
+
+def test_obstacle_course_the_thesis_tree_pushes_against_the_box(
+        tmp_path: Path, endpoint: str, robot: str) -> None:
+    """A low box lies across the way to the ball; the default robot (search, chase, flee)
+    drives into it and pushes against it to the end."""
+    run = run_scenario("obstacle-course", tmp_path, endpoint, robot, speed="100",
+                       expect_met=False)
+    assert_pushes_against_the_box(run)
+    assert run.summary["motion_last_2s"]["max_offset_m"] < 0.01
+
+
+@pytest.mark.parametrize("seed", [6, 1, 2])
+def test_obstacle_course_with_the_avoid_behaviour_gets_round(
+        seed: int, tmp_path: Path, endpoint: str, robot: str) -> None:
+    """The avoid behaviour run inside the robot (``behavior: avoid`` where the example takes
+    its place) backs off whenever the IR beam meets the box within 25 cm and keeps backing
+    and turning for its hold_s: in each seed tried (6 is the file's) it works its way round
+    and settles at the ball, never staying against the box."""
+    run = run_scenario("obstacle-course", tmp_path, endpoint, robot, "--seed", str(seed),
+                       speed="100", robot_file=with_avoid_robot_file(tmp_path))
+    assert_gets_round_the_box(run, avoid="avoid")
+
+
+@pytest.mark.asyncio
+async def test_the_avoid_obstacles_example_in_its_own_process_matters(
+        tmp_path: Path, robot: str) -> None:
+    """``python -m ubf_async.launch --scenario obstacle-course`` (the shipped robot), once
+    alone and once with ``python examples/avoid_obstacles.py`` attached over zenoh: alone it
+    pushes against the box; with the example it gets round and settles at the ball.
+
+    The example listens and the robot connects to it, so the example is up and following the
+    robot's clock before simulated time starts (its first vote comes within a few steps,
+    seconds before the robot nears the box); across processes the run is not repeatable to
+    the bit, so only the outcome is compared."""
+    example_endpoint = f"tcp/127.0.0.1:{free_port()}"
+
+    async def launch(folder: Path, *connect: str) -> dict[str, Any]:
+        listen = f"tcp/127.0.0.1:{free_port()}"
+        proc = await spawn("-m", "ubf_async.launch", "--scenario", "obstacle-course",
+                           "--speed", "4", "--listen", listen, *connect, "--robot", robot,
+                           "--quiet", "--summary", str(folder / "summary.json"),
+                           "--record", str(folder), "--record-every-s", "100")
+        printed, _ = await asyncio.wait_for(proc.communicate(), 120)
+        assert proc.returncode == 0, printed.decode()
+        return json.loads((folder / "summary.json").read_text("utf-8"))  # type: ignore[no-any-return]
+
+    alone = await launch(tmp_path / "alone")
+    example = await spawn(str(ROOT / "examples" / "avoid_obstacles.py"), "--listen",
+                          example_endpoint, "--robot", robot, "--clock", "sim", "--quiet")
+    try:
+        await read_until(example, "waiting for the simulation time")
+        with_example = await launch(tmp_path / "with", "--connect", example_endpoint)
+        printed = await read_until(example, "clock: simulation time")
+        assert "votes in 'seek_pink_ball'" in printed and "(priority 3" in printed
+    finally:
+        await stop(example)
+    for summary in (alone, with_example):
+        assert_odometry_tracks_the_heading(summary, label="obstacle-course (processes)")
+    runs = {label: Run(summary, read_trajectory_csv(tmp_path / label / "trajectory.csv"),
+                       tmp_path / label)
+            for label, summary in (("alone", alone), ("with", with_example))}
+    assert "avoid_obstacles" not in alone["ticks"]["winner_share"]
+    assert_pushes_against_the_box(runs["alone"])
+    assert_gets_round_the_box(runs["with"], avoid="avoid_obstacles")
+
+
+def test_busy_room(tmp_path: Path, endpoint: str, robot: str) -> None:
+    """Every element of the format at once, launched end to end: the file's ``expect`` (the
+    second ball found and faced, nothing but the hand touching the robot, the odometry rule)
+    and what happens on the way."""
+    scenario = load_scenario("busy-room")
+    run = run_scenario("busy-room", tmp_path, endpoint, robot, speed="100")
+    # The orange ball carried across the view (2–8 s) is never taken for pink: the robot
+    # stays settled on the ball, commanding no turn.
+    crossing = run.between(2.0, 8.0)
+    assert all(s.turn_cmd == 0 and abs(run.ball_view(s)[1]) < 5 for s in crossing)
+    # The hand's push (14 s, 30° to the left) is the one disturbance, and the odometry's
+    # heading error is what the push turned it (the wheels never saw it).
+    push = scenario.pushes[0]
+    (period,) = run.summary["contacts"]["periods"]
+    assert period["by"] == ["push"]
+    assert (period["from_s"], period["to_s"]) == pytest.approx(
+        (push.at_s, push.at_s + push.over_s), abs=0.03)  # to an odometry update (50 Hz)
+    assert run.summary["odometry"]["disturbed_heading_error_deg"] == pytest.approx(
+        push.turn_deg, abs=1.5)
+    # After the push the robot turns back to the ball; the second ball, put down behind it at
+    # 20 s when the first is lifted away, is found.
+    assert all(abs(run.ball_view(s)[1]) < 10 for s in run.between(16.0, 20.0))
+    assert any("chase" in s.winners for s in run.between(24.0, 32.0))
+
+
+def test_fleet_search_alone(tmp_path: Path, endpoint: str, robot: str) -> None:
+    """The fleet's room with this scenario's one robot (python -m ubf_async.launch): from the
+    far corner it creeps up to the ball on glimpses of it and settles facing it; it never
+    turns, so its odometry's heading stays exact, while its position falls short (the
+    coasting wheels' edges after each stop, POSITION_NOT_BOUNDED)."""
+    run = run_scenario("fleet-search", tmp_path, endpoint, robot, speed="100")
+    start, end = run.samples[0], run.samples[-1]
+    assert math.hypot(end.robot_x_m - start.robot_x_m, end.robot_y_m - start.robot_y_m) > 5.5
+    odo = run.summary["odometry"]
+    assert odo["heading_error_deg"] <= 0.1 and odo["position_error_m"] > 0.2

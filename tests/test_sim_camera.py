@@ -234,10 +234,13 @@ def test_wall_chunks_take_the_shortcut_only_when_clipping_would_change_nothing()
 
 
 def _grid_worlds() -> list[tuple[str, World]]:
-    """Scenes for comparing grid and full renders: the ball at several distances and
-    bearings, in an arena with a box, distractors and a dim lamp."""
-    worlds = [(f"{d} m, {lat:+} m", ball_ahead_world(d, lateral_m=lat))
-              for d in (0.12, 0.2, 0.3, 0.45, 0.8, 1.5, 3.6) for lat in (0.0, 0.06)]
+    """Scenes for comparing grid and full renders: the ball from contact (3.5 cm from the
+    camera) to 3.6 m, straight ahead and off to the left (6 cm, or closer than 15 cm 40 % of
+    the distance: the ball across the edge of the view, not out of it), in an arena with a
+    box, distractors and a dim lamp."""
+    worlds = [(f"{d} m, {lat:+.3f} m", ball_ahead_world(d, lateral_m=lat))
+              for d in (0.035, 0.05, 0.08, 0.1, 0.12, 0.2, 0.3, 0.45, 0.8, 1.5, 3.6)
+              for lat in (0.0, min(0.06, 0.4 * d))]
     busy = World(WorldConfig(
         arena=Arena(), ball=BallConfig(x_m=0.6, y_m=0.05), lighting=Lighting(brightness=0.8),
         boxes=(BoxObstacle(x_m=0.9, y_m=-0.25, length_m=0.2, width_m=0.2),),

@@ -265,6 +265,39 @@ def test_walls_stop_the_robot() -> None:
     assert r.left_wheel_angle_rad * RADIUS > 0.5
 
 
+def test_contacts_name_what_touched_the_robot_and_when() -> None:
+    """Nothing touches a robot driving in the open; the box it drives into, the arena's wall
+    it is then reversed into, the ball and a hand's push are each named, with the end of the
+    last step they touched it in (what the run's summary reports as disturbed periods)."""
+    from components.sim.world import BoxObstacle, Distractor
+
+    world = World(WorldConfig(
+        arena=Arena(x_min_m=-0.3, x_max_m=1.0, y_min_m=-0.5, y_max_m=0.5),
+        boxes=(BoxObstacle(x_m=0.4, y_m=0.0, length_m=0.1, width_m=0.3),),
+        distractors=(Distractor(kind="sphere", x_m=0.0, y_m=0.3),),
+        ball=BallConfig(x_m=0.0, y_m=-0.3)))
+    world.set_motor_pulses(*matched_pulses(1.85))
+    run(world, 1.0, dt=0.005)
+    assert world.contacts() == {}
+    run(world, 2.0, dt=0.005)  # nose against the box from ≈ 1.8 s
+    assert world.contacts() == {"obstacles[0]": pytest.approx(world.time_s)}
+    world.set_motor_pulses(*matched_pulses(1.15))  # full reverse into the arena's wall
+    run(world, 4.0, dt=0.005)
+    touched = world.contacts()
+    assert set(touched) == {"obstacles[0]", "arena"}
+    assert touched["arena"] == pytest.approx(world.time_s)
+    assert touched["obstacles[0]"] < world.time_s - 2.0  # left the box long ago
+    world.set_motor_pulses(*matched_pulses(1.5))
+    # Put down beside the (static) orange ball, the pink ball dropped against its other side.
+    world.place_robot(Pose2D(x_m=0.0, y_m=0.3 - 0.0325 - 0.035 + 0.002))
+    world.place_ball(0.0, 0.3 - 0.0325 - 0.07 - 0.0325 + 0.002)
+    world.shift_robot(0.0, 0.0, 0.01)
+    run(world, 0.05, dt=0.005)
+    touched = world.contacts()
+    assert {"distractors[0]", "ball", "push"} <= set(touched)
+    assert touched["push"] < world.time_s  # only the step it was shoved in
+
+
 def test_step_time_hooks_and_snapshot() -> None:
     world = World()
     calls: list[float] = []

@@ -19,6 +19,7 @@ dropped edges (``overflowed``) are published as ``dropped``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Annotated, Literal
 
 import msgspec
@@ -79,6 +80,10 @@ class EncodersComponent(Component):
         self.right = QuadratureDecoder(mode=mode, initial_state=right0)
         self.odometry = Odometry(geometry, pose=origin, effective_track_m=effective_track_m)
         self.malformed: dict[str, int] = {}
+        self.update_hooks: list[Callable[[], None]] = []
+        """Called on the event loop right after each odometry update, before anything else
+        runs: a simulator compares the odometry with its world at the very instant the
+        wheels were read (the run summary's heading audit). A hook must not block."""
 
     async def run(self) -> None:
         keys = self.bus.keys
@@ -95,6 +100,8 @@ class EncodersComponent(Component):
             pose = self.odometry.update(
                 edges_to_radians(d_left, self.geometry), edges_to_radians(d_right, self.geometry)
             )
+            for hook in self.update_hooks:
+                hook()
             counts = {
                 "left_edges": self.left.edges, "right_edges": self.right.edges,
                 "left_counts": edges_to_counts(self.left.edges, self.geometry),

@@ -82,11 +82,19 @@ class Odometry:
         self.geometry = geometry
         self.track_m = track
         self._pose = Pose2D()
+        self._heading_unwrapped_rad = 0.0
         self.reset(pose or Pose2D())
 
     @property
     def pose(self) -> Pose2D:
         return self._pose
+
+    @property
+    def heading_unwrapped_rad(self) -> float:
+        """The heading without wrapping: the start pose's plus every change since, so full
+        turns count (``pose.heading_rad`` is this wrapped). An error in the heading may grow
+        past 180° in a long run; only the unwrapped heading shows it."""
+        return self._heading_unwrapped_rad
 
     def reset(self, pose: Pose2D | None = None) -> None:
         """Start again from ``pose`` (the origin by default)."""
@@ -95,6 +103,7 @@ class Odometry:
             if not math.isfinite(getattr(pose, name)):
                 raise ValueError(f"pose.{name} must be finite, got {getattr(pose, name)!r}")
         self._pose = Pose2D(x_m=pose.x_m, y_m=pose.y_m, heading_rad=wrap_angle(pose.heading_rad))
+        self._heading_unwrapped_rad = pose.heading_rad
 
     def update(self, d_left_rad: float, d_right_rad: float) -> Pose2D:
         """Advance by the wheel rotations since the previous update and return the new pose."""
@@ -113,4 +122,5 @@ class Odometry:
             y_m=self._pose.y_m + chord * math.sin(direction),
             heading_rad=wrap_angle(self._pose.heading_rad + d_heading),
         )
+        self._heading_unwrapped_rad += d_heading
         return self._pose

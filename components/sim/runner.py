@@ -37,6 +37,7 @@ from components.camera.seekcolor import seekcolor
 from components.encoders.component import EncodersComponent
 from components.sim.backends import SimCameraBackend
 from components.sim.component import RTF_WINDOW_S, SimulatorComponent
+from components.sim.disturbances import HeadingAudit
 from components.sim.plots import save_run_plot
 from components.sim.record import (
     TrajectoryBuffer,
@@ -138,12 +139,16 @@ class SimulationRun:
         self._frames_lock = threading.Lock()
         self._tasks: list[asyncio.Task[None]] = []
         self._wall_start = time.monotonic()
-        self._turned_rad = 0.0
+        self.audit = HeadingAudit()
+        """Contacts and pushes, and the odometry's heading against the truth, sample by
+        sample (the summary's ``contacts`` and ``odometry``): at every odometry update of
+        the encoders in this process, else with the trajectory's samples."""
+        self._audited_encoders: EncodersComponent | None = None
+        self._audited_s = -math.inf
         self.leds: dict[str, LedState] = {}
         """What each LED device reports lit (``sensor/leds/<name>``), while recording."""
         self._leds_malformed: dict[str, int] = {}
         self._led_sub: Subscription | None = None
-        """Total |yaw| the robot made (summed over the trajectory samples)."""
 
     # -- what launch asks ---------------------------------------------------------------------
     @property
@@ -203,6 +208,10 @@ class SimulationRun:
         if self.options.record_dir is not None:
             self.options.record_dir.mkdir(parents=True, exist_ok=True)
             self._csv = TrajectoryCsvWriter(self.options.record_dir / "trajectory.csv")
+        self._audited_encoders = self._encoders()
+        if self._audited_encoders is not None:
+            self._audit()  # where both headings start
+            self._audited_encoders.update_hooks.append(self._audit)
         self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
         if self.options.record_dir is not None:
             # The LEDs as their devices report them (in this process or another): drawn on
@@ -211,14 +220,33 @@ class SimulationRun:
                                                self._on_leds)
             self._tasks.append(asyncio.create_task(self._record_frames(), name="sim:frames"))
 
+    def _encoders(self) -> EncodersComponent | None:
+        return next((d for d in self.devices if isinstance(d, EncodersComponent)), None)
+
+    def _audit(self) -> None:
+        """One sample of the heading audit: the world now, the encoders' odometry (when
+        they are in this process, called right after they read the wheels from this very
+        world state, so both headings are of the same instant) and what touched the robot
+        since the previous sample."""
+        snap = self.world.snapshot()
+        if snap.time_s == self._audited_s:
+            return
+        encoders = self._audited_encoders
+        self.audit.add(
+            t_s=snap.time_s, true_heading_rad=snap.robot.heading_unwrapped_rad,
+            odometry_heading_rad=(encoders.odometry.heading_unwrapped_rad
+                                  if encoders is not None else None),
+            touched=[self._contact_name(label)
+                     for label, t_s in self.world.contacts().items() if t_s > self._audited_s])
+        self._audited_s = snap.time_s
+
     def _take_sample(self, controller: Controller) -> None:
         snap = self.world.snapshot()
         last_sample = self.trajectory.last
         if last_sample is not None and last_sample.t_s == snap.time_s:
             return
-        if last_sample is not None:
-            self._turned_rad += abs(wrap_angle(snap.robot.heading_rad
-                                               - last_sample.robot_heading_rad))
+        if self._audited_encoders is None:
+            self._audit()  # without encoders here: contacts and the true turn only
         last = controller.last_action
         trace = controller.last_trace
         sample = trajectory_sample(
@@ -294,6 +322,8 @@ class SimulationRun:
         if self._led_sub is not None:
             self._led_sub.close()
         await self.simulator.aclose()  # freeze the world: summary and trajectory end together
+        if self._audited_encoders is not None:
+            self._audited_encoders.update_hooks.remove(self._audit)
         self._take_sample(controller)
         summary = self.summary(controller)
         if self.options.record_dir is not None:
@@ -336,29 +366,36 @@ class SimulationRun:
         camera = SimCameraBackend(self.world)
         self._write_frame(camera, folder, self.world.time_s)  # the final view
 
+    def _contact_name(self, label: str) -> str:
+        """A world's contact label with the scenario's name for a distractor."""
+        if label.startswith("distractors["):
+            index = int(label[len("distractors["):-1])
+            names = self.scenario.distractor_names
+            if index < len(names):
+                return names[index]
+        return label
+
     def odometry_summary(self) -> dict[str, Any] | None:
         """The encoders' odometry against the true pose (None without an encoders device in
         this process): odometry starts at the origin of its own frame, which is the robot's
-        start pose. ``heading_error_fraction`` is the heading error over the total angle the
-        robot turned (docs/scenarios.md, Outputs)."""
-        encoders = [d for d in self.devices if isinstance(d, EncodersComponent)]
-        if not encoders:
+        start pose. The heading error compares the unwrapped headings (full turns count);
+        ``heading_error_fraction`` is it over the total angle the robot turned, and
+        ``undisturbed`` the same over the sample intervals in which nothing touched or pushed
+        the robot (docs/scenarios.md, Outputs)."""
+        encoders = self._encoders()
+        if encoders is None:
             return None
-        odo = encoders[0].odometry.pose
+        odo = encoders.odometry.pose
         start = self.scenario.world.robot_start
         c, s = math.cos(start.heading_rad), math.sin(start.heading_rad)
         x = start.x_m + c * odo.x_m - s * odo.y_m
         y = start.y_m + s * odo.x_m + c * odo.y_m
         heading = wrap_angle(start.heading_rad + odo.heading_rad)
         robot = self.world.snapshot().robot
-        error = abs(wrap_angle(heading - robot.heading_rad))
         return {"x_m": x, "y_m": y, "heading_rad": heading,
-                "effective_track_m": encoders[0].odometry.track_m,
+                "effective_track_m": encoders.odometry.track_m,
                 "position_error_m": math.hypot(x - robot.x_m, y - robot.y_m),
-                "heading_error_deg": math.degrees(error),
-                "turned_deg": math.degrees(self._turned_rad),
-                "heading_error_fraction": (error / self._turned_rad if self._turned_rad > 0
-                                           else None)}
+                **self.audit.heading_summary()}
 
     def summary(self, controller: Controller) -> dict[str, Any]:
         snap = self.world.snapshot()
@@ -386,6 +423,7 @@ class SimulationRun:
             "trajectory_samples": self.trajectory.count,
             "trajectory_samples_kept": len(samples),
         }
+        out["contacts"] = self.audit.contacts_summary()
         out["odometry"] = self.odometry_summary()
         if snap.ball is not None:
             distance, bearing = camera_to_ball(robot.x_m, robot.y_m, robot.heading_rad,
@@ -393,6 +431,12 @@ class SimulationRun:
             out["ball"] = {"x_m": snap.ball.x_m, "y_m": snap.ball.y_m}
             out["ball_distance_m"] = distance
             out["ball_bearing_deg"] = bearing
+        out["distractors"] = {}
+        for name, d in zip(self.scenario.distractor_names, snap.distractors, strict=False):
+            distance, bearing = camera_to_ball(robot.x_m, robot.y_m, robot.heading_rad,
+                                               d.x_m, d.y_m)
+            out["distractors"][name] = {"x_m": d.x_m, "y_m": d.y_m, "distance_m": distance,
+                                        "bearing_deg": bearing}
         expect = self.scenario.expect
         out["expected"] = expect.judge(out) if expect is not None else None
         out["warnings"] = []

@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -146,6 +146,8 @@ class Scenario:
     pushes: tuple[Push, ...] = ()
     expect: Expectation | None = None
     """The expected outcome (``expect`` in the file), judged in the run's summary."""
+    distractor_names: tuple[str, ...] = ()
+    """The name of each of ``world.distractors`` (``distractor<i>`` unless the file names it)."""
 
     def install(self, world: World) -> None:
         """Attach the scripts, lighting changes and pushes to ``world`` (step hooks)."""
@@ -575,12 +577,15 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
                             seed=seed)
     except ValueError as exc:
         raise ScenarioError(f"scenario {name!r}: {exc}") from exc
-    check_placement(world, ball_script=steps, scripts=scripts, where=f"scenario {name!r}")
+    distractor_names = tuple(names)  # in the order of distractors (dicts keep it)
+    check_placement(world, ball_script=steps, scripts=scripts, where=f"scenario {name!r}",
+                    distractor_names=distractor_names)
     return Scenario(name=name, title=str(data.get("title", name)),
                     description=str(data.get("description", "")), world=world,
                     ball_script=steps, duration_s=duration, seed=seed,
                     source=source, scripts=scripts, lighting_script=tuple(lighting_script),
-                    pushes=tuple(pushes), expect=_expectation(data.get("expect")))
+                    pushes=tuple(pushes), expect=_expectation(data.get("expect")),
+                    distractor_names=distractor_names)
 
 
 def _expectation(data: Any) -> Expectation | None:
@@ -663,16 +668,22 @@ def _ccw(poly: Polygon) -> Polygon:
 
 def check_placement(world: WorldConfig, *, ball_script: tuple[BallStep, ...] = (),
                     scripts: dict[int, tuple[BallStep, ...]] | None = None,
-                    where: str = "scenario") -> None:
+                    where: str = "scenario", distractor_names: Sequence[str] = ()) -> None:
     """Refuse (:class:`~ubf_async.errors.ScenarioError`, naming the object) the robot or an
     object — ball, distractor, obstacle, or a ``place``/``move_to`` target of a script —
-    outside the arena, and an object overlapping the robot at its start pose."""
+    outside the arena, and an object, a wall, or a script's first step at ``at_s`` 0
+    (``place``, or ``relative``/``follow`` from the camera) that overlaps the robot at its
+    start pose."""
+    def name_of(index: int) -> str:
+        return (distractor_names[index] if index < len(distractor_names)
+                else f"distractor{index}")
+
     objects: list[tuple[str, Polygon | None, tuple[float, float, float] | None]] = []
     if world.ball is not None:
         objects.append(("the ball", None, (world.ball.x_m, world.ball.y_m,
                                            world.ball.radius_m)))
     for i, d in enumerate(world.distractors):
-        label = f"distractors[{i}] ({d.kind})"
+        label = f"distractors[{i}] ({d.kind}, {name_of(i)!r})"
         if d.kind == "box":
             objects.append((label, _box_outline(d.x_m, d.y_m, d.yaw_rad, d.length_m,
                                                 d.width_m), None))
@@ -682,14 +693,28 @@ def check_placement(world: WorldConfig, *, ball_script: tuple[BallStep, ...] = (
         objects.append((f"obstacles[{i}]", _box_outline(b.x_m, b.y_m, b.yaw_rad, b.length_m,
                                                         b.width_m), None))
     targets: list[tuple[str, tuple[float, float, float]]] = []
+    at_start: list[tuple[str, tuple[float, float, float]]] = []
+    """Where a script puts its object at the start, when the robot is at its start pose."""
     radius_of = {-1: world.ball.radius_m if world.ball is not None else 0.0}
     radius_of.update({i: d.radius_m for i, d in enumerate(world.distractors)})
+    start = world.robot_start
+    cam_x = start.x_m + CAMERA_OFFSET_M * math.cos(start.heading_rad)
+    cam_y = start.y_m + CAMERA_OFFSET_M * math.sin(start.heading_rad)
     for index, steps in [(-1, ball_script), *sorted((scripts or {}).items())]:
-        label = "ball_script" if index == -1 else f"the script of distractors[{index}]"
+        label = "ball_script" if index == -1 else f"scripts.{name_of(index)}"
         for j, step in enumerate(steps):
+            step_label = f"{label}[{j}] ({step.kind})"
             if step.kind in ("place", "move_to"):
-                targets.append((f"{label}[{j}] ({step.kind})",
-                                (step.target["x_m"], step.target["y_m"], radius_of[index])))
+                target = (step.target["x_m"], step.target["y_m"], radius_of[index])
+                targets.append((step_label, target))
+                if step.kind == "place" and step.at_s <= 0.0:
+                    at_start.append((step_label, target))
+            elif step.kind in ("relative", "follow") and step.at_s <= 0.0:
+                bearing = start.heading_rad + math.radians(step.target["bearing_deg"])
+                distance = step.target["distance_m"]
+                at_start.append((step_label, (cam_x + distance * math.cos(bearing),
+                                              cam_y + distance * math.sin(bearing),
+                                              radius_of[index])))
     robot = _ccw(_robot_outline(world))
     arena = world.arena
     if arena is not None:
@@ -716,14 +741,22 @@ def check_placement(world: WorldConfig, *, ball_script: tuple[BallStep, ...] = (
             if outside(x, y, r):
                 raise ScenarioError(f"{where}: {label} puts its object at ({x:g}, {y:g}) m, "
                                     f"outside {bounds}")
+    for i, wall in enumerate(world.walls):
+        # A segment is convex: the separating-axis test holds for it too.
+        objects.append((f"walls[{i}] from ({wall.x1_m:g}, {wall.y1_m:g}) to ({wall.x2_m:g}, "
+                        f"{wall.y2_m:g}) m", [(wall.x1_m, wall.y1_m), (wall.x2_m, wall.y2_m)],
+                        None))
+    pose = (f"({start.x_m:g}, {start.y_m:g}) m, heading "
+            f"{math.degrees(start.heading_rad):g}°")
     for label, poly, circle in objects:
         hit = (_polygons_overlap(robot, _ccw(poly)) if poly is not None
                else circle is not None and _circle_overlaps_polygon(*circle, robot))
         if hit:
-            p = world.robot_start
-            raise ScenarioError(f"{where}: {label} overlaps the robot at its start "
-                                f"({p.x_m:g}, {p.y_m:g}) m, heading "
-                                f"{math.degrees(p.heading_rad):g}°")
+            raise ScenarioError(f"{where}: {label} overlaps the robot at its start {pose}")
+    for label, (x, y, r) in at_start:
+        if _circle_overlaps_polygon(x, y, r, robot):
+            raise ScenarioError(f"{where}: {label} puts its object at ({x:.3g}, {y:.3g}) m at "
+                                f"the start, onto the robot at {pose}")
 
 
 def builtin_names() -> list[str]:

@@ -228,6 +228,9 @@ class BoxObstacle:
 
 DistractorKind = Literal["cylinder", "sphere", "box"]
 
+PUSH_LABEL = "push"
+"""What :meth:`World.contacts` calls a hand's push (:meth:`World.shift_robot`)."""
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Distractor:
@@ -457,6 +460,10 @@ class _RobotBody:
     pulses: tuple[float, float]
     wheel_speed: list[float]
     wheel_angle: list[float]
+    touching: set[str] = field(default_factory=set)
+    """What touched the robot (or pushed it by hand) during the step under way."""
+    last_contact_ns: dict[str, int] = field(default_factory=dict)
+    """Per thing that touched it (:meth:`World.contacts`), the end of the last step it did."""
 
 
 @dataclass(slots=True)
@@ -498,10 +505,14 @@ class World:
         space.iterations = 20
         self._space = space
 
+        self._labels: dict[pymunk.Shape, str] = {}
+        """What each shape is, for :meth:`contacts`: ``arena``, ``walls[i]``,
+        ``obstacles[i]``, ``distractors[i]``, ``ball``, ``robot i``."""
         # Robots: robot 0 at robot_start, then the fleet's.
         rc = cfg.robot
         geo = rc.geometry
-        self._robots = [self._add_robot(pose) for pose in (cfg.robot_start, *cfg.more_robots)]
+        self._robots = [self._add_robot(pose, index=i)
+                        for i, pose in enumerate((cfg.robot_start, *cfg.more_robots))]
         self._robot = self._robots[0].body
         self.air = RadioAir(len(self._robots))
         """What the robots' ``radio.air`` backends send each other."""
@@ -531,24 +542,28 @@ class World:
                 b.x_m, b.y_m, b.radius_m, b.mass_kg, elasticity=b.elasticity,
                 damping_per_s=b.linear_damping_per_s, resistance=b.rolling_resistance,
             )
+            self._labels.update(dict.fromkeys(self._ball.body.shapes, "ball"))
 
         # Static geometry.
         static = space.static_body
         self._walls = cfg.all_walls()
-        for wall in self._walls:
+        arena_walls = len(cfg.arena.walls()) if cfg.arena is not None else 0
+        for i, wall in enumerate(self._walls):
             seg = pymunk.Segment(static, (wall.x1_m, wall.y1_m), (wall.x2_m, wall.y2_m), 0.0)
             seg.friction = 0.5
             seg.elasticity = 0.3
             space.add(seg)
-        for box in cfg.boxes:
+            self._labels[seg] = "arena" if i < arena_walls else f"walls[{i - arena_walls}]"
+        for i, box in enumerate(cfg.boxes):
             poly = pymunk.Poly(static, box.corners())
             poly.friction = 0.5
             poly.elasticity = 0.3
             space.add(poly)
+            self._labels[poly] = f"obstacles[{i}]"
 
         # Distractors: static shapes, or floor bodies when movable.
         self._distractor_bodies: list[pymunk.Body | None] = []
-        for d in cfg.distractors:
+        for index, d in enumerate(cfg.distractors):
             if d.movable and d.kind == "box":
                 size = (d.length_m, d.width_m)
                 mbody = pymunk.Body(d.mass_kg, pymunk.moment_for_box(d.mass_kg, size))
@@ -558,6 +573,7 @@ class World:
                 mshape.friction = 0.5
                 mshape.elasticity = 0.3
                 space.add(mbody, mshape)
+                self._labels[mshape] = f"distractors[{index}]"
                 # A box slides rather than rolls: strong Coulomb friction.
                 self._floor_bodies.append(_FloorBody(mbody, 2.0, 0.4))
                 self._distractor_bodies.append(mbody)
@@ -566,6 +582,7 @@ class World:
                     d.x_m, d.y_m, d.radius_m, d.mass_kg, elasticity=0.5,
                     damping_per_s=0.5, resistance=0.02 if d.kind == "sphere" else 0.4,
                 )
+                self._labels.update(dict.fromkeys(fb.body.shapes, f"distractors[{index}]"))
                 self._distractor_bodies.append(fb.body)
             else:
                 if d.kind == "box":
@@ -576,13 +593,14 @@ class World:
                 dshape.friction = 0.5
                 dshape.elasticity = 0.3
                 space.add(dshape)
+                self._labels[dshape] = f"distractors[{index}]"
                 self._distractor_bodies.append(None)
 
         self._snapshots: dict[int, WorldSnapshot] = {}
         """Per robot, built on demand by :meth:`snapshot_for` (dropped when the world
         changes)."""
 
-    def _add_robot(self, pose: Pose2D) -> _RobotBody:
+    def _add_robot(self, pose: Pose2D, *, index: int) -> _RobotBody:
         rc = self._config.robot
         geo = rc.geometry
         moment = pymunk.moment_for_box(geo.mass_kg, (geo.length_m, geo.width_m))
@@ -593,6 +611,7 @@ class World:
         shell.friction = rc.body_friction
         shell.elasticity = 0.1
         self._space.add(body, shell)
+        self._labels[shell] = f"robot {index}"
         return _RobotBody(body=body, pulses=(rc.left_motor.zero_ms, rc.right_motor.zero_ms),
                           wheel_speed=[0.0, 0.0], wheel_angle=[0.0, 0.0])
 
@@ -712,7 +731,19 @@ class World:
             self._robot.position = (x + dx_m, y + dy_m)
             self._robot.angle = self._robot.angle + d_heading_rad
             self._space.reindex_shapes_for_body(self._robot)
+            self._robots[0].touching.add(PUSH_LABEL)
             self._snapshots = {}
+
+    def contacts(self, *, robot: int = 0) -> dict[str, float]:
+        """What has touched robot ``robot`` so far — ``arena`` (its walls), ``walls[i]``,
+        ``obstacles[i]``, ``distractors[i]``, ``ball``, ``robot i``, or ``push`` (a hand,
+        :meth:`shift_robot`) — each with the simulated time at the end of the last step it
+        did. A body pressed against something or shoved moves without its wheels saying so:
+        the encoders' odometry cannot follow it (the runner's summary reports these periods).
+        """
+        with self._lock:
+            return {label: ns / 1e9
+                    for label, ns in self._robots[robot].last_contact_ns.items()}
 
     def set_lighting(self, lighting: Lighting) -> None:
         """Change the scene lighting (seen by the camera from the next snapshot on)."""
@@ -769,6 +800,11 @@ class World:
                 for _ in range(n):
                     self._substep(h, targets)
                 self._time_ns += round(dt_s * 1e9)
+            for robot in self._robots:
+                if robot.touching:
+                    for label in robot.touching:
+                        robot.last_contact_ns[label] = self._time_ns
+                    robot.touching.clear()
             self._step_count += 1
             self._snapshots = {}
 
@@ -854,6 +890,15 @@ class World:
                 b.angular_velocity = spin * spin_decay
 
         self._space.step(h)
+        # What each robot touches (pymunk lists only the arbiters with contact points): one
+        # call per robot and substep, cheap when nothing touches.
+        for robot in self._robots:
+            robot.body.each_arbiter(self._note_contact, robot)
+
+    def _note_contact(self, arbiter: pymunk.Arbiter, robot: _RobotBody) -> None:
+        a, b = arbiter.shapes
+        other = b if a.body is robot.body else a
+        robot.touching.add(self._labels.get(other, "something"))
 
     # -- snapshot -----------------------------------------------------------------------------
 
