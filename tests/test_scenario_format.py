@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from components.sim.scenarios import load_scenario, parse_scenario
+from components.sim.scenarios import Expectation, load_scenario, parse_scenario
 from components.sim.world import World
 from ubf_async.errors import ScenarioError
 
@@ -192,6 +192,9 @@ def test_expected_outcomes_are_checked_when_the_scenario_loads() -> None:
     assert judged["pass"] is False and judged["criteria"][0]["value"] == -12.5
     assert scenario.expect.judge({"ball_bearing_deg": -9})["pass"] is True
     assert scenario.expect.judge({})["pass"] is False  # a number the run did not report
+    # Without criteria nothing is checked: the verdict says so rather than "met".
+    words_only = Expectation(outcome="finds the ball")
+    assert words_only.judge({"ball_bearing_deg": 0})["pass"] is None
     for bad, message in (({"criteria": {}}, "outcome"),
                          ({"outcome": "x", "criteria": {"a": [2, 1]}}, r"\[low, high\]"),
                          ({"outcome": "x", "criteria": {"a": [0, "1"]}}, r"\[low, high\]"),

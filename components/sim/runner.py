@@ -346,8 +346,9 @@ class SimulationRun:
         expected = summary.get("expected")
         if expected is not None:
             failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
-            print(f"  expected: {expected['outcome']} — "
-                  + ("met" if not failed else f"NOT met ({', '.join(failed)})"), file=out)
+            verdict = ("not checked (the scenario gives no criteria)" if expected["pass"] is None
+                       else "met" if not failed else f"NOT met ({', '.join(failed)})")
+            print(f"  expected: {expected['outcome']} — {verdict}", file=out)
         for warning in summary["warnings"]:
             print(f"  warning: {warning}", file=out)
         if self.options.summary_path is not None:

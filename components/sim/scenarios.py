@@ -125,9 +125,11 @@ class Expectation:
     criteria: tuple[Criterion, ...] = ()
 
     def judge(self, summary: Mapping[str, Any]) -> dict[str, Any]:
+        """Each criterion's verdict, and ``pass``: all of them met — or ``None`` when the
+        file gives no criteria (nothing was checked: the outcome is only words)."""
         verdicts = [c.judge(summary) for c in self.criteria]
         return {"outcome": self.outcome, "criteria": verdicts,
-                "pass": all(v["pass"] for v in verdicts)}
+                "pass": all(v["pass"] for v in verdicts) if verdicts else None}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
