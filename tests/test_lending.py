@@ -15,7 +15,7 @@ import pytest
 from tests.conftest import eventually
 from ubf_async import Action, FunctionBehavior
 from ubf_async.aggregator import StateAggregator
-from ubf_async.bus import Bus
+from ubf_async.bus import DIRECT_BURST, DIRECT_RATE_HZ, Bus
 from ubf_async.cli import loop_factory
 from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError
@@ -305,3 +305,32 @@ async def test_a_reflex_is_answered_on_the_thread_that_brought_its_sample(
         drive_sub.close()
         await ctl.aclose()
         await agg.aclose()
+
+
+@pytest.mark.asyncio
+async def test_a_flood_takes_the_usual_road_beyond_the_direct_budget(
+        robot_bus: Bus, peer_bus: Bus) -> None:
+    """Samples handled on zenoh's thread are capped at DIRECT_RATE_HZ (after a burst); the
+    rest coalesce on the usual road, and every handler call still comes in order."""
+    key = f"ubf/{robot_bus.robot}/test/flood"
+    seen: list[int] = []
+    sub = robot_bus.subscribe(key, lambda k, p, t: seen.append(int(p)), direct=True)
+    out = peer_bus.raw_publisher(key)
+    await eventually(lambda: out._out.has_remote_subscribers(), what="the subscriber")
+    count = 20_000
+
+    def flood() -> float:
+        t0 = time.monotonic()
+        for i in range(count):
+            out.put(str(i).encode())
+        return time.monotonic() - t0
+
+    started = time.monotonic()
+    await in_thread(flood)
+    await eventually(lambda: bool(seen) and seen[-1] == count - 1, timeout_s=30,
+                     what="the flood's last sample")
+    elapsed_s = time.monotonic() - started
+    stats = sub.stats
+    assert stats.direct <= DIRECT_BURST + DIRECT_RATE_HZ * elapsed_s + 1, (stats, elapsed_s)
+    assert stats.coalesced > 0  # beyond the budget the bridge kept the newest per key
+    assert stats.delivered == len(seen) and seen == sorted(seen)  # in order, none twice

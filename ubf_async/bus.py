@@ -25,7 +25,9 @@ motors' drive commands) skips the hand-off when it can: on a
 :class:`~ubf_async.lending.LendingEventLoop` — the loop every entry point runs on — a sample
 that finds the loop idle and nothing of its subscription pending is drained at once on the
 transport's thread, with the loop lent to it (:mod:`ubf_async.lending`): same handler, same
-order, same counters, one thread at a time, and no wake-up of the loop thread on the way.
+order, same counters, one thread at a time, and no wake-up of the loop thread on the way — up
+to :data:`DIRECT_RATE_HZ` samples a second; a flood beyond it takes the usual road and
+coalesces.
 
 Samples between components of the **same** :class:`Bus` (one process) never take that detour:
 a :class:`Publisher` hands them straight to the matching subscriptions of its bus, on the loop
@@ -88,6 +90,12 @@ _monotonic_ns = time.monotonic_ns
 DRAIN_BATCH = 256
 """Samples a subscription hands to its handler in one pass of the event loop."""
 MAX_COUNTED_KEYS = 1024
+DIRECT_RATE_HZ = 1000.0
+"""Samples per second a direct subscription may have handled on the transport's thread
+(:mod:`~ubf_async.lending`), beyond a burst of :data:`DIRECT_BURST`: a robot's sensors send a
+few hundred; above that — a flood — samples take the usual road and coalesce, so the
+transport's threads never hold the GIL for long against the loop."""
+DIRECT_BURST = 100
 """Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
 
 SampleHandler = Callable[[str, bytes, int], None]
@@ -432,6 +440,8 @@ class Subscription:
         self._latest = latest
         self._run_if_idle = lending.run_if_idle(loop) if direct else None
         """Runs the drain on the transport's thread while the loop waits (:mod:`.lending`)."""
+        self._direct_tokens = float(DIRECT_BURST)
+        self._direct_refilled_ns = _monotonic_ns()
         self._lock = threading.Lock()
         self._pending_latest: dict[str, tuple[bytes, int]] = {}
         self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
@@ -482,16 +492,30 @@ class Subscription:
             if self._scheduled:
                 return
             self._scheduled = True
+            direct = (self._run_if_idle is not None and not on_loop
+                      and self._take_direct_token(received_ns))
         if on_loop:
             self._loop.call_soon(self._drain)
             return
-        if self._run_if_idle is not None and self._run_if_idle(self._drain):
+        if direct and self._run_if_idle(self._drain):  # type: ignore[misc]
             self.stats.direct += 1
             return
         try:  # noqa: SIM105 — contextlib.suppress would add ≈ 0.4 µs to every hand-off
             self._loop.call_soon_threadsafe(self._drain)
         except RuntimeError:  # a closed loop: nothing left to deliver to
             pass
+
+    def _take_direct_token(self, now_ns: int) -> bool:
+        """The budget of samples handled on the transport's thread (:data:`DIRECT_RATE_HZ`);
+        call with the lock held."""
+        tokens = min(float(DIRECT_BURST), self._direct_tokens
+                     + (now_ns - self._direct_refilled_ns) * (DIRECT_RATE_HZ / 1e9))
+        self._direct_refilled_ns = now_ns
+        if tokens < 1.0:
+            self._direct_tokens = tokens
+            return False
+        self._direct_tokens = tokens - 1.0
+        return True
 
     # event loop --------------------------------------------------------------------------
     def _drain(self) -> None:
