@@ -100,14 +100,17 @@ class RenderProcessError(RuntimeError):
 # -- the worker --------------------------------------------------------------------------------
 
 _BOOT = ("import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); "
+         "import sys; sys.argv[3] in sys.path or sys.path.insert(0, sys.argv[3]); "
          "from components.sim.render_process import worker_main; worker_main()")
 """The worker's command (``python -c``). It ignores SIGINT before anything else: a Ctrl-C at
 the terminal reaches the whole process group, and the parent handles it (then ends the
-worker); here it would only kill a frame in flight and print a traceback."""
+worker); here it would only kill a frame in flight and print a traceback. Then it imports
+this very package from where the parent has it (a work tree, say, rather than an installed
+copy)."""
 
 
 def worker_main() -> None:
-    """The worker: ``python -c _BOOT FD PARENT_PID``, its end of the pipe on ``FD``."""
+    """The worker: ``python -c _BOOT FD PARENT_PID ROOT``, its end of the pipe on ``FD``."""
     conn = Connection(int(sys.argv[1]))
     parent_pid = int(sys.argv[2])
     with contextlib.suppress(EOFError, OSError):  # the parent is gone: nothing to tell it
@@ -352,18 +355,14 @@ class RenderProcess:
         with self._lock:
             warm = list(self._warm)
         mine, theirs = socket.socketpair()
-        env = dict(os.environ)
-        # The worker imports this very package, wherever the interpreter's path would find
-        # another copy (an installed one, say).
-        env["PYTHONPATH"] = os.pathsep.join(
-            [str(_ROOT), *filter(None, env.get("PYTHONPATH", "").split(os.pathsep))])
         process: subprocess.Popen[bytes] | None = None
         conn = Connection(mine.detach())
         try:
             with theirs:  # only the worker holds its end after this: its death is EOF here
                 process = subprocess.Popen(
-                    [sys.executable, "-c", _BOOT, str(theirs.fileno()), str(os.getpid())],
-                    pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, env=env)
+                    [sys.executable, "-c", _BOOT, str(theirs.fileno()), str(os.getpid()),
+                     str(_ROOT)],
+                    pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
             conn.send(warm)
             if not conn.poll(self.start_timeout_s):
                 reason = f"it did not get ready within {self.start_timeout_s:g} s"
