@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +109,69 @@ def _wait(predicate: Any, *, timeout_s: float, what: str) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s}s waiting for {what}")
         time.sleep(0.01)
+
+
+def test_cameras_in_several_threads_share_one_worker(renderer: RenderProcess) -> None:
+    world = _busy_arena()
+    seeds = range(4)
+    cameras = [SimCameraBackend(world, rng=np.random.default_rng(s), grid=SUBSAMPLE_STEP,
+                                renderer=renderer) for s in seeds]
+    for camera in cameras:
+        camera.prepare()
+    pid, before = renderer.pid, renderer.rendered
+    frames: dict[int, list[np.ndarray]] = {s: [] for s in seeds}
+
+    def capture(seed: int, camera: SimCameraBackend) -> None:
+        frames[seed].extend(camera.capture() for _ in range(5))
+
+    threads = [threading.Thread(target=capture, args=(s, c))
+               for s, c in zip(seeds, cameras, strict=True)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for s in seeds:
+        twin = SimCameraBackend(world, rng=np.random.default_rng(s), grid=SUBSAMPLE_STEP)
+        assert all(np.array_equal(f, twin.capture()) for f in frames[s])
+    assert renderer.rendered == before + 20 and renderer.pid == pid
+
+
+def test_a_frame_that_fails_in_the_worker_is_left_to_the_thread(
+    renderer: RenderProcess, caplog: pytest.LogCaptureFixture
+) -> None:
+    pid, failures = renderer.pid, renderer.failures
+    with caplog.at_level(logging.WARNING, logger=render_process.__name__):
+        # Not a snapshot: rendering it fails there (and would fail here).
+        assert renderer.render(object(), DEFAULT_CAMERA, seed=1,  # type: ignore[arg-type]
+                               grid=SUBSAMPLE_STEP) is None
+    assert any("AttributeError" in r.getMessage() for r in caplog.records)
+    assert renderer.pid == pid and renderer.failures == failures  # the worker carries on
+    assert renderer.render(ball_ahead_world(1.0).snapshot(), DEFAULT_CAMERA, seed=1,
+                           grid=SUBSAMPLE_STEP) is not None
+
+
+def test_the_caches_are_built_in_the_worker_not_here() -> None:
+    from components.sim.camera_render import _background, _noise_planes
+
+    def misses() -> tuple[int, int]:
+        return _background.cache_info().misses, _noise_planes.cache_info().misses
+
+    world = ball_ahead_world(0.45)
+    rp = RenderProcess()
+    try:
+        # Parameters no other test uses: a cache built for them here would be a miss.
+        camera = SimCameraBackend(world, replace(DEFAULT_CAMERA, noise_sigma=1.25),
+                                  grid=SUBSAMPLE_STEP, renderer=rp)
+        before = misses()
+        camera.prepare()
+        camera.capture()
+        assert rp.rendered == 1 and misses() == before
+    finally:
+        rp.close()
+    alone = SimCameraBackend(world, replace(DEFAULT_CAMERA, noise_sigma=1.5),
+                             grid=SUBSAMPLE_STEP)
+    alone.prepare()  # renders in-thread: builds them here
+    assert all(after > was for after, was in zip(misses(), before, strict=True))
 
 
 def test_a_killed_worker_is_replaced_and_frames_keep_coming(
@@ -307,6 +371,33 @@ def test_a_launch_leaves_no_process_behind(endpoint: str, end: str) -> None:
             assert "Traceback" not in launch.output()
         finally:
             launch.kill()
+
+
+_PROGRAM = """
+import os, sys
+from components.sim.camera_render import DEFAULT_CAMERA
+from components.sim.render_process import shared_render_process
+renderer = shared_render_process()
+assert renderer.prepare(DEFAULT_CAMERA, grid=8)
+print(renderer.pid, flush=True)
+if sys.argv[1] == "exception":
+    raise RuntimeError("the program fails")
+os._exit(3)  # no atexit handlers, as when a second Ctrl-C exits at once
+"""
+
+
+@pytest.mark.parametrize("end", ["exception", "os._exit"])
+def test_a_program_that_fails_or_exits_at_once_leaves_no_process_behind(end: str) -> None:
+    with _adopting_orphans():
+        proc = subprocess.run([sys.executable, "-c", _PROGRAM, end], cwd=ROOT, text=True,
+                              capture_output=True, timeout=120)
+        worker = int(proc.stdout.split()[0])
+        if end == "exception":
+            assert proc.returncode == 1 and "the program fails" in proc.stderr
+            assert worker not in _children(os.getpid()) and _gone(worker)  # reaped at exit
+        else:
+            assert proc.returncode == 3
+            assert _reap(worker, timeout_s=10), "the orphaned worker did not exit"
 
 
 def test_close_ends_the_worker_and_starts_no_other() -> None:
