@@ -29,11 +29,13 @@ for each camera after. It ends when the parent closes its end of the pipe: at ex
 parent then reaps it), or when the parent dies however it dies (SIGKILL, ``os._exit``),
 since the kernel then closes the parent's end; between frames the worker also checks that
 its parent pid has not changed, in case a copy of the parent's end lives on in another
-process. A worker that dies, fails or does not answer within ``reply_timeout_s`` is killed
-and replaced from a background thread (logged), less and less often if replacements keep
-failing; the frames meanwhile, and the one being rendered when it failed, are rendered in the
-camera's thread — the same pixels. A worker that cannot start at all (``prepare`` fails) is
-not retried: the cameras render in-thread for the rest of the run (logged).
+process. A worker that dies, breaks the pipe or does not answer within ``reply_timeout_s`` is
+killed and replaced from a background thread (logged), less and less often if replacements
+keep failing; the frames meanwhile, and the one being rendered when it failed, are rendered
+in the camera's thread — the same pixels. A frame whose rendering raises in the worker is
+rendered in the camera's thread too (where it raises again, as it always did); the worker
+carries on. A worker that cannot start at all (``prepare`` fails) is not retried: the
+cameras render in-thread for the rest of the run (logged).
 
 In-thread rendering as before: ``UBF_RENDER_PROCESS=0`` (or ``off``, ``no``, ``false``) in
 the environment, or ``render_process: false`` in a ``camera.sim`` device's
@@ -408,9 +410,13 @@ class RenderProcess:
             log.error("render process %d lost: %s; replacing it (frames render in this "
                       "process meanwhile)", worker.pid, why)
             if self._restarter is None:
-                self._restarter = threading.Thread(target=self._replace, daemon=True,
-                                                   name="ubf-render-restart")
-                self._restarter.start()
+                restarter = threading.Thread(target=self._replace, daemon=True,
+                                             name="ubf-render-restart")
+                try:
+                    restarter.start()
+                except RuntimeError:  # the interpreter is shutting down: no replacement
+                    return
+                self._restarter = restarter
 
     def _replace(self) -> None:
         """The restart thread: start workers until one runs (or the process is closed)."""
