@@ -14,7 +14,8 @@ and their simulated devices (camera, IR, encoders, motors…) — runs the world
 * **world ×** — the world's real-time factor (simulated s per wall s; 1.0 keeps up);
 * **CPU/robot** — the CPU time of each controller process over the run, as a share of one
   core (the worst robot's; a process of K controllers counts 1/K each), and the world
-  process's CPU divided by N (its devices are the robots' too: the world's share per robot).
+  process's CPU, its render process's included (its start too, ≈0.4 s of CPU once),
+  divided by N (its devices are the robots' too: the world's share per robot).
 
 ``--controllers-per-process K`` runs the controllers K to a process, as
 ``python -m ubf_async.fleet --controllers-per-process K`` does (for small machines).
@@ -141,10 +142,24 @@ def search_main(sizes: list[int], duration_s: float, json_path: Path | None) -> 
     return 0
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process so far (Linux /proc)."""
+def cpu_s(pid: int) -> dict[int, float]:
+    """User + system CPU seconds so far of a process and of its live child processes (the
+    world's render process renders its cameras), per pid (Linux /proc; FileNotFoundError
+    once the process is gone)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+    out = {pid: (int(fields[11]) + int(fields[12])) / CLOCK_TICKS}
+    with contextlib.suppress(FileNotFoundError):  # a child that ends meanwhile
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            for child in (task / "children").read_text().split():
+                with contextlib.suppress(FileNotFoundError):
+                    out.update(cpu_s(int(child)))
+    return out
+
+
+def cpu_used_s(before: dict[int, float], after: dict[int, float]) -> float:
+    """CPU seconds between two :func:`cpu_s` readings (a child started in between counts from
+    its start)."""
+    return sum(seconds - before.get(pid, 0.0) for pid, seconds in after.items())
 
 
 async def spawn(args: list[str], log: Path) -> asyncio.subprocess.Process:
@@ -211,14 +226,18 @@ async def run_fleet(n: int, *, duration_s: float, folder: Path,
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(world.wait(), 0.25)
             if world.returncode is None:
-                cpu1 = {name: cpu_s(p.pid) for name, p in procs.items()}
-                wall1 = time.monotonic()
+                # The world may already be reaped while its return code is not yet known:
+                # then the previous reading stands. A child that has ended (the render
+                # process, as the world shuts down) keeps its last reading.
+                with contextlib.suppress(FileNotFoundError):
+                    cpu1 = {name: {**cpu1[name], **cpu_s(p.pid)} for name, p in procs.items()}
+                    wall1 = time.monotonic()
                 last = {name: dict(view.status) for name, view in status.robots.items()}
         if world.returncode != 0:
             raise SystemExit(f"the world failed:\n{await read(world_log)}")
         result = json.loads(await read(summary))
         wall = wall1 - wall0
-        cpu = {label: (cpu1[label] - cpu0[label]) / wall * 100 for label in cpu1}
+        cpu = {label: cpu_used_s(cpu0[label], cpu1[label]) / wall * 100 for label in cpu1}
         per_robot_cpu = {name: cpu[label] / len(group) for group in groups
                          for label in ["+".join(group)] for name in group}
         rows = {name: {"tick_hz": last.get(name, {}).get("periodic_rate_hz"),

@@ -49,8 +49,10 @@ _RENDERS = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ubf-render")
 simulated camera rendering: ``renders_in_python = True``) capture, one at a time. Several
 renders in parallel threads only contend for the GIL, and the event loop waits for it too: a
 fleet's world with 8 cameras stalled its steps by up to 30 ms (tick jitter p99 30 ms), with
-one render thread 5 ms (docs/fleet.md). A real camera's capture waits on its device and keeps
-a thread of its own."""
+one render thread 5 ms (docs/fleet.md). A simulated camera now renders in a render process
+(:mod:`components.sim.render_process`) and its capture here mostly waits on it, but one at a
+time still suits it: the render process renders one frame at a time too. A real camera's
+capture waits on its device and keeps a thread of its own."""
 
 
 class CameraComponent(Component):

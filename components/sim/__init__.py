@@ -2,6 +2,8 @@
 
 * :mod:`components.sim.world` — the 2-D world, scene description and immutable snapshots.
 * :mod:`components.sim.camera_render` — the OpenCV-rendered OV9655 camera view.
+* :mod:`components.sim.render_process` — the process the simulated cameras render in (off
+  the GIL of the process that steps the world).
 * :mod:`components.sim.ranging` — ray casting for the IR range finders.
 * :mod:`components.sim.backends` — device backend implementations on top of a world.
 * :mod:`components.sim.calibrate` — ``python -m components.sim.calibrate``: distance → pink table.

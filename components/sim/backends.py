@@ -27,6 +27,11 @@ from components.range.backend import MountPose
 from components.sim.air import RadioAir
 from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
 from components.sim.ranging import beam_distance_m
+from components.sim.render_process import (
+    RenderProcess,
+    render_process_wanted,
+    shared_render_process,
+)
 from components.sim.world import WorldConfig, WorldSnapshot
 from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import DeviceContext
@@ -170,6 +175,12 @@ class SimCameraBackend:
     the camera component and its published width/height are unchanged, and its seekcolor
     counts are those of the full frame, see :func:`~components.sim.camera_render.render_camera`),
     several times faster.
+
+    ``renderer``: a :class:`~components.sim.render_process.RenderProcess` to render in (the
+    ``camera.sim`` device backend gives it the process's shared one), so the rendering holds
+    another process's GIL, not this one's: :meth:`capture` only waits on it. Without one, or
+    whenever it has no worker running, the frame is rendered in the calling thread — the same
+    pixels, from the same per-frame seed.
     """
 
     def __init__(
@@ -179,15 +190,19 @@ class SimCameraBackend:
         *,
         rng: np.random.Generator | None = None,
         grid: int = 1,
+        renderer: RenderProcess | None = None,
     ) -> None:
         if grid < 1:
             raise ValueError(f"grid must be >= 1, got {grid}")
         self._world = world
         self._params = params
         self._grid = grid
+        self._renderer = renderer
         self.renders_in_python = True
-        """Captures are CPU work under the GIL: the camera component runs them on the
-        process's one render thread (:data:`components.camera.component._RENDERS`)."""
+        """Captures are CPU work under the GIL (in-thread), or wait on the render process:
+        the camera component runs them on the process's one render thread
+        (:data:`components.camera.component._RENDERS`), one at a time, as the render process
+        renders one at a time."""
         self._rng = rng if rng is not None else world.make_rng(CAMERA_RNG_STREAM)
         self._lock = threading.Lock()
         self._closed = False
@@ -197,9 +212,18 @@ class SimCameraBackend:
     def params(self) -> CameraParams:
         return self._params
 
+    @property
+    def renderer(self) -> RenderProcess | None:
+        return self._renderer
+
     def prepare(self) -> None:
-        """Build the renderer's cached background and noise field (a few hundred ms), so the
-        first frame costs no more than the others."""
+        """Start the render process if this camera has one and it is not running yet (≈1 s,
+        once per process), with its caches built for this camera; otherwise (no render
+        process, or it cannot start) build this process's cached background and noise field
+        (a few hundred ms). Either way the first frame costs no more than the others."""
+        if self._renderer is not None and self._renderer.prepare(self._params, grid=self._grid):
+            # This process builds its own caches only if it ever renders a frame itself.
+            return
         warm_up(self._params, grid=self._grid)
 
     def expose(self) -> None:
@@ -213,14 +237,20 @@ class SimCameraBackend:
         with self._lock:
             if self._closed:
                 raise RuntimeError("camera backend is closed")
-            # One child generator per frame keeps concurrent captures independent.
-            frame_rng = np.random.default_rng(int(self._rng.integers(0, 2**63)))
+            # One seed per frame keeps concurrent captures independent, and is all a render
+            # process needs to draw the same noise and bob as this thread would.
+            seed = int(self._rng.integers(0, 2**63))
             snapshot, self._exposed = self._exposed, None
         if snapshot is None:
             snapshot = self._world.snapshot()
+        small = None
+        if self._renderer is not None:
+            small = self._renderer.render(snapshot, self._params, seed=seed, grid=self._grid)
+        if small is None:
+            small = render_camera(snapshot, self._params, np.random.default_rng(seed),
+                                  grid=self._grid)
         if self._grid == 1:
-            return render_camera(snapshot, self._params, frame_rng)
-        small = render_camera(snapshot, self._params, frame_rng, grid=self._grid)
+            return small
         # np.zeros maps fresh zero pages: only the pages the grid rows touch cost anything.
         frame = np.zeros((self._params.height_px, self._params.width_px, 3), dtype=np.uint8)
         frame[::self._grid, ::self._grid] = small
@@ -306,12 +336,18 @@ def _world(context: DeviceContext, backend: str) -> WorldView:
 
 
 @_on_simulator
-def camera_backend(*, context: DeviceContext, full_frames: bool = False) -> SimCameraBackend:
+def camera_backend(*, context: DeviceContext, full_frames: bool = False,
+                   render_process: bool = True) -> SimCameraBackend:
     """``camera.sim``: renders the simulated OV9655's view of the world. By default only the
     pixels seekcolor reads (sparse frames, see :class:`SimCameraBackend`); ``full_frames``
-    renders every pixel (slower, the same counts)."""
+    renders every pixel (slower, the same counts). ``render_process``: render in the
+    process's render process (:mod:`components.sim.render_process`, shared by its simulated
+    cameras), so rendering does not hold this process's GIL; ``false``, or
+    ``UBF_RENDER_PROCESS=0`` in the environment, renders in the camera's thread (the same
+    frames)."""
     grid = 1 if full_frames else SUBSAMPLE_STEP
-    return SimCameraBackend(_world(context, "camera.sim"), grid=grid)
+    renderer = shared_render_process() if render_process and render_process_wanted() else None
+    return SimCameraBackend(_world(context, "camera.sim"), grid=grid, renderer=renderer)
 
 
 @_on_simulator
