@@ -13,8 +13,9 @@ Sections (medians, p99 and max in µs):
   (the call that pays for the wake-up) and already scheduled (a burst's later samples);
 * ``hand-off, idle loop`` — from just before ``push()`` on a foreign thread to the handler on
   the loop, one sample at a time (the loop sleeps in between, as it does between sensor
-  samples): what the reflex path pays. The subscription is ``direct`` (as the aggregator's):
-  on the lending loop the handler then runs on the pushing thread at once;
+  samples, :data:`PACE_S` apart): what the reflex path pays. The subscription is ``direct``
+  (as the aggregator's): on the lending loop the handler then runs on the pushing thread at
+  once;
 * ``zenoh put → bus handler`` — a plain zenoh session puts, a :class:`Bus` on another session
   (loopback TCP) delivers to its handler: the hand-off with zenoh's own thread in front.
 
@@ -47,6 +48,10 @@ from ubf_async.bus import Bus, ConnectionOptions
 
 SAMPLE = bytes(60)
 """About the size of an encoded range sample."""
+PACE_S = 0.002
+"""Between two samples of the one-at-a-time measurements: a sensor's pace (500 Hz), under
+the direct subscriptions' budget (``ubf_async.bus.DIRECT_RATE_HZ``), and the loop goes back
+to sleep in between as it does between sensor samples."""
 LoopFactory = Callable[[], asyncio.AbstractEventLoop]
 
 
@@ -178,6 +183,7 @@ async def idle_handoff(module: ModuleType, n: int, warm: int = 200) -> dict[str,
             sent[0] = time.perf_counter_ns()
             sub.push("k", SAMPLE)
             handled.wait(1.0)
+            time.sleep(PACE_S)
 
     await asyncio.to_thread(pusher)
     return summarize(lags[warm:])
@@ -219,6 +225,7 @@ async def zenoh_handoff(n: int, warm: int = 200) -> dict[str, dict[str, float]]:
                 sent[0] = time.perf_counter_ns()
                 pub.put(SAMPLE)
                 handled.wait(1.0)
+                time.sleep(PACE_S)
 
         await asyncio.to_thread(putter)
     finally:
