@@ -20,8 +20,8 @@ A handler that raises is logged with its traceback and counted; the subscription
 (a handler bug must not take the robot down). Measure the hand-off with ``bench/handoff.py``
 and ``bench/latency``.
 
-A **direct** subscription (``subscribe(..., direct=True)``: the state aggregator's, the
-motors' drive commands) skips the hand-off when it can: on a
+A **direct** subscription (``subscribe(..., direct=True)``: the state aggregator's) skips the
+hand-off when it can: on a
 :class:`~ubf_async.lending.LendingEventLoop` — the loop every entry point runs on — a sample
 that finds the loop idle and nothing of its subscription pending is drained at once on the
 transport's thread, with the loop lent to it (:mod:`ubf_async.lending`): same handler, same

@@ -27,8 +27,11 @@ exceptions: it must not rely on the identity of the thread it runs on
 should not add or remove the loop's readers and writers.
 
 Only subscriptions that ask for it are handled this way (``Bus.subscribe(..., direct=True)``):
-the state aggregator's, so a reflex is answered on the thread that brought its sample, and
-the motors' drive commands. Their handlers are short. Lending is off in asyncio's debug mode
+the state aggregator's, so a reflex is answered on the thread that brought its sample. Keep
+it to short handlers on a latency path, in processes where little else runs Python: a
+borrower holds the loop for the whole handler, and when it waits for the GIL (a ``put``
+lets go of it) the loop waits too — in a busy simulator process with a render thread that
+costs more than the hand-off saves. Lending is off in asyncio's debug mode
 (its thread checks would refuse it) and on any other loop (uvloop, a test framework's):
 :func:`run_if_idle` then gives ``None`` and every sample goes the usual way.
 """

@@ -106,7 +106,7 @@ class MotorsComponent(Component):
             await self._hold()
             self._apply(0.0, 0.0, reason="init")
             self.stopped_by_watchdog = True
-            self.subscribe(DRIVE.key(keys), self._on_drive, direct=True)
+            self.subscribe(DRIVE.key(keys), self._on_drive)
             await self._guard()
         finally:  # closed (SIGTERM, Ctrl-C, the run's end) or failed: the wheels stop
             self._stopping = True  # a command arriving during the hold must not move them
