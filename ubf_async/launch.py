@@ -85,7 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
             f"(the shipped '{DEFAULT_ROBOT_FILE}' file). Other processes attach over zenoh "
             "with --connect <the endpoint printed at start> and the same --robot."
         ),
-        epilog=f"Environment: {LOOP_HELP}.",
+        epilog=(f"Environment: {LOOP_HELP}. UBF_RENDER_PROCESS=0: simulated cameras render "
+                f"in a thread of this process instead of a render process (docs/fleet.md)."),
         formatter_class=HelpFormatter,
     )
     parser.add_argument(
