@@ -96,11 +96,14 @@ class FoxgloveClient:
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
     def collect(self, topics: set[str], *, per_topic: int = 1,
-                timeout_s: float = 20.0) -> dict[str, list[Received]]:
-        """Messages of each of ``topics`` until every one has ``per_topic``."""
+                timeout_s: float = 20.0,
+                at_least: dict[str, int] | None = None) -> dict[str, list[Received]]:
+        """Messages of each of ``topics`` until every one has ``per_topic`` (or its own count
+        in ``at_least``)."""
         got: dict[str, list[Received]] = {t: [] for t in topics}
+        wanted = {t: (at_least or {}).get(t, per_topic) for t in topics}
         deadline = time.monotonic() + timeout_s
-        while any(len(v) < per_topic for v in got.values()):
+        while any(len(v) < wanted[t] for t, v in got.items()):
             received = self._receive(deadline)
             if received is not None and received.topic in got:
                 got[received.topic].append(received)

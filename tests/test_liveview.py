@@ -97,7 +97,9 @@ def check_live(url: str) -> None:
     with FoxgloveClient(url) as client:
         client.wait_for_topics(SEEN | advertised_layout_topics())
         client.subscribe(SEEN)
-        got = client.collect(SEEN, per_topic=3, timeout_s=30)
+        # The trail gets a point only when the robot has moved (TRAIL_STEP_M): once it has
+        # settled before the ball, its first message is all there is.
+        got = client.collect(SEEN, per_topic=3, timeout_s=30, at_least={"/robot/trail": 1})
     # The camera's view: the 160×128 pixels seekcolor reads, four times larger, with the
     # bins' boundaries drawn in green.
     image_msg = got["/camera/front/image"][-1].decoded

@@ -296,7 +296,8 @@ class SimulationRun:
         while True:
             t_s = self.world.time_s
             camera.expose()  # the picture shows this instant, however late the thread runs
-            await asyncio.to_thread(self._write_frame, camera, folder, t_s)
+            leds = dict(self.leds)  # and the LEDs as lit at this instant, not when it runs
+            await asyncio.to_thread(self._write_frame, camera, folder, t_s, leds)
             await self.clock.sleep(self.options.record_every_s)
 
     def _on_leds(self, key: str, payload: bytes, received_ns: int) -> None:
@@ -304,9 +305,9 @@ class SimulationRun:
         if message is not None:
             self.leds[key.rsplit("/", 1)[-1]] = message.data
 
-    def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float) -> None:
+    def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float,
+                     leds: dict[str, LedState]) -> None:
         frame = camera.capture()
-        leds = dict(self.leds)  # as lit now (the loop may update it meanwhile)
         image = annotate_frame(frame, seekcolor(frame), t_s=t_s, leds=leds)
         path = folder / f"frame_{t_s:07.2f}s.png"
         cv2.imwrite(str(path), image)
@@ -365,7 +366,7 @@ class SimulationRun:
         save_run_plot(folder / "trajectory.png", self.samples, self.world.snapshot(),
                       title=f"{self.scenario.title} (seed {self.seed})", events=events)
         camera = SimCameraBackend(self.world)
-        self._write_frame(camera, folder, self.world.time_s)  # the final view
+        self._write_frame(camera, folder, self.world.time_s, dict(self.leds))  # the final view
 
     def _contact_name(self, label: str) -> str:
         """A world's contact label with the scenario's name for a distractor."""
