@@ -241,8 +241,8 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
     if served.get("samples"):  # observed through the hooks
         out["segments"] = reflex_segments(answered, served)
         # Account for every unanswered sample: superseded by a newer one before the loop
-        # got to it (the bridge keeps the newest per key), skipped by the controller (the
-        # woken task takes the newest version), or lost after its tick (never seen so far).
+        # got to it (the bridge keeps the newest per key), stored but never ticked on, or
+        # lost after its tick (neither seen so far).
         delivered = {x[1] for x in served["samples"] if x[0] == "range/front"}
         ticked = {t[4] for t in served["ticks"] if t[3] == "range/front"}
         missing = [r[0] for r in rows if r[3] is None]

@@ -24,23 +24,6 @@ from ubf_async.protocol import decode
 from ubf_async.topics import DRIVE
 
 
-async def in_thread(fn: Any, *args: Any) -> Any:
-    """Run ``fn`` on a new thread (not the loop's, not the default executor's) and await it."""
-    loop = asyncio.get_running_loop()
-    done: asyncio.Future[Any] = loop.create_future()
-
-    def body() -> None:
-        try:
-            result = fn(*args)
-        except BaseException as exc:  # handed to the awaiting test
-            loop.call_soon_threadsafe(done.set_exception, exc)
-        else:
-            loop.call_soon_threadsafe(done.set_result, result)
-
-    threading.Thread(target=body, daemon=True).start()
-    return await asyncio.wait_for(done, 10)
-
-
 def lend_when_idle(run: Any, fn: Any, *args: Any) -> bool:
     """Borrow the loop as soon as it waits in select() (the test awaits meanwhile, so it
     soon does); ``False`` if it never did within 10 s."""
@@ -86,7 +69,7 @@ async def test_an_idle_loop_runs_the_callback_on_the_calling_thread_as_if_it_wer
 
     before = loop.lent_runs  # type: ignore[attr-defined]
     # The loop thread awaits the thread, so it waits in select() meanwhile.
-    assert await in_thread(lend_when_idle, run, callback, 7) is True
+    assert await asyncio.to_thread(lend_when_idle, run, callback, 7) is True
     assert seen["value"] == 7
     assert seen["thread"] != threading.get_ident()
     assert seen["running loop"] is loop
@@ -132,7 +115,7 @@ async def test_what_a_borrower_schedules_wakes_the_loop_thread() -> None:
 
     waiter = asyncio.ensure_future(asyncio.wait_for(future, 30))
     await asyncio.sleep(0)  # the waiter is waiting
-    assert await in_thread(lend_when_idle, run, borrower) is True
+    assert await asyncio.to_thread(lend_when_idle, run, borrower) is True
     assert await waiter == "resolved"
     await asyncio.wait_for(timer_ran.wait(), 30)
     assert threads == [threading.get_ident()]  # run by the loop thread
@@ -148,10 +131,10 @@ async def test_an_exception_reaches_the_borrower_and_the_loop_is_given_back() ->
         raise ValueError("handler bug")
 
     with pytest.raises(ValueError, match="handler bug"):
-        await in_thread(lend_when_idle, run, fails)
+        await asyncio.to_thread(lend_when_idle, run, fails)
     # The loop still works and can be lent again.
     await asyncio.sleep(0)
-    assert await in_thread(lend_when_idle, run, lambda: None) is True
+    assert await asyncio.to_thread(lend_when_idle, run, lambda: None) is True
 
 
 def test_a_closed_loop_and_a_loop_in_debug_mode_lend_nothing() -> None:
@@ -326,7 +309,7 @@ async def test_a_flood_takes_the_usual_road_beyond_the_direct_budget(
         return time.monotonic() - t0
 
     started = time.monotonic()
-    await in_thread(flood)
+    await asyncio.to_thread(flood)
     await eventually(lambda: bool(seen) and seen[-1] == count - 1, timeout_s=30,
                      what="the flood's last sample")
     elapsed_s = time.monotonic() - started

@@ -90,13 +90,13 @@ _monotonic_ns = time.monotonic_ns
 DRAIN_BATCH = 256
 """Samples a subscription hands to its handler in one pass of the event loop."""
 MAX_COUNTED_KEYS = 1024
+"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
 DIRECT_RATE_HZ = 1000.0
 """Samples per second a direct subscription may have handled on the transport's thread
 (:mod:`~ubf_async.lending`), beyond a burst of :data:`DIRECT_BURST`: a robot's sensors send a
 few hundred; above that — a flood — samples take the usual road and coalesce, so the
 transport's threads never hold the GIL for long against the loop."""
 DIRECT_BURST = 100
-"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
 
 SampleHandler = Callable[[str, bytes, int], None]
 """``handler(key, payload, received_ns)`` — runs on the event loop."""
@@ -492,13 +492,14 @@ class Subscription:
             if self._scheduled:
                 return
             self._scheduled = True
-            direct = (self._run_if_idle is not None and not on_loop
-                      and self._take_direct_token(received_ns))
+            lend = self._run_if_idle
+            if on_loop or (lend is not None and not self._take_direct_token(received_ns)):
+                lend = None
         if on_loop:
             self._loop.call_soon(self._drain)
             return
-        if direct and self._run_if_idle(self._drain):  # type: ignore[misc]
-            self.stats.direct += 1
+        if lend is not None and lend(self._drain):
+            stats.direct += 1
             return
         try:  # noqa: SIM105 — contextlib.suppress would add ≈ 0.4 µs to every hand-off
             self._loop.call_soon_threadsafe(self._drain)

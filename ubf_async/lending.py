@@ -57,10 +57,9 @@ def _take(lock: threading.Lock) -> None:
     while True:
         try:
             lock.acquire()
+            break
         except BaseException as exc:  # a signal handler raised while we waited
             interrupted = exc
-            continue
-        break
     if interrupted is not None:
         raise interrupted
 
