@@ -27,29 +27,11 @@ from components.sim.backends import SimCameraBackend, WorldView, camera_backend
 from components.sim.calibrate import ball_ahead_world
 from components.sim.camera_render import DEFAULT_CAMERA
 from components.sim.render_process import ENV_VAR, RenderProcess, shared_render_process
-from components.sim.world import (
-    Arena,
-    BallConfig,
-    BoxObstacle,
-    Distractor,
-    Lighting,
-    Pose2D,
-    RobotView,
-    World,
-    WorldConfig,
-)
+from components.sim.world import Arena, BallConfig, Pose2D, RobotView, World, WorldConfig
+from tests.test_sim_camera import busy_arena
 from ubf_async.simulation import DeviceContext
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def _busy_arena() -> World:
-    return World(WorldConfig(
-        arena=Arena(), ball=BallConfig(x_m=0.6, y_m=0.05), lighting=Lighting(brightness=0.8),
-        boxes=(BoxObstacle(x_m=0.9, y_m=-0.25, length_m=0.2, width_m=0.2),),
-        distractors=(Distractor(kind="sphere", x_m=0.7, y_m=-0.1),
-                     Distractor(kind="cylinder", x_m=1.0, y_m=0.3, color=(200, 60, 120))),
-        seed=5))
 
 
 def _fleet_robot() -> WorldView:
@@ -64,9 +46,18 @@ SCENES: dict[str, Callable[[], WorldView]] = {
     "ball 0.12 m": lambda: ball_ahead_world(0.12),
     "ball 0.45 m left": lambda: ball_ahead_world(0.45, lateral_m=0.06),
     "ball 3.6 m": lambda: ball_ahead_world(3.6),
-    "busy dim arena": _busy_arena,
+    "busy dim arena": lambda: busy_arena(seed=5),
     "fleet robot 2": _fleet_robot,  # the other robots are boxes in its view
 }
+
+
+def _camera_and_twin(world: WorldView, seed: int, renderer: RenderProcess, *,
+                     grid: int = SUBSAMPLE_STEP) -> tuple[SimCameraBackend, SimCameraBackend]:
+    """A camera rendering in ``renderer`` and its twin rendering in-thread, from the same
+    frame seeds: whatever renders them, their frames must be the same."""
+    return (SimCameraBackend(world, rng=np.random.default_rng(seed), grid=grid,
+                             renderer=renderer),
+            SimCameraBackend(world, rng=np.random.default_rng(seed), grid=grid))
 
 
 @pytest.fixture(scope="module")
@@ -82,8 +73,7 @@ def test_frames_from_the_worker_are_the_frames_rendered_in_thread(
     renderer: RenderProcess, name: str, grid: int
 ) -> None:
     world = SCENES[name]()
-    here = SimCameraBackend(world, rng=np.random.default_rng(21), grid=grid)
-    there = SimCameraBackend(world, rng=np.random.default_rng(21), grid=grid, renderer=renderer)
+    there, here = _camera_and_twin(world, 21, renderer, grid=grid)
     there.prepare()
     assert renderer.running
     before = renderer.rendered
@@ -112,7 +102,7 @@ def _wait(predicate: Any, *, timeout_s: float, what: str) -> None:
 
 
 def test_cameras_in_several_threads_share_one_worker(renderer: RenderProcess) -> None:
-    world = _busy_arena()
+    world = busy_arena(seed=5)
     seeds = range(4)
     cameras = [SimCameraBackend(world, rng=np.random.default_rng(s), grid=SUBSAMPLE_STEP,
                                 renderer=renderer) for s in seeds]
@@ -180,9 +170,7 @@ def test_a_killed_worker_is_replaced_and_frames_keep_coming(
     world = ball_ahead_world(0.45)
     rp = RenderProcess()
     try:
-        camera = SimCameraBackend(world, rng=np.random.default_rng(3), grid=SUBSAMPLE_STEP,
-                                  renderer=rp)
-        twin = SimCameraBackend(world, rng=np.random.default_rng(3), grid=SUBSAMPLE_STEP)
+        camera, twin = _camera_and_twin(world, 3, rp)
         camera.prepare()
         first = rp.pid
         assert first is not None
@@ -209,9 +197,7 @@ def test_a_hung_worker_is_killed_and_replaced() -> None:
     world = ball_ahead_world(0.8)
     rp = RenderProcess(reply_timeout_s=0.5)
     try:
-        camera = SimCameraBackend(world, rng=np.random.default_rng(4), grid=SUBSAMPLE_STEP,
-                                  renderer=rp)
-        twin = SimCameraBackend(world, rng=np.random.default_rng(4), grid=SUBSAMPLE_STEP)
+        camera, twin = _camera_and_twin(world, 4, rp)
         camera.prepare()
         hung = rp.pid
         assert hung is not None
@@ -231,9 +217,7 @@ def test_a_worker_that_cannot_start_leaves_the_camera_rendering_in_thread(
     monkeypatch.setattr(render_process.sys, "executable", "/nonexistent/python")
     world = ball_ahead_world(0.45)
     rp = RenderProcess()
-    camera = SimCameraBackend(world, rng=np.random.default_rng(5), grid=SUBSAMPLE_STEP,
-                              renderer=rp)
-    twin = SimCameraBackend(world, rng=np.random.default_rng(5), grid=SUBSAMPLE_STEP)
+    camera, twin = _camera_and_twin(world, 5, rp)
     with caplog.at_level(logging.WARNING, logger=render_process.__name__):
         camera.prepare()
     assert not rp.running

@@ -241,14 +241,19 @@ def _grid_worlds() -> list[tuple[str, World]]:
     worlds = [(f"{d} m, {lat:+.3f} m", ball_ahead_world(d, lateral_m=lat))
               for d in (0.035, 0.05, 0.08, 0.1, 0.12, 0.2, 0.3, 0.45, 0.8, 1.5, 3.6)
               for lat in (0.0, min(0.06, 0.4 * d))]
-    busy = World(WorldConfig(
+    worlds.append(("busy arena", busy_arena()))
+    return worlds
+
+
+def busy_arena(*, seed: int = 0) -> World:
+    """The ball in an arena with a box, two distractors and a dim lamp (also the busy scene
+    of tests/test_render_process.py)."""
+    return World(WorldConfig(
         arena=Arena(), ball=BallConfig(x_m=0.6, y_m=0.05), lighting=Lighting(brightness=0.8),
         boxes=(BoxObstacle(x_m=0.9, y_m=-0.25, length_m=0.2, width_m=0.2),),
         distractors=(Distractor(kind="sphere", x_m=0.7, y_m=-0.1),
                      Distractor(kind="cylinder", x_m=1.0, y_m=0.3, color=(200, 60, 120))),
-    ))
-    worlds.append(("busy arena", busy))
-    return worlds
+        seed=seed))
 
 
 @pytest.mark.parametrize(("name", "world"), _grid_worlds(),

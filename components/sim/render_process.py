@@ -176,6 +176,17 @@ class _Worker:
                         else f"its pipe broke ({exc!r})") from None
         raise _Lost(f"it did not answer within {timeout_s:g} s")
 
+    def warm(self, params: CameraParams, grid: int, timeout_s: float) -> None:
+        """Have the worker build its caches for ``params`` and ``grid`` unless it has (raises
+        :class:`_Lost`). A warm-up that fails in the worker is logged: the frames then build
+        the caches, or fail (and are rendered in the camera's thread)."""
+        if (params, grid) in self.warmed:
+            return
+        reply = self.request(("warm", params, grid), timeout_s)
+        if reply[0] != "ok":
+            log.warning("render process: warming up failed:\n%s", reply[1])
+        self.warmed.add((params, grid))
+
     def receive_into(self, out: np.ndarray) -> None:
         try:
             size = self.conn.recv_bytes_into(out.reshape(-1))
@@ -278,16 +289,10 @@ class RenderProcess:
                 if not self._install(worker):
                     return False
         with self._pipe:
-            if (params, grid) in worker.warmed:
-                return True
             try:
-                reply = worker.request(("warm", params, grid), self.start_timeout_s)
+                worker.warm(params, grid, self.start_timeout_s)
             except _Lost as exc:
-                self._lost(worker, str(exc))
-                return True  # replaced in the background, meanwhile in-thread
-            if reply[0] != "ok":
-                log.warning("render process: warming up failed:\n%s", reply[1])
-            worker.warmed.add((params, grid))
+                self._lost(worker, str(exc))  # replaced in the background, meanwhile in-thread
         return True
 
     def render(self, snapshot: WorldSnapshot, params: CameraParams, *, seed: int,
@@ -301,9 +306,7 @@ class RenderProcess:
             return None
         with self._pipe:
             try:
-                if (params, grid) not in worker.warmed:  # a camera that skipped prepare()
-                    worker.request(("warm", params, grid), self.start_timeout_s)
-                    worker.warmed.add((params, grid))
+                worker.warm(params, grid, self.start_timeout_s)  # if it skipped prepare()
                 reply = worker.request(("render", snapshot, params, seed, grid),
                                        self.reply_timeout_s)
                 if reply[0] != "ok":
