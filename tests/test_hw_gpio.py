@@ -12,10 +12,12 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
+from typing import Any
 
 import msgspec
 import pytest
+import pytest_asyncio
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
 from components import hardware
@@ -52,14 +54,40 @@ def factory() -> Iterator[MockFactory]:
     factory.close()
 
 
+@pytest_asyncio.fixture
+async def buses() -> AsyncIterator[tuple[Bus, Bus]]:
+    """The robot's bus and another process's (a teleop, a tool) on one in-process transport."""
+    net = InProcessTransport()
+    robot, other = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    yield robot, other
+    await robot.aclose()
+    await other.aclose()
+
+
 def motors_on(factory: MockFactory) -> GpioMotorBackend:
     return GpioMotorBackend(left_pin="GPIO12", right_pin="GPIO13", factory=factory)
 
 
-def encoders_on(factory: MockFactory, *, right: tuple[str, str] = RIGHT_PINS
-                ) -> GpioEncoderBackend:
+def motors_component(bus: Bus, backend: GpioMotorBackend, *, timeout_s: float
+                     ) -> MotorsComponent:
+    """The motors component with the trims above, closing ``backend`` when it closes."""
+    motors = MotorsComponent(bus=bus, backend=backend, timeout_s=timeout_s,
+                             left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
+    motors.close_on_exit(backend.close)
+    return motors
+
+
+def encoders_on(factory: MockFactory, *, right: tuple[str, str] = RIGHT_PINS,
+                **options: Any) -> GpioEncoderBackend:
     return GpioEncoderBackend(factory=factory, left_a=LEFT_PINS[0], left_b=LEFT_PINS[1],
-                              right_a=right[0], right_b=right[1], pull="down")
+                              right_a=right[0], right_b=right[1], pull="down", **options)
+
+
+def encoders_component(bus: Bus, backend: GpioEncoderBackend, *,
+                       mode: DirectionMode = DirectionMode.PHASE) -> EncodersComponent:
+    """The encoders component reading ``backend`` every 20 ms."""
+    return EncodersComponent(bus=bus, backend=backend, period_s=0.02, mode=mode,
+                             initial_states=backend.current_states())
 
 
 def pulse_ms(factory: MockFactory, pin: str) -> float:
@@ -116,14 +144,12 @@ def test_motor_trim_from_a_robot_file_is_checked() -> None:
 
 
 @pytest.mark.asyncio
-async def test_motors_component_stops_on_start_watchdog_and_close(factory: MockFactory) -> None:
-    net = InProcessTransport()
-    robot, teleop = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+async def test_motors_component_stops_on_start_watchdog_and_close(
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
+    robot, teleop = buses
     backend = motors_on(factory)
     assert backend.hold_s == pytest.approx(HOLD_S)
-    motors = MotorsComponent(bus=robot, backend=backend, timeout_s=0.11,
-                             left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
-    motors.close_on_exit(backend.close)
+    motors = motors_component(robot, backend, timeout_s=0.11)
     left_pin = factory.pin("GPIO12")
     left_pin.clear_states()
     await motors.start()
@@ -152,21 +178,17 @@ async def test_motors_component_stops_on_start_watchdog_and_close(factory: MockF
     assert history[-1][1] >= HOLD_S  # held two whole periods, then released
     assert left_pin.states[-1].state == 0
     assert backend.last_ms == zero
-    await robot.aclose()
-    await teleop.aclose()
 
 
 @pytest.mark.asyncio
-async def test_pulses_are_held_on_the_loop_without_blocking_it(factory: MockFactory) -> None:
+async def test_pulses_are_held_on_the_loop_without_blocking_it(
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
     # The holds are awaited: this test's own coroutine sees the init pulse and the stop pulse
     # on the pins while they are held (a blocking wait would only let it see what came after),
     # and a command that arrives while the stop pulse is held is not applied.
-    net = InProcessTransport()
-    robot, teleop = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    robot, teleop = buses
     backend = motors_on(factory)
-    motors = MotorsComponent(bus=robot, backend=backend, timeout_s=5.0,
-                             left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
-    motors.close_on_exit(backend.close)
+    motors = motors_component(robot, backend, timeout_s=5.0)
     pins = factory.pin("GPIO12"), factory.pin("GPIO13")
     init = DEFAULT_PWM.init_ms
     await motors.start()
@@ -190,15 +212,12 @@ async def test_pulses_are_held_on_the_loop_without_blocking_it(factory: MockFact
         (*_, (held, held_s)) = holds(pin.states)
         assert held == pytest.approx(stop / 20.0) and held_s >= HOLD_S
         assert pin.state == 0
-    await robot.aclose()
-    await teleop.aclose()
 
 
 @pytest.mark.asyncio
 async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
-        factory: MockFactory) -> None:
-    net = InProcessTransport()
-    robot = Bus(transport=net, robot="r1")
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
+    robot, _ = buses
     backend = motors_on(factory)
     motors = MotorsComponent(bus=robot, backend=backend)
     await motors.start()
@@ -214,7 +233,6 @@ async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
     (*_, (stop, held_s)) = holds(factory.pin("GPIO12").states)
     assert stop == pytest.approx(1.55 / 20.0) and held_s >= HOLD_S
     await motors.aclose()
-    await robot.aclose()
 
 
 def test_a_pin_factory_without_pwm_is_named_with_a_hint(monkeypatch: pytest.MonkeyPatch
@@ -263,14 +281,11 @@ def test_quadrature_edges_on_mock_pins_decode_in_both_modes(factory: MockFactory
 
 @pytest.mark.asyncio
 async def test_encoders_component_counts_edges_driven_from_another_thread(
-        factory: MockFactory) -> None:
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
     # The pin factory calls back on its own thread: here a thread drives the mock pins while
     # the component reads on the loop.
-    net = InProcessTransport()
-    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
-    backend = encoders_on(factory)
-    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
-                                 mode=DirectionMode.PHASE, initial_states=backend.current_states())
+    robot, tool = buses
+    encoders = encoders_component(robot, encoders_on(factory))
     seen: list[tuple[int, int]] = []
 
     def on_counts(key: str, payload: bytes, received_ns: int) -> None:
@@ -288,8 +303,6 @@ async def test_encoders_component_counts_edges_driven_from_another_thread(
     await eventually(lambda: bool(seen) and seen[-1] == (400, -240),
                      what="the component to publish every edge")
     await encoders.aclose()
-    await robot.aclose()
-    await tool.aclose()
 
 
 def turn_wheel_timed(factory: MockFactory, pins: tuple[str, str], steps: int, *,
@@ -342,12 +355,9 @@ def encoder_samples(tool: Bus) -> list[Encoders]:
 
 @pytest.mark.asyncio
 async def test_encoders_component_publishes_wheel_speed_from_edge_times(
-        factory: MockFactory) -> None:
-    net = InProcessTransport()
-    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
-    backend = encoders_on(factory)
-    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
-                                 mode=DirectionMode.PHASE, initial_states=backend.current_states())
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
+    robot, tool = buses
+    encoders = encoders_component(robot, encoders_on(factory))
     samples = encoder_samples(tool)
     await encoders.start()
     await eventually(lambda: len(samples) >= 2, what="samples of standing wheels")
@@ -366,19 +376,14 @@ async def test_encoders_component_publishes_wheel_speed_from_edge_times(
     assert samples[-1].left_rad_s == 0.0 and samples[-1].dropped == 0
     assert wheel_speed_rad_s(5, EdgeTiming(edges=5, span_s=None, intervals=0)) is None
     await encoders.aclose()
-    await robot.aclose()
-    await tool.aclose()
 
 
 @pytest.mark.asyncio
-async def test_encoders_component_on_mock_pins_in_commanded_mode(factory: MockFactory) -> None:
+async def test_encoders_component_on_mock_pins_in_commanded_mode(
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
     # The thesis's mode: the sign comes from the motors' command, not from the A/B order.
-    net = InProcessTransport()
-    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
-    backend = encoders_on(factory)
-    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
-                                 mode=DirectionMode.COMMANDED,
-                                 initial_states=backend.current_states())
+    robot, tool = buses
+    encoders = encoders_component(robot, encoders_on(factory), mode=DirectionMode.COMMANDED)
     samples = encoder_samples(tool)
     await encoders.start()
     await eventually(lambda: bool(samples), what="the first sample")
@@ -398,19 +403,14 @@ async def test_encoders_component_on_mock_pins_in_commanded_mode(factory: MockFa
     assert sample.left_rad_s < 0 < sample.right_rad_s  # the speed has the commanded sign too
     assert samples[-1].errors == 0
     await encoders.aclose()
-    await robot.aclose()
-    await tool.aclose()
 
 
 @pytest.mark.asyncio
-async def test_encoders_component_counts_edges_the_buffer_dropped(factory: MockFactory) -> None:
-    net = InProcessTransport()
-    robot, tool = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
-    backend = GpioEncoderBackend(factory=factory, left_a=LEFT_PINS[0], left_b=LEFT_PINS[1],
-                                 right_a=RIGHT_PINS[0], right_b=RIGHT_PINS[1], pull="down",
-                                 max_pending=16)
-    encoders = EncodersComponent(bus=robot, backend=backend, period_s=0.02,
-                                 mode=DirectionMode.PHASE, initial_states=backend.current_states())
+async def test_encoders_component_counts_edges_the_buffer_dropped(
+        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
+    robot, tool = buses
+    backend = encoders_on(factory, max_pending=16)
+    encoders = encoders_component(robot, backend)
     samples = encoder_samples(tool)
     await encoders.start()
     await eventually(lambda: bool(samples), what="the first sample")
@@ -426,8 +426,6 @@ async def test_encoders_component_counts_edges_the_buffer_dropped(factory: MockF
     await eventually(lambda: samples[-1].left_edges == 24, what="counting on")
     assert samples[-1].dropped == 84
     await encoders.aclose()
-    await robot.aclose()
-    await tool.aclose()
 
 
 class WiredRobot:

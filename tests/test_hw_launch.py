@@ -31,7 +31,7 @@ from components.motors.pwm import (
     DEFAULT_RIGHT_CALIBRATION,
     pulse_widths,
 )
-from tests.conftest import as_dict, eventually, read_until
+from tests.conftest import as_dict, eventually, read_until, stop
 from tests.i2c_testbus import TestBus, ads1115, gp2y0e
 from tests.pinlog import holds, load
 from ubf_async import launch
@@ -91,16 +91,12 @@ def calibrated_pulses() -> tuple[float, float, float, float]:
     return drive.left_ms, drive.right_ms, left.zero_ms, right.zero_ms
 
 
-def start(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, *args], cwd=ROOT, env=MOCK_GPIO, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
-
-
-def stop(proc: subprocess.Popen[str], sig: int = signal.SIGTERM) -> tuple[int, str]:
-    if proc.poll() is None:
-        proc.send_signal(sig)
-    out, _ = proc.communicate(timeout=30)
-    return proc.returncode, out
+@pytest.fixture
+def calibrated_robot(tmp_path: Path) -> Path:
+    """:data:`CALIBRATED_ROBOT` as a robot file."""
+    robot_file = tmp_path / "calibrated.yaml"
+    robot_file.write_text(CALIBRATED_ROBOT)
+    return robot_file
 
 
 async def spawn_logged(pins: Path, module: str, *args: str) -> asyncio.subprocess.Process:
@@ -120,8 +116,7 @@ async def end(proc: asyncio.subprocess.Process, sig: int) -> tuple[int, str]:
         rest = await asyncio.wait_for(proc.stdout.read(), 30)
         code = await asyncio.wait_for(proc.wait(), 30)
     except TimeoutError:
-        proc.kill()
-        await proc.wait()
+        await stop(proc)
         raise
     return code, rest.decode()
 
@@ -151,12 +146,10 @@ def test_the_example_robot_file_validates() -> None:
 
 @pytest.mark.asyncio
 async def test_launch_drives_the_pins_with_the_robot_files_calibration(
-        endpoint: str, tmp_path: Path) -> None:
+        endpoint: str, tmp_path: Path, calibrated_robot: Path) -> None:
     drive_left, drive_right, zero_left, zero_right = calibrated_pulses()
-    robot_file = tmp_path / "calibrated.yaml"
-    robot_file.write_text(CALIBRATED_ROBOT)
     pins = tmp_path / "pins.json"
-    proc = await spawn_logged(pins, "ubf_async.launch", str(robot_file), "--no-sim",
+    proc = await spawn_logged(pins, "ubf_async.launch", str(calibrated_robot), "--no-sim",
                               "--listen", endpoint, "--quiet")
     bus = await Bus.open(ConnectionOptions(robot="calibrated", connect=[endpoint]))
     applied: list[dict] = []
@@ -184,9 +177,7 @@ async def test_launch_drives_the_pins_with_the_robot_files_calibration(
                          what="the stop pulse on SIGTERM")
         assert (applied[-1]["left_ms"], applied[-1]["right_ms"]) == (zero_left, zero_right)
     finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
+        await stop(proc)  # if it did not end
         await bus.aclose()
     # What reached the pins: the calibrated pulses, the init pulse held, the robot file's stop
     # pulses held two periods and the pins released.
@@ -227,9 +218,7 @@ async def test_standalone_motor_driver_stops_the_wheels_on_a_stop_signal(
         await eventually(lambda: applied[-1]["reason"] == "stopped", what="the stop pulse")
         assert applied[-1]["speed"] == 0 and applied[-1]["left_dir"] == 0
     finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
+        await stop(proc)  # if it did not end
         await bus.aclose()
     history = load(pins)
     moving, stopped = applied[-2:]
@@ -252,9 +241,7 @@ async def test_wiring_check_ends_on_a_stop_signal_with_the_wheels_stopped(
         printed = await read_until(proc, "left forward:")  # said once it spins, for 60 s
         code, out = await end(proc, sig)
     finally:
-        if proc.returncode is None:
-            proc.kill()
-            await proc.wait()
+        await stop(proc)  # if it did not end
     name = signal.Signals(sig).name
     assert code == 128 + sig, printed + out
     assert f"{name}: the wheels were stopped and the pins released" in out
@@ -323,14 +310,12 @@ def mock_pins(monkeypatch: pytest.MonkeyPatch) -> Iterator[MockFactory]:
 
 @pytest.mark.asyncio
 async def test_a_run_ended_by_an_exception_stops_the_wheels(
-        endpoint: str, tmp_path: Path, mock_pins: MockFactory) -> None:
+        endpoint: str, calibrated_robot: Path, mock_pins: MockFactory) -> None:
     # The real launch code in this process; its status line's stdout goes away while the
     # robot drives, and the BrokenPipeError ends the run.
     drive_left, drive_right, zero_left, zero_right = calibrated_pulses()
-    robot_file = tmp_path / "calibrated.yaml"
-    robot_file.write_text(CALIBRATED_ROBOT)
-    args = launch.build_parser().parse_args([str(robot_file), "--no-sim", "--listen", endpoint,
-                                             "--status-period-s", "0.05"])
+    args = launch.build_parser().parse_args([str(calibrated_robot), "--no-sim", "--listen",
+                                             endpoint, "--status-period-s", "0.05"])
     plan = launch.plan_launch(args)
     left_pin = mock_pins.pin("GPIO12")
 

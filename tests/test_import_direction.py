@@ -18,6 +18,7 @@ run time is the point.
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -153,8 +154,6 @@ sys.meta_path.insert(0, Blocker())
 def without_hardware_libraries(tmp_path: Path) -> tuple[dict[str, str], Path]:
     """An environment whose Python cannot import gpiozero or smbus2 (a meta path blocker in a
     ``sitecustomize`` on ``PYTHONPATH``), and the file logging each attempt."""
-    import os
-
     site = tmp_path / "site"
     site.mkdir()
     (site / "sitecustomize.py").write_text(BLOCKER)

@@ -54,12 +54,11 @@ from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from components.motors.pwm import pulse_widths
 from ubf_async.action import Action
 from ubf_async.attach import attached_bus
-from ubf_async.behavior import Behavior
+from ubf_async.behaviors.basic import Drive
 from ubf_async.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, add_connection_arguments, decode_or_count
 from ubf_async.cli import run_main
 from ubf_async.errors import ConfigurationError
 from ubf_async.remote import RemoteBehaviorHost
-from ubf_async.state import State
 from ubf_async.topics import ENCODERS, SIM_TRUTH
 
 DEFAULT_TURNS: tuple[tuple[float, float], ...] = (
@@ -167,20 +166,6 @@ def format_fit(fit: TrackFit) -> str:
 # A running robot, over zenoh
 
 
-class TurnCommands(Behavior):
-    """The remote behaviour the calibration drives the robot with: ``command`` (speed, turn)
-    while a turn is driven, a stop otherwise — never an abstention, so the robot's own tree
-    cannot move it between turns (a person may be measuring)."""
-
-    def __init__(self, *, name: str) -> None:
-        super().__init__(name=name)
-        self.command: tuple[float, float] = (0.0, 0.0)
-
-    def act(self, state: State) -> Action | None:
-        speed, turn = self.command
-        return Action(speed=speed, turn=turn)
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class WheelReading:
     """One ``sensor/encoders`` sample: stamp and the edges counted so far, each wheel."""
@@ -219,9 +204,12 @@ class Latest:
 
 class RobotTurnRig:
     """Drives a running robot through turns over the bus (see the module docstring): a remote
-    behaviour (:class:`TurnCommands`) in the slot ``name`` of ``composite``, the wheels from
-    the encoders ``encoders``' samples, the true yaw from the simulator's truth (``truth``)
-    or from ``answer`` (given or asked per turn: see :func:`ask_turned_deg`)."""
+    behaviour in the slot ``name`` of ``composite`` — a :class:`~ubf_async.behaviors.basic.Drive`
+    whose action is the turn's command while it is driven, a stop otherwise: never an
+    abstention, so the robot's own tree cannot move it between turns (a person may be
+    measuring) — the wheels from the encoders ``encoders``' samples, the true yaw from the
+    simulator's truth (``truth``) or from ``answer`` (given or asked per turn: see
+    :func:`ask_turned_deg`)."""
 
     def __init__(self, *, bus: Bus, encoders: str = "wheels", name: str = "teleop",
                  composite: str = "seek_pink_ball", priority: int = 10,
@@ -232,7 +220,7 @@ class RobotTurnRig:
         self.rest_s = rest_s
         self.timeout_s = timeout_s
         self.out = out
-        self.commands = TurnCommands(name=name)
+        self.commands = Drive(name=name)
         self.host = RemoteBehaviorHost(bus=bus, behavior=self.commands, composite=composite,
                                        rate_hz=25.0, ttl_s=0.5, priority=priority)
         self.wheels: WheelReading | None = None
@@ -241,13 +229,12 @@ class RobotTurnRig:
         self.heading_rad: float | None = None
         """The simulator's true heading, unwrapped (full turns count), while it publishes."""
         self._truth = Latest()
-        self._truth_wrapped: float | None = None
         self.malformed: dict[str, int] = {}
+        self._encoders_key = ENCODERS.key(bus.keys, encoders)
         self._subs = [
-            bus.subscribe(ENCODERS.key(bus.keys, encoders), self._on_encoders),
+            bus.subscribe(self._encoders_key, self._on_encoders),
             bus.subscribe(SIM_TRUTH.key(bus.keys), self._on_truth),
         ]
-        self._encoders_key = ENCODERS.key(bus.keys, encoders)
 
     def _on_encoders(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key, topic=ENCODERS)
@@ -263,11 +250,10 @@ class RobotTurnRig:
         if message is None:
             return
         heading = message.data.robot.heading_rad
-        if self._truth_wrapped is None or self.heading_rad is None:
+        if self.heading_rad is None:
             self.heading_rad = heading
         else:  # 20 truth samples a second: far less than half a turn apart
-            self.heading_rad += wrap_angle(heading - self._truth_wrapped)
-        self._truth_wrapped = heading
+            self.heading_rad += wrap_angle(heading - self.heading_rad)
         self._truth.arrived(message.stamp_ns)
 
     async def start(self, *, truth_wait_s: float = 2.0) -> bool:
@@ -296,7 +282,7 @@ class RobotTurnRig:
     async def _at_rest(self) -> tuple[WheelReading, float | None]:
         """Hold the robot still for ``rest_s`` (robot clock), then the wheels and (simulated)
         the heading read after it."""
-        self.commands.command = (0.0, 0.0)
+        self.commands.action = Action(speed=0.0, turn=0.0)
         await self.bus.clock.sleep(self.rest_s)
         now = self.bus.clock.now_ns()
         await self._wheels.at_or_after(now, timeout_s=self.timeout_s, what="encoder samples")
@@ -309,7 +295,7 @@ class RobotTurnRig:
         """One turn from rest to rest: ``(Δθ_left, Δθ_right, true yaw or None)`` in radians
         (None without the simulator's truth)."""
         before, heading0 = await self._at_rest()
-        self.commands.command = (speed, turn)
+        self.commands.action = Action(speed=speed, turn=turn)
         await self.bus.clock.sleep(self.drive_s)
         after, heading1 = await self._at_rest()
         yaw = heading1 - heading0 if heading0 is not None and heading1 is not None else None
@@ -489,7 +475,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                        metavar="S", help="how long to wait for the robot, its encoders and "
                                          "its obeying the commands")
     args = parser.parse_args(argv)
-    prog = "python -m components.encoders.calibrate"
+    prog = parser.prog
     attach = bool(args.connect or args.listen or args.config or args.mode == "client")
     if not attach:
         if not (args.settle_s >= 0 and args.measure_s > 0):

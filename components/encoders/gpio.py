@@ -61,7 +61,7 @@ class _Wheel:
         self._states: deque[int] = deque(maxlen=max_pending)
         self._ticks: deque[Any] = deque(maxlen=max_pending)
         self.overflowed = 0
-        self._dropped = 0  # of the batch being gathered
+        self._overflowed_taken = 0  # ``overflowed`` at the last take
         self.edges_seen = 0
         self.newest_tick: Any = None
         """The stamp of the newest edge taken so far (in an earlier batch)."""
@@ -95,7 +95,6 @@ class _Wheel:
                 self._b = b
             if len(self._states) == self._states.maxlen:
                 self.overflowed += 1
-                self._dropped += 1
             self._states.append((self._a << 1) | self._b)
             self._ticks.append(ticks)
             self.edges_seen += 1
@@ -105,7 +104,8 @@ class _Wheel:
         with self._lock:
             states = np.fromiter(self._states, dtype=np.uint8, count=len(self._states))
             ticks = list(self._ticks)
-            dropped, self._dropped = self._dropped, 0
+            dropped = self.overflowed - self._overflowed_taken  # from this batch
+            self._overflowed_taken = self.overflowed
             self._states.clear()
             self._ticks.clear()
         timing = self._timing(ticks, dropped=dropped)
@@ -116,16 +116,15 @@ class _Wheel:
 
     def _timing(self, ticks: list[Any], *, dropped: int) -> EdgeTiming:
         edges = len(ticks)
-        if not ticks or dropped:  # nothing to time, or edges missing from what is counted
-            return EdgeTiming(edges=edges, span_s=None, intervals=0)
-        diff = self.factory.ticks_diff
-        if self.moving and self.newest_tick is not None \
-                and diff(ticks[0], self.newest_tick) < MAX_EDGE_GAP_S:
-            return EdgeTiming(edges=edges, span_s=diff(ticks[-1], self.newest_tick),
-                              intervals=edges)
-        if edges >= 2:  # the wheel started within this batch: time it from its first edge
-            return EdgeTiming(edges=edges, span_s=diff(ticks[-1], ticks[0]),
-                              intervals=edges - 1)
+        if ticks and not dropped:  # else nothing to time, or edges missing from the count
+            diff = self.factory.ticks_diff
+            # ``moving``: the last batch had edges, so ``newest_tick`` is the one before these.
+            if self.moving and diff(ticks[0], self.newest_tick) < MAX_EDGE_GAP_S:
+                return EdgeTiming(edges=edges, span_s=diff(ticks[-1], self.newest_tick),
+                                  intervals=edges)
+            if edges >= 2:  # the wheel started within this batch: time it from its first edge
+                return EdgeTiming(edges=edges, span_s=diff(ticks[-1], ticks[0]),
+                                  intervals=edges - 1)
         return EdgeTiming(edges=edges, span_s=None, intervals=0)
 
     def close(self) -> None:
