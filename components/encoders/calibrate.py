@@ -262,7 +262,7 @@ class RobotTurnRig:
         await self.host.start()
         name = self.commands.name
         await self._until(lambda: self.host.robot_winners == [name],
-                          f"the robot to follow {name!r} (its drive commands name "
+                          lambda: f"the robot to follow {name!r} (its drive commands name "
                           f"{self.host.robot_winners or 'no winner'}): it needs a remote slot "
                           f"{name!r} that outranks its tree, e.g. launch --remote {name}=10")
         await self._wheels.at_or_after(0, timeout_s=self.timeout_s,
@@ -271,12 +271,15 @@ class RobotTurnRig:
             await self._truth.at_or_after(0, timeout_s=truth_wait_s, what="truth")
         return self.heading_rad is not None
 
-    async def _until(self, condition: Callable[[], bool], what: str) -> None:
+    async def _until(self, condition: Callable[[], bool], what: Callable[[], str]) -> None:
+        """Wait for ``condition``; :class:`ConnectionError` after ``timeout_s`` saying
+        ``what()`` — built then, so it tells what the robot does at that moment."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.timeout_s
         while not condition():
             if loop.time() > deadline:
-                raise ConnectionError(f"timed out after {self.timeout_s:g} s waiting for {what}")
+                raise ConnectionError(f"timed out after {self.timeout_s:g} s waiting for "
+                                      f"{what()}")
             await asyncio.sleep(0.02)
 
     async def _at_rest(self) -> tuple[WheelReading, float | None]:
