@@ -47,7 +47,8 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
     """The component of device kind ``kind`` (its factory ``factory``) reading or driving
     ``backend``, with already checked ``params``; the run's seed and clock go to a factory
     that takes them, and so does each of ``context.extras`` the robot file does not set (a
-    fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …)."""
+    fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …). The device
+    owns ``backend``: it is closed with the component, or at once if no component is made."""
     # What the run knows fills the parameters the robot file left unset (None).
     extra: dict[str, Any] = {
         key: value for key, value in context.extras.items()
@@ -57,11 +58,16 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
         extra["seed"] = context.seed
     if accepts(factory, "clock"):
         extra["clock"] = context.clock
-    component = factory(bus=context.bus, name=name, backend=backend, **extra, **params)
-    if not isinstance(component, Component):
-        raise ConfigurationError(f"device kind {kind!r} returned {type(component).__name__}, "
-                                 f"not a Component")
     close = getattr(backend, "close", None)
+    try:
+        component = factory(bus=context.bus, name=name, backend=backend, **extra, **params)
+        if not isinstance(component, Component):
+            raise ConfigurationError(f"device kind {kind!r} returned "
+                                     f"{type(component).__name__}, not a Component")
+    except BaseException:
+        if callable(close):  # refused: its pins and buses are not left held
+            close()
+        raise
     if callable(close):  # the device owns its backend: closed with it, after its last command
         component.close_on_exit(close)
     return component

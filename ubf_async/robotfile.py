@@ -363,16 +363,10 @@ class ResolvedDevice:
 
     def build(self, *, context: DeviceContext) -> Component:
         """Build the backend and the device component (launch calls this). A device that
-        refuses its backend closes it (pins and buses are not left held)."""
+        refuses its backend closes it (:func:`~ubf_async.devices.build_device`)."""
         backend = self.backend_factory(context=context, **self.backend_params)
-        try:
-            return build_device(self.factory, kind=self.kind, name=self.name, backend=backend,
-                                params=self.params, context=context)
-        except BaseException:
-            close = getattr(backend, "close", None)
-            if callable(close):
-                close()
-            raise
+        return build_device(self.factory, kind=self.kind, name=self.name, backend=backend,
+                            params=self.params, context=context)
 
 
 @dataclass(slots=True)
