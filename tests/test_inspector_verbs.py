@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import re
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
 import pytest
@@ -165,15 +166,24 @@ async def test_info_names_the_live_components_that_announce_the_key(
     assert "gone" not in out
 
 
-@pytest.mark.asyncio
-async def test_pub_refuses_what_the_robot_would_and_sends_what_it_takes(
-        robot_endpoint: str) -> None:
-    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
+@contextlib.asynccontextmanager
+async def leds_heard(endpoint: str) -> AsyncIterator[list[int]]:
+    """The masks of the LED commands heard on the robot, from a bus that has reached it."""
+    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[endpoint]))
     masks: list[int] = []
     try:
         bus.subscribe(LEDS.key(bus.keys), lambda k, p, t: masks.append(decode(p).data.mask),
                       latest=False)
         await eventually(lambda: bus.reached_peers(), what="the robot")
+        yield masks
+    finally:
+        await bus.aclose()
+
+
+@pytest.mark.asyncio
+async def test_pub_refuses_what_the_robot_would_and_sends_what_it_takes(
+        robot_endpoint: str) -> None:
+    async with leds_heard(robot_endpoint) as masks:
         refused = await asyncio.to_thread(inspect, robot_endpoint, "pub", "cmd/drive",
                                           "{speed: 500, turn: 0}")
         assert refused.returncode == 2
@@ -191,18 +201,11 @@ async def test_pub_refuses_what_the_robot_would_and_sends_what_it_takes(
         assert "sent 3 leds message(s) on ubf/insp/cmd/leds" in sent.stdout
         await eventually(lambda: masks.count(2) >= 3, what="the published commands")
         assert 300 not in masks and not [m for m in before if m == 2]
-    finally:
-        await bus.aclose()
 
 
 @pytest.mark.asyncio
 async def test_pub_with_a_rate_publishes_until_stopped(robot_endpoint: str) -> None:
-    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
-    masks: list[int] = []
-    try:
-        bus.subscribe(LEDS.key(bus.keys), lambda k, p, t: masks.append(decode(p).data.mask),
-                      latest=False)
-        await eventually(lambda: bus.reached_peers(), what="the robot")
+    async with leds_heard(robot_endpoint) as masks:
         pub = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "ubf_async.inspector", "--connect", robot_endpoint,
             "--robot", "insp", "pub", "cmd/leds", "{mask: 5}", "--rate", "20", cwd=ROOT,
@@ -219,8 +222,6 @@ async def test_pub_with_a_rate_publishes_until_stopped(robot_endpoint: str) -> N
         assert sent and int(sent.group(1)) >= 10, out.decode()
         await eventually(lambda: masks.count(5) == int(sent.group(1)),
                          what="every message it says it sent")
-    finally:
-        await bus.aclose()
 
 
 def test_pub_help_offers_no_key_expression() -> None:

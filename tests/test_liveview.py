@@ -163,19 +163,12 @@ def test_the_standalone_bridge_serves_a_running_robot(running: Any, endpoint: st
     ending = idle.stdout.splitlines()[-1]
     assert re.fullmatch(r"python -m ubf_async\.liveview: no Foxglove client subscribed: "
                         r"[1-9]\d* messages converted, none sent", ending), ending
-    bridge = subprocess.Popen(
-        [sys.executable, "-m", "ubf_async.liveview", "--connect", endpoint, "--robot", robot,
-         "--port", str(free_port())], cwd=ROOT, env=ENV, text=True, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT)
-    try:
-        assert bridge.stdout is not None
-        check_live(url_in(read_line_with(bridge.stdout, "live on")))
-        bridge.send_signal(signal.SIGINT)
-        out, _ = bridge.communicate(timeout=30)
-    finally:
-        if bridge.poll() is None:
-            bridge.kill()
-            bridge.communicate(timeout=30)
+    bridge = running("ubf_async.liveview", "--connect", endpoint, "--robot", robot, "--port",
+                     str(free_port()))
+    assert bridge.stdout is not None
+    check_live(url_in(read_line_with(bridge.stdout, "live on")))
+    bridge.send_signal(signal.SIGINT)
+    out, _ = bridge.communicate(timeout=30)
     assert bridge.returncode == 0, out
     served = re.search(r"liveview: (\d+) of (\d+) messages converted went to 1 Foxglove "
                        r"client\(s\)", out)

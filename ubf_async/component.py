@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import time
 from collections.abc import Callable
@@ -34,7 +35,7 @@ from typing import Any
 
 from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
 from ubf_async.errors import ConfigurationError
-from ubf_async.topics import HEARTBEAT, MAX_ANNOUNCED, Topic
+from ubf_async.topics import HEARTBEAT, MAX_ANNOUNCED, Published, Topic
 
 log = logging.getLogger(__name__)
 
@@ -209,8 +210,10 @@ class Component:
     def _announced(self) -> list[dict[str, Any]]:
         """What this run attempt publishes (the heartbeat's ``publishes``: tools name a key's
         publishers by it, docs/protocol.md)."""
-        return [{"key": r.key, "pub": r.pub} for r in self._attempt_resources
-                if isinstance(r, Publisher) and len(r.key) <= 256][:MAX_ANNOUNCED]
+        publishers = (r for r in self._attempt_resources
+                      if isinstance(r, Publisher) and len(r.key) <= 256)
+        return [{"key": p.key, "pub": p.pub}
+                for p in itertools.islice(publishers, MAX_ANNOUNCED)]
 
     async def _heartbeat(self) -> None:
         pub = self.bus.publisher(HEARTBEAT, self.name,
@@ -242,6 +245,8 @@ class ComponentHealth:
     heartbeat_period_s: float | None = None
     restarts: int = 0
     loop_lag_s: float = 0.0
+    publishes: tuple[Published, ...] = ()
+    """What its newest heartbeat announces it publishes (empty: it does not say)."""
 
     def healthy(self, now_s: float, *, missed: float = 3.0) -> bool:
         """Alive and its heartbeat not more than ``missed`` periods late."""
@@ -296,6 +301,7 @@ class HealthMonitor:
         entry.heartbeat_period_s = message.period_s
         entry.restarts = data.restarts
         entry.loop_lag_s = data.loop_lag_s
+        entry.publishes = data.publishes
         self.changed.set()
 
     def alive_names(self) -> list[str]:

@@ -30,7 +30,6 @@ import contextlib
 import dataclasses
 import itertools
 import json
-import signal
 import statistics
 import sys
 import time
@@ -53,6 +52,7 @@ from ubf_async.bus import (
     connection_options,
     wait_for_robot,
 )
+from ubf_async.cli import STOP_SIGNALS
 from ubf_async.component import HealthMonitor
 from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
@@ -786,30 +786,17 @@ def describe_type(info: msgspec.inspect.Type) -> str:
     return base + (f" ({', '.join(bounds)})" if bounds else "")
 
 
-@dataclass
-class Announcements:
-    """What the live components' heartbeats say they publish (``publishes``, docs/protocol.md):
-    the newest heartbeat of each component."""
-
-    by_component: dict[str, tuple[topics.Published, ...] | None] = field(default_factory=dict)
-    """``None``: a heartbeat that announces nothing (a component that does not say)."""
-
-    def on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
-        with contextlib.suppress(ProtocolError):
-            data = decode(payload, topic=topics.HEARTBEAT).data
-            if len(self.by_component) < 4096 or data.component in self.by_component:
-                self.by_component[data.component] = data.publishes or None
-
-    def publishers(self, key_expr: str, alive: set[str]) -> dict[str, list[topics.Published]]:
-        """The live components announcing a key matching ``key_expr``, with what they announce
-        there (a component whose liveliness token is gone is not a publisher any more)."""
-        found: dict[str, list[topics.Published]] = {}
-        for component, published in self.by_component.items():
-            if component in alive:
-                hits = [p for p in published or () if intersects(key_expr, p.key)]
-                if hits:
-                    found[component] = hits
-        return found
+def announcing(monitor: HealthMonitor, key_expr: str, alive: set[str]
+               ) -> dict[str, list[topics.Published]]:
+    """The live components whose newest heartbeat announces a key matching ``key_expr``
+    (``publishes``, docs/protocol.md), with what they announce there (a component whose
+    liveliness token is gone is not a publisher any more)."""
+    found: dict[str, list[topics.Published]] = {}
+    for component, health in monitor.components.items():
+        if component in alive and (
+                hits := [p for p in health.publishes if intersects(key_expr, p.key)]):
+            found[component] = hits
+    return found
 
 
 async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
@@ -828,8 +815,8 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
             if pub is not None and len(window.publishers) < 64:
                 window.publishers.add(pub)
 
-    announced = Announcements()
-    bus.subscribe(bus.keys.all_heartbeats, announced.on_heartbeat)
+    monitor = HealthMonitor(bus)  # the heartbeats: what each component announces
+    monitor.start()
     bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
     declared = [t for t in topics.TOPICS if intersects(t.key_expr(bus.keys), key_expr)]
     print(f"key: {key_expr}", file=out)
@@ -851,11 +838,11 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     listen_s = max(args.seconds, 1.0)
     await asyncio.sleep(listen_s)
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=args.timeout)
+    monitor.close()
     alive = {bus.keys.component_of_alive(t) for t in tokens}
-    publishers = announced.publishers(key_expr, alive)
+    publishers = announcing(monitor, key_expr, alive)
     print(format_publishers(publishers, alive=alive, announcing={
-        c for c, p in announced.by_component.items() if p is not None and c in alive}),
-        file=out)
+        c for c, health in monitor.components.items() if health.publishes}), file=out)
     by_pub = {p.pub: component for component, found in publishers.items() for p in found}
     if not seen:
         print(f"heard: nothing on {key_expr} in {listen_s:g}s", file=out)
@@ -945,13 +932,12 @@ def _stopped_by_signals() -> Iterator[asyncio.Event]:
     ``pub --rate``: the count sent is still printed); the handlers are removed on exit."""
     loop = asyncio.get_running_loop()
     stopped = asyncio.Event()
-    signals = (signal.SIGINT, signal.SIGTERM)
-    for signum in signals:
+    for signum in STOP_SIGNALS:
         loop.add_signal_handler(signum, stopped.set)
     try:
         yield stopped
     finally:
-        for signum in signals:
+        for signum in STOP_SIGNALS:
             loop.remove_signal_handler(signum)
 
 

@@ -365,8 +365,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         try:
             for device in plan.devices:
                 devices.append(device.build(context=context))
-        except BaseException:  # the ones built hold their pins and buses: release them
-            await _close_all(devices, None, None)
+        except BaseException:  # the ones built hold their pins and buses: closed below
+            components += devices
             raise
         spec = robot.spec
         settings = plan.controller
@@ -469,20 +469,16 @@ async def save_results(sim_run: SimulationRun, controller: Controller, out: Text
     return failure
 
 
-async def _close_all(components: list[Component], health: HealthMonitor | None,
-                     bus: Bus | None) -> None:
-    """Close the components (last started first), the health monitor and the session (those
-    given); a step that fails is logged and the others still run (a session left open would
-    keep the process from exiting)."""
+async def _close_all(components: list[Component], health: HealthMonitor, bus: Bus) -> None:
+    """Close the components (last started first), the health monitor and the session; a
+    step that fails is logged and the others still run (a session left open would keep the
+    process from exiting)."""
     for component in reversed(components):
         try:
             await component.aclose()
         except Exception:
             log.exception("closing component %s failed", component.name)
-    if health is not None:
-        health.close()
-    if bus is None:
-        return
+    health.close()
     try:
         await bus.aclose()
     except Exception:

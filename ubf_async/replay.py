@@ -40,6 +40,7 @@ from pathlib import Path
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Channel
 
 from ubf_async.bus import (
     DEFAULT_ATTACH_TIMEOUT_S,
@@ -93,28 +94,35 @@ class Recording:
         self._from = f"ubf/{recorded}/"
         self._patterns = [self._from + o.strip("/") for o in only]
 
+    def _replayed_on(self, channel: Channel) -> str | None:
+        """The key a recorded channel's messages are replayed on, or ``None``: not replayed
+        (the live view's Foxglove channels are derived; another robot's, or not in
+        ``only``)."""
+        topic = channel.topic
+        if (channel.message_encoding != "msgpack" or not topic.startswith(self._from)
+                or not any(intersects(p, topic) for p in self._patterns)):
+            return None
+        return f"ubf/{self.robot}/{topic[len(self._from):]}"
+
     def __iter__(self) -> Iterator[Recorded]:
-        to = f"ubf/{self.robot}/"
+        replayed_on: dict[int, str | None] = {}  # by channel id: decided once per channel
         with self.path.open("rb") as f:
             for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
-                key = channel.topic
-                if channel.message_encoding != "msgpack" or not key.startswith(self._from):
-                    continue  # the live view's Foxglove channels: derived, not replayed
-                if any(intersects(p, key) for p in self._patterns):
-                    yield Recorded(to + key[len(self._from):], message.data, message.log_time)
+                if channel.id not in replayed_on:
+                    replayed_on[channel.id] = self._replayed_on(channel)
+                key = replayed_on[channel.id]
+                if key is not None:
+                    yield Recorded(key, message.data, message.log_time)
 
     def keys(self) -> list[str]:
         """The keys (under ``ubf/<robot>/``) this recording publishes on, sorted. Reads the
         file's summary; a file without one (a killed recorder's) is read through."""
-        to = f"ubf/{self.robot}/"
         with self.path.open("rb") as f:
             summary = make_reader(f).get_summary()
-        if summary is not None:
-            topics = {c.topic for c in summary.channels.values()
-                      if c.message_encoding == "msgpack" and c.topic.startswith(self._from)}
-            return sorted(to + t[len(self._from):] for t in topics
-                          if any(intersects(p, t) for p in self._patterns))
-        return sorted({m.key for m in self})
+        if summary is None:
+            return sorted({m.key for m in self})
+        replayed = (self._replayed_on(c) for c in summary.channels.values())
+        return sorted({key for key in replayed if key is not None})
 
     async def read_ahead(self, *, batch: int = 256, batches: int = 8
                          ) -> AsyncIterator[Recorded]:
@@ -268,26 +276,27 @@ async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
     (declarations travel asynchronously), so a replay that started before the robot's
     subscriptions had arrived would publish into nothing."""
     probes = [bus.publisher(key, PROBE_SCHEMA) for key in keys]
+
+    def missing() -> list[str]:
+        return [p.key for p in probes if not p.has_subscribers()]
+
+    # Polling zenoh's matching status, as Publisher.wait_for_subscribers does.
     try:
         deadline = time.monotonic() + timeout_s
-        settled: float | None = None
-        while True:
-            missing = [p.key for p in probes if not p.has_subscribers()]
-            now = time.monotonic()
-            if not missing:
-                return []
-            if len(missing) < len(probes):
-                settled = settled if settled is not None else now + settle_s
-                if now >= settled:
-                    return missing
-            elif now >= deadline:
+        while (unheard := missing()) and len(unheard) == len(probes):
+            if time.monotonic() >= deadline:
                 raise NoRobotError(
                     f"nobody subscribes to what this would replay ({len(keys)} keys under "
                     f"ubf/{bus.robot}/: {_some(keys, bus.keys.prefix)}) within "
                     f"{timeout_s:g}s: start the "
                     f"robot to feed first, e.g. `python -m ubf_async.launch ROBOT_FILE "
                     f"--no-sim --sim-time`, and check --connect and --robot")
-            await asyncio.sleep(poll_s)  # polling zenoh's matching status, as Publisher does
+            await asyncio.sleep(poll_s)
+        settled = time.monotonic() + settle_s  # one has a subscriber: the others' chance
+        while unheard and time.monotonic() < settled:
+            await asyncio.sleep(poll_s)
+            unheard = missing()
+        return unheard
     finally:
         for probe in probes:
             probe.close()
