@@ -181,18 +181,27 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 def add_connection_arguments(
     parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None,
-    default_identity: str | None = None,
+    default_identity: str | None = None, default_connect: list[str] | None = None,
 ) -> None:
     """Add ``--mode/-m --connect/-e --listen/-l --config --robot --multicast-scouting``,
-    ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``."""
+    ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``.
+
+    ``default_connect``: where a tool attaching to a robot connects when neither the flags
+    nor the ``--config`` file give an endpoint (typically ``[DEFAULT_LISTEN]``, where
+    ``python -m ubf_async.launch`` listens); applied by :func:`connection_options`."""
     from ubf_async import __version__
 
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     group = parser.add_argument_group("connection (shared by every ubf_async entry point)")
     group.add_argument("--mode", "-m", choices=("peer", "client"), default=None,
                        help="zenoh session mode (default: the --config file's, else peer)")
+    connect_help = "endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
+    if default_connect:
+        connect_help = (f"endpoint of the robot (repeatable; default: "
+                        f"{' '.join(default_connect)}, where launch listens, unless --listen "
+                        f"is given)")
     group.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT",
-                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+                       help=connect_help)
     listen_help = "endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)"
     if default_listen:
         listen_help += (f"; default: {' '.join(default_listen)} unless the --config file "
@@ -215,7 +224,8 @@ def add_connection_arguments(
         identity_help += f"; default: {default_identity}"
     group.add_argument("--identity", default=None, metavar="NAME", help=identity_help)
     parser.set_defaults(_default_listen=default_listen or [],
-                        _default_identity=default_identity)
+                        _default_identity=default_identity,
+                        _default_connect=default_connect or [])
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:
@@ -226,7 +236,8 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     ``listen/endpoints`` and ``--connect`` its ``connect/endpoints``; without the flag, the
     file's endpoints (and ``mode``, when ``--mode`` defaults to ``None``) are kept, and the
     entry point's default listen endpoint (launch's) applies only when neither sets one, and
-    not to a ``client`` (it joins a router).
+    not to a ``client`` (it joins a router); a tool's default connect endpoint only when
+    neither sets any endpoint.
     Raises :class:`~ubf_async.errors.ConfigurationError`.
     """
     file_conf = load_zenoh_config(args.config) if args.config is not None else None
@@ -239,6 +250,8 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
         default = [] if mode == "client" else getattr(args, "_default_listen", [])
         listen = from_file if from_file is not None else list(default)  # clients: the router
     connect = list(args.connect) or _config_endpoints(file_conf, "connect", mode) or []
+    if not connect and not listen:  # a tool's default: the robot's endpoint
+        connect = list(getattr(args, "_default_connect", []))
     try:
         Keys(args.robot)
     except ProtocolError as exc:

@@ -109,15 +109,12 @@ def _common_parser(*, suppress: bool = False) -> argparse.ArgumentParser:
     flags given before the subcommand (parsed by the top level, with the defaults) are not
     overwritten by the subcommand's defaults — the flags work before or after it."""
     common = argparse.ArgumentParser(add_help=False)
-    add_connection_arguments(common)
-    for action in common._actions:  # the tool's defaults differ from a component's
+    add_connection_arguments(common, default_connect=[DEFAULT_LISTEN])
+    for action in common._actions:  # the tool's default mode differs from a component's
         if action.dest == "mode":
             action.default = "client"
             action.help = ("zenoh session mode (default: client — the robot's peer then "
                            "answers for every process attached to it)")
-        elif action.dest == "connect":
-            action.help = (f"endpoint of the robot (repeatable; default: {DEFAULT_LISTEN} "
-                           "unless --listen is given)")
     common.add_argument("--timeout", type=float, default=5.0, metavar="S",
                         help="how long to wait for the robot to answer (default: 5)")
     if suppress:
@@ -332,8 +329,6 @@ async def open_bus(args: argparse.Namespace) -> Bus:
     """Open a session and wait until it reaches the robot: :class:`NoRobotError` (one line:
     nothing answered, or the robot there has another name) after ``--timeout``."""
     options = connection_options(args)
-    if not options.connect and not options.listen:
-        options.connect = [DEFAULT_LISTEN]
     bus = await Bus.open(options)
     try:
         await wait_for_robot(bus, timeout_s=args.timeout,

@@ -846,7 +846,7 @@ def remote_parser(
         prog=prog, description=description,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    add_connection_arguments(parser)
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN])
     parser.epilog = (f"Without --connect or --listen it connects to {DEFAULT_LISTEN}, where "
                      "`python -m ubf_async.launch` listens by default.")
     group = parser.add_argument_group("remote behaviour (see docs/protocol.md)")
@@ -902,8 +902,6 @@ async def host_remote_behavior(
     if getattr(args, "secure", None) is not None and getattr(args, "identity", None) is None:
         args.identity = behavior.name  # a remote slot's identity is the slot's name
     options = connection_options(args)
-    if not options.connect and not options.listen:
-        options.connect = [DEFAULT_LISTEN]  # the endpoint `python -m ubf_async.launch` uses
     bus = await Bus.open(options, clock=WallClock())
     host: RemoteBehaviorHost | None = None
     try:

@@ -239,11 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "simulated run's clock is replayed too: re-run the controller with "
                     "'python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time'.")
     parser.add_argument("file", type=Path, metavar="FILE.mcap")
-    add_connection_arguments(parser)
-    for action in parser._actions:  # a tool's default: the robot's endpoint
-        if action.dest == "connect":
-            action.help = (f"endpoint of the robot (repeatable; default: {DEFAULT_LISTEN}, "
-                           "where launch listens, unless --listen is given)")
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN])
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--speed", type=float, default=1.0, metavar="K",
                       help="K times the recorded pace")
@@ -310,8 +306,6 @@ async def _main(args: argparse.Namespace) -> int:
         raise ConfigurationError(f"{args.file}: nothing to replay: no message of robot "
                                  f"{recording.recorded_robot!r} on {', '.join(only)}")
     options = connection_options(args)
-    if not options.connect and not options.listen:  # the robot's endpoint, as tools do
-        options.connect = [DEFAULT_LISTEN]
     bus = await Bus.open(options)
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
