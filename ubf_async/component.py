@@ -35,7 +35,7 @@ from typing import Any
 
 from ubf_async.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
 from ubf_async.errors import ConfigurationError
-from ubf_async.topics import HEARTBEAT, MAX_ANNOUNCED, Published, Topic
+from ubf_async.topics import HEARTBEAT, MAX_ANNOUNCED, MAX_ANNOUNCED_KEY_CHARS, Published, Topic
 
 log = logging.getLogger(__name__)
 
@@ -211,7 +211,7 @@ class Component:
         """What this run attempt publishes (the heartbeat's ``publishes``: tools name a key's
         publishers by it, docs/protocol.md)."""
         publishers = (r for r in self._attempt_resources
-                      if isinstance(r, Publisher) and len(r.key) <= 256)
+                      if isinstance(r, Publisher) and len(r.key) <= MAX_ANNOUNCED_KEY_CHARS)
         return [{"key": p.key, "pub": p.pub}
                 for p in itertools.islice(publishers, MAX_ANNOUNCED)]
 

@@ -243,6 +243,7 @@ class Leds(Data, frozen=True, kw_only=True):
 
 
 MAX_ANNOUNCED = 64
+MAX_ANNOUNCED_KEY_CHARS = 256
 """Publishers a heartbeat may announce."""
 
 
@@ -250,7 +251,7 @@ class Published(Data, frozen=True, kw_only=True):
     """One of a component's publishers, as its heartbeat announces it: the key and the
     ``pub`` identity its envelopes carry (``inspector info`` names a key's publishers by it)."""
 
-    key: Text256
+    key: Annotated[str, Meta(max_length=MAX_ANNOUNCED_KEY_CHARS)]
     pub: Annotated[int, Meta(ge=1, le=INT64_MAX)]
 
 
