@@ -104,7 +104,12 @@ class FoxgloveClient:
         wanted = {t: (at_least or {}).get(t, per_topic) for t in topics}
         deadline = time.monotonic() + timeout_s
         while any(len(v) < wanted[t] for t, v in got.items()):
-            received = self._receive(deadline)
+            try:
+                received = self._receive(deadline)
+            except TimeoutError:
+                short = {t: f"{len(v)} of {wanted[t]}" for t, v in sorted(got.items())
+                         if len(v) < wanted[t]}
+                raise TimeoutError(f"in {timeout_s} s, too few messages of {short}") from None
             if received is not None and received.topic in got:
                 got[received.topic].append(received)
         return got

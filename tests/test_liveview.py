@@ -26,6 +26,7 @@ import pytest
 from tests.conftest import free_port
 from tests.foxglove_client import FoxgloveClient
 from ubf_async.liveview import (
+    TRAIL_REFRESH_S,
     TRAIL_STEP_M,
     LiveMessage,
     LiveView,
@@ -97,8 +98,8 @@ def check_live(url: str) -> None:
     with FoxgloveClient(url) as client:
         client.wait_for_topics(SEEN | advertised_layout_topics())
         client.subscribe(SEEN)
-        # The trail gets a point only when the robot has moved (TRAIL_STEP_M): once it has
-        # settled before the ball, its first message is all there is.
+        # The trail is sent as it grows, and every TRAIL_REFRESH_S when the robot stands still
+        # (it may have settled before the ball by now).
         got = client.collect(SEEN, per_topic=3, timeout_s=30, at_least={"/robot/trail": 1})
     # The camera's view: the 160×128 pixels seekcolor reads, four times larger, with the
     # bins' boundaries drawn in green.
@@ -230,6 +231,17 @@ def test_the_trail_grows_only_as_the_robot_moves() -> None:
     assert [("/robot/trail" in t) for t in topics] == [True, False, False, True, False, True]
     assert all({"/robot/pose", "/tf"} <= set(t) for t in topics)
     assert len(converter.trail) == 3 and TRAIL_STEP_M == 0.01
+
+
+def test_a_robot_standing_still_has_its_trail_sent_again_for_late_viewers() -> None:
+    converter = TruthConverter()
+    step_ns = 50_000_000  # the simulator's truth at 20 Hz
+    sent_at = [i * step_ns for i in range(100)  # 5 s standing at the same spot
+               if any(m.topic == "/robot/trail"
+                      for m in converter.convert("sim/truth", truth(0.5, i * step_ns), i))]
+    refresh_ns = int(TRAIL_REFRESH_S * 1e9)
+    assert sent_at == list(range(0, 100 * step_ns, refresh_ns))
+    assert len(converter.trail) == 1  # sent again, not grown
 
 
 def test_an_ir_reading_out_of_range_is_drawn_grey_to_the_maximum() -> None:

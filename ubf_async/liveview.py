@@ -79,6 +79,9 @@ ODOM_FRAME = "odom"
 TRAIL_POINTS = 2000
 TRAIL_STEP_M = 0.01
 """The trail gets a point each time the robot has moved this far."""
+TRAIL_REFRESH_S = 1.0
+"""A robot standing still has its trail sent again this often (robot time), so a viewer that
+connects then still sees the path it took: Foxglove keeps no message for late subscribers."""
 IR_MOUNT_X_M = 0.05
 """Where the IR beams start, ahead of ``base_link`` (the Mini-WHEGS's nose)."""
 NOT_AS_JSON = frozenset({"camera.view", "clock", "sim.world", "sim.pulses"})
@@ -190,12 +193,14 @@ class CameraViewConverter:
 
 class TruthConverter:
     """``sim/truth`` → ``/robot/pose``, ``/tf`` (``world`` → ``base_link``) and
-    ``/robot/trail`` (a point every :data:`TRAIL_STEP_M`, the last :data:`TRAIL_POINTS`)."""
+    ``/robot/trail`` (a point every :data:`TRAIL_STEP_M`, the last :data:`TRAIL_POINTS`; sent
+    when it grows, and at least every :data:`TRAIL_REFRESH_S` of robot time)."""
 
     schemas = frozenset({"sim.truth"})
 
     def __init__(self) -> None:
         self.trail: deque[tuple[float, float]] = deque(maxlen=TRAIL_POINTS)
+        self._trail_sent_ns: int | None = None
 
     def convert(self, source: str, message: Message[Any],
                 log_time_ns: int) -> Iterator[LiveMessage]:
@@ -219,9 +224,12 @@ class TruthConverter:
             translation=Vector3(x=robot.x_m, y=robot.y_m, z=0.0),
             rotation=yaw_quaternion(robot.heading_rad)), log_time_ns)
         last = self.trail[-1] if self.trail else None
-        if last is not None and math.dist(last, (robot.x_m, robot.y_m)) < TRAIL_STEP_M:
+        if last is None or math.dist(last, (robot.x_m, robot.y_m)) >= TRAIL_STEP_M:
+            self.trail.append((robot.x_m, robot.y_m))
+        elif (self._trail_sent_ns is not None
+              and message.stamp_ns - self._trail_sent_ns < TRAIL_REFRESH_S * 1e9):
             return
-        self.trail.append((robot.x_m, robot.y_m))
+        self._trail_sent_ns = message.stamp_ns
         yield foxglove_message("/robot/trail", SceneUpdate(entities=[SceneEntity(
             timestamp=stamp, frame_id=WORLD_FRAME, id="trail", lines=[LinePrimitive(
                 thickness=0.008, color=rgba((40, 110, 220)),
