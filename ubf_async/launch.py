@@ -53,6 +53,7 @@ from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
 from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.heap import freeze_startup_objects
 from ubf_async.hostclock import RobotTimeBeacon
 from ubf_async.live import TreeService
 from ubf_async.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
@@ -411,6 +412,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         for slot in robot.remotes:
             print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
         out.flush()
+        freeze_startup_objects()  # the start-up's objects: out of the collector's way
         await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
         return 0
     finally:
