@@ -15,7 +15,10 @@ and their simulated devices (camera, IR, encoders, motors…) — runs the world
 * **CPU/robot** — the CPU time of each controller process over the run, as a share of one
   core (the worst robot's; a process of K controllers counts 1/K each), and the world
   process's CPU, its render process's included (its start too, ≈0.4 s of CPU once),
-  divided by N (its devices are the robots' too: the world's share per robot).
+  divided by N (its devices are the robots' too: the world's share per robot);
+* **step late** — how late the world's 5 ms steps started after their due wall time, p99 and
+  worst (the world's summary, ``step_lateness``): every controller follows the world's clock,
+  so this is the part of their jitter that the world's own pacing causes.
 
 ``--controllers-per-process K`` runs the controllers K to a process, as
 ``python -m ubf_async.fleet --controllers-per-process K`` does (for small machines).
@@ -28,7 +31,8 @@ had found it, and the same for a fleet that does not talk (the same tree without
 ``report_ball`` and ``go_to_report``).
 
 ``--json FILE`` writes ``{"runs": [{"robots": N, "tick_hz_min", "jitter_p99_ms_max",
-"world_real_time_factor", "cpu_percent_per_robot", "world_cpu_percent_per_robot"}, …]}`` so
+"world_real_time_factor", "cpu_percent_per_robot", "world_cpu_percent_per_robot",
+"world_step_late_p99_ms", "world_step_late_max_ms"}, …]}`` so
 the figures can be compared across commits. The aim (issue 16): 8 robots hold 50 Hz with p99
 jitter < 5 ms and the world at 1.0×.
 """
@@ -248,6 +252,8 @@ async def run_fleet(n: int, *, duration_s: float, folder: Path,
             "tick_hz_min": min(r["tick_hz"] or 0.0 for r in rows.values()),
             "jitter_p99_ms_max": max(r["jitter_p99_ms"] or float("inf") for r in rows.values()),
             "world_real_time_factor": result["real_time_factor"],
+            "world_step_late_p99_ms": (result.get("step_lateness") or {}).get("p99_ms"),
+            "world_step_late_max_ms": (result.get("step_lateness") or {}).get("max_ms"),
             "controllers_per_process": per_process,
             "cpu_percent_per_robot": max(per_robot_cpu.values()),
             "world_cpu_percent_per_robot": cpu["world"] / n,
@@ -291,17 +297,23 @@ def main(argv: list[str] | None = None) -> int:
                   f"{run['jitter_p99_ms_max']:.2f} ms (worst), world "
                   f"{run['world_real_time_factor']:.3f}x, CPU {run['cpu_percent_per_robot']:.1f}"
                   f" % per controller + {run['world_cpu_percent_per_robot']:.1f} % of the "
-                  f"world's per robot", flush=True)
+                  f"world's per robot; the world's steps late by {late(run)}", flush=True)
     print(f"\n{'robots':>6} {'tick Hz min':>11} {'jitter p99 ms':>13} {'world x':>8} "
-          f"{'CPU %/ctl':>9} {'world CPU %/robot':>17}")
+          f"{'CPU %/ctl':>9} {'world CPU %/robot':>17} {'step late p99/max ms':>20}")
     for run in runs:
         print(f"{run['robots']:>6} {run['tick_hz_min']:>11.1f} {run['jitter_p99_ms_max']:>13.2f} "
               f"{run['world_real_time_factor']:>8.3f} {run['cpu_percent_per_robot']:>9.1f} "
-              f"{run['world_cpu_percent_per_robot']:>17.1f}")
+              f"{run['world_cpu_percent_per_robot']:>17.1f} {late(run):>20}")
     print(f"\ncores: {os.cpu_count()}; aim: 8 robots at 50 Hz, jitter p99 < 5 ms, world 1.0x")
     if args.json is not None:
         args.json.write_text(json.dumps({"runs": runs}, indent=2) + "\n")
     return 0
+
+
+def late(run: dict[str, Any]) -> str:
+    """The world's step lateness of a run: ``p99/max`` ms."""
+    p99, worst = run.get("world_step_late_p99_ms"), run.get("world_step_late_max_ms")
+    return "--" if p99 is None or worst is None else f"{p99:.1f}/{worst:.1f}"
 
 
 if __name__ == "__main__":

@@ -62,6 +62,8 @@ CLOCK_MATCH_STEPS = 20
 follower that appears starts receiving it within 0.1 simulated seconds)."""
 RTF_WINDOWS_KEPT = 14_400
 """The last hour of wall time's windows are kept (a bounded deque, ≈ 0.5 MB)."""
+STEP_LATENESS_KEPT = 12_000
+"""The last minute of 5 ms steps' lateness is kept (a bounded deque, ≈ 0.4 MB)."""
 SETTLE_ITERATIONS = 6
 """Loop iterations between late steps. The longest in-process chain a step starts takes five:
 the camera's deadline wake-up → its publish → the aggregator's handler, where a triggered
@@ -122,6 +124,10 @@ class SimulatorComponent(Component):
         self.rtf_windows: deque[float] = deque(maxlen=RTF_WINDOWS_KEPT)
         """Real-time factor over each successive ``RTF_WINDOW_S`` of wall time (the last
         ``RTF_WINDOWS_KEPT``): shows whether the run kept up throughout, not just on average."""
+        self.step_lateness_s: deque[float] = deque(maxlen=STEP_LATENESS_KEPT)
+        """How late each step started, in wall seconds after its due time (the last
+        ``STEP_LATENESS_KEPT``): what every follower of this clock inherits as tick jitter
+        (``bench.fleet``)."""
 
     def real_time_factor(self) -> float | None:
         """Simulated seconds per wall second from the simulator's start (once the components
@@ -188,7 +194,10 @@ class SimulatorComponent(Component):
         schedule_origin_s = started_s  # wall time at which sim time started
         window_wall_s, window_sim_s = started_s, self.world.time_s
         steps = 0
+        due_s: float | None = None  # when this step should start, by the schedule
         while True:
+            if due_s is not None:
+                self.step_lateness_s.append(max(0.0, time.monotonic() - due_s))
             next_ns = self.clock.now_ns() + step_ns
             held_until = self.clock.held_until_ns()
             if held_until is not None and held_until < next_ns:
@@ -228,7 +237,7 @@ class SimulatorComponent(Component):
                 next_truth_s += self.truth_period_s
             if world_due:
                 next_world_s += self.world_period_s
-            target = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
+            target = due_s = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
             delay = target - time.monotonic()
             if delay > 0:
                 # The loop's timer has ~1 ms resolution, so this may oversleep; the schedule is

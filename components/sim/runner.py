@@ -106,6 +106,16 @@ def window_summary(windows: Sequence[float]) -> dict[str, Any] | None:
             "min": ordered[0]}
 
 
+def lateness_summary(lateness_s: Sequence[float]) -> dict[str, Any] | None:
+    """Median, 99th percentile and worst of the steps' lateness (wall time after their due
+    time, :attr:`~components.sim.component.SimulatorComponent.step_lateness_s`), in ms."""
+    if not lateness_s:
+        return None
+    ordered = sorted(lateness_s)
+    return {"steps": len(ordered), "median_ms": statistics.median(ordered) * 1e3,
+            "p99_ms": ordered[int(0.99 * (len(ordered) - 1))] * 1e3, "max_ms": ordered[-1] * 1e3}
+
+
 class SimulationRun:
     """Everything the simulated Mini-WHEGS adds to a launch (see the module docstring).
 
