@@ -1,13 +1,19 @@
 """A small client of the Foxglove WebSocket protocol (``foxglove.sdk.v1``) for tests, written
 from the protocol's specification: it reads the server's ``advertise`` messages, subscribes to
 channels by topic and decodes each message with the schema the server advertised (protobuf via
-the file descriptor set, or JSON). Nothing of ubf_async is imported."""
+the file descriptor set, or JSON). Nothing of ubf_async is imported.
+
+A subscription sent just as a channel is advertised can reach foxglove-sdk's server before it
+has registered the channel for this client (seen with foxglove-sdk 0.30.3: a ``status``
+"Unknown channel ID: N" and no messages); the client then subscribes again, a few times at
+most."""
 
 from __future__ import annotations
 
 import base64
 import contextlib
 import json
+import re
 import struct
 import time
 from dataclasses import dataclass
@@ -18,6 +24,8 @@ from websockets.sync.client import ClientConnection, connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")
+RESUBSCRIBE_ATTEMPTS = 5
 
 
 @dataclass
@@ -38,6 +46,8 @@ class FoxgloveClient:
         self.channels: dict[int, dict[str, Any]] = {}
         self.server_info: dict[str, Any] | None = None
         self.subscriptions: dict[int, int] = {}
+        self.resubscribed: dict[int, int] = {}
+        """Subscribe messages sent again, per channel (see the module docstring)."""
         self._classes: dict[int, Any] = {}
         self._next_id = 1
 
@@ -63,6 +73,17 @@ class FoxgloveClient:
         elif message["op"] == "unadvertise":
             for channel_id in message["channelIds"]:
                 self.channels.pop(channel_id, None)
+        elif message["op"] == "status" and (unknown := UNKNOWN_CHANNEL.search(
+                message.get("message", ""))):
+            self._subscribe_again(int(unknown[1]))
+
+    def _subscribe_again(self, channel_id: int) -> None:
+        again = [{"id": sub_id, "channelId": channel_id}
+                 for sub_id, subscribed in self.subscriptions.items() if subscribed == channel_id]
+        tries = self.resubscribed.get(channel_id, 0)
+        if again and channel_id in self.channels and tries < RESUBSCRIBE_ATTEMPTS:
+            self.resubscribed[channel_id] = tries + 1
+            self.ws.send(json.dumps({"op": "subscribe", "subscriptions": again}))
 
     def _receive(self, deadline: float) -> Received | None:
         remaining = deadline - time.monotonic()
