@@ -20,6 +20,10 @@ and their simulated devices (camera, IR, encoders, motors…) — runs the world
   worst (the world's summary, ``step_lateness``): every controller follows the world's clock,
   so this is the part of their jitter that the world's own pacing causes.
 
+``--repeat R`` runs each size R times, interleaved, and reports each figure's median with the
+jitter's range (``repeats``, ``jitter_p99_ms_range`` in the JSON): on a shared 2-core machine
+one run's jitter moves by a few ms, so compare medians across commits.
+
 ``--controllers-per-process K`` runs the controllers K to a process, as
 ``python -m ubf_async.fleet --controllers-per-process K`` does (for small machines).
 
@@ -45,6 +49,7 @@ import contextlib
 import json
 import os
 import socket
+import statistics
 import sys
 import tempfile
 import time
@@ -281,23 +286,34 @@ def main(argv: list[str] | None = None) -> int:
                              "--controllers-per-process)")
     parser.add_argument("--search", action="store_true",
                         help="time the cooperative search instead (--duration default 90)")
+    parser.add_argument("--repeat", type=int, default=1, metavar="R",
+                        help="run each fleet size R times, interleaved (1 2 4 8 1 2 4 8 …), "
+                             "and report each figure's median over the R runs, with the "
+                             "jitter's range: this machine's runs vary by a few ms")
     args = parser.parse_args(argv)
+    if args.repeat < 1:
+        parser.error("--repeat: at least 1")
     sizes = [int(n) for n in args.robots.split(",")]
     if not all(1 <= n <= len(POSES) for n in sizes):
         parser.error(f"--robots: each size from 1 to {len(POSES)}")
     if args.search:
         return search_main(sizes, args.duration if args.duration != 20.0 else 90.0, args.json)
-    runs = []
+    measured: dict[int, list[dict[str, Any]]] = {n: [] for n in sizes}
     with tempfile.TemporaryDirectory(prefix="bench-fleet-") as tmp:
-        for n in sizes:
+        for n in [n for _ in range(args.repeat) for n in sizes]:
             run = asyncio.run(run_fleet(n, duration_s=args.duration, folder=Path(tmp),
                                         per_process=min(n, args.controllers_per_process)))
-            runs.append(run)
+            measured[n].append(run)
             print(f"{n} robot(s): tick {run['tick_hz_min']:.1f} Hz (worst robot), jitter p99 "
                   f"{run['jitter_p99_ms_max']:.2f} ms (worst), world "
                   f"{run['world_real_time_factor']:.3f}x, CPU {run['cpu_percent_per_robot']:.1f}"
                   f" % per controller + {run['world_cpu_percent_per_robot']:.1f} % of the "
                   f"world's per robot; the world's steps late by {late(run)}", flush=True)
+    runs = [median_run(measured[n]) for n in sizes]
+    if args.repeat > 1:
+        print(f"\nmedians of {args.repeat} runs each; jitter p99 range: " + ", ".join(
+            f"{run['robots']} robot(s) {run['jitter_p99_ms_range'][0]:.2f}–"
+            f"{run['jitter_p99_ms_range'][1]:.2f} ms" for run in runs))
     print(f"\n{'robots':>6} {'tick Hz min':>11} {'jitter p99 ms':>13} {'world x':>8} "
           f"{'CPU %/ctl':>9} {'world CPU %/robot':>17} {'step late p99/max ms':>20}")
     for run in runs:
@@ -308,6 +324,28 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         args.json.write_text(json.dumps({"runs": runs}, indent=2) + "\n")
     return 0
+
+
+MEDIAN_FIELDS = ("tick_hz_min", "jitter_p99_ms_max", "world_real_time_factor",
+                 "cpu_percent_per_robot", "world_cpu_percent_per_robot",
+                 "world_step_late_p99_ms", "world_step_late_max_ms")
+
+
+def median_run(repeats: list[dict[str, Any]]) -> dict[str, Any]:
+    """One fleet size's runs as one: each figure's median (a single run as it is), with
+    ``repeats`` and the jitter's ``jitter_p99_ms_range`` over them; ``per_robot`` of the
+    run whose jitter is the median's (the lower middle one for an even count)."""
+    if len(repeats) == 1:
+        return {**repeats[0], "repeats": 1,
+                "jitter_p99_ms_range": [repeats[0]["jitter_p99_ms_max"]] * 2}
+    out = dict(sorted(repeats, key=lambda r: r["jitter_p99_ms_max"])[(len(repeats) - 1) // 2])
+    for field in MEDIAN_FIELDS:
+        values = [r[field] for r in repeats if r.get(field) is not None]
+        out[field] = statistics.median(values) if values else None
+    jitters = [r["jitter_p99_ms_max"] for r in repeats]
+    out["repeats"] = len(repeats)
+    out["jitter_p99_ms_range"] = [min(jitters), max(jitters)]
+    return out
 
 
 def late(run: dict[str, Any]) -> str:
