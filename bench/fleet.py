@@ -335,9 +335,6 @@ def median_run(repeats: list[dict[str, Any]]) -> dict[str, Any]:
     """One fleet size's runs as one: each figure's median (a single run as it is), with
     ``repeats`` and the jitter's ``jitter_p99_ms_range`` over them; ``per_robot`` of the
     run whose jitter is the median's (the lower middle one for an even count)."""
-    if len(repeats) == 1:
-        return {**repeats[0], "repeats": 1,
-                "jitter_p99_ms_range": [repeats[0]["jitter_p99_ms_max"]] * 2}
     out = dict(sorted(repeats, key=lambda r: r["jitter_p99_ms_max"])[(len(repeats) - 1) // 2])
     for field in MEDIAN_FIELDS:
         values = [r[field] for r in repeats if r.get(field) is not None]

@@ -97,6 +97,8 @@ DIRECT_RATE_HZ = 1000.0
 few hundred; above that — a flood — samples take the usual road and coalesce, so the
 transport's threads never hold the GIL for long against the loop."""
 DIRECT_BURST = 100
+"""Samples a direct subscription may have handled on the transport's thread back to back,
+before :data:`DIRECT_RATE_HZ` paces it."""
 
 SampleHandler = Callable[[str, bytes, int], None]
 """``handler(key, payload, received_ns)`` — runs on the event loop."""

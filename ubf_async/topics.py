@@ -243,8 +243,9 @@ class Leds(Data, frozen=True, kw_only=True):
 
 
 MAX_ANNOUNCED = 64
-MAX_ANNOUNCED_KEY_CHARS = 256
 """Publishers a heartbeat may announce."""
+MAX_ANNOUNCED_KEY_CHARS = 256
+"""The longest key a heartbeat announces (a publisher with a longer one is left out)."""
 
 
 class Published(Data, frozen=True, kw_only=True):

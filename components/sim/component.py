@@ -237,8 +237,8 @@ class SimulatorComponent(Component):
                 next_truth_s += self.truth_period_s
             if world_due:
                 next_world_s += self.world_period_s
-            target = due_s = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
-            delay = target - time.monotonic()
+            due_s = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
+            delay = due_s - time.monotonic()
             if delay > 0:
                 # The loop's timer has ~1 ms resolution, so this may oversleep; the schedule is
                 # absolute, and the steps that fall due meanwhile run back to back.

@@ -460,7 +460,5 @@ def shared_render_process() -> RenderProcess:
     with _SHARED_LOCK:
         if _SHARED is None:
             _SHARED = RenderProcess()
-            # Runs before multiprocessing's own exit handler (registered earlier), which
-            # would only SIGTERM the worker.
-            atexit.register(_SHARED.close)
+            atexit.register(_SHARED.close)  # the worker is reaped, not left to its parent check
         return _SHARED
