@@ -12,9 +12,11 @@ Every stamp and every periodic wait in the runtime goes through a :class:`Clock`
   Which samples may move it is decided by :class:`ubf_async.timesource.ClockFollower`; a new
   simulation run *resets* it (:meth:`SimClock.reset_to`), and periodic loops re-anchor.
 
-Safety deadlines (the motor watchdog, staleness) must also hold when simulated time stops:
-:class:`SilenceLimit` is the one rule they share — robot time, or wall time while the clock
-is stalled, or a wall-time backstop (see its docstring for the numbers).
+Simulated time is a lockstep barrier (:mod:`components.sim.component`): it waits for the work
+of each instant, so it may stand still for as long as that takes. Safety deadlines (the motor
+watchdog, staleness) are therefore judged in robot time, and in wall time only when the time
+source itself has gone silent — a simulator that died, not one that waits on purpose:
+:class:`SilenceLimit` is the one rule they share (see its docstring for the numbers).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import contextlib
 import heapq
 import itertools
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -35,6 +37,8 @@ class Hold(Protocol):
 
 
 class Clock(Protocol):
+    is_simulated: bool
+    """Whether time is simulated (moved by a simulator) rather than the host's or robot's."""
     resets: int
     """How many times the clock was reset to a new run's time (0 for wall time). Periodic
     loops compare it before and after a sleep and re-anchor their deadlines when it changed."""
@@ -55,7 +59,8 @@ class Clock(Protocol):
         ...
 
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
-        """Wall seconds since the clock last advanced (0 for a clock that always runs)."""
+        """Wall seconds the clock's time source has been silent (0 for a clock that always
+        runs, and for simulated time whose simulator is alive: see :class:`SimClock`)."""
         ...
 
 
@@ -113,6 +118,11 @@ class SimClock:
     :meth:`hold`: it does not step past a held time until the hold is released, so work
     that takes wall time (rendering a camera frame) takes no simulated time, however fast
     the simulation runs.
+
+    Whether the time source is alive (:meth:`stalled_s`): a simulator of this process
+    declares itself with :meth:`driven` for as long as it runs; a follower hears it through
+    its samples, which the simulator keeps sending while it waits on purpose
+    (:meth:`advance_to` with the same time counts).
     """
 
     is_simulated = True
@@ -120,7 +130,8 @@ class SimClock:
     def __init__(self, start_ns: int = 0) -> None:
         self._now = start_ns
         self.resets = 0
-        self._advanced_wall_ns = time.monotonic_ns()
+        self._heard_wall_ns = time.monotonic_ns()
+        self._drivers = 0
         self._sleepers: list[tuple[int, int, asyncio.Future[None]]] = []
         self._order = itertools.count()
         self._holds: list[SimHold] = []
@@ -151,19 +162,36 @@ class SimClock:
     def now_ns(self) -> int:
         return self._now
 
+    @contextlib.contextmanager
+    def driven(self) -> Iterator[None]:
+        """Declare, for the block's duration, that a simulator of this process drives the
+        clock: however long it holds time still (a lockstep barrier, a slow render), its time
+        source is alive and :meth:`stalled_s` is 0. When it ends — stopped or crashed — the
+        silence is counted from then on."""
+        self._drivers += 1
+        try:
+            yield
+        finally:
+            self._drivers -= 1
+            self._heard_wall_ns = time.monotonic_ns()
+
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
-        """Wall seconds since time last advanced — 0 while a hold of this process keeps it
-        still on purpose (the simulator waiting for a camera frame is not a stall)."""
-        if self._holds:
+        """Wall seconds since the time source was last heard from: 0 while a simulator of
+        this process drives the clock (:meth:`driven`) or a hold of this process keeps it
+        still on purpose; otherwise since the last :meth:`advance_to` — a followed simulator
+        sends its time every step, and again while it waits, so only a dead or cut-off
+        simulator is silent."""
+        if self._drivers or self._holds:
             return 0.0
         now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
-        return max(0.0, (now - self._advanced_wall_ns) / 1e9)
+        return max(0.0, (now - self._heard_wall_ns) / 1e9)
 
     def advance_to(self, now_ns: int) -> None:
-        """Move time forward (never backward: an older time is ignored) and wake sleepers."""
+        """Move time forward (never backward: an older time is ignored) and wake sleepers.
+        The same time again is a sign of life of the time source (:meth:`stalled_s`)."""
         if now_ns > self._now:
             self._now = now_ns
-            self._advanced_wall_ns = time.monotonic_ns()
+        self._heard_wall_ns = time.monotonic_ns()
         self.started.set()
         sleepers = self._sleepers
         while sleepers and sleepers[0][0] <= self._now:
@@ -177,7 +205,7 @@ class SimClock:
         old run; each wakes early, sees :attr:`resets` changed and re-anchors."""
         self._now = now_ns
         self.resets += 1
-        self._advanced_wall_ns = time.monotonic_ns()
+        self._heard_wall_ns = time.monotonic_ns()
         self.started.set()
         sleepers, self._sleepers = self._sleepers, []
         for _, _, future in sleepers:
@@ -223,9 +251,9 @@ async def every(clock: Clock, period_s: float, *,
         await clock.sleep_until_ns(deadline)
 
 
-MIN_REAL_TIME_FACTOR = 0.2
-"""The slowest simulation (simulated seconds per wall second) that safety deadlines still
-measure in robot time alone; see :class:`SilenceLimit`."""
+MIN_SILENCE_S = 0.5
+"""The shortest wall-time silence of a simulated clock's source that counts as a dead
+simulator; see :class:`SilenceLimit`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -233,57 +261,55 @@ class SilenceLimit:
     """The rule every safety deadline follows: something (a drive command, a sensor's
     samples) is overdue when nothing has been heard from it for
 
-    (a) ``limit_s`` of **robot time** — the normal rule, consistent at any simulation speed;
-    (b) ``limit_s`` of **wall time while the clock is stalled** — it has not advanced for
-        ``limit_s`` of wall time either (the simulator stopped, died or is being refused):
-        robot time would never get there;
-    (c) ``limit_s / min_real_time_factor`` of **wall time** in any case — a backstop for a
-        clock that crawls.
+    (a) ``limit_s`` of **robot time** — the normal rule, the same at any simulation speed
+        and on any machine; or
+    (b) ``silence_s`` of **wall time while the clock's source is silent** — a simulator
+        that died or was cut off (``clock.stalled_s()`` at least ``silence_s``): robot time
+        would never get there. ``silence_s`` is ``max(limit_s, min_silence_s)``.
 
-    With wall time (a) always comes first, so nothing changes there. Why a simulation running
-    slowly is not cut off: a simulator publishes its clock every step (5 ms of simulated
-    time), i.e. every 25 ms of wall time at 0.2× real time, far inside any ``limit_s`` of
-    tens of milliseconds or more, so (b) never holds while it runs; and a 50 Hz controller
-    at 0.2× sends a command every 100 ms of wall time, far inside (c)'s 5 × ``limit_s``.
+    On wall time (a) always comes first, so nothing changes there. A simulated clock may
+    stand still for as long as its simulator's lockstep barrier waits — a slow render, a busy
+    machine — and that is not silence: a simulator in the same process is alive while it runs
+    (:meth:`SimClock.driven`), and one in another process keeps sending its time while it
+    waits. So a live simulator is judged in simulated time only, however slowly it runs.
+    ``min_silence_s`` keeps a follower in another process from taking a busy simulator's
+    pause for its death.
     """
 
     limit_s: float
-    min_real_time_factor: float = MIN_REAL_TIME_FACTOR
+    min_silence_s: float = MIN_SILENCE_S
 
     def __post_init__(self) -> None:
         if not self.limit_s > 0:
             raise ValueError(f"limit_s must be > 0, got {self.limit_s}")
-        if not 0 < self.min_real_time_factor <= 1:
-            raise ValueError("min_real_time_factor must be in (0, 1], got "
-                             f"{self.min_real_time_factor}")
+        if not self.min_silence_s >= 0:
+            raise ValueError(f"min_silence_s must be >= 0, got {self.min_silence_s}")
 
     @property
-    def backstop_s(self) -> float:
-        """Rule (c)'s wall-time limit."""
-        return self.limit_s / self.min_real_time_factor
+    def silence_s(self) -> float:
+        """Rule (b)'s wall-time limit."""
+        return max(self.limit_s, self.min_silence_s)
 
     def expired(self, clock: Clock, *, since_ns: int, since_wall_ns: int,
                 now_ns: int | None = None, wall_now_ns: int | None = None) -> bool:
         """Whether the limit has passed since robot time ``since_ns`` / host monotonic time
         ``since_wall_ns`` (both taken when last heard from)."""
         now = clock.now_ns() if now_ns is None else now_ns
-        wall_now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
         if now - since_ns >= self.limit_s * 1e9:
             return True
-        quiet_wall_s = (wall_now - since_wall_ns) / 1e9
-        if quiet_wall_s >= self.backstop_s:
-            return True
-        return quiet_wall_s >= self.limit_s and clock.stalled_s(wall_now) >= self.limit_s
+        wall_now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
+        silence = self.silence_s
+        return ((wall_now - since_wall_ns) / 1e9 >= silence
+                and clock.stalled_s(wall_now) >= silence)
 
     def wall_deadline_ns(self, clock: Clock, *, since_wall_ns: int,
                          wall_now_ns: int | None = None) -> int:
-        """The earliest host monotonic time at which (b) or (c) may hold, if robot time does
-        not get there first: when to re-check."""
+        """The earliest host monotonic time at which (b) may hold, if robot time does not
+        get there first: when to re-check."""
         wall_now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
-        limit_ns = round(self.limit_s * 1e9)
-        stalled_since = wall_now - round(clock.stalled_s(wall_now) * 1e9)
-        by_stall = max(since_wall_ns, stalled_since) + limit_ns
-        return min(by_stall, since_wall_ns + round(self.backstop_s * 1e9))
+        silence_ns = round(self.silence_s * 1e9)
+        silent_since = wall_now - round(clock.stalled_s(wall_now) * 1e9)
+        return max(since_wall_ns, silent_since) + silence_ns
 
 
 async def sleep_until(clock: Clock, deadline_ns: int, *, wall_deadline_ns: int) -> None:

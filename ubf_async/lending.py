@@ -42,12 +42,12 @@ import asyncio
 import contextvars
 import selectors
 import threading
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any, TypeVarTuple
 
 Ts = TypeVarTuple("Ts")
 
-__all__ = ["LendingEventLoop", "new_event_loop", "run_if_idle"]
+__all__ = ["LendingEventLoop", "idle_waiter", "new_event_loop", "run_if_idle"]
 
 
 def _take(lock: threading.Lock) -> None:
@@ -75,6 +75,10 @@ class _LendingSelector(selectors.DefaultSelector):
         if timeout is not None and timeout <= 0:  # a poll, not a wait: nothing to lend
             return super().select(timeout)
         loop = self._loop
+        # asyncio asks to wait only when no callback is ready: every task is blocked. Those
+        # waiting for that moment (the simulator's step barrier) are woken instead of waiting.
+        if loop._wake_idle_waiters():
+            return super().select(0)
         loop._wanted = False
         loop._run_lock.release()
         try:
@@ -99,7 +103,31 @@ class LendingEventLoop(asyncio.SelectorEventLoop):
         self._scheduled_while_lent = False
         self.lent_runs = 0
         """Callbacks run by a borrowing thread so far."""
+        self._idle_waiters: list[asyncio.Future[None]] = []
         super().__init__(selector=_LendingSelector(self))
+
+    async def idle(self) -> None:
+        """Return once the loop has had nothing ready to run: every task is blocked (on a
+        timer, a future, I/O or another thread's work) and no callback is due.
+
+        What the caller's last step woke has then run to its end — every chain of callbacks,
+        however long and however slow the machine — which is what makes a simulator's
+        step barrier exact (:mod:`components.sim.component`). A timer or I/O still to come
+        does not count: it belongs to a later time. Only the loop's thread may await it."""
+        waiter: asyncio.Future[None] = self.create_future()
+        self._idle_waiters.append(waiter)
+        await waiter
+
+    def _wake_idle_waiters(self) -> bool:
+        """Called by the selector when the loop is about to wait: wake :meth:`idle`'s
+        waiters; ``True`` if there were any (the loop then polls instead of waiting)."""
+        if not self._idle_waiters:
+            return False
+        waiters, self._idle_waiters = self._idle_waiters, []
+        for waiter in waiters:
+            if not waiter.done():
+                waiter.set_result(None)
+        return True
 
     # What a borrower schedules must wake the loop thread: it sleeps in select() with a
     # timeout computed before the borrower came. (call_later goes through call_at.)
@@ -151,6 +179,12 @@ def new_event_loop() -> LendingEventLoop:
     """A new :class:`LendingEventLoop` (what :func:`ubf_async.cli.loop_factory` makes by
     default)."""
     return LendingEventLoop()
+
+
+def idle_waiter(loop: asyncio.AbstractEventLoop) -> Callable[[], Awaitable[None]] | None:
+    """``loop.idle`` for a :class:`LendingEventLoop`, ``None`` for any other loop (which
+    cannot tell when it has nothing left to run)."""
+    return loop.idle if isinstance(loop, LendingEventLoop) else None
 
 
 def run_if_idle(loop: asyncio.AbstractEventLoop) -> Callable[..., bool] | None:

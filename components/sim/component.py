@@ -38,6 +38,7 @@ file.
 from __future__ import annotations
 
 import asyncio
+import math
 import secrets
 import time
 from collections import deque
@@ -48,9 +49,11 @@ from typing import Any
 from components.devices import KINDS, make_backend, make_device
 from components.sim.wire import snapshot_to_data
 from components.sim.world import World
+from ubf_async import lending
 from ubf_async.bus import Bus, Publisher, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
+from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import DeviceContext
 from ubf_async.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD
 
@@ -64,10 +67,9 @@ RTF_WINDOWS_KEPT = 14_400
 """The last hour of wall time's windows are kept (a bounded deque, ≈ 0.5 MB)."""
 STEP_LATENESS_KEPT = 12_000
 """The last minute of 5 ms steps' lateness is kept (a bounded deque, ≈ 0.4 MB)."""
-SETTLE_ITERATIONS = 6
-"""Loop iterations between late steps. The longest in-process chain a step starts takes five:
-the camera's deadline wake-up → its publish → the aggregator's handler, where a triggered
-tick publishes a drive command → the motors' handler → their applied sample's handler."""
+HOLD_HEARTBEAT_S = 0.05
+"""While a hold keeps simulated time still, the clock's time is sent again this often (wall
+time): followers in other processes tell a simulator waiting on purpose from a dead one."""
 
 
 @dataclass(slots=True, kw_only=True)
@@ -163,19 +165,28 @@ class SimulatorComponent(Component):
         return out
 
     async def run(self) -> None:
+        idle = lending.idle_waiter(asyncio.get_running_loop())
+        if idle is None:
+            raise ConfigurationError(
+                "simulated time advances in lockstep, which needs ubf_async's event loop "
+                "(lending.new_event_loop, the default of every entry point); UBF_LOOP=asyncio "
+                "or uvloop cannot tell when a step's work is done")
+        self._idle = idle
         served = [self._serve(bus, robot)
                   for robot, bus in enumerate((self.bus, *self.more_robots))]
-        self.clock.advance_to(round(self.world.time_s * 1e9))
-        # Components of this process that are still getting ready (the camera building its
-        # renderer's caches) hold the start: time starts, and is measured, once they are done.
-        await self.clock.wait_for_holds(self.clock.now_ns() + 1)
-        self.wall_started_s = time.monotonic()
-        self.sim_started_s = self.world.time_s
-        self.wall_stopped_s = None
-        try:
-            await self._step_forever(served, self.wall_started_s)
-        finally:
-            self.wall_stopped_s = time.monotonic()
+        with self.clock.driven():
+            self.clock.advance_to(round(self.world.time_s * 1e9))
+            # Components of this process that are still getting ready (the camera building
+            # its renderer's caches) hold the start: time starts, and is measured, once they
+            # are done.
+            await self._barrier(served, self.clock.now_ns() + 1)
+            self.wall_started_s = time.monotonic()
+            self.sim_started_s = self.world.time_s
+            self.wall_stopped_s = None
+            try:
+                await self._step_forever(served, self.wall_started_s)
+            finally:
+                self.wall_stopped_s = time.monotonic()
 
     def _serve(self, bus: Bus, robot: int) -> _Served:
         """Publishers of one robot's clock, truth and world, and its pulses' subscription
@@ -194,17 +205,24 @@ class SimulatorComponent(Component):
         schedule_origin_s = started_s  # wall time at which sim time started
         window_wall_s, window_sim_s = started_s, self.world.time_s
         steps = 0
-        due_s: float | None = None  # when this step should start, by the schedule
         while True:
-            if due_s is not None:
-                self.step_lateness_s.append(max(0.0, time.monotonic() - due_s))
             next_ns = self.clock.now_ns() + step_ns
-            held_until = self.clock.held_until_ns()
-            if held_until is not None and held_until < next_ns:
-                held_since = time.monotonic()
-                await self.clock.wait_for_holds(next_ns)
-                # Time spent held is not made up afterwards in a burst of fast steps.
-                schedule_origin_s += time.monotonic() - held_since
+            barrier_started_s = time.monotonic()
+            waited = await self._barrier(served, next_ns)
+            if waited:  # time spent held is not made up afterwards in a burst of fast steps
+                schedule_origin_s += time.monotonic() - barrier_started_s
+            if self.speed != math.inf:
+                due_s = schedule_origin_s + (self.world.time_s + self.step_s
+                                              - self.sim_started_s) / self.speed
+                delay = due_s - time.monotonic()
+                if delay > 0:
+                    # The loop's timer has ~1 ms resolution, so this may oversleep; the
+                    # schedule is absolute, and the steps that fall due meanwhile run back to
+                    # back.
+                    await asyncio.sleep(delay)
+                else:
+                    self.late_steps += 1
+                self.step_lateness_s.append(max(0.0, time.monotonic() - due_s))
             self.world.advance(self.step_s)
             now_s = self.world.time_s
             now_ns = round(now_s * 1e9)
@@ -223,9 +241,7 @@ class SimulatorComponent(Component):
                 if check_followers:
                     robot.clock_followed = robot.clock.has_subscribers()
                 if robot.clock_followed:
-                    rtf = self.real_time_factor()
-                    robot.clock.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch},
-                                        stamp_ns=now_ns)
+                    self._publish_clock(robot)
                 # Truth and the world snapshot cost encoding time on the loop: build them
                 # only when some process listens (zenoh knows its matching subscribers).
                 if truth_due and robot.truth.has_subscribers():
@@ -237,32 +253,37 @@ class SimulatorComponent(Component):
                 next_truth_s += self.truth_period_s
             if world_due:
                 next_world_s += self.world_period_s
-            due_s = schedule_origin_s + (now_s - self.sim_started_s) / self.speed
-            delay = due_s - time.monotonic()
-            if delay > 0:
-                # The loop's timer has ~1 ms resolution, so this may oversleep; the schedule is
-                # absolute, and the steps that fall due meanwhile run back to back.
-                await asyncio.sleep(delay)
-            else:
-                self.late_steps += 1
-                await settle()
 
+    def _publish_clock(self, robot: _Served) -> None:
+        rtf = self.real_time_factor()
+        robot.clock.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch},
+                            stamp_ns=self.clock.now_ns())
 
-async def settle(iterations: int = SETTLE_ITERATIONS) -> None:
-    """Let the event loop run up to ``iterations`` times before the next step, so the work the
-    last step woke up — a component's periodic wake-up, the samples it publishes (delivered on
-    the loop within the process, see :mod:`ubf_async.bus`), a reflex tick and the drive
-    command it sends — is done at the simulated time it belongs to, not one step later.
+    async def _barrier(self, served: list[_Served], next_ns: int) -> bool:
+        """The lockstep barrier before the step to ``next_ns``: return once everything of
+        the current instant in this process is done — the event loop had nothing left to
+        run (:meth:`~ubf_async.lending.LendingEventLoop.idle`) and no hold forbids
+        ``next_ns`` (a camera render, a device getting ready). Return whether a hold made
+        it wait.
 
-    Each link of such a chain is a callback the loop has ready to run; once none is ready
-    after a pass, the chain has ended and further passes would only poll for I/O, so it
-    returns early (most steps wake nothing)."""
-    loop = asyncio.get_running_loop()
-    ready = getattr(loop, "_ready", None)  # asyncio's queue of callbacks due this pass
-    for _ in range(iterations):
-        await asyncio.sleep(0)
-        if ready is not None and not ready:
-            return
+        While a hold keeps it waiting, the clock's time is sent again every
+        :data:`HOLD_HEARTBEAT_S` of wall time, so followers in other processes know the
+        simulator is alive (:class:`~ubf_async.clock.SilenceLimit`)."""
+        waited = False
+        while True:
+            await self._idle()
+            held = self.clock.held_until_ns()
+            if held is None or held >= next_ns:
+                return waited
+            waited = True
+            while True:
+                try:
+                    await asyncio.wait_for(self.clock.wait_for_holds(next_ns),
+                                           HOLD_HEARTBEAT_S)
+                    break
+                except TimeoutError:
+                    for robot in served:
+                        self._publish_clock(robot)
 
 
 def simulated_devices(
