@@ -13,8 +13,10 @@
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
+import math
 import os
 import signal
 import sys
@@ -23,7 +25,7 @@ from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
 from typing import Any, TypeVar
 
-from ubf_async import lending
+from ubf_async import lending, simulation
 from ubf_async.errors import ConfigurationError, UbfError
 
 T = TypeVar("T")
@@ -212,4 +214,19 @@ def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
                 return loop_runner.run(runner())
         except KeyboardInterrupt:
             return EXIT_INTERRUPTED
+
+
+def speed_argument(text: str) -> float:
+    """``--speed``'s value: a factor > 0, or ``max`` (flat out: ``math.inf``)."""
+    if text.strip().lower() == simulation.FLAT_OUT:
+        return math.inf
+    try:
+        speed = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number > 0 or {simulation.FLAT_OUT!r}, got {text!r}") from None
+    if not (math.isfinite(speed) and speed > 0):
+        raise argparse.ArgumentTypeError(
+            f"expected a number > 0 or {simulation.FLAT_OUT!r}, got {text!r}")
+    return speed
 

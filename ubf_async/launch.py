@@ -48,7 +48,7 @@ from ubf_async.bus import (
     connection_options,
     follow_sim_clock,
 )
-from ubf_async.cli import LOOP_HELP, run_main
+from ubf_async.cli import LOOP_HELP, run_main, speed_argument
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
@@ -134,9 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--scenario", default=None, metavar="NAME|PATH",
                      help="world and scripted ball: a built-in scenario or a scenario .json file "
                           "(docs/scenarios.md); default: ball-in-sight, run until stopped")
-    sim.add_argument("--speed", type=float, default=1.0, metavar="K",
-                     help="run the simulation K times faster than real time (every component, "
-                          "camera latency included, follows the simulated clock)")
+    sim.add_argument("--speed", type=speed_argument, default=1.0, metavar="K|max",
+                     help="run the simulation K times faster than real time, or 'max': flat "
+                          "out, as fast as the machine allows (every component, camera latency "
+                          "included, follows the simulated clock, which advances in lockstep: "
+                          "the same run at any speed)")
     sim.add_argument("--seed", type=int, default=None,
                      help="seed for every random source (default: the scenario's)")
     sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
@@ -246,8 +248,6 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
         devices = [d for d in devices if not d.requires_simulator]
     elif simulators:
         simulator = SIMULATORS.get(simulators[0])()
-        if not args.speed > 0:
-            raise ConfigurationError(f"--speed must be > 0, got {args.speed:g}")
         options = SimulationOptions(
             scenario=args.scenario, speed=args.speed, seed=args.seed,
             duration_s=args.duration, summary_path=args.summary, record_dir=args.record,

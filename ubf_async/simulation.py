@@ -15,6 +15,7 @@ robot file needs it, so a robot whose devices are real or remote runs without on
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +36,7 @@ class SimulationOptions:
     scenario: str | None = None
     """A built-in scenario name or a scenario file; ``None``: the simulator's default."""
     speed: float = 1.0
-    """Simulated seconds per wall second asked for (> 0)."""
+    """Simulated seconds per wall second asked for (> 0); ``math.inf``: flat out."""
     seed: int | None = None
     """Seed of every random source; ``None``: the scenario's."""
     duration_s: float | None = None
@@ -146,3 +147,12 @@ class Simulator(Protocol):
         ``clock``), their simulated devices and simulated time, until ``options.duration_s``
         (or cancelled); return a summary per robot (``python -m ubf_async.fleet``)."""
         ...
+
+
+FLAT_OUT = "max"
+"""How a user asks for a flat-out simulation (``--speed max``)."""
+
+
+def describe_speed(speed: float) -> str:
+    """``5x real time``, or ``flat out`` for ``math.inf``."""
+    return "flat out" if speed == math.inf else f"{speed:g}x real time"

@@ -15,7 +15,9 @@ points ``<kind>.sim`` name: ``(*, context, **params) -> backend``. Each says it 
 from __future__ import annotations
 
 import math
+import os
 import threading
+import time
 from collections.abc import Callable
 from typing import Annotated, Any, Protocol, TypeVar
 
@@ -163,6 +165,23 @@ class SimEncoderBackend:
         return left, right
 
 
+RENDER_DELAY_ENV = "UBF_TEST_RENDER_DELAY_S"
+"""A test hook: seconds of wall time each simulated camera frame takes at least (its
+render thread waits them out), to show that a slow render costs no simulated time."""
+
+
+def render_delay_s() -> float:
+    """The extra wall time per frame :data:`RENDER_DELAY_ENV` asks for (0 when unset)."""
+    text = os.environ.get(RENDER_DELAY_ENV, "").strip()
+    try:
+        delay = float(text) if text else 0.0
+    except ValueError:
+        raise ValueError(f"{RENDER_DELAY_ENV}={text!r}: expected seconds") from None
+    if not (math.isfinite(delay) and delay >= 0):
+        raise ValueError(f"{RENDER_DELAY_ENV}={text!r}: expected seconds >= 0")
+    return delay
+
+
 class SimCameraBackend:
     """Renders the world's latest snapshot (call ``capture`` from a worker thread).
 
@@ -207,6 +226,7 @@ class SimCameraBackend:
         self._lock = threading.Lock()
         self._closed = False
         self._exposed: WorldSnapshot | None = None
+        self._delay_s = render_delay_s()
 
     @property
     def params(self) -> CameraParams:
@@ -243,6 +263,8 @@ class SimCameraBackend:
             snapshot, self._exposed = self._exposed, None
         if snapshot is None:
             snapshot = self._world.snapshot()
+        if self._delay_s:
+            time.sleep(self._delay_s)  # the test hook (RENDER_DELAY_ENV); a worker thread
         small = None
         if self._renderer is not None:
             small = self._renderer.render(snapshot, self._params, seed=seed, grid=self._grid)

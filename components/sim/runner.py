@@ -56,7 +56,7 @@ from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import SimulationOptions
+from ubf_async.simulation import FLAT_OUT, SimulationOptions, describe_speed
 from ubf_async.topics import LED_STATE, LedState
 
 SLOW_SHARE = 0.95
@@ -86,8 +86,9 @@ LISTED_FRAMES = 1000
 
 
 def _check_options(options: SimulationOptions) -> None:
-    if not (math.isfinite(options.speed) and options.speed > 0):
-        raise ConfigurationError(f"speed must be a finite number > 0, got {options.speed}")
+    if not options.speed > 0:
+        raise ConfigurationError(f"speed must be > 0 (or math.inf: flat out), got "
+                                 f"{options.speed}")
     if options.duration_s is not None and not options.duration_s > 0:
         raise ConfigurationError(f"duration must be > 0 simulated seconds, got "
                                  f"{options.duration_s}")
@@ -203,7 +204,7 @@ class SimulationRun:
 
     def describe(self) -> str:
         return (f"simulated Mini-WHEGS, scenario {self.scenario.name!r} ({self.scenario.source}), "
-                f"{self.options.speed:g}x real time, seed {self.seed}")
+                f"{describe_speed(self.options.speed)}, seed {self.seed}")
 
     def status_suffix(self) -> str:
         rtf = self.simulator.real_time_factor()
@@ -423,7 +424,8 @@ class SimulationRun:
             "wall_time_s": wall_s,
             "real_time_factor": self.simulator.real_time_factor(),
             "real_time_factor_windows": window_summary(self.simulator.rtf_windows),
-            "speed_requested": self.options.speed,
+            "speed_requested": (FLAT_OUT if self.options.speed == math.inf
+                                else self.options.speed),
             "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad},
             "ball": None,
             "ball_distance_m": None,
@@ -453,7 +455,8 @@ class SimulationRun:
         out["expected"] = expect.judge(out) if expect is not None else None
         out["warnings"] = []
         rtf = out["real_time_factor"]
-        if rtf is not None and rtf < SLOW_SHARE * self.options.speed:
+        if rtf is not None and math.isfinite(self.options.speed) \
+                and rtf < SLOW_SHARE * self.options.speed:
             out["warnings"].append(
                 f"the run reached {rtf:.2f}x real time, short of the {self.options.speed:g}x "
                 f"asked for (--speed): the machine could not keep up")
