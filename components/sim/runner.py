@@ -52,7 +52,7 @@ from components.sim.scenarios import load_scenario
 from components.sim.world import World, wrap_angle
 from ubf_async import __version__
 from ubf_async.bus import Bus, Subscription, decode_or_count
-from ubf_async.clock import SimClock
+from ubf_async.clock import SimClock, every
 from ubf_async.component import Component
 from ubf_async.controller import Controller
 from ubf_async.errors import ConfigurationError
@@ -304,12 +304,17 @@ class SimulationRun:
         camera = SimCameraBackend(self.world)
         folder = self.options.record_dir
         assert folder is not None
-        while True:
-            t_s = self.world.time_s
+        async for now_ns in every(self.clock, self.options.record_every_s):
+            t_s = now_ns / 1e9
             camera.expose()  # the picture shows this instant, however late the thread runs
             leds = dict(self.leds)  # and the LEDs as lit at this instant, not when it runs
-            await asyncio.to_thread(self._write_frame, camera, folder, t_s, leds)
-            await self.clock.sleep(self.options.record_every_s)
+            # Simulated time waits for the frame (a lockstep barrier does not see a thread's
+            # work): frames fall on the same instants at any speed, on any machine.
+            hold = self.clock.hold(now_ns)
+            try:
+                await asyncio.to_thread(self._write_frame, camera, folder, t_s, leds)
+            finally:
+                hold.release()
 
     def _on_leds(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self._leds_malformed, key, topic=LED_STATE)
