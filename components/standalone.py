@@ -32,7 +32,7 @@ from typing import Any
 import yaml
 
 from components.devices import make_backend, make_device, requires_simulator
-from ubf_async import clockdomain, registry
+from ubf_async import clockdomain, lockstep, registry
 from ubf_async.bus import (
     DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
@@ -45,6 +45,7 @@ from ubf_async.bus import (
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, ensure_name_free
+from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import DeviceContext
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
@@ -120,6 +121,10 @@ def run_device(
     run.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
                      metavar="S", help="with --clock auto: how long to listen for the robot's "
                                        "clock")
+    run.add_argument("--lockstep", action="store_true",
+                     help="on a simulated robot: take part in the simulator's lockstep, so "
+                          "every sample counts at the simulated instant it was taken and a "
+                          "run is repeatable (docs/protocol.md, Lockstep)")
     run.add_argument("--log-level", default="WARNING",
                      choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     args = parser.parse_args(argv)
@@ -131,7 +136,7 @@ def run_device(
                                     **getattr(args, "backend_params", {})},
                     seed=seed(args), wait_for_sim_s=args.wait_for_sim_s,
                     wait_for_robot_s=args.wait_for_robot_s, clock=args.clock,
-                    clock_wait_s=args.clock_wait_s)
+                    clock_wait_s=args.clock_wait_s, lockstep=args.lockstep)
     return run_main(lambda: device.serve(args, duration_s=args.duration), prog=prog)
 
 
@@ -150,6 +155,8 @@ class Device:
     clock: clockdomain.ClockMode = "auto"
     """The robot clock for a backend that needs no simulator (``--clock``)."""
     clock_wait_s: float = clockdomain.DEFAULT_CLOCK_WAIT_S
+    lockstep: bool = False
+    """Take part in the simulator's lockstep (``--lockstep``)."""
 
     async def serve(self, args: argparse.Namespace, *, duration_s: float | None) -> int:
         """Attach to the robot on the bus ``args`` names; run for ``duration_s`` wall
@@ -163,10 +170,11 @@ class Device:
         simulator = registry.SIMULATORS.get(simulator_name)() if simulator_name else None
         options = connection_options(args)
         clock: Clock = SimClock() if simulator is not None else WallClock()
-        bus = await Bus.open(options, clock=clock)
+        bus = await Bus.open(options, clock=clock, ordered=self.lockstep)
         world: Any = None
         backend: Any = None
         component: Component | None = None
+        participant: Component | None = None
         try:
             await wait_for_robot(bus, timeout_s=self.wait_for_robot_s)
             if simulator is not None:
@@ -185,6 +193,12 @@ class Device:
             await ensure_name_free(bus, component.name,
                                    hint=f"start it with another --name than {self.name!r}")
             await component.start()
+            if self.lockstep:
+                if not isinstance(clock, SimClock):
+                    raise ConfigurationError(f"--lockstep: no simulator answered on "
+                                             f"{bus.keys.clock} (--clock {self.clock})")
+                participant = lockstep.LockstepParticipant(bus=bus, participant=component.name)
+                await participant.start()
             print(f"{component.name}: attached to robot {options.robot!r}"
                   + (" (simulated)" if simulator is not None else "")
                   + f", stamping with {clockdomain.describe(clock, robot=options.robot)}",
@@ -197,6 +211,8 @@ class Device:
                     await asyncio.wait_for(forever.wait(), duration_s)
             return 0
         finally:
+            if participant is not None:
+                await participant.aclose()
             if component is not None:
                 await component.aclose()  # closes its backend too
             elif callable(close := getattr(backend, "close", None)):

@@ -31,7 +31,9 @@ from components.sim.scenarios import Expectation, builtin_names, load_scenario
 from tests.conftest import free_port, read_until, spawn, stop
 
 ROOT = Path(__file__).resolve().parent.parent
-SPEED = "5"
+SPEED = "max"
+"""Every run flat out: simulated time advances in lockstep, so the speed changes nothing but
+the wall time it takes."""
 COMFORT_M = next((c.low, c.high)
                  for c in load_scenario("ball-in-sight").expect.criteria  # type: ignore[union-attr]
                  if c.path == "ball_distance_m")
@@ -73,7 +75,7 @@ POSITION_NOT_BOUNDED = {
 
 
 def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str, *extra: str,
-                 speed: str = SPEED, robot_file: Path | None = None,
+                 robot_file: Path | None = None,
                  expect_met: bool = True) -> Run:
     """Launch ``name`` (a subprocess, as a user would) and read its summary and trajectory.
     Every run is checked against the odometry rule (:func:`assert_odometry_tracks_the_heading`)
@@ -83,7 +85,7 @@ def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str, *extra: s
     proc = subprocess.run(
         [sys.executable, "-m", "ubf_async.launch",
          *([str(robot_file)] if robot_file is not None else []), "--scenario", name, "--speed",
-         speed,
+         SPEED,
          "--listen", endpoint, "--robot", robot, "--quiet", "--summary", str(summary_path),
          "--record", str(folder), "--record-every-s", "5", *extra],
         cwd=ROOT, capture_output=True, text=True, timeout=240,
@@ -290,8 +292,7 @@ def test_ball_held_close_makes_the_robot_back_away(seed: int, tmp_path: Path, en
     18 cm and 15 cm in front of the camera (it follows the robot), the ball is never driven
     into: every command backs away or stands (before the first frame), and the robot backs
     more than a metre. (Simulated runs are exactly repeatable at any speed: flat out here.)"""
-    run = run_scenario("ball-held-close", tmp_path, endpoint, robot, "--seed", str(seed),
-                       speed="100")
+    run = run_scenario("ball-held-close", tmp_path, endpoint, robot, "--seed", str(seed))
     commands = [s.speed_cmd for s in run.samples if s.speed_cmd is not None]
     assert commands and max(commands) <= 0, max(commands)
     later = [s.speed_cmd for s in run.samples if s.t_s >= 0.5]
@@ -341,7 +342,7 @@ def test_obstacle_course_the_thesis_tree_pushes_against_the_box(
         tmp_path: Path, endpoint: str, robot: str) -> None:
     """A low box lies across the way to the ball; the default robot (search, chase, flee)
     drives into it and pushes against it to the end."""
-    run = run_scenario("obstacle-course", tmp_path, endpoint, robot, speed="100",
+    run = run_scenario("obstacle-course", tmp_path, endpoint, robot,
                        expect_met=False)
     assert_pushes_against_the_box(run)
     assert run.summary["motion_last_2s"]["max_offset_m"] < 0.01
@@ -355,7 +356,7 @@ def test_obstacle_course_with_the_avoid_behaviour_gets_round(
     and turning for its hold_s: in each seed tried (6 is the file's) it works its way round
     and settles at the ball, never staying against the box."""
     run = run_scenario("obstacle-course", tmp_path, endpoint, robot, "--seed", str(seed),
-                       speed="100", robot_file=with_avoid_robot_file(tmp_path))
+                       robot_file=with_avoid_robot_file(tmp_path))
     assert_gets_round_the_box(run, avoid="avoid")
 
 
@@ -407,7 +408,7 @@ def test_busy_room(tmp_path: Path, endpoint: str, robot: str) -> None:
     second ball found and faced, nothing but the hand touching the robot, the odometry rule)
     and what happens on the way."""
     scenario = load_scenario("busy-room")
-    run = run_scenario("busy-room", tmp_path, endpoint, robot, speed="100")
+    run = run_scenario("busy-room", tmp_path, endpoint, robot)
     # The orange ball carried across the view (2–8 s) is never taken for pink: the robot
     # stays settled on the ball, commanding no turn.
     crossing = run.between(2.0, 8.0)
@@ -432,7 +433,7 @@ def test_fleet_search_alone(tmp_path: Path, endpoint: str, robot: str) -> None:
     far corner it creeps up to the ball on glimpses of it and settles facing it; it never
     turns, so its odometry's heading stays exact, while its position falls short (the
     coasting wheels' edges after each stop, POSITION_NOT_BOUNDED)."""
-    run = run_scenario("fleet-search", tmp_path, endpoint, robot, speed="100")
+    run = run_scenario("fleet-search", tmp_path, endpoint, robot)
     start, end = run.samples[0], run.samples[-1]
     assert math.hypot(end.robot_x_m - start.robot_x_m, end.robot_y_m - start.robot_y_m) > 5.5
     odo = run.summary["odometry"]

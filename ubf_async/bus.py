@@ -814,8 +814,13 @@ class Bus:
                                                          pending=self._has_pending)
 
     @classmethod
-    async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None) -> Bus:
+    async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None,
+                   ordered: bool = False) -> Bus:
         """Open a zenoh session (in a worker thread: opening can take a while) and a bus on it.
+
+        ``ordered``: samples of every key are handed to the loop in the order the sending
+        session sent them (:class:`~ubf_async.transport.ZenohConnection`): for the processes
+        of a lockstep run.
 
         Listen endpoints on port 0 get a free port first (:func:`bind_free_ports`), so
         ``bus.options.listen`` names the ports really listened on. Raises
@@ -830,7 +835,8 @@ class Bus:
             session = await asyncio.to_thread(zenoh.open, config)
         except zenoh.ZError as exc:
             raise session_error(options, exc) from None
-        return cls(transport=ZenohTransport(session), options=options, clock=clock)
+        return cls(transport=ZenohTransport(session, ordered=ordered), options=options,
+                   clock=clock)
 
     @property
     def robot(self) -> str:

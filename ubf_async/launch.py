@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from ubf_async import __version__
+from ubf_async import __version__, lockstep
 from ubf_async.aggregator import StateAggregator
 from ubf_async.bus import (
     DEFAULT_LISTEN,
@@ -127,6 +127,10 @@ def build_parser() -> argparse.ArgumentParser:
     world.add_argument("--sim-time", action="store_true",
                        help="with --no-sim: follow the simulation time published on "
                             "ubf/<robot>/clock by a simulator in another process")
+    world.add_argument("--lockstep", action="store_true",
+                       help="with --sim-time: take part in the simulator's lockstep, so it "
+                            "does not pass a simulated instant before this controller has "
+                            "handled it (docs/protocol.md, Lockstep): a repeatable run")
     world.add_argument("--devices", default=None, metavar="KIND[/NAME],...",
                        help="start only these devices of the robot file (e.g. motors,camera); "
                             "others can attach later")
@@ -139,6 +143,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "out, as fast as the machine allows (every component, camera latency "
                           "included, follows the simulated clock, which advances in lockstep: "
                           "the same run at any speed)")
+    sim.add_argument("--lockstep-participants", type=int, default=0, metavar="N",
+                     help="hold simulated time at its start until N processes started with "
+                          "--lockstep (remote behaviours, devices) have joined its lockstep, "
+                          "so a run with them is repeatable from its first instant")
     sim.add_argument("--seed", type=int, default=None,
                      help="seed for every random source (default: the scenario's)")
     sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
@@ -243,6 +251,9 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
     options: SimulationOptions | None = None
     if args.sim_time and not args.no_sim:
         raise ConfigurationError("--sim-time only makes sense with --no-sim")
+    if args.lockstep and not args.sim_time:
+        raise ConfigurationError("--lockstep only makes sense with --no-sim --sim-time (a "
+                                 "simulator of this process already steps in lockstep)")
     if args.no_sim:
         elsewhere = [d for d in devices if d.requires_simulator]
         devices = [d for d in devices if not d.requires_simulator]
@@ -252,6 +263,7 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
             scenario=args.scenario, speed=args.speed, seed=args.seed,
             duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
             record_every_s=args.record_every_s,
+            lockstep_participants=args.lockstep_participants,
             command_line=("python", "-m", "ubf_async.launch", *sys.argv[1:]))
     if simulator is None:
         given = [flag for flag, value in (("--scenario", args.scenario),
@@ -308,7 +320,9 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     robot = plan.robot
     simulated = plan.simulator is not None
     clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
-    bus = await Bus.open(plan.connection, clock=clock)
+    # A simulator's process and a lockstep participant hand samples over in the order they
+    # were sent: a participant's acknowledgement never overtakes what it sent before it.
+    bus = await Bus.open(plan.connection, clock=clock, ordered=simulated or args.lockstep)
     options = bus.options  # with the port really listened on for a `:0` endpoint
     components: list[Component] = []
     health = HealthMonitor(bus)
@@ -394,6 +408,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         components += [aggregator, controller, remotes, tree_service, *devices]
         if isinstance(clock, WallClock):  # its clock, for processes on other hosts
             components.append(RobotTimeBeacon(bus=bus))
+        if args.lockstep:  # last started: the simulator waits for it once all else runs
+            components.append(lockstep.LockstepParticipant(bus=bus, participant=controller.name))
         if sim_run is not None:
             sim_run.add_devices(devices)
             components += sim_run.components()

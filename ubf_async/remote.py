@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from ubf_async import clockdomain
+from ubf_async import clockdomain, lockstep
 from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behavior import Behavior, Composite
@@ -869,6 +869,10 @@ def remote_parser(
                        help="robot clock: wall (CLOCK_MONOTONIC), sim (follow "
                             "ubf/<robot>/clock), auto (sim if a simulator speaks within "
                             "--clock-wait-s)")
+    group.add_argument("--lockstep", action="store_true",
+                       help="on a simulated robot: take part in the simulator's lockstep, so "
+                            "every vote counts at the simulated instant it was made for and "
+                            "a run is repeatable (docs/protocol.md, Lockstep)")
     group.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
                        metavar="S", help="how long to wait for the robot to answer before "
                                          "giving up")
@@ -902,14 +906,21 @@ async def host_remote_behavior(
     if getattr(args, "secure", None) is not None and getattr(args, "identity", None) is None:
         args.identity = behavior.name  # a remote slot's identity is the slot's name
     options = connection_options(args)
-    bus = await Bus.open(options, clock=WallClock())
+    bus = await Bus.open(options, clock=WallClock(), ordered=args.lockstep)
     host: RemoteBehaviorHost | None = None
+    participant: lockstep.LockstepParticipant | None = None
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
+        if args.lockstep and args.clock == "wall":
+            raise ConfigurationError("--lockstep takes part in a simulated run: not with "
+                                     "--clock wall")
         if args.clock == "sim":
             print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
             out.flush()
         clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s)
+        if args.lockstep and not isinstance(clock, SimClock):
+            raise ConfigurationError(f"--lockstep: no simulator answered on {bus.keys.clock} "
+                                     f"within --clock-wait-s {args.clock_wait_s:g}")
         host = RemoteBehaviorHost(
             bus=bus, behavior=behavior, composite=args.composite, rate_hz=args.rate_hz,
             trigger=args.trigger, ttl_s=args.ttl_s, priority=args.priority,
@@ -920,10 +931,13 @@ async def host_remote_behavior(
         print(f"remote behaviour {behavior.name!r} votes in {args.composite!r} of robot "
               f"{options.robot!r} {timing} (priority {args.priority}, weight {args.weight:g}, "
               f"ttl {args.ttl_s:g}s) on {host.key}", file=out)
-        print(f"  clock: {'simulation time' if isinstance(clock, SimClock) else 'wall'}",
-              file=out)
+        print(f"  clock: {'simulation time' if isinstance(clock, SimClock) else 'wall'}"
+              + (", in lockstep" if args.lockstep else ""), file=out)
         out.flush()
         await host.start()
+        if args.lockstep:
+            participant = lockstep.LockstepParticipant(bus=bus, participant=host.name)
+            await participant.start()
         started = time.monotonic()
         last = 0.0
         while args.duration is None or time.monotonic() - started < args.duration:
@@ -941,6 +955,8 @@ async def host_remote_behavior(
             out.flush()
         return 0
     finally:
+        if participant is not None:
+            await participant.aclose()
         if host is not None:
             await host.aclose()
         await bus.aclose()

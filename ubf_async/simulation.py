@@ -44,6 +44,9 @@ class SimulationOptions:
     summary_path: Path | None = None
     record_dir: Path | None = None
     record_every_s: float = 2.0
+    lockstep_participants: int = 0
+    """Hold simulated time at its start until this many lockstep participants of other
+    processes have joined (:mod:`ubf_async.lockstep`)."""
     command_line: tuple[str, ...] = ()
     """How the run was started (for its summary)."""
 

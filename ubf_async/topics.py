@@ -272,6 +272,11 @@ class Clock(Data, frozen=True, kw_only=True):
     epoch: Annotated[str, Meta(max_length=64)] | None = None
 
 
+class LockstepAck(Data, frozen=True, kw_only=True):
+    """A lockstep participant has done everything it had to do at the simulated time in the
+    envelope's ``stamp_ns`` (its samples or votes of that instant are already sent)."""
+
+
 class RobotTime(Data, frozen=True, kw_only=True):
     """The robot host's clock (``CLOCK_MONOTONIC``) is the envelope's ``stamp_ns``; a process
     on another host learns its offset from it (:mod:`ubf_async.hostclock`)."""
@@ -580,6 +585,9 @@ LEDS = Topic("leds", "cmd/leds", "leds", Leds, "which LEDs are lit")
 HEARTBEAT = Topic("heartbeat", "heartbeat/{component}", "heartbeat", Heartbeat,
                   "a component's heartbeat")
 CLOCK = Topic("clock", "clock", "clock", Clock, "simulated time (absent on wall-clock robots)")
+LOCKSTEP_ACK = Topic("lockstep_ack", "lockstep/{participant}", "lockstep.ack", LockstepAck,
+                     "a lockstep participant's acknowledgement of a simulated instant "
+                     "(its liveliness token, on the same key, says it takes part)")
 ROBOT_TIME = Topic("robot_time", "time", "robot.time", RobotTime,
                    "the robot host's clock, for processes on other hosts (absent when "
                    "simulating)")
@@ -608,7 +616,7 @@ TRACE = Topic("trace", "trace", "controller.trace", TickTrace,
 TOPICS: tuple[Topic[Any], ...] = (
     CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, LED_STATE, RADIO,
     DRIVE, SEEK_COLOR, RADIO_SEND, LEDS,
-    HEARTBEAT, CLOCK, ROBOT_TIME, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
+    HEARTBEAT, CLOCK, LOCKSTEP_ACK, ROBOT_TIME, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
     TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE, CAMERA_VIEW,
 )
 """Every declared topic."""

@@ -210,12 +210,24 @@ class _ZenohQuery:
 
 
 class ZenohConnection:
-    """A bus's connection through an open zenoh session (callbacks on zenoh's threads)."""
+    """A bus's connection through an open zenoh session (callbacks on zenoh's threads).
+
+    zenoh-python runs each subscriber's callback on a Python thread of its own by default,
+    so samples of two keys may be handed over in another order than they were sent.
+    ``ordered``: run the callbacks on the zenoh thread that received the samples instead
+    (``Callback(..., indirect=False)``), in the order a session sent them — what lockstep
+    needs (an acknowledgement must not overtake the vote sent before it,
+    :mod:`ubf_async.lockstep`). The callbacks only copy and hand over, so zenoh's thread
+    is held briefly."""
 
     callbacks_on_loop = False
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(self, session: zenoh.Session, *, ordered: bool = False) -> None:
         self.session = session
+        self.ordered = ordered
+
+    def _handler(self, callback: Callable[[Any], None]) -> Any:
+        return zenoh.handlers.Callback(callback, indirect=False) if self.ordered else callback
 
     def declare_publisher(self, key: str) -> OutgoingPublisher:
         return _ZenohPublisher(self.session.declare_publisher(key))
@@ -225,7 +237,7 @@ class ZenohConnection:
             callback(str(sample.key_expr), sample.payload.to_bytes())
 
         return _ZenohDeclaration(self.session.declare_subscriber(
-            key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE))
+            key_expr, self._handler(on_sample), allowed_origin=zenoh.Locality.REMOTE))
 
     def declare_token(self, key: str) -> Declaration:
         return _ZenohDeclaration(self.session.liveliness().declare_token(key))
@@ -237,7 +249,7 @@ class ZenohConnection:
             callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
         return _ZenohDeclaration(self.session.liveliness().declare_subscriber(
-            key_expr, on_sample, history=True))
+            key_expr, self._handler(on_sample), history=True))
 
     async def liveliness_get(self, key_expr: str, *, timeout_s: float) -> list[str]:
         def query() -> list[str]:
@@ -279,8 +291,10 @@ class ZenohConnection:
 class ZenohTransport:
     """One open zenoh session, carrying one bus (closing the bus closes the session)."""
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(self, session: zenoh.Session, *, ordered: bool = False) -> None:
+        """``ordered``: see :class:`ZenohConnection`."""
         self.session = session
+        self.ordered = ordered
         self._connected = False
 
     def connect(
@@ -290,7 +304,7 @@ class ZenohTransport:
             raise ConfigurationError("a ZenohTransport carries one bus: open another zenoh "
                                      "session (Bus.open) for another bus")
         self._connected = True
-        return ZenohConnection(self.session)
+        return ZenohConnection(self.session, ordered=self.ordered)
 
 
 # ---------------------------------------------------------------------------------------------

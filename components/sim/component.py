@@ -38,24 +38,28 @@ file.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import logging
 import math
 import secrets
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from components.devices import KINDS, make_backend, make_device
 from components.sim.wire import snapshot_to_data
 from components.sim.world import World
-from ubf_async import lending
+from ubf_async import lending, lockstep
 from ubf_async.bus import Bus, Publisher, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import DeviceContext
 from ubf_async.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD
+
+log = logging.getLogger(__name__)
 
 DEVICES = KINDS
 """The devices of the simulated Mini-WHEGS."""
@@ -77,6 +81,7 @@ class _Served:
     """What the simulator publishes for one robot of its world."""
 
     robot: int
+    bus: Bus
     clock: Publisher
     truth: Publisher
     world: Publisher
@@ -96,13 +101,19 @@ class SimulatorComponent(Component):
         world_period_s: float = 0.02,
         name: str = "sim",
         more_robots: Sequence[Bus] = (),
+        lockstep_participants: int = 0,
         **component_options: float,
     ) -> None:
         """``more_robots``: a fleet's further robots of ``world`` (robot ``i`` on
         ``more_robots[i - 1]``, a bus of that robot's name sharing ``clock``): each gets the
         clock, its truth and its view of the world on its own keys, and its pulses from
-        there."""
+        there. ``lockstep_participants``: simulated time starts only once this many lockstep
+        participants of other processes have joined (:mod:`ubf_async.lockstep`), so a run
+        with them is repeatable from its first instant."""
         super().__init__(bus=bus, name=name, **component_options)
+        if lockstep_participants < 0:
+            raise ValueError(f"lockstep_participants must be >= 0, got {lockstep_participants}")
+        self.lockstep_participants = lockstep_participants
         if len(more_robots) != world.robot_count - 1:
             raise ValueError(f"the world has {world.robot_count} robots: give a bus for each "
                              f"but the first ({world.robot_count - 1}), not {len(more_robots)}")
@@ -126,6 +137,8 @@ class SimulatorComponent(Component):
         self.rtf_windows: deque[float] = deque(maxlen=RTF_WINDOWS_KEPT)
         """Real-time factor over each successive ``RTF_WINDOW_S`` of wall time (the last
         ``RTF_WINDOWS_KEPT``): shows whether the run kept up throughout, not just on average."""
+        self._lockstep: lockstep.LockstepBarrier | None = None
+        self._idle: Callable[[], Awaitable[None]] | None = None
         self.step_lateness_s: deque[float] = deque(maxlen=STEP_LATENESS_KEPT)
         """How late each step started, in wall seconds after its due time (the last
         ``STEP_LATENESS_KEPT``): what every follower of this clock inherits as tick jitter
@@ -172,14 +185,19 @@ class SimulatorComponent(Component):
                 "(lending.new_event_loop, the default of every entry point); UBF_LOOP=asyncio "
                 "or uvloop cannot tell when a step's work is done")
         self._idle = idle
-        served = [self._serve(bus, robot)
-                  for robot, bus in enumerate((self.bus, *self.more_robots))]
+        buses = (self.bus, *self.more_robots)
+        served = [self._serve(bus, robot) for robot, bus in enumerate(buses)]
+        self._lockstep = lockstep.LockstepBarrier(buses)
+        for subscription in self._lockstep.open():
+            self.keep(subscription)
         with self.clock.driven():
             self.clock.advance_to(round(self.world.time_s * 1e9))
             # Components of this process that are still getting ready (the camera building
             # its renderer's caches) hold the start: time starts, and is measured, once they
             # are done.
             await self._barrier(served, self.clock.now_ns() + 1)
+            if self.lockstep_participants:
+                await self._wait_for_participants(served)
             self.wall_started_s = time.monotonic()
             self.sim_started_s = self.world.time_s
             self.wall_stopped_s = None
@@ -191,7 +209,7 @@ class SimulatorComponent(Component):
     def _serve(self, bus: Bus, robot: int) -> _Served:
         """Publishers of one robot's clock, truth and world, and its pulses' subscription
         (closed when the run attempt ends)."""
-        served = _Served(robot=robot, clock=bus.publisher(CLOCK, period_s=self.step_s),
+        served = _Served(robot=robot, bus=bus, clock=bus.publisher(CLOCK, period_s=self.step_s),
                          truth=bus.publisher(SIM_TRUTH, period_s=self.truth_period_s),
                          world=bus.publisher(SIM_WORLD, period_s=self.world_period_s))
         for resource in (served.clock, served.truth, served.world,
@@ -231,17 +249,15 @@ class SimulatorComponent(Component):
             if wall_s - window_wall_s >= RTF_WINDOW_S:
                 self.rtf_windows.append((now_s - window_sim_s) / (wall_s - window_wall_s))
                 window_wall_s, window_sim_s = wall_s, now_s
-            # The clock sample costs an encoding and a put every step: only when some process
-            # follows it (checked every CLOCK_MATCH_STEPS steps, zenoh's check is not free).
             steps += 1
-            check_followers = steps % CLOCK_MATCH_STEPS == 1
+            # Whether anyone follows the clock, asked every CLOCK_MATCH_STEPS steps (zenoh's
+            # check is not free); the clock sample itself goes out at the barrier.
+            if steps % CLOCK_MATCH_STEPS == 1:
+                for robot in served:
+                    robot.clock_followed = robot.clock.has_subscribers()
             truth_due = now_s >= next_truth_s
             world_due = now_s >= next_world_s
             for robot in served:
-                if check_followers:
-                    robot.clock_followed = robot.clock.has_subscribers()
-                if robot.clock_followed:
-                    self._publish_clock(robot)
                 # Truth and the world snapshot cost encoding time on the loop: build them
                 # only when some process listens (zenoh knows its matching subscribers).
                 if truth_due and robot.truth.has_subscribers():
@@ -260,21 +276,28 @@ class SimulatorComponent(Component):
                             stamp_ns=self.clock.now_ns())
 
     async def _barrier(self, served: list[_Served], next_ns: int) -> bool:
-        """The lockstep barrier before the step to ``next_ns``: return once everything of
-        the current instant in this process is done — the event loop had nothing left to
-        run (:meth:`~ubf_async.lending.LendingEventLoop.idle`) and no hold forbids
-        ``next_ns`` (a camera render, a device getting ready). Return whether a hold made
-        it wait.
+        """The lockstep barrier before the step to ``next_ns``; return whether a hold made it
+        wait. In order:
 
-        While a hold keeps it waiting, the clock's time is sent again every
-        :data:`HOLD_HEARTBEAT_S` of wall time, so followers in other processes know the
-        simulator is alive (:class:`~ubf_async.clock.SilenceLimit`)."""
+        1. everything of the current instant in this process is done: the event loop had
+           nothing left to run (:meth:`~ubf_async.lending.LendingEventLoop.idle`) and no
+           hold forbids ``next_ns`` (a camera render, a frame being written, a device
+           getting ready) — while a hold keeps it waiting, the clock sample is sent again
+           every :data:`HOLD_HEARTBEAT_S` of wall time, so followers in other processes know
+           the simulator is alive (:class:`~ubf_async.clock.SilenceLimit`);
+        2. the clock sample of this instant goes out to the processes that follow it — after
+           the samples of this instant, which zenoh delivers first;
+        3. every lockstep participant of another process has acknowledged this instant
+           (:mod:`ubf_async.lockstep`), and what they sent for it has been handled here.
+        """
+        idle = self._idle
+        assert idle is not None, "run() sets it"
         waited = False
         while True:
-            await self._idle()
+            await idle()
             held = self.clock.held_until_ns()
             if held is None or held >= next_ns:
-                return waited
+                break
             waited = True
             while True:
                 try:
@@ -282,8 +305,37 @@ class SimulatorComponent(Component):
                                            HOLD_HEARTBEAT_S)
                     break
                 except TimeoutError:
-                    for robot in served:
-                        self._publish_clock(robot)
+                    self._publish_clocks(served)
+        self._publish_clocks(served)
+        lockstep = self._lockstep
+        if lockstep is not None and lockstep.has_participants():
+            await lockstep.wait(self.clock.now_ns(), resend=lambda: self._publish_clocks(served))
+            await idle()
+        return waited
+
+    async def _wait_for_participants(self, served: list[_Served]) -> None:
+        """Before time starts: until :attr:`lockstep_participants` participants have joined
+        and acknowledged the start (the clock sample is sent again meanwhile, so they find
+        it)."""
+        barrier = self._lockstep
+        assert barrier is not None
+        log.info("simulated time waits for %d lockstep participant(s)",
+                 self.lockstep_participants)
+        while len(barrier.participants) < self.lockstep_participants:
+            barrier.changed.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(barrier.changed.wait(), lockstep.RESEND_S)
+            self._publish_clocks(served, force=True)
+        await self._barrier(served, self.clock.now_ns() + 1)
+
+    def _publish_clocks(self, served: list[_Served], *, force: bool = False) -> None:
+        """The clock sample of now, to each robot's followers and participants (to each
+        robot with ``force``)."""
+        barrier = self._lockstep
+        for robot in served:
+            if force or robot.clock_followed or (
+                    barrier is not None and barrier.has_participants(robot.bus.robot)):
+                self._publish_clock(robot)
 
 
 def simulated_devices(

@@ -92,6 +92,9 @@ def _check_options(options: SimulationOptions) -> None:
     if options.duration_s is not None and not options.duration_s > 0:
         raise ConfigurationError(f"duration must be > 0 simulated seconds, got "
                                  f"{options.duration_s}")
+    if options.lockstep_participants < 0:
+        raise ConfigurationError(f"lockstep participants must be >= 0, got "
+                                 f"{options.lockstep_participants}")
     if not options.record_every_s > 0:
         raise ConfigurationError(f"record_every_s must be > 0, got {options.record_every_s}")
 
@@ -137,8 +140,9 @@ class SimulationRun:
             config = replace(config, seed=options.seed)
         self._world = World(config)
         self.scenario.install(self._world)
-        self.simulator = SimulatorComponent(bus=bus, world=self._world, clock=clock,
-                                            speed=options.speed)
+        self.simulator = SimulatorComponent(
+            bus=bus, world=self._world, clock=clock, speed=options.speed,
+            lockstep_participants=options.lockstep_participants)
         self.devices: list[Component] = []
         self.trajectory = TrajectoryBuffer()
         self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
