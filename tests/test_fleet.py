@@ -140,7 +140,9 @@ async def test_four_robots_each_controller_in_its_own_process(tmp_path: Path) ->
                                       "--quiet")
         for name in names:
             await read_until(procs[name], "controller:")
-        procs["world"] = await spawn("-m", "ubf_async.fleet", str(fleet), "--world-only")
+        # Real time: the controllers follow the world without lockstep (one is killed below).
+        procs["world"] = await spawn("-m", "ubf_async.fleet", str(fleet), "--world-only",
+                                     "--no-lockstep")
         await read_until(procs["world"], "with 4 robots")
 
         tool = await Bus.open(ConnectionOptions(mode="client", connect=[router]))

@@ -180,16 +180,25 @@ class TickStats:
         """Rate of the recent ticks run by the clock (reflex ticks left out)."""
         return self._rate(self.periodic_starts_ns)
 
-    def periodic_jitter_ms_p99(self) -> float | None:
-        """p99 of how far the wall-clock intervals between recent ticks of the clock stray
-        from their median (ms): the ticks' jitter in real time, whatever the clock's rate."""
-        starts = list(self.periodic_wall_ns)
+    @staticmethod
+    def _jitter_ms_p99(starts: deque[int]) -> float | None:
+        """p99 of how far the intervals between ``starts`` stray from their median (ms)."""
         if len(starts) < 3:
             return None
         gaps = [b - a for a, b in itertools.pairwise(starts)]
         middle = statistics.median(gaps)
         strays = sorted(abs(gap - middle) for gap in gaps)
         return strays[min(len(strays) - 1, round(0.99 * (len(strays) - 1)))] / 1e6
+
+    def periodic_jitter_ms_p99(self) -> float | None:
+        """The recent ticks of the clock: their jitter in real time (wall-clock intervals),
+        whatever the clock's rate."""
+        return self._jitter_ms_p99(self.periodic_wall_ns)
+
+    def periodic_jitter_robot_ms_p99(self) -> float | None:
+        """The same ticks' jitter in robot time: 0 in a simulation in lockstep, however
+        busy the machine."""
+        return self._jitter_ms_p99(self.periodic_starts_ns)
 
     def summary(self) -> dict[str, Any]:
         durations = list(self.tick_ns)
@@ -204,6 +213,7 @@ class TickStats:
             "rate_hz": self.rate_hz(),
             "periodic_rate_hz": self.periodic_rate_hz(),
             "periodic_jitter_ms_p99": self.periodic_jitter_ms_p99(),
+            "periodic_jitter_robot_ms_p99": self.periodic_jitter_robot_ms_p99(),
             "tick_us_p50": statistics.median(durations) / 1e3 if durations else None,
             "tick_us_max": max(durations) / 1e3 if durations else None,
             "winner_share": {
@@ -508,8 +518,9 @@ class Controller(Component):
         return self.root.quarantined() if isinstance(self.root, Composite) else []
 
     async def _publish_status(self) -> None:
-        while True:
-            await asyncio.sleep(self.status_period_s)
+        # On robot time: in a simulation each status is of a simulated instant, the same at
+        # any speed (a fleet's world collects them, ubf_async.fleet).
+        async for _ in every(self.bus.clock, self.status_period_s):
             try:
                 self._status.publish(self.status())
             except Exception:  # the status is best effort: it must not stop the ticks

@@ -33,6 +33,7 @@ import asyncio
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import signal
 import sys
@@ -40,7 +41,7 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any, TextIO
+from typing import Annotated, Any, Literal, TextIO
 
 import msgspec
 from msgspec import Meta
@@ -59,7 +60,7 @@ from ubf_async.errors import ConfigurationError
 from ubf_async.protocol import Keys, ProtocolError
 from ubf_async.registry import SIMULATORS
 from ubf_async.robotfile import Robot, load_robot
-from ubf_async.simulation import FleetMember, SimulationOptions
+from ubf_async.simulation import FLAT_OUT, FleetMember, SimulationOptions
 from ubf_async.topics import CONTROLLER_STATUS
 
 PROG = "python -m ubf_async.fleet"
@@ -87,7 +88,8 @@ class FleetWorld(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
     scenario: str | None = None
     """A built-in scenario or a scenario file: the arena, ball and scripts (its robot start is
     replaced by the robots'); ``None``: the simulator's default."""
-    speed: Annotated[float, Meta(gt=0.0, le=1000.0)] = 1.0
+    speed: Annotated[float, Meta(gt=0.0, le=1000.0)] | Literal["max"] = 1.0
+    """× real time, or ``max``: flat out."""
     seed: int | None = None
     duration_s: Annotated[float, Meta(gt=0.0, le=1e6)] | None = None
 
@@ -150,14 +152,17 @@ def load_fleet(path: Path) -> Fleet:
 
 
 async def run_world(fleet: Fleet, *, router: str, out: TextIO,
-                    summary_path: Path | None) -> int:
+                    summary_path: Path | None, lockstep: bool = False) -> int:
+    """The world process. With ``lockstep`` simulated time starts once every robot's
+    controller has joined its lockstep, and waits for each of them at every step."""
     spec = fleet.spec
     clock = SimClock()
     buses: list[Bus] = []
     try:
         for entry in spec.robots:
             buses.append(await Bus.open(ConnectionOptions(robot=entry.name, mode="client",
-                                                          connect=[router]), clock=clock))
+                                                          connect=[router]), clock=clock,
+                                        ordered=lockstep))
         await wait_for_controllers(buses[0], [r.name for r in spec.robots],
                                    timeout_s=CONTROLLERS_WAIT_S)
         members = [FleetMember(name=entry.name, x_m=entry.start.x_m, y_m=entry.start.y_m,
@@ -165,8 +170,12 @@ async def run_world(fleet: Fleet, *, router: str, out: TextIO,
                                devices=tuple(d for d in fleet.robots[entry.name].devices
                                              if d.requires_simulator))
                    for entry in spec.robots]
-        options = SimulationOptions(scenario=spec.world.scenario, speed=spec.world.speed,
-                                    seed=spec.world.seed, duration_s=spec.world.duration_s)
+        options = SimulationOptions(
+            scenario=spec.world.scenario,
+            speed=math.inf if spec.world.speed == FLAT_OUT else float(spec.world.speed),
+            seed=spec.world.seed,
+            duration_s=spec.world.duration_s,
+            lockstep_participants=len(spec.robots) if lockstep else 0)
         simulator = SIMULATORS.get(fleet.simulator)()
         summary = await simulator.host_fleet(buses=buses, clock=clock, members=members,
                                              options=options, out=out)
@@ -197,7 +206,7 @@ async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: fl
 
 
 async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
-                          out: TextIO) -> int:
+                          out: TextIO, lockstep: bool = False) -> int:
     """Several robots' controllers in this one process, each exactly as
     ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time --robot NAME --mode client``
     runs it (its own session, aggregator, controller, remote behaviours, tree service), all
@@ -212,7 +221,7 @@ async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
     for name in names:
         args = launch.build_parser().parse_args(
             [fleet.robots[name].source, "--no-sim", "--sim-time", "--robot", name, "--mode",
-             "client", "--connect", router, "--quiet"])
+             "client", "--connect", router, "--quiet", *(["--lockstep"] if lockstep else [])])
         runs.append(launch.run_robot(launch.plan_launch(args), args, out))
     tasks = [asyncio.ensure_future(run) for run in runs]
     try:
@@ -306,12 +315,15 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
             names = [entry.name for entry in group]
             command = (["-m", "ubf_async.launch", fleet.robots[names[0]].source, "--no-sim",
                         "--sim-time", "--robot", names[0], "--mode", "client", "--connect",
-                        router, "--quiet"] if per == 1 else
+                        router, "--quiet", *(["--lockstep"] if args.lockstep else [])]
+                       if per == 1 else
                        ["-m", "ubf_async.fleet", str(fleet.source), "--controllers-only",
-                        ",".join(names), "--router", router])
+                        ",".join(names), "--router", router,
+                        "--lockstep" if args.lockstep else "--no-lockstep"])
             procs["+".join(names)] = await spawn(command, logs / f"{'+'.join(names)}.log")
         world_args = ["-m", "ubf_async.fleet", str(fleet.source), "--world-only", "--router",
-                      router, "--summary", str(world_summary)]
+                      router, "--summary", str(world_summary),
+                      "--lockstep" if args.lockstep else "--no-lockstep"]
         procs["world"] = world = await spawn(world_args, logs / "world.log")
         status = FleetStatus([r.name for r in spec.robots])
         tool.subscribe(f"{ROOT}/*/status/controller", status.on_status, latest=False)
@@ -371,14 +383,14 @@ def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argpars
         world = json.loads(world_summary.read_text(encoding="utf-8"))
     robots: dict[str, Any] = {}
     for entry in fleet.spec.robots:
-        s = status.robots[entry.name].status
-        robots[entry.name] = {
-            "robot_file": entry.robot_file,
-            "ticks": s.get("ticks"), "periodic_rate_hz": s.get("periodic_rate_hz"),
-            "overruns": s.get("overruns"), "errors": s.get("errors"),
-            "winner_share": s.get("winner_share"),
-            **(world.get("robots", {}).get(entry.name, {})),
-        }
+        in_world = dict(world.get("robots", {}).get(entry.name, {}))
+        # The controller's figures as the world heard them in simulated time (the same at
+        # any speed, in lockstep), else its last status heard here.
+        heard = in_world.pop("controller", None) or status.robots[entry.name].status
+        s = {k: heard.get(k) for k in ("ticks", "periodic_rate_hz",
+                                        "periodic_jitter_robot_ms_p99", "overruns", "errors",
+                                        "winner_share")}
+        robots[entry.name] = {"robot_file": entry.robot_file, **s, **in_world}
         share = s.get("winner_share") or {}
         top = ", ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1]))
         travelled = robots[entry.name].get("travelled_m")
@@ -388,6 +400,7 @@ def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argpars
               f"{travelled if travelled is not None else '?'} m travelled, {found}; "
               f"won: {top or '--'}", file=out)
     summary = {"fleet": str(fleet.source), "scenario": world.get("scenario"),
+               "lockstep": args.lockstep,
                "sim_time_s": world.get("sim_time_s"),
                "real_time_factor": world.get("real_time_factor"),
                "first_found_s": world.get("first_found_s"),
@@ -422,6 +435,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quiet", action="store_true", help="no status lines")
     parser.add_argument("--check", action="store_true",
                         help="load and check the fleet file and every robot file, and exit")
+    parser.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=True,
+                        help="the controllers take part in the world's lockstep (simulated "
+                             "time waits for each of them at every step): a run is the same "
+                             "on any machine, at any load; --no-lockstep: they follow the "
+                             "world's clock as it goes (faster with many robots, not "
+                             "repeatable)")
     parser.add_argument("--world-only", action="store_true",
                         help="run only the world (what the launcher starts as its own process)")
     parser.add_argument("--controllers-per-process", type=int, default=1, metavar="K",
@@ -442,10 +461,11 @@ async def main_async(args: argparse.Namespace, out: TextIO) -> int:
         return 0
     if args.world_only:
         return await run_world(fleet, router=args.router or fleet.spec.router, out=out,
-                               summary_path=args.summary)
+                               summary_path=args.summary, lockstep=args.lockstep)
     if args.controllers_only is not None:
         return await run_controllers(fleet, args.controllers_only.split(","),
-                                     router=args.router or fleet.spec.router, out=out)
+                                     router=args.router or fleet.spec.router, out=out,
+                                     lockstep=args.lockstep)
     if args.controllers_per_process < 1:
         raise ConfigurationError(f"--controllers-per-process must be ≥ 1, got "
                                  f"{args.controllers_per_process}")

@@ -13,7 +13,7 @@ controllers, in their own processes, follow it.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any, TextIO
 
@@ -21,12 +21,18 @@ from components.sim.component import SimulatorComponent
 from components.sim.runner import DEFAULT_SCENARIO, lateness_summary, rounded
 from components.sim.scenarios import check_placement, load_scenario
 from components.sim.world import Pose2D, World, WorldConfig, WorldSnapshot
-from ubf_async.bus import Bus
+from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
 from ubf_async.errors import ConfigurationError, ScenarioError
 from ubf_async.heap import freeze_startup_objects
-from ubf_async.simulation import DeviceContext, FleetMember, SimulationOptions
+from ubf_async.simulation import (
+    DeviceContext,
+    FleetMember,
+    SimulationOptions,
+    describe_speed,
+)
+from ubf_async.topics import CONTROLLER_STATUS
 
 FOUND_DISTANCE_M = 1.0
 FOUND_BEARING_DEG = 30.0
@@ -68,6 +74,21 @@ def found(snapshot: WorldSnapshot) -> bool:
     return math.hypot(dx, dy) <= FOUND_DISTANCE_M and abs(bearing) <= FOUND_BEARING_DEG
 
 
+CONTROLLER_FIELDS = ("ticks", "periodic_rate_hz", "periodic_jitter_robot_ms_p99", "overruns",
+                     "errors", "winner_share")
+"""What the world's summary keeps of each controller's newest status (all in robot time)."""
+
+
+def _keep_status(statuses: list[dict[str, Any]], index: int, malformed: dict[str, int]
+                 ) -> Callable[[str, bytes, int], None]:
+    def on_status(key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(payload, malformed, key, topic=CONTROLLER_STATUS)
+        if message is not None:
+            statuses[index] = dict(message.data)
+
+    return on_status
+
+
 async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence[FleetMember],
                      options: SimulationOptions, out: TextIO) -> dict[str, Any]:
     """The world of ``members`` (see the module docstring) until ``options.duration_s``
@@ -81,7 +102,8 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
     world = World(config)
     scenario.install(world)
     simulator = SimulatorComponent(bus=buses[0], world=world, clock=clock, speed=options.speed,
-                                   more_robots=buses[1:])
+                                   more_robots=buses[1:],
+                                   lockstep_participants=options.lockstep_participants)
     components: list[Component] = []
     for index, (member, bus) in enumerate(zip(members, buses, strict=True)):
         # Odometry in the world's frame: each robot's encoders start from its start pose.
@@ -91,11 +113,19 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                                 simulation=world.robot(index), extras=origin)
         components += [device.build(context=context) for device in member.devices]
     components.append(simulator)  # last: time starts once the devices hold it
+    # Each controller's newest status, heard in simulated time: in lockstep the status of
+    # an instant arrives before the controller acknowledges it, so these are the same
+    # however fast the machine.
+    statuses: list[dict[str, Any]] = [{} for _ in members]
+    malformed: dict[str, int] = {}
+    subscriptions = [bus.subscribe(CONTROLLER_STATUS.key(bus.keys, "controller"),
+                                   _keep_status(statuses, index, malformed))
+                     for index, bus in enumerate(buses)]
     start_poses = [world.snapshot_for(i).robot for i in range(world.robot_count)]
     travelled = [0.0] * world.robot_count
     found_s: list[float | None] = [None] * world.robot_count
     print(f"world: {scenario.name!r} with {len(members)} robots "
-          f"({', '.join(m.name for m in members)}), {options.speed:g}x real time, "
+          f"({', '.join(m.name for m in members)}), {describe_speed(options.speed)}, "
           f"seed {config.seed}", file=out, flush=True)
     try:
         for component in components:
@@ -104,6 +134,9 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
         start_s = world.time_s
         end_ns = None if options.duration_s is None else round(
             (start_s + options.duration_s) * 1e9)
+        if end_ns is not None:
+            # Simulated time stops exactly at the end, however late this task notices it.
+            clock.hold(end_ns)
         last = [(p.x_m, p.y_m) for p in start_poses]
         while end_ns is None or clock.now_ns() < end_ns:
             # Sample the paths every 0.1 simulated seconds (distance travelled per robot).
@@ -115,9 +148,14 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                 last[i] = (now.x_m, now.y_m)
                 if found_s[i] is None and snapshot.ball is not None and found(snapshot):
                     found_s[i] = world.time_s - start_s
+        # What the controllers had said by the end's instant (statuses of the end itself
+        # would come after it, while closing: not waited for).
+        statuses = [dict(status) for status in statuses]
     finally:
         for component in reversed(components):
             await component.aclose()
+        for subscription in subscriptions:
+            subscription.close()
     ends = [world.snapshot_for(i).robot for i in range(world.robot_count)]
     rtf = simulator.real_time_factor()
     summary = {
@@ -134,6 +172,7 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                 "end": {"x_m": e.x_m, "y_m": e.y_m, "heading_deg": math.degrees(e.heading_rad)},
                 "travelled_m": travelled[i],
                 "found_s": found_s[i],
+                "controller": {field: statuses[i].get(field) for field in CONTROLLER_FIELDS},
             }
             for i, (member, s, e) in enumerate(zip(members, start_poses, ends, strict=True))
         },
