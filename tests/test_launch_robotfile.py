@@ -91,7 +91,9 @@ def test_a_bad_robot_file_is_refused_with_file_and_line_and_nothing_starts(
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--scenario", "keep-away", "--no-sim"], "--scenario: there is no simulator"),
-    (["--speed", "0"], "--speed must be > 0"),
+    (["--speed", "0"], "--speed: expected a number > 0 or 'max', got '0'"),
+    (["--speed", "fast"], "--speed: expected a number > 0 or 'max', got 'fast'"),
+    (["--lockstep"], "--lockstep only makes sense with --no-sim --sim-time"),
     (["--tick", "event"], "--tick event needs --trigger"),
     (["--devices", "motors,lidar"], "--devices: lidar not in"),
     (["--sim-time"], "--sim-time only makes sense with --no-sim"),

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -122,3 +124,136 @@ def test_the_cpu_hog_loads_the_cores_it_is_given() -> None:
         assert os.sched_getaffinity(procs[0].pid) == set(core)
         assert procs[0].poll() is None
     assert procs[0].poll() is not None  # stopped with the block
+
+
+# ---------------------------------------------------------------------------------------------
+# Participants in other processes
+
+
+def launch_with_participant(folder: Path, *, duration_s: float, participant: list[str],
+                            cpus: list[int] | None = None,
+                            while_running: Any = None) -> Run:
+    """obstacle-course flat out, holding its start for one lockstep participant: the command
+    ``participant`` (given ``--connect EP --robot R``), in its own process."""
+    folder.mkdir(parents=True)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    pin = None if cpus is None else (lambda: pin_to(cpus))
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "obstacle-course", "--speed",
+         "max", "--duration", f"{duration_s:g}", "--listen", endpoint, "--robot", "lockstep",
+         "--quiet", "--summary", str(folder / "summary.json"), "--record", str(folder),
+         "--record-every-s", "100", "--lockstep-participants", "1"],
+        cwd=REPOSITORY, env=repository_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True, preexec_fn=pin)
+    other = subprocess.Popen(
+        [sys.executable, *participant, "--connect", endpoint, "--robot", "lockstep"],
+        cwd=REPOSITORY, env=repository_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True, preexec_fn=pin)
+    try:
+        if while_running is not None:
+            while_running(other)
+        output, _ = robot.communicate(timeout=600)
+        assert robot.returncode == 0, output
+    finally:
+        for proc in (robot, other):
+            if proc.poll() is None:
+                proc.kill()
+            proc.communicate()
+    return Run(folder, output)
+
+
+AVOID = [str(REPOSITORY / "examples" / "avoid_obstacles.py"), "--clock", "sim", "--lockstep",
+         "--quiet"]
+
+
+def test_a_remote_behaviour_in_lockstep_gives_the_same_run_under_load(tmp_path: Path) -> None:
+    """examples/avoid_obstacles.py in its own process, joined with --lockstep, on
+    obstacle-course: twice — once with both processes pinned to one core beside a busy loop
+    — byte-identical, and the example is what gets the robot round the box."""
+    idle = launch_with_participant(tmp_path / "idle", duration_s=60, participant=AVOID)
+    core = available_cpus()[:1]
+    with hogs(core):
+        loaded = launch_with_participant(tmp_path / "loaded", duration_s=60,
+                                         participant=AVOID, cpus=core)
+    assert_same(loaded, idle, "a remote behaviour in lockstep, under load")
+    assert idle.summary["expected"]["pass"], idle.summary["expected"]
+    assert idle.summary["ticks"]["winner_share"]["avoid_obstacles"] > 0
+    assert "dropped from the barrier" not in idle.output + loaded.output
+
+
+def test_a_participant_that_vanishes_or_falls_silent_is_dropped_and_the_run_goes_on(
+        tmp_path: Path) -> None:
+    """Killed: its token goes, the barrier lets go of it at once. Stopped (SIGSTOP): silent,
+    dropped after lockstep.SILENCE_S of wall time with a warning. Either way the run ends
+    normally and its summary is written."""
+    def after_its_first_votes(then: Callable[[subprocess.Popen[str]], None]
+                              ) -> Callable[[subprocess.Popen[str]], None]:
+        def wait_and_act(proc: subprocess.Popen[str]) -> None:
+            assert proc.stdout is not None
+            for line in proc.stdout:  # its status line: it has joined and voted
+                if line.startswith("[avoid_obstacles] votes"):
+                    break
+            then(proc)
+
+        return wait_and_act
+
+    chatty = [arg for arg in AVOID if arg != "--quiet"]
+    killed = launch_with_participant(tmp_path / "killed", duration_s=60, participant=chatty,
+                                     while_running=after_its_first_votes(
+                                         lambda proc: proc.kill()))
+    assert killed.summary["sim_time_s"] == pytest.approx(60.0)
+    assert "dropped from the barrier" not in killed.output
+
+    silent = launch_with_participant(tmp_path / "silent", duration_s=60, participant=chatty,
+                                     while_running=after_its_first_votes(
+                                         lambda proc: os.kill(proc.pid, signal.SIGSTOP)))
+    assert silent.summary["sim_time_s"] == pytest.approx(60.0)
+    assert "avoid_obstacles of robot lockstep did not acknowledge" in silent.output
+    assert "dropped from the barrier, the run goes on" in silent.output
+
+
+# ---------------------------------------------------------------------------------------------
+# The fleet
+
+
+FLEET = """
+world: {{scenario: ball-in-sight, speed: max, duration_s: 10}}
+router: tcp/127.0.0.1:{port}
+robots:
+  - {{name: l1, start: {{x_m: 0.0, y_m: 0.0, heading_deg: 0}}}}
+  - {{name: l2, start: {{x_m: -0.4, y_m: 0.5, heading_deg: -45}}}}
+  - {{name: l3, start: {{x_m: -0.4, y_m: -0.5, heading_deg: 45}}}}
+  - {{name: l4, start: {{x_m: -0.8, y_m: 0.0, heading_deg: 180}}}}
+"""
+
+
+def run_fleet(folder: Path) -> dict[str, Any]:
+    folder.mkdir(parents=True)
+    fleet = folder / "fleet.yaml"
+    fleet.write_text(FLEET.format(port=free_port()), "utf-8")
+    done = subprocess.run(
+        [sys.executable, "-m", "ubf_async.fleet", str(fleet), "--summary",
+         str(folder / "summary.json"), "--log-dir", str(folder / "logs"), "--quiet"],
+        cwd=REPOSITORY, env=repository_env(), capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary: dict[str, Any] = json.loads((folder / "summary.json").read_text())
+    return summary
+
+
+def test_a_four_robot_fleet_in_lockstep_is_the_same_run_twice(tmp_path: Path) -> None:
+    """Router, world and four controller processes, flat out: twice — the second beside a
+    busy loop on every core — the same summary (the real-time factor aside), and every
+    robot's periodic ticks 20 ms apart in simulated time: jitter 0."""
+    first = run_fleet(tmp_path / "first")
+    with hogs():
+        second = run_fleet(tmp_path / "second")
+    assert first["lockstep"] is True
+    rtf = first.pop("real_time_factor"), second.pop("real_time_factor")
+    assert all(factor > 0 for factor in rtf)
+    assert first.pop("fleet") != second.pop("fleet")  # each its own file: the same text
+    assert second == first
+    assert first["sim_time_s"] == pytest.approx(10.0)
+    for name, robot in first["robots"].items():
+        assert robot["periodic_jitter_robot_ms_p99"] == 0.0, name
+        assert robot["periodic_rate_hz"] == pytest.approx(50.0), name
+        assert robot["overruns"] == 0 and robot["ticks"] > 400, (name, robot)

@@ -164,7 +164,7 @@ async def run_world(fleet: Fleet, *, router: str, out: TextIO,
                                                           connect=[router]), clock=clock,
                                         ordered=lockstep))
         await wait_for_controllers(buses[0], [r.name for r in spec.robots],
-                                   timeout_s=CONTROLLERS_WAIT_S)
+                                   timeout_s=CONTROLLERS_WAIT_S, lockstep=lockstep)
         members = [FleetMember(name=entry.name, x_m=entry.start.x_m, y_m=entry.start.y_m,
                                heading_deg=entry.start.heading_deg,
                                devices=tuple(d for d in fleet.robots[entry.name].devices
@@ -188,14 +188,17 @@ async def run_world(fleet: Fleet, *, router: str, out: TextIO,
             await bus.aclose()
 
 
-async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: float) -> None:
-    """Until every robot's controller is alive (its liveliness token); a
-    :class:`ConnectionError` naming the missing after ``timeout_s``."""
+async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: float,
+                               lockstep: bool = False) -> None:
+    """Until every robot's controller is alive (its liveliness token) and, with
+    ``lockstep``, has joined the lockstep (its participant token: by then its subscriptions
+    are known here too, so nothing the world sends from its first instant on is lost to
+    it); a :class:`ConnectionError` naming the missing after ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
+    pattern = f"{ROOT}/*/lockstep/controller" if lockstep else f"{ROOT}/*/alive/controller"
     missing = list(robots)
     while missing:
-        alive = {key.split("/")[1] for key in await bus.alive_tokens(
-            f"{ROOT}/*/alive/controller", timeout_s=1.0)}
+        alive = {key.split("/")[1] for key in await bus.alive_tokens(pattern, timeout_s=1.0)}
         missing = [r for r in robots if r not in alive]
         if not missing:
             return

@@ -371,8 +371,9 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
                   file=out)
         if not plan.devices and not plan.elsewhere and sim_run is None:
             print("  no devices here: waiting for devices to attach over zenoh", file=out)
-        if sim_run is not None and args.seed is None and seed != robot.spec.seed:
-            # The behaviours draw from the run's seed, so a simulated run is repeatable.
+        if clock.is_simulated and args.seed is None and seed != robot.spec.seed:
+            # The behaviours draw from the run's seed (a controller following a simulator
+            # elsewhere: the file's, else 0), so a simulated run is repeatable.
             robot = robot.reseeded(seed)
         context = DeviceContext(bus=bus, clock=clock, seed=seed,
                                 simulation=sim_run.world if sim_run is not None else None)

@@ -45,6 +45,9 @@ log = logging.getLogger(__name__)
 SILENCE_S = 2.0
 """Wall seconds the simulator waits for a participant's acknowledgement before it drops the
 participant from the barrier."""
+JOIN_WAIT_S = 60.0
+"""How long (wall time) a simulator told to wait for participants before time starts waits
+for them; then it starts without those missing, with a warning."""
 RESEND_S = 0.05
 """While it waits, the simulator sends its clock sample again this often (wall time): a
 participant that missed it (it joined just then) gets it, and followers see it alive."""

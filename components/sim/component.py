@@ -316,12 +316,19 @@ class SimulatorComponent(Component):
     async def _wait_for_participants(self, served: list[_Served]) -> None:
         """Before time starts: until :attr:`lockstep_participants` participants have joined
         and acknowledged the start (the clock sample is sent again meanwhile, so they find
-        it)."""
+        it), or :data:`~ubf_async.lockstep.JOIN_WAIT_S` has passed (then with a warning)."""
         barrier = self._lockstep
         assert barrier is not None
         log.info("simulated time waits for %d lockstep participant(s)",
                  self.lockstep_participants)
+        deadline = time.monotonic() + lockstep.JOIN_WAIT_S
         while len(barrier.participants) < self.lockstep_participants:
+            if time.monotonic() > deadline:
+                log.warning("only %d of %d lockstep participants joined within %g s: "
+                            "simulated time starts without the others",
+                            len(barrier.participants), self.lockstep_participants,
+                            lockstep.JOIN_WAIT_S)
+                break
             barrier.changed.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(barrier.changed.wait(), lockstep.RESEND_S)
