@@ -194,7 +194,7 @@ class Device:
                                    hint=f"start it with another --name than {self.name!r}")
             await component.start()
             if self.lockstep:
-                if not isinstance(clock, SimClock):
+                if not clock.is_simulated:
                     raise ConfigurationError(f"--lockstep: no simulator answered on "
                                              f"{bus.keys.clock} (--clock {self.clock})")
                 participant = lockstep.LockstepParticipant(bus=bus, participant=component.name)

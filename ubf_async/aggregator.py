@@ -433,15 +433,15 @@ class StateAggregator(Component):
         return max(0.0, (now_ns - entry.arrived_ns) / 1e9)
 
     def _clock_hint(self) -> str:
-        if not getattr(self.bus.clock, "is_simulated", False):
+        if not self.bus.clock.is_simulated:
             return ""
         return ("; this robot runs on simulated time: stamp with the newest time seen on "
                 "ubf/<robot>/clock, not the host's clock (docs/protocol.md)")
 
     def is_stale(self, entry: SourceEntry, now_ns: int, wall_now_ns: int) -> bool:
         """Whether ``entry`` has been quiet beyond its limit: in robot time, or — so that a
-        stalled simulation cannot keep dead data fresh — in wall time as
-        :class:`~ubf_async.clock.SilenceLimit` rules."""
+        dead simulator cannot keep dead data fresh — in wall time while the clock's source is
+        silent, as :class:`~ubf_async.clock.SilenceLimit` rules."""
         limit = self.limit_s(entry)
         if limit == math.inf:
             return False

@@ -26,6 +26,12 @@ exceptions: it must not rely on the identity of the thread it runs on
 (``threading.get_ident()``; a publisher that does simply takes the thread-safe road), and it
 should not add or remove the loop's readers and writers.
 
+The same moment — the loop about to wait — is what :meth:`LendingEventLoop.idle` reports:
+every task is blocked and no callback is ready, so whatever the caller's last step set off
+has run to its end. The simulator's lockstep barrier is built on it
+(:mod:`components.sim.component`); asyncio's loop decides it (it asks its selector to wait
+only when nothing is ready), so no loop iterations are counted and no private attribute read.
+
 Only subscriptions that ask for it are handled this way (``Bus.subscribe(..., direct=True)``):
 the state aggregator's, so a reflex is answered on the thread that brought its sample. Keep
 it to short handlers on a latency path, in processes where little else runs Python: a

@@ -918,7 +918,7 @@ async def host_remote_behavior(
             print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
             out.flush()
         clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s)
-        if args.lockstep and not isinstance(clock, SimClock):
+        if args.lockstep and not clock.is_simulated:
             raise ConfigurationError(f"--lockstep: no simulator answered on {bus.keys.clock} "
                                      f"within --clock-wait-s {args.clock_wait_s:g}")
         host = RemoteBehaviorHost(

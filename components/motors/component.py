@@ -8,10 +8,10 @@
 * **Watchdog:** if no valid drive command has arrived for ``timeout_s`` (default
   :data:`DEFAULT_TIMEOUT_S`, 110 ms), it applies the stop pulse — a controller that dies
   cannot leave the robot driving. The deadline follows
-  :class:`~ubf_async.clock.SilenceLimit`: ``timeout_s`` of robot time, or of wall time while
-  the robot clock is stalled (simulated time stopped), or ``timeout_s / 0.2`` of wall time in
-  any case. A new simulation run (the clock reset) also stops the wheels: a command of the
-  old run does not hold in the new one.
+  :class:`~ubf_async.clock.SilenceLimit`: ``timeout_s`` of robot time, or — when the robot
+  clock's source has gone silent (a simulator that died, not one holding time on purpose) —
+  ``max(timeout_s, 0.5 s)`` of wall time. A new simulation run (the clock reset) also stops
+  the wheels: a command of the old run does not hold in the new one.
 
   Why 110 ms: the goal is that the wheels stop at most :data:`STOP_GOAL_S` (200 ms) after
   the last command was *sent*. Two failures bound the timeout ``T``: a late stop, when
@@ -230,7 +230,8 @@ def build_device(
 ) -> MotorsComponent:
     """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
     wheels when no drive command arrived for ``timeout_s`` (robot clock; also in wall time
-    when the clock stalls, see :class:`~ubf_async.clock.SilenceLimit`) and when it closes.
+    when the clock's source goes silent, see :class:`~ubf_async.clock.SilenceLimit`) and when
+    it closes.
     ``left`` / ``right``: each motor's calibration (:class:`MotorTrim`); default: the
     thesis's measured Mini-WHEGS motors."""
     return MotorsComponent(

@@ -12,23 +12,26 @@ behaviours never see it; tests and tools do — and the whole world snapshot on
 (``python -m components.range`` …) measure and render; a motors process sends its pulses back
 on ``ubf/<robot>/sim/pulses``.
 
-Pacing: each step is due at an absolute wall time (start + simulated time / ``speed``). Ahead
-of schedule the simulator sleeps; the event loop's timer has about 1 ms resolution, so it may
-oversleep, and the steps that fell due meanwhile then run back to back. Between two steps it
-always lets the loop :func:`settle`, so what a step woke up in this process (a periodic
-wake-up, the samples it publishes, a reflex tick, the drive command that follows — all
-delivered on the loop, see :mod:`ubf_async.bus`) happens at the simulated instant it belongs
-to, whatever the speed. Components in other processes see the simulation through zenoh: at
-K× speed their messages cost K× the transport latency in simulated time.
+Lockstep: simulated time is a barrier, not a race. Before each 5 ms step the simulator waits
+(:meth:`SimulatorComponent._barrier`) until everything of the current instant is done: its
+process's event loop had nothing left to run
+(:meth:`~ubf_async.lending.LendingEventLoop.idle` — a periodic wake-up, the samples it
+publishes, a reflex tick and the drive command it sends have all run, however many loop
+iterations that took on however slow a machine), no component of the process
+:meth:`holds <ubf_async.clock.SimClock.hold>` the clock (the camera while it renders a frame,
+the recorder while it writes one), and every lockstep participant of another process has
+acknowledged the instant (:mod:`ubf_async.lockstep`). Only then does time advance, so a run
+gives the same result at any speed, on any machine, under any load; simulated time starts
+once the holds taken at the start are released (and, if asked, the participants joined).
 
-When the machine cannot keep up, simulation time simply runs slower than ``speed`` × real
-time; every component follows the simulated clock, so behaviour stays consistent and the
-achieved real-time factor is reported (:meth:`SimulatorComponent.real_time_factor`, and per
-0.25 s window in :attr:`SimulatorComponent.rtf_windows`; ``python -m bench.realtime``
-measures it). Components of the same process may :meth:`hold
-<ubf_async.clock.SimClock.hold>` the clock (the camera does while it gets ready and while it
-renders): the simulator does not step past a held time, so wall-time work costs no simulated
-time, and simulated time starts only once the holds taken at the start are released.
+Pacing: ``speed`` K paces that lockstep to K× real time — each step is due at an absolute
+wall time (start + simulated time / K, time spent held not made up afterwards); ahead of
+schedule the simulator sleeps. ``speed`` ``math.inf`` runs it flat out. A machine that cannot
+keep up just runs slower than K; the achieved real-time factor is reported
+(:meth:`SimulatorComponent.real_time_factor`, and per 0.25 s window in
+:attr:`SimulatorComponent.rtf_windows`; ``python -m bench.realtime`` measures it).
+Components in other processes that are not participants follow the clock through zenoh: at
+K× speed their messages cost K× the transport latency in simulated time.
 
 :func:`simulated_devices` builds device components with simulator backends in this process,
 through the registry (device kinds and ``<kind>.sim`` backends), as launch does from a robot
