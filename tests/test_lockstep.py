@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -257,3 +258,57 @@ def test_a_four_robot_fleet_in_lockstep_is_the_same_run_twice(tmp_path: Path) ->
         assert robot["periodic_jitter_robot_ms_p99"] == 0.0, name
         assert robot["periodic_rate_hz"] == pytest.approx(50.0), name
         assert robot["overruns"] == 0 and robot["ticks"] > 400, (name, robot)
+
+
+def test_motors_elsewhere_do_not_stop_while_the_simulator_waits_on_purpose(
+        tmp_path: Path) -> None:
+    """Camera frames of 0.7 s of wall time each — longer than the 0.5 s after which a silent
+    simulator counts as dead: the robot's motors run in another process, following its
+    clock (in lockstep, so that time starts once they are there), and never stop on their
+    watchdog while the simulator waits for the frames (it sends its time again meanwhile).
+    Once the robot has ended, they stop in wall time."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight", "--speed",
+         "max", "--duration", "1", "--listen", endpoint, "--robot", "held", "--quiet",
+         "--devices", "camera,encoders,range", "--summary", str(folder / "summary.json"),
+         "--lockstep-participants", "1"],
+        cwd=REPOSITORY, env={**repository_env(), RENDER_DELAY_ENV: "0.7"},
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    motors = subprocess.Popen(
+        [sys.executable, "-m", "components.motors", "--connect", endpoint, "--robot", "held",
+         "--lockstep"],
+        cwd=REPOSITORY, env=repository_env(), stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True)
+    try:
+        output, _ = robot.communicate(timeout=300)
+        assert robot.returncode == 0, output
+        summary = json.loads((folder / "summary.json").read_text())
+        assert summary["camera_frames"] >= 9  # 1 s simulated: ≥ 6 s of held time
+        assert summary["ticks"]["winner_share"], summary["ticks"]  # it drove meanwhile
+        # The robot has gone: its watchdog stops the wheels now, in wall time (the timer
+        # only keeps a broken run from hanging the test).
+        printed = []
+        guard = threading.Timer(60, motors.kill)
+        guard.start()
+        assert motors.stdout is not None
+        for line in motors.stdout:
+            printed.append(line)
+            if "no drive command" in line:
+                break
+        guard.cancel()
+    finally:
+        motors.terminate()
+        assert motors.stdout is not None
+        with motors.stdout:
+            rest = motors.stdout.read()  # through the buffer the lines above came from
+        motors.wait(timeout=60)
+        if robot.poll() is None:
+            robot.kill()
+            robot.communicate()
+    text = "".join(printed) + rest
+    assert "attached to robot 'held'" in text, text
+    # Stopped once — after the robot had gone, never while the simulator waited.
+    assert text.count("no drive command") == 1, text

@@ -266,12 +266,15 @@ class SimulatorComponent(Component):
                 if truth_due and robot.truth.has_subscribers():
                     robot.truth.publish(self.truth(robot.robot), stamp_ns=now_ns)
                 if world_due and robot.world.has_subscribers():
-                    robot.world.publish(snapshot_to_data(self.world.snapshot_for(robot.robot)),
-                                        stamp_ns=now_ns)
+                    self._publish_world(robot)
             if truth_due:
                 next_truth_s += self.truth_period_s
             if world_due:
                 next_world_s += self.world_period_s
+
+    def _publish_world(self, robot: _Served) -> None:
+        robot.world.publish(snapshot_to_data(self.world.snapshot_for(robot.robot)),
+                            stamp_ns=self.clock.now_ns())
 
     def _publish_clock(self, robot: _Served) -> None:
         rtf = self.real_time_factor()
@@ -336,6 +339,9 @@ class SimulatorComponent(Component):
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(barrier.changed.wait(), lockstep.RESEND_S)
             self._publish_clocks(served, force=True)
+            for robot in served:  # sim-backed devices elsewhere attach once they see it
+                if robot.world.has_subscribers():
+                    self._publish_world(robot)
         await self._barrier(served, self.clock.now_ns() + 1)
 
     def _publish_clocks(self, served: list[_Served], *, force: bool = False) -> None:
