@@ -191,8 +191,9 @@ def test_a_participant_that_vanishes_or_falls_silent_is_dropped_and_the_run_goes
                               ) -> Callable[[subprocess.Popen[str]], None]:
         def wait_and_act(proc: subprocess.Popen[str]) -> None:
             assert proc.stdout is not None
-            for line in proc.stdout:  # its status line: it has joined and voted
-                if line.startswith("[avoid_obstacles] votes"):
+            for line in proc.stdout:  # its status line: it has seen the robot drive, so
+                # simulated time runs, which it does only once this participant has joined
+                if line.startswith("[avoid_obstacles] votes") and "robot drive" in line:
                     break
             then(proc)
 
