@@ -313,3 +313,15 @@ def test_motors_elsewhere_do_not_stop_while_the_simulator_waits_on_purpose(
     assert "attached to robot 'held'" in text, text
     # Stopped once — after the robot had gone, never while the simulator waited.
     assert text.count("no drive command") == 1, text
+
+
+def test_a_simulation_on_a_loop_that_cannot_tell_when_it_is_idle_is_refused() -> None:
+    """UBF_LOOP=asyncio (or uvloop) cannot run the lockstep: refused before the bus opens."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "ubf_async.launch", "--duration", "1", "--listen",
+         f"tcp/127.0.0.1:{free_port()}"], cwd=REPOSITORY,
+        env={**repository_env(), "UBF_LOOP": "asyncio"}, capture_output=True, text=True,
+        timeout=60)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "needs the default event loop: unset UBF_LOOP" in proc.stderr
+    assert "listening" not in proc.stdout

@@ -172,6 +172,16 @@ def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
     return factory
 
 
+def check_lockstep_loop() -> None:
+    """Refuse, before anything starts, a simulation on a loop that cannot run it: simulated
+    time advances in lockstep, which needs to know when the loop has nothing left to run
+    (:meth:`~ubf_async.lending.LendingEventLoop.idle`)."""
+    if loop_factory() is not lending.new_event_loop:
+        raise ConfigurationError(
+            f"a simulation advances in lockstep, which needs the default event loop: unset "
+            f"{LOOP_ENV} ({os.environ.get(LOOP_ENV)!r} cannot tell when a step's work is done)")
+
+
 def run_loop(main: Coroutine[Any, Any, T]) -> T:
     """``asyncio.run`` on the loop :func:`loop_factory` chooses."""
     with asyncio.Runner(loop_factory=loop_factory()) as runner:

@@ -48,7 +48,7 @@ from ubf_async.bus import (
     connection_options,
     follow_sim_clock,
 )
-from ubf_async.cli import LOOP_HELP, run_main, speed_argument
+from ubf_async.cli import LOOP_HELP, check_lockstep_loop, run_main, speed_argument
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
@@ -258,6 +258,7 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
         elsewhere = [d for d in devices if d.requires_simulator]
         devices = [d for d in devices if not d.requires_simulator]
     elif simulators:
+        check_lockstep_loop()
         simulator = SIMULATORS.get(simulators[0])()
         options = SimulationOptions(
             scenario=args.scenario, speed=args.speed, seed=args.seed,
