@@ -73,7 +73,7 @@ from ubf_async.action import Action
 from ubf_async.aggregator import SourceEntry, StateAggregator, add_hook, run_hooks
 from ubf_async.behavior import Behavior, Composite, Trace
 from ubf_async.bus import Bus
-from ubf_async.clock import every
+from ubf_async.clock import Clock, WallClock, every
 from ubf_async.component import Component
 from ubf_async.protocol import clip
 from ubf_async.state import State
@@ -262,9 +262,14 @@ class Controller(Component):
         reflex_rate_hz: float | None = None,
         reflex_burst: int = 2,
         status_period_s: float = 0.5,
+        status_clock: Clock | None = None,
         name: str = "controller",
         **component_options: float,
     ) -> None:
+        """``status_clock``: what the status period is measured on — wall time by default
+        (what people and tools watch, even while a simulation stands still); the robot's
+        clock for a controller in a lockstep run, so that each status is of a simulated
+        instant, the same at any speed (a fleet's world collects them)."""
         super().__init__(bus=bus, name=name, **component_options)
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
@@ -284,6 +289,7 @@ class Controller(Component):
         self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
                                           now_ns=bus.clock.now_ns())
         self.status_period_s = status_period_s
+        self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
         self.stats = TickStats()
         self.last_action: Action | None = None
         self._last_drive_ns = 0
@@ -518,9 +524,9 @@ class Controller(Component):
         return self.root.quarantined() if isinstance(self.root, Composite) else []
 
     async def _publish_status(self) -> None:
-        # On robot time: in a simulation each status is of a simulated instant, the same at
-        # any speed (a fleet's world collects them, ubf_async.fleet).
-        async for _ in every(self.bus.clock, self.status_period_s):
+        periods = every(self.status_clock, self.status_period_s)
+        await anext(periods)  # now: the first status comes one period after the start
+        async for _ in periods:
             try:
                 self._status.publish(self.status())
             except Exception:  # the status is best effort: it must not stop the ticks

@@ -398,6 +398,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             bus=bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
             mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
             reflex_sources=settings.reflex,
+            # In lockstep each status is of a simulated instant (a fleet's world reads them).
+            status_clock=clock if args.lockstep else None,
         )
         remotes = RemoteBehaviors(
             bus=bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
