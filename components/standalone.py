@@ -45,7 +45,6 @@ from ubf_async.bus import (
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, ensure_name_free
-from ubf_async.errors import ConfigurationError
 from ubf_async.simulation import DeviceContext
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
@@ -194,9 +193,6 @@ class Device:
                                    hint=f"start it with another --name than {self.name!r}")
             await component.start()
             if self.lockstep:
-                if not clock.is_simulated:
-                    raise ConfigurationError(f"--lockstep: no simulator answered on "
-                                             f"{bus.keys.clock} (--clock {self.clock})")
                 participant = lockstep.LockstepParticipant(bus=bus, participant=component.name)
                 await participant.start()
             print(f"{component.name}: attached to robot {options.robot!r}"

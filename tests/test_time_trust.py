@@ -221,7 +221,7 @@ def test_a_driven_or_held_sim_clock_is_never_stalled_and_a_dead_one_is() -> None
 def test_a_followed_clock_is_kept_alive_by_its_simulators_samples_of_the_same_time(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A simulator in another process that holds time still sends its time again
-    (``HOLD_HEARTBEAT_S``): the same stamp is a sign of life, not a stall."""
+    (``lockstep.RESEND_S``): the same stamp is a sign of life, not a stall."""
     wall = [10 * S]
     monkeypatch.setattr(clock_module.time, "monotonic_ns", lambda: wall[0])
     clock = SimClock()

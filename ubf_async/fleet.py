@@ -60,7 +60,12 @@ from ubf_async.errors import ConfigurationError
 from ubf_async.protocol import Keys, ProtocolError
 from ubf_async.registry import SIMULATORS
 from ubf_async.robotfile import Robot, load_robot
-from ubf_async.simulation import FLAT_OUT, FleetMember, SimulationOptions
+from ubf_async.simulation import (
+    CONTROLLER_SUMMARY_FIELDS,
+    FLAT_OUT,
+    FleetMember,
+    SimulationOptions,
+)
 from ubf_async.topics import CONTROLLER_STATUS
 
 PROG = "python -m ubf_async.fleet"
@@ -390,9 +395,7 @@ def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argpars
         # The controller's figures as the world heard them in simulated time (the same at
         # any speed, in lockstep), else its last status heard here.
         heard = in_world.pop("controller", None) or status.robots[entry.name].status
-        s = {k: heard.get(k) for k in ("ticks", "periodic_rate_hz",
-                                        "periodic_jitter_robot_ms_p99", "overruns", "errors",
-                                        "winner_share")}
+        s = {field: heard.get(field) for field in CONTROLLER_SUMMARY_FIELDS}
         robots[entry.name] = {"robot_file": entry.robot_file, **s, **in_world}
         share = s.get("winner_share") or {}
         top = ", ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1]))

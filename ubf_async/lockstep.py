@@ -30,7 +30,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 
 from ubf_async import lending
@@ -49,8 +49,22 @@ JOIN_WAIT_S = 60.0
 """How long (wall time) a simulator told to wait for participants before time starts waits
 for them; then it starts without those missing, with a warning."""
 RESEND_S = 0.05
-"""While it waits, the simulator sends its clock sample again this often (wall time): a
-participant that missed it (it joined just then) gets it, and followers see it alive."""
+"""While it waits — for a hold, for participants — the simulator sends its clock sample
+again this often (wall time): a participant that missed it (it joined just then) gets it,
+and followers in other processes tell a simulator waiting on purpose from a dead one."""
+
+
+async def wait_resending(done: Awaitable[object], resend: Callable[[], None]) -> None:
+    """Await ``done``, calling ``resend()`` every :data:`RESEND_S` of wall time meanwhile."""
+    task = asyncio.ensure_future(done)
+    try:
+        while not task.done():
+            await asyncio.wait({task}, timeout=RESEND_S)
+            if not task.done():
+                resend()
+        task.result()
+    finally:
+        task.cancel()
 
 
 @dataclass(slots=True)
@@ -69,7 +83,6 @@ class LockstepBarrier:
     silence_s: float = SILENCE_S
     participants: dict[str, _Participant] = field(default_factory=dict)
     """By token key, the participants whose token is alive."""
-    dropped_total: int = 0
     _acks: dict[str, int] = field(default_factory=dict)
     changed: asyncio.Event = field(default_factory=asyncio.Event)
     """Set whenever a participant joins, leaves or acknowledges."""
@@ -131,7 +144,6 @@ class LockstepBarrier:
             if left <= 0:
                 for participant in missing:
                     participant.dropped = True
-                    self.dropped_total += 1
                     log.warning("lockstep: %s of robot %s did not acknowledge %.3f s within "
                                 "%g s of wall time: dropped from the barrier, the run goes on "
                                 "without waiting for it", participant.name, participant.robot,
@@ -155,16 +167,19 @@ class LockstepParticipant(Component):
     loop, which tells when the work of an instant is done."""
 
     def __init__(self, *, bus: Bus, participant: str, **component_options: float) -> None:
+        """Raises :class:`~ubf_async.errors.ConfigurationError` unless ``bus`` follows a
+        simulator's clock."""
         super().__init__(bus=bus, name=f"{participant}-lockstep", **component_options)
+        if not isinstance(bus.clock, SimClock):
+            raise ConfigurationError(f"--lockstep takes part in a simulated run: nothing "
+                                     f"here follows a simulator's clock on {bus.keys.clock}")
+        self.clock = bus.clock
         self.participant = participant
         self.key = LOCKSTEP_ACK.key(bus.keys, participant)  # validates the name
         self.acks = 0
 
     async def run(self) -> None:
-        clock = self.bus.clock
-        if not isinstance(clock, SimClock):
-            raise ConfigurationError("--lockstep takes part in a simulated run: it needs the "
-                                     "simulated clock (--clock sim, or --sim-time)")
+        clock = self.clock
         idle = lending.idle_waiter(asyncio.get_running_loop())
         if idle is None:
             raise ConfigurationError(

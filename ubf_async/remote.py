@@ -918,9 +918,6 @@ async def host_remote_behavior(
             print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
             out.flush()
         clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s)
-        if args.lockstep and not clock.is_simulated:
-            raise ConfigurationError(f"--lockstep: no simulator answered on {bus.keys.clock} "
-                                     f"within --clock-wait-s {args.clock_wait_s:g}")
         host = RemoteBehaviorHost(
             bus=bus, behavior=behavior, composite=args.composite, rate_hz=args.rate_hz,
             trigger=args.trigger, ttl_s=args.ttl_s, priority=args.priority,

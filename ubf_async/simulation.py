@@ -152,6 +152,10 @@ class Simulator(Protocol):
         ...
 
 
+CONTROLLER_SUMMARY_FIELDS = ("ticks", "periodic_rate_hz", "periodic_jitter_robot_ms_p99",
+                             "overruns", "errors", "winner_share")
+"""What a fleet's summary keeps of each robot's controller status (all in robot time)."""
+
 FLAT_OUT = "max"
 """How a user asks for a flat-out simulation (``--speed max``)."""
 

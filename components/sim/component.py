@@ -74,9 +74,6 @@ RTF_WINDOWS_KEPT = 14_400
 """The last hour of wall time's windows are kept (a bounded deque, ≈ 0.5 MB)."""
 STEP_LATENESS_KEPT = 12_000
 """The last minute of 5 ms steps' lateness is kept (a bounded deque, ≈ 0.4 MB)."""
-HOLD_HEARTBEAT_S = 0.05
-"""While a hold keeps simulated time still, the clock's time is sent again this often (wall
-time): followers in other processes tell a simulator waiting on purpose from a dead one."""
 
 
 @dataclass(slots=True, kw_only=True)
@@ -140,7 +137,7 @@ class SimulatorComponent(Component):
         self.rtf_windows: deque[float] = deque(maxlen=RTF_WINDOWS_KEPT)
         """Real-time factor over each successive ``RTF_WINDOW_S`` of wall time (the last
         ``RTF_WINDOWS_KEPT``): shows whether the run kept up throughout, not just on average."""
-        self._lockstep: lockstep.LockstepBarrier | None = None
+        self._lockstep = lockstep.LockstepBarrier((bus, *self.more_robots))
         self._idle: Callable[[], Awaitable[None]] | None = None
         self.step_lateness_s: deque[float] = deque(maxlen=STEP_LATENESS_KEPT)
         """How late each step started, in wall seconds after its due time (the last
@@ -188,9 +185,8 @@ class SimulatorComponent(Component):
                 "(lending.new_event_loop, the default of every entry point); UBF_LOOP=asyncio "
                 "or uvloop cannot tell when a step's work is done")
         self._idle = idle
-        buses = (self.bus, *self.more_robots)
-        served = [self._serve(bus, robot) for robot, bus in enumerate(buses)]
-        self._lockstep = lockstep.LockstepBarrier(buses)
+        served = [self._serve(bus, robot)
+                  for robot, bus in enumerate((self.bus, *self.more_robots))]
         for subscription in self._lockstep.open():
             self.keep(subscription)
         with self.clock.driven():
@@ -289,8 +285,8 @@ class SimulatorComponent(Component):
            nothing left to run (:meth:`~ubf_async.lending.LendingEventLoop.idle`) and no
            hold forbids ``next_ns`` (a camera render, a frame being written, a device
            getting ready) — while a hold keeps it waiting, the clock sample is sent again
-           every :data:`HOLD_HEARTBEAT_S` of wall time, so followers in other processes know
-           the simulator is alive (:class:`~ubf_async.clock.SilenceLimit`);
+           every :data:`~ubf_async.lockstep.RESEND_S` of wall time, so followers in other
+           processes know the simulator is alive (:class:`~ubf_async.clock.SilenceLimit`);
         2. the clock sample of this instant goes out to the processes that follow it — after
            the samples of this instant, which zenoh delivers first;
         3. every lockstep participant of another process has acknowledged this instant
@@ -305,17 +301,12 @@ class SimulatorComponent(Component):
             if held is None or held >= next_ns:
                 break
             waited = True
-            while True:
-                try:
-                    await asyncio.wait_for(self.clock.wait_for_holds(next_ns),
-                                           HOLD_HEARTBEAT_S)
-                    break
-                except TimeoutError:
-                    self._publish_clocks(served)
+            await lockstep.wait_resending(self.clock.wait_for_holds(next_ns),
+                                          lambda: self._publish_clocks(served))
         self._publish_clocks(served)
-        lockstep = self._lockstep
-        if lockstep is not None and lockstep.has_participants():
-            await lockstep.wait(self.clock.now_ns(), resend=lambda: self._publish_clocks(served))
+        if self._lockstep.has_participants():
+            await self._lockstep.wait(self.clock.now_ns(),
+                                      resend=lambda: self._publish_clocks(served))
             await idle()
         return waited
 
@@ -324,7 +315,6 @@ class SimulatorComponent(Component):
         and acknowledged the start (the clock sample is sent again meanwhile, so they find
         it), or :data:`~ubf_async.lockstep.JOIN_WAIT_S` has passed (then with a warning)."""
         barrier = self._lockstep
-        assert barrier is not None
         log.info("simulated time waits for %d lockstep participant(s)",
                  self.lockstep_participants)
         deadline = time.monotonic() + lockstep.JOIN_WAIT_S
@@ -347,10 +337,9 @@ class SimulatorComponent(Component):
     def _publish_clocks(self, served: list[_Served], *, force: bool = False) -> None:
         """The clock sample of now, to each robot's followers and participants (to each
         robot with ``force``)."""
-        barrier = self._lockstep
         for robot in served:
-            if force or robot.clock_followed or (
-                    barrier is not None and barrier.has_participants(robot.bus.robot)):
+            if (force or robot.clock_followed
+                    or self._lockstep.has_participants(robot.bus.robot)):
                 self._publish_clock(robot)
 
 

@@ -27,6 +27,7 @@ from ubf_async.component import Component
 from ubf_async.errors import ConfigurationError, ScenarioError
 from ubf_async.heap import freeze_startup_objects
 from ubf_async.simulation import (
+    CONTROLLER_SUMMARY_FIELDS,
     DeviceContext,
     FleetMember,
     SimulationOptions,
@@ -72,11 +73,6 @@ def found(snapshot: WorldSnapshot) -> bool:
     bearing = math.degrees(math.atan2(dy, dx) - robot.heading_rad)
     bearing = (bearing + 180.0) % 360.0 - 180.0
     return math.hypot(dx, dy) <= FOUND_DISTANCE_M and abs(bearing) <= FOUND_BEARING_DEG
-
-
-CONTROLLER_FIELDS = ("ticks", "periodic_rate_hz", "periodic_jitter_robot_ms_p99", "overruns",
-                     "errors", "winner_share")
-"""What the world's summary keeps of each controller's newest status (all in robot time)."""
 
 
 def _keep_status(statuses: list[dict[str, Any]], index: int, malformed: dict[str, int]
@@ -172,7 +168,8 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                 "end": {"x_m": e.x_m, "y_m": e.y_m, "heading_deg": math.degrees(e.heading_rad)},
                 "travelled_m": travelled[i],
                 "found_s": found_s[i],
-                "controller": {field: statuses[i].get(field) for field in CONTROLLER_FIELDS},
+                "controller": {field: statuses[i].get(field)
+                               for field in CONTROLLER_SUMMARY_FIELDS},
             }
             for i, (member, s, e) in enumerate(zip(members, start_poses, ends, strict=True))
         },
