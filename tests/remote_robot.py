@@ -141,7 +141,7 @@ class Process:
                 raise AssertionError(f"{self.argv[:2]} exited ({self.proc.poll()}) before "
                                      f"printing {text!r}; output:\n" + "\n".join(self.lines))
             if text in line:
-                return line
+                return line.rstrip("\n")  # as the lines already read are kept
 
     @property
     def pid(self) -> int:
