@@ -2,10 +2,17 @@
 
 * The first Ctrl-C (SIGINT) or SIGTERM stops it cleanly: the main task is cancelled, so its
   ``finally`` blocks close components and sessions (and launch saves the run's results).
+* The stop is bounded: a program still running :data:`STOP_BOUND_S` after the first signal
+  exits as a second signal makes it.
 * A second Ctrl-C or SIGTERM exits at once with status 130, whatever the shutdown is stuck on
   — a write that blocks, a zenoh call that never returns, a thread the interpreter would wait
-  for at exit. It is noticed by a thread of its own (through :func:`signal.set_wakeup_fd`), so
-  it works even when the main thread is stuck inside a C call.
+  for at exit — after giving what must be finished (a recording's index:
+  :func:`ubf_async.ending.on_exit_now`) :data:`EXIT_NOW_BUDGET_S`. It is noticed by a thread
+  of its own (through :func:`signal.set_wakeup_fd`), so it works even when the main thread is
+  stuck inside a C call.
+* stdout and stderr cannot fail the program (:class:`~ubf_async.ending.SafeStream`): when
+  their reader goes away the output is dropped, the run goes on, its end writes its results,
+  and the exit status is 2.
 * A connection or configuration problem (any :class:`~ubf_async.errors.UbfError`) is one
   clear line on stderr with exit status 2. This is the only place an error becomes an exit
   status.
@@ -16,6 +23,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import logging
 import math
 import os
 import signal
@@ -23,9 +31,9 @@ import sys
 import threading
 from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
-from typing import Any, TypeVar
+from typing import Any, TextIO, TypeVar, cast
 
-from ubf_async import lending, simulation
+from ubf_async import ending, lending, simulation
 from ubf_async.errors import ConfigurationError, UbfError
 
 T = TypeVar("T")
@@ -36,6 +44,11 @@ EXIT_INTERRUPTED = 130
 """Stopped at once by a second Ctrl-C/SIGTERM (the shell's 128 + SIGINT)."""
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+STOP_BOUND_S = 5.0
+"""How long a program may take to stop after the first Ctrl-C/SIGTERM (docs: README)."""
+EXIT_NOW_BUDGET_S = 1.0
+"""Wall time an immediate exit gives to what must be finished (a recording's index)."""
 
 
 class StopGuard:
@@ -49,9 +62,11 @@ class StopGuard:
     place, so a second signal still exits if the interpreter hangs on its way out.
     """
 
-    def __init__(self, *, prog: str, flush_timeout_s: float = 0.5) -> None:
+    def __init__(self, *, prog: str, flush_timeout_s: float = 0.5,
+                 stop_bound_s: float = STOP_BOUND_S) -> None:
         self.prog = prog
         self.flush_timeout_s = flush_timeout_s
+        self.stop_bound_s = stop_bound_s
         self.signals = 0
         """Stop signals received so far (counted by the watcher thread)."""
         self._on_first: Callable[[], None] | None = None
@@ -115,19 +130,37 @@ class StopGuard:
                 self.signals += 1
                 if self.signals == 1:
                     self._say(f"{self.prog}: stopping (press Ctrl-C again to quit at once)\n")
+                    overdue = threading.Timer(self.stop_bound_s, self._overdue, args=(signum,))
+                    overdue.daemon = True
+                    overdue.start()
                 else:
                     self.exit_now(signum)
 
-    def _say(self, text: str) -> None:
-        with contextlib.suppress(OSError):
-            os.write(2, text.encode(errors="replace"))  # no Python-level lock to get stuck on
+    def _overdue(self, signum: int) -> None:
+        self._say(f"{self.prog}: not stopped {self.stop_bound_s:g} s after "
+                  f"{signal.Signals(signum).name}: exiting now\n")
+        self.exit_now(signum, again=False)
 
-    def exit_now(self, signum: int) -> None:
-        """Flush stdout/stderr (giving up after ``flush_timeout_s``) and ``os._exit(130)``."""
+    def _say(self, text: str) -> None:
+        try:
+            os.write(2, text.encode(errors="replace"))  # no Python-level lock to get stuck on
+        except OSError as exc:
+            self.unsaid = exc
+
+    unsaid: OSError | None = None
+    """Why a message of the guard could not be written to stderr (the exit status says so)."""
+
+    def exit_now(self, signum: int, *, again: bool = True) -> None:
+        """Finish what must be (:func:`ubf_async.ending.exit_now`, within
+        :data:`EXIT_NOW_BUDGET_S`), flush stdout/stderr (giving up after ``flush_timeout_s``)
+        and ``os._exit(130)``."""
         if not self._exiting.acquire(blocking=False):
             threading.Event().wait()  # another thread is exiting the process right now
-        name = signal.Signals(signum).name
-        self._say(f"{self.prog}: {name} again: exiting now, without finishing the shutdown\n")
+        if again:
+            name = signal.Signals(signum).name
+            self._say(f"{self.prog}: {name} again: exiting now, without finishing the "
+                      f"shutdown\n")
+        ending.exit_now(EXIT_NOW_BUDGET_S)
 
         def flush() -> None:
             for stream in (sys.stdout, sys.stderr):
@@ -188,15 +221,47 @@ def run_loop(main: Coroutine[Any, Any, T]) -> T:
         return runner.run(main)
 
 
-def run_main(main: Callable[[], Awaitable[int]], *, prog: str) -> int:
-    """Run ``main()`` in a new event loop under a :class:`StopGuard`; return the exit status:
-    ``main``'s, 0 when stopped by a first signal, 2 for a :class:`UbfError` (or a
-    ``ConnectionError``/``ValueError``, printed as one line), 130 when interrupted before the
-    loop ran."""
-    guard = StopGuard(prog=prog)
+def run_main(main: Callable[[], Awaitable[int]], *, prog: str,
+             stop_bound_s: float = STOP_BOUND_S) -> int:
+    """Run ``main()`` in a new event loop under a :class:`StopGuard`, with stdout and stderr
+    as :class:`~ubf_async.ending.SafeStream` (``main`` reads ``sys.stdout`` when called, not
+    at import); return the exit status: ``main``'s, 0 when stopped by a first signal, 2 for a
+    :class:`UbfError` (or a ``ConnectionError``/``ValueError``, printed as one line) or when
+    stdout or stderr could not be written, 130 when interrupted before the loop ran."""
+    streams = (ending.SafeStream(sys.stdout, "stdout"), ending.SafeStream(sys.stderr, "stderr"))
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = cast(TextIO, streams[0]), cast(TextIO, streams[1])
+    # The log goes to stderr too: through the same stream, so a lost log line counts.
+    handlers = [h for h in logging.getLogger().handlers
+                if isinstance(h, logging.StreamHandler) and h.stream is saved[1]]
+    for handler in handlers:
+        handler.setStream(sys.stderr)
+    guard = StopGuard(prog=prog, stop_bound_s=stop_bound_s)
+    try:
+        code = _run_guarded(main, guard, prog=prog)
+        for stream in streams:
+            stream.flush()
+    finally:
+        sys.stdout, sys.stderr = saved
+        for handler in handlers:
+            handler.setStream(saved[1])
+    errors = [(s.name, s.error) for s in streams if s.error is not None]
+    if guard.unsaid is not None and streams[1].error is None:
+        errors.append(("stderr", guard.unsaid))
+    lost = [f"{name}: {getattr(error, 'strerror', None) or error}" for name, error in errors]
+    if lost and code == 0:
+        with contextlib.suppress(OSError, ValueError):
+            print(f"{prog}: output lost ({'; '.join(lost)})", file=sys.stderr)
+        return EXIT_ERROR
+    return code
+
+
+def _run_guarded(main: Callable[[], Awaitable[int]], guard: StopGuard, *, prog: str) -> int:
 
     async def runner() -> int:
         loop = asyncio.get_running_loop()
+        # A thread stuck in a write cannot hold the exit (asyncio's own executor would).
+        loop.set_default_executor(ending.DaemonExecutor(bound_s=EXIT_NOW_BUDGET_S))
         task = asyncio.current_task()
         assert task is not None
 

@@ -38,7 +38,7 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -46,7 +46,7 @@ from typing import IO, Any
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from ubf_async import __version__
+from ubf_async import __version__, ending
 from ubf_async.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.bus import (
     Bus,
@@ -69,6 +69,11 @@ GENERIC_SCHEMA_NAME = "ubf.generic"
 DEFAULT_FLUSH_S = 1.0
 DEFAULT_MAX_QUEUE = 20_000
 DEFAULT_CHUNK_BYTES = 1 << 20
+DEFAULT_DRAIN_S = 2.0
+"""How long closing a recorder waits for the disk to take what is queued (part of a bounded
+stop: ubf_async.cli.STOP_BOUND_S); the rest is dropped, counted, and the file finished."""
+ABANDON_S = 0.5
+"""How long finishing the file (its index) may then take."""
 
 
 def envelope_schema(topic: Topic[Any] | None) -> dict[str, Any]:
@@ -147,8 +152,10 @@ class McapRecorder(Component):
     def __init__(self, *, bus: Bus, out: Path, name: str = "recorder",
                  flush_s: float = DEFAULT_FLUSH_S, split_bytes: int | None = None,
                  max_queue: int = DEFAULT_MAX_QUEUE, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                 on_flush: Any = None, live_channels: bool = True) -> None:
+                 on_flush: Any = None, live_channels: bool = True,
+                 drain_s: float = DEFAULT_DRAIN_S) -> None:
         super().__init__(bus=bus, name=name)
+        self.drain_s = drain_s
         if not flush_s > 0:
             raise ConfigurationError(f"flush_s must be > 0, got {flush_s}")
         if split_bytes is not None and split_bytes < 1 << 16:
@@ -160,7 +167,10 @@ class McapRecorder(Component):
         self.stats = RecorderStats()
         self._queue: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=max_queue)
         self._stop = threading.Event()
+        self._abandon = threading.Event()
+        """Finish the file now, dropping what is still queued (an exit that cannot wait)."""
         self._thread: threading.Thread | None = None
+        self._unregister_exit_now: Callable[[], None] | None = None
         self._on_flush = on_flush
         """Called on the writer thread after each flush with the stats (progress output)."""
         self.live_view = LiveView(robot_prefix=bus.keys.prefix) if live_channels else None
@@ -175,6 +185,8 @@ class McapRecorder(Component):
             self._thread = threading.Thread(target=self._write_all, name=f"{self.name}:mcap",
                                             daemon=True)
             self._thread.start()
+            # Even a process that exits at once (a second Ctrl-C) leaves a finished file.
+            self._unregister_exit_now = ending.on_exit_now(self._finish_now)
         await super().start()
 
     async def run(self) -> None:
@@ -191,6 +203,14 @@ class McapRecorder(Component):
                 log.warning("%s: the writer is behind; %d messages dropped so far", self.name,
                             self.stats.dropped)
 
+    def _finish_now(self, timeout_s: float) -> None:
+        """For :func:`ubf_async.ending.exit_now` (another thread): finish the file at once."""
+        self._abandon.set()
+        self._stop.set()
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+
     @property
     def queued(self) -> int:
         """Messages received and not yet written (what a kill now would lose besides the
@@ -198,13 +218,25 @@ class McapRecorder(Component):
         return self._queue.qsize()
 
     async def aclose(self) -> None:
+        """Stop receiving, write what is queued — for at most ``drain_s``: past it the rest
+        is dropped (counted) — and finish the file with its index."""
         if self.closed:
             return
         await super().aclose()  # no more messages arrive
         self._stop.set()
-        if self._thread is not None:
-            await asyncio.to_thread(self._thread.join)
+        thread = self._thread
+        if thread is not None:
+            await asyncio.to_thread(thread.join, self.drain_s)
+            if thread.is_alive():
+                left = self._queue.qsize()
+                log.warning("%s: the disk did not take the last %d messages within %g s: "
+                            "finishing the file without them", self.name, left, self.drain_s)
+                self.stats.dropped += left
+                self._abandon.set()
+                await asyncio.to_thread(thread.join, ABANDON_S)
             self._thread = None
+        if self._unregister_exit_now is not None:
+            self._unregister_exit_now()
         if self.stats.dropped:
             log.warning("%s: %d of %d messages dropped (the writer could not keep up)",
                         self.name, self.stats.dropped, self.stats.received)
@@ -229,7 +261,8 @@ class McapRecorder(Component):
                     if self.split_bytes is not None and file.size() >= self.split_bytes:
                         file.finish()
                         file = _File(self, len(self.stats.files))
-                if item is None and self._stop.is_set() and self._queue.empty():
+                if self._abandon.is_set() or (item is None and self._stop.is_set()
+                                              and self._queue.empty()):
                     break
         except OSError as exc:
             self.stats.error = str(exc)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
-from concurrent.futures import ThreadPoolExecutor
 from typing import Annotated
 
 import msgspec
@@ -35,6 +34,7 @@ import msgspec
 from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
 from components.camera.view import DEFAULT_VIEW_SCALE, draw_view, encode_jpeg
+from ubf_async import ending
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.component import Component
 from ubf_async.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
@@ -44,9 +44,10 @@ OV9655_LATENCY_S = 0.11
 log = logging.getLogger(__name__)
 
 
-_RENDERS = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ubf-render")
-"""The one thread of the process where backends whose capture is CPU work in Python (a
-simulated camera rendering: ``renders_in_python = True``) capture, one at a time. Several
+_RENDERS = ending.DaemonExecutor(bound_s=1.0, name="ubf-render", one_at_a_time=True)
+"""Where backends whose capture is CPU work in Python (a simulated camera rendering:
+``renders_in_python = True``) capture, one at a time, each in a daemon thread (a render that
+never returns cannot hold the process's exit). Several
 renders in parallel threads only contend for the GIL, and the event loop waits for it too: a
 fleet's world with 8 cameras stalled its steps by up to 30 ms (tick jitter p99 30 ms), with
 one render thread 5 ms (docs/fleet.md). A simulated camera now renders in a render process
