@@ -284,21 +284,39 @@ async def spawn(args: Sequence[str], log: Path) -> asyncio.subprocess.Process:
     with log.open("wb") as sink:  # the child keeps its own descriptor
         return await asyncio.create_subprocess_exec(
             sys.executable, *args, stdout=sink, stderr=asyncio.subprocess.STDOUT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            # Its own process group: a Ctrl-C at the terminal reaches the launcher only, which
+            # stops each child once (a second signal would make a child exit at once).
+            start_new_session=True)
 
 
-async def stop(proc: asyncio.subprocess.Process, *, grace_s: float = 10.0) -> int:
-    """SIGTERM (a launch saves its results), then SIGKILL after ``grace_s``."""
-    if proc.returncode is None:
+CHILD_STOP_S = 4.0
+"""How long the launcher waits for its children after SIGTERM before SIGKILL: long enough for
+a launch to save its results (it takes under a second; its own bound is 5 s)."""
+FLEET_STOP_BOUND_S = CHILD_STOP_S + 2.0
+"""The launcher's stop bound: its children's wait, then the router's (docs/fleet.md)."""
+
+
+async def stop_all(procs: dict[str, asyncio.subprocess.Process], *,
+                   grace_s: float = CHILD_STOP_S) -> list[str]:
+    """SIGTERM to every child still running (a launch saves its results), wait for them all
+    at most ``grace_s``, SIGKILL those still there and say which; return their names."""
+    running = {name: proc for name, proc in procs.items() if proc.returncode is None}
+    for proc in running.values():
         with contextlib.suppress(ProcessLookupError):
             proc.send_signal(signal.SIGTERM)
-        try:
-            await asyncio.wait_for(proc.wait(), grace_s)
-        except TimeoutError:
-            with contextlib.suppress(ProcessLookupError):
-                proc.kill()
-            await proc.wait()
-    return proc.returncode if proc.returncode is not None else -1
+    if running:
+        await asyncio.wait([asyncio.ensure_future(p.wait()) for p in running.values()],
+                           timeout=grace_s)
+    killed = [name for name, proc in running.items() if proc.returncode is None]
+    for name in killed:
+        with contextlib.suppress(ProcessLookupError):
+            running[name].kill()
+        await running[name].wait()
+    if killed:
+        print(f"fleet: {', '.join(killed)} did not stop within {grace_s:g} s of SIGTERM: "
+              f"killed (SIGKILL)", file=sys.stderr)
+    return killed
 
 
 async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
@@ -355,15 +373,14 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
         return await asyncio.to_thread(finish, fleet, status, world_summary, args, out,
                                        world.returncode or 0)
     finally:
+        # The controllers and the world together (a world in lockstep stops waiting for a
+        # controller that is gone), the router once they have left it.
+        router_proc = procs.pop("router", None)
+        await stop_all(procs)
         if tool is not None:
             await tool.aclose()
-        for name, proc in procs.items():
-            if name not in ("router", "world"):
-                await stop(proc)
-        if "world" in procs:
-            await stop(procs["world"])
-        if "router" in procs:
-            await stop(procs["router"])
+        if router_proc is not None:
+            await stop_all({"router": router_proc}, grace_s=1.0)
 
 
 async def open_when_up(router: str, *, robot: str, timeout_s: float) -> Bus:
@@ -480,7 +497,8 @@ async def main_async(args: argparse.Namespace, out: TextIO) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return run_main(lambda: main_async(args, sys.stdout), prog=PROG)
+    return run_main(lambda: main_async(args, sys.stdout), prog=PROG,
+                    stop_bound_s=FLEET_STOP_BOUND_S)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import io
 import json
 import logging
 import sys
@@ -36,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from ubf_async import __version__, lockstep
+from ubf_async import __version__, ending, lockstep
 from ubf_async.aggregator import StateAggregator
 from ubf_async.bus import (
     DEFAULT_LISTEN,
@@ -314,10 +315,8 @@ class ResultsNotSavedError(UbfError, OSError):
 async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     """Run the planned robot until ``--duration``, SIGTERM or Ctrl-C.
 
-    Whatever ends the run (an error too), the shutdown saves the results, then closes every
-    component and the session, each step even if an earlier one failed. Results that cannot
-    be written are printed (see :func:`save_results`) and end in
-    :class:`ResultsNotSavedError` (exit status 2)."""
+    Whatever ends the run (an error too), :func:`_end` saves the results, then closes every
+    component and the session, each step bounded and done even if an earlier one failed."""
     robot = plan.robot
     simulated = plan.simulator is not None
     clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
@@ -436,75 +435,78 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
         return 0
     finally:
-        failure = None
-        if sim_run is not None and controller is not None:
-            failure = await save_results(sim_run, controller, out)
-        await _close_all(components, health, bus)
-        if recorder is not None:
-            stats = recorder.stats
-            print(f"  recorded {stats.written} messages"
-                  + (f" and {stats.live} in the live view's Foxglove channels"
-                     if stats.live else "")
-                  + f" to {', '.join(str(p) for p in stats.files)}"
-                  + (f" ({stats.dropped} dropped: the disk did not keep up)"
-                     if stats.dropped else "")
-                  + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
-        if live is not None:
-            print(f"  live view: {live.stats.summary()}", file=out)
-        print("ubf_async: stopped", file=out)
+        await _end(sim_run, controller, components, health, bus, recorder, live, out)
+
+
+RESULTS_BOUND_S = 3.0
+"""Wall time the end gives to writing the run's summary and recording (the summary first)."""
+CLOSE_BOUND_S = 2.5
+"""Wall time the end gives to closing one component (a recorder drains its queue: it has
+:data:`~ubf_async.record.DEFAULT_DRAIN_S`) or the zenoh session."""
+
+
+class ShutdownError(UbfError):
+    """A step of the end failed (logged as it happened); everything else was still done."""
+
+
+async def _end(sim_run: SimulationRun | None, controller: Controller | None,
+               components: list[Component], health: HealthMonitor, bus: Bus,
+               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO) -> None:
+    """The end of a run, whatever ended it (:class:`~ubf_async.ending.Ending`): the results
+    written, every component closed (last started first: the recorder sees everything), the
+    session closed — each step bounded, each done even if one before failed — and only then
+    the report printed. Results that could not be written are printed instead
+    (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`
+    (exit status 2 either way)."""
+    end = ending.Ending(log)
+    report = io.StringIO()  # printed last: a console that went away cannot cost a result
+    unsaved = False
+    if sim_run is not None and controller is not None:
+        print("  saving the run's results ...", file=out)
         out.flush()
-        if failure is not None:
-            raise ResultsNotSavedError(f"the run's results were not saved: {failure}; its "
-                                       f"summary was printed above instead")
-
-
-async def save_results(sim_run: SimulationRun, controller: Controller, out: TextIO
-                       ) -> str | None:
-    """End the simulated run and write its summary and recording (``sim_run.finish``).
-
-    If that fails — a full disk, a folder removed during the run, a Ctrl-C while a write is
-    stuck — the results are not lost: the summary is printed on ``out`` as JSON (the error's
-    ``summary`` if it carries one, else the run's own ``summary()``) and what failed is
-    returned; ``None`` when everything was written."""
-    print("  saving the run's results ...", file=out)
-    out.flush()
-    try:
-        await sim_run.finish(controller, out)
-        return None
-    except (Exception, asyncio.CancelledError) as exc:  # never lose the results
-        interrupted = isinstance(exc, asyncio.CancelledError)
-        failure = ("interrupted while writing them" if interrupted
-                   else f"{type(exc).__name__}: {exc}")
-        log.debug("finishing the simulated run failed", exc_info=True)
-        summary = getattr(exc, "summary", None)
-    if summary is None:
-        summarize = getattr(sim_run, "summary", None)
-        try:
-            summary = summarize(controller) if callable(summarize) else None
-        except Exception as again:
-            failure += f"; the summary could not be made either: {again}"
-    print(f"ubf_async: error: could not save the run's results ({failure})", file=sys.stderr)
-    if summary is not None:
-        print("ubf_async: the run's summary, not saved:", file=out)
-        print(json.dumps(summary, indent=2, default=str), file=out)
-    out.flush()
-    return failure
-
-
-async def _close_all(components: list[Component], health: HealthMonitor, bus: Bus) -> None:
-    """Close the components (last started first), the health monitor and the session; a
-    step that fails is logged and the others still run (a session left open would keep the
-    process from exiting)."""
+        run = sim_run
+        unsaved = await end.step("saving the run's results",
+                                 lambda: run.finish(controller, report),
+                                 bound_s=RESULTS_BOUND_S) is None
     for component in reversed(components):
-        try:
-            await component.aclose()
-        except Exception:
-            log.exception("closing component %s failed", component.name)
+        await end.step(f"closing {component.name}", component.aclose, bound_s=CLOSE_BOUND_S)
     health.close()
+    await end.step("closing the zenoh session", bus.aclose, bound_s=CLOSE_BOUND_S,
+                   overrun_is_failure=False)
+    out.write(report.getvalue())
+    if recorder is not None:
+        stats = recorder.stats
+        print(f"  recorded {stats.written} messages"
+              + (f" and {stats.live} in the live view's Foxglove channels"
+                 if stats.live else "")
+              + f" to {', '.join(str(p) for p in stats.files)}"
+              + (f" ({stats.dropped} dropped: the disk did not keep up)"
+                 if stats.dropped else "")
+              + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
+    if live is not None:
+        print(f"  live view: {live.stats.summary()}", file=out)
+    if unsaved and sim_run is not None and controller is not None:
+        print_unsaved_summary(sim_run, controller, end, out)
+    print("ubf_async: stopped", file=out)
+    out.flush()
+    if unsaved:
+        raise ResultsNotSavedError(f"could not save the run's results ({end.failures[0]}); "
+                                   f"its summary was printed instead")
+    if not end.ok:
+        raise ShutdownError(f"the run ended, but {'; '.join(end.failures)}")
+
+
+def print_unsaved_summary(sim_run: SimulationRun, controller: Controller,
+                          end: ending.Ending, out: TextIO) -> None:
+    """The results were not written (a full disk, a folder removed during the run, a write
+    stuck past its bound): print the summary as JSON so they are not lost."""
     try:
-        await bus.aclose()
-    except Exception:
-        log.exception("closing the zenoh session failed")
+        summary = sim_run.summary(controller)
+    except Exception as exc:
+        end.fail("making the run's summary", f"{type(exc).__name__}: {exc}")
+        return
+    print("ubf_async: the run's summary, not saved:", file=out)
+    print(json.dumps(summary, indent=2, default=str), file=out)
 
 
 async def _run_until_done(
@@ -596,7 +598,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print_plan(plan)
         return 0
     log.info("ubf_async %s", __version__)
-    return run_main(lambda: run_robot(plan, args), prog=PROG)
+    # sys.stdout read at run time: run_main makes it a stream that cannot fail the end.
+    return run_main(lambda: run_robot(plan, args, sys.stdout), prog=PROG)
 
 
 if __name__ == "__main__":

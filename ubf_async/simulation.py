@@ -107,7 +107,12 @@ class SimulationRun(Protocol):
         ...
 
     async def finish(self, controller: Controller, out: TextIO) -> dict[str, Any]:
-        """Stop, write the summary and recording asked for, return the summary."""
+        """Stop, write the summary and recording asked for, return the summary; what it
+        reports goes to ``out`` after everything is written."""
+        ...
+
+    def summary(self, controller: Controller) -> dict[str, Any]:
+        """The run's summary as it stands (what launch prints when :meth:`finish` failed)."""
         ...
 
 

@@ -12,6 +12,7 @@ controllers, in their own processes, follow it.
 
 from __future__ import annotations
 
+import asyncio
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -134,16 +135,20 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
             # Simulated time stops exactly at the end, however late this task notices it.
             clock.hold(end_ns)
         last = [(p.x_m, p.y_m) for p in start_poses]
-        while end_ns is None or clock.now_ns() < end_ns:
-            # Sample the paths every 0.1 simulated seconds (distance travelled per robot).
-            await clock.sleep(0.1)
-            for i in range(world.robot_count):
-                snapshot = world.snapshot_for(i)
-                now = snapshot.robot
-                travelled[i] += math.hypot(now.x_m - last[i][0], now.y_m - last[i][1])
-                last[i] = (now.x_m, now.y_m)
-                if found_s[i] is None and snapshot.ball is not None and found(snapshot):
-                    found_s[i] = world.time_s - start_s
+        try:
+            while end_ns is None or clock.now_ns() < end_ns:
+                # Sample the paths every 0.1 simulated seconds (distance travelled per robot).
+                await clock.sleep(0.1)
+                for i in range(world.robot_count):
+                    snapshot = world.snapshot_for(i)
+                    now = snapshot.robot
+                    travelled[i] += math.hypot(now.x_m - last[i][0], now.y_m - last[i][1])
+                    last[i] = (now.x_m, now.y_m)
+                    if found_s[i] is None and snapshot.ball is not None and found(snapshot):
+                        found_s[i] = world.time_s - start_s
+        except asyncio.CancelledError:
+            # Stopped (SIGTERM, Ctrl-C): the run so far is still summarised and saved.
+            print(f"world: stopped at {world.time_s:.1f} simulated s", file=out, flush=True)
         # What the controllers had said by the end's instant (statuses of the end itself
         # would come after it, while closing: not waited for).
         statuses = [dict(status) for status in statuses]

@@ -336,7 +336,10 @@ class SimulationRun:
             self.frames_written += 1
 
     async def finish(self, controller: Controller, out: TextIO) -> dict[str, Any]:
-        """Stop sampling; write the summary and recording; return the summary."""
+        """Stop sampling; write the summary, then the recording; return the summary. What
+        it reports goes to ``out`` once everything is written: the summary first (the result a
+        script waits for), the recording after, so a run stopped while its end writes loses
+        the least."""
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
@@ -347,36 +350,46 @@ class SimulationRun:
             self._audited_encoders.update_hooks.remove(self._audit)
         self._take_sample(controller)
         summary = self.summary(controller)
-        if self.options.record_dir is not None:
-            folder = self.options.record_dir
+        folder = self.options.record_dir
+        if folder is not None:
             await self._csv_written()  # the batch in flight lands before the rest
+            summary["recording"] = self._recording_summary(folder)
+        summary = rounded(summary)
+        await self._write_summary(summary)
+        report = []
+        if folder is not None:
             rest = self._csv.take() if self._csv is not None else []
             try:
                 await asyncio.to_thread(self._write_recording, folder, rest)
-            except OSError as exc:  # the summary is still written
+            except OSError as exc:  # the summary is written
                 log.error("recording in %s: %s", folder, exc)
                 self._recording_errors.append(str(exc))
-            summary["recording"] = {"dir": str(folder), "trajectory_csv": "trajectory.csv",
-                                    "trajectory_png": "trajectory.png",
-                                    "frames": [p.name for p in self.frames],
-                                    "frames_written": self.frames_written,
-                                    "errors": self._recording_errors}
-            print(f"  recorded {self.trajectory.count} samples and {self.frames_written} "
-                  f"frames in {folder}", file=out)
-        summary = rounded(summary)
+            summary["recording"] = self._recording_summary(folder)
+            await self._write_summary(summary)  # again: with the last frame, and what failed
+            report.append(f"  recorded {self.trajectory.count} samples and "
+                          f"{self.frames_written} frames in {folder}")
         expected = summary.get("expected")
         if expected is not None:
             failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
             verdict = ("not checked (the scenario gives no criteria)" if expected["pass"] is None
                        else "met" if not failed else f"NOT met ({', '.join(failed)})")
-            print(f"  expected: {expected['outcome']} — {verdict}", file=out)
-        for warning in summary["warnings"]:
-            print(f"  warning: {warning}", file=out)
+            report.append(f"  expected: {expected['outcome']} — {verdict}")
+        report += [f"  warning: {warning}" for warning in summary["warnings"]]
+        if self.options.summary_path is not None:
+            report.append(f"  summary written to {self.options.summary_path}")
+        for line in report:
+            print(line, file=out)
+        return summary
+
+    def _recording_summary(self, folder: Path) -> dict[str, Any]:
+        return {"dir": str(folder), "trajectory_csv": "trajectory.csv",
+                "trajectory_png": "trajectory.png", "frames": [p.name for p in self.frames],
+                "frames_written": self.frames_written, "errors": list(self._recording_errors)}
+
+    async def _write_summary(self, summary: dict[str, Any]) -> None:
         if self.options.summary_path is not None:
             text = json.dumps(summary, indent=2, ensure_ascii=False)
             await asyncio.to_thread(self.options.summary_path.write_text, text, "utf-8")
-            print(f"  summary written to {self.options.summary_path}", file=out)
-        return summary
 
     def _write_recording(self, folder: Path, rest: list[TrajectorySample]) -> None:
         if self._csv is not None:
