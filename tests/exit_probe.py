@@ -1,0 +1,52 @@
+"""Run an entry point as ``python -m MODULE ARGS`` would, then record the threads still alive
+when it returned: ``python -m tests.exit_probe OUT.json MODULE ARGS...``.
+
+Its exit status is the entry point's. ``OUT.json`` lists each live thread other than the main
+one (name, daemon); a non-daemon one would keep the process from exiting. ``--fault-aclose
+DOTTED.Class`` (before MODULE) makes that component class's ``aclose`` raise after closing, to
+show that one failing step does not skip the rest of the end."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import runpy
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+
+def fault_aclose(dotted: str) -> None:
+    module_name, _, class_name = dotted.rpartition(".")
+    cls: Any = getattr(importlib.import_module(module_name), class_name)
+    closing = cls.aclose
+
+    async def aclose(self: Any) -> None:
+        await closing(self)
+        raise RuntimeError(f"{class_name}.aclose failed (a fault injected by the test)")
+
+    cls.aclose = aclose
+
+
+def main() -> int:
+    args = sys.argv[1:]
+    out = Path(args.pop(0))
+    if args[0] == "--fault-aclose":
+        args.pop(0)
+        fault_aclose(args.pop(0))
+    module = args.pop(0)
+    sys.argv = [module, *args]
+    code: Any = 0
+    try:
+        runpy.run_module(module, run_name="__main__", alter_sys=True)
+    except SystemExit as exc:
+        code = exc.code
+    threads = [{"name": t.name, "daemon": t.daemon} for t in threading.enumerate()
+               if t is not threading.main_thread() and t.is_alive()]
+    out.write_text(json.dumps(threads))
+    return code if isinstance(code, int) else (0 if code is None else 1)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
