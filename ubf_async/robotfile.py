@@ -172,8 +172,10 @@ class ControllerSpec(Spec):
     trigger: Annotated[str, msgspec.Meta(min_length=1, max_length=128)] | None = None
     """Event mode ticks on each sample of this source."""
     stale_after_s: dict[str, Annotated[float, msgspec.Meta(gt=0.0)]] = {}
-    """Per source: a sample older than this is stale (default: 2 of its declared periods)."""
+    """Per source: stale when no sample has arrived for this long (default: 1.5× the period its
+    samples declare, :data:`ubf_async.aggregator.STALE_PERIODS`)."""
     default_stale_after_s: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    """For sources that declare no period (events): stale after this long (default: never)."""
 
     def __post_init__(self) -> None:
         if self.mode == "event" and self.trigger is None:
