@@ -27,3 +27,19 @@ class Spin(Behavior):
 def not_a_behavior() -> str:
     """A factory that returns the wrong thing (robot files must refuse it)."""
     return "surprise"
+
+
+class SpinWhenClose(Behavior):
+    """A behaviour whose factory names it (``spin_when_close``, not its class name)."""
+
+    def __init__(self, *, name: str = "spin_when_close", turn: float = 60.0) -> None:
+        super().__init__(name=name)
+        self.turn = turn
+
+    def act(self, state: State) -> Action | None:
+        return Action(speed=0.0, turn=self.turn)
+
+
+def needs_a_name(*, name: str) -> Behavior:
+    """A factory that requires a name: the loader gives it the one it is referenced by."""
+    return SpinWhenClose(name=name)

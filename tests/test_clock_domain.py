@@ -25,6 +25,7 @@ from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.clock import SimClock
 from ubf_async.clockdomain import ClockDomainWatch, foreign_clock
 from ubf_async.controller import Controller
+from ubf_async.inspector import format_clock_domain
 from ubf_async.ordering import Refusal
 from ubf_async.protocol import Message, decode
 from ubf_async.remote import RemoteBehaviors, Vote
@@ -90,6 +91,22 @@ def test_the_watch_counts_per_source_warns_once_and_every_100th(
         watch.check(f"range/junk{i}", WALL_NS, now_ns=12 * S, simulated=True)
     assert clockdomain.MAX_WARNED_SOURCES - 3 <= len(caplog.records) \
         <= clockdomain.MAX_WARNED_SOURCES + 11
+
+
+def test_each_clock_reads_right_in_a_sentence(caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 28: a warning read "looks like the another clock"."""
+    watch = ClockDomainWatch(robot="mini")
+    caplog.set_level(logging.WARNING, logger="ubf_async.clockdomain")
+    for _ in range(100):
+        watch.check("range/far", 2 * S, now_ns=5000 * S, simulated=False)
+    watch.check("range/wall", WALL_NS, now_ns=12 * S, simulated=True)
+    first, hundredth, wall = (r.getMessage() for r in caplog.records)
+    assert "looks like another clock, not the robot's" in first
+    assert "range/far: 100 samples stamped on another clock so far" in hundredth
+    assert "looks like the wall clock, not the robot's" in wall
+    shown = "\n".join(format_clock_domain(watch.status()))
+    assert "like another clock, last" in shown and "like the wall clock, last" in shown
+    assert "the another" not in first + hundredth + wall + shown
 
 
 @pytest.mark.asyncio
@@ -233,4 +250,4 @@ async def test_shipped_senders_work_against_the_default_sim_time_robot(
     warned = [line for line in robot_proc.lines if "range/wall: sample stamped" in line]
     assert len(warned) == 1, log  # once for the source, with the fix
     assert "ubf/" + robot + "/clock" in warned[0]
-    assert "looks like the" not in log.replace(warned[0], "")  # nobody else was reported
+    assert " looks like " not in log.replace(warned[0], "")  # nobody else was reported

@@ -89,6 +89,46 @@ def test_a_bad_robot_file_is_refused_with_file_and_line_and_nothing_starts(
     assert "listening" not in proc.stdout and "Traceback" not in proc.stderr
 
 
+# Issue 28: what a newcomer's robot file got wrong, as `launch --check` reports it.
+GOOD_ROBOT = """\
+name: mine
+tree:
+  name: root
+  arbiter: PriorityMerge
+  children:
+    - behavior: tests.plugin_behaviors:SpinWhenClose
+      priority: 2
+    - behavior: chase
+"""
+
+
+@pytest.mark.parametrize(("mistake", "line", "message"), [
+    (("      priority: 2\n", "      priority: 2\n      priority: 7\n"), 8,
+     "duplicate key `priority` (also on line 7)"),
+    (("      priority: 2\n", "      priority 2\n"), 7,
+     "not valid YAML: could not find expected ':'"),
+    (("      priority: 2\n", "      priorty: 2\n"), 7,
+     "unknown field `priorty` (at tree.children[0]); a tree node takes: name, behavior, "
+     "arbiter, children, remote, priority, weight, params"),
+])
+def test_check_refuses_a_robot_file_mistake_at_its_line(
+        mistake: tuple[str, str], line: int, message: str, tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(GOOD_ROBOT.replace(*mistake))
+    proc = run_launch(str(path), "--check")
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert f"{path}:{line}: " in proc.stderr and message in proc.stderr, proc.stderr
+    assert "OK" not in proc.stdout
+
+
+def test_check_shows_a_behaviour_under_its_factorys_name(tmp_path: Path) -> None:
+    path = tmp_path / "mine.yaml"
+    path.write_text(GOOD_ROBOT)
+    proc = run_launch(str(path), "--check")
+    assert proc.returncode == 0, proc.stderr
+    assert "spin_when_close (SpinWhenClose) [p=2 w=1]" in proc.stdout, proc.stdout
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--scenario", "keep-away", "--no-sim"], "--scenario: there is no simulator"),
     (["--speed", "0"], "--speed: expected a number > 0 or 'max', got '0'"),

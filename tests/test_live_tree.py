@@ -224,7 +224,8 @@ BAD_REQUESTS: list[tuple[dict[str, Any] | bytes, str]] = [
     ({"op": "load", "tree": "name: x\narbiter: HighestPriority\nchildren:\n"
                             "  - behavior: no_such_behaviour\n"},
      "cannot load the tree: <fragment>:4: unknown behaviour 'no_such_behaviour'"),
-    ({"op": "load", "tree": "name: [unclosed"}, "cannot load the tree: <fragment>: not valid YAML"),
+    ({"op": "load", "tree": "name: [unclosed"},
+     "cannot load the tree: <fragment>:1: not valid YAML"),
     ({"op": "load", "tree": "behavior: drive"},
      "cannot load the tree: <fragment>:1: a tree's root must be a composite"),
     (b"\xc1 not msgpack", "malformed request: envelope: MessagePack data is malformed"),

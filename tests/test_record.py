@@ -94,13 +94,19 @@ def read_alone(path: Path) -> dict:
     return json.loads(result.stdout)
 
 
+def recording_md_snippets() -> list[str]:
+    """The Python blocks of docs/recording.md (they read ``out/mini.mcap``)."""
+    text = (ROOT / "docs" / "recording.md").read_text("utf-8")
+    return re.findall(r"^```python\n(.*?)^```$", text, re.S | re.M)
+
+
 def test_a_scenario_run_recorded_by_launch_reads_back_with_mcap_alone(tmp_path: Path) -> None:
     result = subprocess.run(
         [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight", "--speed",
          "5", "--duration", "4", "--quiet", "--listen", "tcp/127.0.0.1:0", "--record",
-         str(tmp_path)], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
+         str(tmp_path / "out")], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
-    path = tmp_path / "mini.mcap"
+    path = tmp_path / "out" / "mini.mcap"
     assert f"recording the bus to {path}" in result.stdout
     read = read_alone(path)
     assert read["invalid"] == []  # every message matches the schema stored in the file
@@ -147,6 +153,22 @@ def test_a_scenario_run_recorded_by_launch_reads_back_with_mcap_alone(tmp_path: 
             assert all(row[0] - row[1] <= 0.2e9 for row in rows), key  # arrived on time
             seqs = [row[3] for row in rows]
             assert seqs == sorted(seqs), key
+
+    # docs/recording.md's snippets, as printed there, on this file: the reading one prints
+    # every original message (each checked against its schema), the summary one the counts.
+    reading, summary = recording_md_snippets()
+    # jsonschema.validate() builds a validator per call: ≈ 20x slower over a recording.
+    assert "jsonschema.validate(" not in reading
+    printed = subprocess.run([sys.executable, "-c", reading], cwd=tmp_path, capture_output=True,
+                             text=True, timeout=120, check=True).stdout.splitlines()
+    assert len(printed) == sum(channels.values())
+    assert {line.split()[0] for line in printed} == set(channels)
+    printed = subprocess.run([sys.executable, "-c", summary], cwd=tmp_path, capture_output=True,
+                             text=True, timeout=60, check=True).stdout.splitlines()
+    total = sum(channels.values()) + sum(live.values())
+    assert re.fullmatch(rf"{total} messages over [\d.]+ s on {len(channels) + len(live)} "
+                        rf"channels", printed[0]), printed[0]
+    assert f"{channels['ubf/mini/cmd/drive']:7}  ubf/mini/cmd/drive" in printed
 
 
 MARKER_HZ = 100.0

@@ -10,6 +10,7 @@ from pathlib import Path
 import jsonschema
 import msgspec
 import pytest
+import yaml
 
 from ubf_async.arbiters import (
     CommandFusion,
@@ -29,6 +30,7 @@ from ubf_async.robotfile import (
     DEFAULT_ROBOT_FILE,
     RobotFile,
     decode_robot_file,
+    first_duplicate_key,
     load_robot,
     load_robot_text,
     load_tree_fragment,
@@ -353,7 +355,90 @@ def test_a_behaviour_factory_returning_something_else() -> None:
 def test_invalid_yaml_says_where() -> None:
     text = TREE_ONLY + "  oops: [\n"
     error = refused(text)
-    assert "not valid YAML" in str(error) and error.line is not None
+    assert "not valid YAML" in str(error) and error.line == line_of(text, "oops: [")
+
+
+# Each mistake, and the line it is on (the parser notices some of them a line or more later).
+SYNTAX_ERRORS = {
+    "a key without its colon": ("      priority: 2\n", "      priority 2\n", "priority 2"),
+    "an unclosed brace": ("{period_s: 4.0}", "{period_s: 4.0", "{period_s: 4.0"),
+    "an unclosed quote": ("behavior: chase", 'behavior: "chase', '"chase'),
+    "an indentation that breaks a list": ("      priority: 2\n", "     priority: 2\n",
+                                          "     priority: 2"),
+    "a tab": ("      priority: 2\n", "\tpriority: 2\n", "\tpriority"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SYNTAX_ERRORS))
+def test_a_yaml_syntax_error_points_at_its_own_line(case: str) -> None:
+    old, new, needle = SYNTAX_ERRORS[case]
+    text = TREE_ONLY.replace(old, new)
+    error = refused(text)
+    assert error.message.startswith("not valid YAML: "), error
+    assert error.line == line_of(text, needle), error
+
+
+def test_a_key_given_twice_is_refused_at_its_second_line() -> None:
+    text = TREE_ONLY.replace("      priority: 2\n", "      priority: 2\n      priority: 7\n")
+    error = refused(text)
+    assert error.line == line_of(text, "priority: 7")
+    assert str(error).startswith(f"robot.yaml:{error.line}: duplicate key `priority` (also on "
+                                 f"line {line_of(text, 'priority: 2')})")
+
+
+@pytest.mark.parametrize(("old", "new", "key"), [
+    ("name: tester\n", "name: tester\nname: other\n", "name"),               # the file's
+    ("{period_s: 4.0}", "{period_s: 4.0, period_s: 5}", "period_s"),           # a flow mapping
+    ("    - behavior: chase\n", "    - behavior: chase\n      behavior: flee\n", "behavior"),
+])
+def test_duplicate_keys_are_refused_everywhere(old: str, new: str, key: str) -> None:
+    text = TREE_ONLY.replace(old, new)
+    error = refused(text)
+    assert f"duplicate key `{key}`" in str(error)
+    assert error.line == line_of(text, new.splitlines()[-1].strip().removeprefix("- "))
+
+
+def test_duplicates_are_told_from_merge_keys_and_from_other_types() -> None:
+    root = yaml.compose("base: &b {a: 1}\nm: {<<: *b, a: 2}\nn: {1: x, '1': y}\n")
+    assert first_duplicate_key(root) is None  # `a` overrides the merged one; 1 is not '1'
+
+
+def test_a_tree_fragment_with_a_duplicate_key_is_refused() -> None:
+    with pytest.raises(RobotFileError, match=r"frag.yaml:3: duplicate key `arbiter`"):
+        load_tree_fragment("name: root\narbiter: PriorityMerge\narbiter: HighestPriority\n"
+                           "children: [{behavior: stop}]\n", source="frag.yaml")
+
+
+@pytest.mark.parametrize(("old", "new", "misspelt", "what", "field"), [
+    ("priority: 2", "priorty: 2", "priorty", "a tree node takes: ", "priority"),
+    ("name: tester", "name: tester\nspeeed: 3", "speeed", "a robot file takes: ", "seed"),
+    ("arbiter: PriorityMerge", "arbiter: {type: MonteCarlo, prams: {seed: 3}}", "prams",
+     "an arbiter takes: ", "params"),
+    ("name: tester", "name: tester\ncontroller: {rate: 20}", "rate", "`controller` takes: ",
+     "rate_hz"),
+])
+def test_a_misspelt_field_lists_the_valid_ones(old: str, new: str, misspelt: str, what: str,
+                                               field: str) -> None:
+    text = TREE_ONLY.replace(old, new)
+    error = refused(text)
+    assert error.line == line_of(text, misspelt)
+    assert f"unknown field `{misspelt}`" in str(error)
+    listed = str(error).split(what, 1)[1].split(", ")
+    assert field in listed, str(error)
+
+
+def test_a_factory_names_its_behaviour_unless_the_file_does() -> None:
+    text = TREE_ONLY.replace("behavior: flee", "behavior: tests.plugin_behaviors:SpinWhenClose")
+    children = load_robot_text(text).root.children
+    assert [c.behavior.name for c in children] == ["search", "chase", "spin_when_close"]
+    named = text.replace(":SpinWhenClose", ":SpinWhenClose\n      name: spinner")
+    assert load_robot_text(named).root.children[2].behavior.name == "spinner"
+    # A factory that takes no name gets the file's all the same...
+    spin = text.replace(":SpinWhenClose", ":Spin\n      name: spinner")
+    assert load_robot_text(spin).root.children[2].behavior.name == "spinner"
+    # ...and one that requires a name, without one in the file, the name it is referenced by.
+    needs = text.replace(":SpinWhenClose", ":needs_a_name")
+    assert load_robot_text(needs).root.children[2].behavior.name == "needs_a_name"
 
 
 def test_missing_file_and_unknown_shipped_name(tmp_path: Path) -> None:

@@ -96,6 +96,11 @@ def foreign_clock(stamp_ns: int, *, now_ns: int, simulated: bool,
     return None
 
 
+def the(clock: str) -> str:
+    """A :data:`ClockName` in a sentence: "the wall clock", but "another clock"."""
+    return clock if clock == "another clock" else f"the {clock}"
+
+
 def how_to_stamp(robot: str, simulated: bool) -> str:
     """The fix, in one sentence, for a sender stamping on the wrong clock."""
     if simulated:
@@ -160,13 +165,13 @@ class ClockDomainWatch:
         entry.offset_s = offset / 1e9
         if entry.samples == 1 and self.warned_sources < MAX_WARNED_SOURCES:
             self.warned_sources += 1
-            log.warning("%s: sample stamped %+.6g s from the robot clock looks like the %s, "
+            log.warning("%s: sample stamped %+.6g s from the robot clock looks like %s, "
                         "not the robot's: its age means nothing (%s); %s", clip(source),
-                        offset / 1e9, clock, "refused as from the future" if offset > 0
+                        offset / 1e9, the(clock), "refused as from the future" if offset > 0
                         else "taken with that age", how_to_stamp(self.robot, simulated))
         elif entry.samples % 100 == 0:
-            log.warning("%s: %d samples stamped on the %s so far", clip(source),
-                        entry.samples, clock)
+            log.warning("%s: %d samples stamped on %s so far", clip(source),
+                        entry.samples, the(clock))
         elif self.warned_sources >= MAX_WARNED_SOURCES and self.total % 100 == 1:
             log.warning("%d samples stamped on another clock so far, from more sources than "
                         "warned about one by one (%d; a flood of names?): see the "

@@ -524,7 +524,7 @@ def format_clock_domain(foreign: Any) -> list[str]:
             offset = f.get("offset_s")
             off = f"{offset:+.3g} s" if isinstance(offset, int | float) else "?"
             lines.append(f"  {f.get('source', '?')}  {f.get('samples', '?')} samples, "
-                         f"like the {f.get('clock', '?')}, last {off} off")
+                         f"like {clockdomain.the(str(f.get('clock', '?')))}, last {off} off")
     return lines
 
 

@@ -7,10 +7,11 @@ The format is documented in ``docs/robot-file.md``; its JSON Schema
 Loading happens in two steps, and every mistake is reported as a
 :class:`~ubf_async.errors.RobotFileError` reading ``FILE:LINE: message`` before anything runs:
 
-1. :func:`load_robot_file` decodes the YAML into typed :class:`RobotFile` objects with msgspec
-   (types, ranges, unknown keys). msgspec names the place of a mistake as a path such as
-   ``$.tree.children[1].priority``; :class:`Locator` maps that path to the file's line through
-   the YAML parser's node marks.
+1. :func:`decode_robot_file` composes the YAML (:meth:`Locator.parse`: syntax errors at their
+   own line, a key given twice), then decodes it into typed :class:`RobotFile` objects with
+   msgspec (types, ranges, unknown keys, listed with the valid ones). msgspec names the place
+   of a mistake as a path such as ``$.tree.children[1].priority``; :class:`Locator` maps that
+   path to the file's line through the YAML parser's node marks.
 2. :func:`resolve` looks every name up in the plug-in registries (:mod:`ubf_async.registry`),
    validates each behaviour's, arbiter's, device's and backend's parameters against the
    factory's own signature, and builds the behaviour tree. What needs a running bus (devices)
@@ -20,6 +21,7 @@ Loading happens in two steps, and every mistake is reported as a
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import random
 import re
@@ -28,7 +30,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Final, Literal
+from typing import Annotated, Any, ClassVar, Final, Literal
 
 import msgspec
 import yaml
@@ -79,9 +81,14 @@ INJECTED_TREE = frozenset({"name", "rng"})
 class Spec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True, omit_defaults=True):
     """Base of the robot file's types: keyword-only, unknown keys refused."""
 
+    what: ClassVar[str] = "it"
+    """What an error message calls an object of this type (``a tree node takes: …``)."""
+
 
 class ArbiterSpec(Spec):
     """An arbiter with parameters: ``{type: MonteCarlo, params: {seed: 3}}``."""
+
+    what: ClassVar[str] = "an arbiter"
 
     type: Reference
     params: Params = {}
@@ -97,6 +104,8 @@ class NodeSpec(Spec):
 
     ``priority`` and ``weight`` are the node's place in its parent composite.
     """
+
+    what: ClassVar[str] = "a tree node"
 
     name: Name | None = None
     behavior: Reference | None = None
@@ -137,6 +146,8 @@ class NodeSpec(Spec):
 class DeviceSpec(Spec):
     """One device: its kind, instance name, backend and their parameters."""
 
+    what: ClassVar[str] = "a device"
+
     kind: Reference
     name: Name
     backend: Reference
@@ -149,6 +160,8 @@ class DeviceSpec(Spec):
 class ControllerSpec(Spec):
     """When the tree ticks (see :mod:`ubf_async.controller`)."""
 
+    what: ClassVar[str] = "`controller`"
+
     mode: Literal["periodic", "sync", "event"] = "periodic"
     rate_hz: Annotated[float, msgspec.Meta(gt=0.0, le=10_000.0)] = 50.0
     reflex: list[Annotated[str, msgspec.Meta(max_length=128)]] = msgspec.field(
@@ -159,8 +172,10 @@ class ControllerSpec(Spec):
     trigger: Annotated[str, msgspec.Meta(min_length=1, max_length=128)] | None = None
     """Event mode ticks on each sample of this source."""
     stale_after_s: dict[str, Annotated[float, msgspec.Meta(gt=0.0)]] = {}
-    """Per source: a sample older than this is stale (default: 2 of its declared periods)."""
+    """Per source: stale when no sample has arrived for this long (default: 1.5× the period its
+    samples declare, :data:`ubf_async.aggregator.STALE_PERIODS`)."""
     default_stale_after_s: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    """For sources that declare no period (events): stale after this long (default: never)."""
 
     def __post_init__(self) -> None:
         if self.mode == "event" and self.trigger is None:
@@ -169,6 +184,8 @@ class ControllerSpec(Spec):
 
 class RemotesSpec(Spec):
     """How behaviours of other processes may join the tree."""
+
+    what: ClassVar[str] = "`remotes`"
 
     only_declared: bool = False
     """Refuse remote behaviours without a `remote:` slot in the tree."""
@@ -179,6 +196,8 @@ class RemotesSpec(Spec):
 
 class RobotFile(Spec):
     """A robot: its name, devices, controller and behaviour tree."""
+
+    what: ClassVar[str] = "a robot file"
 
     name: Name
     """The robot's name: its keys live under ``ubf/<name>/``."""
@@ -212,12 +231,28 @@ def parse_error_path(text: str) -> Path_:
 class Locator:
     """Maps a path into the decoded data to a line of the YAML text (1-based)."""
 
-    def __init__(self, text: str, *, source: str) -> None:
+    def __init__(self, root: yaml.Node | None, *, source: str) -> None:
         self.source = source
+        self._root = root
+
+    @classmethod
+    def parse(cls, text: str, *, source: str) -> Locator:
+        """Compose ``text``'s YAML, refusing what decoding would not report: a syntax error
+        (at its own line) and a key given twice in one mapping (YAML keeps the last one)."""
         try:
-            self._root: yaml.Node | None = yaml.compose(text, Loader=yaml.SafeLoader)
-        except yaml.YAMLError:
-            self._root = None
+            root = yaml.compose(text, Loader=YAML_LOADER)
+        except yaml.MarkedYAMLError as exc:
+            raise yaml_syntax_error(exc, text, source) from None
+        except yaml.YAMLError as exc:
+            raise RobotFileError(f"not valid YAML: {exc}", path=source) from None
+        duplicate = first_duplicate_key(root)
+        if duplicate is not None:
+            first, again = duplicate
+            raise RobotFileError(
+                f"duplicate key `{again.value}` (also on line {first.start_mark.line + 1}): "
+                f"a key may appear once in a mapping; YAML would silently keep the last",
+                path=source, line=again.start_mark.line + 1) from None
+        return cls(root, source=source)
 
     def node(self, path: Path_) -> yaml.Node | None:
         node = self._root
@@ -256,17 +291,125 @@ class Locator:
         line = self.key_line(path, key) if key is not None else self.line(path)
         return RobotFileError(message, path=self.source, line=line)
 
-    def from_validation(self, exc: msgspec.ValidationError, base: Path_ = ()) -> RobotFileError:
-        """A msgspec error (relative to ``base``) as a :class:`RobotFileError` at its line."""
+    def from_validation(self, exc: msgspec.ValidationError, base: Path_ = (), *,
+                        root: type[Spec] | None = RobotFile) -> RobotFileError:
+        """A msgspec error (relative to ``base``) as a :class:`RobotFileError` at its line.
+
+        ``root`` is the type decoded at ``base``: an unknown field is told the fields of the
+        object it was found in (``None``: the caller lists them itself)."""
         match = _ERROR_AT.match(str(exc))
         assert match is not None
         message, where = match.group("message"), match.group("path")
-        path = base + (parse_error_path(where) if where else ())
+        relative = parse_error_path(where) if where else ()
+        path = base + relative
         unknown = _UNKNOWN_FIELD.search(message)
         text = f"{message} (at {format_path(path)})" if path else message
         if unknown:
+            spec = struct_at(root, relative) if root is not None else None
+            if spec is not None:
+                text += f"; {spec.what} takes: {', '.join(spec.__struct_fields__)}"
             return self.error(text, path, key=unknown.group(1))
         return self.error(text, path)
+
+
+YAML_LOADER: Final = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+"""libyaml when PyYAML has it, as msgspec.yaml uses: the same parser, the same messages."""
+
+# Where the parser notices a mistake is often past it: a key without its ':' is noticed on the
+# next line, an unclosed quote or bracket at the next token or the end of the file. For these
+# the context mark (where the unfinished key, string or collection began) is the mistake's own
+# line; for the others (a block that breaks off, a tab) the problem mark is.
+_UNFINISHED = ("simple key", "quoted scalar", "flow mapping", "flow sequence")
+
+
+def yaml_syntax_error(exc: yaml.MarkedYAMLError, text: str, source: str) -> RobotFileError:
+    """A YAML parser's error as ``FILE:LINE: not valid YAML: …`` at the mistake's line."""
+
+    def line(mark: yaml.Mark) -> int:
+        if not text[mark.index:].strip():
+            # Ran out of text: the mistake is on the last line that has any.
+            return text[:mark.index].rstrip().count("\n") + 1
+        return int(mark.line) + 1
+
+    problem = exc.problem or str(exc)
+    context, at, noticed = exc.context, exc.context_mark, exc.problem_mark
+    mark: yaml.Mark | None
+    if context is not None and at is not None and noticed is not None \
+            and context.endswith(_UNFINISHED):
+        mark, note = at, (f" ({context}; noticed on line {line(noticed)})"
+                          if line(noticed) != line(at) else f" ({context})")
+    elif context is not None and at is not None and noticed is not None \
+            and line(at) != line(noticed):
+        mark, note = noticed, f" ({context} begun on line {line(at)})"
+    else:
+        mark, note = noticed or at, ""
+    return RobotFileError(f"not valid YAML: {problem}{note}", path=source,
+                          line=None if mark is None else line(mark))
+
+
+def first_duplicate_key(root: yaml.Node | None) -> tuple[yaml.ScalarNode, yaml.ScalarNode] | None:
+    """The first key (in the text) given twice in one mapping: ``(first, again)``."""
+    found: list[tuple[yaml.ScalarNode, yaml.ScalarNode]] = []
+    seen: set[int] = set()  # an alias is the node it names: visit each once
+    stack = [root] if root is not None else []
+    while stack:
+        node = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            keys: dict[tuple[str, str], yaml.ScalarNode] = {}
+            for key, value in node.value:
+                # A merge key (<<) brings keys that the mapping's own may override.
+                if isinstance(key, yaml.ScalarNode) and key.tag != MERGE_TAG:
+                    first = keys.setdefault((key.tag, key.value), key)
+                    if first is not key:
+                        found.append((first, key))
+                stack += (key, value)
+        elif isinstance(node, yaml.SequenceNode):
+            stack += node.value
+    return min(found, key=lambda pair: pair[1].start_mark.index, default=None)
+
+
+MERGE_TAG: Final = "tag:yaml.org,2002:merge"
+
+
+def struct_at(root: type[Spec], path: Path_) -> type[Spec] | None:
+    """The robot-file type of the object at ``path`` in a ``root`` (``None``: not one)."""
+    info: msgspec.inspect.Type = msgspec.inspect.type_info(root)
+    for part in path:
+        step = _step(info, part)
+        if step is None:
+            return None
+        info = step
+    found = _struct(info)
+    return found if found is not None and issubclass(found, Spec) else None
+
+
+def _members(info: msgspec.inspect.Type) -> list[msgspec.inspect.Type]:
+    while isinstance(info, msgspec.inspect.Metadata):
+        info = info.type
+    if isinstance(info, msgspec.inspect.UnionType):
+        return [m for t in info.types for m in _members(t)]
+    return [info]
+
+
+def _struct(info: msgspec.inspect.Type) -> type[Any] | None:
+    return next((m.cls for m in _members(info) if isinstance(m, msgspec.inspect.StructType)),
+                None)
+
+
+def _step(info: msgspec.inspect.Type, part: str | int) -> msgspec.inspect.Type | None:
+    for member in _members(info):
+        if isinstance(member, msgspec.inspect.StructType) and isinstance(part, str):
+            field_ = next((f for f in member.fields if f.encode_name == part), None)
+            if field_ is not None:
+                return field_.type
+        elif isinstance(member, msgspec.inspect.ListType) and isinstance(part, int):
+            return member.item_type
+        elif isinstance(member, msgspec.inspect.DictType) and isinstance(part, str):
+            return member.value_type
+    return None
 
 
 def format_path(path: Path_) -> str:
@@ -281,19 +424,22 @@ def format_path(path: Path_) -> str:
 
 def decode_robot_file(text: str, *, source: str = "<robot file>") -> tuple[RobotFile, Locator]:
     """Decode and type-check a robot file's text (step 1). Raises :class:`RobotFileError`."""
-    locator = Locator(text, source=source)
+    locator = Locator.parse(text, source=source)
     try:
         spec = msgspec.yaml.decode(text, type=RobotFile)
     except msgspec.ValidationError as exc:
         raise locator.from_validation(exc) from None
-    except msgspec.DecodeError as exc:
-        cause = exc.__cause__ or exc.__context__
-        mark = getattr(cause, "problem_mark", None)
-        line = int(mark.line) + 1 if mark is not None else None
-        problem = getattr(cause, "problem", None) or str(exc)
-        raise RobotFileError(f"not valid YAML: {problem}", path=source, line=line) from None
+    except msgspec.DecodeError as exc:  # what the composer took, the constructor refused
+        raise _decode_error(exc, text, source) from None
     _check_depth(spec.tree, locator, ("tree",), 1)
     return spec, locator
+
+
+def _decode_error(exc: msgspec.DecodeError, text: str, source: str) -> RobotFileError:
+    cause = exc.__cause__ or exc.__context__
+    if isinstance(cause, yaml.MarkedYAMLError):
+        return yaml_syntax_error(cause, text, source)
+    return RobotFileError(f"not valid YAML: {cause or exc}", path=source)
 
 
 def _check_depth(node: NodeSpec, locator: Locator, path: Path_, depth: int) -> None:
@@ -404,13 +550,23 @@ def _typed_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
     try:
         return typed_params(factory, params, injected=injected)
     except msgspec.ValidationError as exc:
-        error = locator.from_validation(exc, path)
+        error = locator.from_validation(exc, path, root=None)
         known = ", ".join(parameters_of(factory, injected=injected).__struct_fields__)
         raise RobotFileError(f"{error.message}; {what} takes: {known or 'none'}",
                              path=error.path, line=error.line) from None
     except (TypeError, ValueError) as exc:
         raise locator.error(f"{what}: its parameters cannot be described ({exc})",
                             path) from None
+
+
+def _requires(factory: Callable[..., Any], parameter: str) -> bool:
+    """Whether ``factory`` has a keyword parameter ``parameter`` without a default."""
+    try:
+        found = inspect.signature(factory).parameters.get(parameter)
+    except (TypeError, ValueError):  # no signature to read (a builtin): it cannot be told
+        return False
+    return found is not None and found.default is inspect.Parameter.empty \
+        and found.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
 
 
 def _lookup(registry_get: Callable[[], Any], locator: Locator, path: Path_, key: str) -> Any:
@@ -432,13 +588,8 @@ class TreeBuilder:
         # Each consumer gets its own stream, seeded with the run's seed: repeatable runs.
         return random.Random(self.seed)
 
-    def _inject(self, factory: Callable[..., Any], name: str | None) -> dict[str, Any]:
-        extra: dict[str, Any] = {}
-        if name is not None and accepts(factory, "name"):
-            extra["name"] = name
-        if accepts(factory, "rng"):
-            extra["rng"] = self._rng()
-        return extra
+    def _inject(self, factory: Callable[..., Any]) -> dict[str, Any]:
+        return {"rng": self._rng()} if accepts(factory, "rng") else {}
 
     def arbiter(self, spec: str | ArbiterSpec, path: Path_) -> Any:
         kind, params = (spec, {}) if isinstance(spec, str) else (spec.type, spec.params)
@@ -447,7 +598,7 @@ class TreeBuilder:
         values = _typed_params(factory, params, injected=INJECTED_TREE, locator=self.locator,
                                path=(*path, "params"), what=f"arbiter {kind!r}")
         try:
-            return factory(**self._inject(factory, None), **values)
+            return factory(**self._inject(factory), **values)
         except (ValueError, TypeError, LookupError) as exc:
             raise self.locator.error(f"arbiter {kind!r}: {exc}", path) from None
 
@@ -458,18 +609,25 @@ class TreeBuilder:
         values = _typed_params(factory, node.params, injected=INJECTED_TREE,
                                locator=self.locator, path=(*path, "params"),
                                what=f"behaviour {ref!r}")
-        name = node.name or (ref.rpartition(":")[2].rpartition(".")[2] if is_reference(ref)
+        # The file's name if it gives one, else the factory's own (its `name` default, or
+        # whatever it names the behaviour); only a factory that requires a name gets the one
+        # it is referenced by.
+        extra = self._inject(factory)
+        if node.name is not None and accepts(factory, "name"):
+            extra["name"] = node.name
+        elif node.name is None and _requires(factory, "name"):
+            extra["name"] = (ref.rpartition(":")[2].rpartition(".")[2] if is_reference(ref)
                              else ref)
         try:
-            made = factory(**self._inject(factory, name), **values)
+            made = factory(**extra, **values)
         except (ValueError, TypeError, LookupError) as exc:
             raise self.locator.error(f"behaviour {ref!r}: {exc}", path) from None
         if not isinstance(made, Behavior):
             raise self.locator.error(
                 f"behaviour {ref!r} made a {type(made).__name__}, not a "
                 f"ubf_async.behavior.Behavior", path, key="behavior")
-        if made.name != name and not accepts(factory, "name"):
-            made.name = name
+        if node.name is not None and "name" not in extra:
+            made.name = node.name  # a factory that takes no name still gets the file's
         return made
 
     def composite(self, node: NodeSpec, path: Path_) -> Composite:
@@ -568,18 +726,18 @@ def load_tree_fragment(text: str, *, source: str = "<tree>",
     Used to replace a running robot's tree (``inspector tree load``). Raises
     :class:`RobotFileError`.
     """
-    locator = Locator(text, source=source)
+    locator = Locator.parse(text, source=source)
     try:
         data = msgspec.yaml.decode(text)
     except msgspec.DecodeError as exc:
-        raise RobotFileError(f"not valid YAML: {exc}", path=source) from None
+        raise _decode_error(exc, text, source) from None
     base: Path_ = ("tree",) if isinstance(data, dict) and "tree" in data else ()
     if base:
         data = data["tree"]
     try:
         node = msgspec.convert(data, NodeSpec)
     except msgspec.ValidationError as exc:
-        raise locator.from_validation(exc, base) from None
+        raise locator.from_validation(exc, base, root=NodeSpec) from None
     if node.kind != "composite":
         raise locator.error("a tree's root must be a composite (`name`, `arbiter`, "
                             "`children`)", base)
@@ -593,11 +751,11 @@ def build_arbiter(spec: str | Mapping[str, Any], *, source: str = "<arbiter>",
     """An arbiter from a name or ``{type, params}`` (live changes use this); an arbiter that
     takes ``rng`` draws from ``seed``, as in a robot file."""
     text = json.dumps(spec)
-    locator = Locator(text, source=source)
+    locator = Locator.parse(text, source=source)
     try:
         typed = msgspec.convert(spec, str | ArbiterSpec)
     except msgspec.ValidationError as exc:
-        raise locator.from_validation(exc) from None
+        raise locator.from_validation(exc, root=ArbiterSpec) from None
     return TreeBuilder(locator=locator, seed=seed).arbiter(typed, ())
 
 

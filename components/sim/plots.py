@@ -45,7 +45,9 @@ def time_mark_step_s(duration_s: float) -> float:
 
 def plot_run(samples: Sequence[TrajectorySample], world: WorldSnapshot, *, title: str,
              events: Sequence[tuple[float, str]] = ()) -> Figure:
-    """The figure of one run; ``events`` are ``(time_s, label)`` marked on the ball's path."""
+    """The figure of one run; ``events`` are ``(time_s, label)`` marked on the ball's path,
+    those after the last sample left out (a script's later steps never happened in a run
+    shorter than the scenario)."""
     figure = Figure(figsize=(8, 8), dpi=100)
     FigureCanvasAgg(figure)
     ax = figure.add_subplot()
@@ -96,6 +98,8 @@ def plot_run(samples: Sequence[TrajectorySample], world: WorldSnapshot, *, title
         ax.add_patch(Circle((ball[-1].ball_x_m or 0.0, ball[-1].ball_y_m or 0.0), 0.0325,
                             color=BALL_COLOUR))
         for t_s, label in events:
+            if t_s > samples[-1].t_s + 1e-9:
+                continue
             at = min(ball, key=lambda s: abs(s.t_s - t_s))
             where = (at.ball_x_m or 0.0, at.ball_y_m or 0.0)
             ax.plot(*where, marker="D", markersize=6, color=BALL_COLOUR, markeredgecolor="black")
