@@ -146,6 +146,22 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_robot_starts(
     assert_clear_error(proc, flag, expected)
 
 
+@pytest.mark.parametrize("check", [True, False], ids=["--check", "the run"])
+@pytest.mark.parametrize("flags, expected", [
+    (("--scenario", "keepaway"), "unknown scenario 'keepaway'"),
+    (("--scenario", "nowhere/x.json"), "no scenario file nowhere/x.json"),
+    (("--record-every-s", "0"), "record_every_s must be > 0"),
+])
+def test_what_launch_refuses_is_refused_before_the_bus_opens_and_by_check(
+    endpoint: str, check: bool, flags: tuple[str, ...], expected: str
+) -> None:
+    """``--check`` runs exactly the checks the run makes before it opens zenoh: what the run
+    would refuse, ``--check`` refuses too (status 2, the same line), and the run refuses it
+    before printing anything (no ``attach with:`` for a robot that never starts)."""
+    proc = run(*LAUNCH, "--listen", endpoint, *flags, *(["--check"] if check else []))
+    assert_clear_error(proc, expected)
+
+
 def test_results_that_cannot_be_written_at_the_end_are_printed_and_fail(
     tmp_path: Path, endpoint: str, children: list[Child]
 ) -> None:

@@ -267,6 +267,7 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
             record_every_s=args.record_every_s,
             lockstep_participants=args.lockstep_participants,
             command_line=("python", "-m", "ubf_async.launch", *sys.argv[1:]))
+        simulator.check(options)  # an unknown scenario is refused here, not after the bus opens
     if simulator is None:
         given = [flag for flag, value in (("--scenario", args.scenario),
                                           ("--summary", args.summary)) if value is not None]

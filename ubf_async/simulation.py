@@ -134,6 +134,12 @@ class Simulator(Protocol):
 
     name: str
 
+    def check(self, options: SimulationOptions) -> None:
+        """Refuse, before anything starts, whatever :meth:`open` would refuse (a bad speed, an
+        unknown or invalid scenario …): launch runs it before the bus opens, and
+        ``launch --check`` runs exactly it. Raises :class:`~ubf_async.errors.UbfError`."""
+        ...
+
     def open(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> SimulationRun:
         """Build a run (raises :class:`~ubf_async.errors.ConfigurationError` on bad options)."""
         ...

@@ -58,6 +58,13 @@ class MiniWhegsSimulator:
 
     name = "mini-whegs"
 
+    def check(self, options: SimulationOptions) -> None:
+        """What :meth:`open` refuses, refused without building anything: the options, and
+        the scenario loaded and validated."""
+        from components.sim.runner import check_options
+
+        check_options(options)
+
     def open(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> SimulationRun:
         """A run of ``options.scenario`` (default ``ball-in-sight``) on ``clock``.
 

@@ -48,7 +48,7 @@ from components.sim.record import (
     motion_over,
     trajectory_sample,
 )
-from components.sim.scenarios import load_scenario
+from components.sim.scenarios import Scenario, load_scenario
 from components.sim.world import World, wrap_angle
 from ubf_async import __version__
 from ubf_async.bus import Bus, Subscription, decode_or_count
@@ -85,7 +85,9 @@ LISTED_FRAMES = 1000
 """Most recorded frame names the summary lists (the last ones; ``frames_written`` counts all)."""
 
 
-def _check_options(options: SimulationOptions) -> None:
+def check_options(options: SimulationOptions) -> Scenario:
+    """The run's scenario, loaded and validated, once ``options`` are checked. Raises
+    :class:`ConfigurationError` or :class:`~ubf_async.errors.ScenarioError`."""
     if not options.speed > 0:
         raise ConfigurationError(f"speed must be > 0 (or math.inf: flat out), got "
                                  f"{options.speed}")
@@ -97,6 +99,7 @@ def _check_options(options: SimulationOptions) -> None:
                                  f"{options.lockstep_participants}")
     if not options.record_every_s > 0:
         raise ConfigurationError(f"record_every_s must be > 0, got {options.record_every_s}")
+    return load_scenario(options.scenario or DEFAULT_SCENARIO)
 
 
 def window_summary(windows: Sequence[float]) -> dict[str, Any] | None:
@@ -129,8 +132,7 @@ class SimulationRun:
     """
 
     def __init__(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> None:
-        _check_options(options)
-        self.scenario = load_scenario(options.scenario or DEFAULT_SCENARIO)
+        self.scenario = check_options(options)
         self.options = options
         self.bus = bus
         self.clock = clock
