@@ -313,6 +313,8 @@ def test_motors_elsewhere_do_not_stop_while_the_simulator_waits_on_purpose(
     assert "attached to robot 'held'" in text, text
     # Stopped once — after the robot had gone, never while the simulator waited.
     assert text.count("no drive command") == 1, text
+    # ... saying what passed its limit, in the clock it was measured in (issue 28, item 2).
+    assert "of wall time with the clock's source silent" in text, text
 
 
 def test_a_simulation_on_a_loop_that_cannot_tell_when_it_is_idle_is_refused() -> None:

@@ -190,6 +190,8 @@ class SourceInfo:
     schema: str
     refused: Mapping[str, int] = field(default_factory=dict)
     """Valid samples of this source refused, per reason (``future``, ``out_of_order``)."""
+    stale_why: str | None = None
+    """For a stale source: how long it has been quiet, in the clock that made it stale."""
 
 
 class StateAggregator(Component):
@@ -442,14 +444,18 @@ class StateAggregator(Component):
         """Whether ``entry`` has been quiet beyond its limit: in robot time, or — so that a
         dead simulator cannot keep dead data fresh — in wall time while the clock's source is
         silent, as :class:`~ubf_async.clock.SilenceLimit` rules."""
+        return self.stale_why(entry, now_ns, wall_now_ns) is not None
+
+    def stale_why(self, entry: SourceEntry, now_ns: int, wall_now_ns: int) -> str | None:
+        """``None`` for a fresh ``entry``; for a stale one, how long it has been quiet, in
+        the clock that made it stale (:meth:`~ubf_async.clock.SilenceLimit.overdue`)."""
         limit = self.limit_s(entry)
         if limit == math.inf:
-            return False
-        if now_ns - entry.arrived_ns > limit * 1e9:
-            return True
-        if wall_now_ns - entry.arrived_wall_ns < limit * 1e9:
-            return False  # the common case, decided without the clock's stall bookkeeping
-        return SilenceLimit(limit_s=limit).expired(
+            return None
+        if (now_ns - entry.arrived_ns <= limit * 1e9
+                and wall_now_ns - entry.arrived_wall_ns < limit * 1e9):
+            return None  # the common case, decided without the clock's stall bookkeeping
+        return SilenceLimit(limit_s=limit).overdue(
             self.bus.clock, since_ns=entry.arrived_ns, since_wall_ns=entry.arrived_wall_ns,
             now_ns=now_ns, wall_now_ns=wall_now_ns)
 
@@ -492,8 +498,9 @@ class StateAggregator(Component):
         out = []
         for source, entry in sorted(self.entries.items()):
             age = max(0.0, (now - entry.message.stamp_ns) / 1e9)
+            why = self.stale_why(entry, now, wall_now)
             out.append(SourceInfo(
-                source=source, age_s=age, stale=self.is_stale(entry, now, wall_now),
+                source=source, age_s=age, stale=why is not None, stale_why=why,
                 samples=entry.version,
                 rate_hz=1.0 / entry.interval_s if entry.interval_s else None,
                 schema=entry.message.schema, refused=dict(entry.refused),

@@ -294,13 +294,26 @@ class SilenceLimit:
                 now_ns: int | None = None, wall_now_ns: int | None = None) -> bool:
         """Whether the limit has passed since robot time ``since_ns`` / host monotonic time
         ``since_wall_ns`` (both taken when last heard from)."""
+        return self.overdue(clock, since_ns=since_ns, since_wall_ns=since_wall_ns,
+                            now_ns=now_ns, wall_now_ns=wall_now_ns) is not None
+
+    def overdue(self, clock: Clock, *, since_ns: int, since_wall_ns: int,
+                now_ns: int | None = None, wall_now_ns: int | None = None) -> str | None:
+        """``None`` while the limit holds; once passed, the measure that passed it, in the
+        clock it was measured in — what a warning says (``"112 ms of robot time (limit 110
+        ms)"``, or the wall time with the clock's source silent)."""
         now = clock.now_ns() if now_ns is None else now_ns
-        if now - since_ns >= self.limit_s * 1e9:
-            return True
+        quiet_ms = (now - since_ns) / 1e6
+        if quiet_ms >= self.limit_s * 1e3:
+            return f"{quiet_ms:.0f} ms of robot time (limit {self.limit_s * 1e3:.0f} ms)"
         wall_now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
         silence = self.silence_s
-        return ((wall_now - since_wall_ns) / 1e9 >= silence
-                and clock.stalled_s(wall_now) >= silence)
+        wall_s = (wall_now - since_wall_ns) / 1e9
+        stalled = clock.stalled_s(wall_now)
+        if wall_s >= silence and stalled >= silence:
+            return (f"{wall_s:.2f} s of wall time with the clock's source silent for "
+                    f"{stalled:.2f} s (limit {silence:g} s; {quiet_ms:.0f} ms of robot time)")
+        return None
 
     def wall_deadline_ns(self, clock: Clock, *, since_wall_ns: int,
                          wall_now_ns: int | None = None) -> int:

@@ -511,7 +511,8 @@ class Controller(Component):
             "refused": self.aggregator.refusals(),
             "sources": [
                 {"source": s.source, "age_s": s.age_s, "stale": s.stale, "schema": s.schema,
-                 "refused": sum(s.refused.values())}
+                 "refused": sum(s.refused.values()),
+                 **({"stale_why": s.stale_why} if s.stale_why else {})}
                 for s in self.aggregator.sources()[:256]
             ],
             "clock_domain": self.aggregator.clock_domain.status(),

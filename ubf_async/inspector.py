@@ -492,7 +492,8 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
         lines.append("  (none yet)")
     width = max((len(str(s.get("source", ""))) for s in sources), default=0)
     for s in sources:
-        stale = "  STALE" if s.get("stale") else ""
+        why = s.get("stale_why")
+        stale = ("" if not s.get("stale") else f"  STALE: quiet {why}" if why else "  STALE")
         age_s = s.get("age_s")
         age_ms = age_s * 1e3 if isinstance(age_s, int | float) else None
         refused = s.get("refused")

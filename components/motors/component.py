@@ -149,9 +149,10 @@ class MotorsComponent(Component):
             if clock.resets != self._command_resets:
                 self._stop("clock_reset", "the clock was reset to a new run")
                 continue
-            if self.limit.expired(clock, since_ns=last, since_wall_ns=self._last_command_wall_ns):
-                quiet_ms = (clock.now_ns() - last) / 1e6
-                self._stop("timeout", f"no drive command for {quiet_ms:.0f} ms (robot time)")
+            overdue = self.limit.overdue(clock, since_ns=last,
+                                         since_wall_ns=self._last_command_wall_ns)
+            if overdue is not None:
+                self._stop("timeout", f"no drive command for {overdue}")
                 continue
             # Re-checked on waking: a newer command moves both deadlines.
             wall_deadline = self.limit.wall_deadline_ns(
