@@ -43,3 +43,10 @@ class SpinWhenClose(Behavior):
 def needs_a_name(*, name: str) -> Behavior:
     """A factory that requires a name: the loader gives it the one it is referenced by."""
     return SpinWhenClose(name=name)
+
+
+class Raising(Behavior):
+    """A behaviour whose every tick fails: its composite quarantines it."""
+
+    def act(self, state: State) -> Action | None:
+        raise RuntimeError("this behaviour always fails")

@@ -291,6 +291,8 @@ class Controller(Component):
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
         self.stats = TickStats()
+        self.tree_changes: list[dict[str, Any]] = []
+        """Live changes of the tree applied during the run (:meth:`tree_changed`)."""
         self.last_action: Action | None = None
         self._last_drive_ns = 0
         self.last_trace: Trace | None = None
@@ -517,6 +519,18 @@ class Controller(Component):
             ],
             "clock_domain": self.aggregator.clock_domain.status(),
         }
+
+    def runs(self, name: str) -> bool:
+        """Whether the tree has a behaviour called ``name`` (a scenario's expectation is
+        judged only on a robot that runs what it describes)."""
+        root = self.root
+        return (root.find(name) if isinstance(root, Composite) else
+                root if root.name == name else None) is not None
+
+    def tree_changed(self, what: str) -> None:
+        """Called by the live tree service when a change was applied: kept, with the robot
+        time, for the run's summary (a run is then not the robot file's)."""
+        self.tree_changes.append({"at_s": self.bus.clock.now_ns() / 1e9, "what": what})
 
     def quarantined(self) -> list[str]:
         """Behaviours of the tree quarantined now (``composite/child``); they stay so until

@@ -434,9 +434,11 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         out.flush()
         freeze_startup_objects()  # the start-up's objects: out of the collector's way
         await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
-        return 0
+    except asyncio.CancelledError:
+        pass  # a stop signal: the end below is the same as for any other end
     finally:
-        await _end(sim_run, controller, components, health, bus, recorder, live, out)
+        code = await _end(sim_run, controller, components, health, bus, recorder, live, out)
+    return code
 
 
 RESULTS_BOUND_S = 3.0
@@ -446,20 +448,30 @@ CLOSE_BOUND_S = 2.5
 :data:`~ubf_async.record.DEFAULT_DRAIN_S`) or the zenoh session."""
 
 
+EXIT_DEGRADED = 3
+"""The run ended and its results were saved, but it was not the robot file's run: a behaviour
+was quarantined (it kept failing and stopped voting) or the tree was changed live."""
+
+
 class ShutdownError(UbfError):
     """A step of the end failed (logged as it happened); everything else was still done."""
 
 
 async def _end(sim_run: SimulationRun | None, controller: Controller | None,
                components: list[Component], health: HealthMonitor, bus: Bus,
-               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO) -> None:
+               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO) -> int:
     """The end of a run, whatever ended it (:class:`~ubf_async.ending.Ending`): the results
     written, every component closed (last started first: the recorder sees everything), the
     session closed — each step bounded, each done even if one before failed — and only then
     the report printed. Results that could not be written are printed instead
     (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`
-    (exit status 2 either way)."""
+    (exit status 2 either way). Otherwise the exit status: 0, or :data:`EXIT_DEGRADED`."""
     end = ending.Ending(log)
+    degraded = [] if controller is None else [
+        *([f"quarantined: {', '.join(controller.quarantined())}"]
+          if controller.quarantined() else []),
+        *([f"the tree was changed live {len(controller.tree_changes)} time(s)"]
+          if controller.tree_changes else [])]
     report = io.StringIO()  # printed last: a console that went away cannot cost a result
     unsaved = False
     if sim_run is not None and controller is not None:
@@ -488,13 +500,15 @@ async def _end(sim_run: SimulationRun | None, controller: Controller | None,
         print(f"  live view: {live.stats.summary()}", file=out)
     if unsaved and sim_run is not None and controller is not None:
         print_unsaved_summary(sim_run, controller, end, out)
-    print("ubf_async: stopped", file=out)
+    print("ubf_async: stopped" + (f", but not as the robot file describes ({'; '.join(degraded)})"
+                                  if degraded else ""), file=out)
     out.flush()
     if unsaved:
         raise ResultsNotSavedError(f"could not save the run's results ({end.failures[0]}); "
                                    f"its summary was printed instead")
     if not end.ok:
         raise ShutdownError(f"the run ended, but {'; '.join(end.failures)}")
+    return EXIT_DEGRADED if degraded else 0
 
 
 def print_unsaved_summary(sim_run: SimulationRun, controller: Controller,

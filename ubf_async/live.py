@@ -332,6 +332,7 @@ class TreeService(Component):
     def _applied(self, what: str) -> None:
         self.version += 1
         log.info("tree version %d: %s", self.version, what)
+        self.controller.tree_changed(what)
         self.changed.set()
 
     def _config_with(self, slots: list[RemoteSlot]) -> dict[str, tuple[int, float]]:

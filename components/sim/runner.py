@@ -373,7 +373,9 @@ class SimulationRun:
         expected = summary.get("expected")
         if expected is not None:
             failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
-            verdict = ("not checked (the scenario gives no criteria)" if expected["pass"] is None
+            verdict = (f"not applicable ({expected['why']})" if not expected["applicable"]
+                       else "not checked (the scenario gives no criteria)"
+                       if expected["pass"] is None
                        else "met" if not failed else f"NOT met ({', '.join(failed)})")
             report.append(f"  expected: {expected['outcome']} — {verdict}")
         report += [f"  warning: {warning}" for warning in summary["warnings"]]
@@ -475,9 +477,24 @@ class SimulationRun:
                                                d.x_m, d.y_m)
             out["distractors"][name] = {"x_m": d.x_m, "y_m": d.y_m, "distance_m": distance,
                                         "bearing_deg": bearing}
+        won = out["ticks"].get("winner_share") or {}
         expect = self.scenario.expect
-        out["expected"] = expect.judge(out) if expect is not None else None
+        out["expected"] = (expect.judge(out, ran=lambda name: controller.runs(name) or
+                                        name in won)
+                           if expect is not None else None)
+        out["quarantined"] = controller.quarantined()
+        out["tree_changes"] = list(controller.tree_changes)
         out["warnings"] = []
+        if out["quarantined"]:
+            out["warnings"].append(
+                f"quarantined (they kept failing, and stopped voting): "
+                f"{', '.join(out['quarantined'])}")
+        if out["tree_changes"]:
+            first = out["tree_changes"][0]
+            out["warnings"].append(
+                f"the tree was changed during the run ({len(out['tree_changes'])} change(s), "
+                f"the first at {first['at_s']:.2f} s: {first['what']}): the run is not the "
+                f"robot file's")
         rtf = out["real_time_factor"]
         if rtf is not None and math.isfinite(self.options.speed) \
                 and rtf < SLOW_SHARE * self.options.speed:

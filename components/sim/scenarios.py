@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -123,12 +123,23 @@ class Expectation:
 
     outcome: str
     criteria: tuple[Criterion, ...] = ()
+    behaviors: tuple[str, ...] = ()
+    """The behaviours the outcome describes (``search``'s counter, ``flee`` backing away):
+    judged only on a robot that ran them."""
 
-    def judge(self, summary: Mapping[str, Any]) -> dict[str, Any]:
+    def judge(self, summary: Mapping[str, Any], *,
+              ran: Callable[[str], bool] = lambda name: True) -> dict[str, Any]:
         """Each criterion's verdict, and ``pass``: all of them met — or ``None`` when the
-        file gives no criteria (nothing was checked: the outcome is only words)."""
+        file gives no criteria (nothing was checked: the outcome is only words), or when the
+        robot did not run a behaviour the outcome describes (``ran(name)`` false; then
+        ``applicable`` is false and ``why`` says which)."""
+        missing = [name for name in self.behaviors if not ran(name)]
+        if missing:
+            return {"outcome": self.outcome, "criteria": [], "pass": None,
+                    "applicable": False,
+                    "why": f"the robot has no {', '.join(missing)}, which it describes"}
         verdicts = [c.judge(summary) for c in self.criteria]
-        return {"outcome": self.outcome, "criteria": verdicts,
+        return {"outcome": self.outcome, "criteria": verdicts, "applicable": True,
                 "pass": all(v["pass"] for v in verdicts) if verdicts else None}
 
 
@@ -594,10 +605,14 @@ def _expectation(data: Any) -> Expectation | None:
     """``expect``: ``{"outcome": TEXT, "criteria": {"PATH": [LOW, HIGH], "|PATH|": [..]}}``."""
     if data is None:
         return None
-    data = _check_keys(data, {"outcome", "criteria"}, "expect")
+    data = _check_keys(data, {"outcome", "criteria", "behaviors"}, "expect")
     outcome = data.get("outcome")
     if not isinstance(outcome, str) or not outcome:
         raise ScenarioError("expect.outcome must be a non-empty string")
+    behaviors = data.get("behaviors", [])
+    if not isinstance(behaviors, list) or not all(isinstance(b, str) and b for b in behaviors):
+        raise ScenarioError(f"expect.behaviors: expected a list of behaviour names, got "
+                            f"{behaviors!r}")
     criteria_data = data.get("criteria", {})
     if not isinstance(criteria_data, dict):
         raise ScenarioError("expect.criteria must be an object: a summary field → [low, high]")
@@ -613,7 +628,7 @@ def _expectation(data: Any) -> Expectation | None:
                                 f"{bounds!r}")
         criteria.append(Criterion(path=path, low=float(bounds[0]), high=float(bounds[1]),
                                   absolute=absolute))
-    return Expectation(outcome=outcome, criteria=tuple(criteria))
+    return Expectation(outcome=outcome, criteria=tuple(criteria), behaviors=tuple(behaviors))
 
 
 # ---------------------------------------------------------------------------------------------

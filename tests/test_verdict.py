@@ -1,0 +1,116 @@
+"""The end-of-run verdict says what ran (issue 28, item 6): a scenario's expectation is
+judged only on a robot that runs the behaviours it describes ("not applicable" otherwise), and
+a quarantined behaviour or a live change of the tree appears in the verdict and in the exit
+status (3). Every test runs the real launch in a subprocess."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from tests.conftest import REPOSITORY, free_port, repository_env
+from ubf_async.launch import EXIT_DEGRADED
+
+DEFAULT_ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"
+SEARCH = """    - behavior: search
+      priority: 2
+      params: {source: camera/front, period_s: 4.0, leds: 0}
+"""
+
+
+RAISING = """    - behavior: tests.plugin_behaviors:Raising
+      name: raising
+      priority: 5
+"""
+
+
+def robot_file(tmp_path: Path, *, replace_search_with: str) -> Path:
+    text = DEFAULT_ROBOT.read_text()
+    assert SEARCH in text
+    path = tmp_path / "robot.yaml"
+    path.write_text(text.replace(SEARCH, replace_search_with))
+    return path
+
+
+def launch(tmp_path: Path, *args: str) -> tuple[subprocess.Popen[str], Path]:
+    summary = tmp_path / "summary.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.launch", *args, "--summary", str(summary),
+         "--quiet"], cwd=REPOSITORY, env=repository_env(), stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, text=True)
+    return proc, summary
+
+
+def finished(proc: subprocess.Popen[str], summary: Path) -> tuple[str, dict[str, Any]]:
+    output, _ = proc.communicate(timeout=240)
+    return output, json.loads(summary.read_text())
+
+
+def test_an_expectation_about_a_behaviour_the_robot_has_not_is_not_applicable(
+        tmp_path: Path) -> None:
+    """ball-behind's outcome is search's: on a robot without search it is not judged."""
+    no_search = robot_file(tmp_path, replace_search_with="")
+    proc, summary_path = launch(tmp_path, str(no_search), "--scenario", "ball-behind",
+                                "--speed", "max", "--duration", "3",
+                                "--listen", f"tcp/127.0.0.1:{free_port()}")
+    output, summary = finished(proc, summary_path)
+    assert proc.returncode == 0, output
+    expected = summary["expected"]
+    assert expected["applicable"] is False and expected["pass"] is None, expected
+    assert "the robot has no search" in expected["why"]
+    assert "— not applicable (the robot has no search" in output, output
+    assert "— met" not in output and "NOT met" not in output
+
+
+def test_the_same_scenario_on_the_robot_it_describes_is_judged(tmp_path: Path) -> None:
+    proc, summary_path = launch(tmp_path, "--scenario", "ball-in-sight", "--speed", "max",
+                                "--duration", "3", "--listen", f"tcp/127.0.0.1:{free_port()}")
+    output, summary = finished(proc, summary_path)
+    assert proc.returncode == 0, output
+    assert summary["expected"]["applicable"] is True
+    assert summary["quarantined"] == [] and summary["tree_changes"] == []
+    assert "not as the robot file describes" not in output
+
+
+def test_a_quarantined_behaviour_is_in_the_verdict_and_the_exit_status(
+        tmp_path: Path) -> None:
+    raising = robot_file(tmp_path, replace_search_with=RAISING + SEARCH)
+    proc, summary_path = launch(tmp_path, str(raising), "--scenario", "ball-in-sight",
+                                "--speed", "max", "--duration", "3",
+                                "--listen", f"tcp/127.0.0.1:{free_port()}")
+    output, summary = finished(proc, summary_path)
+    assert proc.returncode == EXIT_DEGRADED, output
+    assert summary["quarantined"] == ["seek_pink_ball/raising"], summary["quarantined"]
+    assert any("quarantined" in w and "seek_pink_ball/raising" in w
+               for w in summary["warnings"]), summary["warnings"]
+    assert "warning: quarantined" in output
+    assert "stopped, but not as the robot file describes (quarantined: seek_pink_ball/raising)" \
+        in output, output
+
+
+def test_a_live_tree_change_is_in_the_verdict_and_the_exit_status(tmp_path: Path) -> None:
+    """A change applied while the robot runs (inspector tree set-child), then SIGTERM: the
+    summary lists the change, the verdict warns, the exit status is 3."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc, summary_path = launch(tmp_path, "--scenario", "ball-in-sight", "--listen", endpoint,
+                                "--duration", "600")
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if line.startswith("  controller:"):
+            break
+    change = subprocess.run(
+        [sys.executable, "-m", "ubf_async.inspector", "tree", "set-child", "seek_pink_ball",
+         "chase", "--priority", "3", "--connect", endpoint],
+        cwd=REPOSITORY, env=repository_env(), capture_output=True, text=True, timeout=120)
+    assert change.returncode == 0, change.stdout + change.stderr
+    proc.send_signal(signal.SIGTERM)
+    output, summary = finished(proc, summary_path)
+    assert proc.returncode == EXIT_DEGRADED, output
+    [applied] = summary["tree_changes"]
+    assert "chase" in applied["what"] and "priority 3" in applied["what"], applied
+    assert any("the tree was changed during the run" in w for w in summary["warnings"])
+    assert "not as the robot file describes (the tree was changed live 1 time(s))" in output
