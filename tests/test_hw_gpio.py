@@ -18,6 +18,7 @@ from typing import Any
 import msgspec
 import pytest
 import pytest_asyncio
+from gpiozero.pins import mock as mock_pins
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
 from components import hardware
@@ -428,52 +429,65 @@ async def test_encoders_component_counts_edges_the_buffer_dropped(
     await encoders.aclose()
 
 
-class WiredRobot:
-    """Mock wiring for the check: while a motor's pulse is outside its dead zone, a thread
-    turns that wheel's encoder (the right one's A/B swapped when ``swap_right``)."""
+EDGE_US = 500
+"""The wired wheels' pace: one encoder edge per 0.5 ms while the motor turns."""
 
-    def __init__(self, factory: MockFactory, *, swap_right: bool = False) -> None:
+
+class WiredRobot:
+    """Mock wiring for the check, in virtual time: the check's ``sleep`` moves a clock that
+    also stamps the mock pins' changes, and while a motor's pulse is outside its dead zone,
+    that wheel's encoder turns one edge per 0.5 ms of it (the right one's A/B swapped when
+    ``swap_right``). No thread and no wall time, so the edges counted are exact however busy
+    the machine is (a thread pacing edges in wall time counted too few on a slow one)."""
+
+    def __init__(self, factory: MockFactory, monkeypatch: pytest.MonkeyPatch, *,
+                 swap_right: bool = False) -> None:
         self.factory = factory
         self.wheels = {"GPIO12": (LEFT_PINS, LEFT_TRIM),
                        "GPIO13": (RIGHT_PINS[::-1] if swap_right else RIGHT_PINS, RIGHT_TRIM)}
         self.states = dict.fromkeys(self.wheels, 0)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run)
+        self.now_us = 0  # whole microseconds: hold durations come out exact
+        # gpiozero's mock pins stamp their changes with this module's monotonic(); make it
+        # before the first pin, so every pin's history is on the virtual clock.
+        monkeypatch.setattr(mock_pins, "monotonic", self.clock)
 
-    def _run(self) -> None:
-        while not self._stop.wait(0.0005):  # the wheel's pace: one edge per 0.5 ms
-            for motor, (pins, trim) in self.wheels.items():
-                mock = self.factory.pin(motor)
-                if not mock.state:
-                    continue
-                pulse = float(mock.state) * 20.0
-                lo, hi = trim.dead_zone_ms
-                step = 1 if pulse > hi else -1 if pulse < lo else 0
-                if step:
-                    self.states[motor] = turn_wheel(self.factory, pins, step,
-                                                    state=self.states[motor])
+    def step(self) -> None:
+        for motor, (pins, trim) in self.wheels.items():
+            mock = self.factory.pin(motor)
+            if not mock.state:
+                continue
+            pulse = float(mock.state) * 20.0
+            lo, hi = trim.dead_zone_ms
+            step = 1 if pulse > hi else -1 if pulse < lo else 0
+            if step:
+                self.states[motor] = turn_wheel(self.factory, pins, step,
+                                                state=self.states[motor])
 
-    def __enter__(self) -> WiredRobot:
-        self._thread.start()
-        return self
+    def clock(self) -> float:
+        return self.now_us / 1e6
 
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
+    def sleep(self, seconds: float) -> None:
+        end_us = self.now_us + round(seconds * 1e6)
+        while self.now_us + EDGE_US <= end_us:
+            self.now_us += EDGE_US
+            self.step()
+        self.now_us = end_us
 
 
 def test_wiring_check_passes_on_good_wiring(
-        factory: MockFactory) -> None:
+        factory: MockFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    wired = WiredRobot(factory, monkeypatch)
     motors = motors_on(factory)
     out = io.StringIO()
-    with WiredRobot(factory):
-        steps = run_check(motors=motors, encoders=encoders_on(factory),
-                          left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
-                          spin_s=0.15, settle_s=0.05, out=out)
+    steps = run_check(motors=motors, encoders=encoders_on(factory),
+                      left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
+                      spin_s=0.15, settle_s=0.05, out=out, sleep=wired.sleep,
+                      clock=wired.clock)
     assert [(s.wheel, s.direction, s.passed) for s in steps] == [
         ("left", 1, True), ("left", -1, True), ("right", 1, True), ("right", -1, True)]
-    assert steps[0].edges["left"] > 40 and steps[0].edges["right"] == 0
-    assert steps[3].edges["right"] < -40
+    spun = round(0.15e6 / EDGE_US)  # every edge of each 0.15 s spin, and only those
+    assert steps[0].edges == {"left": spun, "right": 0}
+    assert steps[3].edges == {"left": 0, "right": -spun}
     report = out.getvalue()
     assert "FAIL" not in report
     # Counts (four edges each) are what it reports, the edges beside them.
@@ -482,32 +496,38 @@ def test_wiring_check_passes_on_good_wiring(
     assert f"left {left / 4:+8.2f} counts ({left:+d} edges)" in report
     assert report.startswith("left forward: ")  # said before the wheel spins
     assert backend_pulses(factory) == (1.55, 1.56)  # stopped at the end
-    # The init pulse armed the drivers for two whole periods before the first stop pulse.
+    # The init pulse armed the drivers for two whole periods before the first stop pulse,
+    # and the last stop pulse is held as long before the pins may be released.
     first = holds(factory.pin("GPIO12").states)
     init = next(i for i, (duty, _) in enumerate(first)
                 if duty == pytest.approx(DEFAULT_PWM.init_ms / 20.0))
-    assert first[init][1] >= HOLD_S
+    assert first[init][1] == pytest.approx(HOLD_S)
     assert first[init + 1][0] == pytest.approx(1.55 / 20.0)
+    assert wired.now_us == round((2 * HOLD_S + 0.05 + 4 * (0.15 + 0.05)) * 1e6)
 
 
 def backend_pulses(factory: MockFactory) -> tuple[float, float]:
     return pulse_ms(factory, "GPIO12"), pulse_ms(factory, "GPIO13")
 
 
-def test_wiring_check_names_a_swapped_encoder(factory: MockFactory) -> None:
+def test_wiring_check_names_a_swapped_encoder(factory: MockFactory,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
     out = io.StringIO()
-    with WiredRobot(factory, swap_right=True):
-        steps = run_check(motors=motors_on(factory), encoders=encoders_on(factory),
-                          left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
-                          spin_s=0.15, settle_s=0.05, out=out)
+    wired = WiredRobot(factory, monkeypatch, swap_right=True)
+    steps = run_check(motors=motors_on(factory), encoders=encoders_on(factory),
+                      left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
+                      spin_s=0.15, settle_s=0.05, out=out, sleep=wired.sleep,
+                      clock=wired.clock)
     assert [s.passed for s in steps] == [True, True, False, False]
     assert "swap right_a and right_b" in steps[2].advice
     assert "FAIL: the right wheel counted backwards" in out.getvalue()
 
 
-def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory) -> None:
+def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     # SIGTERM or Ctrl-C arrives as Interrupted wherever the check is (here: while the left
     # wheel spins); the stop pulse is applied and held two periods before it is raised.
+    wired = WiredRobot(factory, monkeypatch)
     motors = motors_on(factory)
     sleeps: list[float] = []
 
@@ -515,17 +535,17 @@ def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory) -> 
         sleeps.append(seconds)
         if len(sleeps) == 3:  # init hold, settle, then the first spin
             raise Interrupted(signal.SIGTERM)
-        time.sleep(seconds)
+        wired.sleep(seconds)
 
     with pytest.raises(Interrupted):
         run_check(motors=motors, encoders=encoders_on(factory), left=LEFT_TRIM.calibration(),
                   right=RIGHT_TRIM.calibration(), spin_s=10.0, settle_s=0.05, out=io.StringIO(),
-                  sleep=sleep)
+                  sleep=sleep, clock=wired.clock)
     assert sleeps[:3] == [HOLD_S, 0.05, 10.0]
     motors.close()
     history = holds(factory.pin("GPIO12").states)
     spin = LEFT_TRIM.calibration().pulse_ms(30)
     assert [duty for duty, _ in history][-2:] == [pytest.approx(spin / 20.0),
                                                    pytest.approx(1.55 / 20.0)]
-    assert history[-1][1] >= HOLD_S  # the stop pulse, held, then the pins released
+    assert history[-1][1] == pytest.approx(HOLD_S)  # the stop pulse, held, then released
     assert factory.pin("GPIO12").state == 0
