@@ -30,7 +30,7 @@ from components.motors.check import Interrupted, run_check
 from components.motors.component import MotorsComponent, MotorTrim
 from components.motors.gpio import GpioMotorBackend, gpio_backend
 from components.motors.pwm import DEFAULT_PWM, pulse_widths
-from tests.conftest import eventually
+from tests.conftest import LoopClock, eventually
 from tests.pinlog import holds
 from ubf_async.bus import Bus
 from ubf_async.errors import ConfigurationError
@@ -60,6 +60,21 @@ async def buses() -> AsyncIterator[tuple[Bus, Bus]]:
     """The robot's bus and another process's (a teleop, a tool) on one in-process transport."""
     net = InProcessTransport()
     robot, other = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    yield robot, other
+    await robot.aclose()
+    await other.aclose()
+
+
+@pytest_asyncio.fixture
+async def loop_buses(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[tuple[Bus, Bus]]:
+    """:func:`buses` on the event loop's clock, for tests on looptime's virtual time: the
+    robot clock (the watchdog), the pulses' holds (asyncio sleeps) and the mock pins' stamps
+    (gpiozero's ``monotonic``) all read the loop's time, so every duration is exact."""
+    loop = asyncio.get_running_loop()
+    monkeypatch.setattr(mock_pins, "monotonic", loop.time)
+    net, clock = InProcessTransport(), LoopClock()
+    robot = Bus(transport=net, robot="r1", clock=clock)
+    other = Bus(transport=net, robot="r1", clock=clock)
     yield robot, other
     await robot.aclose()
     await other.aclose()
@@ -145,22 +160,27 @@ def test_motor_trim_from_a_robot_file_is_checked() -> None:
 
 
 @pytest.mark.asyncio
+@pytest.mark.looptime
 async def test_motors_component_stops_on_start_watchdog_and_close(
-        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
-    robot, teleop = buses
+        factory: MockFactory, loop_buses: tuple[Bus, Bus]) -> None:
+    robot, teleop = loop_buses
     backend = motors_on(factory)
     assert backend.hold_s == pytest.approx(HOLD_S)
     motors = motors_component(robot, backend, timeout_s=0.11)
+    applied: list[tuple[int, str]] = []
+    teleop.subscribe(MOTORS.key(teleop.keys, name="main"),
+                     lambda k, p, t: applied.append((decode(p).stamp_ns, decode(p).data.reason)),
+                     latest=False)
     left_pin = factory.pin("GPIO12")
     left_pin.clear_states()
     await motors.start()
     zero = (1.55, 1.56)
     await eventually(lambda: motors.applied is not None, what="the start-up pulses")
     init = DEFAULT_PWM.init_ms / 20.0
-    # The init pulse arms the driver for whole periods, then the stop pulse.
+    # The init pulse arms the driver for two whole periods, then the stop pulse.
     assert [s for s, _ in holds(left_pin.states)][-2:] == [0.0, pytest.approx(init)]
     assert left_pin.state == pytest.approx(zero[0] / 20.0)
-    assert holds(left_pin.states)[-1][1] >= HOLD_S
+    assert holds(left_pin.states)[-1][1] == pytest.approx(HOLD_S)
     assert backend.last_ms == zero
     drive = teleop.publisher(DRIVE)
     drive.publish({"speed": 40.0, "turn": 0.0})
@@ -168,26 +188,29 @@ async def test_motors_component_stops_on_start_watchdog_and_close(
     await eventually(lambda: backend.last_ms == (expected.left_ms, expected.right_ms),
                      what="the command's pulses")
     assert expected.left_ms > 1.62 and expected.right_ms > 1.66  # out of the dead zones
-    # No more commands: the watchdog stops the wheels.
-    await eventually(lambda: backend.last_ms == zero, timeout_s=2.0, what="the watchdog stop")
+    # No more commands: the watchdog stops the wheels, 0.11 s after the command.
+    await eventually(lambda: backend.last_ms == zero, what="the watchdog stop")
     assert motors.timeouts == 1
+    (command_ns, _), (stop_ns, reason) = applied[-2:]
+    assert reason == "timeout" and (stop_ns - command_ns) / 1e9 == pytest.approx(0.11, abs=1e-5)
     drive.publish({"speed": -60.0, "turn": 20.0})
     await eventually(lambda: backend.last_ms != zero, what="a second command")
     await motors.aclose()  # closing applies the stop pulse before the pins are released
     history = holds(left_pin.states)
     assert [s for s, _ in history][-1] == pytest.approx(zero[0] / 20.0)
-    assert history[-1][1] >= HOLD_S  # held two whole periods, then released
+    assert history[-1][1] == pytest.approx(HOLD_S)  # held two whole periods, then released
     assert left_pin.states[-1].state == 0
     assert backend.last_ms == zero
 
 
 @pytest.mark.asyncio
+@pytest.mark.looptime
 async def test_pulses_are_held_on_the_loop_without_blocking_it(
-        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
+        factory: MockFactory, loop_buses: tuple[Bus, Bus]) -> None:
     # The holds are awaited: this test's own coroutine sees the init pulse and the stop pulse
     # on the pins while they are held (a blocking wait would only let it see what came after),
     # and a command that arrives while the stop pulse is held is not applied.
-    robot, teleop = buses
+    robot, teleop = loop_buses
     backend = motors_on(factory)
     motors = motors_component(robot, backend, timeout_s=5.0)
     pins = factory.pin("GPIO12"), factory.pin("GPIO13")
@@ -211,14 +234,15 @@ async def test_pulses_are_held_on_the_loop_without_blocking_it(
     await closing
     for pin, stop in zip(pins, zero, strict=True):
         (*_, (held, held_s)) = holds(pin.states)
-        assert held == pytest.approx(stop / 20.0) and held_s >= HOLD_S
+        assert held == pytest.approx(stop / 20.0) and held_s == pytest.approx(HOLD_S)
         assert pin.state == 0
 
 
 @pytest.mark.asyncio
+@pytest.mark.looptime
 async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
-        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
-    robot, _ = buses
+        factory: MockFactory, loop_buses: tuple[Bus, Bus]) -> None:
+    robot, _ = loop_buses
     backend = motors_on(factory)
     motors = MotorsComponent(bus=robot, backend=backend)
     await motors.start()
@@ -232,7 +256,7 @@ async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
         await run
     backend.close()
     (*_, (stop, held_s)) = holds(factory.pin("GPIO12").states)
-    assert stop == pytest.approx(1.55 / 20.0) and held_s >= HOLD_S
+    assert stop == pytest.approx(1.55 / 20.0) and held_s == pytest.approx(HOLD_S)
     await motors.aclose()
 
 
