@@ -11,7 +11,6 @@ import io
 import math
 import signal
 import threading
-import time
 from collections.abc import AsyncIterator, Iterator
 from typing import Any
 
@@ -330,40 +329,73 @@ async def test_encoders_component_counts_edges_driven_from_another_thread(
     await encoders.aclose()
 
 
+EDGE_US = 500
+"""The wheels' pace in virtual time: one encoder edge per 0.5 ms while the motor turns."""
+
+
+class PinClock:
+    """What gpiozero's mock pins stamp their changes with (the module's ``monotonic``), made
+    a clock the test moves: edge times and gaps come out exact, however busy the machine.
+    Make it before the first pin, so that every pin is on it."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.now_us = 0  # whole microseconds: durations come out exact
+        monkeypatch.setattr(mock_pins, "monotonic", self.time)
+
+    def time(self) -> float:
+        return self.now_us / 1e6
+
+    def advance(self, seconds: float) -> None:
+        self.now_us += round(seconds * 1e6)
+
+
 def turn_wheel_timed(factory: MockFactory, pins: tuple[str, str], steps: int, *,
-                     state: int = 0) -> tuple[int, list[float]]:
-    """:func:`turn_wheel` one edge at a time, returning the state reached and each edge's
-    time stamp as the mock pin factory gave it to the backend (the pin's last change)."""
+                     state: int = 0, clock: PinClock | None = None
+                     ) -> tuple[int, list[float]]:
+    """:func:`turn_wheel` one edge at a time (0.5 ms apart on ``clock``, if given), returning
+    the state reached and each edge's time stamp as the mock pin factory gave it to the
+    backend (the pin's last change)."""
     stamps = []
     for _ in range(abs(steps)):
+        if clock is not None:
+            clock.advance(EDGE_US / 1e6)
         state = turn_wheel(factory, pins, 1 if steps > 0 else -1, state=state)
         stamps.append(max(factory.pin(p)._last_change for p in pins))
     return state, stamps
 
 
-def test_edge_timing_from_the_pin_factorys_stamps(factory: MockFactory) -> None:
+def test_edge_timing_from_the_pin_factorys_stamps(factory: MockFactory,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    # The edges' own timing on a clock the test moves: a busy machine pausing between two
+    # edges (0.1 s is the gap that starts a new movement) cannot change what is measured.
+    clock = PinClock(monkeypatch)
     encoders = encoders_on(factory)
     # From standing: the batch is timed from its first edge (39 intervals for 40 edges).
-    state, stamps = turn_wheel_timed(factory, LEFT_PINS, 40)
+    state, stamps = turn_wheel_timed(factory, LEFT_PINS, 40, clock=clock)
     encoders.read_phases()
     left, right = encoders.edge_timing
     assert left == EdgeTiming(edges=40, span_s=stamps[-1] - stamps[0], intervals=39)
+    assert left.span_s == pytest.approx(39 * EDGE_US / 1e6)
     assert right == EdgeTiming(edges=0, span_s=None, intervals=0)
     # Moving on: timed from the newest edge before the batch (every interval counted).
-    state, more = turn_wheel_timed(factory, LEFT_PINS, -12, state=state)
+    state, more = turn_wheel_timed(factory, LEFT_PINS, -12, state=state, clock=clock)
     encoders.read_phases()
     assert encoders.edge_timing[0] == EdgeTiming(edges=12, span_s=more[-1] - stamps[-1],
                                                  intervals=12)
     # A period without edges, then one edge: standing still, so its time is not known.
     encoders.read_phases()
-    state, one = turn_wheel_timed(factory, LEFT_PINS, 1, state=state)
+    state, one = turn_wheel_timed(factory, LEFT_PINS, 1, state=state, clock=clock)
     encoders.read_phases()
     assert encoders.edge_timing[0] == EdgeTiming(edges=1, span_s=None, intervals=0)
-    # An edge long after the one before is a new start too, even between two busy reads.
-    late_after = one[-1] + MAX_EDGE_GAP_S
-    while time.monotonic() <= late_after:  # the signal's own timing: edges 0.1 s apart
-        time.sleep(late_after - time.monotonic() + 1e-4)
-    state, late = turn_wheel_timed(factory, LEFT_PINS, 3, state=state)
+    # An edge long after the one before is a new start too, even between two busy reads:
+    # just under the gap, it still counts as moving on; at the gap, it starts anew.
+    clock.advance(MAX_EDGE_GAP_S - 2 * EDGE_US / 1e6)
+    state, near = turn_wheel_timed(factory, LEFT_PINS, 2, state=state, clock=clock)
+    encoders.read_phases()
+    assert encoders.edge_timing[0] == EdgeTiming(edges=2, span_s=near[-1] - one[-1],
+                                                 intervals=2)
+    clock.advance(MAX_EDGE_GAP_S - EDGE_US / 1e6)
+    state, late = turn_wheel_timed(factory, LEFT_PINS, 3, state=state, clock=clock)
     encoders.read_phases()
     assert encoders.edge_timing[0] == EdgeTiming(edges=3, span_s=late[-1] - late[0],
                                                  intervals=2)
@@ -453,10 +485,6 @@ async def test_encoders_component_counts_edges_the_buffer_dropped(
     await encoders.aclose()
 
 
-EDGE_US = 500
-"""The wired wheels' pace: one encoder edge per 0.5 ms while the motor turns."""
-
-
 class WiredRobot:
     """Mock wiring for the check, in virtual time: the check's ``sleep`` moves a clock that
     also stamps the mock pins' changes, and while a motor's pulse is outside its dead zone,
@@ -470,10 +498,7 @@ class WiredRobot:
         self.wheels = {"GPIO12": (LEFT_PINS, LEFT_TRIM),
                        "GPIO13": (RIGHT_PINS[::-1] if swap_right else RIGHT_PINS, RIGHT_TRIM)}
         self.states = dict.fromkeys(self.wheels, 0)
-        self.now_us = 0  # whole microseconds: hold durations come out exact
-        # gpiozero's mock pins stamp their changes with this module's monotonic(); make it
-        # before the first pin, so every pin's history is on the virtual clock.
-        monkeypatch.setattr(mock_pins, "monotonic", self.clock)
+        self.pins = PinClock(monkeypatch)  # the pins' histories on the check's own clock
 
     def step(self) -> None:
         for motor, (pins, trim) in self.wheels.items():
@@ -488,14 +513,14 @@ class WiredRobot:
                                                 state=self.states[motor])
 
     def clock(self) -> float:
-        return self.now_us / 1e6
+        return self.pins.time()
 
     def sleep(self, seconds: float) -> None:
-        end_us = self.now_us + round(seconds * 1e6)
-        while self.now_us + EDGE_US <= end_us:
-            self.now_us += EDGE_US
+        end_us = self.pins.now_us + round(seconds * 1e6)
+        while self.pins.now_us + EDGE_US <= end_us:
+            self.pins.now_us += EDGE_US
             self.step()
-        self.now_us = end_us
+        self.pins.now_us = end_us
 
 
 def test_wiring_check_passes_on_good_wiring(
@@ -527,7 +552,7 @@ def test_wiring_check_passes_on_good_wiring(
                 if duty == pytest.approx(DEFAULT_PWM.init_ms / 20.0))
     assert first[init][1] == pytest.approx(HOLD_S)
     assert first[init + 1][0] == pytest.approx(1.55 / 20.0)
-    assert wired.now_us == round((2 * HOLD_S + 0.05 + 4 * (0.15 + 0.05)) * 1e6)
+    assert wired.pins.now_us == round((2 * HOLD_S + 0.05 + 4 * (0.15 + 0.05)) * 1e6)
 
 
 def backend_pulses(factory: MockFactory) -> tuple[float, float]:
