@@ -11,13 +11,13 @@ import io
 import math
 import signal
 import threading
-import time
 from collections.abc import AsyncIterator, Iterator
 from typing import Any
 
 import msgspec
 import pytest
 import pytest_asyncio
+from gpiozero.pins import mock as mock_pins
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
 from components import hardware
@@ -29,7 +29,7 @@ from components.motors.check import Interrupted, run_check
 from components.motors.component import MotorsComponent, MotorTrim
 from components.motors.gpio import GpioMotorBackend, gpio_backend
 from components.motors.pwm import DEFAULT_PWM, pulse_widths
-from tests.conftest import eventually
+from tests.conftest import LoopClock, eventually
 from tests.pinlog import holds
 from ubf_async.bus import Bus
 from ubf_async.errors import ConfigurationError
@@ -59,6 +59,21 @@ async def buses() -> AsyncIterator[tuple[Bus, Bus]]:
     """The robot's bus and another process's (a teleop, a tool) on one in-process transport."""
     net = InProcessTransport()
     robot, other = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
+    yield robot, other
+    await robot.aclose()
+    await other.aclose()
+
+
+@pytest_asyncio.fixture
+async def loop_buses(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[tuple[Bus, Bus]]:
+    """:func:`buses` on the event loop's clock, for tests on looptime's virtual time: the
+    robot clock (the watchdog), the pulses' holds (asyncio sleeps) and the mock pins' stamps
+    (gpiozero's ``monotonic``) all read the loop's time, so every duration is exact."""
+    loop = asyncio.get_running_loop()
+    monkeypatch.setattr(mock_pins, "monotonic", loop.time)
+    net, clock = InProcessTransport(), LoopClock()
+    robot = Bus(transport=net, robot="r1", clock=clock)
+    other = Bus(transport=net, robot="r1", clock=clock)
     yield robot, other
     await robot.aclose()
     await other.aclose()
@@ -144,22 +159,27 @@ def test_motor_trim_from_a_robot_file_is_checked() -> None:
 
 
 @pytest.mark.asyncio
+@pytest.mark.looptime
 async def test_motors_component_stops_on_start_watchdog_and_close(
-        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
-    robot, teleop = buses
+        factory: MockFactory, loop_buses: tuple[Bus, Bus]) -> None:
+    robot, teleop = loop_buses
     backend = motors_on(factory)
     assert backend.hold_s == pytest.approx(HOLD_S)
     motors = motors_component(robot, backend, timeout_s=0.11)
+    applied: list[tuple[int, str]] = []
+    teleop.subscribe(MOTORS.key(teleop.keys, name="main"),
+                     lambda k, p, t: applied.append((decode(p).stamp_ns, decode(p).data.reason)),
+                     latest=False)
     left_pin = factory.pin("GPIO12")
     left_pin.clear_states()
     await motors.start()
     zero = (1.55, 1.56)
     await eventually(lambda: motors.applied is not None, what="the start-up pulses")
     init = DEFAULT_PWM.init_ms / 20.0
-    # The init pulse arms the driver for whole periods, then the stop pulse.
+    # The init pulse arms the driver for two whole periods, then the stop pulse.
     assert [s for s, _ in holds(left_pin.states)][-2:] == [0.0, pytest.approx(init)]
     assert left_pin.state == pytest.approx(zero[0] / 20.0)
-    assert holds(left_pin.states)[-1][1] >= HOLD_S
+    assert holds(left_pin.states)[-1][1] == pytest.approx(HOLD_S)
     assert backend.last_ms == zero
     drive = teleop.publisher(DRIVE)
     drive.publish({"speed": 40.0, "turn": 0.0})
@@ -167,26 +187,29 @@ async def test_motors_component_stops_on_start_watchdog_and_close(
     await eventually(lambda: backend.last_ms == (expected.left_ms, expected.right_ms),
                      what="the command's pulses")
     assert expected.left_ms > 1.62 and expected.right_ms > 1.66  # out of the dead zones
-    # No more commands: the watchdog stops the wheels.
-    await eventually(lambda: backend.last_ms == zero, timeout_s=2.0, what="the watchdog stop")
+    # No more commands: the watchdog stops the wheels, 0.11 s after the command.
+    await eventually(lambda: backend.last_ms == zero, what="the watchdog stop")
     assert motors.timeouts == 1
+    (command_ns, _), (stop_ns, reason) = applied[-2:]
+    assert reason == "timeout" and (stop_ns - command_ns) / 1e9 == pytest.approx(0.11, abs=1e-5)
     drive.publish({"speed": -60.0, "turn": 20.0})
     await eventually(lambda: backend.last_ms != zero, what="a second command")
     await motors.aclose()  # closing applies the stop pulse before the pins are released
     history = holds(left_pin.states)
     assert [s for s, _ in history][-1] == pytest.approx(zero[0] / 20.0)
-    assert history[-1][1] >= HOLD_S  # held two whole periods, then released
+    assert history[-1][1] == pytest.approx(HOLD_S)  # held two whole periods, then released
     assert left_pin.states[-1].state == 0
     assert backend.last_ms == zero
 
 
 @pytest.mark.asyncio
+@pytest.mark.looptime
 async def test_pulses_are_held_on_the_loop_without_blocking_it(
-        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
+        factory: MockFactory, loop_buses: tuple[Bus, Bus]) -> None:
     # The holds are awaited: this test's own coroutine sees the init pulse and the stop pulse
     # on the pins while they are held (a blocking wait would only let it see what came after),
     # and a command that arrives while the stop pulse is held is not applied.
-    robot, teleop = buses
+    robot, teleop = loop_buses
     backend = motors_on(factory)
     motors = motors_component(robot, backend, timeout_s=5.0)
     pins = factory.pin("GPIO12"), factory.pin("GPIO13")
@@ -210,14 +233,15 @@ async def test_pulses_are_held_on_the_loop_without_blocking_it(
     await closing
     for pin, stop in zip(pins, zero, strict=True):
         (*_, (held, held_s)) = holds(pin.states)
-        assert held == pytest.approx(stop / 20.0) and held_s >= HOLD_S
+        assert held == pytest.approx(stop / 20.0) and held_s == pytest.approx(HOLD_S)
         assert pin.state == 0
 
 
 @pytest.mark.asyncio
+@pytest.mark.looptime
 async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
-        factory: MockFactory, buses: tuple[Bus, Bus]) -> None:
-    robot, _ = buses
+        factory: MockFactory, loop_buses: tuple[Bus, Bus]) -> None:
+    robot, _ = loop_buses
     backend = motors_on(factory)
     motors = MotorsComponent(bus=robot, backend=backend)
     await motors.start()
@@ -231,7 +255,7 @@ async def test_a_second_cancellation_does_not_cut_the_stop_pulse_short(
         await run
     backend.close()
     (*_, (stop, held_s)) = holds(factory.pin("GPIO12").states)
-    assert stop == pytest.approx(1.55 / 20.0) and held_s >= HOLD_S
+    assert stop == pytest.approx(1.55 / 20.0) and held_s == pytest.approx(HOLD_S)
     await motors.aclose()
 
 
@@ -305,40 +329,73 @@ async def test_encoders_component_counts_edges_driven_from_another_thread(
     await encoders.aclose()
 
 
+EDGE_US = 500
+"""The wheels' pace in virtual time: one encoder edge per 0.5 ms while the motor turns."""
+
+
+class PinClock:
+    """What gpiozero's mock pins stamp their changes with (the module's ``monotonic``), made
+    a clock the test moves: edge times and gaps come out exact, however busy the machine.
+    Make it before the first pin, so that every pin is on it."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.now_us = 0  # whole microseconds: durations come out exact
+        monkeypatch.setattr(mock_pins, "monotonic", self.time)
+
+    def time(self) -> float:
+        return self.now_us / 1e6
+
+    def advance(self, seconds: float) -> None:
+        self.now_us += round(seconds * 1e6)
+
+
 def turn_wheel_timed(factory: MockFactory, pins: tuple[str, str], steps: int, *,
-                     state: int = 0) -> tuple[int, list[float]]:
-    """:func:`turn_wheel` one edge at a time, returning the state reached and each edge's
-    time stamp as the mock pin factory gave it to the backend (the pin's last change)."""
+                     state: int = 0, clock: PinClock | None = None
+                     ) -> tuple[int, list[float]]:
+    """:func:`turn_wheel` one edge at a time (0.5 ms apart on ``clock``, if given), returning
+    the state reached and each edge's time stamp as the mock pin factory gave it to the
+    backend (the pin's last change)."""
     stamps = []
     for _ in range(abs(steps)):
+        if clock is not None:
+            clock.advance(EDGE_US / 1e6)
         state = turn_wheel(factory, pins, 1 if steps > 0 else -1, state=state)
         stamps.append(max(factory.pin(p)._last_change for p in pins))
     return state, stamps
 
 
-def test_edge_timing_from_the_pin_factorys_stamps(factory: MockFactory) -> None:
+def test_edge_timing_from_the_pin_factorys_stamps(factory: MockFactory,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    # The edges' own timing on a clock the test moves: a busy machine pausing between two
+    # edges (0.1 s is the gap that starts a new movement) cannot change what is measured.
+    clock = PinClock(monkeypatch)
     encoders = encoders_on(factory)
     # From standing: the batch is timed from its first edge (39 intervals for 40 edges).
-    state, stamps = turn_wheel_timed(factory, LEFT_PINS, 40)
+    state, stamps = turn_wheel_timed(factory, LEFT_PINS, 40, clock=clock)
     encoders.read_phases()
     left, right = encoders.edge_timing
     assert left == EdgeTiming(edges=40, span_s=stamps[-1] - stamps[0], intervals=39)
+    assert left.span_s == pytest.approx(39 * EDGE_US / 1e6)
     assert right == EdgeTiming(edges=0, span_s=None, intervals=0)
     # Moving on: timed from the newest edge before the batch (every interval counted).
-    state, more = turn_wheel_timed(factory, LEFT_PINS, -12, state=state)
+    state, more = turn_wheel_timed(factory, LEFT_PINS, -12, state=state, clock=clock)
     encoders.read_phases()
     assert encoders.edge_timing[0] == EdgeTiming(edges=12, span_s=more[-1] - stamps[-1],
                                                  intervals=12)
     # A period without edges, then one edge: standing still, so its time is not known.
     encoders.read_phases()
-    state, one = turn_wheel_timed(factory, LEFT_PINS, 1, state=state)
+    state, one = turn_wheel_timed(factory, LEFT_PINS, 1, state=state, clock=clock)
     encoders.read_phases()
     assert encoders.edge_timing[0] == EdgeTiming(edges=1, span_s=None, intervals=0)
-    # An edge long after the one before is a new start too, even between two busy reads.
-    late_after = one[-1] + MAX_EDGE_GAP_S
-    while time.monotonic() <= late_after:  # the signal's own timing: edges 0.1 s apart
-        time.sleep(late_after - time.monotonic() + 1e-4)
-    state, late = turn_wheel_timed(factory, LEFT_PINS, 3, state=state)
+    # An edge long after the one before is a new start too, even between two busy reads:
+    # just under the gap, it still counts as moving on; at the gap, it starts anew.
+    clock.advance(MAX_EDGE_GAP_S - 2 * EDGE_US / 1e6)
+    state, near = turn_wheel_timed(factory, LEFT_PINS, 2, state=state, clock=clock)
+    encoders.read_phases()
+    assert encoders.edge_timing[0] == EdgeTiming(edges=2, span_s=near[-1] - one[-1],
+                                                 intervals=2)
+    clock.advance(MAX_EDGE_GAP_S - EDGE_US / 1e6)
+    state, late = turn_wheel_timed(factory, LEFT_PINS, 3, state=state, clock=clock)
     encoders.read_phases()
     assert encoders.edge_timing[0] == EdgeTiming(edges=3, span_s=late[-1] - late[0],
                                                  intervals=2)
@@ -429,51 +486,57 @@ async def test_encoders_component_counts_edges_the_buffer_dropped(
 
 
 class WiredRobot:
-    """Mock wiring for the check: while a motor's pulse is outside its dead zone, a thread
-    turns that wheel's encoder (the right one's A/B swapped when ``swap_right``)."""
+    """Mock wiring for the check, in virtual time: the check's ``sleep`` moves a clock that
+    also stamps the mock pins' changes, and while a motor's pulse is outside its dead zone,
+    that wheel's encoder turns one edge per 0.5 ms of it (the right one's A/B swapped when
+    ``swap_right``). No thread and no wall time, so the edges counted are exact however busy
+    the machine is (a thread pacing edges in wall time counted too few on a slow one)."""
 
-    def __init__(self, factory: MockFactory, *, swap_right: bool = False) -> None:
+    def __init__(self, factory: MockFactory, monkeypatch: pytest.MonkeyPatch, *,
+                 swap_right: bool = False) -> None:
         self.factory = factory
         self.wheels = {"GPIO12": (LEFT_PINS, LEFT_TRIM),
                        "GPIO13": (RIGHT_PINS[::-1] if swap_right else RIGHT_PINS, RIGHT_TRIM)}
         self.states = dict.fromkeys(self.wheels, 0)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run)
+        self.pins = PinClock(monkeypatch)  # the pins' histories on the check's own clock
 
-    def _run(self) -> None:
-        while not self._stop.wait(0.0005):  # the wheel's pace: one edge per 0.5 ms
-            for motor, (pins, trim) in self.wheels.items():
-                mock = self.factory.pin(motor)
-                if not mock.state:
-                    continue
-                pulse = float(mock.state) * 20.0
-                lo, hi = trim.dead_zone_ms
-                step = 1 if pulse > hi else -1 if pulse < lo else 0
-                if step:
-                    self.states[motor] = turn_wheel(self.factory, pins, step,
-                                                    state=self.states[motor])
+    def step(self) -> None:
+        for motor, (pins, trim) in self.wheels.items():
+            mock = self.factory.pin(motor)
+            if not mock.state:
+                continue
+            pulse = float(mock.state) * 20.0
+            lo, hi = trim.dead_zone_ms
+            step = 1 if pulse > hi else -1 if pulse < lo else 0
+            if step:
+                self.states[motor] = turn_wheel(self.factory, pins, step,
+                                                state=self.states[motor])
 
-    def __enter__(self) -> WiredRobot:
-        self._thread.start()
-        return self
+    def clock(self) -> float:
+        return self.pins.time()
 
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join()
+    def sleep(self, seconds: float) -> None:
+        end_us = self.pins.now_us + round(seconds * 1e6)
+        while self.pins.now_us + EDGE_US <= end_us:
+            self.pins.now_us += EDGE_US
+            self.step()
+        self.pins.now_us = end_us
 
 
 def test_wiring_check_passes_on_good_wiring(
-        factory: MockFactory) -> None:
+        factory: MockFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    wired = WiredRobot(factory, monkeypatch)
     motors = motors_on(factory)
     out = io.StringIO()
-    with WiredRobot(factory):
-        steps = run_check(motors=motors, encoders=encoders_on(factory),
-                          left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
-                          spin_s=0.15, settle_s=0.05, out=out)
+    steps = run_check(motors=motors, encoders=encoders_on(factory),
+                      left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
+                      spin_s=0.15, settle_s=0.05, out=out, sleep=wired.sleep,
+                      clock=wired.clock)
     assert [(s.wheel, s.direction, s.passed) for s in steps] == [
         ("left", 1, True), ("left", -1, True), ("right", 1, True), ("right", -1, True)]
-    assert steps[0].edges["left"] > 40 and steps[0].edges["right"] == 0
-    assert steps[3].edges["right"] < -40
+    spun = round(0.15e6 / EDGE_US)  # every edge of each 0.15 s spin, and only those
+    assert steps[0].edges == {"left": spun, "right": 0}
+    assert steps[3].edges == {"left": 0, "right": -spun}
     report = out.getvalue()
     assert "FAIL" not in report
     # Counts (four edges each) are what it reports, the edges beside them.
@@ -482,32 +545,38 @@ def test_wiring_check_passes_on_good_wiring(
     assert f"left {left / 4:+8.2f} counts ({left:+d} edges)" in report
     assert report.startswith("left forward: ")  # said before the wheel spins
     assert backend_pulses(factory) == (1.55, 1.56)  # stopped at the end
-    # The init pulse armed the drivers for two whole periods before the first stop pulse.
+    # The init pulse armed the drivers for two whole periods before the first stop pulse,
+    # and the last stop pulse is held as long before the pins may be released.
     first = holds(factory.pin("GPIO12").states)
     init = next(i for i, (duty, _) in enumerate(first)
                 if duty == pytest.approx(DEFAULT_PWM.init_ms / 20.0))
-    assert first[init][1] >= HOLD_S
+    assert first[init][1] == pytest.approx(HOLD_S)
     assert first[init + 1][0] == pytest.approx(1.55 / 20.0)
+    assert wired.pins.now_us == round((2 * HOLD_S + 0.05 + 4 * (0.15 + 0.05)) * 1e6)
 
 
 def backend_pulses(factory: MockFactory) -> tuple[float, float]:
     return pulse_ms(factory, "GPIO12"), pulse_ms(factory, "GPIO13")
 
 
-def test_wiring_check_names_a_swapped_encoder(factory: MockFactory) -> None:
+def test_wiring_check_names_a_swapped_encoder(factory: MockFactory,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
     out = io.StringIO()
-    with WiredRobot(factory, swap_right=True):
-        steps = run_check(motors=motors_on(factory), encoders=encoders_on(factory),
-                          left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
-                          spin_s=0.15, settle_s=0.05, out=out)
+    wired = WiredRobot(factory, monkeypatch, swap_right=True)
+    steps = run_check(motors=motors_on(factory), encoders=encoders_on(factory),
+                      left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration(),
+                      spin_s=0.15, settle_s=0.05, out=out, sleep=wired.sleep,
+                      clock=wired.clock)
     assert [s.passed for s in steps] == [True, True, False, False]
     assert "swap right_a and right_b" in steps[2].advice
     assert "FAIL: the right wheel counted backwards" in out.getvalue()
 
 
-def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory) -> None:
+def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     # SIGTERM or Ctrl-C arrives as Interrupted wherever the check is (here: while the left
     # wheel spins); the stop pulse is applied and held two periods before it is raised.
+    wired = WiredRobot(factory, monkeypatch)
     motors = motors_on(factory)
     sleeps: list[float] = []
 
@@ -515,17 +584,17 @@ def test_wiring_check_interrupted_holds_the_stop_pulse(factory: MockFactory) -> 
         sleeps.append(seconds)
         if len(sleeps) == 3:  # init hold, settle, then the first spin
             raise Interrupted(signal.SIGTERM)
-        time.sleep(seconds)
+        wired.sleep(seconds)
 
     with pytest.raises(Interrupted):
         run_check(motors=motors, encoders=encoders_on(factory), left=LEFT_TRIM.calibration(),
                   right=RIGHT_TRIM.calibration(), spin_s=10.0, settle_s=0.05, out=io.StringIO(),
-                  sleep=sleep)
+                  sleep=sleep, clock=wired.clock)
     assert sleeps[:3] == [HOLD_S, 0.05, 10.0]
     motors.close()
     history = holds(factory.pin("GPIO12").states)
     spin = LEFT_TRIM.calibration().pulse_ms(30)
     assert [duty for duty, _ in history][-2:] == [pytest.approx(spin / 20.0),
                                                    pytest.approx(1.55 / 20.0)]
-    assert history[-1][1] >= HOLD_S  # the stop pulse, held, then the pins released
+    assert history[-1][1] == pytest.approx(HOLD_S)  # the stop pulse, held, then released
     assert factory.pin("GPIO12").state == 0

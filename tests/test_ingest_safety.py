@@ -17,6 +17,7 @@ import pytest
 import pytest_asyncio
 
 from tests.conftest import as_dict, eventually, read_until
+from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.aggregator import MAX_SOURCES, StateAggregator
 from ubf_async.arbiters import HighestPriority
@@ -346,13 +347,37 @@ async def test_reflex_flood_keeps_commands_bounded_and_the_tick_rate(
     periodic = ctl.stats.periodic - periodic0
     assert ctl.stats.triggered > 0, "no reflex ticks: the flood never arrived"
     assert ctl.stats.reflex_limited > 0, "the flood was never limited"
-    # Generous bounds on a shared machine; bench/flood.py measures the real figures.
-    assert commands <= 1.8 * 50 * elapsed * 1.1 + 5, f"{commands} commands in {elapsed:.2f}s"
-    assert 0.8 * 50 * elapsed <= periodic <= 1.1 * 50 * elapsed + 2, (
-        f"{periodic} periodic ticks in {elapsed:.2f}s at 50 Hz")
+    # What the schedule and the bucket allow, on any machine: 50 periodic ticks a second,
+    # and reflex ticks at 0.8 × 50 a second after a burst of 2 (one of each for the edges
+    # of the window). bench/flood.py measures the real figures.
+    assert periodic <= 50 * elapsed + 1, f"{periodic} periodic ticks in {elapsed:.2f}s"
+    assert commands <= (50 + 40) * elapsed + 2 + 2, f"{commands} commands in {elapsed:.2f}s"
+    # The flood does not take the schedule's slots: 80 % at least (99-100 % measured under
+    # bench.cpu_hog on a 2-core machine; bench.flood holds it to 5 % of an unflooded baseline).
+    assert periodic >= 0.8 * 50 * elapsed, f"{periodic} periodic ticks in {elapsed:.2f}s"
     assert ctl.restarts == 0 and agg.restarts == 0
     await ctl.aclose()
     await agg.aclose()
+
+
+@pytest.mark.asyncio
+async def test_a_reflex_flood_is_held_to_its_token_bucket_and_the_period_goes_on() -> None:
+    """The same flood's arithmetic in virtual time (the rig's clock): a reflex sample every
+    millisecond for 1 s. Exactly what the bucket allows is ticked — its burst, then 0.8 × 50
+    ticks a second — and the periodic schedule keeps every one of its slots."""
+    rig = Rig()
+    agg, ctl = robot_parts(rig.robot, FunctionBehavior(forward))
+    await rig.start(agg, ctl)
+    assert (ctl.stats.periodic, ctl.stats.triggered) == (1, 0)  # the schedule's first tick
+    for _ in range(1000):
+        rig.range.publish({"range_mm": 300, "status": "ok"})
+        await rig.advance_s(0.001)  # (delivered as the clock reaches the next millisecond)
+    assert ctl.stats.periodic == 1 + 50  # 1 s at 50 Hz
+    # The burst of 2 at the first sample (1 ms), then 40 a second for the 0.999 s after it.
+    assert ctl.stats.triggered == ctl.reflex_burst + 39
+    assert ctl.stats.reflex_limited == 1000 - ctl.stats.triggered
+    assert len(rig.drives) == ctl.stats.periodic + ctl.stats.triggered
+    await rig.close()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -377,7 +402,11 @@ async def test_a_raising_behaviour_is_cut_off_and_quarantined_and_the_tick_publi
     await started(agg, ctl)
     proc = await attacker("zero_range", "30")  # type: ignore[operator]
     await eventually(lambda: ctl.quarantined() == ["root/fragile"], what="quarantine")
-    assert root.failures["fragile"] == root.quarantine_after
+    # Quarantined after quarantine_after failing ticks in a row. There may have been more
+    # failures before those: on a busy machine a 20 ms sample can come late, the reading is
+    # stale for a tick, the behaviour abstains without raising, and the streak starts again.
+    failed = root.failures["fragile"]
+    assert failed >= root.quarantine_after
     before = len(drives)
     await eventually(lambda: len(drives) >= before + 5)
     assert all(list(m.data.winners) == ["steady"] and m.data.speed == 20
@@ -388,7 +417,7 @@ async def test_a_raising_behaviour_is_cut_off_and_quarantined_and_the_tick_publi
     assert status["quarantined"] == ["root/fragile"] and "QUARANTINED" in status["explanation"]
     assert ctl.stats.errors == 0 and ctl.restarts == 0
     await read_until(proc, "sent")
-    assert root.failures["fragile"] == root.quarantine_after  # skipped, no longer run
+    assert root.failures["fragile"] == failed  # skipped, no longer run
     await ctl.aclose()
     await agg.aclose()
 

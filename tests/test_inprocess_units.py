@@ -7,6 +7,7 @@ Each test wires what would be separate processes as separate buses on one
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import AsyncIterator
 from typing import Any
 
@@ -51,6 +52,11 @@ class Rig:
     def __init__(self) -> None:
         self.net = InProcessTransport()
         self.clock = SimClock(START_NS)
+        # The test is this clock's simulator: however much wall time a busy machine lets pass
+        # between two advances, its time source is alive, so the wall-time safety rule
+        # (SilenceLimit's silent source) never decides anything here — only the test's time.
+        self._driving = contextlib.ExitStack()
+        self._driving.enter_context(self.clock.driven())
         self.robot = Bus(transport=self.net, robot="unit", clock=self.clock)
         self.device = Bus(transport=self.net, robot="unit", clock=self.clock)
         self.watcher = Bus(transport=self.net, robot="unit", clock=self.clock)
@@ -82,6 +88,7 @@ class Rig:
             await component.aclose()
         for bus in (self.watcher, self.device, self.robot):
             await bus.aclose()
+        self._driving.close()
 
 
 @pytest_asyncio.fixture

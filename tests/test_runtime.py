@@ -1,26 +1,35 @@
-"""Runtime behaviour over real zenoh sessions on loopback (multicast scouting off)."""
+"""Runtime behaviour over real zenoh sessions on loopback (multicast scouting off).
+
+Timer logic inside one process (sync mode's holds and staleness, restart backoff) runs in
+virtual time instead — on the in-process transport with a clock the test advances, or on
+looptime's fast-forwarded loop — so a busy machine changes nothing in it."""
 
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import subprocess
 import sys
 import threading
+from collections.abc import AsyncIterator
 from pathlib import Path
 
 import msgpack
 import pytest
+import pytest_asyncio
 
-from tests.conftest import as_dict, eventually
+from tests.conftest import LoopClock, as_dict, eventually
+from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, follow_sim_clock
+from ubf_async.bus import Bus, Publisher, follow_sim_clock
 from ubf_async.clock import SimClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller
 from ubf_async.protocol import decode
+from ubf_async.transport import InProcessTransport
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
@@ -204,72 +213,75 @@ def ticked(drives: list[dict]) -> list[dict]:
     return [d for d in drives if not d.get("hold")]
 
 
+@pytest_asyncio.fixture
+async def rig() -> AsyncIterator[Rig]:
+    rig = Rig()
+    yield rig
+    await rig.close()
+
+
+def sync_controller(rig: Rig) -> tuple[StateAggregator, Controller, Publisher]:
+    """A sync-mode controller on the rig's robot bus and a camera on its device bus that
+    declares a 0.2 s period (stale after 0.3 s)."""
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=seek_pink_ball(), mode="sync",
+                     rate_hz=50.0)
+    camera = rig.device.publisher(rig.device.keys.sensor("camera", "front"), "camera.seekcolor",
+                                  period_s=0.2)
+    return agg, ctl, camera
+
+
 @pytest.mark.asyncio
 async def test_sync_mode_holds_the_last_decision_between_frames_and_stops_when_stale(
-    robot_bus: Bus, peer_bus: Bus
+    rig: Rig
 ) -> None:
-    agg = StateAggregator(bus=robot_bus)
-    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball(), mode="sync",
-                     rate_hz=50.0)
-    drives: list[dict] = []
-    robot_bus.subscribe(robot_bus.keys.cmd("drive"),
-                        lambda k, p, t: drives.append(as_dict(decode(p, schema="drive").data)),
-                        latest=False)
-    camera = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor",
-                                period_s=0.2)
-    await start(agg, ctl)
-    await camera.wait_for_subscribers()
-    await eventually(lambda: any(d.get("hold") for d in drives), what="a hold before any frame")
-    assert all(d["speed"] == 0 for d in drives), "no frame yet: holds are stops"
-    camera.publish({"bins": [0, 0, 110, 0, 0], "total": 110})  # chase: speed 30
-    await eventually(lambda: ctl.stats.ticks == 1)
-    mark = len(drives)
-    await eventually(lambda: sum(1 for d in drives[mark:] if d.get("hold")) >= 3,
-                     what="holds after the tick")
-    held = [d for d in drives[mark:] if d.get("hold")]
+    # On the robot clock the test advances: every hold and the instant the camera goes
+    # stale are exact, however busy the machine.
+    agg, ctl, camera = sync_controller(rig)
+    await rig.start(agg, ctl)
+    for _ in range(3):
+        await rig.advance_s(0.02)
+    assert len(rig.drives) == 3 and all(d["hold"] and d["speed"] == 0 for d in rig.drives), (
+        "no frame yet: a hold every period, and holds are stops")
+    seq, stamp = camera.publish({"bins": [0, 0, 110, 0, 0], "total": 110})  # chase: speed 30
+    await rig.net.settle()
+    assert ctl.stats.ticks == 1
+    tick = rig.drives[-1]
+    assert not tick.get("hold") and tick["speed"] == 30 and tick["based_on"] == {
+        "source": "camera/front", "seq": seq, "stamp_ns": stamp}
+    mark = len(rig.drives)
+    for _ in range(16):  # 0.32 s: the frame is 1.5 periods old at 0.30 s, stale after
+        await rig.advance_s(0.02)
+    held = rig.drives[mark:]
+    assert len(held) == 16 and all(d["hold"] and d["tick"] == 1 for d in held)
     # Between frames the motors get the last decision again, at the controller's rate, with
     # the tick it came from and no based_on (latency tools match commands to samples by it).
-    assert held[0]["speed"] == 30 and held[0]["tick"] == 1 and held[0]["based_on"] is None
-    # Once the camera is stale (1.5 periods = 0.3 s without a frame) a hold is a stop.
-    await eventually(lambda: drives[-1].get("hold") and drives[-1]["speed"] == 0,
-                     timeout_s=5, what="a stop once the camera is stale")
-    assert ctl.stats.ticks == 1 and ctl.stats.holds >= 3
-    await ctl.aclose()
-    await agg.aclose()
+    assert [d["speed"] for d in held] == [30] * 15 + [0]
+    assert all(d["based_on"] is None for d in held)
+    assert ctl.stats.ticks == 1 and ctl.stats.holds == 3 + 16
 
 
 @pytest.mark.asyncio
-async def test_sync_mode_ticks_only_on_a_fresh_camera_sample(robot_bus: Bus, peer_bus: Bus) -> None:
-    agg = StateAggregator(bus=robot_bus)
-    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball(), mode="sync")
-    drives: list[dict] = []
-    robot_bus.subscribe(robot_bus.keys.cmd("drive"),
-                        lambda k, p, t: drives.append(as_dict(decode(p, schema="drive").data)),
-                        latest=False)
-    camera = peer_bus.publisher(peer_bus.keys.sensor("camera", "front"), "camera.seekcolor")
-    other = peer_bus.publisher(peer_bus.keys.sensor("range", "front"), "range")
-    await start(agg, ctl)
-    await camera.wait_for_subscribers()
-    await other.wait_for_subscribers()
+async def test_sync_mode_ticks_only_on_a_fresh_camera_sample(rig: Rig) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    ctl = Controller(bus=rig.robot, aggregator=agg, root=seek_pink_ball(), mode="sync")
+    camera = rig.device.publisher(rig.device.keys.sensor("camera", "front"), "camera.seekcolor")
+    await rig.start(agg, ctl)
     for n in range(1, 6):
-        other.publish({"range_mm": 500, "status": "ok"})
+        await rig.publish_range(500)
         seq, stamp = camera.publish({"bins": [0, 0, 100 + 10 * n, 0, 0], "total": 100 + 10 * n})
-        await eventually(lambda n=n: ctl.stats.ticks == n, what=f"tick {n}")
-        await eventually(lambda n=n: len(ticked(drives)) == n)
-        assert ticked(drives)[-1]["based_on"] == {
+        await rig.net.settle()
+        assert ctl.stats.ticks == n
+        assert ticked(rig.drives)[-1]["based_on"] == {
             "source": "camera/front", "seq": seq, "stamp_ns": stamp}
-    # Other sensors do not tick a sync controller: only a new camera sample does.
-    ctl.ticked.clear()
-    for _ in range(5):
-        version = agg.entries["range/front"].version
-        other.publish({"range_mm": 400, "status": "ok"})
-        await eventually(lambda v=version: agg.entries["range/front"].version == v + 1)
-    with pytest.raises(TimeoutError):
-        await asyncio.wait_for(ctl.ticked.wait(), 0.3)
-    assert ctl.stats.ticks == 5
-    assert [d["speed"] for d in ticked(drives)] == [30, 20, 10, 0, -10]  # thesis numbers
-    await ctl.aclose()
-    await agg.aclose()
+    # Other sensors do not tick a sync controller: only a new camera sample does — not in a
+    # whole simulated second of them, with holds going out all along.
+    for _ in range(50):
+        await rig.publish_range(400)
+        await rig.advance_s(0.02)
+    assert agg.entries["range/front"].version == 55
+    assert ctl.stats.ticks == 5 and ctl.stats.holds == 50
+    assert [d["speed"] for d in ticked(rig.drives)] == [30, 20, 10, 0, -10]  # thesis numbers
 
 
 @pytest.mark.asyncio
@@ -297,10 +309,13 @@ class Flaky(Component):
         super().__init__(bus=bus, name="flaky", restart_backoff_s=0.01, heartbeat_period_s=0.05)
         self.failures = failures
         self.attempts = 0
+        self.attempted_at: list[float] = []
+        """The loop's time at each attempt."""
         self.steady = asyncio.Event()
 
     async def run(self) -> None:
         self.attempts += 1
+        self.attempted_at.append(asyncio.get_running_loop().time())
         self.publisher(self.bus.keys.sensor("test", "flaky"), "range")
         if self.attempts <= self.failures:
             raise RuntimeError(f"boom #{self.attempts}")
@@ -309,22 +324,66 @@ class Flaky(Component):
 
 
 @pytest.mark.asyncio
-async def test_component_that_raises_is_restarted_and_others_keep_going(robot_bus: Bus) -> None:
-    agg = StateAggregator(bus=robot_bus)
-    ctl = Controller(bus=robot_bus, aggregator=agg, root=seek_pink_ball())
-    flaky = Flaky(bus=robot_bus, failures=3)
+@pytest.mark.looptime
+async def test_component_that_raises_is_restarted_and_others_keep_going() -> None:
+    # Virtual time: the restart backoff sleeps on the loop, the controller ticks on the
+    # loop's clock, and the loop jumps from timer to timer, so both are timed exactly.
+    bus = Bus(transport=InProcessTransport(), clock=LoopClock())
+    agg = StateAggregator(bus=bus)
+    ctl = Controller(bus=bus, aggregator=agg, root=seek_pink_ball(), status_clock=bus.clock)
+    flaky = Flaky(bus=bus, failures=3)
     await start(agg, ctl)
     async with flaky:
         await asyncio.wait_for(flaky.steady.wait(), 5)
         assert flaky.restarts == 3 and flaky.attempts == 4
         assert str(flaky.last_error) == "boom #3"
+        # Restarted after 0.01 s, then 0.02 s, then 0.04 s: the backoff doubles.
+        gaps = [b - a for a, b in itertools.pairwise(flaky.attempted_at)]
+        assert gaps == pytest.approx([0.01, 0.02, 0.04], abs=1e-6)
         ticks = ctl.stats.ticks
-        await eventually(lambda: ctl.stats.ticks > ticks + 5, what="controller still ticking")
+        await asyncio.sleep(0.1)
+        assert ctl.stats.ticks == ticks + 5  # 0.1 s at 50 Hz: the controller went on
         assert ctl.restarts == 0
     await flaky.aclose()  # twice is harmless
     assert flaky.closed
     await ctl.aclose()
     await agg.aclose()
+    await bus.aclose()
+
+
+class Brittle(Component):
+    """Each attempt runs for the next of ``lasts_s`` (loop time), then raises; the attempt
+    after the last one runs for good."""
+
+    def __init__(self, *, bus: Bus, lasts_s: list[float]) -> None:
+        super().__init__(bus=bus, name="brittle", restart_backoff_s=0.01, healthy_after_s=10.0)
+        self.lasts_s = lasts_s
+        self.attempted_at: list[float] = []
+        self.steady = asyncio.Event()
+
+    async def run(self) -> None:
+        self.attempted_at.append(asyncio.get_running_loop().time())
+        if len(self.attempted_at) > len(self.lasts_s):
+            self.steady.set()
+            await asyncio.Event().wait()
+        await asyncio.sleep(self.lasts_s[len(self.attempted_at) - 1])
+        raise RuntimeError(f"boom #{len(self.attempted_at)}")
+
+
+@pytest.mark.asyncio
+@pytest.mark.looptime
+async def test_a_run_that_was_healthy_restarts_after_the_first_backoff_again() -> None:
+    # 0.01 s, 0.02 s, then a run of 10 s (healthy_after_s): the next failure is not a streak
+    # of the earlier ones, so the backoff starts again at 0.01 s instead of 0.04 s.
+    bus = Bus(transport=InProcessTransport(), clock=LoopClock())
+    brittle = Brittle(bus=bus, lasts_s=[0.0, 0.0, 10.0, 0.0])
+    async with brittle:
+        await asyncio.wait_for(brittle.steady.wait(), 60)
+    starts = brittle.attempted_at
+    ends = [start + last for start, last in zip(starts, brittle.lasts_s, strict=False)]
+    backoffs = [b - a for a, b in zip(ends, starts[1:], strict=True)]
+    assert backoffs == pytest.approx([0.01, 0.02, 0.01, 0.02], abs=1e-6)
+    await bus.aclose()
 
 
 @pytest.mark.asyncio

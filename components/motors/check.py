@@ -74,12 +74,14 @@ def signals_interrupt() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
-def hold(seconds: float, sleep: Callable[[float], None] = time.sleep) -> None:
+def hold(seconds: float, sleep: Callable[[float], None] = time.sleep,
+         clock: Callable[[], float] = time.monotonic) -> None:
     """Sleep ``seconds`` of wall time in full, even through an :class:`Interrupted`, which is
-    raised once the time is up: a pulse being held is never cut short."""
-    deadline = time.monotonic() + seconds
+    raised once the time is up: a pulse being held is never cut short. ``clock`` is the time
+    ``sleep`` lets pass (seconds), what the hold is measured on."""
+    deadline = clock() + seconds
     interrupted: Interrupted | None = None
-    while (left := deadline - time.monotonic()) > 0:
+    while (left := deadline - clock()) > 0:
         try:
             sleep(left)
         except Interrupted as exc:
@@ -108,12 +110,14 @@ class Step:
 def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: MotorCalibration,
               u: float = 30.0, spin_s: float = 1.0, settle_s: float = 0.3,
               min_edges: int = 40, out: TextIO = sys.stdout,
-              sleep: Callable[[float], None] = time.sleep) -> list[Step]:
+              sleep: Callable[[float], None] = time.sleep,
+              clock: Callable[[], float] = time.monotonic) -> list[Step]:
     """Spin each wheel at wheel command ``±u`` for ``spin_s`` and judge the encoders.
 
     The init pulse and the final stop pulse are held for the motors' ``hold_s`` (two PWM
     periods) with ``sleep``, whatever ends the check: the caller may release the pins as soon
-    as this returns or raises."""
+    as this returns or raises. ``sleep`` and ``clock`` go together: the time ``sleep`` lets
+    pass is what ``clock`` reads (a test gives both on a virtual clock)."""
     calibrations = {"left": left, "right": right}
     stop = {"left_ms": left.zero_ms, "right_ms": right.zero_ms}
     held = float(getattr(motors, "hold_s", hold_s(DEFAULT_PWM.period_ms)))
@@ -151,7 +155,7 @@ def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: Moto
                       flush=True)
     finally:
         motors.apply_pulses(**stop)
-        hold(held, sleep)  # whole periods of the stop pulse before the pins can be released
+        hold(held, sleep, clock)  # whole periods of the stop pulse before the pins are released
     return steps
 
 
