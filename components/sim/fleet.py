@@ -13,6 +13,7 @@ controllers, in their own processes, follow it.
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -22,6 +23,7 @@ from components.sim.component import SimulatorComponent
 from components.sim.runner import DEFAULT_SCENARIO, lateness_summary, rounded
 from components.sim.scenarios import check_placement, load_scenario
 from components.sim.world import Pose2D, World, WorldConfig, WorldSnapshot
+from ubf_async import ending
 from ubf_async.bus import Bus, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
@@ -40,6 +42,12 @@ FOUND_DISTANCE_M = 1.0
 FOUND_BEARING_DEG = 30.0
 """A robot has found the ball once it is within ``FOUND_DISTANCE_M`` of it, facing it within
 ``FOUND_BEARING_DEG`` (judged on the simulator's truth every 0.1 simulated s)."""
+log = logging.getLogger(__name__)
+
+WORLD_CLOSE_BOUND_S = 1.0
+"""Wall time the world's end gives each of its components to close (the fleet launcher kills
+a world still running 4 s after its SIGTERM, and its summary comes after them)."""
+
 MIN_SEPARATION_M = 0.13
 """Closest two robots' centres may start (a Mini-WHEGS is 10 × 7 cm: its diagonal, rounded
 up)."""
@@ -153,8 +161,10 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
         # would come after it, while closing: not waited for).
         statuses = [dict(status) for status in statuses]
     finally:
+        end = ending.Ending(log)
         for component in reversed(components):
-            await component.aclose()
+            await end.step(f"closing {component.name}", component.aclose,
+                           bound_s=WORLD_CLOSE_BOUND_S)
         for subscription in subscriptions:
             subscription.close()
     ends = [world.snapshot_for(i).robot for i in range(world.robot_count)]
