@@ -32,7 +32,7 @@ from typing import Any
 import yaml
 
 from components.devices import make_backend, make_device, requires_simulator
-from ubf_async import clockdomain, lockstep, registry
+from ubf_async import clockdomain, lockstep, refusals, registry
 from ubf_async.bus import (
     DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
@@ -174,6 +174,7 @@ class Device:
         backend: Any = None
         component: Component | None = None
         participant: Component | None = None
+        watch: refusals.RefusalWatch | None = None
         try:
             await wait_for_robot(bus, timeout_s=self.wait_for_robot_s)
             if simulator is not None:
@@ -191,6 +192,9 @@ class Device:
                                     name=self.name, params=self.params)
             await ensure_name_free(bus, component.name,
                                    hint=f"start it with another --name than {self.name!r}")
+            # Before the first sample, so that the robot's first refusal is heard (on stderr).
+            watch = refusals.RefusalWatch(bus, mine=component.publishes, who=component.name)
+            watch.start()
             await component.start()
             if self.lockstep:
                 participant = lockstep.LockstepParticipant(bus=bus, participant=component.name)
@@ -215,4 +219,6 @@ class Device:
                 close()  # built, but its device was not
             if world is not None:
                 world.close()
+            if watch is not None:
+                watch.close()
             await bus.aclose()

@@ -1113,11 +1113,12 @@ def follow_sim_clock(
 def decode_or_count(
     payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
     topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
+    on_error: Callable[[ProtocolError], None] | None = None,
 ) -> Any | None:
     """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
     :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
-    per key) and return ``None``. ``counter`` keeps at most :data:`MAX_COUNTED_KEYS` keys, so
-    junk keys cannot grow it without bound."""
+    per key), pass it to ``on_error`` if given, and return ``None``. ``counter`` keeps at most
+    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
     try:
         if decoder is not None:
             return decoder(payload)
@@ -1130,4 +1131,6 @@ def decode_or_count(
             del counter[next(iter(counter))]
         if n == 1 or n % 100 == 0:
             log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
+        if on_error is not None:
+            on_error(exc)
         return None
