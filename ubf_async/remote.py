@@ -880,8 +880,9 @@ def remote_parser(
                        help="how long each vote holds on the robot")
     group.add_argument("--clock", choices=("auto", "wall", "sim"), default="auto",
                        help="robot clock: wall (CLOCK_MONOTONIC), sim (follow "
-                            "ubf/<robot>/clock), auto (sim if a simulator speaks within "
-                            "--clock-wait-s)")
+                            "ubf/<robot>/clock), auto (the one the robot says it runs on: "
+                            "simulated time, or its host's clock, followed from another "
+                            "host)")
     group.add_argument("--lockstep", action="store_true",
                        help="on a simulated robot: take part in the simulator's lockstep, so "
                             "every vote counts at the simulated instant it was made for and "
@@ -889,8 +890,10 @@ def remote_parser(
     group.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
                        metavar="S", help="how long to wait for the robot to answer before "
                                          "giving up")
-    group.add_argument("--clock-wait-s", type=float, default=1.0,
-                       help="with --clock auto: how long to listen for a simulator")
+    group.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
+                       help="with --clock auto: how long to wait for the robot to say which "
+                            "clock it runs on (a running robot does within a second) before "
+                            "stamping with this host's clock")
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
@@ -903,11 +906,12 @@ def remote_parser(
 
 
 async def choose_clock(bus: Bus, mode: clockdomain.ClockMode, *,
-                       wait_s: float = 1.0) -> Clock:
+                       wait_s: float = clockdomain.DEFAULT_CLOCK_WAIT_S,
+                       say: Callable[[str], None] | None = None) -> Clock:
     """The clock a remote process stamps with (``wall``, ``sim`` or ``auto``): the robot's,
-    as :func:`ubf_async.clockdomain.follow_robot_clock` finds it. Sets ``bus.clock`` and
-    returns it."""
-    return await clockdomain.follow_robot_clock(bus, mode=mode, wait_s=wait_s)
+    as :func:`ubf_async.clockdomain.follow_robot_clock` finds it (``say``: its lines for the
+    user). Sets ``bus.clock`` and returns it."""
+    return await clockdomain.follow_robot_clock(bus, mode=mode, wait_s=wait_s, say=say)
 
 
 async def host_remote_behavior(
@@ -935,7 +939,7 @@ async def host_remote_behavior(
         if args.clock == "sim":
             print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
             out.flush()
-        clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s)
+        clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s, say=say)
         host = RemoteBehaviorHost(
             bus=bus, behavior=behavior, composite=args.composite, rate_hz=args.rate_hz,
             trigger=args.trigger, ttl_s=args.ttl_s, priority=args.priority,
