@@ -13,10 +13,14 @@ that simulator plug-in's ``attach()``, so a device can be added to, or removed f
 simulated robot at any time. This module knows no simulator by name.
 
 Any other backend (real hardware, the radio on a terminal) stamps on the robot's clock too:
-with ``--clock auto`` (the default) it follows ``ubf/<robot>/clock`` when a simulator
-publishes one within ``--clock-wait-s``, the robot host's clock (``ubf/<robot>/time``) when
-the robot runs on wall time on another host, else this host's ``CLOCK_MONOTONIC``; its
-start-up line says which (:func:`ubf_async.clockdomain.follow_robot_clock`).
+with ``--clock auto`` (the default) it waits until the robot says which clock it runs on,
+however long the robot takes to start — simulated time (``ubf/<robot>/clock``: followed), or
+its host's ``CLOCK_MONOTONIC`` (followed through ``ubf/<robot>/time`` from another host) —
+and takes this host's clock only when the robot says nothing of it within ``--clock-wait-s``;
+its start-up line says which (:func:`ubf_async.clockdomain.follow_robot_clock`).
+
+Whatever the backend, the process says on its stderr, at once, when the robot refuses its
+samples, and why (:class:`ubf_async.refusals.RefusalWatch`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,7 +37,7 @@ from typing import Any
 import yaml
 
 from components.devices import make_backend, make_device, requires_simulator
-from ubf_async import clockdomain, lockstep, registry
+from ubf_async import clockdomain, lockstep, refusals, registry
 from ubf_async.bus import (
     DEFAULT_ATTACH_TIMEOUT_S,
     Bus,
@@ -49,6 +54,11 @@ from ubf_async.simulation import DeviceContext
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
 """Maps the parsed command line to keyword parameters (of the device or of its backend)."""
+
+
+def _say(line: str) -> None:
+    # stderr: a device's stdout may carry its data (the radio's received messages).
+    print(line, file=sys.stderr, flush=True)
 
 
 def _no_params(args: argparse.Namespace) -> dict[str, Any]:
@@ -115,11 +125,12 @@ def run_device(
                      help="with a backend that needs no simulator: the robot clock to stamp "
                           "with: wall (this host's CLOCK_MONOTONIC), sim (follow "
                           "ubf/<robot>/clock), robot (the robot host's clock through "
-                          "ubf/<robot>/time: on another host), auto (whichever the robot "
-                          "publishes within --clock-wait-s, else wall)")
+                          "ubf/<robot>/time: on another host), auto (the one the robot "
+                          "says it runs on)")
     run.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
-                     metavar="S", help="with --clock auto: how long to listen for the robot's "
-                                       "clock")
+                     metavar="S", help="with --clock auto: how long to wait for the robot to "
+                                       "say which clock it runs on (a running robot does "
+                                       "within a second) before stamping with this host's")
     run.add_argument("--lockstep", action="store_true",
                      help="on a simulated robot: take part in the simulator's lockstep, so "
                           "every sample counts at the simulated instant it was taken and a "
@@ -174,6 +185,7 @@ class Device:
         backend: Any = None
         component: Component | None = None
         participant: Component | None = None
+        watch: refusals.RefusalWatch | None = None
         try:
             await wait_for_robot(bus, timeout_s=self.wait_for_robot_s)
             if simulator is not None:
@@ -183,7 +195,8 @@ class Device:
                                                wait_s=self.wait_for_sim_s)
             else:  # stamp on the robot's clock all the same: simulated time if it has one
                 clock = await clockdomain.follow_robot_clock(bus, mode=self.clock,
-                                                             wait_s=self.clock_wait_s)
+                                                             wait_s=self.clock_wait_s,
+                                                             say=_say)
             context = DeviceContext(bus=bus, clock=clock, seed=self.seed, simulation=world)
             backend = make_backend(self.kind, self.backend, context=context,
                                    params=self.backend_params)
@@ -191,6 +204,9 @@ class Device:
                                     name=self.name, params=self.params)
             await ensure_name_free(bus, component.name,
                                    hint=f"start it with another --name than {self.name!r}")
+            # Before the first sample, so that the robot's first refusal is heard (on stderr).
+            watch = refusals.RefusalWatch(bus, mine=component.publishes, who=component.name)
+            watch.start()
             await component.start()
             if self.lockstep:
                 participant = lockstep.LockstepParticipant(bus=bus, participant=component.name)
@@ -215,4 +231,6 @@ class Device:
                 close()  # built, but its device was not
             if world is not None:
                 world.close()
+            if watch is not None:
+                watch.close()
             await bus.aclose()

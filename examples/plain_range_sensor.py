@@ -2,11 +2,15 @@
 
     python examples/plain_range_sensor.py --connect tcp/127.0.0.1:7447 --robot mini
 
-It learns which clock the robot is on (docs/protocol.md, "The robot clock"): when a simulator
-publishes ``ubf/<robot>/clock`` within ``--clock-wait-s`` it stamps every sample with the
-newest simulated time heard there, else with this host's ``CLOCK_MONOTONIC``, and says which.
-Then it declares its liveliness token and publishes a fixed IR range reading on
-``ubf/<robot>/sensor/range/<name>`` at ``--rate-hz`` until interrupted.
+It waits for the robot to say which clock it is on (docs/protocol.md, "The robot clock"):
+a sample on ``ubf/<robot>/clock`` (a simulator: it stamps every sample with the newest
+simulated time heard there) or on ``ubf/<robot>/time`` (a robot on wall time: it stamps with
+this host's ``CLOCK_MONOTONIC``), and says which; a robot that says neither within
+``--clock-wait-s`` gets ``CLOCK_MONOTONIC`` too. Then it declares its liveliness token and
+publishes a fixed IR range reading on ``ubf/<robot>/sensor/range/<name>`` at ``--rate-hz``
+until interrupted. Whatever the robot refuses of it, it prints on stderr, as the robot's
+notices on ``ubf/<robot>/refused/sensor/range/<name>`` say (docs/protocol.md, "Refusal
+notices").
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import sys
 import threading
 import time
 
@@ -31,9 +36,9 @@ def main() -> int:
     parser.add_argument("--range-mm", type=int, default=250)
     parser.add_argument("--rate-hz", type=float, default=20.0)
     parser.add_argument("--count", type=int, default=0, help="stop after N samples (0: never)")
-    parser.add_argument("--clock-wait-s", type=float, default=1.0,
-                        help="how long to listen for a simulator's clock before stamping "
-                             "with CLOCK_MONOTONIC")
+    parser.add_argument("--clock-wait-s", type=float, default=30.0,
+                        help="how long to wait for the robot to say which clock it is on "
+                             "before stamping with CLOCK_MONOTONIC")
     args = parser.parse_args()
 
     conf = zenoh.Config()
@@ -57,9 +62,12 @@ def main() -> int:
     with zenoh.open(conf) as session:
         prefix = f"ubf/{args.robot}"
         # The robot clock: the newest simulated time on ubf/<robot>/clock if a simulator
-        # publishes one (a sample every 5 ms of simulated time), else CLOCK_MONOTONIC.
+        # publishes one (a sample every 5 ms of simulated time), CLOCK_MONOTONIC if the robot
+        # publishes its host's time on ubf/<robot>/time. Wait for whichever speaks: a robot
+        # may still be starting.
         sim_ns = [0]
         simulated = threading.Event()
+        told = threading.Event()
 
         def on_clock(sample: zenoh.Sample) -> None:
             try:
@@ -69,14 +77,33 @@ def main() -> int:
             if isinstance(stamp, int):
                 sim_ns[0] = stamp
                 simulated.set()
+                told.set()
 
         clock_sub = session.declare_subscriber(f"{prefix}/clock", on_clock)
-        if simulated.wait(args.clock_wait_s):
+        time_sub = session.declare_subscriber(f"{prefix}/time", lambda sample: told.set())
+        if not told.wait(args.clock_wait_s):
+            print(f"nothing on {prefix}/clock or {prefix}/time within {args.clock_wait_s:g}s: "
+                  f"stamping with CLOCK_MONOTONIC", flush=True)
+        elif simulated.is_set():
             print(f"stamping with the simulated time on {prefix}/clock", flush=True)
         else:
+            print(f"the robot is on wall time ({prefix}/time): stamping with CLOCK_MONOTONIC",
+                  flush=True)
+        time_sub.undeclare()
+        if not simulated.is_set():
             clock_sub.undeclare()
-            print(f"no sample on {prefix}/clock within {args.clock_wait_s:g}s: the robot is "
-                  f"on wall time, stamping with CLOCK_MONOTONIC", flush=True)
+
+        # What the robot refuses of ours, and why (its notices, at most one a second).
+        def on_refused(sample: zenoh.Sample) -> None:
+            try:
+                data = msgpack.unpackb(sample.payload.to_bytes())["data"]
+                print(f"the robot refuses our samples ({data['count']} so far, "
+                      f"{data['reason']}): {data['detail']}", file=sys.stderr, flush=True)
+            except (ValueError, TypeError, KeyError):
+                return  # not a notice: ignore it
+
+        refused_sub = session.declare_subscriber(
+            f"{prefix}/refused/sensor/range/{args.name}", on_refused)
 
         def now_ns() -> int:
             return sim_ns[0] if simulated.is_set() else time.monotonic_ns()
@@ -97,6 +124,7 @@ def main() -> int:
             })
             pub.put(payload)
             time.sleep(period_s)
+        refused_sub.undeclare()
         token.undeclare()
     return 0
 

@@ -3,9 +3,11 @@
     python -m tests.remote_robot --listen tcp/127.0.0.1:7450 --robot r1
 
 It opens a bus, runs a state aggregator, the controller with the thesis's seek_pink_ball tree,
-:class:`~ubf_async.remote.RemoteBehaviors`, and a stand-in camera that publishes fixed
+:class:`~ubf_async.remote.RemoteBehaviors`, a stand-in camera that publishes fixed
 seekcolor bins every 0.11 s (pink in the centre by default, so seek-the-pink-ball chases:
-speed +40, turn 0). It prints ``ready`` once everything runs and stops on SIGTERM.
+speed +40, turn 0) and, as a robot on wall time does, its clock on ``ubf/<robot>/time``; it
+tells senders what it refuses (``ubf/<robot>/refused/...``), as launch does. It prints
+``ready`` once everything runs and stops on SIGTERM.
 
 Also importable (``tests.remote_robot``) for the helpers the subprocess tests share.
 """
@@ -30,6 +32,7 @@ from ubf_async.behaviors import seek_pink_ball
 from ubf_async.bus import Bus, add_connection_arguments, connection_options
 from ubf_async.component import Component
 from ubf_async.controller import Controller
+from ubf_async.hostclock import RobotTimeBeacon
 from ubf_async.remote import RemoteBehaviors, remote_spec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -65,11 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
 async def run(args: argparse.Namespace) -> int:
     bus = await Bus.open(connection_options(args))
     root = seek_pink_ball()
-    aggregator = StateAggregator(bus=bus)
+    aggregator = StateAggregator(bus=bus, notify_refusals=True)
     components: list[Component] = [
         aggregator,
         Controller(bus=bus, aggregator=aggregator, root=root, rate_hz=args.rate_hz),
-        RemoteBehaviors(bus=bus, root=root, config=dict(args.remote)),
+        RemoteBehaviors(bus=bus, root=root, config=dict(args.remote), notify_refusals=True),
+        RobotTimeBeacon(bus=bus),
     ]
     if not args.no_camera:
         bins = [int(b) for b in args.bins.split(",")]

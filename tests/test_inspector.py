@@ -24,7 +24,7 @@ from ubf_async.inspector import (
 from ubf_async.protocol import Keys, encode
 
 EXAMPLES = ROOT / "examples"
-ROBOT_COMPONENTS = ["aggregator", "camera-front", "controller", "remotes"]
+ROBOT_COMPONENTS = ["aggregator", "camera-front", "controller", "remotes", "robot-time"]
 
 
 def inspect(*args: str, timeout_s: float = 30) -> subprocess.CompletedProcess[str]:

@@ -95,8 +95,9 @@ async def test_killed_publisher_goes_stale_and_liveliness_vanishes(
     health = HealthMonitor(robot_bus)
     health.start()
     proc = subprocess.Popen(
+        # A bare bus, not a robot: it says nothing of its clock, so do not wait for it.
         [sys.executable, str(EXAMPLES / "plain_range_sensor.py"), "--connect", endpoint,
-         "--robot", robot, "--name", "plain", "--rate-hz", "50"],
+         "--robot", robot, "--name", "plain", "--rate-hz", "50", "--clock-wait-s", "1"],
         stdout=subprocess.DEVNULL,
     )
     try:

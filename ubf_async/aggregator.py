@@ -43,7 +43,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import ParamSpec
 
-from ubf_async import clockdomain
+from ubf_async import clockdomain, refusals
 from ubf_async.action import Action
 from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SilenceLimit
@@ -201,6 +201,9 @@ class StateAggregator(Component):
     (:data:`DEFAULT_FUTURE_TOLERANCE_S`). ``forget_after_s``: silence after which an
     unprotected source is dropped (``None``: never). ``protected_sources``: sources never
     forgotten nor evicted (launch passes the devices of the robot file).
+    ``notify_refusals``: also tell each refused or malformed sample's sender, on
+    ``ubf/<robot>/refused/...`` (:mod:`ubf_async.refusals`) — the robot's aggregator does;
+    a remote behaviour's own copy of the state does not speak for the robot.
     """
 
     def __init__(
@@ -214,6 +217,7 @@ class StateAggregator(Component):
         forget_after_s: float | None = DEFAULT_FORGET_AFTER_S,
         protected_sources: Iterable[str] = (),
         max_sources: int = MAX_SOURCES,
+        notify_refusals: bool = False,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=name, **component_options)
@@ -252,6 +256,8 @@ class StateAggregator(Component):
         self.clock_domain = clockdomain.watch(bus)
         """Samples stamped on another clock than the robot's, per source
         (:mod:`ubf_async.clockdomain`; shared with everything else on this bus)."""
+        self.notices = refusals.notices_of(bus) if notify_refusals else None
+        """Where refusals are told to their senders (``notify_refusals``)."""
 
     @property
     def refused_sources(self) -> int:
@@ -309,7 +315,11 @@ class StateAggregator(Component):
             return
         # A declared kind (ubf_async.topics) only takes its own schema: behaviours read its
         # samples as that type. Other kinds take any schema, checked generically.
-        message = decode_or_count(payload, self.malformed, key, topic=sensor_topic(source))
+        notices = self.notices
+        message = decode_or_count(
+            payload, self.malformed, key, topic=sensor_topic(source),
+            on_error=None if notices is None else
+            lambda exc: notices.report(key, "malformed", f"malformed sample: {exc}"))
         if message is None:
             return
         self.ingest(source, message, received_ns)
@@ -322,6 +332,8 @@ class StateAggregator(Component):
         n = self.refused[reason]
         if n == 1 or n % 100 == 0:
             log.warning("refused sample #%d (%s) of %s: %s", n, reason, clip(source), detail)
+        if self.notices is not None:
+            self.notices.report(f"{self.bus.keys.prefix}/sensor/{source}", reason, detail)
 
     def ingest(self, source: str, message: Message, received_ns: int) -> bool:
         """Store a validated sample (also usable in-process, without the bus); returns

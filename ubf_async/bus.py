@@ -384,6 +384,83 @@ def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError
 
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
 
+CONNECT_GRACE_S = 2.0
+"""How long a peer's ``connect`` endpoint may stay unanswered before it is reported."""
+CONNECT_CHECK_S = 0.5
+"""How often the links to the ``connect`` endpoints are looked at."""
+CONNECT_REMIND_S = 60.0
+"""While an endpoint stays unanswered, the warning is repeated this often."""
+_IP_ENDPOINT = re.compile(r"^(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]*\]|[^:/?#\[\]]+)"
+                          r":(?P<port>\d+)")
+
+
+def endpoint_locators(endpoint: str) -> set[str]:
+    """The locators a link to ``endpoint`` may have as its destination: the endpoint without
+    its ``?``/``#`` options and, for an IP endpoint given by host name, one per address the
+    name resolves to (``tcp/localhost:7447`` → ``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``)."""
+    plain = re.split(r"[?#]", endpoint, maxsplit=1)[0]
+    found = {plain}
+    match = _IP_ENDPOINT.match(plain)
+    if match is None:
+        return found
+    proto, host, port = match["proto"], match["host"].strip("[]"), int(match["port"])
+    try:
+        addresses = {info[4][0] for info in socket.getaddrinfo(host, port)}
+    except OSError:  # a name that does not resolve now: zenoh will keep trying it too
+        return found
+    for address in addresses:
+        address = str(address)
+        found.add(f"{proto}/[{address}]:{port}" if ":" in address
+                  else f"{proto}/{address}:{port}")
+    return found
+
+
+async def watch_connect_endpoints(bus: Bus, endpoints: list[str], *,
+                                  grace_s: float = CONNECT_GRACE_S,
+                                  check_s: float = CONNECT_CHECK_S,
+                                  remind_s: float = CONNECT_REMIND_S) -> None:
+    """Report, as warnings, the ``connect`` endpoints of a peer session that nothing answers
+    at (after ``grace_s``, then every ``remind_s``), and when one answers after all or its link
+    is lost; zenoh retries them meanwhile (:data:`RECONNECT_RETRY`). Runs until cancelled
+    (the bus closes)."""
+    connection = bus._connection
+    links = getattr(connection, "link_destinations", None)
+    if links is None:
+        return  # a transport without links to look at (the in-process one)
+    locators = {e: await asyncio.to_thread(endpoint_locators, e) for e in endpoints}
+    loop = asyncio.get_running_loop()
+    opened = loop.time()
+    up: dict[str, bool] = dict.fromkeys(endpoints, False)
+    warned_at: dict[str, float] = {}  # endpoints reported unanswered, and when last
+    ever_up: set[str] = set()
+    while True:
+        try:
+            destinations = set(links())
+        except Exception:  # a closing session: nothing left to watch
+            return
+        now = loop.time()
+        for endpoint in endpoints:
+            reached = bool(locators[endpoint] & destinations)
+            if reached and not up[endpoint]:
+                if endpoint in warned_at:
+                    log.warning("connected to %s%s", endpoint, " again" if endpoint in ever_up
+                                else f" after {now - opened:.0f} s")
+                    del warned_at[endpoint]
+                ever_up.add(endpoint)
+            elif not reached and up[endpoint]:
+                log.warning("lost the connection to %s: retrying until it answers again",
+                            endpoint)
+                warned_at[endpoint] = now
+            elif not reached and (
+                    (endpoint not in warned_at and now - opened >= grace_s)
+                    or (endpoint in warned_at and now - warned_at[endpoint] >= remind_s)):
+                log.warning("nothing answers at %s (--connect) after %.0f s: retrying every "
+                            "second until it does (%s)", endpoint, now - opened,
+                            START_ROBOT_HINT)
+                warned_at[endpoint] = now
+            up[endpoint] = reached
+        await asyncio.sleep(check_s)
+
 
 async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
                          any_robot: bool = False) -> None:
@@ -812,6 +889,7 @@ class Bus:
         self._closed = False
         self._connection: Connection = transport.connect(loop=self._loop,
                                                          pending=self._has_pending)
+        self._connect_watch: asyncio.Task[None] | None = None
 
     @classmethod
     async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None,
@@ -835,8 +913,14 @@ class Bus:
             session = await asyncio.to_thread(zenoh.open, config)
         except zenoh.ZError as exc:
             raise session_error(options, exc) from None
-        return cls(transport=ZenohTransport(session, ordered=ordered), options=options,
-                   clock=clock)
+        bus = cls(transport=ZenohTransport(session, ordered=ordered), options=options,
+                  clock=clock)
+        if options.mode == "peer" and options.connect:
+            # A client fails to open when nothing answers; a peer opens all the same and
+            # zenoh keeps trying in the background: say so, as a robot should.
+            bus._connect_watch = asyncio.get_running_loop().create_task(
+                watch_connect_endpoints(bus, options.connect), name="ubf-connect-watch")
+        return bus
 
     @property
     def robot(self) -> str:
@@ -983,6 +1067,8 @@ class Bus:
         if self._closed:
             return
         self._closed = True
+        if self._connect_watch is not None:
+            self._connect_watch.cancel()
         for sub in list(self._subscriptions):
             sub.close()
         for queryable in list(self._queryables):
@@ -1027,11 +1113,12 @@ def follow_sim_clock(
 def decode_or_count(
     payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
     topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
+    on_error: Callable[[ProtocolError], None] | None = None,
 ) -> Any | None:
     """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
     :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
-    per key) and return ``None``. ``counter`` keeps at most :data:`MAX_COUNTED_KEYS` keys, so
-    junk keys cannot grow it without bound."""
+    per key), pass it to ``on_error`` if given, and return ``None``. ``counter`` keeps at most
+    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
     try:
         if decoder is not None:
             return decoder(payload)
@@ -1044,4 +1131,6 @@ def decode_or_count(
             del counter[next(iter(counter))]
         if n == 1 or n % 100 == 0:
             log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
+        if on_error is not None:
+            on_error(exc)
         return None

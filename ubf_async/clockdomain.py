@@ -35,9 +35,10 @@ samples, so a flood of names cannot flood the log), and its
 One watch serves a bus (:func:`watch`): the robot's aggregator and its remote behaviours
 report into the same table.
 
-The other half — a process learning which clock the robot is on — is
-:func:`follow_robot_clock` (``python -m components.<device>`` with a backend that needs no
-simulator uses it; ``docs/protocol.md`` shows the same in plain zenoh + msgpack).
+The other half — a process learning which clock the robot is on, however long the robot takes
+to start — is :func:`follow_robot_clock` (``--clock auto`` of the remote behaviours and of
+``python -m components.<device>`` with a backend that needs no simulator;
+``docs/protocol.md`` shows the same in plain zenoh + msgpack).
 """
 
 from __future__ import annotations
@@ -48,13 +49,14 @@ import socket
 import time
 import weakref
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
 from ubf_async.bus import Bus, follow_sim_clock
 from ubf_async.clock import Clock, SimClock
-from ubf_async.protocol import clip
-from ubf_async.topics import ROBOT_TIME
+from ubf_async.protocol import ProtocolError, clip, decode
+from ubf_async.topics import CONTROLLER_STATUS, ROBOT_TIME
 
 log = logging.getLogger(__name__)
 
@@ -221,14 +223,20 @@ def watch(bus: Bus) -> ClockDomainWatch:
 # Learning the robot's clock
 
 ClockMode = Literal["auto", "wall", "sim", "robot"]
-DEFAULT_CLOCK_WAIT_S = 1.0
-"""How long ``auto`` listens for the robot's clock before taking this host's. A simulator
-publishes a clock sample every step (5 ms of simulated time), a wall-time robot its host's
-clock every 0.1 s (:mod:`ubf_async.hostclock`)."""
+DEFAULT_CLOCK_WAIT_S = 10.0
+"""How long ``auto`` waits for the robot to say which clock it runs on before taking this
+host's. A robot started with ``python -m ubf_async.launch`` says so within about 0.5 s of its
+controller starting (its status, and its clock or time samples), so this only runs out
+against a robot that publishes none of them."""
+HOST = socket.gethostname()[:253]
+"""This host's name, as a robot's status and time samples name theirs."""
+WAITING_SAID_AFTER_S = 1.0
+"""``auto`` says it is waiting once this long has passed without an answer."""
 
 
 async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
-                             wait_s: float = DEFAULT_CLOCK_WAIT_S) -> Clock:
+                             wait_s: float = DEFAULT_CLOCK_WAIT_S,
+                             say: Callable[[str], None] | None = None) -> Clock:
     """Put ``bus`` on the robot's clock and return it:
 
     * ``wall`` keeps ``bus.clock`` (this host's ``CLOCK_MONOTONIC``: right on the robot's
@@ -237,47 +245,114 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
       :class:`~ubf_async.timesource.ClockFollower`'s rules);
     * ``robot`` waits for ``ubf/<robot>/time`` and follows the robot host's clock through its
       offset (:class:`~ubf_async.hostclock.RobotTimeClock`: for a process on another host);
-    * ``auto`` takes whichever of the two speaks first within ``wait_s`` — the robot time
-      only from another host (the beacon names its host; on the robot's own host the local
-      clock *is* the robot's) — else keeps ``bus.clock``.
+    * ``auto`` waits until the robot says which clock it runs on, however long it takes to
+      start: a sample on ``ubf/<robot>/clock`` (simulated time: follow it); a sample on
+      ``ubf/<robot>/time`` (its host's clock: follow its offset from another host, else keep
+      ``bus.clock``); or its controller's status (``status/controller``: ``clock`` and
+      ``host``), which says so even while the robot's simulator is still starting — then it
+      waits for the simulated time, or for the time samples of the robot's host. Only when
+      the robot says nothing of the kind within ``wait_s`` (not a ubf_async robot, or an old
+      one) does it keep ``bus.clock``, and says so.
 
-    Either way it is logged which clock was taken and why."""
+    ``say`` gets a line for the user when the wait is long or ends without an answer (it is
+    logged as well)."""
     from ubf_async.hostclock import RobotTimeClock  # its beacon is a component
 
     if mode == "wall":
         return bus.clock
+
+    def tell(line: str, *, warn: bool = False) -> None:
+        (log.warning if warn else log.info)("%s", line)
+        if say is not None:
+            say(line)
+
     sim = SimClock()
     robot_time = RobotTimeClock()
     sim_sub = follow_sim_clock(bus, sim, {}) if mode in ("auto", "sim") else None
     time_sub = robot_time.follow(bus) if mode in ("auto", "robot") else None
-    waits = [asyncio.ensure_future(event.wait()) for event, sub in
-             ((sim.started, sim_sub), (robot_time.ready, time_sub)) if sub is not None]
+    status: dict[str, Any] = {}
+    heard_status = asyncio.Event()
+
+    def on_status(key: str, payload: bytes, received_ns: int) -> None:
+        try:
+            message = decode(payload)
+        except ProtocolError:
+            return  # not ours to count: the status keys are everyone's
+        data = message.data
+        if (message.schema == CONTROLLER_STATUS.schema and isinstance(data, dict)
+                and data.get("clock") in ("simulated", "monotonic")):
+            status.update(clock=data["clock"], host=data.get("host"))
+            heard_status.set()
+
+    status_sub = (bus.subscribe(CONTROLLER_STATUS.key_expr(bus.keys), on_status)
+                  if mode == "auto" else None)
+    robot = bus.robot
+    loop = asyncio.get_running_loop()
+    started = loop.time()
+    deadline = started + wait_s
+    waiting_said = False
+    chosen: Clock | None = None
     try:
-        await asyncio.wait(waits, timeout=wait_s if mode == "auto" else None,
-                           return_when=asyncio.FIRST_COMPLETED)
+        while chosen is None:
+            if sim.started.is_set():
+                log.info("following the simulated time on %s", bus.keys.clock)
+                chosen = sim
+                break
+            if robot_time.ready.is_set():
+                if mode == "robot" or robot_time.host != HOST:
+                    log.info("following the clock of the robot's host %s on %s (offset "
+                             "%+.3f s)", robot_time.host or "(unnamed)",
+                             ROBOT_TIME.key(bus.keys), robot_time.estimator.offset_ns / 1e9)
+                    chosen = robot_time
+                    break
+                log.info("robot %r runs on this host's CLOCK_MONOTONIC (%s)", robot,
+                         ROBOT_TIME.key(bus.keys))
+                return bus.clock
+            if status.get("clock") == "monotonic" and status.get("host") == HOST:
+                log.info("robot %r runs on this host's CLOCK_MONOTONIC (its status)", robot)
+                return bus.clock
+            now = loop.time()
+            if mode == "auto" and not status and now >= deadline:
+                tell(f"robot {robot!r} said nothing of its clock within {wait_s:g} s (no "
+                     f"sample on {bus.keys.clock} or {ROBOT_TIME.key(bus.keys)}, no status "
+                     f"from its controller): stamping with this host's CLOCK_MONOTONIC",
+                     warn=True)
+                return bus.clock
+            # (``sim`` and ``robot`` wait for what they were told to: their callers say so.)
+            if mode == "auto" and not waiting_said and now - started >= WAITING_SAID_AFTER_S:
+                waiting_said = True
+                if status.get("clock") == "simulated":
+                    tell(f"robot {robot!r} runs on simulated time: waiting for its "
+                         f"simulator's clock on {bus.keys.clock} ...")
+                elif status:
+                    tell(f"robot {robot!r} runs on the clock of host {status.get('host')}: "
+                         f"waiting for its time on {ROBOT_TIME.key(bus.keys)} ...")
+                else:
+                    tell(f"waiting for robot {robot!r} to say which clock it runs on ...")
+            # Until the next news, or until there is something to say.
+            timeouts = []
+            if mode == "auto" and not waiting_said:
+                timeouts.append(started + WAITING_SAID_AFTER_S - now)
+            if mode == "auto" and not status:
+                timeouts.append(deadline - now)
+            heard_status.clear()
+            waits = [asyncio.ensure_future(event.wait())
+                     for event in (sim.started, robot_time.ready, heard_status)]
+            try:
+                await asyncio.wait(waits, timeout=max(0.0, min(timeouts)) if timeouts else None,
+                                   return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                for waiting in waits:
+                    waiting.cancel()
     finally:
-        for waiting in waits:
-            waiting.cancel()
-    if sim.started.is_set():
-        if time_sub is not None:
+        if status_sub is not None:
+            status_sub.close()
+        if sim_sub is not None and chosen is not sim:
+            sim_sub.close()
+        if time_sub is not None and chosen is not robot_time:
             time_sub.close()
-        log.info("following the simulated time on %s", bus.keys.clock)
-        bus.clock = sim
-        return sim
-    if sim_sub is not None:
-        sim_sub.close()
-    if robot_time.ready.is_set() and (mode == "robot"
-                                      or robot_time.host != socket.gethostname()):
-        log.info("following the clock of the robot's host %s on %s (offset %+.3f s)",
-                 robot_time.host or "(unnamed)", ROBOT_TIME.key(bus.keys),
-                 robot_time.estimator.offset_ns / 1e9)
-        bus.clock = robot_time
-        return robot_time
-    if time_sub is not None:
-        time_sub.close()
-    log.info("no robot clock on %s or %s from another host within %g s: stamping with this "
-             "host's CLOCK_MONOTONIC", bus.keys.clock, ROBOT_TIME.key(bus.keys), wait_s)
-    return bus.clock
+    bus.clock = chosen
+    return chosen
 
 
 def describe(clock: Clock, *, robot: str) -> str:

@@ -118,6 +118,12 @@ class Component:
         self._attempt_resources.append(sub)
         return sub
 
+    def publishes(self, key: str) -> bool:
+        """Whether this run attempt publishes on ``key`` (through :meth:`publisher`): a
+        process attaching a component tells its user what the robot refuses of it
+        (:class:`~ubf_async.refusals.RefusalWatch`)."""
+        return any(isinstance(r, Publisher) and r.key == key for r in self._attempt_resources)
+
     def keep(self, resource: Publisher | Subscription) -> None:
         """Close ``resource`` (made on another bus than the component's, say) when this run
         attempt ends, as :meth:`publisher` and :meth:`subscribe` do for theirs."""

@@ -62,6 +62,7 @@ import asyncio
 import enum
 import itertools
 import logging
+import socket
 import statistics
 import time
 from collections import Counter, deque
@@ -290,6 +291,9 @@ class Controller(Component):
                                           now_ns=bus.clock.now_ns())
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
+        self.host = socket.gethostname()[:253]
+        """This host's name, in the status: with ``clock`` it tells a process attaching which
+        clock to stamp with (:func:`ubf_async.clockdomain.follow_robot_clock`)."""
         self.stats = TickStats()
         self.tree_changes: list[dict[str, Any]] = []
         """Live changes of the tree applied during the run (:meth:`tree_changed`)."""
@@ -518,6 +522,8 @@ class Controller(Component):
                 for s in self.aggregator.sources()[:256]
             ],
             "clock_domain": self.aggregator.clock_domain.status(),
+            "clock": "simulated" if self.bus.clock.is_simulated else "monotonic",
+            "host": self.host,
         }
 
     def runs(self, name: str) -> bool:

@@ -392,7 +392,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         protected.update(s for s in (settings.sync_source, settings.trigger) if s)
         aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
                                      default_stale_after_s=spec.controller.default_stale_after_s,
-                                     protected_sources=protected)
+                                     protected_sources=protected, notify_refusals=True)
         root = robot.root
         controller = Controller(
             bus=bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
@@ -405,7 +405,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
             bus=bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
             only_configured=spec.remotes.only_declared,
             default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
-            max_remotes=spec.remotes.max_remotes,
+            max_remotes=spec.remotes.max_remotes, notify_refusals=True,
         )
         tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
                                    slots=robot.remotes)

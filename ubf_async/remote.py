@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from ubf_async import clockdomain, lockstep
+from ubf_async import clockdomain, lockstep, refusals
 from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behavior import Behavior, Composite
@@ -344,6 +344,9 @@ class RemoteBehaviors(Component):
       so strangers cannot exhaust the slots.
     * ``max_future_s`` — a vote stamped more than this ahead of the robot clock is refused
       and counted in ``future`` (a far-future stamp would otherwise win every ordering).
+    * ``notify_refusals`` — also tell each refused or malformed vote's sender why, on
+      ``ubf/<robot>/refused/vote/<composite>/<behaviour>`` (:mod:`ubf_async.refusals`;
+      launch turns it on).
 
     Votes that are malformed, name an unknown composite (or a leaf), take a reserved or too
     long name, collide with a local child's name, come from the future or find no slot are
@@ -365,6 +368,7 @@ class RemoteBehaviors(Component):
         reserved_names: Iterable[str] = (),
         max_future_s: float = DEFAULT_MAX_FUTURE_S,
         status_period_s: float = 0.5,
+        notify_refusals: bool = False,
         name: str = "remotes",
         **component_options: float,
     ) -> None:
@@ -403,6 +407,8 @@ class RemoteBehaviors(Component):
         self.clock_domain = clockdomain.watch(bus)
         """Votes stamped on another clock (:mod:`ubf_async.clockdomain`; shared with the
         robot's aggregator on this bus)."""
+        self.notices = refusals.notices_of(bus) if notify_refusals else None
+        """Where refusals are told to their senders (``notify_refusals``)."""
         self.changed = asyncio.Event()
         """Set whenever a remote is attached or detached (tests and tools clear and await it)."""
         self._entries: dict[tuple[str, str], _Entry] = {}
@@ -427,14 +433,18 @@ class RemoteBehaviors(Component):
     # -- ingest (event loop) -----------------------------------------------------------------
     def on_vote(self, key: str, payload: bytes, received_ns: int = 0) -> None:
         """Handle one sample on ``ubf/<robot>/vote/**``."""
-        vote = decode_or_count(payload, self.malformed, key,
-                               decoder=lambda p: Vote.decode(self.bus.keys, key, p))
+        notices = self.notices
+        vote = decode_or_count(
+            payload, self.malformed, key, decoder=lambda p: Vote.decode(self.bus.keys, key, p),
+            on_error=None if notices is None else
+            lambda exc: notices.report(key, "malformed", f"malformed vote: {exc}"))
         if vote is not None:
             self.accept(vote, key=key)
 
     def accept(self, vote: Vote, *, key: str = "") -> bool:
-        """Take a validated vote: create/attach its remote child as needed."""
-        key = key or f"{vote.composite}/{vote.behavior}"
+        """Take a validated vote (arrived on ``key``, by default its own vote key): create or
+        attach its remote child as needed."""
+        key = key or self._key(vote.composite, vote.behavior)
         ident = (vote.composite, vote.behavior)
         now_ns = self.bus.clock.now_ns()
         ahead_ns = vote.stamp_ns - now_ns
@@ -634,6 +644,9 @@ class RemoteBehaviors(Component):
         counter[key] = n
         if n == 1 or n % 100 == 0:
             log.warning("rejected vote #%d on %s: %s", n, key, reason)
+        if self.notices is not None:
+            self.notices.report(key, "future" if counter is self.future else "rejected",
+                                reason)
         return False
 
     def _key(self, composite: str, behavior: str) -> str:
@@ -867,8 +880,9 @@ def remote_parser(
                        help="how long each vote holds on the robot")
     group.add_argument("--clock", choices=("auto", "wall", "sim"), default="auto",
                        help="robot clock: wall (CLOCK_MONOTONIC), sim (follow "
-                            "ubf/<robot>/clock), auto (sim if a simulator speaks within "
-                            "--clock-wait-s)")
+                            "ubf/<robot>/clock), auto (the one the robot says it runs on: "
+                            "simulated time, or its host's clock, followed from another "
+                            "host)")
     group.add_argument("--lockstep", action="store_true",
                        help="on a simulated robot: take part in the simulator's lockstep, so "
                             "every vote counts at the simulated instant it was made for and "
@@ -876,8 +890,10 @@ def remote_parser(
     group.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
                        metavar="S", help="how long to wait for the robot to answer before "
                                          "giving up")
-    group.add_argument("--clock-wait-s", type=float, default=1.0,
-                       help="with --clock auto: how long to listen for a simulator")
+    group.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
+                       help="with --clock auto: how long to wait for the robot to say which "
+                            "clock it runs on (a running robot does within a second) before "
+                            "stamping with this host's clock")
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
@@ -890,11 +906,12 @@ def remote_parser(
 
 
 async def choose_clock(bus: Bus, mode: clockdomain.ClockMode, *,
-                       wait_s: float = 1.0) -> Clock:
+                       wait_s: float = clockdomain.DEFAULT_CLOCK_WAIT_S,
+                       say: Callable[[str], None] | None = None) -> Clock:
     """The clock a remote process stamps with (``wall``, ``sim`` or ``auto``): the robot's,
-    as :func:`ubf_async.clockdomain.follow_robot_clock` finds it. Sets ``bus.clock`` and
-    returns it."""
-    return await clockdomain.follow_robot_clock(bus, mode=mode, wait_s=wait_s)
+    as :func:`ubf_async.clockdomain.follow_robot_clock` finds it (``say``: its lines for the
+    user). Sets ``bus.clock`` and returns it."""
+    return await clockdomain.follow_robot_clock(bus, mode=mode, wait_s=wait_s, say=say)
 
 
 async def host_remote_behavior(
@@ -909,6 +926,11 @@ async def host_remote_behavior(
     bus = await Bus.open(options, clock=WallClock(), ordered=args.lockstep)
     host: RemoteBehaviorHost | None = None
     participant: lockstep.LockstepParticipant | None = None
+    refusals_watch: refusals.RefusalWatch | None = None
+
+    def say(line: str) -> None:
+        print(f"  {line}", file=out, flush=True)
+
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
         if args.lockstep and args.clock == "wall":
@@ -917,7 +939,7 @@ async def host_remote_behavior(
         if args.clock == "sim":
             print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
             out.flush()
-        clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s)
+        clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s, say=say)
         host = RemoteBehaviorHost(
             bus=bus, behavior=behavior, composite=args.composite, rate_hz=args.rate_hz,
             trigger=args.trigger, ttl_s=args.ttl_s, priority=args.priority,
@@ -928,9 +950,14 @@ async def host_remote_behavior(
         print(f"remote behaviour {behavior.name!r} votes in {args.composite!r} of robot "
               f"{options.robot!r} {timing} (priority {args.priority}, weight {args.weight:g}, "
               f"ttl {args.ttl_s:g}s) on {host.key}", file=out)
-        print(f"  clock: {'simulation time' if isinstance(clock, SimClock) else 'wall'}"
+        print(f"  clock: {clock_name(clock, robot=options.robot)}"
               + (", in lockstep" if args.lockstep else ""), file=out)
         out.flush()
+        # Before the first vote, so that the robot's first refusal is heard (on stderr).
+        votes_key = host.key
+        refusals_watch = refusals.RefusalWatch(bus, mine=lambda key: key == votes_key,
+                                               who=behavior.name)
+        refusals_watch.start()
         await host.start()
         if args.lockstep:
             participant = lockstep.LockstepParticipant(bus=bus, participant=host.name)
@@ -948,7 +975,10 @@ async def host_remote_behavior(
             drive = (f"robot drive {robot.speed:+.0f}/{robot.turn:+.0f} "
                      f"({','.join(host.robot_winners) or 'stop'})" if robot else
                      "no drive command seen yet")
-            print(f"[{behavior.name}] votes {host.votes}: {mine} | {drive}", file=out)
+            refused = refusals_watch.refusing()
+            why = (f" | REFUSED by the robot ({refused.reason}, {refused.count} so far)"
+                   if refused is not None else "")
+            print(f"[{behavior.name}] votes {host.votes}: {mine} | {drive}{why}", file=out)
             out.flush()
         return 0
     finally:
@@ -956,7 +986,18 @@ async def host_remote_behavior(
             await participant.aclose()
         if host is not None:
             await host.aclose()
+        if refusals_watch is not None:
+            refusals_watch.close()
         await bus.aclose()
+
+
+def clock_name(clock: Clock, *, robot: str) -> str:
+    """The clock a remote behaviour stamps with, for its start-up line."""
+    if isinstance(clock, SimClock):
+        return "simulation time"
+    if hasattr(clock, "estimator"):
+        return f"the robot host's clock (ubf/{robot}/time, offset learned)"
+    return "wall"
 
 
 def run_remote_behavior(

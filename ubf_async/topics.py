@@ -284,6 +284,20 @@ class RobotTime(Data, frozen=True, kw_only=True):
     host: Annotated[str, Meta(max_length=253)] | None = None
 
 
+MAX_REFUSAL_DETAIL = 512
+
+
+class RefusalNotice(Data, frozen=True, kw_only=True):
+    """The robot refused a sample or vote on the key this notice names
+    (:mod:`ubf_async.refusals`): why, in a word and in the sentence it logged, and how many
+    of that key's it has refused so far."""
+
+    reason: Name
+    """``future``, ``out_of_order``, ``malformed``, ``rejected`` …"""
+    detail: Annotated[str, Meta(max_length=MAX_REFUSAL_DETAIL)]
+    count: Annotated[int, Meta(ge=1, le=INT64_MAX)]
+
+
 class Vote(Data, frozen=True, kw_only=True):
     """A remote behaviour's action and vote; unset action fields are ``None``."""
 
@@ -593,6 +607,9 @@ ROBOT_TIME = Topic("robot_time", "time", "robot.time", RobotTime,
                    "simulating)")
 VOTE = Topic("vote", "vote/{composite}/{behavior}", "vote", Vote,
              "a remote behaviour's vote in a composite")
+REFUSED = Topic("refused", "refused/{topic}/{group}/{name}", "refusal", RefusalNotice,
+                "the robot refused a sample or vote on ubf/<robot>/<topic>/<group>/<name> "
+                "(sensor/<kind>/<name>, vote/<composite>/<behaviour>)")
 CONTROLLER_STATUS = Topic("controller_status", "status/{component}", "controller.status",
                           PlainData, "the controller's status")
 REMOTES_STATUS = Topic("remotes_status", "status/{component}", "remotes.status", PlainData,
@@ -616,8 +633,9 @@ TRACE = Topic("trace", "trace", "controller.trace", TickTrace,
 TOPICS: tuple[Topic[Any], ...] = (
     CAMERA, RANGE, ENCODERS, ODOMETRY, MOTORS, LED_STATE, RADIO,
     DRIVE, SEEK_COLOR, RADIO_SEND, LEDS,
-    HEARTBEAT, CLOCK, LOCKSTEP_ACK, ROBOT_TIME, VOTE, CONTROLLER_STATUS, REMOTES_STATUS,
-    TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE, CAMERA_VIEW,
+    HEARTBEAT, CLOCK, LOCKSTEP_ACK, ROBOT_TIME, VOTE, REFUSED, CONTROLLER_STATUS,
+    REMOTES_STATUS, TREE_REQUEST, TREE_REPLY, SIM_TRUTH, SIM_WORLD, SIM_PULSES, TRACE,
+    CAMERA_VIEW,
 )
 """Every declared topic."""
 

@@ -284,6 +284,11 @@ class ZenohConnection:
         info = self.session.info
         return bool(list(info.peers_zid()) or list(info.routers_zid()))
 
+    def link_destinations(self) -> list[str]:
+        """The remote locator of each link the session has now (``tcp/127.0.0.1:7447``): a
+        link to a ``connect`` endpoint has that endpoint as its destination."""
+        return [str(link.dst) for link in self.session.info.links()]
+
     async def close(self) -> None:
         await asyncio.to_thread(self.session.close)
 
