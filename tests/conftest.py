@@ -18,6 +18,7 @@ import pytest_asyncio
 
 from ubf_async import lending
 from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.clock import Hold, WallClock
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -84,8 +85,8 @@ class LoopClock:
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         return 0.0
 
-    def hold(self, until_ns: int) -> _NoHold:
-        return _NoHold()
+    def hold(self, until_ns: int) -> Hold:
+        return WallClock().hold(until_ns)  # loop time waits for nobody either
 
     async def sleep_until_ns(self, deadline_ns: int) -> None:
         await asyncio.sleep(max(0.0, (deadline_ns - self.now_ns()) / 1e9))
@@ -93,10 +94,6 @@ class LoopClock:
     async def sleep(self, seconds: float) -> None:
         await asyncio.sleep(max(0.0, seconds))
 
-
-class _NoHold:
-    def release(self) -> None:
-        pass
 
 
 REPOSITORY = Path(__file__).resolve().parent.parent

@@ -29,19 +29,23 @@ def fault_aclose(dotted: str) -> None:
     cls.aclose = aclose
 
 
+def run_as_main(module: str, args: list[str]) -> Any:
+    """``python -m MODULE ARGS`` in this process; the exit code its ``SystemExit`` carried."""
+    sys.argv = [module, *args]
+    try:
+        runpy.run_module(module, run_name="__main__", alter_sys=True)
+    except SystemExit as exc:
+        return exc.code
+    return 0
+
+
 def main() -> int:
     args = sys.argv[1:]
     out = Path(args.pop(0))
     if args[0] == "--fault-aclose":
         args.pop(0)
         fault_aclose(args.pop(0))
-    module = args.pop(0)
-    sys.argv = [module, *args]
-    code: Any = 0
-    try:
-        runpy.run_module(module, run_name="__main__", alter_sys=True)
-    except SystemExit as exc:
-        code = exc.code
+    code = run_as_main(args.pop(0), args)
     threads = [{"name": t.name, "daemon": t.daemon} for t in threading.enumerate()
                if t is not threading.main_thread() and t.is_alive()]
     out.write_text(json.dumps(threads))

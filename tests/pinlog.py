@@ -15,11 +15,12 @@ either form into how long each state was held.
 from __future__ import annotations
 
 import json
-import runpy
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
+
+from tests import exit_probe
 
 
 def holds(history: Iterable[Sequence[Any]]) -> list[tuple[float, float]]:
@@ -48,12 +49,8 @@ def _dump(out: Path) -> None:
 
 def main() -> None:
     out, module, *args = sys.argv[1:]
-    sys.argv = [module, *args]
-    code: Any = 0
     try:
-        runpy.run_module(module, run_name="__main__", alter_sys=True)
-    except SystemExit as exc:
-        code = exc.code
+        code = exit_probe.run_as_main(module, args)
     finally:
         _dump(Path(out))
     raise SystemExit(code)
