@@ -24,9 +24,10 @@ from ubf_async.arbiters import HighestPriority
 from ubf_async.behavior import Child, Composite
 from ubf_async.bus import Bus
 from ubf_async.clock import SimClock
-from ubf_async.controller import Controller, TokenBucket
+from ubf_async.controller import Controller
 from ubf_async.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.protocol import MAX_NAME_CHARS, Message, ProtocolError, decode, encode
+from ubf_async.ratelimit import TokenBucket
 
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
 

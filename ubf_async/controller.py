@@ -77,6 +77,7 @@ from ubf_async.bus import Bus
 from ubf_async.clock import Clock, WallClock, every
 from ubf_async.component import Component
 from ubf_async.protocol import clip
+from ubf_async.ratelimit import TokenBucket
 from ubf_async.state import State
 from ubf_async.topics import (
     CONTROLLER_STATUS,
@@ -222,30 +223,6 @@ class TickStats:
                 for name, count in sorted(self.winner_ticks.items())
             } if self.ticks else {},
         }
-
-
-class TokenBucket:
-    """At most ``burst`` at once and ``rate_hz`` on average, on the robot clock."""
-
-    __slots__ = ("_capacity", "_last_ns", "_tokens", "rate_hz")
-
-    def __init__(self, *, rate_hz: float, burst: int, now_ns: int = 0) -> None:
-        if not rate_hz > 0 or burst < 1:
-            raise ValueError(f"need rate_hz > 0 and burst ≥ 1, got {rate_hz}, {burst}")
-        self.rate_hz = rate_hz
-        self._capacity = float(burst)
-        self._tokens = float(burst)
-        self._last_ns = now_ns
-
-    def take(self, now_ns: int) -> bool:
-        """Take one token if there is one."""
-        elapsed_s = max(0, now_ns - self._last_ns) / 1e9  # a clock that went back: no refill
-        self._last_ns = now_ns
-        self._tokens = min(self._capacity, self._tokens + elapsed_s * self.rate_hz)
-        if self._tokens >= 1.0:
-            self._tokens -= 1.0
-            return True
-        return False
 
 
 class Controller(Component):

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 from ubf_async.bus import Bus, Publisher, Subscription, decode_or_count
 from ubf_async.protocol import ProtocolError, clip
+from ubf_async.ratelimit import TokenBucket
 from ubf_async.topics import MAX_REFUSAL_DETAIL, REFUSED, RefusalNotice
 
 log = logging.getLogger(__name__)
@@ -68,8 +69,8 @@ class RefusalNotices:
         self.max_keys = max_keys
         self.wall_ns = wall_ns
         self._refused: OrderedDict[str, _Refused] = OrderedDict()
-        self._tokens = max_per_s
-        self._refilled_ns = wall_ns()
+        self._bucket = TokenBucket(rate_hz=max_per_s, burst=max(1, round(max_per_s)),
+                                   now_ns=wall_ns())
         self.sent = 0
         """Notices published."""
         self.held_back = 0
@@ -96,7 +97,7 @@ class RefusalNotices:
         now = self.wall_ns()
         if refused.noticed_ns is not None and now - refused.noticed_ns < self.period_ns:
             return
-        if not self._take_token(now):
+        if not self._bucket.take(now):
             self.held_back += 1
             return
         try:
@@ -110,15 +111,6 @@ class RefusalNotices:
             return
         refused.noticed_ns = now
         self.sent += 1
-
-    def _take_token(self, now_ns: int) -> bool:
-        elapsed_s = (now_ns - self._refilled_ns) / 1e9
-        self._refilled_ns = now_ns
-        self._tokens = min(self.max_per_s, self._tokens + elapsed_s * self.max_per_s)
-        if self._tokens < 1:
-            return False
-        self._tokens -= 1
-        return True
 
     def count(self, key: str) -> int:
         """Refusals of ``key`` so far (0 once forgotten)."""
