@@ -180,6 +180,13 @@ class TickStats:
         """Rate of the recent ticks run by the clock (reflex ticks left out)."""
         return self._rate(self.periodic_starts_ns)
 
+    def new_run(self) -> None:
+        """Forget the recent ticks' times: the clock was reset to a new run (a rate across
+        the reset would measure the jump, not the ticks)."""
+        self.tick_starts_ns.clear()
+        self.periodic_starts_ns.clear()
+        self.periodic_wall_ns.clear()
+
     @staticmethod
     def _jitter_ms_p99(starts: deque[int]) -> float | None:
         """p99 of how far the intervals between ``starts`` stray from their median (ms)."""
@@ -291,6 +298,7 @@ class Controller(Component):
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
         self.stats = TickStats()
+        self._clock_resets = bus.clock.resets
         self.last_action: Action | None = None
         self._last_drive_ns = 0
         self.last_trace: Trace | None = None
@@ -412,6 +420,9 @@ class Controller(Component):
     def tick(self, *, based_on: SourceEntry | None = None) -> Trace | None:
         """One UBF cycle: snapshot, evaluate, publish."""
         t0 = time.perf_counter_ns()
+        if self.bus.clock.resets != self._clock_resets:
+            self._clock_resets = self.bus.clock.resets
+            self.stats.new_run()
         state = self.aggregator.snapshot(previous_action=self.last_action)
         self.stats.tick_starts_ns.append(state.now_ns)
         if based_on is None:

@@ -322,8 +322,11 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     simulated = plan.simulator is not None
     clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
     # A simulator's process and a lockstep participant hand samples over in the order they
-    # were sent: a participant's acknowledgement never overtakes what it sent before it.
-    bus = await Bus.open(plan.connection, clock=clock, ordered=simulated or args.lockstep)
+    # were sent: a participant's acknowledgement never overtakes what it sent before it. So
+    # does a follower of simulated time: a sample never overtakes the clock sent before it
+    # (the first one above all: before it the follower has no time, and refuses the sample).
+    bus = await Bus.open(plan.connection, clock=clock,
+                         ordered=simulated or args.sim_time or args.lockstep)
     options = bus.options  # with the port really listened on for a `:0` endpoint
     components: list[Component] = []
     health = HealthMonitor(bus)
