@@ -184,13 +184,17 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 def add_connection_arguments(
     parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None,
     default_identity: str | None = None, default_connect: list[str] | None = None,
+    robot_elsewhere: str | None = None,
 ) -> None:
     """Add ``--mode/-m --connect/-e --listen/-l --config --robot --multicast-scouting``,
     ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``.
 
     ``default_connect``: where a tool attaching to a robot connects when neither the flags
     nor the ``--config`` file give an endpoint (typically ``[DEFAULT_LISTEN]``, where
-    ``python -m ubf_async.launch`` listens); applied by :func:`connection_options`."""
+    ``python -m ubf_async.launch`` listens); applied by :func:`connection_options`.
+    ``robot_elsewhere``: for a tool that learns its robot elsewhere (replay: from the file),
+    what ``--robot`` defaults to, in words for the help; ``--robot`` then defaults to ``None``
+    and the tool sets ``args.robot`` before :func:`connection_options`."""
     from ubf_async import __version__
 
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -212,8 +216,9 @@ def add_connection_arguments(
                        help=listen_help)
     group.add_argument("--config", type=Path, default=None, metavar="FILE",
                        help="zenoh JSON5 configuration file (the flags given override it)")
-    group.add_argument("--robot", default=DEFAULT_ROBOT,
-                       help="robot name: keys live under ubf/<robot>/")
+    group.add_argument("--robot", default=DEFAULT_ROBOT if robot_elsewhere is None else None,
+                       help="robot name: keys live under ubf/<robot>/" + (
+                           f" (default: {robot_elsewhere})" if robot_elsewhere else ""))
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover peers by UDP multicast (off by default)")
     group.add_argument("--secure", type=Path, default=None, metavar="DIR",
