@@ -24,6 +24,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from tests.remote_robot import Process
 from ubf_async.aggregator import StateAggregator
 from ubf_async.bus import Bus, ConnectionOptions, NoRobotError
 from ubf_async.clock import SimClock
@@ -32,8 +33,6 @@ from ubf_async.errors import ConfigurationError
 from ubf_async.replay import Recording, replay, wait_for_listeners
 from ubf_async.robotfile import load_robot
 from ubf_async.transport import InProcessTransport
-
-from tests.remote_robot import Process
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
