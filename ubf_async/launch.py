@@ -173,7 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="how often (wall seconds) the status line refreshes")
     run.add_argument("--quiet", action="store_true", help="no status line")
     run.add_argument("--log-level", default="WARNING",
-                     choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+                     choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+                     help="what is logged on the console (WARNING: warnings, and the live "
+                          "tree changes applied)")
     return parser
 
 
@@ -590,6 +592,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    if logging.getLogger().level == logging.WARNING:
+        # An accepted live tree change is news on the robot's console, as a refused one (a
+        # warning) is: shown at the default level too, hidden only by --log-level ERROR.
+        logging.getLogger("ubf_async.live").setLevel(logging.INFO)
     try:
         plan = plan_launch(args)
     except UbfError as exc:

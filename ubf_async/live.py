@@ -331,7 +331,7 @@ class TreeService(Component):
 
     def _applied(self, what: str) -> None:
         self.version += 1
-        log.info("tree version %d: %s", self.version, what)
+        log.info("tree changed, version %d: %s", self.version, what)
         self.changed.set()
 
     def _config_with(self, slots: list[RemoteSlot]) -> dict[str, tuple[int, float]]:
