@@ -93,6 +93,7 @@ from ubf_async.topics import (
     Leds,
     RadioSend,
     SeekColor,
+    TickedBy,
     TickTrace,
     TraceNode,
 )
@@ -138,6 +139,11 @@ class TickMode(enum.StrEnum):
     PERIODIC = "periodic"
     SYNC = "sync"
     EVENT = "event"
+
+
+_TICKED_BY: dict[TickMode, TickedBy] = {
+    TickMode.PERIODIC: "reflex", TickMode.SYNC: "sync", TickMode.EVENT: "event"}
+"""What a tick run by a sample says ran it (``Drive.ticked_by``), per mode."""
 
 
 @dataclass
@@ -454,6 +460,7 @@ class Controller(Component):
                 stamp_ns=basis.message.stamp_ns),
             tick=self.stats.ticks,
             winners=tuple(outgoing_names(winners)),
+            ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
         )
         self._last_drive_ns = state.now_ns
         try:
@@ -462,7 +469,8 @@ class Controller(Component):
             self._publish_failed("tick's drive command; a plain stop goes out instead")
             speed = turn = 0.0
             action = None
-            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks)
+            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks,
+                            ticked_by=command.ticked_by)
             try:
                 self._drive.publish(command)
             except Exception:  # nothing goes out: the motors' watchdog stops the wheels
