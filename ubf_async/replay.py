@@ -19,7 +19,8 @@ running robot) would otherwise begin with samples stamped ahead of a follower's 
 has no time yet.
 
 A paced replay that falls behind the recorded timing says so on stderr as soon as it is
-:data:`WARN_BEHIND_S` behind, and in its last line, with what held it up meanwhile
+:data:`WARN_BEHIND_S` behind (and again each time it falls twice as far behind), and in its
+last line, with what held it up meanwhile
 (:class:`Lag`): waiting for a CPU (a busy machine), reading the file, zenoh's ``put``, its
 own computing, or none of those (the process was stopped).
 
@@ -385,8 +386,9 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
     """Publish ``recording`` on ``bus``: paced at ``speed`` × the recorded timing (``None``:
     as fast as possible). With ``clock``, each message is published at its recorded time on
     that clock (advanced here); with ``settle``, each message is handled before the next.
-    A paced replay calls ``on_behind`` once, the first time it is :data:`WARN_BEHIND_S`
-    behind (``stats.lag`` keeps the worst)."""
+    A paced replay calls ``on_behind`` when it first falls :data:`WARN_BEHIND_S` behind, and
+    again each time it falls twice as far behind as when it last did (``stats.lag`` keeps
+    the worst)."""
     if speed is not None and not speed > 0:
         raise ConfigurationError(f"speed must be > 0, got {speed}")
     publishers: dict[str, RawPublisher] = {}
@@ -398,7 +400,7 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
     waited_for_reader_s = publishing_s = 0.0
     monotonic = time.monotonic
     on_time: _Since | None = None
-    warned = False
+    warn_at_s = WARN_BEHIND_S
 
     def now_since(at_s: float) -> _Since:
         return _Since(at_s, cpu_wait.seconds(), time.thread_time(), waited_for_reader_s,
@@ -425,8 +427,8 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
                     if -delay >= WARN_BEHIND_S and on_time is not None:
                         stats.lag = Lag.of(-delay, (message.log_time_ns - first_ns) / 1e9,
                                            now_since(now) - on_time)
-                        if not warned and on_behind is not None:
-                            warned = True
+                        if -delay >= warn_at_s and on_behind is not None:
+                            warn_at_s = 2 * -delay  # a few lines however late it gets
                             on_behind(stats.lag)
             if clock is not None and message.log_time_ns > clock.now_ns():
                 clock.advance_to(message.log_time_ns)
