@@ -280,4 +280,5 @@ async def test_on_tick_gets_the_plain_stop_when_the_command_could_not_go_out(
     await agg.aclose()
     stop = commands[-1]
     assert as_dict(stop) == {"speed": 0.0, "turn": 0.0, "tick": stop["tick"],
-                             "based_on": None, "hold": False, "winners": []}
+                             "based_on": None, "hold": False, "winners": [],
+                             "ticked_by": "clock"}

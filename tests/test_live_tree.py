@@ -496,6 +496,17 @@ async def test_inspector_tree_verbs(
     assert code == 2 and f"no robot {robot + 'x'!r} answered" in err
 
 
+async def logged(proc: asyncio.subprocess.Process, text: str, *, timeout_s: float = 30.0
+                 ) -> str:
+    """Read ``proc``'s stderr (its log) line by line until a line contains ``text``."""
+    assert proc.stderr is not None
+    while True:
+        line = (await asyncio.wait_for(proc.stderr.readline(), timeout_s)).decode()
+        assert line, f"the log ended before a line with {text!r}"
+        if text in line:
+            return line.rstrip("\n")
+
+
 async def test_inspector_changes_a_launched_robot(endpoint: str, robot: str) -> None:
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "ubf_async.launch", "--no-sim", "--quiet", "--listen", endpoint,
@@ -511,9 +522,17 @@ async def test_inspector_changes_a_launched_robot(endpoint: str, robot: str) -> 
                                          "HighestPriority", *conn)
         assert code == 0, err
         assert "seek_pink_ball <HighestPriority>" in out
+        # The robot's console shows the change it applied (at launch's default log level) …
+        line = await logged(proc, "ubf_async.live:")
+        assert line.endswith(" INFO ubf_async.live: tree changed, version 1: composite "
+                             "'seek_pink_ball' now arbitrates with HighestPriority"), line
         code, _, err = await inspector("tree", "set-child", "seek_pink_ball", "nobody",
                                        "--weight", "2", *conn)
         assert code == 1 and "has no child 'nobody'" in err
+        # … as it shows one it refused.
+        line = await logged(proc, "ubf_async.live:")
+        assert " WARNING ubf_async.live: refused tree request set_child: composite " \
+               "'seek_pink_ball' has no child 'nobody'" in line, line
     finally:
         proc.terminate()
         await asyncio.wait_for(proc.wait(), 20)

@@ -1,23 +1,30 @@
 """Replaying a recording: a fresh controller with the same tree, fed the recorded inputs on
 the recorded simulated time, commands exactly what the original run commanded; the thesis's
 synchronous loop and the periodic controller compared on the same inputs; the replay tool
-feeding a launched controller in another process over zenoh; and a replay with nobody to take
-it failing clearly instead of reporting success."""
+feeding a launched controller in another process over zenoh; a replay with nobody to take
+it failing clearly instead of reporting success; a recording of another robot, begun mid-run,
+replayed onto its own robot without --robot into a controller that ticks at its rate; and a
+replay held up saying what held it up."""
 
 from __future__ import annotations
 
 import asyncio
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 import msgpack
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import Writer
 
+from tests.remote_robot import Process
 from ubf_async.aggregator import StateAggregator
 from ubf_async.bus import Bus, ConnectionOptions, NoRobotError
 from ubf_async.clock import SimClock
@@ -29,6 +36,7 @@ from ubf_async.transport import InProcessTransport
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+REPLAY = "python -m ubf_async.replay"
 Command = tuple[int, int, tuple[str, ...], float, float]
 """(tick time ns, tick number, winners, speed, turn)."""
 
@@ -224,3 +232,118 @@ async def test_waiting_for_listeners_returns_when_they_are_there() -> None:
     assert asyncio.get_running_loop().time() - started < 1  # all there: no settling wait
     await player.aclose()
     await robot.aclose()
+
+
+# ---------------------------------------------------------------------------------------------
+# The replay tool into a controller: the file's robot, a recording begun mid-run, a replay that
+# falls behind
+
+
+LATER_NS = 100 * 10**9
+
+
+def recorded_later(path: Path, out: Path, robot: str, *, later_ns: int = LATER_NS) -> Path:
+    """``path`` as a recorder attached ``later_ns`` into a run of robot ``robot`` would have
+    written it: the robot's keys renamed, every stamp and log time ``later_ns`` later (the
+    original msgpack channels only)."""
+    with path.open("rb") as f, out.open("wb") as o:
+        reader = make_reader(f)
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        writer = Writer(o)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if channel.message_encoding != "msgpack":
+                continue
+            if channel.id not in channels:
+                assert schema is not None
+                if schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                                schema.data)
+                channels[channel.id] = writer.register_channel(
+                    channel.topic.replace("ubf/mini/", f"ubf/{robot}/", 1), "msgpack",
+                    schemas[schema.id])
+            envelope = msgpack.unpackb(message.data)
+            envelope["stamp_ns"] += later_ns
+            writer.add_message(channels[channel.id], message.log_time + later_ns,
+                               msgpack.packb(envelope), message.publish_time + later_ns)
+        writer.add_metadata("ubf_async", {**metadata["ubf_async"], "robot": robot})
+        writer.finish()
+    return out
+
+
+def status_lines(proc: Process, robot: str) -> list[str]:
+    return [line for line in proc.lines if line.startswith(f"[{robot}]")]
+
+
+def next_status(proc: Process, robot: str, after: int, *, timeout_s: float = 30) -> str:
+    """The first status line of launch printed after the first ``after`` ones."""
+    deadline = time.monotonic() + timeout_s
+    while len(lines := status_lines(proc, robot)) <= after:
+        assert proc.proc.poll() is None, proc.output()
+        assert time.monotonic() < deadline, f"no new status line: {proc.output()}"
+        time.sleep(0.05)
+    return lines[after]
+
+
+def test_a_replay_goes_to_the_recorded_robot_and_a_controller_joins_it_midway(
+        recorded: tuple[Path, int], endpoint: str, tmp_path: Path, robot: str) -> None:
+    # A recording of robot `robot` that starts 100 s into its run, as a recorder attached
+    # late writes it; no --robot: the file's robot is the one fed.
+    late = recorded_later(recorded[0], tmp_path / "late.mcap", robot)
+    controller = Process("-m", "ubf_async.launch", "--no-sim", "--sim-time", "--listen",
+                         endpoint, "--robot", robot)
+    try:
+        controller.wait_for_line("controller:", timeout_s=60)
+        result = subprocess.run(
+            [sys.executable, "-m", "ubf_async.replay", str(late), "--connect", endpoint,
+             "--wait-for-robot-s", "60"], cwd=ROOT, env=ENV, capture_output=True, text=True,
+            timeout=120)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert f"onto robot {robot!r}" in result.stdout and "7 keys)" in result.stdout
+        # The controller's rates once the replay is over (its clock stands still since).
+        last = next_status(controller, robot, len(status_lines(controller, robot)))
+    finally:
+        controller.terminate(timeout_s=30)
+    # Its clock started at the recording's first instant: 50 Hz ticks from there, not a
+    # rate over the 100 s its clock jumped from 0 (about 2 Hz), and no sample refused as
+    # ahead of a clock that had no time yet.
+    rate = re.search(r"tick (\d+\.\d)Hz", last)
+    assert rate is not None and float(rate[1]) >= 25, last
+    assert not any("refused" in line for line in controller.lines), controller.output()
+
+
+def test_a_replay_held_up_says_what_held_it_up(
+        recorded: tuple[Path, int], endpoint: str) -> None:
+    controller = Process("-m", "ubf_async.launch", "--no-sim", "--sim-time", "--listen",
+                         endpoint)
+    replaying: subprocess.Popen[str] | None = None
+    try:
+        controller.wait_for_line("controller:", timeout_s=60)
+        replaying = subprocess.Popen(
+            [sys.executable, "-m", "ubf_async.replay", str(recorded[0]), "--connect", endpoint,
+             "--wait-for-robot-s", "60"], cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, text=True)
+        # Once the recording flows (the controller holds the camera's samples), the replay
+        # is stopped for a second, as Ctrl-Z would: its schedule runs on.
+        controller.wait_for_line("| camera/front ", timeout_s=60)  # a status field
+        replaying.send_signal(signal.SIGSTOP)
+        time.sleep(1.0)  # how long it is held up, not a wait for anything
+        replaying.send_signal(signal.SIGCONT)
+        out, err = replaying.communicate(timeout=120)
+    finally:
+        if replaying is not None and replaying.poll() is None:
+            replaying.kill()
+            replaying.wait()
+        controller.terminate(timeout_s=30)
+    assert replaying.returncode == 0, out + err
+    # Said at once on stderr (after what a busy machine may have held it up before, as it
+    # is twice as far behind), and again in the last line: how far behind, and why.
+    assert any(line.startswith(f"{REPLAY}: falling behind: ") and "it was stopped" in line
+               for line in err.splitlines()), err
+    last = out.splitlines()[-1]
+    behind = re.search(r"messages replayed, at worst (\d+) ms behind, [\d.]+ s into the "
+                       r"recording: meanwhile this process ", last)
+    assert behind is not None and int(behind[1]) >= 800, last
+    assert "it was stopped" in last, last

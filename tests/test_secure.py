@@ -6,7 +6,8 @@ ubf_async.launch --secure DIR``) and attack it from separate processes that spea
 zenoh + msgpack — without credentials, and with the read-only inspector's — while a
 configured remote behaviour (the teleop example) and an inspector session keep working. The
 same attacker run against the robot in open mode shows every attack landing there, so the
-secure run's silence is the ACL's doing.
+secure run's silence is the ACL's doing. A process the robot does not let in is told that the
+connection was refused, not that nothing answered.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import pytest
 import pytest_asyncio
 import zenoh
 
-from tests.conftest import as_dict, eventually, read_until
+from tests.conftest import as_dict, eventually, free_port, read_until
 from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.errors import ConfigurationError
 from ubf_async.protocol import decode
@@ -359,3 +360,40 @@ async def test_secure_mode_stops_outsiders_and_unauthorised_identities(
     assert clock_before < seen.clock_max_ns < FAR
     assert seen.applied and seen.drives[-1][2] != ("attacker",)
     assert "teleop" in seen.remotes
+
+
+@pytest.mark.asyncio
+async def test_a_refused_connection_is_reported_as_refused_not_as_absence(
+    launched: Any, endpoint: str, robot: str, tmp_path: Path
+) -> None:
+    setup, _ = await launched(secure=True)
+    other = tmp_path / "other"  # a set-up for a robot of the same name: other passwords
+    init(other, robot=load_robot(robot_file(tmp_path, robot)))
+
+    async def state(*flags: str, at: str = endpoint) -> tuple[int | None, str]:
+        proc = await spawn("-m", "ubf_async.inspector", "state", "--connect", at, "--robot",
+                           robot, "--timeout", "3", *flags)
+        text = await output(proc)
+        return proc.returncode, text
+
+    refused = f"error: the robot at {endpoint} refused the connection: something listens " \
+              f"there but did not let this process's zenoh session in, as a robot in secure " \
+              f"mode does without valid credentials (docs/security.md); "
+    # No credentials: as a client (the inspector's default), and as a peer, whose session
+    # opens alone and never reaches the robot.
+    for flags in ((), ("--mode", "peer")):
+        code, text = await state(*flags)
+        assert code == 2 and text.strip() == refused + (
+            "this process gave none: pass the robot's set-up with --secure DIR --identity "
+            "NAME"), (flags, text)
+    # Credentials the robot's set-up does not have.
+    code, text = await state("--secure", str(other), "--identity", "inspector")
+    assert code == 2 and text.startswith(refused + f"this process gave identity 'inspector' "
+                                         f"of {other}, which the robot's set-up does not "
+                                         f"have"), text
+    # Its own: let in. And where nothing listens, absence is still reported as absence.
+    code, text = await state("--secure", str(setup), "--identity", "inspector")
+    assert code == 0 and "drive:" in text, text
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    code, text = await state(at=nobody)
+    assert code == 2 and f"no robot to connect to: nothing answered at {nobody}" in text, text

@@ -184,13 +184,17 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 def add_connection_arguments(
     parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None,
     default_identity: str | None = None, default_connect: list[str] | None = None,
+    robot_elsewhere: str | None = None,
 ) -> None:
     """Add ``--mode/-m --connect/-e --listen/-l --config --robot --multicast-scouting``,
     ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``.
 
     ``default_connect``: where a tool attaching to a robot connects when neither the flags
     nor the ``--config`` file give an endpoint (typically ``[DEFAULT_LISTEN]``, where
-    ``python -m ubf_async.launch`` listens); applied by :func:`connection_options`."""
+    ``python -m ubf_async.launch`` listens); applied by :func:`connection_options`.
+    ``robot_elsewhere``: for a tool that learns its robot elsewhere (replay: from the file),
+    what ``--robot`` defaults to, in words for the help; ``--robot`` then defaults to ``None``
+    and the tool sets ``args.robot`` before :func:`connection_options`."""
     from ubf_async import __version__
 
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
@@ -212,8 +216,9 @@ def add_connection_arguments(
                        help=listen_help)
     group.add_argument("--config", type=Path, default=None, metavar="FILE",
                        help="zenoh JSON5 configuration file (the flags given override it)")
-    group.add_argument("--robot", default=DEFAULT_ROBOT,
-                       help="robot name: keys live under ubf/<robot>/")
+    group.add_argument("--robot", default=DEFAULT_ROBOT if robot_elsewhere is None else None,
+                       help="robot name: keys live under ubf/<robot>/" + (
+                           f" (default: {robot_elsewhere})" if robot_elsewhere else ""))
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover peers by UDP multicast (off by default)")
     group.add_argument("--secure", type=Path, default=None, metavar="DIR",
@@ -361,8 +366,54 @@ class NoRobotError(SessionError):
     """Nothing to connect to: no robot answers at the endpoints given."""
 
 
+class RefusedError(SessionError):
+    """Something listens at the robot's endpoint but did not accept this process's zenoh
+    session: a robot in secure mode refusing its credentials, as far as can be told."""
+
+
 START_ROBOT_HINT = ("is the robot running? `python -m ubf_async.launch` prints the endpoint "
                     "to pass to --connect")
+
+_TCP_ENDPOINT = re.compile(
+    r"^(?:tcp|tls|ws)/(?P<host>\[[^\]]*\]|[^:/?#\[\]]+):(?P<port>\d+)(?:[?#].*)?$")
+
+
+def listening(endpoint: str, *, timeout_s: float = 1.0) -> bool:
+    """Whether a TCP connection to ``endpoint`` (``tcp/``, ``tls/``, ``ws/``) opens: something
+    listens there. zenoh reports a refused handshake (a secure robot's authentication) exactly
+    as it reports nothing listening, so this tells the two apart. Blocking."""
+    match = _TCP_ENDPOINT.match(endpoint)
+    if match is None:
+        return False  # udp, quic, unix sockets …: not probed
+    try:
+        with socket.create_connection((match["host"].strip("[]"), int(match["port"])),
+                                      timeout=timeout_s):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+def refused_error(options: ConnectionOptions, *, timeout_s: float = 1.0) -> RefusedError | None:
+    """For a session that reached nothing: a :class:`RefusedError` saying so if something
+    listens at one of its ``connect`` endpoints (:func:`listening`), else ``None``. Blocking:
+    run it in a thread."""
+    open_at = [e for e in options.connect if listening(e, timeout_s=timeout_s)]
+    if not open_at:
+        return None
+    if options.secure is None:
+        credentials = ("this process gave none: pass the robot's set-up with --secure DIR "
+                       "--identity NAME")
+    else:
+        credentials = (f"this process gave identity {options.identity!r} of {options.secure}, "
+                       f"which the robot's set-up does not have with that password (another "
+                       f"set-up, or one made again with `python -m ubf_async.secure init "
+                       f"--force`)")
+    tls = ("; over tls/, a certificate the robot does not trust looks the same"
+           if any(e.startswith("tls/") for e in open_at) else "")
+    return RefusedError(
+        f"the robot at {' '.join(open_at)} refused the connection: something listens there but "
+        f"did not let this process's zenoh session in, as a robot in secure mode does without "
+        f"valid credentials (docs/security.md); {credentials}{tls}")
 
 
 def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError:
@@ -467,7 +518,8 @@ async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_
     """For a process attaching to a running robot: wait until the session reaches another
     zenoh node and one of the robot's components is alive there (its liveliness token
     ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
-    nothing answered at the endpoints or the robot there has another name.
+    nothing answered at the endpoints or the robot there has another name, or
+    :class:`RefusedError` when something listens there but never let the session in.
 
     Returns at once for a session that only listens (in ``peer`` mode without ``connect``
     endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
@@ -487,6 +539,9 @@ async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_
             break
         await asyncio.sleep(0.05)
     if not reached:
+        refused = await asyncio.to_thread(refused_error, options)
+        if refused is not None:
+            raise refused
         raise NoRobotError(f"no robot to connect to: nothing answered at {where} within "
                            f"{timeout_s:g}s ({START_ROBOT_HINT})")
     seen = sorted({key.split("/")[1] for key in await bus.alive_tokens(
@@ -903,7 +958,8 @@ class Bus:
         Listen endpoints on port 0 get a free port first (:func:`bind_free_ports`), so
         ``bus.options.listen`` names the ports really listened on. Raises
         :class:`SessionError` with a one-line message (:class:`PortInUseError` for a port
-        taken, :class:`NoRobotError` when nothing answers a ``client``)."""
+        taken, :class:`NoRobotError` when nothing answers a ``client``,
+        :class:`RefusedError` when something there refuses it)."""
         options = dataclasses.replace(options, listen=bind_free_ports(options.listen))
         try:
             config = options.zenoh_config()
@@ -912,7 +968,11 @@ class Bus:
         try:
             session = await asyncio.to_thread(zenoh.open, config)
         except zenoh.ZError as exc:
-            raise session_error(options, exc) from None
+            error = session_error(options, exc)
+            if isinstance(error, NoRobotError):  # or something there refused us
+                refused = await asyncio.to_thread(refused_error, options)
+                raise (refused or error) from None
+            raise error from None
         bus = cls(transport=ZenohTransport(session, ordered=ordered), options=options,
                   clock=clock)
         if options.mode == "peer" and options.connect:
@@ -1091,7 +1151,8 @@ def follow_sim_clock(
     Malformed samples are counted in ``malformed``. What a valid sample may do is decided by
     ``follower`` (a new :class:`~ubf_async.timesource.ClockFollower` if not given — pass one
     to pin an epoch or to read its counters): advance the clock, reset it to a new run's time,
-    or nothing (refused, counted and logged by the follower).
+    or nothing (refused, counted and logged by the follower). The first sample taken resets
+    the clock (``clock.resets``) if nothing had started it yet.
     """
     key = CLOCK.key(bus.keys)
     policy = follower if follower is not None else ClockFollower(name=f"{bus.robot} clock")
@@ -1102,12 +1163,18 @@ def follow_sim_clock(
             return
         verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.epoch,
                                wall_ns=received_ns)
-        if verdict.action is ClockAction.ADVANCE:
+        if verdict.action is ClockAction.ADVANCE and clock.started.is_set():
             clock.advance_to(message.stamp_ns)
+        elif verdict.action is ClockAction.ADVANCE:
+            # The first time heard starts this process's time, as a new run does: joining a
+            # run (or a replay) mid-way is not seconds of missed ticks since 0.
+            clock.reset_to(message.stamp_ns)
         elif verdict.action is ClockAction.RESET:
             clock.reset_to(message.stamp_ns)
 
-    return bus.subscribe(key, on_sample)
+    # Direct, as the state aggregator's samples are: on an ordered bus the clock is then
+    # handled in the order it was sent among them, not after samples sent later.
+    return bus.subscribe(key, on_sample, direct=True)
 
 
 def decode_or_count(

@@ -95,6 +95,7 @@ from ubf_async.topics import (
     Leds,
     RadioSend,
     SeekColor,
+    TickedBy,
     TickTrace,
     TraceNode,
 )
@@ -142,6 +143,11 @@ class TickMode(enum.StrEnum):
     EVENT = "event"
 
 
+_TICKED_BY: dict[TickMode, TickedBy] = {
+    TickMode.PERIODIC: "reflex", TickMode.SYNC: "sync", TickMode.EVENT: "event"}
+"""What a tick run by a sample says ran it (``Drive.ticked_by``), per mode."""
+
+
 @dataclass
 class TickStats:
     ticks: int = 0
@@ -181,6 +187,13 @@ class TickStats:
     def periodic_rate_hz(self) -> float | None:
         """Rate of the recent ticks run by the clock (reflex ticks left out)."""
         return self._rate(self.periodic_starts_ns)
+
+    def new_run(self) -> None:
+        """Forget the recent ticks' times: the clock was reset to a new run (a rate across
+        the reset would measure the jump, not the ticks)."""
+        self.tick_starts_ns.clear()
+        self.periodic_starts_ns.clear()
+        self.periodic_wall_ns.clear()
 
     @staticmethod
     def _jitter_ms_p99(starts: deque[int]) -> float | None:
@@ -274,6 +287,7 @@ class Controller(Component):
         self.stats = TickStats()
         self.tree_changes: list[dict[str, Any]] = []
         """Live changes of the tree applied during the run (:meth:`tree_changed`)."""
+        self._clock_resets = bus.clock.resets
         self.last_action: Action | None = None
         self._last_drive_ns = 0
         self.last_trace: Trace | None = None
@@ -395,6 +409,9 @@ class Controller(Component):
     def tick(self, *, based_on: SourceEntry | None = None) -> Trace | None:
         """One UBF cycle: snapshot, evaluate, publish."""
         t0 = time.perf_counter_ns()
+        if self.bus.clock.resets != self._clock_resets:
+            self._clock_resets = self.bus.clock.resets
+            self.stats.new_run()
         state = self.aggregator.snapshot(previous_action=self.last_action)
         self.stats.tick_starts_ns.append(state.now_ns)
         if based_on is None:
@@ -426,6 +443,7 @@ class Controller(Component):
                 stamp_ns=basis.message.stamp_ns),
             tick=self.stats.ticks,
             winners=tuple(outgoing_names(winners)),
+            ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
         )
         self._last_drive_ns = state.now_ns
         try:
@@ -434,7 +452,8 @@ class Controller(Component):
             self._publish_failed("tick's drive command; a plain stop goes out instead")
             speed = turn = 0.0
             action = None
-            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks)
+            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks,
+                            ticked_by=command.ticked_by)
             try:
                 self._drive.publish(command)
             except Exception:  # nothing goes out: the motors' watchdog stops the wheels

@@ -28,6 +28,7 @@ import argparse
 import asyncio
 import contextlib
 import dataclasses
+import difflib
 import itertools
 import json
 import statistics
@@ -62,6 +63,11 @@ from ubf_async.status import tick_rates
 from ubf_async.transport import intersects
 
 PROG = "python -m ubf_async.inspector"
+MAX_TICK_KINDS = 16
+"""Kinds of tick ``hz`` keeps apart per key (a reflex or trigger source each makes one)."""
+ECHO_QUIET_S = 2.0
+"""How long ``echo`` hears nothing before it says whether anything publishes the key: four
+heartbeats of every component, which announce what each publishes."""
 
 def expected_schema(keys: Keys, key: str) -> str | None:
     """The schema a key requires (``cmd/drive`` → ``drive``, ``sensor/camera/x`` →
@@ -455,13 +461,51 @@ async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         if args.count and shown >= args.count:
             done.set()
 
+    monitor = HealthMonitor(bus)  # what the components announce they publish
+    monitor.start()
     bus.subscribe(key_expr, on_sample, latest=False)
     if not args.json:
         print(f"# echo {key_expr}", file=out)
         out.flush()
-    with contextlib.suppress(TimeoutError):  # --seconds elapsed
-        await asyncio.wait_for(done.wait(), args.seconds)
+
+    async def say_if_unpublished() -> None:
+        await asyncio.sleep(ECHO_QUIET_S)
+        if shown == 0:
+            print(await unpublished(bus, monitor, key_expr), file=sys.stderr, flush=True)
+
+    note = asyncio.create_task(say_if_unpublished())
+    try:
+        with contextlib.suppress(TimeoutError):  # --seconds elapsed
+            await asyncio.wait_for(done.wait(), args.seconds)
+    finally:
+        note.cancel()
+        monitor.close()
     return 0 if not args.count or shown >= args.count else 1
+
+
+async def unpublished(bus: Bus, monitor: HealthMonitor, key_expr: str) -> str:
+    """What ``echo`` says on stderr when nothing has arrived on ``key_expr``: whether a live
+    component announces publishing it (heartbeats, docs/protocol.md), and the keys they do
+    announce that look like it. It goes on waiting."""
+    tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=1.0)
+    alive = {bus.keys.component_of_alive(t) for t in tokens}
+    publishers = announcing(monitor, key_expr, alive)
+    if publishers:
+        return (f"# nothing on {key_expr} yet, though {', '.join(sorted(publishers))} "
+                f"announce{'s' if len(publishers) == 1 else ''} publishing it (it may publish "
+                f"only on a change); still waiting")
+    announced = sorted({p.key for c, h in monitor.components.items() if c in alive
+                        for p in h.publishes})
+    prefix = bus.keys.prefix + "/"
+    near = difflib.get_close_matches(key_expr.removeprefix(prefix),
+                                     [k.removeprefix(prefix) for k in announced], n=3)
+    silent = len(alive - {c for c, h in monitor.components.items() if h.publishes})
+    return (f"# nothing publishes {key_expr} yet: none of the {len(alive)} live components "
+            f"announces it"
+            + (f" ({silent} announce nothing: they publish nothing, or do not say so)"
+               if silent else "")
+            + (f"; announced keys like it: {', '.join(near)}" if near else "")
+            + "; still waiting (`inspector keys` lists what is published)")
 
 
 def format_state(status: dict[str, Any], *, robot: str, controller: str,
@@ -715,8 +759,33 @@ class KeyWindow:
                 f"max {max(self.sizes)} B window {len(self.sizes)}")
 
 
+def tick_kind(payload: bytes) -> str | None:
+    """What ran the tick a drive command comes from, labelled as the status line labels tick
+    rates — ``clock``, ``reflex (range/front)``, ``sync (camera/front)``, ``event (…)`` — or
+    ``hold`` (a triggered controller's repeat); ``None`` for anything but a drive command that
+    says (``ticked_by``, docs/protocol.md)."""
+    try:
+        data = decode(payload, schema=topics.DRIVE.schema).data
+    except ProtocolError:
+        return None
+    if data.hold:
+        return "hold"
+    if data.ticked_by is None:
+        return None
+    if data.ticked_by != "clock" and data.based_on is not None:
+        return f"{data.ticked_by} ({data.based_on.source})"
+    return str(data.ticked_by)
+
+
+MIXED_TICKS = ("# every tick sends a drive command: the clock's periodic ticks and those a "
+               "sample runs at once (a reflex, a sync or event trigger), so two can come "
+               "~0 s apart and the rate is their sum; per kind below, as `inspector state` "
+               "and launch's status line count them")
+
+
 async def cmd_rate(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
-    """``hz`` and ``bw``: one line per key, once a second."""
+    """``hz`` and ``bw``: one line per key, once a second; for ``hz`` of drive commands, one
+    more per kind of tick (:func:`tick_kind`)."""
     try:
         key_expr = resolve_key(bus.keys, args.key)
     except ValueError as exc:
@@ -726,16 +795,23 @@ async def cmd_rate(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         print("error: --window must be at least 2", file=sys.stderr)
         return 2
     seen: dict[str, KeyWindow] = {}
+    by_kind: dict[str, dict[str, KeyWindow]] = {}
+    hz = args.command == "hz"
 
     def on_sample(key: str, payload: bytes, received_ns: int) -> None:
         window = seen.get(key)
         if window is None:
             window = seen[key] = KeyWindow(args.window)
         window.add(received_ns, payload)
+        if hz and (kind := tick_kind(payload)) is not None:
+            kinds = by_kind.setdefault(key, {})
+            if kind in kinds or len(kinds) < MAX_TICK_KINDS:
+                kinds.setdefault(kind, KeyWindow(args.window)).add(received_ns, payload)
 
     bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
-    line = KeyWindow.hz_line if args.command == "hz" else KeyWindow.bw_line
+    line = KeyWindow.hz_line if hz else KeyWindow.bw_line
     reports = 0
+    explained = False
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
     while not args.count or reports < args.count:
         await asyncio.sleep(1.0)
@@ -743,8 +819,13 @@ async def cmd_rate(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
             break
         if not seen:
             print(f"# no messages on {key_expr} yet", file=out)
+        if not explained and any(len(kinds) > 1 for kinds in by_kind.values()):
+            print(MIXED_TICKS, file=out)
+            explained = True
         for key in sorted(seen):
             print(f"{key}: {line(seen[key])}", file=out)
+            for kind, window in sorted(by_kind.get(key, {}).items()):
+                print(f"  ticked by {kind}: {line(window)}", file=out)
         out.flush()
         reports += 1
     return 0 if seen else 1

@@ -174,7 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="how often (wall seconds) the status line refreshes")
     run.add_argument("--quiet", action="store_true", help="no status line")
     run.add_argument("--log-level", default="WARNING",
-                     choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+                     choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+                     help="what is logged on the console (WARNING: warnings, and the live "
+                          "tree changes applied)")
     return parser
 
 
@@ -322,8 +324,11 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     simulated = plan.simulator is not None
     clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
     # A simulator's process and a lockstep participant hand samples over in the order they
-    # were sent: a participant's acknowledgement never overtakes what it sent before it.
-    bus = await Bus.open(plan.connection, clock=clock, ordered=simulated or args.lockstep)
+    # were sent: a participant's acknowledgement never overtakes what it sent before it. So
+    # does a follower of simulated time: a sample never overtakes the clock sent before it
+    # (the first one above all: before it the follower has no time, and refuses the sample).
+    bus = await Bus.open(plan.connection, clock=clock,
+                         ordered=simulated or args.sim_time or args.lockstep)
     options = bus.options  # with the port really listened on for a `:0` endpoint
     components: list[Component] = []
     health = HealthMonitor(bus)
@@ -604,6 +609,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    if logging.getLogger().level == logging.WARNING:
+        # An accepted live tree change is news on the robot's console, as a refused one (a
+        # warning) is: shown at the default level too, hidden only by --log-level ERROR.
+        logging.getLogger("ubf_async.live").setLevel(logging.INFO)
     try:
         plan = plan_launch(args)
     except UbfError as exc:

@@ -331,7 +331,7 @@ class TreeService(Component):
 
     def _applied(self, what: str) -> None:
         self.version += 1
-        log.info("tree version %d: %s", self.version, what)
+        log.info("tree changed, version %d: %s", self.version, what)
         self.controller.tree_changed(what)
         self.changed.set()
 

@@ -205,9 +205,15 @@ class BasedOn(Data, frozen=True, kw_only=True):
     stamp_ns: StampNs
 
 
+TickedBy = Literal["clock", "reflex", "sync", "event"]
+"""What ran a controller's tick: its periodic clock, a reflex sample, the sync source's sample
+(the thesis's loop) or the trigger's (``event``) — the labels of the status line's tick rates."""
+
+
 class Drive(Data, frozen=True, kw_only=True, omit_defaults=False):
-    """Speed and turn for the motors; ``hold`` repeats the last command between sync ticks.
-    Every field goes on the wire, defaults included: simple clients read them by name."""
+    """Speed and turn for the motors; ``hold`` repeats the last command between sync ticks;
+    ``ticked_by`` says what ran the tick (``None`` on a hold, and from a sender that does not
+    say). Every field goes on the wire, defaults included: simple clients read them by name."""
 
     speed: Command
     turn: Command
@@ -215,6 +221,7 @@ class Drive(Data, frozen=True, kw_only=True, omit_defaults=False):
     tick: Count | None = None
     winners: Annotated[tuple[Name, ...], Meta(max_length=MAX_WINNERS)] = ()
     hold: bool = False
+    ticked_by: TickedBy | None = None
 
 
 class SeekColor(Data, frozen=True, kw_only=True):
