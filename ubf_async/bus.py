@@ -505,9 +505,16 @@ async def watch_connect_endpoints(bus: Bus, endpoints: list[str], *,
             elif not reached and (
                     (endpoint not in warned_at and now - opened >= grace_s)
                     or (endpoint in warned_at and now - warned_at[endpoint] >= remind_s)):
-                log.warning("nothing answers at %s (--connect) after %.0f s: retrying every "
-                            "second until it does (%s)", endpoint, now - opened,
-                            START_ROBOT_HINT)
+                if await asyncio.to_thread(listening, endpoint):
+                    # Something accepts TCP there and still no link: it refuses this session.
+                    log.warning("%s (--connect) does not let this session in after %.0f s: "
+                                "something listens there, as a robot in secure mode does to a "
+                                "process without valid credentials (docs/security.md); "
+                                "retrying every second", endpoint, now - opened)
+                else:
+                    log.warning("nothing answers at %s (--connect) after %.0f s: retrying "
+                                "every second until it does (%s)", endpoint, now - opened,
+                                START_ROBOT_HINT)
                 warned_at[endpoint] = now
             up[endpoint] = reached
         await asyncio.sleep(check_s)
