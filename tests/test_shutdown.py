@@ -26,7 +26,7 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.conftest import REPOSITORY, free_port, repository_env
-from ubf_async.cli import EXIT_ERROR, STOP_BOUND_S
+from ubf_async.cli import EXIT_ERROR, EXIT_NOW_BUDGET_S, STOP_BOUND_S
 from ubf_async.fleet import FLEET_STOP_BOUND_S
 
 SIMULATED_SECOND = "| sim 1."
@@ -246,6 +246,24 @@ def test_a_sigterm_while_the_end_writes_lets_it_finish(
     assert (out / "rec" / "trajectory.png").exists()
     assert_mcap_finished(out / "rec" / "mini.mcap")
     assert_no_non_daemon_thread(robot)
+
+
+def test_a_second_signal_exits_at_once_and_still_finishes_the_recording(
+        tmp_path: Path, commands: list[Command]) -> None:
+    """The summary goes to a FIFO nobody reads: the end's writing is stuck. The second
+    SIGTERM exits at once (130) — and the MCAP file is finished all the same (within
+    cli.EXIT_NOW_BUDGET_S), readable with its summary section."""
+    fifo = tmp_path / "summary.fifo"
+    os.mkfifo(fifo)
+    robot = launch(commands, tmp_path, "--summary", str(fifo), "--record",
+                   str(tmp_path / "rec"))
+    robot.wait_for(SIMULATED_SECOND)
+    robot.proc.send_signal(signal.SIGTERM)
+    robot.wait_for("saving the run's results")
+    code = robot.stopped_within(EXIT_NOW_BUDGET_S + 1.0)
+    assert code == 130, robot.text()
+    assert any("SIGTERM again: exiting now" in line for line in robot.err), robot.text()
+    assert_mcap_finished(tmp_path / "rec" / "mini.mcap")
 
 
 def test_a_component_whose_aclose_raises_does_not_skip_the_rest_of_the_end(
