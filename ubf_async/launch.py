@@ -446,10 +446,12 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     return code
 
 
-RESULTS_BOUND_S = 3.0
-"""Wall time the end gives to writing the run's summary and recording (the summary first)."""
-CLOSE_BOUND_S = 2.5
-"""Wall time the end gives to closing one component (a recorder drains its queue: it has
+RESULTS_BOUND_S = 30.0
+"""Wall time the end gives to writing the run's summary and recording (the summary first):
+long enough for a loaded machine's plot and last frame, short of a write stuck for ever. After
+a stop signal the whole stop is bounded tighter (:data:`ubf_async.cli.STOP_BOUND_S`)."""
+CLOSE_BOUND_S = 5.0
+"""Wall time the end gives to closing one component (a recorder drains its queue for at most
 :data:`~ubf_async.record.DEFAULT_DRAIN_S`) or the zenoh session."""
 
 
