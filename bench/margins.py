@@ -62,6 +62,8 @@ def stats_ms(values_s: list[float]) -> str:
 class RecordingBackend:
     """Accepts pulses and remembers the last (no hardware on a bench machine)."""
 
+    hold_s = 0.0
+
     def __init__(self) -> None:
         self.pulses: tuple[float, float] | None = None
 

@@ -119,7 +119,7 @@ async def test_readme_tools_joining_late_work_within_3_s(endpoint: str) -> None:
         took = seen.first(drives, started, lambda m: list(m.data.winners) == ["teleop"])
         assert took is not None and took - started <= TAKES_S, (took, started, teleop.output())
         assert (drives[-1][1].data.speed, drives[-1][1].data.turn) == (30.0, 0.0)
-        assert "clock: simulation time" in teleop.output()
+        assert "clock: simulated time" in teleop.output()
 
         # The obstacle avoidance: attached, its votes valid on the robot clock (it abstains
         # while nothing is near, which the robot shows as its action).
@@ -246,7 +246,7 @@ async def test_a_tool_waits_for_a_robot_whose_simulator_starts_late(
         await eventually(lambda: seen.first(drives, started, lambda m: list(m.data.winners)
                                             == ["teleop"]) is not None,
                          timeout_s=60, what="teleop to take control")
-        assert "clock: simulation time" in teleop.output()
+        assert "clock: simulated time" in teleop.output()
         assert "REFUSES" not in teleop.output()
     finally:
         await simulator.stop()

@@ -18,7 +18,7 @@ from components.motors.pwm import (
     MotorCharacteristic,
     PwmConfig,
     calibration_for,
-    clamp_command,
+    clamp_drive,
     mix,
     pulse_for_wheel_speed_ms,
     pulse_widths,
@@ -78,13 +78,13 @@ def test_mix_rejects_out_of_range(speed: float, turn: float) -> None:
         mix(speed, turn)
 
 
-def test_clamp_command() -> None:
-    assert clamp_command(150, -250) == (100.0, -100.0)
-    assert clamp_command(-30.5, 20) == (-30.5, 20.0)
+def test_clamp_drive() -> None:
+    assert clamp_drive(150, -250) == (100.0, -100.0)
+    assert clamp_drive(-30.5, 20) == (-30.5, 20.0)
     with pytest.raises(ValueError, match="speed"):
-        clamp_command(math.nan, 0)
+        clamp_drive(math.nan, 0)
     with pytest.raises(ValueError, match="turn"):
-        clamp_command(0, math.inf)
+        clamp_drive(0, math.inf)
 
 
 # --- motor model ----------------------------------------------------------------------------------

@@ -389,7 +389,7 @@ async def test_the_avoid_obstacles_example_in_its_own_process_matters(
     try:
         await read_until(example, "waiting for the simulation time")
         with_example = await launch(tmp_path / "with", "--connect", example_endpoint)
-        printed = await read_until(example, "clock: simulation time")
+        printed = await read_until(example, "clock: simulated time")
         assert "votes in 'seek_pink_ball'" in printed and "(priority 3" in printed
     finally:
         await stop(example)

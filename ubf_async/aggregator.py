@@ -43,7 +43,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import ParamSpec
 
-from ubf_async import clockdomain, refusals
+from ubf_async import clockdomain, refusals, throttle
 from ubf_async.action import Action
 from ubf_async.bus import Bus, Subscription, decode_or_count
 from ubf_async.clock import SilenceLimit
@@ -330,7 +330,7 @@ class StateAggregator(Component):
         if entry is not None:
             entry.refused[reason] += 1
         n = self.refused[reason]
-        if n == 1 or n % 100 == 0:
+        if throttle.first_and_every(n):
             log.warning("refused sample #%d (%s) of %s: %s", n, reason, clip(source), detail)
         if self.notices is not None:
             self.notices.report(f"{self.bus.keys.prefix}/sensor/{source}", reason, detail)
@@ -418,7 +418,7 @@ class StateAggregator(Component):
             return False
         self._drop(victim)
         self.evicted += 1
-        if self.evicted == 1 or self.evicted % 100 == 0:
+        if throttle.first_and_every(self.evicted):
             log.warning("source table full (%d): evicted %s, silent longest, for %s "
                         "(eviction #%d)", self.max_sources, victim, newcomer, self.evicted)
         return True
@@ -441,11 +441,6 @@ class StateAggregator(Component):
         return dropped
 
     # -- queries -----------------------------------------------------------------------------
-    @staticmethod
-    def quiet_s(entry: SourceEntry, now_ns: int) -> float:
-        """How long since the newest sample of ``entry`` arrived (robot clock)."""
-        return max(0.0, (now_ns - entry.arrived_ns) / 1e9)
-
     def _clock_hint(self) -> str:
         if not self.bus.clock.is_simulated:
             return ""

@@ -74,6 +74,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple, final
 
+from ubf_async import throttle
 from ubf_async.action import Action
 from ubf_async.errors import ConfigurationError
 from ubf_async.state import State
@@ -628,7 +629,7 @@ class Composite(Behavior):
         name = behavior.name
         n = self.failures[name] = self.failures.get(name, 0) + 1
         streak = self._streaks[id(behavior)] = self._streaks.get(id(behavior), 0) + 1
-        if n == 1 or n % 100 == 0:
+        if throttle.first_and_every(n):
             log.error("composite %r: child %r raised (failure #%d), abstains this tick",
                       self.name, name, n, exc_info=exc)
         fault = f"FAILED: {type(exc).__name__}: {exc}"[:200]

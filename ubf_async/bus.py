@@ -64,7 +64,7 @@ from typing import Any
 
 import zenoh
 
-from ubf_async import lending
+from ubf_async import lending, throttle
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.protocol import INT64_MAX, ROOT, Keys, ProtocolError, decode, encode
@@ -1203,7 +1203,7 @@ def decode_or_count(
         counter[key] = n
         if len(counter) > MAX_COUNTED_KEYS:
             del counter[next(iter(counter))]
-        if n == 1 or n % 100 == 0:
+        if throttle.first_and_every(n):
             log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
         if on_error is not None:
             on_error(exc)

@@ -63,6 +63,10 @@ class Clock(Protocol):
         runs, and for simulated time whose simulator is alive: see :class:`SimClock`)."""
         ...
 
+    def describe(self, robot: str) -> str:
+        """Which clock this is, for a process's start-up line (``robot``: whose keys)."""
+        ...
+
 
 class _NoHold:
     def release(self) -> None:
@@ -81,6 +85,9 @@ class WallClock:
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         """Wall time never stalls."""
         return 0.0
+
+    def describe(self, robot: str) -> str:
+        return "wall clock (CLOCK_MONOTONIC)"
 
     def hold(self, until_ns: int) -> Hold:
         """Real time waits for nobody: a no-op."""
@@ -174,6 +181,9 @@ class SimClock:
         finally:
             self._drivers -= 1
             self._heard_wall_ns = time.monotonic_ns()
+
+    def describe(self, robot: str) -> str:
+        return f"simulated time (ubf/{robot}/clock)"
 
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         """Wall seconds since the time source was last heard from: 0 while a simulator of

@@ -183,7 +183,7 @@ class ClockDomainWatch:
     def check_on(self, bus: Bus, source: str, stamp_ns: int, now_ns: int) -> bool:
         """:meth:`check` with ``bus.clock``'s kind (simulated or not)."""
         return self.check(source, stamp_ns, now_ns=now_ns,
-                          simulated=getattr(bus.clock, "is_simulated", False))
+                          simulated=bus.clock.is_simulated)
 
     def count(self, source: str) -> int:
         entry = self.sources.get(source)
@@ -357,8 +357,4 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
 
 def describe(clock: Clock, *, robot: str) -> str:
     """Which clock a process stamps with, for its start-up line."""
-    if getattr(clock, "is_simulated", False):
-        return f"simulated time (ubf/{robot}/clock)"
-    if hasattr(clock, "estimator"):
-        return f"the robot host's clock (ubf/{robot}/time, offset learned)"
-    return "wall clock (CLOCK_MONOTONIC)"
+    return clock.describe(robot)

@@ -70,6 +70,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from ubf_async import throttle
 from ubf_async.action import Action
 from ubf_async.aggregator import SourceEntry, StateAggregator, add_hook, run_hooks
 from ubf_async.behavior import Behavior, Composite, Trace
@@ -422,7 +423,7 @@ class Controller(Component):
             trace: Trace | None = self.root.evaluate(state)
         except Exception:
             self.stats.errors += 1
-            if self.stats.errors == 1 or self.stats.errors % 100 == 0:
+            if throttle.first_and_every(self.stats.errors):
                 log.exception("behaviour tree raised (error #%d): commanding a stop",
                               self.stats.errors)
             trace = None
@@ -479,7 +480,7 @@ class Controller(Component):
     def _publish_failed(self, what: str) -> None:
         self.stats.publish_errors += 1
         n = self.stats.publish_errors
-        if n == 1 or n % 100 == 0:
+        if throttle.first_and_every(n):
             log.exception("could not publish the %s (publish error #%d)", what, n)
 
     _EXTRA_MESSAGES: ClassVar[dict[str, Callable[[Any], Any]]] = {

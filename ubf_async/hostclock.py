@@ -117,6 +117,9 @@ class RobotTimeClock:
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         return 0.0
 
+    def describe(self, robot: str) -> str:
+        return f"the robot host's clock (ubf/{robot}/time, offset learned)"
+
     async def sleep_until_ns(self, deadline_ns: int) -> None:
         await asyncio.sleep(max(0.0, (deadline_ns - self.now_ns()) / 1e9))
 

@@ -415,7 +415,7 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
                                    slots=robot.remotes)
         components += [aggregator, controller, remotes, tree_service, *devices]
-        if isinstance(clock, WallClock):  # its clock, for processes on other hosts
+        if not clock.is_simulated:  # its clock, for processes on other hosts
             components.append(RobotTimeBeacon(bus=bus))
         if args.lockstep:  # last started: the simulator waits for it once all else runs
             components.append(lockstep.LockstepParticipant(bus=bus, participant=controller.name))

@@ -36,6 +36,7 @@ from typing import Any
 
 import msgspec
 
+from ubf_async import throttle
 from ubf_async.behavior import Behavior, Composite
 from ubf_async.bus import Bus
 from ubf_async.component import Component
@@ -210,7 +211,7 @@ class TreeService(Component):
         except ProtocolError as exc:
             n = self.malformed.get(self.key, 0) + 1
             self.malformed[self.key] = n
-            if n == 1 or n % 100 == 0:
+            if throttle.first_and_every(n):
                 log.warning("rejected malformed tree request #%d on %s: %s", n, self.key, exc)
             return self._reply({"ok": False, "op": op, "error": f"malformed request: {exc}"})
         op = request.op

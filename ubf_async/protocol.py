@@ -143,9 +143,6 @@ class Keys:
         return f"{self.prefix}/**"
 
 
-_check_segment = check_segment  # the name it had before
-
-
 def clip(value: str, max_len: int = MAX_NAME_CHARS) -> str:
     """``value`` cut to ``max_len`` characters (the last one an ellipsis when cut): for names
     copied into outgoing messages, which must never fail their own validation."""

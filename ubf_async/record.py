@@ -46,7 +46,7 @@ from typing import IO, Any
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from ubf_async import __version__, ending
+from ubf_async import __version__, ending, throttle
 from ubf_async.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.bus import (
     Bus,
@@ -199,7 +199,7 @@ class McapRecorder(Component):
             self._queue.put_nowait((key, payload, self.bus.clock.now_ns()))
         except queue.Full:
             self.stats.dropped += 1
-            if self.stats.dropped == 1 or self.stats.dropped % 1000 == 0:
+            if throttle.first_and_every(self.stats.dropped, 1000):
                 log.warning("%s: the writer is behind; %d messages dropped so far", self.name,
                             self.stats.dropped)
 
@@ -289,7 +289,7 @@ class _File:
         self.writer.add_metadata("ubf_async", {
             "robot": recorder.bus.robot, "version": __version__,
             "protocol": str(PROTOCOL_VERSION), "part": str(index),
-            "clock": "simulated" if getattr(recorder.bus.clock, "is_simulated", False)
+            "clock": "simulated" if recorder.bus.clock.is_simulated
             else "monotonic"})
         self.schemas: dict[str, int] = {}
         self.channels: dict[tuple[str, int], int] = {}

@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from ubf_async import clockdomain, lockstep, refusals
+from ubf_async import clockdomain, lockstep, refusals, throttle
 from ubf_async.action import Action
 from ubf_async.aggregator import StateAggregator
 from ubf_async.behavior import Behavior, Composite
@@ -50,7 +50,7 @@ from ubf_async.bus import (
     wait_for_robot,
 )
 from ubf_async.cli import run_main
-from ubf_async.clock import Clock, SimClock, WallClock
+from ubf_async.clock import Clock, WallClock
 from ubf_async.component import Component, ensure_name_free
 from ubf_async.errors import ConfigurationError
 from ubf_async.ordering import SampleOrder, ahead_of_clock
@@ -642,7 +642,7 @@ class RemoteBehaviors(Component):
         counter = self.rejected if counter is None else counter
         n = counter.get(key, 0) + 1
         counter[key] = n
-        if n == 1 or n % 100 == 0:
+        if throttle.first_and_every(n):
             log.warning("rejected vote #%d on %s: %s", n, key, reason)
         if self.notices is not None:
             self.notices.report(key, "future" if counter is self.future else "rejected",
@@ -818,7 +818,7 @@ class RemoteBehaviorHost(Component):
             action = self.behavior.act(state)
         except Exception:
             self.errors += 1
-            if self.errors == 1 or self.errors % 100 == 0:
+            if throttle.first_and_every(self.errors):
                 log.exception("behaviour %s raised (error #%d): abstaining", self.name,
                               self.errors)
             action = None
@@ -950,7 +950,7 @@ async def host_remote_behavior(
         print(f"remote behaviour {behavior.name!r} votes in {args.composite!r} of robot "
               f"{options.robot!r} {timing} (priority {args.priority}, weight {args.weight:g}, "
               f"ttl {args.ttl_s:g}s) on {host.key}", file=out)
-        print(f"  clock: {clock_name(clock, robot=options.robot)}"
+        print(f"  clock: {clock.describe(options.robot)}"
               + (", in lockstep" if args.lockstep else ""), file=out)
         out.flush()
         # Before the first vote, so that the robot's first refusal is heard (on stderr).
@@ -991,13 +991,6 @@ async def host_remote_behavior(
         await bus.aclose()
 
 
-def clock_name(clock: Clock, *, robot: str) -> str:
-    """The clock a remote behaviour stamps with, for its start-up line."""
-    if isinstance(clock, SimClock):
-        return "simulation time"
-    if hasattr(clock, "estimator"):
-        return f"the robot host's clock (ubf/{robot}/time, offset learned)"
-    return "wall"
 
 
 def run_remote_behavior(

@@ -35,6 +35,8 @@ import logging
 from collections import Counter
 from dataclasses import dataclass
 
+from ubf_async import throttle
+
 log = logging.getLogger(__name__)
 
 DEFAULT_TAKEOVER_S = 1.0
@@ -142,7 +144,7 @@ class ClockFollower:
     def _refuse(self, reason: str, stamp_ns: int, epoch: str | None) -> ClockVerdict:
         self.refused[reason] += 1
         n = self.refused_total
-        if n == 1 or n % 100 == 0:
+        if throttle.first_and_every(n):
             log.warning("%s: refused clock sample #%d (%s): epoch %r at %.3f s while following "
                         "epoch %r at %.3f s", self.name, n, reason, epoch, stamp_ns / 1e9,
                         self.epoch, self.last_stamp_ns / 1e9)

@@ -201,10 +201,11 @@ def gpio_backend(
     encoders); ``pin_factory`` as for ``motors.gpio``. The A/B order must make a wheel
     driving the robot forward step ``0 → 1 → 3 → 2`` (B leads A); swap A and B otherwise."""
     factory = hardware.pin_factory(pin_factory, who="encoders.gpio")
+    refused: tuple[type[BaseException], ...] = (OSError, ValueError, *hardware.gpio_errors())
     try:
         return GpioEncoderBackend(factory=factory, left_a=left_a, left_b=left_b, right_a=right_a,
                                   right_b=right_b, pull=pull)
-    except (OSError, ValueError, *hardware.gpio_errors()) as exc:
+    except refused as exc:
         raise hardware.pins_error("encoders.gpio", exc) from None
 
 

@@ -31,7 +31,8 @@ from typing import Any, TextIO
 
 from components.encoders.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
 from components.miniwhegs import MINI_WHEGS
-from components.motors.pwm import DEFAULT_PWM, MotorCalibration, hold_s
+from components.motors.backend import MotorBackend
+from components.motors.pwm import DEFAULT_PWM, MotorCalibration
 from ubf_async.errors import ConfigurationError, UbfError
 
 WHEELS = ("left", "right")
@@ -107,7 +108,8 @@ class Step:
         return {w: edges_to_counts(e, MINI_WHEGS) for w, e in self.edges.items()}
 
 
-def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: MotorCalibration,
+def run_check(*, motors: MotorBackend, encoders: Any, left: MotorCalibration,
+              right: MotorCalibration,
               u: float = 30.0, spin_s: float = 1.0, settle_s: float = 0.3,
               min_edges: int = 40, out: TextIO = sys.stdout,
               sleep: Callable[[float], None] = time.sleep,
@@ -120,7 +122,7 @@ def run_check(*, motors: Any, encoders: Any, left: MotorCalibration, right: Moto
     pass is what ``clock`` reads (a test gives both on a virtual clock)."""
     calibrations = {"left": left, "right": right}
     stop = {"left_ms": left.zero_ms, "right_ms": right.zero_ms}
-    held = float(getattr(motors, "hold_s", hold_s(DEFAULT_PWM.period_ms)))
+    held = motors.hold_s
     decoders = {w: QuadratureDecoder(mode=DirectionMode.PHASE, initial_state=s)
                 for w, s in zip(WHEELS, encoders.current_states(), strict=True)}
     steps: list[Step] = []

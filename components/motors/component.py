@@ -45,7 +45,7 @@ from components.motors.pwm import (
     DEFAULT_RIGHT_CALIBRATION,
     MotorCalibration,
     PulseCommand,
-    clamp_command,
+    clamp_drive,
     pulse_widths,
 )
 from ubf_async.bus import Bus, decode_or_count
@@ -120,7 +120,7 @@ class MotorsComponent(Component):
         """Wait the backend's ``hold_s`` (wall time: the pins do not run on simulated time)
         without blocking the loop. With ``through_cancel`` a cancellation waits for the end
         of the hold (at most ``hold_s``) and is raised after it."""
-        hold_s = float(getattr(self.backend, "hold_s", 0.0))
+        hold_s = self.backend.hold_s
         if hold_s <= 0:
             return
         loop = asyncio.get_running_loop()
@@ -173,7 +173,7 @@ class MotorsComponent(Component):
             self.ignored += 1
             return
         speed, turn = message.data.speed, message.data.turn
-        safe_speed, safe_turn = clamp_command(speed, turn)
+        safe_speed, safe_turn = clamp_drive(speed, turn)
         if (safe_speed, safe_turn) != (speed, turn):
             self.clamped += 1
         clock = self.bus.clock

@@ -90,14 +90,6 @@ class GpioMotorBackend:
             return self.max_ms if pulse_ms > self.max_ms else self.min_ms
         return pulse_ms
 
-    @property
-    def pulses_ms(self) -> tuple[float, float]:
-        """The high time each output carries now (0 once closed)."""
-        with self._lock:
-            if self._left.closed:
-                return (0.0, 0.0)
-            return (self._left.value * self.period_ms, self._right.value * self.period_ms)
-
     def close(self) -> None:
         """Release both pins (the pulses end) at once; calling it again does nothing.
 
@@ -121,10 +113,11 @@ def gpio_backend(
     factory (``lgpio``, ``pigpio``, ``rpigpio``, ``native``, ``mock``; default: gpiozero's
     choice, ``GPIOZERO_PIN_FACTORY``)."""
     factory = hardware.pin_factory(pin_factory, who="motors.gpio")
+    refused: tuple[type[BaseException], ...] = (OSError, ValueError, *hardware.gpio_errors())
     try:
         return GpioMotorBackend(left_pin=left_pin, right_pin=right_pin, factory=factory,
                                 period_ms=period_ms)
-    except (OSError, ValueError, *hardware.gpio_errors()) as exc:
+    except refused as exc:
         raise hardware.pins_error("motors.gpio", exc) from None
 
 

@@ -17,10 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ubf_async.action import clamp_command as clamp_value
-
-COMMAND_LIMIT = 100.0
-"""Magnitude limit of speed, turn and the per-wheel command ``u``."""
+# One limit for speed, turn and the wheel command ``u``: the UBF's, re-exported here.
+from ubf_async.action import COMMAND_LIMIT as COMMAND_LIMIT
+from ubf_async.action import clamp_command
 
 MEASURED_ZERO_MS = 1.55
 """Pulse at which both real motors stand still (the nominal zero is 1.5 ms)."""
@@ -34,14 +33,14 @@ def _require_finite(**values: float) -> None:
             raise ValueError(f"{name} must be a finite number, got {value!r}")
 
 
-def clamp_command(speed: float, turn: float) -> tuple[float, float]:
+def clamp_drive(speed: float, turn: float) -> tuple[float, float]:
     """Clamp a finite speed/turn pair to ±100; NaN or ±inf raise ``ValueError``.
 
     The component calls this on what behaviours send before :func:`mix`, which refuses
     out-of-range input so that a bug upstream is not silently absorbed there.
     """
     _require_finite(speed=speed, turn=turn)  # says which of the two is bad
-    return clamp_value(float(speed)), clamp_value(float(turn))
+    return clamp_command(float(speed)), clamp_command(float(turn))
 
 
 def mix(speed: float, turn: float) -> tuple[float, float]:
@@ -49,7 +48,7 @@ def mix(speed: float, turn: float) -> tuple[float, float]:
 
     If either side would exceed ±100 both are scaled down by the same factor, which keeps their
     ratio and hence the curvature of the path (only the pace drops). Raises ``ValueError`` for
-    non-finite input or input outside ±100 (use :func:`clamp_command` first).
+    non-finite input or input outside ±100 (use :func:`clamp_drive` first).
     """
     _require_finite(speed=speed, turn=turn)
     for name, value in (("speed", speed), ("turn", turn)):

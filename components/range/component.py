@@ -22,6 +22,7 @@ import numpy as np
 
 from components.range.backend import MountPose, RangeBackend, RangeReadError
 from components.range.ir import GP2Y0A21, IR_MODELS, IrModel, limit_ir, read_ir
+from ubf_async import throttle
 from ubf_async.bus import Bus
 from ubf_async.clock import every
 from ubf_async.component import Component
@@ -73,7 +74,7 @@ class RangeComponent(Component):
                                                          max_range_m=self.model.max_range_m)
             except RangeReadError as exc:
                 self.read_errors += 1
-                if self.read_errors == 1 or self.read_errors % 100 == 0:
+                if throttle.first_and_every(self.read_errors):
                     log.warning("%s: cannot read the sensor (%d failed reads so far): %s",
                                 self.name, self.read_errors, exc)
                 continue

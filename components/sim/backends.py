@@ -63,6 +63,8 @@ QUADRATURE_SEQUENCE = np.array([0, 1, 3, 2], dtype=np.uint8)
 class SimMotorBackend:
     """Hands the pulse widths to the simulated motors."""
 
+    hold_s = 0.0  # the simulated motors see a pulse at once
+
     def __init__(self, world: WorldView) -> None:
         self._world = world
 
@@ -354,7 +356,7 @@ def _world(context: DeviceContext, backend: str) -> WorldView:
         raise ConfigurationError(
             f"backend {backend!r} needs the {SIMULATOR!r} simulator's world, and none was given"
         )
-    return world  # type: ignore[no-any-return]
+    return world
 
 
 @_on_simulator

@@ -37,6 +37,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -145,9 +146,6 @@ class CameraParams:
         """Focal length in pixels (square pixels: same in x and y)."""
         return (self.width_px / 2) / math.tan(math.radians(self.hfov_deg) / 2)
 
-    @property
-    def vfov_deg(self) -> float:
-        return math.degrees(2 * math.atan((self.height_px / 2) / self.focal_px))
 
 
 DEFAULT_CAMERA = CameraParams()
@@ -613,8 +611,8 @@ def _draw_sphere(
         strength = params.glare_strength * exposure_gain ** params.glare_exposure_power
         weight = (weight * np.float32(strength))[..., None]
         lin = lin + (np.float32(255.0) - lin) * weight
-    sprite = np.clip(lin, 0.0, 255.0).astype(np.uint8)
-    mask = inside.astype(np.uint8)
+    sprite: np.ndarray = np.clip(lin, 0.0, 255.0).astype(np.uint8)
+    mask: np.ndarray = inside.astype(np.uint8)
     if sprite.shape[:2] != mask.shape:
         sprite = np.ascontiguousarray(np.broadcast_to(sprite, (*mask.shape, 3)))
     if step > 1:
@@ -696,9 +694,9 @@ def _wall_items(
         brightness = snapshot.lighting.brightness
     rgb = colors * (factor * brightness)[:, None]
     pts = cam.to_cam(world.reshape(-1, 3)).reshape(world.shape)
-    inside = _frustum_distances(pts, cam) >= 0.0  # chunks × corners × planes
-    culled = (~inside.any(axis=1)).any(axis=1)  # some plane has every corner outside
-    whole = inside.all(axis=(1, 2))
+    inside: np.ndarray = _frustum_distances(pts, cam) >= 0.0  # chunks × corners × planes
+    culled: np.ndarray = np.any(~np.any(inside, axis=1), axis=1)  # a plane has all outside
+    whole: np.ndarray = np.all(inside, axis=(1, 2))
     projected = _project(np.where(whole[:, None, None], pts, 1.0), cam)
     return [
         (float(depth[i]), 0, (pts[i], projected[i] if whole[i] else None, rgb[i]))
@@ -748,9 +746,10 @@ def render_camera(
     lighting = snapshot.lighting
     if gain < 1.0:
         lighting = Lighting(brightness=lighting.brightness * gain, glare=lighting.glare)
-        cv2.multiply(frame, (gain, gain, gain, 0.0), dst=frame)
+        # A per-channel scalar: OpenCV's stubs know only arrays here.
+        cv2.multiply(frame, (gain, gain, gain, 0.0), dst=frame)  # type: ignore[call-overload]
     cam_xy = cam.position[:2]
-    items: list[tuple[float, int, object]] = []  # (depth, kind, payload)
+    items: list[tuple[float, int, Any]] = []  # (depth, kind, payload: by kind)
 
     items.extend(_wall_items(snapshot, params, cam, lighting.brightness))
 
@@ -780,16 +779,16 @@ def render_camera(
     items.sort(key=lambda item: -item[0])
     for _depth, kind, payload in items:
         if kind == 0:
-            pts, projected, rgb = payload  # type: ignore[misc]
+            pts, projected, rgb = payload
             if projected is not None:
                 _fill_projected(frame, projected, rgb)
             else:
                 _fill_clipped(frame, cam, _clip_polygon(pts, cam), rgb)
         elif kind == 1:
-            fp, height, color = payload  # type: ignore[misc]
+            fp, height, color = payload
             _draw_prism(frame, cam, fp, height, color, lighting.brightness)
         else:
-            centre, radius, color = payload  # type: ignore[misc]
+            centre, radius, color = payload
             _draw_sphere(frame, cam, centre, radius, color, params, lighting, gain)
 
     if rng is not None:

@@ -165,13 +165,13 @@ class SimulatorComponent(Component):
 
     def truth(self, robot: int = 0) -> dict[str, object]:
         snap = self.world.snapshot_for(robot)
-        robot = snap.robot
+        state = snap.robot
         out: dict[str, object] = {
             "time_s": snap.time_s,
-            "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad,
-                      "speed_m_s": robot.forward_speed_m_s, "yaw_rate_rad_s": robot.yaw_rate_rad_s,
-                      "left_wheel_rad": robot.left_wheel_angle_rad,
-                      "right_wheel_rad": robot.right_wheel_angle_rad},
+            "robot": {"x_m": state.x_m, "y_m": state.y_m, "heading_rad": state.heading_rad,
+                      "speed_m_s": state.forward_speed_m_s, "yaw_rate_rad_s": state.yaw_rate_rad_s,
+                      "left_wheel_rad": state.left_wheel_angle_rad,
+                      "right_wheel_rad": state.right_wheel_angle_rad},
         }
         if snap.ball is not None:
             out["ball"] = {"x_m": snap.ball.x_m, "y_m": snap.ball.y_m}

@@ -191,4 +191,4 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
     }
     print(f"world: {world.time_s:.1f} simulated s at {rtf or 0:.2f}x real time", file=out,
           flush=True)
-    return rounded(summary)  # type: ignore[no-any-return]
+    return rounded(summary)

@@ -208,13 +208,6 @@ class TrajectoryCsvWriter:
                 self._fh = None
 
 
-def write_trajectory_csv(path: Path, samples: Iterable[TrajectorySample]) -> None:
-    """Write ``samples`` to ``path`` in one go (the format :class:`TrajectoryCsvWriter` streams)."""
-    writer = TrajectoryCsvWriter(path)
-    writer.write(samples)
-    writer.close()
-
-
 def read_trajectory_csv(path: Path) -> list[TrajectorySample]:
     def num(v: str) -> float | None:
         return None if v == "" else float(v)

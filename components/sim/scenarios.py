@@ -468,13 +468,16 @@ def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
     arena = None
     if data.get("arena") is not None:
         a = _check_keys(data["arena"], {"x_min_m", "y_min_m", "x_max_m", "y_max_m"}, "arena")
-        arena = Arena(**{k: _number(a, k, "arena")
-                         for k in ("x_min_m", "y_min_m", "x_max_m", "y_max_m")})
+        arena = Arena(x_min_m=_number(a, "x_min_m", "arena"),
+                      y_min_m=_number(a, "y_min_m", "arena"),
+                      x_max_m=_number(a, "x_max_m", "arena"),
+                      y_max_m=_number(a, "y_max_m", "arena"))
     walls = []
     for i, w in enumerate(data.get("walls", [])):
         w = _check_keys(w, {"x1_m", "y1_m", "x2_m", "y2_m"}, f"walls[{i}]")
-        walls.append(Wall(**{k: _number(w, k, f"walls[{i}]")
-                             for k in ("x1_m", "y1_m", "x2_m", "y2_m")}))
+        where = f"walls[{i}]"
+        walls.append(Wall(x1_m=_number(w, "x1_m", where), y1_m=_number(w, "y1_m", where),
+                          x2_m=_number(w, "x2_m", where), y2_m=_number(w, "y2_m", where)))
     boxes = []
     for i, b in enumerate(data.get("obstacles", [])):
         where = f"obstacles[{i}]"

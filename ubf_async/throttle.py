@@ -1,0 +1,9 @@
+"""One rule for repeated log lines: a count of something going wrong is logged the first time
+and every ``every``-th time after, so a flood of bad input says so without flooding the log."""
+
+from __future__ import annotations
+
+
+def first_and_every(count: int, every: int = 100) -> bool:
+    """Whether the ``count``-th occurrence (1 for the first) should be logged."""
+    return count == 1 or count % every == 0
