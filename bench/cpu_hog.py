@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import os
 import subprocess
 import sys
@@ -42,7 +43,7 @@ def hogs(cpus: Iterable[int] | None = None) -> Iterator[list[subprocess.Popen[by
     try:
         for cpu in chosen:
             procs.append(subprocess.Popen([sys.executable, "-c", BUSY_LOOP],
-                                          preexec_fn=lambda cpu=cpu: pin_to([cpu])))
+                                          preexec_fn=functools.partial(pin_to, [cpu])))
         yield procs
     finally:
         for proc in procs:

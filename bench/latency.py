@@ -175,16 +175,16 @@ def serve_and_measure(server_cfgs: list[dict[str, Any]], sensor_cfg: dict[str, A
         served = [w.result(30.0) for w in servers]
         return served, sensed
     finally:
-        for w in (sensor, *servers):
-            if w is not None:
-                w.kill()
+        for worker in (sensor, *servers):
+            if worker is not None:
+                worker.kill()
 
 
 # ---------------------------------------------------------------------------------------------
 # Measurements (each returns a JSON-able dict; the test suite calls them with small counts)
 
 
-SERVERS = {
+SERVERS: dict[str, dict[str, Any]] = {
     "echo": {"role": "echo"},
     "as_run": {"role": "controller", "mode": "event", "trigger": "range/front",
                "instrument": False},
@@ -201,7 +201,7 @@ through its hooks (``controller``: where the time goes) and observed on asyncio'
 
 REFLEX_SERVERS = ("echo", "as_run", "controller", "plain_loop", "tree_echo")
 
-CONTROLLERS = {
+CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {
     # Section 4's controllers: (label, server config).
     "sync": ("sync (tick waits for camera frame)", {"mode": "sync"}),
     "default": ("async, default: periodic 50 Hz + reflex range/",
@@ -411,7 +411,7 @@ def measure_peers(*, warmup: int, count: int, ticks: int) -> dict[str, Any]:
         time_per_call,
         ubf_tree,
     )
-    from ubf_async import State
+    from ubf_async import Composite, State
 
     dora = run_dora(warmup=warmup, count=count)
     if "rtt_ns" in dora:
@@ -420,7 +420,12 @@ def measure_peers(*, warmup: int, count: int, ticks: int) -> dict[str, Any]:
     rows = []
     for n in SIZES:
         tree = ubf_tree(n, HighestActivation, Constant)
-        ubf = statistics.median(time_per_call(lambda tree=tree: tree.evaluate(state), ticks))
+
+        # A def, not a lambda: mypy cannot type a lambda's default arguments.
+        def evaluate(tree: Composite = tree) -> object:
+            return tree.evaluate(state)
+
+        ubf = statistics.median(time_per_call(evaluate, ticks))
         pt = py_trees_selector(n)
         rows.append({"children": n, "ubf_us": ubf,
                      "py_trees_us": statistics.median(time_per_call(pt, ticks)) if pt else None})

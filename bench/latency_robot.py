@@ -234,6 +234,7 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
 
 async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
+    from components.camera.component import CameraComponent
     from components.sim.component import SimulatorComponent, simulated_devices
     from components.sim.scenes import ball_in_view
     from components.sim.world import World
@@ -268,7 +269,8 @@ async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
             "sim_s": world.time_s - sim0, "wall_s": time.monotonic() - wall0,
             "late_steps": sim.late_steps - late0, "step_s": sim.step_s,
             "overruns": ctl.stats.overruns, "camera_frames": next(
-                (d.frames for d in devices if d.name.startswith("camera")), 0),
+                (d.frames for d in devices
+                 if d.name.startswith("camera") and isinstance(d, CameraComponent)), 0),
         }
     finally:
         for c in reversed(components):

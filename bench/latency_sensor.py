@@ -162,14 +162,21 @@ def scenario_rtt(hs: list[Harness], cfg: dict[str, Any]) -> dict[str, Any]:
                 sent[j][seq] = stamp
             if not rate:
                 with h.cond:
-                    h.cond.wait_for(lambda h=h, s=seq: s in h.replied, timeout=1.0)
+                    # A def, not a lambda: mypy cannot type a lambda's default arguments.
+                    def answered(h: Harness = h, s: int = seq) -> bool:
+                        return s in h.replied
+
+                    h.cond.wait_for(answered, timeout=1.0)
     out = []
     for j, h in enumerate(hs):
+        def all_answered(h: Harness = h, j: int = j) -> bool:
+            return all(s in h.replied for s in sent[j])
+
         with h.cond:  # the last replies of a paced run
-            h.cond.wait_for(lambda h=h, j=j: all(s in h.replied for s in sent[j]), timeout=2.0)
+            h.cond.wait_for(all_answered, timeout=2.0)
             commands = list(h.commands)
             replied = dict(h.replied)
-        rows = []
+        rows: list[tuple[int, int, int | None, int | None]] = []
         mismatched = 0
         for seq, stamp in sent[j].items():
             index = replied.get(seq)

@@ -17,6 +17,7 @@ import msgspec
 
 from ubf_async import registry
 from ubf_async.component import Component
+from ubf_async.context import DeviceContext
 from ubf_async.devices import (
     BACKEND_INJECTED,
     DEVICE_INJECTED,
@@ -25,7 +26,6 @@ from ubf_async.devices import (
     typed_params,
 )
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import DeviceContext
 
 __all__ = ["BACKEND_INJECTED", "DEFAULT_NAMES", "DEVICE_INJECTED", "KINDS", "checked",
            "make_backend", "make_device", "requires_simulator"]

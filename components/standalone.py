@@ -50,7 +50,7 @@ from ubf_async.bus import (
 from ubf_async.cli import run_main
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, ensure_name_free
-from ubf_async.simulation import DeviceContext
+from ubf_async.context import DeviceContext
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
 """Maps the parsed command line to keyword parameters (of the device or of its backend)."""

@@ -9,6 +9,11 @@
   hardware libraries, gpiozero and smbus2: they are an optional extra, and a robot without
   them (the simulated one) runs — checked by running it with both made unimportable.
 
+The same directions, and the layers of the flat package (no import circles; wire < connection
+< bus < components < controller < assembly), are contracts of ``lint-imports``
+(``[tool.importlinter]`` in pyproject.toml, run by .ci/run); the last tests here show that it
+refuses a deliberately upward import on a scratch copy of the packages.
+
 Static imports only (``import``/``from … import`` anywhere in a module, including inside
 functions and ``if TYPE_CHECKING:``), and imports by a literal name
 (``importlib.import_module("x")``, ``hardware.require("x", ...)``); a plug-in loaded by name at
@@ -19,6 +24,8 @@ from __future__ import annotations
 
 import ast
 import os
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -210,3 +217,46 @@ for build in (lambda: i2c_backend(context=None),
     assert all(line.endswith('install the hardware extra: pip install -e ".[hardware]"')
                for line in lines)
     assert log.read_text().split() == ["smbus2", "gpiozero"]  # only when a backend is built
+
+
+def lint_imports_on_a_copy(tmp_path: Path,
+                           edits: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """``lint-imports`` with the project's contracts over a scratch copy of both packages, each
+    module named in ``edits`` (a path under the copy) given that line at its end."""
+    for package in ("ubf_async", "components"):
+        shutil.copytree(ROOT / package, tmp_path / package,
+                        ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    for path, line in edits.items():
+        with (tmp_path / path).open("a", encoding="utf-8") as module:
+            module.write(f"\n{line}\n")
+    # lint-imports puts its working directory first on the path, so the copy is what it reads.
+    command = [str(Path(sys.executable).with_name("lint-imports")), "--no-cache"]
+    return subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+
+
+def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -> None:
+    result = lint_imports_on_a_copy(tmp_path, {})
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 broken" in result.stdout
+
+
+@pytest.mark.parametrize(("edits", "broken"), [
+    # Upward without a circle: errors (the lowest layer) takes the clock.
+    ({"ubf_async/errors.py": "import ubf_async.clock  # noqa"},
+     ["Runtime layers"]),
+    # The circle this package had: topics taking the key builders back from protocol.
+    ({"ubf_async/topics.py": "from ubf_async.protocol import decode  # noqa"},
+     ["No import circles", "Runtime layers"]),
+    # The framework reaching for a component.
+    ({"ubf_async/bus.py": "import components.sim.world  # noqa"},
+     ["The framework imports no component"]),
+])
+def test_lint_imports_refuses_an_upward_import(tmp_path: Path, edits: dict[str, str],
+                                               broken: list[str]) -> None:
+    result = lint_imports_on_a_copy(tmp_path, edits)
+    assert result.returncode != 0, result.stdout
+    report = " ".join(result.stdout.split())  # long contract names are wrapped
+    for name in broken:
+        verdict = re.search(re.escape(name) + r".*? (KEPT|BROKEN)\b", report)
+        assert verdict and verdict[1] == "BROKEN", (name, result.stdout)

@@ -147,7 +147,7 @@ class ConnectionOptions:
     def zenoh_config(self) -> zenoh.Config:
         """The zenoh configuration: the ``config`` file, then these options over it; in secure
         mode the identity's credentials (and for ``robot`` the password dictionary and the
-        ACL), and client mode for every identity but ``robot`` (see :mod:`ubf_async.secure`).
+        ACL), and client mode for every identity but ``robot`` (see :mod:`ubf_async.securemode`).
         Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up."""
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
         conf.insert_json5("mode", json.dumps(self.mode))
@@ -160,7 +160,7 @@ class ConnectionOptions:
         if conf.get_json("connect/retry") == "null":  # the file's own retry wins
             conf.insert_json5("connect/retry", json.dumps(RECONNECT_RETRY))
         if self.secure is not None:
-            from ubf_async import secure  # only secure mode needs it
+            from ubf_async import securemode as secure  # only secure mode needs it
 
             secure.apply(conf, directory=self.secure, identity=self.identity, robot=self.robot,
                          listen=self.listen)

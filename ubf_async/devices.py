@@ -15,9 +15,9 @@ from typing import Any
 import msgspec
 
 from ubf_async.component import Component
+from ubf_async.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 from ubf_async.registry import accepts, parameters_of
-from ubf_async.simulation import DeviceContext
 
 DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
 """Parameters of a device kind's factory the builder supplies itself."""

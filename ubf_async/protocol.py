@@ -22,7 +22,6 @@ new kind of sensor) is checked generically (:func:`plain`).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Annotated, Any, Generic, TypeVar, overload
 
 import msgspec
@@ -30,17 +29,19 @@ from msgspec import Meta
 
 # Defined with the rest of the exception tree; re-exported here, where it has always been.
 from ubf_async.errors import ProtocolError as ProtocolError
+
+# The key builders live below topics (which needs them) and are re-exported here, where they
+# have always been.
+from ubf_async.keys import ROOT as ROOT
+from ubf_async.keys import Keys as Keys
+from ubf_async.keys import check_segment as check_segment
 from ubf_async.topics import (
     BY_SCHEMA,
-    CLOCK,
-    CONTROLLER_STATUS,
-    HEARTBEAT,
     INT64_MAX,
     MAX_CONTAINER_LEN,
     MAX_DEPTH,
     MAX_NAME_CHARS,
     MAX_STR_LEN,
-    TREE_REQUEST,
     PlainData,
     StampNs,
     Topic,
@@ -52,95 +53,7 @@ __all__ = ["INT64_MAX", "MAX_CONTAINER_LEN", "MAX_DEPTH", "MAX_NAME_CHARS", "MAX
            "plain"]
 
 PROTOCOL_VERSION = 1
-ROOT = "ubf"
 MAX_PAYLOAD_BYTES = 256 * 1024
-
-
-# ---------------------------------------------------------------------------------------------
-# Key expressions
-
-
-def check_segment(what: str, value: str) -> str:
-    if not value or any(c in value for c in "/*$?#") or value != value.strip():
-        raise ProtocolError(f"{what} {value!r} must be one non-empty key segment without / * $ ? #")
-    return value
-
-
-@dataclass(frozen=True, slots=True)
-class Keys:
-    """The key expressions of one robot, ``ubf/<robot>/...``."""
-
-    robot: str
-
-    def __post_init__(self) -> None:
-        check_segment("robot name", self.robot)
-
-    @property
-    def prefix(self) -> str:
-        return f"{ROOT}/{self.robot}"
-
-    def sensor(self, kind: str, name: str) -> str:
-        """Where a sensor publishes its samples; its state source is ``"<kind>/<name>"``."""
-        return f"{self.prefix}/sensor/{check_segment('kind', kind)}/{check_segment('name', name)}"
-
-    def sensors_of_kind(self, kind: str) -> str:
-        return f"{self.prefix}/sensor/{check_segment('kind', kind)}/*"
-
-    @property
-    def all_sensors(self) -> str:
-        return f"{self.prefix}/sensor/*/*"
-
-    def source_of(self, key: str) -> str:
-        """``ubf/<robot>/sensor/<kind>/<name>`` → ``"<kind>/<name>"``."""
-        head = f"{self.prefix}/sensor/"
-        if not key.startswith(head) or key.count("/") != head.count("/") + 1:
-            raise ProtocolError(f"{key!r} is not a sensor key of robot {self.robot!r}")
-        return key[len(head):]
-
-    def cmd(self, target: str) -> str:
-        """Commands: ``drive``, ``seek_color``, ``radio``, ``leds``."""
-        return f"{self.prefix}/cmd/{check_segment('command target', target)}"
-
-    def alive(self, component: str) -> str:
-        """A component's liveliness token."""
-        return f"{self.prefix}/alive/{check_segment('component name', component)}"
-
-    @property
-    def all_alive(self) -> str:
-        return f"{self.prefix}/alive/*"
-
-    def component_of_alive(self, key: str) -> str:
-        return key.rsplit("/", 1)[-1]
-
-    def heartbeat(self, component: str) -> str:
-        return HEARTBEAT.key(self, component)
-
-    @property
-    def all_heartbeats(self) -> str:
-        return HEARTBEAT.key_expr(self)
-
-    @property
-    def clock(self) -> str:
-        """Simulation time, published by a simulator (absent in wall-clock runs)."""
-        return CLOCK.key(self)
-
-    def sim(self, topic: str) -> str:
-        """A simulator's own topics, outside ``sensor/`` so behaviours never see them:
-        ``truth`` (robot and ball poses), ``world`` (the full snapshot, for sim-backed devices
-        in other processes) and ``pulses`` (motor pulses from such a motors process)."""
-        return f"{self.prefix}/sim/{check_segment('sim topic', topic)}"
-
-    def status(self, component: str) -> str:
-        return CONTROLLER_STATUS.key(self, component)
-
-    @property
-    def tree(self) -> str:
-        """The robot's live-tree queryable (:mod:`ubf_async.live`)."""
-        return TREE_REQUEST.key(self)
-
-    @property
-    def everything(self) -> str:
-        return f"{self.prefix}/**"
 
 
 def clip(value: str, max_len: int = MAX_NAME_CHARS) -> str:

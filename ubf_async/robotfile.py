@@ -37,6 +37,7 @@ import yaml
 
 from ubf_async.behavior import Behavior, Child, Composite
 from ubf_async.component import Component
+from ubf_async.context import DeviceContext
 from ubf_async.devices import (
     BACKEND_INJECTED,
     DEVICE_INJECTED,
@@ -54,7 +55,6 @@ from ubf_async.registry import (
     is_reference,
     parameters_of,
 )
-from ubf_async.simulation import DeviceContext
 
 FORMAT_VERSION: Final = 1
 DEFAULT_ROBOT_FILE = "mini-whegs"

@@ -16,14 +16,18 @@ robot file needs it, so a robot whose devices are real or remote runs without on
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, TextIO, runtime_checkable
 
+# DeviceContext lives in its own low module so devices and robotfile need not import this one
+# (which stands above them); re-exported here, where plug-ins have always found it.
+from ubf_async.context import DeviceContext as DeviceContext
+
 if TYPE_CHECKING:
     from ubf_async.bus import Bus
-    from ubf_async.clock import Clock, SimClock
+    from ubf_async.clock import SimClock
     from ubf_async.component import Component
     from ubf_async.controller import Controller
     from ubf_async.robotfile import ResolvedDevice
@@ -49,19 +53,6 @@ class SimulationOptions:
     processes have joined (:mod:`ubf_async.lockstep`)."""
     command_line: tuple[str, ...] = ()
     """How the run was started (for its summary)."""
-
-
-@dataclass(kw_only=True)
-class DeviceContext:
-    """What a backend factory receives besides its own parameters."""
-
-    bus: Bus
-    clock: Clock
-    seed: int = 0
-    """The run's seed: backends with noise derive their random streams from it."""
-    simulation: Any = None
-    """The world of the simulator the backend requires (``None`` without one)."""
-    extras: Mapping[str, Any] = field(default_factory=dict)
 
 
 @runtime_checkable

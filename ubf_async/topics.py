@@ -29,15 +29,20 @@ import math
 import string
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Annotated, Any, Generic, Literal, TypeVar
+from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import msgspec
 from msgspec import Meta
 
 from ubf_async.errors import ConfigurationError, ProtocolError
-
-if TYPE_CHECKING:
-    from ubf_async.protocol import Keys
+from ubf_async.keys import (
+    CLOCK_PATTERN,
+    HEARTBEAT_PATTERN,
+    STATUS_PATTERN,
+    TREE_PATTERN,
+    Keys,
+    check_segment,
+)
 
 INT64_MAX = 2**63 - 1
 MAX_NAME_CHARS = 128
@@ -557,8 +562,6 @@ class Topic(Generic[T]):
 
     def key(self, keys: Keys, *args: str, **parts: str) -> str:
         """The concrete key of this topic for a robot: ``CAMERA.key(keys, "front")``."""
-        from ubf_async.protocol import check_segment
-
         values = dict(zip(self.placeholders, args, strict=False)) | parts
         missing = [p for p in self.placeholders if p not in values]
         if missing or len(values) != len(self.placeholders):
@@ -603,9 +606,10 @@ SEEK_COLOR = Topic("seek_color", "cmd/seek_color", "seek_color", SeekColor,
 RADIO_SEND = Topic("radio_send", "cmd/radio", "radio.send", RadioSend, "a message to send")
 LEDS = Topic("leds", "cmd/leds", "leds", Leds, "which LEDs are lit")
 
-HEARTBEAT = Topic("heartbeat", "heartbeat/{component}", "heartbeat", Heartbeat,
+HEARTBEAT = Topic("heartbeat", HEARTBEAT_PATTERN, "heartbeat", Heartbeat,
                   "a component's heartbeat")
-CLOCK = Topic("clock", "clock", "clock", Clock, "simulated time (absent on wall-clock robots)")
+CLOCK = Topic("clock", CLOCK_PATTERN, "clock", Clock,
+              "simulated time (absent on wall-clock robots)")
 LOCKSTEP_ACK = Topic("lockstep_ack", "lockstep/{participant}", "lockstep.ack", LockstepAck,
                      "a lockstep participant's acknowledgement of a simulated instant "
                      "(its liveliness token, on the same key, says it takes part)")
@@ -617,13 +621,13 @@ VOTE = Topic("vote", "vote/{composite}/{behavior}", "vote", Vote,
 REFUSED = Topic("refused", "refused/{topic}/{group}/{name}", "refusal", RefusalNotice,
                 "the robot refused a sample or vote on ubf/<robot>/<topic>/<group>/<name> "
                 "(sensor/<kind>/<name>, vote/<composite>/<behaviour>)")
-CONTROLLER_STATUS = Topic("controller_status", "status/{component}", "controller.status",
+CONTROLLER_STATUS = Topic("controller_status", STATUS_PATTERN, "controller.status",
                           PlainData, "the controller's status")
-REMOTES_STATUS = Topic("remotes_status", "status/{component}", "remotes.status", PlainData,
+REMOTES_STATUS = Topic("remotes_status", STATUS_PATTERN, "remotes.status", PlainData,
                        "the remote behaviours' status")
-TREE_REQUEST = Topic("tree_request", "tree", "tree.request", TreeRequest,
+TREE_REQUEST = Topic("tree_request", TREE_PATTERN, "tree.request", TreeRequest,
                      "a query to the live tree")
-TREE_REPLY = Topic("tree_reply", "tree", "tree.reply", TreeReply,
+TREE_REPLY = Topic("tree_reply", TREE_PATTERN, "tree.reply", TreeReply,
                    "the live tree's answer")
 SIM_TRUTH = Topic("sim_truth", "sim/truth", "sim.truth", SimTruth,
                   "the simulator's ground truth")

@@ -15,8 +15,8 @@ import cv2
 import msgspec
 import numpy as np
 
+from ubf_async.context import DeviceContext
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import DeviceContext
 
 
 class CameraError(RuntimeError):

@@ -29,8 +29,8 @@ import msgspec
 
 from components import hardware
 from components.range.backend import MountPose, RangeReadError
+from ubf_async.context import DeviceContext
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import DeviceContext
 
 
 class SMBusLike(Protocol):

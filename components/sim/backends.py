@@ -35,8 +35,8 @@ from components.sim.render_process import (
     shared_render_process,
 )
 from components.sim.world import WorldConfig, WorldSnapshot
+from ubf_async.context import DeviceContext
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import DeviceContext
 
 
 class WorldView(Protocol):

@@ -58,8 +58,8 @@ from ubf_async import lending, lockstep
 from ubf_async.bus import Bus, Publisher, decode_or_count
 from ubf_async.clock import SimClock
 from ubf_async.component import Component
+from ubf_async.context import DeviceContext
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import DeviceContext
 from ubf_async.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD
 
 log = logging.getLogger(__name__)
