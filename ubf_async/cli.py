@@ -69,6 +69,8 @@ class StopGuard:
         self.stop_bound_s = stop_bound_s
         self.signals = 0
         """Stop signals received so far (counted by the watcher thread)."""
+        self.unsaid: OSError | None = None
+        """Why a message of the guard could not be written to stderr (the exit status says so)."""
         self._on_first: Callable[[], None] | None = None
         self._first_handled = False
         self._lock = threading.Lock()
@@ -146,9 +148,6 @@ class StopGuard:
             os.write(2, text.encode(errors="replace"))  # no Python-level lock to get stuck on
         except OSError as exc:
             self.unsaid = exc
-
-    unsaid: OSError | None = None
-    """Why a message of the guard could not be written to stderr (the exit status says so)."""
 
     def exit_now(self, signum: int, *, again: bool = True) -> None:
         """Finish what must be (:func:`ubf_async.ending.exit_now`, within

@@ -5,7 +5,7 @@ the session closed — whatever went wrong before (an exception, a console that 
 signal during the end). Three pieces:
 
 * :class:`Ending` runs the steps of an end in order. Each is bounded in wall time; one that
-  fails, overruns or is interrupted is logged and counted, and the next runs anyway. A stop
+  fails or overruns is logged and counted, and the next runs anyway. A stop
   signal that arrives during the end does not cut it short (the end is bounded; a second signal
   exits at once, :mod:`ubf_async.cli`).
 * :class:`SafeStream` is stdout or stderr that cannot make an end fail: a write to a console
@@ -44,8 +44,6 @@ class Ending:
     def __init__(self, logger: logging.Logger = log) -> None:
         self.log = logger
         self.failures: list[str] = []
-        self.interrupted = False
-        """A stop signal arrived during the end (it was finished all the same)."""
 
     @property
     def ok(self) -> bool:
@@ -68,7 +66,6 @@ class Ending:
                 await asyncio.wait({task}, timeout=left)
             except asyncio.CancelledError:
                 # A stop signal: the end goes on (it is bounded), and the task stays usable.
-                self.interrupted = True
                 current = asyncio.current_task()
                 if current is not None:
                     current.uncancel()

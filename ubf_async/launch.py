@@ -474,11 +474,12 @@ async def _end(sim_run: SimulationRun | None, controller: Controller | None,
     (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`
     (exit status 2 either way). Otherwise the exit status: 0, or :data:`EXIT_DEGRADED`."""
     end = ending.Ending(log)
-    degraded = [] if controller is None else [
-        *([f"quarantined: {', '.join(controller.quarantined())}"]
-          if controller.quarantined() else []),
-        *([f"the tree was changed live {len(controller.tree_changes)} time(s)"]
-          if controller.tree_changes else [])]
+    degraded = []
+    if controller is not None:
+        if quarantined := controller.quarantined():
+            degraded.append(f"quarantined: {', '.join(quarantined)}")
+        if controller.tree_changes:
+            degraded.append(f"the tree was changed live {len(controller.tree_changes)} time(s)")
     report = io.StringIO()  # printed last: a console that went away cannot cost a result
     unsaved = False
     if sim_run is not None and controller is not None:
