@@ -194,6 +194,30 @@ class RemotesSpec(Spec):
     max_remotes: Annotated[int, msgspec.Meta(ge=0, le=4096)] = 64
 
 
+ROS_NAMESPACE = r"^/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$"
+
+
+class Ros2Spec(Spec):
+    """The ROS 2 bridge launch runs in-process (``ubf_async.ros2``, docs/ros2.md)."""
+
+    what: ClassVar[str] = "`ros2`"
+
+    enabled: bool = True
+    domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 0
+    distro: Literal["humble", "jazzy", "kilted"] = "jazzy"
+    namespace: Annotated[str, msgspec.Meta(pattern=ROS_NAMESPACE)] | None = None
+    """The node's namespace (default ``/<robot>``)."""
+    node: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] = "ubf_bridge"
+    cmd_vel_in: Annotated[str, msgspec.Meta(min_length=1, max_length=128)] = "cmd_vel_in"
+    slot: Name = "teleop"
+    """The `remote:` slot the inbound Twists vote in (its composite: the one holding it)."""
+    ttl_s: Annotated[float, msgspec.Meta(ge=0.001, le=60.0)] = 0.5
+    max_linear_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.30
+    """Calibration: the robot's forward speed at ``speed`` 100 (m/s)."""
+    max_angular_rad_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 2.0
+    """Calibration: its turn rate at ``turn`` 100, to the left (rad/s)."""
+
+
 class RobotFile(Spec):
     """A robot: its name, devices, controller and behaviour tree."""
 
@@ -209,6 +233,8 @@ class RobotFile(Spec):
     devices: list[DeviceSpec] = []
     controller: ControllerSpec = msgspec.field(default_factory=ControllerSpec)
     remotes: RemotesSpec = msgspec.field(default_factory=RemotesSpec)
+    ros2: Ros2Spec | None = None
+    """The ROS 2 bridge (absent: none)."""
 
 
 # -- file positions ---------------------------------------------------------------------------

@@ -49,6 +49,7 @@ from ubf_async.bus import Bus, Publisher, Subscription
 from ubf_async.component import Component
 from ubf_async.protocol import ProtocolError, decode
 from ubf_async.remote import vote_data
+from ubf_async.robotfile import RemoteSlot, Ros2Spec
 from ubf_async.ros2 import keys as rk
 from ubf_async.ros2 import messages as rm
 from ubf_async.topics import (
@@ -107,6 +108,19 @@ class Ros2Settings:
 
     def namespace_for(self, robot: str) -> str:
         return self.namespace if self.namespace is not None else f"/{robot}"
+
+
+def settings_of_spec(spec: Ros2Spec, slots: list[RemoteSlot]) -> Ros2Settings:
+    """The bridge a robot file's ``ros2:`` section asks for; its Twists vote in the
+    composite holding the ``slot`` (:class:`ValueError` when the tree has no such slot)."""
+    composite = next((s.composite for s in slots if s.name == spec.slot), None)
+    if composite is None:
+        raise ValueError(f"ros2: slot {spec.slot!r} is not a `remote:` slot of the tree "
+                         f"(slots: {', '.join(s.key for s in slots) or 'none'})")
+    return Ros2Settings(
+        domain_id=spec.domain_id, distro=spec.distro, namespace=spec.namespace, node=spec.node,
+        cmd_vel_in=spec.cmd_vel_in, slot=spec.slot, composite=composite, ttl_s=spec.ttl_s,
+        units=rm.Units(spec.max_linear_m_s, spec.max_angular_rad_s))
 
 
 class RosPublisher:
