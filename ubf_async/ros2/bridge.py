@@ -195,6 +195,10 @@ class Ros2Bridge(Component):
         self._slot_token: Any = None
         self._last_vote_ns: int | None = None
         self._on_demand_subs: dict[str, Subscription] = {}
+        self.in_key = ""
+        """The data key of ``cmd_vel_in`` (its Twist type and hash)."""
+        self.ready = asyncio.Event()
+        """Set once every token and subscription of a run is declared."""
 
     # -- names -----------------------------------------------------------------------------
     def next_entity_id(self) -> int:
@@ -248,7 +252,7 @@ class Ros2Bridge(Component):
                 rk.SUBSCRIPTION, self.next_entity_id(), cmd_in, rm.TWIST, twist_hash)))
             self._vote_pub = self.publisher(VOTE, composite=settings.composite,
                                                behavior=settings.slot)
-            self._in_key = rk.data_key(settings.domain_id, cmd_in, rm.TWIST, twist_hash)
+            self.in_key = rk.data_key(settings.domain_id, cmd_in, rm.TWIST, twist_hash)
             self._in_prefix = f"{settings.domain_id}/{cmd_in.lstrip('/')}/"
             declared.append(session.declare_subscriber(self._in_prefix + "**", self._on_zenoh))
             self.keep(self.bus.watch_liveliness(
@@ -257,10 +261,12 @@ class Ros2Bridge(Component):
             log.info("ROS 2 bridge: node %s/%s on domain %d (%s), %s → vote %s/%s",
                      self.namespace, settings.node, settings.domain_id, settings.distro,
                      cmd_in, settings.composite, settings.slot)
+            self.ready.set()
             while True:
                 await asyncio.sleep(settings.ttl_s / 2)
                 self._expire_slot()
         finally:
+            self.ready.clear()
             self._release_slot()
             for pub in self._pubs.values():
                 pub.close()
@@ -432,7 +438,7 @@ class Ros2Bridge(Component):
         """Check one sample of ``cmd_vel_in`` and vote it (on the loop). Returns whether it
         was applied; a refused one is counted and logged the first time for its source."""
         source = key
-        if key != self._in_key:
+        if key != self.in_key:
             rest = key[len(self._in_prefix):] if key.startswith(self._in_prefix) else key
             self._refuse("hash", source, f"{rest!r} is not {rk.dds_type(rm.TWIST)}/"
                          f"{self.codec.hash(rm.TWIST)} ({self.settings.distro})")
