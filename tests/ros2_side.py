@@ -163,7 +163,8 @@ if __name__ == "__main__":
 class RosSide:
     """This file run as a child process (the ROS 2 side), driven from a test."""
 
-    def __init__(self, port: int, *, distro: str = "jazzy") -> None:
+    def __init__(self, port: int, *, distro: str = "jazzy", domain_id: int = 0,
+                 env: dict[str, str] | None = None) -> None:
         import queue
         import subprocess
         from pathlib import Path
@@ -172,8 +173,9 @@ class RosSide:
         self.messages: dict[str, list[dict[str, Any]]] = {}
         self.proc = subprocess.Popen(
             [sys.executable, str(Path(__file__).resolve()), "--port", str(port), "--distro",
-             distro], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-            cwd=Path(__file__).resolve().parent.parent)
+             distro, "--domain-id", str(domain_id)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            cwd=Path(__file__).resolve().parent.parent, env=env)
         self._lock = threading.Lock()
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()

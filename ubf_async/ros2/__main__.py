@@ -24,6 +24,7 @@ from ubf_async.cli import run_main
 from ubf_async.component import ensure_name_free
 from ubf_async.ros2 import messages as rm
 from ubf_async.ros2.bridge import DEFAULT_UNITS, Ros2Bridge, Ros2Settings
+from ubf_async.securemode import ROS2_BRIDGE
 
 PROG = "python -m ubf_async.ros2"
 
@@ -40,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "installation: its drive command, odometry, range finders, camera, "
                     "trace and clock as ROS topics, and Twist on cmd_vel_in as a remote vote "
                     "(docs/ros2.md).")
-    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN])
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN],
+                             default_identity=ROS2_BRIDGE)
     attach.add_attach_arguments(parser, name="ros2", who="the bridge")
     ros = parser.add_argument_group("ROS 2")
     ros.add_argument("--domain-id", type=int, default=default_domain_id(),
