@@ -212,9 +212,9 @@ class Ros2Spec(Spec):
     slot: Name = "teleop"
     """The `remote:` slot the inbound Twists vote in (its composite: the one holding it)."""
     ttl_s: Annotated[float, msgspec.Meta(ge=0.001, le=60.0)] = 0.5
-    max_linear_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.30
+    max_linear_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.34
     """Calibration: the robot's forward speed at ``speed`` 100 (m/s)."""
-    max_angular_rad_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 2.0
+    max_angular_rad_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.62
     """Calibration: its turn rate at ``turn`` 100, to the left (rad/s)."""
 
 

@@ -71,7 +71,9 @@ MAX_SOURCES = 256
 """Sources remembered for "logged once per source" (the oldest forgotten first)."""
 CLOCK_PERIOD_NS = 10_000_000
 """``/clock`` at most every 10 ms of simulated time (the simulator steps every 5 ms)."""
-DEFAULT_UNITS = rm.Units(max_linear_m_s=0.30, max_angular_rad_s=2.0)
+DEFAULT_UNITS = rm.Units(max_linear_m_s=0.34, max_angular_rad_s=1.62)
+"""The simulated Mini-WHEGS, measured (docs/ros2.md, *Units*): 0.34 m/s at speed 100 and
+1.62 rad/s at turn 100 (0.17 and 0.81 at 50: linear)."""
 
 
 @dataclass(frozen=True)
