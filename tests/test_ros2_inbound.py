@@ -120,7 +120,9 @@ async def test_samples_from_another_session_are_refused_or_voted(
         session.put(bridge.in_key, GOOD, attachment=ATTACHMENT)  # 0.1 m/s, 0.5 rad/s
         await eventually(lambda: len(votes) == 1, timeout_s=10, what="the vote")
         vote = votes[0].data  # type: ignore[attr-defined]
-        assert (vote.speed, vote.turn, vote.ttl_s) == pytest.approx((100 * 0.1 / 0.3, 25.0, 0.5))
+        units = bridge.settings.units  # the simulated robot's: 0.34 m/s, 1.62 rad/s at 100
+        assert (vote.speed, vote.turn, vote.ttl_s) == pytest.approx(
+            (100 * 0.1 / units.max_linear_m_s, 100 * 0.5 / units.max_angular_rad_s, 0.5))
     finally:
         await bridge.aclose()
 

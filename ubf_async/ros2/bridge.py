@@ -264,8 +264,8 @@ class Ros2Bridge(Component):
                      self.namespace, settings.node, settings.domain_id, settings.distro,
                      cmd_in, settings.composite, settings.slot)
             self.ready.set()
-            while True:
-                await asyncio.sleep(settings.ttl_s / 2)
+            while True:  # robot time: the slot's votes expire on it too
+                await self.bus.clock.sleep(settings.ttl_s / 2)
                 self._expire_slot()
         finally:
             self.ready.clear()
@@ -274,7 +274,10 @@ class Ros2Bridge(Component):
                 pub.close()
             self._pubs.clear()
             self._on_demand.clear()
+            self._on_demand_subs.clear()  # closed with the run attempt's other subscriptions
             self._ros_subscribers.clear()
+            self._ros_drivers.clear()
+            self._vote_pub = None
             for declaration in reversed(declared):
                 with contextlib.suppress(zenoh.ZError):
                     declaration.undeclare()
