@@ -107,17 +107,21 @@ async def test_samples_from_another_session_are_refused_or_voted(
     try:
         session = peer_bus.session
         hashless = bridge.in_key.rsplit("/", 1)[0] + "/TypeHashNotSupported"
+        publishers = {key: session.declare_publisher(key) for key in (bridge.in_key, hashless)}
+        # Declarations travel asynchronously: put only once the bridge's subscriber is known.
+        await eventually(lambda: all(p.matching_status.matching for p in publishers.values()),
+                         timeout_s=10, what="the peer to know the bridge's subscriber")
         for key, payload, attachment in ((bridge.in_key, GOOD, None),
                                          (hashless, GOOD, ATTACHMENT),
                                          (bridge.in_key, GOOD[:30], ATTACHMENT),
                                          (bridge.in_key, twist_cdr(math.nan, 0, 0, 0, 0, 0),
                                           ATTACHMENT)):
-            session.put(key, payload, attachment=attachment)
+            publishers[key].put(payload, attachment=attachment)
         await eventually(lambda: sum(bridge.inbound.refused.values()) == 4, timeout_s=10,
                          what="four refusals")
         assert bridge.inbound.refused == {"attachment": 1, "hash": 1, "cdr": 2}
         assert votes == [] and bridge.votes == 0
-        session.put(bridge.in_key, GOOD, attachment=ATTACHMENT)  # 0.1 m/s, 0.5 rad/s
+        publishers[bridge.in_key].put(GOOD, attachment=ATTACHMENT)  # 0.1 m/s, 0.5 rad/s
         await eventually(lambda: len(votes) == 1, timeout_s=10, what="the vote")
         vote = votes[0].data  # type: ignore[attr-defined]
         units = bridge.settings.units  # the simulated robot's: 0.34 m/s, 1.62 rad/s at 100
