@@ -4,6 +4,8 @@ the bridge in-process (its robot file's ``ros2:`` section)."""
 
 from __future__ import annotations
 
+import itertools
+import json
 import math
 import subprocess
 import sys
@@ -245,3 +247,20 @@ def test_cmd_vel_in_drives_the_robot_and_cmd_vel_and_odom_report_it(
         assert matched >= 20 and moving >= 10
     finally:
         observer.close()
+
+
+def test_clock_and_the_trace_on_demand(ros: RosSide) -> None:
+    trace = f"/{ROBOT}/ubf/trace"
+    for topic, ros_type in (("/clock", "rosgraph_msgs/msg/Clock"),
+                            (trace, "std_msgs/msg/String")):
+        ros.send(op="sub", topic=topic, type=ros_type)
+        ros.wait("subscribed")
+    wait_until(lambda: len(ros.received("/clock")) >= 10 and len(ros.received(trace)) >= 10,
+               timeout_s=20, what="/clock and the trace (asked for by the subscription)")
+    clocks = [stamp_ns({"stamp": m["clock"]}) for m in ros.received("/clock")]
+    gaps = [b - a for a, b in itertools.pairwise(clocks)]
+    assert all(gap >= 10_000_000 for gap in gaps)  # simulated time, at most every 10 ms
+    ticks = [json.loads(m["data"]) for m in ros.received(trace)]
+    assert all(t["clock"] == "sim" for t in ticks)
+    assert [t["tick"] for t in ticks] == sorted(t["tick"] for t in ticks)
+    assert {"root", "stop"} <= {n["name"] for n in ticks[-1]["nodes"]}
