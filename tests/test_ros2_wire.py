@@ -4,6 +4,7 @@ own parsers (an independent implementation), and the distro differences."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from rosbags.typesys import Stores, get_typestore
@@ -103,3 +104,22 @@ def test_settings_from_the_robot_file_and_the_command_line(
         42, "jazzy", "/fleet/a", rm.Units(0.34, 1.62))
     with pytest.raises(ValueError):
         settings_of(build_parser().parse_args(["--namespace", "no/leading/slash"]))
+
+
+def test_a_robot_file_s_ros2_section_is_checked_when_it_loads() -> None:
+    from ubf_async.robotfile import RobotFileError, load_robot_text
+
+    shipped = (Path(__file__).resolve().parent.parent / "ubf_async" / "robots" /
+               "mini-whegs.yaml").read_text()
+    robot = load_robot_text(shipped + "\nros2: {distro: humble, domain_id: 5}\n",
+                            source="r.yaml")
+    assert robot.spec.ros2 is not None and robot.spec.ros2.distro == "humble"
+    at = shipped.count("\n") + 2  # the line of the section (after a blank line)
+    for section, error in (
+            ("ros2:\n  slot: nav2\n", f"r.yaml:{at + 1}: ros2: slot 'nav2' is not a `remote:`"),
+            ("ros2: {distro: iron}\n", f"r.yaml:{at}: Invalid enum value 'iron' (at ros2"),
+            ("ros2: {cmd_vel_in: 'bad topic'}\n", f"r.yaml:{at}: Expected `str` matching"),
+            ("ros2: {domain_id: 300}\n", f"r.yaml:{at}: Expected `int` <= 232")):
+        with pytest.raises(RobotFileError) as info:
+            load_robot_text(shipped + "\n" + section, source="r.yaml")
+        assert str(info.value).startswith(error), info.value

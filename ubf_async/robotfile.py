@@ -195,6 +195,7 @@ class RemotesSpec(Spec):
 
 
 ROS_NAMESPACE = r"^/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$"
+ROS_TOPIC = r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$"
 
 
 class Ros2Spec(Spec):
@@ -208,7 +209,7 @@ class Ros2Spec(Spec):
     namespace: Annotated[str, msgspec.Meta(pattern=ROS_NAMESPACE)] | None = None
     """The node's namespace (default ``/<robot>``)."""
     node: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] = "ubf_bridge"
-    cmd_vel_in: Annotated[str, msgspec.Meta(min_length=1, max_length=128)] = "cmd_vel_in"
+    cmd_vel_in: Annotated[str, msgspec.Meta(pattern=ROS_TOPIC, max_length=128)] = "cmd_vel_in"
     slot: Name = "teleop"
     """The `remote:` slot the inbound Twists vote in (its composite: the one holding it)."""
     ttl_s: Annotated[float, msgspec.Meta(ge=0.001, le=60.0)] = 0.5
@@ -724,6 +725,9 @@ def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Ro
                             "`children`)", ("tree",))
     builder = TreeBuilder(locator=locator, seed=spec.seed if seed is None else seed)
     root = builder.composite(spec.tree, ("tree",))
+    if spec.ros2 is not None and not any(s.name == spec.ros2.slot for s in builder.remotes):
+        raise locator.error(f"ros2: slot {spec.ros2.slot!r} is not a `remote:` slot of the tree "
+                            f"(its Twists vote there; docs/ros2.md)", ("ros2",), key="slot")
     return Robot(spec=spec, source=locator.source, root=root, devices=devices,
                  locator=locator, remotes=builder.remotes)
 
