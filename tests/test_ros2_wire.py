@@ -123,3 +123,16 @@ def test_a_robot_file_s_ros2_section_is_checked_when_it_loads() -> None:
         with pytest.raises(RobotFileError) as info:
             load_robot_text(shipped + "\n" + section, source="r.yaml")
         assert str(info.value).startswith(error), info.value
+
+
+@pytest.mark.asyncio
+async def test_the_bridge_needs_a_zenoh_session() -> None:
+    from ubf_async.bus import Bus
+    from ubf_async.errors import ConfigurationError
+    from ubf_async.ros2.bridge import Ros2Bridge
+    from ubf_async.transport import InProcessTransport
+
+    bus = Bus(transport=InProcessTransport(), robot="unit")
+    with pytest.raises(ConfigurationError, match="not on a zenoh session"):
+        Ros2Bridge(bus=bus)
+    await bus.aclose()

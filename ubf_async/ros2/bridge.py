@@ -184,8 +184,11 @@ class Ros2Bridge(Component):
         self._pending = 0
         self._pending_lock = threading.Lock()
         self._pubs: dict[str, RosPublisher] = {}
+        bus.session  # noqa: B018 -- a ConfigurationError now for a bus without zenoh
+        # The robot clock (this host's CLOCK_MONOTONIC, or the robot host's followed from
+        # here) onto the wall clock, once: ROS time is wall time.
         self._wall_offset_ns = 0 if bus.clock.is_simulated else (
-            time.time_ns() - time.monotonic_ns())
+            time.time_ns() - bus.clock.now_ns())
         self._last_clock_ns: int | None = None
         self._odom_last: tuple[int, float, float, float] | None = None
         self._odom_var = [0.0, 0.0, 0.0]
