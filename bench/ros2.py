@@ -2,18 +2,19 @@
 
     python -m bench.ros2 [--samples 300] [--json FILE]
 
-A robot (``python -m ubf_async.launch``, wall clock, no devices, 200 Hz ticks, the bridge
-in-process from its robot file's ``ros2:`` section) and, in this process, two zenoh sessions
-connected to it: a *sender* and an *observer*. One sample at a time (the next only once the
-last has arrived or timed out), all times ``time.monotonic_ns()`` of this host:
+A robot (``python -m ubf_async.launch``: the simulated motors, in real time, 200 Hz ticks,
+the bridge in-process from its robot file's ``ros2:`` section) and, in this process, two
+zenoh sessions connected to it: a *sender* and an *observer*. One sample at a time (the next
+only once the last has arrived or timed out), all times ``time.monotonic_ns()`` of this host:
 
 * **range**: the sender puts a ``range`` sample on ``sensor/range/front``; the observer
   notes when it gets it natively (msgpack on the robot's key) and when the bridge's
   ``sensor_msgs/msg/Range`` arrives on the ROS key. Extra = bridged − native, per sample.
-* **drive**: the sender votes (native: msgpack on ``vote/root/native``) or sends a
-  ``geometry_msgs/msg/Twist`` on ``cmd_vel_in`` (ROS), each with a turn value of its own; the
-  time until the robot's drive command (``cmd/drive``, what the motors apply) carries it.
-  Both wait for the next controller tick (5 ms apart): compare the two, not either with 0.
+* **drive**: the sender votes (native: msgpack on ``vote/root/native``, stamped with the
+  simulation time it follows) or sends a ``geometry_msgs/msg/Twist`` on ``cmd_vel_in`` (ROS),
+  each with a turn value of its own; the time until the motors say they applied it
+  (``sensor/motors/main``). Both wait for the next controller tick (5 ms apart): compare the
+  two, not either with 0.
 
 Each figure is an observed sample (nearest-rank percentiles, ``bench.latency_stats``).
 """
@@ -43,6 +44,8 @@ LINEAR, ANGULAR = 0.34, 1.62
 ROBOT_FILE = f"""
 format: 1
 name: {ROBOT}
+devices:
+  - {{kind: motors, name: main, backend: sim}}
 controller: {{mode: periodic, rate_hz: 200}}
 tree:
   name: root
@@ -109,12 +112,18 @@ def run(samples: int, port: int) -> dict[str, Any]:
                 msg: Any = codec.store.deserialize_cdr(sample.payload.to_bytes(), rm.RANGE)
                 arrivals.note("range ros", round(msg.range * 1000.0))
 
-            def on_drive(sample: zenoh.Sample) -> None:
+            def on_applied(sample: zenoh.Sample) -> None:
                 arrivals.note("drive", round(decode(sample.payload.to_bytes()).data.turn, 3))
+
+            sim_ns = [0]
+
+            def on_clock(sample: zenoh.Sample) -> None:
+                sim_ns[0] = decode(sample.payload.to_bytes()).stamp_ns
 
             observer.declare_subscriber(f"ubf/{ROBOT}/sensor/range/front", on_native_range)
             observer.declare_subscriber(range_key, on_ros_range)
-            observer.declare_subscriber(f"ubf/{ROBOT}/cmd/drive", on_drive)
+            observer.declare_subscriber(f"ubf/{ROBOT}/sensor/motors/main", on_applied)
+            sender.declare_subscriber(f"ubf/{ROBOT}/clock", on_clock)
             # The bridge declares the Range publisher at the range finder's first sample.
             range_out = sender.declare_publisher(f"ubf/{ROBOT}/sensor/range/front")
             seq = [0]
@@ -161,8 +170,8 @@ def run(samples: int, port: int) -> dict[str, Any]:
                     sent = time.monotonic_ns()
                     if path_name == "native":
                         vote_out.put(encode("vote", {"vote": 1.0, "speed": 0.0, "turn": turn,
-                                                     "ttl_s": 2.0}, stamp_ns=sent, seq=i + 1,
-                                            pub=9))
+                                                     "ttl_s": 2.0}, stamp_ns=sim_ns[0],
+                                            seq=i + 1, pub=9))
                     else:
                         twist_out.put(codec.twist(0.0, turn / 100 * ANGULAR),
                                       attachment=rk.attachment(i + 1, time.time_ns(), gid))
@@ -172,7 +181,7 @@ def run(samples: int, port: int) -> dict[str, Any]:
                     time.sleep(0.005)
                 result[f"drive_{path_name}"] = summarize(values)
                 if path_name == "native":
-                    vote_out.put(encode("vote", {"vote": 0.0}, stamp_ns=time.monotonic_ns(),
+                    vote_out.put(encode("vote", {"vote": 0.0}, stamp_ns=sim_ns[0],
                                         seq=samples + 1, pub=9))
                     token.undeclare()
                     time.sleep(0.3)
@@ -195,8 +204,8 @@ def main() -> int:
     print(row("range sample → native subscriber (msgpack)", result["range_native"]))
     print(row("range sample → ROS Range (through the bridge)", result["range_ros"]))
     print(row("  extra added by the bridge (per sample)", result["range_extra"]))
-    print(row("native vote → cmd/drive (motors' command)", result["drive_native"]))
-    print(row("ROS Twist on cmd_vel_in → cmd/drive", result["drive_ros"]))
+    print(row("native vote → motors applied", result["drive_native"]))
+    print(row("ROS Twist on cmd_vel_in → motors applied", result["drive_ros"]))
     n, r = result["drive_native"], result["drive_ros"]
     if n.get("n") and r.get("n"):
         print(f"  Twist path minus native: median {fmt_us(r['median_us'] - n['median_us'])}, "
