@@ -162,7 +162,8 @@ class RosPublisher:
 class InboundStats:
     accepted: int = 0
     refused: Counter[str] = field(default_factory=Counter)
-    """Per reason: ``hash``, ``attachment``, ``cdr``, ``overflow``."""
+    """Per reason: ``hash``, ``attachment``, ``cdr``, ``overflow`` (from ROS); ``robot`` (a
+    sample of the robot's own that the bridge cannot convert: malformed, a second odometry)."""
     sources: OrderedDict[str, int] = field(default_factory=OrderedDict)
     """Refusals per source (the publisher's GID, else the key)."""
 
@@ -193,7 +194,7 @@ class Ros2Bridge(Component):
         self._odom_last: tuple[int, float, float, float] | None = None
         self._odom_var = [0.0, 0.0, 0.0]
         self._bins: dict[str, list[int]] = {}
-        self._on_demand: dict[str, Callable[[bool], None]] = {}
+        self._odom_source: str | None = None
         self._ros_subscribers: dict[str, set[str]] = {}
         self._ros_drivers: set[str] = set()
         self._vote_pub: Publisher | None = None
@@ -276,7 +277,6 @@ class Ros2Bridge(Component):
             for pub in self._pubs.values():
                 pub.close()
             self._pubs.clear()
-            self._on_demand.clear()
             self._on_demand_subs.clear()  # closed with the run attempt's other subscriptions
             self._ros_subscribers.clear()
             self._ros_drivers.clear()
@@ -296,6 +296,12 @@ class Ros2Bridge(Component):
     def _on_odometry(self, key: str, payload: bytes, received_ns: int) -> None:
         message = self._decode(payload, ODOMETRY, key)
         if message is None:
+            return
+        if self._odom_source is None:
+            self._odom_source = key
+        elif key != self._odom_source:  # one robot, one odom: the first source keeps it
+            self._refuse("robot", key, f"a second odometry source: {self._odom_source} is "
+                         "already the robot's odom")
             return
         data = message.data
         linear = angular = 0.0
@@ -392,7 +398,6 @@ class Ros2Bridge(Component):
     # -- on-demand topics (while a ROS subscriber exists) ------------------------------------
     def _serve_on_demand(self, topic: str, ros_type: str, toggle: Callable[[bool], None]
                          ) -> None:
-        self._on_demand[topic] = toggle
         self._ros_subscribers[topic] = set()
 
         def on_change(key: str, alive: bool) -> None:
