@@ -4,6 +4,7 @@ tests/ros2_side.py) a peer of the router; and Humble's keys (``TypeHashNotSuppor
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import threading
@@ -73,8 +74,9 @@ class Child:
 
 
 @pytest.fixture(scope="module")
-def routed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[int]:
-    """Router, robot (client) and bridge (client, Humble); yields the router's port."""
+def routed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, Child]]:
+    """Router, robot (client) and bridge (client, Humble); yields the router's port and the
+    bridge's process."""
     path = tmp_path_factory.mktemp("ros2r") / "robot.yaml"
     path.write_text(ROBOT_FILE)
     port = free_port()
@@ -87,15 +89,17 @@ def routed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[int]:
         children.append(Child(
             "-m", "ubf_async.ros2", "--mode", "client", "--connect", endpoint, "--robot", ROBOT,
             "--distro", "humble", "--max-linear-m-s", str(MAX_LINEAR), "--max-angular-rad-s",
-            str(MAX_ANGULAR), "--composite", "root", ready="ROS 2 bridge of robot"))
-        yield port
+            str(MAX_ANGULAR), "--composite", "root", "--status-period-s", "0.2",
+            ready="ROS 2 bridge of robot"))
+        yield port, children[-1]
     finally:
         for child in reversed(children):
             child.close()
 
 
-def test_twist_both_ways_through_a_router_on_humble(routed: int) -> None:
-    ros = RosSide(routed, distro="humble")
+def test_twist_both_ways_through_a_router_on_humble(routed: tuple[int, Child]) -> None:
+    port, bridge = routed
+    ros = RosSide(port, distro="humble")
     try:
         assert ros.hashes["geometry_msgs/msg/Twist"] == "TypeHashNotSupported"
         cmd_vel = f"/{ROBOT}/cmd_vel"
@@ -116,5 +120,9 @@ def test_twist_both_ways_through_a_router_on_humble(routed: int) -> None:
             if turning in seen or time.monotonic() > deadline:
                 break
         assert turning in seen, seen
+        # The bridge's status line counts what it took in (and refused nothing).
+        wait_until(lambda: any(re.search(r"cmd_vel_in: [1-9]\d* taken, refused: none", line)
+                               for line in bridge.lines), timeout_s=5,
+                   what="the bridge's status line counting the Twists")
     finally:
         ros.close()

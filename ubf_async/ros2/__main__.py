@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import logging
 import os
 import sys
@@ -66,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     ros.add_argument("--max-angular-rad-s", type=float,
                      default=DEFAULT_UNITS.max_angular_rad_s,
                      help="rad/s of turn +100 (to the left)")
+    parser.add_argument("--status-period-s", type=float, default=5.0, metavar="S",
+                        help="print what was sent and refused every S seconds (0: never)")
     parser.add_argument("--log-level", default="WARNING",
                         choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     return parser
@@ -90,10 +93,28 @@ async def serve(args: argparse.Namespace, settings: Ros2Settings) -> int:
                   f"{bridge.namespace.rstrip('/')}/{settings.node}, domain "
                   f"{settings.domain_id}, {settings.distro}; clock: "
                   f"{clockdomain.describe(clock, robot=bus.robot)}", flush=True)
-            await attach.run_until_stopped(args.duration)
+            status = asyncio.create_task(report(bridge, args.status_period_s))
+            try:
+                await attach.run_until_stopped(args.duration)
+            finally:
+                status.cancel()
         return 0
     finally:
         await bus.aclose()
+
+
+def status_line(bridge: Ros2Bridge) -> str:
+    """What the bridge sent and took in so far, and what it refused (per reason)."""
+    sent = ", ".join(f"{p.topic} {p.sent}" for p in bridge.ros_publishers() if p.sent)
+    refused = ", ".join(f"{reason} {n}" for reason, n in sorted(bridge.inbound.refused.items()))
+    return (f"[ros2] sent: {sent or 'nothing yet'} | {bridge.settings.cmd_vel_in}: "
+            f"{bridge.inbound.accepted} taken, refused: {refused or 'none'}")
+
+
+async def report(bridge: Ros2Bridge, period_s: float) -> None:
+    while period_s > 0:
+        await asyncio.sleep(period_s)
+        print(status_line(bridge), flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

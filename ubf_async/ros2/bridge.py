@@ -224,6 +224,10 @@ class Ros2Bridge(Component):
             log.info("ROS 2: publishing %s [%s] on %s", pub.topic, ros_type, pub.key)
         return pub
 
+    def ros_publishers(self) -> list[RosPublisher]:
+        """The ROS publishers of this run."""
+        return list(self._pubs.values())
+
     # -- run ---------------------------------------------------------------------------------
     async def run(self) -> None:
         self._loop = asyncio.get_running_loop()
