@@ -415,6 +415,15 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
                                    slots=robot.remotes)
         components += [aggregator, controller, remotes, tree_service, *devices]
+        if spec.ros2 is not None and spec.ros2.enabled:  # docs/ros2.md
+            from ubf_async.ros2.bridge import Ros2Bridge, settings_of_spec
+            try:
+                ros2 = settings_of_spec(spec.ros2, robot.remotes)
+            except ValueError as exc:
+                raise ConfigurationError(f"{robot.source}: {exc}") from None
+            components.append(Ros2Bridge(bus=bus, settings=ros2))
+            print(f"  ROS 2 bridge: {ros2.namespace_for(options.robot)}/{ros2.node}, domain "
+                  f"{ros2.domain_id}, {ros2.distro} (docs/ros2.md)", file=out)
         if not clock.is_simulated:  # its clock, for processes on other hosts
             components.append(RobotTimeBeacon(bus=bus))
         if args.lockstep:  # last started: the simulator waits for it once all else runs
