@@ -53,7 +53,7 @@ from ubf_async.bus import (
     connection_options,
     wait_for_robot,
 )
-from ubf_async.cli import STOP_SIGNALS
+from ubf_async.cli import STOP_SIGNALS, run_main
 from ubf_async.component import HealthMonitor
 from ubf_async.errors import UbfError
 from ubf_async.live import encode_request, render_tree_data
@@ -1098,18 +1098,18 @@ async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
         return 2
     try:
         return await COMMANDS[args.command](bus, args, out)
+    except BrokenPipeError:  # `... | head`
+        return 0
     finally:
         await bus.aclose()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Ends as every command does (README): the first Ctrl-C or SIGTERM ends a watching
+    command (``state --watch``, ``hz``, ``echo``) with status 0, a second at once (130)."""
     args = build_parser().parse_args(argv)
-    try:
-        return asyncio.run(run(args))
-    except KeyboardInterrupt:
-        return 130
-    except BrokenPipeError:  # `... | head`
-        return 0
+    out = sys.stdout  # itself, not run_main's guarded stream: `... | head` ends the command
+    return run_main(lambda: run(args, out), prog=PROG)
 
 
 if __name__ == "__main__":

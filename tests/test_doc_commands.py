@@ -1,0 +1,605 @@
+"""Every command README.md and docs/*.md show in a shell code block, run (issue 28).
+
+tests/test_docs.py checks that each command shown parses with its entry point's real parser;
+here each one runs, through its real entry point, as a subprocess, and the test asserts what
+the page says it does (an exit status and a line of its output, a file it writes, another
+process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py.
+
+Each test names the commands it runs (:func:`runs`); a command that cannot run here names why
+in :data:`NOT_RUN`. :func:`test_every_command_shown_is_run_or_says_why_not` fails for a command
+added to a page that neither covers, and for one a test runs that no page shows any more.
+
+What a test changes in a command, and only that:
+
+* the documented endpoint (``tcp/127.0.0.1:7447``, ``tcp/192.168.1.10:7447``, a Foxglove port)
+  becomes a free loopback port, and a command that relies on the default endpoint is given
+  that port explicitly (``--listen`` for a robot, ``--connect`` for a tool);
+* a command that runs until stopped is stopped with Ctrl-C (SIGINT) once the test has seen
+  what it waits for, or is bounded with its own ``--duration``;
+* ``~`` is a temporary folder, and each page's commands run in a temporary folder of their own
+  (``examples/`` linked in, a fleet file's router on a free port).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import functools
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TypeVar
+
+import pytest
+
+from tests.conftest import free_port, repository_env
+from tests.foxglove_client import FoxgloveClient
+from tests.test_docs import DOCS, ROOT, shell_texts, tokens
+
+TUTORIAL = ROOT / "docs" / "your-robot.md"
+DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447")
+ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
+WAIT_S = 90.0  # for a line of output: generous, for a loaded machine
+STOP_S = 30.0  # for a process to end once stopped (the bound is 5 s; a loaded machine is slow)
+
+
+# -- the commands the pages show --------------------------------------------------------------
+
+def simple_commands(text: str) -> Iterator[list[str]]:
+    """The simple commands of a shell text (split at ``&&``, ``&``, ``;``, ``|``), comments
+    dropped."""
+    command: list[str] = []
+    for token in [*tokens(text), ";"]:
+        if token and set(token) <= set("();<>|&"):
+            if command:
+                yield command
+            command = []
+        else:
+            command.append(token)
+
+
+@functools.cache
+def shown() -> dict[str, list[str]]:
+    """Every simple command of the pages' shell blocks (its words joined by spaces) → where
+    it is shown."""
+    found: dict[str, list[str]] = {}
+    for doc in DOCS:
+        if doc == TUTORIAL:
+            continue
+        for line, text in shell_texts(doc.read_text("utf-8"), inline=False):
+            for command in simple_commands(text):
+                found.setdefault(" ".join(command), []).append(f"{doc.relative_to(ROOT)}:{line}")
+    return found
+
+
+RUN: dict[str, str] = {}
+"""Command shown → the test that runs it."""
+
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def runs(*commands: str) -> Callable[[F], F]:
+    """Declare the commands shown that the decorated test runs."""
+    def declare(test: F) -> F:
+        for command in commands:
+            RUN[command] = test.__name__
+        return test
+    return declare
+
+
+NOT_RUN = {
+    "python3 -m venv .venv":
+        "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
+        "install the project's build dependencies without the network)",
+    ". .venv/bin/activate": "the quick start's installation (see python3 -m venv)",
+    "pip install -e .[test]": "the quick start's installation (see python3 -m venv)",
+    "python -m pytest": "the test suite this test is part of (.ci/run runs it)",
+    "python -m pytest tests/test_latency.py": "part of the test suite this test is part of",
+    "pip install -e .[hardware]":
+        "installs gpiozero and smbus2 into the environment running the tests (they are test "
+        "dependencies here; the gpio check below runs on them)",
+    "sudo apt install python3-lgpio": "root, and a Raspberry Pi's packages",
+    "sudo usermod -aG gpio,i2c $USER": "root, and a Raspberry Pi's groups",
+    "sudo raspi-config nonint do_i2c 0": "root, and a Raspberry Pi's configuration tool",
+    "ls -l /dev/gpiochip* /dev/i2c-1": "a Raspberry Pi's GPIO and I²C device files",
+    "i2cdetect -y 1": "a Raspberry Pi's I²C bus with the rangers and the ADC on it",
+    "python -m ubf_async.launch examples/robots/pi-whegs.yaml":
+        "a real robot: its motors and encoders need GPIO pins and its rangers /dev/i2c-1; "
+        "test_the_pi_robot_file_checks runs it with --check (tests/test_hw_launch.py runs it "
+        "on gpiozero's mock pins and a test I²C bus)",
+    "python -m bench.latency":
+        "about 4 minutes, past the doc tests' time budget: test_the_latency_bench_explains_"
+        "itself runs its --help; tests/test_latency.py runs its sections in short runs",
+    "python -m bench.latency --quick": "about 45 s (see python -m bench.latency)",
+    "python -m bench.latency --json out.json": "the full run (see python -m bench.latency)",
+    "python -m bench.latency --only reflex obstacle":
+        "146 s measured here (see python -m bench.latency)",
+}
+
+
+def test_every_command_shown_is_run_or_says_why_not() -> None:
+    commands = set(shown())
+    assert commands - set(RUN) - set(NOT_RUN) == set(), "shown, neither run nor said why not"
+    assert set(RUN) - commands == set(), "run here, but no page shows it (any more)"
+    assert set(NOT_RUN) - commands == set(), "said why not run, but no page shows it (any more)"
+    assert set(RUN) & set(NOT_RUN) == set()
+
+
+# -- running them --------------------------------------------------------------------------
+
+def environment(home: Path) -> dict[str, str]:
+    """This repository's code (tests.conftest.repository_env), the console scripts of the
+    environment running the tests on PATH, ``~`` a temporary folder."""
+    env = repository_env()
+    env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
+    env["HOME"] = str(home)
+    return env
+
+
+def argv(command: str, *, endpoint: str | None = None, home: Path | None = None,
+         add: tuple[str, ...] = (), replace: dict[str, list[str]] | None = None) -> list[str]:
+    """The command shown (a key of :func:`shown`) as arguments to run: ``python`` is this
+    interpreter, the documented endpoint ``endpoint``, ``~`` ``home``, an optional part
+    (``[--speed 5]``) taken, a word in ``replace`` its words; ``add`` appended."""
+    assert command in shown(), f"no page shows {command!r}"
+    words: list[str] = []
+    for word in command.split(" "):
+        if word.startswith("[-"):
+            word = word[1:]
+        if word.endswith("]") and "[" not in word:
+            word = word[:-1]
+        if replace and word in replace:
+            words += replace[word]
+            continue
+        if word == "python":
+            word = sys.executable
+        elif word in DOCUMENTED_ENDPOINTS:
+            assert endpoint is not None, command
+            word = endpoint
+        elif word.startswith("~/"):
+            assert home is not None, command
+            word = str(home / word[2:])
+        words.append(word)
+    return [*words, *add]
+
+
+class Proc:
+    """A command running in the background, its output (stdout and stderr) read line by line
+    on a thread: :meth:`wait_for` a line, :meth:`interrupt` it as Ctrl-C does."""
+
+    def __init__(self, args: list[str], *, cwd: Path, env: dict[str, str]) -> None:
+        self.args = args
+        self.popen = subprocess.Popen(args, cwd=cwd, env=env, stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                      start_new_session=True)
+        self.lines: list[str] = []
+        self.ended = False
+        self.changed = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.popen.stdout is not None
+        with self.popen.stdout:
+            for line in self.popen.stdout:
+                with self.changed:
+                    self.lines.append(line.rstrip("\n"))
+                    self.changed.notify_all()
+        with self.changed:
+            self.ended = True
+            self.changed.notify_all()
+
+    @property
+    def output(self) -> str:
+        with self.changed:
+            return "\n".join(self.lines)
+
+    def __str__(self) -> str:
+        return f"$ {' '.join(self.args)}\n{self.output}"
+
+    def wait_for(self, pattern: str, *, after: int = 0, timeout_s: float = WAIT_S
+                 ) -> re.Match[str]:
+        """The first line (from line ``after`` on) in which ``pattern`` is found, waiting for
+        it as long as the process prints; fails if it ends or ``timeout_s`` passes first."""
+        deadline = time.monotonic() + timeout_s
+        compiled = re.compile(pattern)
+        seen = after
+        with self.changed:
+            while True:
+                for line in self.lines[seen:]:
+                    if match := compiled.search(line):
+                        return match
+                seen = len(self.lines)
+                assert not self.ended, f"ended without a line like {pattern!r}:\n{self}"
+                left = deadline - time.monotonic()
+                assert left > 0, f"no line like {pattern!r} within {timeout_s} s:\n{self}"
+                self.changed.wait(left)
+
+    def finish(self, *, timeout_s: float = WAIT_S) -> int:
+        """Its exit status, once it has ended by itself (and its output is all read)."""
+        code = self.popen.wait(timeout_s)
+        with self.changed:
+            self.changed.wait_for(lambda: self.ended, timeout_s)
+        return code
+
+    def interrupt(self, *, timeout_s: float = STOP_S) -> int:
+        """Ctrl-C: SIGINT, then its exit status."""
+        self.popen.send_signal(signal.SIGINT)
+        return self.finish(timeout_s=timeout_s)
+
+    def kill(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        self.popen.wait()
+
+
+@dataclass
+class Page:
+    """Where a page's commands run: a folder of their own, ``examples/`` linked in."""
+
+    cwd: Path
+    home: Path
+    env: dict[str, str]
+    procs: list[Proc]
+
+    def start(self, command: str, *, endpoint: str | None = None, add: tuple[str, ...] = (),
+              replace: dict[str, list[str]] | None = None, env: dict[str, str] | None = None
+              ) -> Proc:
+        proc = Proc(argv(command, endpoint=endpoint, home=self.home, add=add, replace=replace),
+                    cwd=self.cwd, env={**self.env, **(env or {})})
+        self.procs.append(proc)
+        return proc
+
+    def run(self, command: str, *, endpoint: str | None = None, add: tuple[str, ...] = (),
+            replace: dict[str, list[str]] | None = None, status: int = 0) -> str:
+        """Run it to its end; it must exit with ``status``. Its output."""
+        return ended(self.start(command, endpoint=endpoint, add=add, replace=replace),
+                     status=status)
+
+
+def ended(proc: Proc, *, status: int = 0) -> str:
+    """``proc``'s output once it has ended by itself with ``status``."""
+    code = proc.finish()
+    assert code == status, f"exit status {code}, not {status}:\n{proc}"
+    return proc.output
+
+
+def stopped(proc: Proc) -> str:
+    """Ctrl-C: ``proc`` stops, exits 0, and says it stopped. Its output."""
+    code = proc.interrupt()
+    assert code == 0, f"exit status {code} after Ctrl-C:\n{proc}"
+    assert "stopping (press Ctrl-C again to quit at once)" in proc.output, proc
+    return proc.output
+
+
+@contextlib.contextmanager
+def page(tmp: Path) -> Iterator[Page]:
+    """A :class:`Page` in ``tmp``; whatever it started is killed when the block ends."""
+    cwd = tmp / "work"
+    (cwd / "examples").mkdir(parents=True)
+    for item in (ROOT / "examples").iterdir():
+        if item.name != "fleets":
+            (cwd / "examples" / item.name).symlink_to(item)
+    fleets = cwd / "examples" / "fleets"
+    fleets.mkdir()
+    for fleet in (ROOT / "examples" / "fleets").glob("*.yaml"):
+        text = fleet.read_text("utf-8")
+        assert "router: tcp/127.0.0.1:7447\n" in text, fleet
+        (fleets / fleet.name).write_text(
+            text.replace("router: tcp/127.0.0.1:7447\n", f"router: tcp/127.0.0.1:{free_port()}\n"))
+    home = tmp / "home"
+    home.mkdir()
+    here = Page(cwd, home, environment(home), [])
+    try:
+        yield here
+    finally:
+        for proc in here.procs:
+            proc.kill()
+
+
+def together(*steps: Callable[[], object]) -> None:
+    """Run ``steps`` at the same time (each on a thread); fail as the first that fails."""
+    with concurrent.futures.ThreadPoolExecutor(len(steps)) as pool:
+        for future in [pool.submit(step) for step in steps]:
+            future.result()
+
+
+def loopback() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+# -- README.md: the quick start, and what to try while that robot runs --------------------------
+
+QUICK_START = "python -m ubf_async.launch"
+RANGE = "python -m components.range --connect tcp/127.0.0.1:7447 --name left --yaw-deg 45"
+ECHO = "python -m ubf_async.inspector echo ubf/mini/sensor/range/left --count 3"
+AVOID = "python examples/avoid_obstacles.py --connect tcp/127.0.0.1:7447"
+TELEOP = "python examples/teleop_override.py --connect tcp/127.0.0.1:7447 --speed 30 --turn 0"
+COMPONENTS = "python -m ubf_async.inspector components"
+STATE = "python -m ubf_async.inspector state --watch"
+HZ = "python -m ubf_async.inspector hz cmd/drive"
+
+
+@dataclass
+class Robot:
+    endpoint: str
+    proc: Proc
+    page: Page
+
+    def tool(self) -> tuple[str, str]:
+        """What a tool shown without ``--connect`` (the documented default) is given."""
+        return ("--connect", self.endpoint)
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    """The README's quick start (on a free port instead of 7447): the robot every command
+    shown "while a robot runs" attaches to. Stopped with Ctrl-C at the end."""
+    endpoint = loopback()
+    with page(tmp_path_factory.mktemp("readme")) as here:
+        proc = here.start(QUICK_START, add=("--listen", endpoint))
+        proc.wait_for(r"^\[mini\] [\d.]+s \| drive .* \| tick [\d.]+Hz")
+        yield Robot(endpoint, proc, here)
+        stopped(proc)
+        assert proc.lines[-1] == "ubf_async: stopped", proc
+
+
+@pytest.mark.slow
+@runs(QUICK_START)
+def test_the_quick_start_prints_its_endpoint_tree_and_status_line(robot: Robot) -> None:
+    printed = robot.proc.output
+    assert f"listening on {robot.endpoint}" in printed
+    assert f"attach with: --connect {robot.endpoint} --robot mini" in printed
+    assert "    seek_pink_ball <PriorityMerge>" in printed  # the tree
+    # the status line: tick rate, a source with its age, the drive and who won, the sim's pace
+    robot.proc.wait_for(r"^\[mini\] .*\| drive [-+]\d+/[-+]\d+ \(.+\) \| tick [\d.]+Hz.* \| "
+                        r"sim [\d.]+s x[\d.]+ \| .*camera/front \d+ms")
+
+
+@pytest.mark.slow
+@runs(RANGE, ECHO)
+def test_a_second_range_finder_attaches_and_echo_shows_three_of_its_samples(
+        robot: Robot) -> None:
+    ranger = robot.page.start(RANGE, endpoint=robot.endpoint)
+    echoed = robot.page.run(ECHO, add=robot.tool())
+    samples = [line for line in echoed.splitlines()
+               if line.startswith("ubf/mini/sensor/range/left range #")]
+    assert len(samples) == 3, echoed
+    assert all('"model": "ir-10-80"' in line for line in samples), echoed
+    stopped(ranger)
+
+
+@pytest.mark.slow
+@runs(AVOID, TELEOP)
+def test_obstacle_avoidance_and_teleop_attach_and_teleop_outranks_the_tree(
+        robot: Robot) -> None:
+    since = len(robot.proc.lines)
+    avoid = robot.page.start(AVOID, endpoint=robot.endpoint)
+    teleop = robot.page.start(TELEOP, endpoint=robot.endpoint)
+    teleop.wait_for(r"^\[teleop\] votes \d+: speed=\+30 turn=\+0 .*\| robot drive \+30/\+0 "
+                    r"\(teleop\)")
+    robot.proc.wait_for(r"\| drive \+30/\+0 \(teleop\) \|", after=since)
+    avoid.wait_for(r"^\[avoid_obstacles\] votes \d+: .*\| robot drive ")
+    for proc in (teleop, avoid):
+        assert "clock: simulated time (ubf/mini/clock)" in proc.output, proc
+        stopped(proc)
+
+
+@pytest.mark.slow
+@runs(COMPONENTS, STATE, HZ)
+def test_the_inspector_lists_components_watches_state_and_measures_drive_rates(
+        robot: Robot) -> None:
+    watch = robot.page.start(STATE, add=robot.tool())
+    hz = robot.page.start(HZ, add=robot.tool())
+    listed = robot.page.run(COMPONENTS, add=robot.tool()).splitlines()
+    assert {"aggregator", "controller", "camera-front", "motors-main", "sim"} <= set(listed)
+    watch.wait_for(r"^robot 'mini', controller: periodic mode, tick [\d.]+Hz")
+    watch.wait_for(r"^  camera/front +age +\d+ ms")  # sources with their ages
+    watch.wait_for(r"^last tick \('\*' = won")  # and why the robot did what it did
+    hz.wait_for(r"^ubf/mini/cmd/drive: average rate [\d.]+ Hz")
+    hz.wait_for(r"^  ticked by clock: average rate [\d.]+ Hz")
+    stopped(watch)
+    stopped(hz)
+
+
+LIVEVIEW = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447"
+LIVEVIEW_PORT = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447 --port 8765"
+FOXGLOVE = "python -m ubf_async.launch --scenario ball-behind --foxglove"
+
+
+def served_to_foxglove(proc: Proc, port: int) -> None:
+    """``proc`` serves the robot at ``ws://127.0.0.1:PORT``: a Foxglove client gets the drive
+    command from it, and ``proc`` says so when stopped."""
+    proc.wait_for(rf"ws://127\.0\.0\.1:{port}\b")
+    with FoxgloveClient(f"ws://127.0.0.1:{port}") as client:
+        client.wait_for_topics({"/ubf/cmd/drive"})
+        client.subscribe({"/ubf/cmd/drive"})
+        [drive] = client.collect({"/ubf/cmd/drive"})["/ubf/cmd/drive"][:1]
+    assert {"speed", "winners"} <= set(drive.decoded["data"]), drive.decoded
+
+
+@pytest.mark.slow
+@runs(LIVEVIEW, LIVEVIEW_PORT, FOXGLOVE)
+def test_the_robot_is_served_live_to_a_foxglove_client(robot: Robot,
+                                                       tmp_path: Path) -> None:
+    # The README's liveview has the default port (8765), docs/liveview.md names it: each a
+    # free port here, given with --port.
+    ports = [free_port() for _ in range(3)]
+    views = [robot.page.start(LIVEVIEW, endpoint=robot.endpoint, add=("--port", str(ports[0]))),
+             robot.page.start(LIVEVIEW_PORT, endpoint=robot.endpoint,
+                              replace={"8765": [str(ports[1])]})]
+    with page(tmp_path) as here:
+        launched = here.start(FOXGLOVE, add=(str(ports[2]), "--listen", loopback()))
+        for proc, port in zip([*views, launched], ports, strict=True):
+            served_to_foxglove(proc, port)
+        for view in views:
+            assert re.search(r"\d+ of \d+ messages converted went to 1 Foxglove client",
+                             stopped(view)), view
+        assert re.search(r"live view: \d+ of \d+ messages converted went to 1 Foxglove client",
+                         stopped(launched)), launched
+
+
+RECORD = "python -m ubf_async.record --connect tcp/127.0.0.1:7447 --out rec/ --duration 10"
+RECORD_PROGRESS = ("python -m ubf_async.record --connect tcp/127.0.0.1:7447 --out rec/ "
+                   "--progress")
+REPLAY_REC = "python -m ubf_async.replay rec/mini.mcap --speed 2"
+RECORD_RUN = ("python -m ubf_async.launch --scenario ball-in-sight --speed 5 --duration 20 "
+              "--record out/")
+FRESH_CONTROLLER = "python -m ubf_async.launch --no-sim --sim-time"
+REPLAY_OUT = "python -m ubf_async.replay out/mini.mcap --speed 2"
+
+
+def replayed(here: Page, replay: str) -> None:
+    """``replay`` (its file recorded by now) into a fresh controller (docs/recording.md): it
+    replays every message and the controller decides on them."""
+    endpoint = loopback()
+    controller = here.start(FRESH_CONTROLLER, add=("--listen", endpoint))
+    controller.wait_for(rf"listening on {endpoint}")
+    since = len(controller.lines)
+    out = here.run(replay, add=("--connect", endpoint))
+    assert re.search(r"replaying \S+mini\.mcap onto robot 'mini' \(2x", out), out
+    assert re.search(r": [1-9]\d* messages replayed, at worst \d+ ms behind$", out), out
+    # the controller ticked on the recorded clock and inputs: a status line with a source
+    controller.wait_for(r"^\[mini\] [\d.]+s \| drive .*\| camera/front \d+ms", after=since)
+    stopped(controller)
+
+
+@pytest.mark.slow
+@runs(RECORD, RECORD_PROGRESS, REPLAY_REC, RECORD_RUN, FRESH_CONTROLLER, REPLAY_OUT)
+def test_recordings_made_of_the_bus_replay_into_a_fresh_controller(robot: Robot,
+                                                                   tmp_path: Path) -> None:
+    with page(tmp_path) as recording_md:  # docs/recording.md's commands, in a folder of theirs
+        record = robot.page.start(RECORD, endpoint=robot.endpoint)
+        progress = recording_md.start(RECORD_PROGRESS, endpoint=robot.endpoint)
+        run = recording_md.start(RECORD_RUN, add=("--listen", loopback()))
+        progress.wait_for(r"^recorded [1-9]\d* messages \(0 dropped, \d+ queued\) to "
+                          r"rec/mini\.mcap$")
+        assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove channels in "
+                         r"rec/mini\.mcap", stopped(progress)), progress
+        out = ended(run)
+        assert "sim 20.0s" in out or "20.0 simulated s" in out or "out/mini.mcap" in out, run
+        assert (recording_md.cwd / "out" / "mini.mcap").stat().st_size > 0
+        out = ended(record)
+        assert re.search(r": [1-9]\d* messages .*in rec/mini\.mcap", out), record
+        assert (robot.page.cwd / "rec" / "mini.mcap").stat().st_size > 0
+        together(lambda: replayed(robot.page, REPLAY_REC),
+                 lambda: replayed(recording_md, REPLAY_OUT))
+
+
+# -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,
+#    robot-file.md) ------------------------------------------------------------------------
+
+KEEP_AWAY = ("python -m ubf_async.launch --scenario keep-away --speed 5 --summary "
+             "out/summary.json --record out/")
+KEEP_AWAY_MAX = ("python -m ubf_async.launch --scenario keep-away --speed max --summary "
+                 "out/summary.json")
+KEEP_AWAY_RECORDED = "python -m ubf_async.launch --scenario keep-away --speed 5 --record out/"
+SYNC = "python -m ubf_async.launch --tick sync"
+MY_ROBOT = "python -m ubf_async.launch my_robot.yaml"
+MY_ROBOT_SCENARIO = "python -m ubf_async.launch my_robot.yaml [--scenario keep-away] [--speed 5]"
+MY_ROBOT_CHECK = "python -m ubf_async.launch my_robot.yaml --check"
+ROBOTFILE_CHECK = "python -m ubf_async.robotfile check my_robot.yaml"
+PLUGINS = "python -m ubf_async.robotfile plugins"
+SHORT_RUN = ("--duration", "4")  # simulated seconds: the scenarios run 60 s and more
+WALL_FIELDS = {"wall_time_s", "real_time_factor", "real_time_factor_windows", "speed_requested",
+               "warnings", "command_line", "recording"}
+WALL_TICK_FIGURE = re.compile(r"tick_us_|periodic_jitter_ms_")  # not _robot_ms: robot time
+
+
+@pytest.mark.slow
+@runs(KEEP_AWAY, KEEP_AWAY_MAX, KEEP_AWAY_RECORDED, SYNC)
+def test_the_scenarios_run_with_summary_pictures_and_recording_the_same_at_any_speed(
+        tmp_path: Path) -> None:
+    with (page(tmp_path / "readme") as readme, page(tmp_path / "flat-out") as flat_out,
+          page(tmp_path / "recording") as recording_md):
+        quiet = ("--listen", "tcp/127.0.0.1:0")
+        runs_ = [readme.start(KEEP_AWAY, add=(*SHORT_RUN, *quiet)),
+                 flat_out.start(KEEP_AWAY_MAX, add=(*SHORT_RUN, *quiet)),
+                 recording_md.start(KEEP_AWAY_RECORDED, add=(*SHORT_RUN, *quiet)),
+                 readme.start(SYNC, add=("--duration", "2", *quiet))]
+        for run in runs_:
+            out = ended(run)
+            assert out.splitlines()[-1] == "ubf_async: stopped", run
+        keep_away, max_, recorded, sync = (run.output for run in runs_)
+        assert "controller: sync on each camera/front sample (the thesis's loop" in sync, sync
+        assert re.search(r"^\[mini\] .*\| sync [\d.]+Hz \(camera/front\)", sync, re.M), sync
+        for out in (keep_away, max_, recorded):
+            assert "scenario 'keep-away'" in out
+            assert "  expected: keeps turning the way it last saw the ball" in out
+        for here in (readme, recording_md):  # the MCAP recording of the bus, and pictures
+            assert (here.cwd / "out" / "mini.mcap").stat().st_size > 0
+            assert list((here.cwd / "out").glob("frame_*.png"))
+            assert (here.cwd / "out" / "trajectory.png").exists()
+        assert "summary written to out/summary.json" in keep_away
+        assert "summary written to out/summary.json" in max_
+        assert not (recording_md.cwd / "out" / "summary.json").exists()
+        # "the same run, byte for byte": all but the wall-clock figures
+        summaries = [json.loads((here.cwd / "out" / "summary.json").read_text())
+                     for here in (readme, flat_out)]
+        assert summaries[0]["sim_time_s"] == 4.0
+        for summary in summaries:
+            for key in WALL_FIELDS:
+                summary.pop(key, None)
+            for key in [k for k in summary["ticks"] if WALL_TICK_FIGURE.match(k)]:
+                summary["ticks"].pop(key)  # what a tick costs: CPU time
+        assert summaries[0] == summaries[1]
+
+
+@pytest.mark.slow
+@runs(MY_ROBOT, MY_ROBOT_SCENARIO, MY_ROBOT_CHECK, ROBOTFILE_CHECK, PLUGINS)
+def test_a_robot_file_is_checked_and_launched(tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        shutil.copy(ROBOT_FILE, here.cwd / "my_robot.yaml")  # a robot file of one's own
+        robot = here.start(MY_ROBOT, add=("--listen", loopback()))
+        scenario = here.start(MY_ROBOT_SCENARIO, add=(*SHORT_RUN, "--listen", "tcp/127.0.0.1:0"))
+        checked = here.run(MY_ROBOT_CHECK)
+        assert checked.splitlines()[0] == "my_robot.yaml: robot 'mini' — OK", checked
+        assert "seek_pink_ball <PriorityMerge>" in checked  # the tree
+        assert here.run(ROBOTFILE_CHECK).startswith("my_robot.yaml: robot 'mini', 6 device(s) ")
+        plugins = here.run(PLUGINS)
+        assert re.search(r"^ubf_async\.behaviors:", plugins, re.M), plugins
+        assert re.search(r"\bchase\b", plugins), plugins
+        robot.wait_for(r"^\[mini\] [\d.]+s \| drive .* \| tick [\d.]+Hz")
+        assert "(my_robot.yaml)" in robot.output
+        stopped(robot)
+        out = ended(scenario)
+        assert "scenario 'keep-away'" in out and "5x real time" in out, scenario
+
+
+# -- fleets (README.md, fleet.md) ---------------------------------------------------------
+
+ROUTER = "python -m ubf_async.router"
+R1 = "python -m ubf_async.launch --robot r1 --mode client --connect tcp/127.0.0.1:7447"
+R2 = "python -m ubf_async.launch --robot r2 --mode client --connect tcp/127.0.0.1:7447"
+ROBOTS = "python -m ubf_async.inspector robots --connect tcp/127.0.0.1:7447"
+PAIR = "python -m ubf_async.fleet examples/fleets/pair.yaml --summary fleet.json"
+SEARCH = "python -m ubf_async.fleet examples/fleets/search.yaml --summary search.json"
+
+
+@pytest.mark.slow
+@runs(ROUTER, R1, R2, ROBOTS)
+def test_two_robots_meet_at_a_router_and_the_inspector_lists_both(tmp_path: Path) -> None:
+    endpoint = loopback()
+    with page(tmp_path) as here:
+        router = here.start(ROUTER, add=("--listen", endpoint))
+        router.wait_for(rf"^router: listening on {endpoint}$")
+        robots = [here.start(R1, endpoint=endpoint), here.start(R2, endpoint=endpoint)]
+        for robot in robots:
+            robot.wait_for(rf"a client of the router at {endpoint}")
+        router.wait_for(r"robots alive: r1 \(11 components\), r2 \(11 components\)")
+        listed = here.run(ROBOTS, endpoint=endpoint).splitlines()
+        assert listed[0].split() == ["ROBOT", "COMPONENTS", "PERIODIC", "Hz", "ALL", "TICKS",
+                                     "Hz", "MODE", "WINNING"], listed
+        assert [row.split()[:2] for row in listed[1:]] == [["r1", "11"], ["r2", "11"]], listed
+        assert all(" periodic " in row for row in listed[1:]), listed
+        for proc in (*robots, router):
+            stopped(proc)
+
