@@ -603,3 +603,22 @@ def test_two_robots_meet_at_a_router_and_the_inspector_lists_both(tmp_path: Path
         for proc in (*robots, router):
             stopped(proc)
 
+
+@pytest.mark.slow
+@runs(PAIR, SEARCH)
+def test_fleets_run_in_one_world_and_write_their_summary_when_stopped(tmp_path: Path) -> None:
+    # The fleet files run 30 s and 90 s at 1x: stopped with Ctrl-C once every robot ticks,
+    # which writes the summary as the world's end does.
+    with page(tmp_path) as here:
+        fleets = {"fleet.json": (here.start(PAIR), ["r1", "r2"]),
+                  "search.json": (here.start(SEARCH), ["s1", "s2", "s3", "s4"])}
+        for proc, names in fleets.values():
+            proc.wait_for(r"^fleet t=[\d.]+s" + "".join(rf" \| {n} \d+Hz \S+" for n in names))
+        for summary, (proc, names) in fleets.items():
+            out = stopped(proc)
+            for name in names:
+                assert re.search(rf"^  {name}: \d+ ticks, ", out, re.M), proc
+            written = json.loads((here.cwd / summary).read_text())
+            assert sorted(written["robots"]) == names
+            assert all(r["ticks"] > 0 for r in written["robots"].values()), written
+            assert written["sim_time_s"] > 0
