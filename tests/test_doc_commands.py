@@ -68,17 +68,32 @@ def simple_commands(text: str) -> Iterator[list[str]]:
 
 
 @functools.cache
-def shown() -> dict[str, list[str]]:
-    """Every simple command of the pages' shell blocks (its words joined by spaces) → where
-    it is shown."""
+def shown(*, inline: bool = True) -> dict[str, list[str]]:
+    """Every simple command of the pages' shell blocks and (``inline``) of their inline code
+    spans that start with ``python`` (its words joined by spaces) → where it is shown."""
     found: dict[str, list[str]] = {}
     for doc in DOCS:
         if doc == TUTORIAL:
             continue
-        for line, text in shell_texts(doc.read_text("utf-8"), inline=False):
+        for line, text in shell_texts(doc.read_text("utf-8"), inline=inline):
             for command in simple_commands(text):
                 found.setdefault(" ".join(command), []).append(f"{doc.relative_to(ROOT)}:{line}")
     return found
+
+
+PLACEHOLDER = re.compile(r"[A-Z][A-Z_]+(?:\.\w+)?|.*[…<>].*|\[.*|.*\]")
+
+
+def a_form(command: str) -> bool:
+    """An inline mention that names a program or shows the form of a command rather than a
+    command to run: no arguments (``python -m bench.codec``), a placeholder (``FILE``,
+    ``DIR``, ``[--quick]``, ``…``), or a piece of ``components.<device>``."""
+    words = command.split(" ")
+    if words[0] != "python" or words[-1].endswith("."):
+        return True
+    if len(words) == 3 and words[1] == "-m":
+        return True
+    return any(PLACEHOLDER.fullmatch(word) for word in words)
 
 
 RUN: dict[str, str] = {}
@@ -123,15 +138,37 @@ NOT_RUN = {
     "python -m bench.latency --json out.json": "the full run (see python -m bench.latency)",
     "python -m bench.latency --only reflex obstacle":
         "146 s measured here (see python -m bench.latency)",
+    "python -m bench.realtime --runs 5 --duration 20":
+        "five runs of 20 simulated s, each also without the camera and flat out: minutes",
+    "python -m ubf_async.inspector echo ubf/pi-whegs/sensor/encoders/wheels":
+        "a running pi-whegs robot: real GPIO encoders",
+    "python -m components.motors --backend gpio":
+        "real GPIO motors (tests/test_hw_launch.py runs it on gpiozero's mock pins)",
+    "python -m bench.fleet --search":
+        "fleets of 1, 2, 4 and 8 robots for 90 simulated s each, twice: many minutes",
+    "python -m ubf_async.fleet fleet.yaml --world-only":
+        "what the fleet launcher starts as its own process: every fleet run here runs it",
 }
 
 
 def test_every_command_shown_is_run_or_says_why_not() -> None:
-    commands = set(shown())
-    assert commands - set(RUN) - set(NOT_RUN) == set(), "shown, neither run nor said why not"
-    assert set(RUN) - commands == set(), "run here, but no page shows it (any more)"
-    assert set(NOT_RUN) - commands == set(), "said why not run, but no page shows it (any more)"
+    in_blocks = set(shown(inline=False))
+    inline = {c for c in set(shown()) - in_blocks if not a_form(c)}
+    assert in_blocks - set(RUN) - set(NOT_RUN) == set(), "shown, neither run nor said why not"
+    assert inline - set(RUN) - set(NOT_RUN) == set(), "shown, neither run nor said why not"
+    assert set(RUN) - set(shown()) == set(), "run here, but no page shows it (any more)"
+    assert set(NOT_RUN) - set(shown()) == set(), "said why not run, but no page shows it"
     assert set(RUN) & set(NOT_RUN) == set()
+
+
+def test_what_is_a_form_and_what_a_command() -> None:
+    assert a_form("python -m bench.codec")
+    assert a_form("python -m ubf_async.secure init DIR --robot-file FILE")
+    assert a_form("python -m bench.latency [--quick] [--json FILE]")
+    assert a_form("python -m ubf_async.fleet FLEET.yaml --controllers-only r1,r2 …")
+    assert a_form("python -m components.") and a_form("device")
+    assert not a_form("python -m ubf_async.launch --help")
+    assert not a_form("python -m ubf_async.record --no-live-channels")
 
 
 # -- running them --------------------------------------------------------------------------
@@ -259,9 +296,10 @@ class Page:
         return proc
 
     def run(self, command: str, *, endpoint: str | None = None, add: tuple[str, ...] = (),
-            replace: dict[str, list[str]] | None = None, status: int = 0) -> str:
+            replace: dict[str, list[str]] | None = None, env: dict[str, str] | None = None,
+            status: int = 0) -> str:
         """Run it to its end; it must exit with ``status``. Its output."""
-        return ended(self.start(command, endpoint=endpoint, add=add, replace=replace),
+        return ended(self.start(command, endpoint=endpoint, add=add, replace=replace, env=env),
                      status=status)
 
 
@@ -326,6 +364,7 @@ TELEOP = "python examples/teleop_override.py --connect tcp/127.0.0.1:7447 --spee
 COMPONENTS = "python -m ubf_async.inspector components"
 STATE = "python -m ubf_async.inspector state --watch"
 HZ = "python -m ubf_async.inspector hz cmd/drive"
+STATE_ONCE = "python -m ubf_async.inspector state"
 
 
 @dataclass
@@ -339,7 +378,7 @@ class Robot:
         return ("--connect", self.endpoint)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="class")
 def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     """The README's quick start (on a free port instead of 7447): the robot every command
     shown "while a robot runs" attaches to. Stopped with Ctrl-C at the end."""
@@ -350,64 +389,6 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         yield Robot(endpoint, proc, here)
         stopped(proc)
         assert proc.lines[-1] == "ubf_async: stopped", proc
-
-
-@pytest.mark.slow
-@runs(QUICK_START)
-def test_the_quick_start_prints_its_endpoint_tree_and_status_line(robot: Robot) -> None:
-    printed = robot.proc.output
-    assert f"listening on {robot.endpoint}" in printed
-    assert f"attach with: --connect {robot.endpoint} --robot mini" in printed
-    assert "    seek_pink_ball <PriorityMerge>" in printed  # the tree
-    # the status line: tick rate, a source with its age, the drive and who won, the sim's pace
-    robot.proc.wait_for(r"^\[mini\] .*\| drive [-+]\d+/[-+]\d+ \(.+\) \| tick [\d.]+Hz.* \| "
-                        r"sim [\d.]+s x[\d.]+ \| .*camera/front \d+ms")
-
-
-@pytest.mark.slow
-@runs(RANGE, ECHO)
-def test_a_second_range_finder_attaches_and_echo_shows_three_of_its_samples(
-        robot: Robot) -> None:
-    ranger = robot.page.start(RANGE, endpoint=robot.endpoint)
-    echoed = robot.page.run(ECHO, add=robot.tool())
-    samples = [line for line in echoed.splitlines()
-               if line.startswith("ubf/mini/sensor/range/left range #")]
-    assert len(samples) == 3, echoed
-    assert all('"model": "ir-10-80"' in line for line in samples), echoed
-    stopped(ranger)
-
-
-@pytest.mark.slow
-@runs(AVOID, TELEOP)
-def test_obstacle_avoidance_and_teleop_attach_and_teleop_outranks_the_tree(
-        robot: Robot) -> None:
-    since = len(robot.proc.lines)
-    avoid = robot.page.start(AVOID, endpoint=robot.endpoint)
-    teleop = robot.page.start(TELEOP, endpoint=robot.endpoint)
-    teleop.wait_for(r"^\[teleop\] votes \d+: speed=\+30 turn=\+0 .*\| robot drive \+30/\+0 "
-                    r"\(teleop\)")
-    robot.proc.wait_for(r"\| drive \+30/\+0 \(teleop\) \|", after=since)
-    avoid.wait_for(r"^\[avoid_obstacles\] votes \d+: .*\| robot drive ")
-    for proc in (teleop, avoid):
-        assert "clock: simulated time (ubf/mini/clock)" in proc.output, proc
-        stopped(proc)
-
-
-@pytest.mark.slow
-@runs(COMPONENTS, STATE, HZ)
-def test_the_inspector_lists_components_watches_state_and_measures_drive_rates(
-        robot: Robot) -> None:
-    watch = robot.page.start(STATE, add=robot.tool())
-    hz = robot.page.start(HZ, add=robot.tool())
-    listed = robot.page.run(COMPONENTS, add=robot.tool()).splitlines()
-    assert {"aggregator", "controller", "camera-front", "motors-main", "sim"} <= set(listed)
-    watch.wait_for(r"^robot 'mini', controller: periodic mode, tick [\d.]+Hz")
-    watch.wait_for(r"^  camera/front +age +\d+ ms")  # sources with their ages
-    watch.wait_for(r"^last tick \('\*' = won")  # and why the robot did what it did
-    hz.wait_for(r"^ubf/mini/cmd/drive: average rate [\d.]+ Hz")
-    hz.wait_for(r"^  ticked by clock: average rate [\d.]+ Hz")
-    stopped(watch)
-    stopped(hz)
 
 
 LIVEVIEW = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447"
@@ -426,27 +407,6 @@ def served_to_foxglove(proc: Proc, port: int) -> None:
     assert {"speed", "winners"} <= set(drive.decoded["data"]), drive.decoded
 
 
-@pytest.mark.slow
-@runs(LIVEVIEW, LIVEVIEW_PORT, FOXGLOVE)
-def test_the_robot_is_served_live_to_a_foxglove_client(robot: Robot,
-                                                       tmp_path: Path) -> None:
-    # The README's liveview has the default port (8765), docs/liveview.md names it: each a
-    # free port here, given with --port.
-    ports = [free_port() for _ in range(3)]
-    views = [robot.page.start(LIVEVIEW, endpoint=robot.endpoint, add=("--port", str(ports[0]))),
-             robot.page.start(LIVEVIEW_PORT, endpoint=robot.endpoint,
-                              replace={"8765": [str(ports[1])]})]
-    with page(tmp_path) as here:
-        launched = here.start(FOXGLOVE, add=(str(ports[2]), "--listen", loopback()))
-        for proc, port in zip([*views, launched], ports, strict=True):
-            served_to_foxglove(proc, port)
-        for view in views:
-            assert re.search(r"\d+ of \d+ messages converted went to 1 Foxglove client",
-                             stopped(view)), view
-        assert re.search(r"live view: \d+ of \d+ messages converted went to 1 Foxglove client",
-                         stopped(launched)), launched
-
-
 RECORD = "python -m ubf_async.record --connect tcp/127.0.0.1:7447 --out rec/ --duration 10"
 RECORD_PROGRESS = ("python -m ubf_async.record --connect tcp/127.0.0.1:7447 --out rec/ "
                    "--progress")
@@ -455,43 +415,147 @@ RECORD_RUN = ("python -m ubf_async.launch --scenario ball-in-sight --speed 5 --d
               "--record out/")
 FRESH_CONTROLLER = "python -m ubf_async.launch --no-sim --sim-time"
 REPLAY_OUT = "python -m ubf_async.replay out/mini.mcap --speed 2"
+RECORD_ORIGINALS = "python -m ubf_async.record --no-live-channels"
 
 
-def replayed(here: Page, replay: str) -> None:
-    """``replay`` (its file recorded by now) into a fresh controller (docs/recording.md): it
-    replays every message and the controller decides on them."""
+def fresh_controller(here: Page) -> tuple[Proc, str]:
+    """docs/recording.md's fresh controller (same tree, no simulator), on a free port."""
     endpoint = loopback()
-    controller = here.start(FRESH_CONTROLLER, add=("--listen", endpoint))
-    controller.wait_for(rf"listening on {endpoint}")
-    since = len(controller.lines)
+    return here.start(FRESH_CONTROLLER, add=("--listen", endpoint)), endpoint
+
+
+def replayed(here: Page, replay: str, controller: tuple[Proc, str]) -> None:
+    """``replay`` (its file recorded by now) into a fresh ``controller``: it replays every
+    message, and the controller decides on them."""
+    proc, endpoint = controller
+    proc.wait_for(rf"listening on {endpoint}")
+    since = len(proc.lines)
     out = here.run(replay, add=("--connect", endpoint))
     assert re.search(r"replaying \S+mini\.mcap onto robot 'mini' \(2x", out), out
     assert re.search(r": [1-9]\d* messages replayed, at worst \d+ ms behind$", out), out
     # the controller ticked on the recorded clock and inputs: a status line with a source
-    controller.wait_for(r"^\[mini\] [\d.]+s \| drive .*\| camera/front \d+ms", after=since)
-    stopped(controller)
+    proc.wait_for(r"^\[mini\] [\d.]+s \| drive .*\| camera/front \d+ms", after=since)
+    stopped(proc)
 
 
-@pytest.mark.slow
-@runs(RECORD, RECORD_PROGRESS, REPLAY_REC, RECORD_RUN, FRESH_CONTROLLER, REPLAY_OUT)
-def test_recordings_made_of_the_bus_replay_into_a_fresh_controller(robot: Robot,
-                                                                   tmp_path: Path) -> None:
-    with page(tmp_path) as recording_md:  # docs/recording.md's commands, in a folder of theirs
-        record = robot.page.start(RECORD, endpoint=robot.endpoint)
-        progress = recording_md.start(RECORD_PROGRESS, endpoint=robot.endpoint)
-        run = recording_md.start(RECORD_RUN, add=("--listen", loopback()))
-        progress.wait_for(r"^recorded [1-9]\d* messages \(0 dropped, \d+ queued\) to "
-                          r"rec/mini\.mcap$")
-        assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove channels in "
-                         r"rec/mini\.mcap", stopped(progress)), progress
-        out = ended(run)
-        assert "sim 20.0s" in out or "20.0 simulated s" in out or "out/mini.mcap" in out, run
-        assert (recording_md.cwd / "out" / "mini.mcap").stat().st_size > 0
-        out = ended(record)
-        assert re.search(r": [1-9]\d* messages .*in rec/mini\.mcap", out), record
-        assert (robot.page.cwd / "rec" / "mini.mcap").stat().st_size > 0
-        together(lambda: replayed(robot.page, REPLAY_REC),
-                 lambda: replayed(recording_md, REPLAY_OUT))
+class TestWhileTheQuickStartRobotRuns:
+    """README.md's "Things to try" while a robot runs, each attaching to the quick start's
+    robot (:func:`robot`, one for the class: stopped once these tests are done)."""
+
+    @pytest.mark.slow
+    @runs(QUICK_START)
+    def test_the_quick_start_prints_its_endpoint_tree_and_status_line(
+            self, robot: Robot) -> None:
+        printed = robot.proc.output
+        assert f"listening on {robot.endpoint}" in printed
+        assert f"attach with: --connect {robot.endpoint} --robot mini" in printed
+        assert "    seek_pink_ball <PriorityMerge>" in printed  # the tree
+        # the status line: tick rate, a source with its age, the drive and who won, the sim's pace
+        robot.proc.wait_for(r"^\[mini\] .*\| drive [-+]\d+/[-+]\d+ \(.+\) \| tick [\d.]+Hz.* \| "
+                            r"sim [\d.]+s x[\d.]+ \| .*camera/front \d+ms")
+
+    @pytest.mark.slow
+    @runs(RANGE, ECHO)
+    def test_a_second_range_finder_attaches_and_echo_shows_three_of_its_samples(
+            self, robot: Robot) -> None:
+        ranger = robot.page.start(RANGE, endpoint=robot.endpoint)
+        echoed = robot.page.run(ECHO, add=robot.tool())
+        samples = [line for line in echoed.splitlines()
+                   if line.startswith("ubf/mini/sensor/range/left range #")]
+        assert len(samples) == 3, echoed
+        assert all('"model": "ir-10-80"' in line for line in samples), echoed
+        stopped(ranger)
+
+    @pytest.mark.slow
+    @runs(AVOID, TELEOP)
+    def test_obstacle_avoidance_and_teleop_attach_and_teleop_outranks_the_tree(
+            self, robot: Robot) -> None:
+        since = len(robot.proc.lines)
+        avoid = robot.page.start(AVOID, endpoint=robot.endpoint)
+        teleop = robot.page.start(TELEOP, endpoint=robot.endpoint)
+        teleop.wait_for(r"^\[teleop\] votes \d+: speed=\+30 turn=\+0 .*\| robot drive \+30/\+0 "
+                        r"\(teleop\)")
+        robot.proc.wait_for(r"\| drive \+30/\+0 \(teleop\) \|", after=since)
+        avoid.wait_for(r"^\[avoid_obstacles\] votes \d+: .*\| robot drive ")
+        for proc in (teleop, avoid):
+            assert "clock: simulated time (ubf/mini/clock)" in proc.output, proc
+            stopped(proc)
+
+    @pytest.mark.slow
+    @runs(COMPONENTS, STATE, HZ, STATE_ONCE)
+    def test_the_inspector_lists_components_watches_state_and_measures_drive_rates(
+            self, robot: Robot) -> None:
+        watch = robot.page.start(STATE, add=robot.tool())
+        hz = robot.page.start(HZ, add=robot.tool())
+        once = robot.page.start(STATE_ONCE, add=robot.tool())
+        listed = robot.page.run(COMPONENTS, add=robot.tool()).splitlines()
+        assert {"aggregator", "controller", "camera-front", "motors-main", "sim"} <= set(listed)
+        watch.wait_for(r"^robot 'mini', controller: periodic mode, tick [\d.]+Hz")
+        watch.wait_for(r"^  camera/front +age +\d+ ms")  # sources with their ages
+        watch.wait_for(r"^last tick \('\*' = won")  # and why the robot did what it did
+        hz.wait_for(r"^ubf/mini/cmd/drive: average rate [\d.]+ Hz")
+        hz.wait_for(r"^  ticked by clock: average rate [\d.]+ Hz")
+        state = ended(once)
+        assert re.search(r"^robot 'mini', controller: periodic mode", state, re.M), once
+        assert re.search(r"^drive: speed [-+]\d+ turn [-+]\d+  won by: ", state, re.M), once
+        assert "\n# " not in state  # once: a single block
+        stopped(watch)
+        stopped(hz)
+
+    @pytest.mark.slow
+    @runs(LIVEVIEW, LIVEVIEW_PORT, FOXGLOVE)
+    def test_the_robot_is_served_live_to_a_foxglove_client(
+            self, robot: Robot, tmp_path: Path) -> None:
+        # The README's liveview has the default port (8765), docs/liveview.md names it: each a
+        # free port here, given with --port.
+        ports = [free_port() for _ in range(3)]
+        views = [robot.page.start(LIVEVIEW, endpoint=robot.endpoint, add=("--port", str(ports[0]))),
+                 robot.page.start(LIVEVIEW_PORT, endpoint=robot.endpoint,
+                                  replace={"8765": [str(ports[1])]})]
+        with page(tmp_path) as here:
+            launched = here.start(FOXGLOVE, add=(str(ports[2]), "--listen", loopback()))
+            for proc, port in zip([*views, launched], ports, strict=True):
+                served_to_foxglove(proc, port)
+            for view in views:
+                assert re.search(r"\d+ of \d+ messages converted went to 1 Foxglove client",
+                                 stopped(view)), view
+            assert re.search(r"live view: \d+ of \d+ messages converted went to 1 Foxglove client",
+                             stopped(launched)), launched
+
+    @pytest.mark.slow
+    @runs(RECORD, RECORD_PROGRESS, REPLAY_REC, RECORD_RUN, FRESH_CONTROLLER, REPLAY_OUT,
+          RECORD_ORIGINALS)
+    def test_recordings_made_of_the_bus_replay_into_a_fresh_controller(
+            self, robot: Robot, tmp_path: Path) -> None:
+        with page(tmp_path) as recording_md:  # docs/recording.md's commands, in a folder of theirs
+            controllers = [fresh_controller(robot.page), fresh_controller(recording_md)]
+
+            def readme() -> None:  # record from another process for 10 s, then replay
+                out = robot.page.run(RECORD, endpoint=robot.endpoint)
+                assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove "
+                                 r"channels in rec/mini\.mcap$", out), out
+                replayed(robot.page, REPLAY_REC, controllers[0])
+
+            def recording() -> None:  # launch --record, then replay
+                out = recording_md.run(RECORD_RUN, add=("--listen", loopback()))
+                assert "  expected: turns to the ball, approaches and stops" in out, out
+                assert re.search(r"^  recorded [1-9]\d* messages and \d+ in the live view's "
+                                 r"Foxglove channels to out/mini\.mcap$", out, re.M), out
+                replayed(recording_md, REPLAY_OUT, controllers[1])
+
+            def attached() -> None:  # recorders stopped with Ctrl-C
+                progress = recording_md.start(RECORD_PROGRESS, endpoint=robot.endpoint)
+                originals = recording_md.start(RECORD_ORIGINALS, add=robot.tool())
+                progress.wait_for(r"^recorded [1-9]\d* messages \(0 dropped, \d+ queued\) to "
+                                  r"rec/mini\.mcap$")
+                originals.wait_for(r"recording robot 'mini' to recordings/mini\.mcap$")
+                assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove "
+                                 r"channels in rec/mini\.mcap$", stopped(progress)), progress
+                # only the original messages, none of the live view's channels
+                assert re.search(r": [1-9]\d* messages in recordings/mini\.mcap$",
+                                 stopped(originals)), originals
+
+            together(readme, recording, attached)
 
 
 # -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,
@@ -610,8 +674,9 @@ def test_fleets_run_in_one_world_and_write_their_summary_when_stopped(tmp_path: 
     # The fleet files run 30 s and 90 s at 1x: stopped with Ctrl-C once every robot ticks,
     # which writes the summary as the world's end does.
     with page(tmp_path) as here:
-        fleets = {"fleet.json": (here.start(PAIR), ["r1", "r2"]),
-                  "search.json": (here.start(SEARCH), ["s1", "s2", "s3", "s4"])}
+        often = ("--status-period-s", "0.5")  # the first status line sooner
+        fleets = {"fleet.json": (here.start(PAIR, add=often), ["r1", "r2"]),
+                  "search.json": (here.start(SEARCH, add=often), ["s1", "s2", "s3", "s4"])}
         for proc, names in fleets.values():
             proc.wait_for(r"^fleet t=[\d.]+s" + "".join(rf" \| {n} \d+Hz \S+" for n in names))
         for summary, (proc, names) in fleets.items():
@@ -622,3 +687,142 @@ def test_fleets_run_in_one_world_and_write_their_summary_when_stopped(tmp_path: 
             assert sorted(written["robots"]) == names
             assert all(r["ticks"] > 0 for r in written["robots"].values()), written
             assert written["sim_time_s"] > 0
+
+
+# -- secure mode (security.md) --------------------------------------------------------------
+
+SECURE_INIT = "python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file my-robot.yaml"
+SECURE_SHOW = "python -m ubf_async.secure show ~/.ubf/mini-secure"
+SECURE_ROBOT = ("python -m ubf_async.launch my-robot.yaml --listen tcp/192.168.1.10:7447 "
+                "--secure ~/.ubf/mini-secure")
+SECURE_TELEOP = ("python examples/teleop_override.py --connect tcp/192.168.1.10:7447 --robot mini "
+                 "--secure DIR")
+SECURE_INSPECTOR = ("python -m ubf_async.inspector components --connect tcp/192.168.1.10:7447 "
+                    "--robot mini --secure DIR --identity inspector")
+
+
+def handed_over(secure: Path, identity: str, to: Path) -> Path:
+    """What security.md's step 4 gives another machine: ``DIR/identities/NAME.json`` only."""
+    (to / "identities").mkdir(parents=True, mode=0o700)
+    shutil.copy(secure / "identities" / f"{identity}.json", to / "identities")
+    (to / "identities" / f"{identity}.json").chmod(0o600)
+    return to
+
+
+@pytest.mark.slow
+@runs(SECURE_INIT, SECURE_SHOW, SECURE_ROBOT, SECURE_TELEOP, SECURE_INSPECTOR)
+def test_the_secure_set_up_step_by_step(tmp_path: Path) -> None:
+    # The robot's address (192.168.1.10) is a free loopback port here.
+    endpoint = loopback()
+    with page(tmp_path) as here:
+        shutil.copy(ROBOT_FILE, here.cwd / "my-robot.yaml")  # it has the remote slot teleop
+        made = here.run(SECURE_INIT)
+        shown_ = here.run(SECURE_SHOW)
+        secure = here.home / ".ubf" / "mini-secure"
+        for identity in ("robot", "inspector", "operator", "teleop"):
+            assert f"--secure {secure} --identity {identity}" in made
+            assert f"--secure {secure} --identity {identity}" in shown_
+            assert (secure / "identities" / f"{identity}.json").stat().st_mode & 0o077 == 0
+        assert {"acl.json", "passwords.txt", "secure.json"} <= {p.name for p in secure.iterdir()}
+        robot = here.start(SECURE_ROBOT, endpoint=endpoint)
+        robot.wait_for(r"^\[mini\] [\d.]+s \| drive ")
+        teleop_dir = handed_over(secure, "teleop", here.home / "teleop")
+        inspector_dir = handed_over(secure, "inspector", here.home / "inspector")
+        since = len(robot.lines)
+        teleop = here.start(SECURE_TELEOP, endpoint=endpoint, replace={"DIR": [str(teleop_dir)]})
+        robot.wait_for(r"\| drive \+\d+/\+0 \(teleop\) \|", after=since)
+        listed = here.run(SECURE_INSPECTOR, endpoint=endpoint,
+                          replace={"DIR": [str(inspector_dir)]}).splitlines()
+        assert {"controller", "motors-main", "teleop"} <= set(listed), listed
+        stopped(teleop)
+        stopped(robot)
+
+
+# -- a real robot's commands (README.md, hardware.md), on gpiozero's mock pins -------------
+
+MOTORS_CHECK = ("python -m components.motors --backend gpio --check --robot-file "
+                "examples/robots/pi-whegs.yaml")
+MOTORS_HELP = "python -m components.motors --help"
+MOCK_PINS = {"GPIOZERO_PIN_FACTORY": "mock", "GPIOZERO_MOCK_PIN_CLASS": "mockpwmpin"}
+
+
+@pytest.mark.slow
+@runs(MOTORS_CHECK)
+def test_the_wiring_check_runs_on_mock_pins_where_no_wheel_turns(tmp_path: Path) -> None:
+    """The check needs a lifted robot with motors and encoders: on gpiozero's mock pins it
+    runs every step, pulses the motors' pins, and reports — rightly — that no encoder saw a
+    wheel turn. (tests/test_hw_launch.py checks the pulses on the pins.)"""
+    with page(tmp_path) as here:
+        out = here.run(MOTORS_CHECK, env=MOCK_PINS, status=1)
+        assert "checking the wiring of examples/robots/pi-whegs.yaml: each wheel 1 s" in out
+        for step in ("left forward", "left reverse", "right forward", "right reverse"):
+            assert re.search(rf"^{step}: [\d.]+ ms for 1 s", out, re.M), out
+        assert out.count("FAIL: the left encoder saw 0 edges") == 2, out
+        assert out.splitlines()[-1] == "4 of 4 steps failed", out
+
+
+PI_LAUNCH = "python -m ubf_async.launch examples/robots/pi-whegs.yaml"
+
+
+def test_the_pi_robot_file_checks(tmp_path: Path) -> None:
+    """``launch examples/robots/pi-whegs.yaml`` needs a Raspberry Pi's GPIO and I²C (see
+    NOT_RUN): its file loads and checks, as launch does before anything starts."""
+    with page(tmp_path) as here:
+        out = here.run(PI_LAUNCH, add=("--check",))
+        assert out.splitlines()[0] == "examples/robots/pi-whegs.yaml: robot 'pi-whegs' — OK", out
+
+
+# -- benchmarks and tools shown --------------------------------------------------------------
+
+LATENCY_HELP = "python -m bench.latency --help"
+CPU_HOG = "python -m bench.cpu_hog -- python -m pytest ..."
+CALIBRATE = "python -m components.sim.calibrate --update-doc docs/scenarios.md"
+
+
+@runs(LATENCY_HELP)
+def test_the_latency_bench_explains_itself(tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        out = here.run(LATENCY_HELP)
+    assert "usage: python -m bench.latency [-h] [--quick] [--json FILE]" in out
+    for section in ("floor", "reflex", "periodic", "obstacle", "camera", "peers"):
+        assert section in out.split("--only", 1)[1]
+
+
+@pytest.mark.slow
+@runs(CPU_HOG, CALIBRATE)
+def test_tests_run_beside_a_busy_loop_per_core_and_the_calibration_table_is_current(
+        tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        # `...`: a test of its own (the suite's own tests would take the busy machine long)
+        (here.cwd / "test_under_load.py").write_text(
+            "import os\n\ndef test_the_cores_are_busy():\n    assert os.cpu_count()\n")
+        hogged = here.start(CPU_HOG, replace={
+            "...": ["test_under_load.py", "-q", "-p", "no:cacheprovider", "--rootdir", "."]})
+        (here.cwd / "docs").mkdir()
+        shutil.copy(ROOT / "docs" / "scenarios.md", here.cwd / "docs")
+        out = here.run(CALIBRATE)
+        assert "updated the calibration table in docs/scenarios.md" in out
+        # the table shown is the one the simulator renders now
+        assert ((here.cwd / "docs" / "scenarios.md").read_text("utf-8")
+                == (ROOT / "docs" / "scenarios.md").read_text("utf-8"))
+        assert re.search(r"^1 passed", ended(hogged), re.M), hogged
+
+
+LAUNCH_HELP = "python -m ubf_async.launch --help"
+SCHEMA = "python -m ubf_async.robotfile schema"
+SOAK_HELP = "python -m bench.soak --help"
+
+
+@runs(LAUNCH_HELP, SCHEMA, SOAK_HELP, MOTORS_HELP)
+def test_the_helps_shown_list_what_the_pages_say_and_the_schema_is_the_shipped_one(
+        tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        procs = [here.start(c) for c in (LAUNCH_HELP, SCHEMA, SOAK_HELP, MOTORS_HELP)]
+        launch, schema, soak, motors = (ended(proc) for proc in procs)
+    for option in ("--scenario", "--speed", "--summary", "--record", "--foxglove", "--tick",
+                   "--duration", "--check", "--secure"):
+        assert option in launch
+    assert schema == (ROOT / "ubf_async" / "robot-file.schema.json").read_text("utf-8").rstrip()
+    for option in ("--sim-s", "--warmup-s", "--record", "--limit-mib"):  # resources.md
+        assert option in soak
+    assert "--check" in motors.split("wiring check", 1)[1]  # hardware.md
