@@ -549,7 +549,14 @@ class TestWhileTheQuickStartRobotRuns:
                 replayed(robot.page, REPLAY_REC, controllers[0])
 
             def recording() -> None:  # launch --record, then replay
-                out = recording_md.run(RECORD_RUN, add=("--listen", loopback()))
+                endpoint = loopback()
+                run = recording_md.start(RECORD_RUN, add=("--listen", endpoint))
+                run.wait_for(r"^\[mini\] [\d.]+s \| drive ")
+                # launch --record's recorder is 'recorder' too: another needs another --name
+                second = recording_md.run(RECORD_PROGRESS, endpoint=endpoint, status=2)
+                assert "a component named 'recorder' is already alive on robot 'mini'" in second
+                assert "give this recorder another --name" in second
+                out = ended(run)
                 assert "  expected: turns to the ball, approaches and stops" in out, out
                 assert re.search(r"^  recorded [1-9]\d* messages and \d+ in the live view's "
                                  r"Foxglove channels to out/mini\.mcap$", out, re.M), out
