@@ -1,13 +1,17 @@
-"""Every command README.md and docs/*.md show in a shell code block, run (issue 28).
+"""Every command README.md and docs/*.md show, run (issue 28).
 
 tests/test_docs.py checks that each command shown parses with its entry point's real parser;
 here each one runs, through its real entry point, as a subprocess, and the test asserts what
 the page says it does (an exit status and a line of its output, a file it writes, another
 process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py.
 
-Each test names the commands it runs (:func:`runs`); a command that cannot run here names why
-in :data:`NOT_RUN`. :func:`test_every_command_shown_is_run_or_says_why_not` fails for a command
-added to a page that neither covers, and for one a test runs that no page shows any more.
+A command shown is a simple command of a shell code block, or of an inline code span starting
+with ``python`` that is more than a program's name or a form with placeholders (:func:`a_form`:
+``python -m bench.codec``, ``secure init DIR --robot-file FILE``). Each test names the
+commands it runs (:func:`runs`); a command that cannot run here says why in :data:`NOT_RUN`.
+:func:`test_every_command_shown_is_run_or_says_why_not` fails for a command added to a page
+that neither covers, and for one that a test runs but no page shows any more — so a command
+edited on a page is noticed, and run as edited.
 
 What a test changes in a command, and only that:
 
@@ -15,9 +19,12 @@ What a test changes in a command, and only that:
   becomes a free loopback port, and a command that relies on the default endpoint is given
   that port explicitly (``--listen`` for a robot, ``--connect`` for a tool);
 * a command that runs until stopped is stopped with Ctrl-C (SIGINT) once the test has seen
-  what it waits for, or is bounded with its own ``--duration``;
-* ``~`` is a temporary folder, and each page's commands run in a temporary folder of their own
-  (``examples/`` linked in, a fleet file's router on a free port).
+  what it waits for, or is bounded with its own ``--duration`` (a scenario: 4 simulated s);
+* ``~`` is a temporary folder, a placeholder (``DIR``, ``...``) what the page says it stands
+  for, and each page's commands run in a temporary folder of their own (``examples/`` linked
+  in, a fleet file's router on a free port).
+
+Commands that attach to a robot share one: the quick start's (:func:`robot`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """README.md and docs/*.md read against the code (issue 28): every command they show names an
 entry point that exists, with options it takes; the numbers and messages they quote are the
-ones the code uses. (docs/your-robot.md is executed whole by tests/test_tutorial.py, and
-docs/recording.md's snippets by tests/test_record.py.)"""
+ones the code uses. (Every command shown is also run, by tests/test_doc_commands.py;
+docs/your-robot.md is executed whole by tests/test_tutorial.py, and docs/recording.md's
+snippets by tests/test_record.py.)"""
 
 from __future__ import annotations
 
