@@ -684,8 +684,9 @@ def test_two_robots_meet_at_a_router_and_the_inspector_lists_both(tmp_path: Path
         router = here.start(ROUTER, add=("--listen", endpoint))
         router.wait_for(rf"^router: listening on {endpoint}$")
         robots = [here.start(R1, endpoint=endpoint), here.start(R2, endpoint=endpoint)]
-        for robot in robots:
-            robot.wait_for(rf"a client of the router at {endpoint}")
+        for name, robot in zip(("r1", "r2"), robots, strict=True):
+            robot.wait_for(rf"a client of the router at {endpoint}$")
+            robot.wait_for(rf"^  attach with: --mode client --connect {endpoint} --robot {name}$")
         router.wait_for(r"robots alive: r1 \(11 components\), r2 \(11 components\)")
         listed = here.run(ROBOTS, endpoint=endpoint).splitlines()
         assert listed[0].split() == ["ROBOT", "COMPONENTS", "PERIODIC", "Hz", "ALL", "TICKS",
