@@ -53,7 +53,7 @@ from tests.foxglove_client import FoxgloveClient
 from tests.test_docs import DOCS, ROOT, shell_texts, tokens
 
 TUTORIAL = ROOT / "docs" / "your-robot.md"
-DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447")
+DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447")
 ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
 WAIT_S = 90.0  # for a line of output: generous, for a loaded machine
 STOP_S = 30.0  # for a process to end once stopped (the bound is 5 s; a loaded machine is slow)
@@ -116,6 +116,10 @@ def runs(*commands: str) -> Callable[[F], F]:
     return declare
 
 
+ROS_MACHINE = ("a ROS 2 installation with rmw_zenoh (none here): test_ros2_sees_the_robot_"
+               "through_a_router does what it does with tests/ros2_side.py, an rmw_zenoh "
+               "implementation independent of ubf_async.ros2")
+
 NOT_RUN = {
     "python3 -m venv .venv":
         "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
@@ -167,6 +171,20 @@ NOT_RUN = {
     "python -m components.camera":
         "the program's name in prose (a device in a process of its own): components.range, "
         "shown with arguments, runs above",
+    "export RMW_IMPLEMENTATION=rmw_zenoh_cpp": ROS_MACHINE,
+    'export ZENOH_CONFIG_OVERRIDE=connect/endpoints=["tcp/ROBOT_HOST:7447"]': ROS_MACHINE,
+    "export ZENOH_ROUTER_CHECK_ATTEMPTS=-1": ROS_MACHINE,
+    "ros2 node list": ROS_MACHINE,
+    "ros2 topic list -t": ROS_MACHINE,
+    "ros2 topic echo /mini/odom": ROS_MACHINE,
+    "ros2 run teleop_twist_keyboard teleop_twist_keyboard --ros-args -r "
+    "cmd_vel:=/mini/cmd_vel_in": ROS_MACHINE,
+    "python -m ubf_async.inspector echo":
+        "the inspector's echo named in prose (it needs a KEY): echo with one runs above",
+    "python -m ubf_async.inspector tree":
+        "the inspector's tree named in prose (it needs a verb): docs/your-robot.md runs tree "
+        "show and set-arbiter (tests/test_tutorial.py)",
+    "python -m bench.ros2": "the bridge's latency, 300 samples each way: past the time budget",
     "python -m ubf_async.fleet fleet.yaml --world-only":
         "what the fleet launcher starts as its own process: every fleet run here runs it",
 }
@@ -386,6 +404,7 @@ COMPONENTS = "python -m ubf_async.inspector components"
 STATE = "python -m ubf_async.inspector state --watch"
 HZ = "python -m ubf_async.inspector hz cmd/drive"
 STATE_ONCE = "python -m ubf_async.inspector state"
+ROS2_BRIDGE = "python -m ubf_async.ros2 --connect tcp/127.0.0.1:7447 --distro jazzy"
 
 
 @dataclass
@@ -584,6 +603,18 @@ class TestWhileTheQuickStartRobotRuns:
                 replayed(recording_md, REPLAY_OUT, controllers[1])
 
             together(readme, recording)
+
+    @pytest.mark.slow
+    @runs(ROS2_BRIDGE)
+    def test_the_ros2_bridge_attaches_to_the_running_robot(self, robot: Robot) -> None:
+        # its status line sooner than every 5 s
+        bridge = robot.page.start(ROS2_BRIDGE, endpoint=robot.endpoint,
+                                  add=("--status-period-s", "0.5"))
+        bridge.wait_for(r"^ROS 2 bridge of robot 'mini': node /mini/ubf_bridge, domain 0, "
+                        r"jazzy; clock: ")
+        bridge.wait_for(r"^\[ros2\] sent: .*/mini/odom [1-9]\d*.* \| cmd_vel_in: 0 taken, "
+                        r"refused: none$")
+        stopped(bridge)
 
 
 # -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,
@@ -881,3 +912,54 @@ def test_the_quick_benchmarks_and_the_calibrations_shown(tmp_path: Path) -> None
     # the effective track the simulated Mini-WHEGS has: 0.420 m (hardware.md, scenarios.md)
     [fitted] = re.findall(r"^effective track: ([\d.]+) m", track, re.M)
     assert round(float(fitted), 3) == 0.420, track
+
+
+# -- ROS 2 (README.md, ros2.md) --------------------------------------------------------------
+
+ROS2_ROUTER = "python -m ubf_async.router --listen tcp/0.0.0.0:7447"
+ROS2_ROBOT = "python -m ubf_async.launch my_robot.yaml --mode client --connect tcp/127.0.0.1:7447"
+
+
+def ros2_section() -> str:
+    """ros2.md's robot-file section (its first yaml block)."""
+    text = (ROOT / "docs" / "ros2.md").read_text("utf-8")
+    section = text.split("```yaml\n", 1)[1].split("```", 1)[0]
+    assert section.startswith("ros2:\n"), section
+    return section
+
+
+@pytest.mark.slow
+@runs(ROS2_ROUTER, ROS2_ROBOT)
+def test_ros2_sees_the_robot_through_a_router(tmp_path: Path) -> None:
+    """ros2.md's two hosts on one: the router (on loopback, not 0.0.0.0), the robot with the
+    page's ``ros2:`` section as a client, and the ROS side (tests/ros2_side.py) doing what
+    the page's ros2 commands do: list the node and topics, echo odom, drive with Twists."""
+    from tests.ros2_side import RosSide
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    with page(tmp_path) as here:
+        (here.cwd / "my_robot.yaml").write_text(ROBOT_FILE.read_text("utf-8") + ros2_section())
+        router = here.start(ROS2_ROUTER, endpoint=endpoint)
+        router.wait_for(rf"^router: listening on {endpoint}$")
+        robot = here.start(ROS2_ROBOT, endpoint=endpoint)
+        robot.wait_for(r"ROS 2 bridge: /mini/ubf_bridge, domain 0, jazzy")
+        robot.wait_for(r"^\[mini\] [\d.]+s \| drive ")
+        ros = RosSide(port)
+        try:
+            ros.send(op="list")
+            listed = ros.wait("list")
+            assert any(node.endswith("/NN/%/%mini/ubf_bridge") for node in listed["nodes"]), listed
+            assert ["/mini/odom", ["nav_msgs/msg/Odometry"]] in listed["topics"], listed
+            ros.send(op="sub", topic="/mini/odom", type="nav_msgs/msg/Odometry")
+            ros.wait("subscribed")
+            since = len(robot.lines)
+            ros.send(op="pub", topic="/mini/cmd_vel_in", linear=0.034, angular=0.0,
+                     rate_hz=20, count=40)  # speed +10 for 2 s
+            robot.wait_for(r"\| drive \+10/\+0 \(teleop\) \|", after=since)
+            ros.wait("pub_done")
+            assert ros.received("/mini/odom"), "no odom message"
+        finally:
+            ros.close()
+        stopped(robot)
+        stopped(router)
