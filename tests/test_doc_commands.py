@@ -873,6 +873,7 @@ SCHEMA = "python -m ubf_async.robotfile schema"
 SOAK_HELP = "python -m bench.soak --help"
 
 
+@pytest.mark.slow
 @runs(LAUNCH_HELP, SCHEMA, SOAK_HELP, MOTORS_HELP)
 def test_the_helps_shown_list_what_the_pages_say_and_the_schema_is_the_shipped_one(
         tmp_path: Path) -> None:
