@@ -264,7 +264,10 @@ class Ros2Bridge(Component):
                                                behavior=settings.slot)
             self.in_key = rk.data_key(settings.domain_id, cmd_in, rm.TWIST, twist_hash)
             self._in_prefix = f"{settings.domain_id}/{cmd_in.lstrip('/')}/"
-            declared.append(session.declare_subscriber(self._in_prefix + "**", self._on_zenoh))
+            # On zenoh's own thread (it only copies and hands over): no callback thread of
+            # zenoh-python's own to outlive the session (transport.ZenohConnection).
+            declared.append(session.declare_subscriber(
+                self._in_prefix + "**", zenoh.handlers.Callback(self._on_zenoh, indirect=False)))
             self.keep(self.bus.watch_liveliness(
                 rk.endpoints_of(settings.domain_id, rk.PUBLISHER, cmd_in, rm.TWIST),
                 self._on_driver))
