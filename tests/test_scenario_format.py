@@ -6,6 +6,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -154,11 +155,15 @@ MISTAKES = [
      "scripts.red\\[0\\] \\(move_to\\) puts its object at \\(3, 0\\) m, outside"),
     ({"distractors": [{"kind": "sphere", "name": "ball", "x_m": 0.5, "y_m": 0.5}]},
      "name must be a unique"),
-    ({"ball_script": [{"at_s": 0, "wave": {"period_s": 0}}]}, "period_s must be > 0"),
-    ({"ball_script": [{"at_s": 0, "follow": {"distance_m": -1}}]}, "distance_m must be > 0"),
+    ({"ball_script": [{"at_s": 0, "wave": {"period_s": 0}}]},
+     r"Expected `float` > 0.0 \(at ball_script\[0\]\.wave\.period_s\)"),
+    ({"ball_script": [{"at_s": 0, "follow": {"distance_m": -1}}]},
+     r"> 0.0 \(at ball_script\[0\]\.follow\.distance_m\)"),
     ({"lighting_script": [{"at_s": 1}]}, "needs brightness and/or glare"),
-    ({"lighting_script": [{"at_s": 1, "brightness": 0}]}, "brightness must be > 0"),
-    ({"pushes": [{"at_s": 1, "forward_m": 0.1, "over_s": -1}]}, "over_s must be >= 0"),
+    ({"lighting_script": [{"at_s": 1, "brightness": 0}]},
+     r"> 0.0 \(at lighting_script\[0\]\.brightness\)"),
+    ({"pushes": [{"at_s": 1, "forward_m": 0.1, "over_s": -1}]},
+     r">= 0.0 \(at pushes\[0\]\.over_s\)"),
     ({"pushes": [{"at_s": 1, "shove": 1}]}, "unknown field"),
 ]
 
@@ -201,3 +206,108 @@ def test_expected_outcomes_are_checked_when_the_scenario_loads() -> None:
                          ({"outcome": "x", "when": 1}, "unknown field")):
         with pytest.raises(ScenarioError, match=message):
             parse_scenario({**base, "expect": bad})
+
+
+# -- scenario files: mistakes at FILE:LINE, as in robot files -----------------------------------
+
+FILE = """{
+  "name": "lines",
+  "seed": 4,
+  "arena": {"x_min_m": -1.5, "y_min_m": -1.5, "x_max_m": 1.5, "y_max_m": 1.5},
+  "ball": {"x_m": 0.6, "y_m": 0.0},
+  "distractors": [
+    {"kind": "sphere", "name": "red", "x_m": 0.5, "y_m": 0.5}
+  ],
+  "scripts": {
+    "red": [
+      {"at_s": 1, "move_to": {"x_m": 0.5, "y_m": -0.5}}
+    ]
+  },
+  "ball_script": [
+    {"at_s": 2, "relative": {"distance_m": 0.4, "bearing_deg": 20}, "speed_m_s": 0.5}
+  ],
+  "pushes": [{"at_s": 3, "left_m": 0.1}],
+  "expect": {"outcome": "stays", "criteria": {"ball_distance_m": [0.3, 0.6]}}
+}
+"""
+
+
+def file_error(tmp_path: Path, old: str, new: str) -> str:
+    """The error loading FILE with ``old`` replaced by ``new`` (which must be there)."""
+    assert FILE.count(old) == 1, old
+    path = tmp_path / "lines.json"
+    path.write_text(FILE.replace(old, new), encoding="utf-8")
+    with pytest.raises(ScenarioError) as caught:
+        load_scenario(str(path))
+    return str(caught.value).replace(str(path), "FILE")
+
+
+def test_the_file_for_the_line_tests_loads(tmp_path: Path) -> None:
+    path = tmp_path / "lines.json"
+    path.write_text(FILE, encoding="utf-8")
+    scenario = load_scenario(str(path))
+    assert (scenario.seed, scenario.distractor_names, scenario.source) == (4, ("red",), str(path))
+    assert scenario.ball_script[0].target == {"distance_m": 0.4, "bearing_deg": 20.0}
+    assert scenario.pushes[0].left_m == 0.1 and scenario.pushes[0].over_s == 0.3
+
+
+@pytest.mark.parametrize(("old", "new", "expected"), [
+    # a misspelt field: its own line, and the fields the object takes
+    ('"left_m"', '"left"', "FILE:17: Object contains unknown field `left` (at pushes[0]); a push "
+     "takes: at_s, forward_m, left_m, turn_deg, over_s"),
+    ('"seed"', '"sead"', "FILE:3: Object contains unknown field `sead`; a scenario takes: name, "
+     "title, description, seed, duration_s, robot, ball,"),
+    ('"bearing_deg": 20', '"bearing": 20', "FILE:15: Object contains unknown field `bearing` "
+     "(at ball_script[0].relative); a place from the camera takes: distance_m, bearing_deg"),
+    # wrong types
+    ('"seed": 4', '"seed": "4"', "FILE:3: Expected `int`, got `str` (at seed)"),
+    ('"seed": 4', '"seed": 4.5', "FILE:3: Expected `int`, got `float` (at seed)"),
+    ('"y_m": 0.0}', '"y_m": true}', "FILE:5: Expected `float`, got `bool` (at ball.y_m)"),
+    ('"x_m": 0.6', '"x_m": NaN', "FILE:5: Expected `float`, got `str` (at ball.x_m)"),
+    ('"kind": "sphere"', '"kind": "cube"', "FILE:7: Invalid enum value 'cube' "
+     "(at distractors[0].kind)"),
+    ('"red": [\n      {"at_s": 1, "move_to": {"x_m": 0.5, "y_m": -0.5}}\n    ]', '"red": {}',
+     "FILE:10: expected an array of steps, got dict (at scripts.red)"),
+    # out of range
+    ('"speed_m_s": 0.5', '"speed_m_s": 0', "FILE:15: Expected `float` > 0.0 "
+     "(at ball_script[0].speed_m_s)"),
+    ('"at_s": 1,', '"at_s": -1,', "FILE:11: Expected `float` >= 0.0 (at scripts.red[0].at_s)"),
+    ('"x_m": 0.6', '"x_m": 1e400', "FILE:5: Expected `float` <= 1000.0 (at ball.x_m)"),
+    ('"name": "red",', '"name": "red", "color": [0, 0, 256],', "FILE:7: Expected `int` <= 255 "
+     "(at distractors[0].color[2])"),
+    # what spans fields, at the line of the field concerned
+    ('"red": [', '"blue": [', "FILE:10: no distractor is named 'blue' (named: ['red']; the "
+     "ball's script is ball_script) (at scripts.blue)"),
+    ('"x_m": 0.5, "y_m": -0.5', '"x_m": 2.5, "y_m": -0.5', "FILE:11: scripts.red[0] (move_to) "
+     "puts its object at (2.5, -0.5) m, outside the arena (x -1.5…1.5 m, y -1.5…1.5 m) "
+     "(at scripts.red[0])"),
+    ('"name": "red"', '"name": "ball"', "FILE:7: name must be a unique non-empty string other "
+     "than 'ball'"),
+    ('[0.3, 0.6]', '[0.6, 0.3]', "FILE:18: expected a summary field and [low, high] with finite "
+     "low <= high, got [0.6, 0.3] (at expect.criteria.ball_distance_m)"),
+    ('"x_max_m": 1.5', '"x_max_m": -2', "FILE:4: an arena needs x_min_m < x_max_m and y_min_m < "
+     "y_max_m (at arena)"),
+    # the file itself
+    ('"seed": 4,', '"seed": 4, "seed": 5,', "FILE:3: duplicate key `seed` (also on line 3): a key "
+     "may appear once in an object"),
+    ('{"outcome": "stays"', '{"outcome": "stays", "outcome": "moves"', "FILE:18: duplicate key "
+     "`outcome` (also on line 18)"),
+    # (the JSON reader notices a missing comma at the next token)
+    ('"seed": 4,', '"seed": 4', "FILE:4: not valid JSON: Expecting ',' delimiter (column 3)"),
+])
+def test_a_scenario_file_mistake_is_reported_at_its_line(tmp_path: Path, old: str, new: str,
+                                                         expected: str) -> None:
+    assert file_error(tmp_path, old, new).startswith(expected)
+
+
+def test_a_duplicate_key_a_line_apart_names_both_lines(tmp_path: Path) -> None:
+    message = file_error(tmp_path, '"ball": {"x_m": 0.6, "y_m": 0.0},',
+                         '"ball": {"x_m": 0.6, "y_m": 0.0},\n  "ball": {"x_m": 0.7, "y_m": 0.0},')
+    assert message.startswith("FILE:6: duplicate key `ball` (also on line 5)")
+
+
+def test_data_without_a_file_names_the_path_but_no_line() -> None:
+    with pytest.raises(ScenarioError) as caught:
+        parse_scenario(base(pushes=[{"at_s": 1, "shove": 1}]), source="mine")
+    assert str(caught.value).startswith("mine: Object contains unknown field `shove` "
+                                        "(at pushes[0]); a push takes: at_s,")

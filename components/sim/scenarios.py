@@ -25,8 +25,10 @@ a walking step ends when the object arrives (or when the next step starts).
 
 ``lighting_script`` changes the lighting over time (a dimmer room, a lamp switched on), and
 ``pushes`` shove the robot by hand (its wheels do not turn, so its encoders see nothing).
-:func:`parse_scenario` refuses objects placed outside the arena or overlapping the robot at
-its start, naming them.
+The file's format is the msgspec types of :mod:`components.sim.scenario_format`;
+:func:`parse_scenario` also refuses objects placed outside the arena or overlapping the robot at
+its start, naming them. Every mistake reads ``FILE:LINE: message (at PATH)``, as the robot
+file's do.
 """
 
 from __future__ import annotations
@@ -34,14 +36,27 @@ from __future__ import annotations
 import json
 import math
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
+import msgspec
+import yaml
+
+from components.sim.scenario_format import (
+    ExpectSpec,
+    FromCameraSpec,
+    LightingChange,
+    OutOfViewSpec,
+    PositionSpec,
+    Push,
+    ScenarioFile,
+    StepSpec,
+    WaveSpec,
+)
 from components.sim.world import (
-    BALL_DIAMETER_M,
     Arena,
     BallConfig,
     BoxObstacle,
@@ -53,15 +68,26 @@ from components.sim.world import (
     WorldConfig,
 )
 from ubf_async.errors import ScenarioError
+from ubf_async.robotfile import (
+    YAML_LOADER,
+    Locator,
+    Path_,
+    Spec,
+    first_duplicate_key,
+    format_path,
+)
 
 __all__ = ["BallScript", "BallStep", "LightingChange", "ObjectScript", "Push", "Scenario",
-           "ScenarioError", "builtin_names", "load_scenario", "parse_scenario"]
+           "ScenarioError", "builtin_names", "decode_scenario", "load_scenario",
+           "parse_scenario"]
 
 CAMERA_OFFSET_M = 0.05
 """The camera sits this far ahead of the robot's centre (see camera_render.CameraParams)."""
 HIDDEN_AT = (50.0, 50.0)
 """Where a hidden ball waits: far outside any arena, behind its walls."""
 BUILTIN_DIR = "scenario_files"
+
+_S = TypeVar("_S", bound=Spec)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -72,29 +98,6 @@ class BallStep:
     kind: str
     target: dict[str, float] = field(default_factory=dict)
     speed_m_s: float = 0.3
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class LightingChange:
-    """From ``at_s``, ramp the lighting linearly to ``brightness``/``glare`` (``None``: keep)
-    over ``over_s`` (0: at once)."""
-
-    at_s: float
-    brightness: float | None = None
-    glare: float | None = None
-    over_s: float = 0.0
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Push:
-    """From ``at_s``, shove the robot ``forward_m``/``left_m`` (its own frame at the start of
-    the push) and turn it ``turn_deg``, evenly over ``over_s``."""
-
-    at_s: float
-    forward_m: float = 0.0
-    left_m: float = 0.0
-    turn_deg: float = 0.0
-    over_s: float = 0.3
 
 
 @dataclass(frozen=True, slots=True)
@@ -362,276 +365,186 @@ class PushScript:
 
 
 # ---------------------------------------------------------------------------------------------
-# Parsing
-
-_TOP_LEVEL = {"name", "title", "description", "seed", "duration_s", "robot", "ball", "arena",
-              "walls", "obstacles", "distractors", "lighting", "ball_script", "scripts",
-              "lighting_script", "pushes", "expect"}
-_DEPRECATED = {"search_period_s"}
-"""Fields old scenario files may still have: read (and checked), warned about, not used."""
+# Parsing: msgspec decodes the document into scenario_format's types (types, ranges, unknown
+# fields); what follows checks what spans fields, and builds the runtime objects.
 
 
-def _number(data: dict[str, Any], key: str, where: str, default: float | None = None) -> float:
-    value = data.get(key, default)
-    if value is None:
-        raise ScenarioError(f"{where}: missing {key!r}")
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ScenarioError(f"{where}.{key}: expected a finite number, got {value!r}")
-    return float(value)
+class _Errors:
+    """Scenario errors reading ``FILE:LINE: message (at PATH)``, through the robot file's
+    :class:`Locator` (no line when the data did not come from a file's text)."""
+
+    def __init__(self, source: str, locator: Locator | None) -> None:
+        self.locator = locator if locator is not None else Locator(None, source=source)
+
+    def error(self, message: str, path: Path_, *, key: str | None = None) -> ScenarioError:
+        text = f"{message} (at {format_path(path)})" if path else message
+        return ScenarioError(str(self.locator.error(text, path, key=key)))
+
+    def convert(self, data: Any, type_: type[_S], base: Path_ = ()) -> _S:
+        """``data`` decoded as ``type_`` (found at ``base`` in the document)."""
+        try:
+            return msgspec.convert(data, type=type_)
+        except msgspec.ValidationError as exc:
+            raise ScenarioError(str(self.locator.from_validation(exc, base, root=type_))) \
+                from None
 
 
-def _color(value: Any, where: str) -> tuple[int, int, int]:
-    if (not isinstance(value, list) or len(value) != 3
-            or any(isinstance(c, bool) or not isinstance(c, int) or not 0 <= c <= 255
-                   for c in value)):
-        raise ScenarioError(f"{where}: expected [R, G, B] with ints 0..255, got {value!r}")
-    return (value[0], value[1], value[2])
-
-
-def _check_keys(data: Any, allowed: set[str], where: str) -> dict[str, Any]:
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{where}: expected an object, got {type(data).__name__}")
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise ScenarioError(f"{where}: unknown field(s) {unknown}; allowed: {sorted(allowed)}")
-    return data
-
-
-def _ball_step(data: Any, where: str) -> BallStep:
-    kinds = ("place", "move_to", "relative", "out_of_view", "follow", "wave", "hide")
-    data = _check_keys(data, {"at_s", "speed_m_s", *kinds}, where)
-    present = [k for k in kinds if k in data]
-    if len(present) != 1:
-        raise ScenarioError(f"{where}: needs exactly one of {list(kinds)}, got {present}")
-    kind = present[0]
-    at_s = _number(data, "at_s", where)
-    speed = _number(data, "speed_m_s", where, 0.3)
-    if speed <= 0:
-        raise ScenarioError(f"{where}.speed_m_s must be > 0")
-    body = data[kind]
-    if kind in ("place", "move_to"):
-        body = _check_keys(body, {"x_m", "y_m"}, f"{where}.{kind}")
-        target = {"x_m": _number(body, "x_m", f"{where}.{kind}"),
-                  "y_m": _number(body, "y_m", f"{where}.{kind}")}
-    elif kind in ("relative", "follow"):
-        body = _check_keys(body, {"distance_m", "bearing_deg"}, f"{where}.{kind}")
-        target = {"distance_m": _number(body, "distance_m", f"{where}.{kind}"),
-                  "bearing_deg": _number(body, "bearing_deg", f"{where}.{kind}", 0.0)}
-        if target["distance_m"] <= 0:
-            raise ScenarioError(f"{where}.{kind}.distance_m must be > 0")
-    elif kind == "wave":
-        w = f"{where}.wave"
-        body = _check_keys(body, {"distance_m", "amplitude_deg", "period_s"}, w)
-        target = {"distance_m": _number(body, "distance_m", w, 0.5),
-                  "amplitude_deg": _number(body, "amplitude_deg", w, 25.0),
-                  "period_s": _number(body, "period_s", w, 0.8)}
-        if target["distance_m"] <= 0 or target["period_s"] <= 0:
-            raise ScenarioError(f"{w}: distance_m and period_s must be > 0")
-    elif kind == "out_of_view":
-        if isinstance(body, str):
-            body = {"side": body}
-        body = _check_keys(body, {"side", "bearing_deg", "distance_m"}, f"{where}.out_of_view")
-        side = body.get("side")
-        if side not in ("left", "right"):
-            raise ScenarioError(f"{where}.out_of_view.side must be 'left' or 'right'")
-        bearing = abs(_number(body, "bearing_deg", f"{where}.out_of_view", 70.0))
-        target = {"distance_m": _number(body, "distance_m", f"{where}.out_of_view", 0.7),
-                  "bearing_deg": bearing if side == "left" else -bearing}
+def _ball_step(spec: StepSpec) -> BallStep:
+    kind = spec.kind
+    body = getattr(spec, kind)
+    target: dict[str, float] = {}
+    if isinstance(body, PositionSpec):
+        target = {"x_m": body.x_m, "y_m": body.y_m}
+    elif isinstance(body, FromCameraSpec):
+        target = {"distance_m": body.distance_m, "bearing_deg": body.bearing_deg}
+    elif isinstance(body, WaveSpec):
+        target = {"distance_m": body.distance_m, "amplitude_deg": body.amplitude_deg,
+                  "period_s": body.period_s}
+    elif kind == "out_of_view":  # a walk to a place from the camera, off to one side
+        side = body if isinstance(body, OutOfViewSpec) else OutOfViewSpec(side=body)
+        bearing = abs(side.bearing_deg)
+        target = {"distance_m": side.distance_m,
+                  "bearing_deg": bearing if side.side == "left" else -bearing}
         kind = "relative"
-    else:  # hide
-        if body is not True:
-            raise ScenarioError(f"{where}.hide must be true")
-        target = {}
-    return BallStep(at_s=at_s, kind=kind, target=target, speed_m_s=speed)
+    return BallStep(at_s=spec.at_s, kind=kind, target=target, speed_m_s=spec.speed_m_s)
 
 
-def parse_scenario(data: Any, *, source: str = "<data>") -> Scenario:
-    """Validate a decoded scenario document and build the :class:`Scenario`."""
-    data = _check_keys(data, _TOP_LEVEL | _DEPRECATED, "scenario")
-    name = data.get("name")
-    if not isinstance(name, str) or not name:
-        raise ScenarioError("scenario: 'name' must be a non-empty string")
-    seed = data.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int):
-        raise ScenarioError("scenario.seed must be an int")
-    robot = _check_keys(data.get("robot", {}), {"x_m", "y_m", "heading_deg"}, "robot")
-    start = Pose2D(
-        x_m=_number(robot, "x_m", "robot", 0.0), y_m=_number(robot, "y_m", "robot", 0.0),
-        heading_rad=math.radians(_number(robot, "heading_deg", "robot", 0.0)),
-    )
-    ball_data = data.get("ball")
-    ball = None
-    if ball_data is not None:
-        ball_data = _check_keys(ball_data, {"x_m", "y_m"}, "ball")
-        ball = BallConfig(x_m=_number(ball_data, "x_m", "ball"),
-                          y_m=_number(ball_data, "y_m", "ball"))
-    arena = None
-    if data.get("arena") is not None:
-        a = _check_keys(data["arena"], {"x_min_m", "y_min_m", "x_max_m", "y_max_m"}, "arena")
-        arena = Arena(x_min_m=_number(a, "x_min_m", "arena"),
-                      y_min_m=_number(a, "y_min_m", "arena"),
-                      x_max_m=_number(a, "x_max_m", "arena"),
-                      y_max_m=_number(a, "y_max_m", "arena"))
-    walls = []
-    for i, w in enumerate(data.get("walls", [])):
-        w = _check_keys(w, {"x1_m", "y1_m", "x2_m", "y2_m"}, f"walls[{i}]")
-        where = f"walls[{i}]"
-        walls.append(Wall(x1_m=_number(w, "x1_m", where), y1_m=_number(w, "y1_m", where),
-                          x2_m=_number(w, "x2_m", where), y2_m=_number(w, "y2_m", where)))
-    boxes = []
-    for i, b in enumerate(data.get("obstacles", [])):
-        where = f"obstacles[{i}]"
-        b = _check_keys(b, {"x_m", "y_m", "length_m", "width_m", "height_m", "yaw_deg"}, where)
-        try:
-            boxes.append(BoxObstacle(x_m=_number(b, "x_m", where), y_m=_number(b, "y_m", where),
-                                     length_m=_number(b, "length_m", where),
-                                     width_m=_number(b, "width_m", where),
-                                     height_m=_number(b, "height_m", where, 0.10),
-                                     yaw_rad=math.radians(_number(b, "yaw_deg", where, 0.0))))
-        except ValueError as exc:
-            raise ScenarioError(f"{where}: {exc}") from exc
-    scripts_data = data.get("scripts", {})
-    if not isinstance(scripts_data, dict):
-        raise ScenarioError("scripts must be an object: a distractor's name → its steps")
-    distractors = []
+def _distractor_names(spec: ScenarioFile, errors: _Errors) -> dict[str, int]:
+    """Each distractor's name (``distractor<i>`` by default) → its index."""
     names: dict[str, int] = {}
-    for i, d in enumerate(data.get("distractors", [])):
-        where = f"distractors[{i}]"
-        d = _check_keys(d, {"kind", "name", "x_m", "y_m", "color", "radius_m", "length_m",
-                            "width_m", "height_m", "yaw_deg", "movable"}, where)
-        kind = d.get("kind", "sphere")
-        if kind not in ("sphere", "cylinder", "box"):
-            raise ScenarioError(f"{where}.kind must be sphere, cylinder or box")
-        name_i = d.get("name", f"distractor{i}")
-        if not isinstance(name_i, str) or not name_i or name_i == "ball" or name_i in names:
-            raise ScenarioError(f"{where}.name must be a unique non-empty string other than "
-                                f"'ball', got {name_i!r}")
-        names[name_i] = i
-        movable = d.get("movable", False)
-        if not isinstance(movable, bool):
-            raise ScenarioError(f"{where}.movable must be true or false")
-        height = d.get("height_m")
-        try:
-            distractors.append(Distractor(
-                kind=kind, x_m=_number(d, "x_m", where), y_m=_number(d, "y_m", where),
-                color=_color(d.get("color", [255, 140, 0]), f"{where}.color"),
-                radius_m=_number(d, "radius_m", where, BALL_DIAMETER_M / 2),
-                length_m=_number(d, "length_m", where, 0.05),
-                width_m=_number(d, "width_m", where, 0.05),
-                height_m=None if height is None else _number(d, "height_m", where),
-                yaw_rad=math.radians(_number(d, "yaw_deg", where, 0.0)),
-                # A scripted object is carried by hand: it must be a body that can move.
-                movable=movable or name_i in scripts_data))
-        except ValueError as exc:
-            raise ScenarioError(f"{where}: {exc}") from exc
+    for i, d in enumerate(spec.distractors):
+        name = d.name if d.name is not None else f"distractor{i}"
+        if name == "ball" or name in names:
+            raise errors.error(f"name must be a unique non-empty string other than 'ball' "
+                               f"(the ball's script is ball_script), got {name!r}",
+                               ("distractors", i, "name"))
+        names[name] = i
+    return names
+
+
+def _scripts(spec: ScenarioFile, names: Mapping[str, int],
+             errors: _Errors) -> dict[int, tuple[BallStep, ...]]:
     scripts: dict[int, tuple[BallStep, ...]] = {}
-    for name_s, steps_data in scripts_data.items():
-        if name_s not in names:
-            raise ScenarioError(f"scripts.{name_s}: no distractor is named {name_s!r} (named: "
-                                f"{sorted(names)}; the ball's script is ball_script)")
-        if not isinstance(steps_data, list):
-            raise ScenarioError(f"scripts.{name_s} must be a list of steps")
-        scripts[names[name_s]] = tuple(_ball_step(st, f"scripts.{name_s}[{j}]")
-                                       for j, st in enumerate(steps_data))
-    lighting_script = []
-    ls_data = data.get("lighting_script", [])
-    if not isinstance(ls_data, list):
-        raise ScenarioError("lighting_script must be a list")
-    for i, c in enumerate(ls_data):
-        where = f"lighting_script[{i}]"
-        c = _check_keys(c, {"at_s", "brightness", "glare", "over_s"}, where)
-        if "brightness" not in c and "glare" not in c:
-            raise ScenarioError(f"{where}: needs brightness and/or glare")
-        change = LightingChange(
-            at_s=_number(c, "at_s", where),
-            brightness=_number(c, "brightness", where) if "brightness" in c else None,
-            glare=_number(c, "glare", where) if "glare" in c else None,
-            over_s=_number(c, "over_s", where, 0.0))
-        if (change.brightness is not None and change.brightness <= 0) or (
-                change.glare is not None and change.glare < 0) or change.over_s < 0:
-            raise ScenarioError(f"{where}: brightness must be > 0, glare and over_s >= 0")
-        lighting_script.append(change)
-    pushes = []
-    p_data = data.get("pushes", [])
-    if not isinstance(p_data, list):
-        raise ScenarioError("pushes must be a list")
-    for i, p in enumerate(p_data):
-        where = f"pushes[{i}]"
-        p = _check_keys(p, {"at_s", "forward_m", "left_m", "turn_deg", "over_s"}, where)
-        push = Push(at_s=_number(p, "at_s", where),
-                    forward_m=_number(p, "forward_m", where, 0.0),
-                    left_m=_number(p, "left_m", where, 0.0),
-                    turn_deg=_number(p, "turn_deg", where, 0.0),
-                    over_s=_number(p, "over_s", where, 0.3))
-        if push.over_s < 0:
-            raise ScenarioError(f"{where}.over_s must be >= 0")
-        pushes.append(push)
-    light = _check_keys(data.get("lighting", {}), {"brightness", "glare"}, "lighting")
-    lighting = Lighting(brightness=_number(light, "brightness", "lighting", 1.0),
-                        glare=_number(light, "glare", "lighting", 1.0))
-    script = data.get("ball_script", [])
-    if not isinstance(script, list):
-        raise ScenarioError("ball_script must be a list")
-    steps = tuple(_ball_step(s, f"ball_script[{i}]") for i, s in enumerate(script))
-    if steps and ball is None:
-        raise ScenarioError("ball_script needs a ball")
-    duration = _number(data, "duration_s", "scenario", 30.0)
-    if duration <= 0:
-        raise ScenarioError("scenario.duration_s must be > 0")
-    if "search_period_s" in data:
-        period = _number(data, "search_period_s", "scenario")
-        if period <= 0:
-            raise ScenarioError("scenario.search_period_s must be > 0")
+    for name, steps in spec.scripts.items():
+        if name not in names:
+            raise errors.error(f"no distractor is named {name!r} (named: {sorted(names)}; "
+                               f"the ball's script is ball_script)", ("scripts", name),
+                               key=name)
+        if not isinstance(steps, list):
+            raise errors.error(f"expected an array of steps, got {type(steps).__name__}",
+                               ("scripts", name))
+        scripts[names[name]] = tuple(
+            _ball_step(errors.convert(step, StepSpec, ("scripts", name, j)))
+            for j, step in enumerate(steps))
+    return scripts
+
+
+def _world(spec: ScenarioFile, scripted: Collection[str], names: Sequence[str],
+           errors: _Errors) -> WorldConfig:
+    r, a = spec.robot, spec.arena
+    try:
+        return WorldConfig(
+            robot_start=Pose2D(x_m=r.x_m, y_m=r.y_m, heading_rad=math.radians(r.heading_deg)),
+            ball=None if spec.ball is None else BallConfig(x_m=spec.ball.x_m,
+                                                           y_m=spec.ball.y_m),
+            arena=None if a is None else Arena(x_min_m=a.x_min_m, y_min_m=a.y_min_m,
+                                               x_max_m=a.x_max_m, y_max_m=a.y_max_m),
+            walls=tuple(Wall(x1_m=w.x1_m, y1_m=w.y1_m, x2_m=w.x2_m, y2_m=w.y2_m)
+                        for w in spec.walls),
+            boxes=tuple(BoxObstacle(x_m=b.x_m, y_m=b.y_m, length_m=b.length_m,
+                                    width_m=b.width_m, height_m=b.height_m,
+                                    yaw_rad=math.radians(b.yaw_deg)) for b in spec.obstacles),
+            distractors=tuple(
+                Distractor(kind=d.kind, x_m=d.x_m, y_m=d.y_m, color=d.color,
+                           radius_m=d.radius_m, length_m=d.length_m, width_m=d.width_m,
+                           height_m=d.height_m, yaw_rad=math.radians(d.yaw_deg),
+                           # A scripted object is carried by hand: a body that can move.
+                           movable=d.movable or name in scripted)
+                for d, name in zip(spec.distractors, names, strict=True)),
+            lighting=Lighting(brightness=spec.lighting.brightness,
+                              glare=spec.lighting.glare),
+            seed=spec.seed)
+    except ValueError as exc:  # the types' ranges should leave the world nothing to refuse
+        raise errors.error(f"scenario {spec.name!r}: {exc}", ()) from None
+
+
+def _criterion(key: str, bounds: Any, errors: _Errors) -> Criterion:
+    path = key.strip("|")
+    try:
+        low, high = msgspec.convert(bounds, type=tuple[float, float])
+    except msgspec.ValidationError:
+        low = high = math.nan
+    if not (path and math.isfinite(low) and math.isfinite(high) and low <= high):
+        raise errors.error(f"expected a summary field and [low, high] with finite low <= high, "
+                           f"got {bounds!r}", ("expect", "criteria", key), key=key)
+    return Criterion(path=path, low=low, high=high,
+                     absolute=key.startswith("|") and key.endswith("|"))
+
+
+def _expectation(spec: ExpectSpec | None, errors: _Errors) -> Expectation | None:
+    if spec is None:
+        return None
+    return Expectation(outcome=spec.outcome, behaviors=tuple(spec.behaviors),
+                       criteria=tuple(_criterion(key, bounds, errors)
+                                      for key, bounds in spec.criteria.items()))
+
+
+def parse_scenario(data: Any, *, source: str = "<data>",
+                   locator: Locator | None = None) -> Scenario:
+    """Check a decoded scenario document (JSON's objects, arrays, numbers, strings) and build
+    the :class:`Scenario`. A mistake raises :class:`ScenarioError` reading
+    ``SOURCE:LINE: message (at PATH)`` — the line when ``locator`` maps the document's paths
+    to its text (:func:`decode_scenario`)."""
+    errors = _Errors(source, locator)
+    spec = errors.convert(data, ScenarioFile)
+    names = _distractor_names(spec, errors)
+    scripts = _scripts(spec, names, errors)
+    ball_script = tuple(_ball_step(step) for step in spec.ball_script)
+    if ball_script and spec.ball is None:
+        raise errors.error("a ball_script needs a `ball`", ("ball_script",))
+    if spec.search_period_s is not None:
         warnings.warn(
             f"{source}: 'search_period_s' in a scenario is deprecated and ignored: set "
-            f"period_s of the search behaviour in the robot file instead (it was {period:g})",
-            DeprecationWarning, stacklevel=3,
-        )
+            f"period_s of the search behaviour in the robot file instead (it was "
+            f"{spec.search_period_s:g})", DeprecationWarning, stacklevel=2)
+    world = _world(spec, spec.scripts.keys(), list(names), errors)
+    problem = placement_problem(world, ball_script=ball_script, scripts=scripts,
+                                distractor_names=list(names))
+    if problem is not None:
+        raise errors.error(problem[1], problem[0])
+    return Scenario(name=spec.name, title=spec.name if spec.title is None else spec.title,
+                    description=spec.description, world=world, ball_script=ball_script,
+                    duration_s=spec.duration_s, seed=spec.seed, source=source,
+                    scripts=scripts, lighting_script=tuple(spec.lighting_script),
+                    pushes=tuple(spec.pushes), expect=_expectation(spec.expect, errors),
+                    distractor_names=tuple(names))
+
+
+def decode_scenario(text: str, *, source: str = "<scenario>") -> Scenario:
+    """A scenario file's JSON text as a :class:`Scenario` (mistakes at ``FILE:LINE``)."""
     try:
-        world = WorldConfig(robot_start=start, ball=ball, arena=arena, walls=tuple(walls),
-                            boxes=tuple(boxes), distractors=tuple(distractors), lighting=lighting,
-                            seed=seed)
-    except ValueError as exc:
-        raise ScenarioError(f"scenario {name!r}: {exc}") from exc
-    distractor_names = tuple(names)  # in the order of distractors (dicts keep it)
-    check_placement(world, ball_script=steps, scripts=scripts, where=f"scenario {name!r}",
-                    distractor_names=distractor_names)
-    return Scenario(name=name, title=str(data.get("title", name)),
-                    description=str(data.get("description", "")), world=world,
-                    ball_script=steps, duration_s=duration, seed=seed,
-                    source=source, scripts=scripts, lighting_script=tuple(lighting_script),
-                    pushes=tuple(pushes), expect=_expectation(data.get("expect")),
-                    distractor_names=distractor_names)
+        # NaN and Infinity are no JSON numbers: kept as the words, refused as "not a number".
+        data = json.loads(text, parse_constant=str)
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(f"{source}:{exc.lineno}: not valid JSON: {exc.msg} (column "
+                            f"{exc.colno})") from None
+    return parse_scenario(data, source=source, locator=_json_locator(text, source))
 
 
-def _expectation(data: Any) -> Expectation | None:
-    """``expect``: ``{"outcome": TEXT, "criteria": {"PATH": [LOW, HIGH], "|PATH|": [..]}}``."""
-    if data is None:
-        return None
-    data = _check_keys(data, {"outcome", "criteria", "behaviors"}, "expect")
-    outcome = data.get("outcome")
-    if not isinstance(outcome, str) or not outcome:
-        raise ScenarioError("expect.outcome must be a non-empty string")
-    behaviors = data.get("behaviors", [])
-    if not isinstance(behaviors, list) or not all(isinstance(b, str) and b for b in behaviors):
-        raise ScenarioError(f"expect.behaviors: expected a list of behaviour names, got "
-                            f"{behaviors!r}")
-    criteria_data = data.get("criteria", {})
-    if not isinstance(criteria_data, dict):
-        raise ScenarioError("expect.criteria must be an object: a summary field → [low, high]")
-    criteria = []
-    for key, bounds in criteria_data.items():
-        where = f"expect.criteria.{key}"
-        absolute = key.startswith("|") and key.endswith("|")
-        path = key.strip("|")
-        if not path or not isinstance(bounds, list) or len(bounds) != 2 or not all(
-                isinstance(b, int | float) and not isinstance(b, bool) and math.isfinite(b)
-                for b in bounds) or bounds[0] > bounds[1]:
-            raise ScenarioError(f"{where}: expected [low, high] with finite low <= high, got "
-                                f"{bounds!r}")
-        criteria.append(Criterion(path=path, low=float(bounds[0]), high=float(bounds[1]),
-                                  absolute=absolute))
-    return Expectation(outcome=outcome, criteria=tuple(criteria), behaviors=tuple(behaviors))
+def _json_locator(text: str, source: str) -> Locator:
+    """The robot file's :class:`Locator` over JSON text (JSON is YAML's flow style), refusing a
+    key given twice in an object, which JSON readers silently resolve to the last."""
+    try:
+        root = yaml.compose(text, Loader=YAML_LOADER)
+    except yaml.YAMLError:  # JSON the YAML parser reads otherwise (a "\ud83d\ude00" escape)
+        return Locator(None, source=source)  # paths without lines
+    duplicate = first_duplicate_key(root)
+    if duplicate is not None:
+        first, again = duplicate
+        raise ScenarioError(f"{source}:{again.start_mark.line + 1}: duplicate key "
+                            f"`{again.value}` (also on line {first.start_mark.line + 1}): a key "
+                            f"may appear once in an object; JSON readers would keep the last")
+    return Locator(root, source=source)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -689,94 +602,131 @@ def _ccw(poly: Polygon) -> Polygon:
 def check_placement(world: WorldConfig, *, ball_script: tuple[BallStep, ...] = (),
                     scripts: dict[int, tuple[BallStep, ...]] | None = None,
                     where: str = "scenario", distractor_names: Sequence[str] = ()) -> None:
-    """Refuse (:class:`~ubf_async.errors.ScenarioError`, naming the object) the robot or an
-    object — ball, distractor, obstacle, or a ``place``/``move_to`` target of a script —
-    outside the arena, and an object, a wall, or a script's first step at ``at_s`` 0
-    (``place``, or ``relative``/``follow`` from the camera) that overlaps the robot at its
-    start pose."""
-    def name_of(index: int) -> str:
-        return (distractor_names[index] if index < len(distractor_names)
-                else f"distractor{index}")
+    """Refuse (:class:`~ubf_async.errors.ScenarioError`, ``where: …``) what
+    :func:`placement_problem` finds."""
+    problem = placement_problem(world, ball_script=ball_script, scripts=scripts,
+                                distractor_names=distractor_names)
+    if problem is not None:
+        raise ScenarioError(f"{where}: {problem[1]}")
 
-    objects: list[tuple[str, Polygon | None, tuple[float, float, float] | None]] = []
+
+_Object = tuple[Path_, str, Polygon | None, tuple[float, float, float] | None]
+"""Where in the file, a label, and the outline or the circle (x, y, radius)."""
+_Target = tuple[Path_, str, tuple[float, float, float]]
+
+
+def _objects(world: WorldConfig, name_of: Callable[[int], str]) -> list[_Object]:
+    objects: list[_Object] = []
     if world.ball is not None:
-        objects.append(("the ball", None, (world.ball.x_m, world.ball.y_m,
-                                           world.ball.radius_m)))
+        objects.append((("ball",), "the ball", None,
+                        (world.ball.x_m, world.ball.y_m, world.ball.radius_m)))
     for i, d in enumerate(world.distractors):
         label = f"distractors[{i}] ({d.kind}, {name_of(i)!r})"
         if d.kind == "box":
-            objects.append((label, _box_outline(d.x_m, d.y_m, d.yaw_rad, d.length_m,
-                                                d.width_m), None))
+            objects.append((("distractors", i), label,
+                            _box_outline(d.x_m, d.y_m, d.yaw_rad, d.length_m, d.width_m), None))
         else:
-            objects.append((label, None, (d.x_m, d.y_m, d.radius_m)))
+            objects.append((("distractors", i), label, None, (d.x_m, d.y_m, d.radius_m)))
     for i, b in enumerate(world.boxes):
-        objects.append((f"obstacles[{i}]", _box_outline(b.x_m, b.y_m, b.yaw_rad, b.length_m,
-                                                        b.width_m), None))
-    targets: list[tuple[str, tuple[float, float, float]]] = []
-    at_start: list[tuple[str, tuple[float, float, float]]] = []
-    """Where a script puts its object at the start, when the robot is at its start pose."""
+        objects.append((("obstacles", i), f"obstacles[{i}]",
+                        _box_outline(b.x_m, b.y_m, b.yaw_rad, b.length_m, b.width_m), None))
+    return objects
+
+
+def _script_targets(world: WorldConfig, scripts: list[tuple[int, tuple[BallStep, ...]]],
+                    name_of: Callable[[int], str]) -> tuple[list[_Target], list[_Target]]:
+    """The ``place``/``move_to`` targets of the scripts (index -1: the ball's), and where
+    their steps at ``at_s`` 0 put their objects while the robot is at its start pose."""
+    targets: list[_Target] = []
+    at_start: list[_Target] = []
     radius_of = {-1: world.ball.radius_m if world.ball is not None else 0.0}
     radius_of.update({i: d.radius_m for i, d in enumerate(world.distractors)})
     start = world.robot_start
     cam_x = start.x_m + CAMERA_OFFSET_M * math.cos(start.heading_rad)
     cam_y = start.y_m + CAMERA_OFFSET_M * math.sin(start.heading_rad)
-    for index, steps in [(-1, ball_script), *sorted((scripts or {}).items())]:
+    for index, steps in scripts:
+        base: Path_ = ("ball_script",) if index == -1 else ("scripts", name_of(index))
         label = "ball_script" if index == -1 else f"scripts.{name_of(index)}"
         for j, step in enumerate(steps):
-            step_label = f"{label}[{j}] ({step.kind})"
+            where, step_label = (*base, j), f"{label}[{j}] ({step.kind})"
             if step.kind in ("place", "move_to"):
                 target = (step.target["x_m"], step.target["y_m"], radius_of[index])
-                targets.append((step_label, target))
+                targets.append((where, step_label, target))
                 if step.kind == "place" and step.at_s <= 0.0:
-                    at_start.append((step_label, target))
+                    at_start.append((where, step_label, target))
             elif step.kind in ("relative", "follow") and step.at_s <= 0.0:
                 bearing = start.heading_rad + math.radians(step.target["bearing_deg"])
                 distance = step.target["distance_m"]
-                at_start.append((step_label, (cam_x + distance * math.cos(bearing),
-                                              cam_y + distance * math.sin(bearing),
-                                              radius_of[index])))
-    robot = _ccw(_robot_outline(world))
-    arena = world.arena
-    if arena is not None:
-        def outside(px: float, py: float, margin: float = 0.0) -> bool:
-            return not (arena.x_min_m + margin <= px <= arena.x_max_m - margin
-                        and arena.y_min_m + margin <= py <= arena.y_max_m - margin)
+                at_start.append((where, step_label, (cam_x + distance * math.cos(bearing),
+                                                     cam_y + distance * math.sin(bearing),
+                                                     radius_of[index])))
+    return targets, at_start
 
-        bounds = (f"the arena (x {arena.x_min_m:g}…{arena.x_max_m:g} m, "
-                  f"y {arena.y_min_m:g}…{arena.y_max_m:g} m)")
-        if any(outside(x, y) for x, y in robot):
-            p = world.robot_start
-            raise ScenarioError(f"{where}: the robot at ({p.x_m:g}, {p.y_m:g}) m does not fit "
-                                f"inside {bounds}")
-        for label, poly, circle in objects:
-            if poly is not None and any(outside(x, y) for x, y in poly):
-                cx = sum(x for x, _ in poly) / len(poly)
-                cy = sum(y for _, y in poly) / len(poly)
-                raise ScenarioError(f"{where}: {label} at ({cx:g}, {cy:g}) m lies (partly) "
-                                    f"outside {bounds}")
-            if circle is not None and outside(circle[0], circle[1], circle[2]):
-                raise ScenarioError(f"{where}: {label} at ({circle[0]:g}, {circle[1]:g}) m lies "
-                                    f"(partly) outside {bounds}")
-        for label, (x, y, r) in targets:
-            if outside(x, y, r):
-                raise ScenarioError(f"{where}: {label} puts its object at ({x:g}, {y:g}) m, "
-                                    f"outside {bounds}")
+
+def _outside_arena(world: WorldConfig, objects: list[_Object],
+                   targets: list[_Target]) -> tuple[Path_, str] | None:
+    arena = world.arena
+    if arena is None:
+        return None
+
+    def outside(px: float, py: float, margin: float = 0.0) -> bool:
+        return not (arena.x_min_m + margin <= px <= arena.x_max_m - margin
+                    and arena.y_min_m + margin <= py <= arena.y_max_m - margin)
+
+    bounds = (f"the arena (x {arena.x_min_m:g}…{arena.x_max_m:g} m, "
+              f"y {arena.y_min_m:g}…{arena.y_max_m:g} m)")
+    if any(outside(x, y) for x, y in _robot_outline(world)):
+        p = world.robot_start
+        return ("robot",), f"the robot at ({p.x_m:g}, {p.y_m:g}) m does not fit inside {bounds}"
+    for path, label, poly, circle in objects:
+        if poly is not None and any(outside(x, y) for x, y in poly):
+            cx = sum(x for x, _ in poly) / len(poly)
+            cy = sum(y for _, y in poly) / len(poly)
+            return path, f"{label} at ({cx:g}, {cy:g}) m lies (partly) outside {bounds}"
+        if circle is not None and outside(circle[0], circle[1], circle[2]):
+            return path, (f"{label} at ({circle[0]:g}, {circle[1]:g}) m lies (partly) "
+                          f"outside {bounds}")
+    for path, label, (x, y, r) in targets:
+        if outside(x, y, r):
+            return path, f"{label} puts its object at ({x:g}, {y:g}) m, outside {bounds}"
+    return None
+
+
+def placement_problem(world: WorldConfig, *, ball_script: tuple[BallStep, ...] = (),
+                      scripts: dict[int, tuple[BallStep, ...]] | None = None,
+                      distractor_names: Sequence[str] = ()) -> tuple[Path_, str] | None:
+    """The first misplacement, naming the object, and its path in the scenario file: the
+    robot or an object — ball, distractor, obstacle, or a ``place``/``move_to`` target of a
+    script — outside the arena, or an object, a wall, or a script's first step at ``at_s`` 0
+    (``place``, or ``relative``/``follow`` from the camera) that overlaps the robot at its
+    start pose. ``None``: all is well."""
+    def name_of(index: int) -> str:
+        return (distractor_names[index] if index < len(distractor_names)
+                else f"distractor{index}")
+
+    objects = _objects(world, name_of)
+    targets, at_start = _script_targets(world, [(-1, ball_script),
+                                                *sorted((scripts or {}).items())], name_of)
+    outside = _outside_arena(world, objects, targets)
+    if outside is not None:
+        return outside
     for i, wall in enumerate(world.walls):
         # A segment is convex: the separating-axis test holds for it too.
-        objects.append((f"walls[{i}] from ({wall.x1_m:g}, {wall.y1_m:g}) to ({wall.x2_m:g}, "
-                        f"{wall.y2_m:g}) m", [(wall.x1_m, wall.y1_m), (wall.x2_m, wall.y2_m)],
-                        None))
-    pose = (f"({start.x_m:g}, {start.y_m:g}) m, heading "
-            f"{math.degrees(start.heading_rad):g}°")
-    for label, poly, circle in objects:
-        hit = (_polygons_overlap(robot, _ccw(poly)) if poly is not None
-               else circle is not None and _circle_overlaps_polygon(*circle, robot))
-        if hit:
-            raise ScenarioError(f"{where}: {label} overlaps the robot at its start {pose}")
-    for label, (x, y, r) in at_start:
+        objects.append((("walls", i), f"walls[{i}] from ({wall.x1_m:g}, {wall.y1_m:g}) to "
+                        f"({wall.x2_m:g}, {wall.y2_m:g}) m",
+                        [(wall.x1_m, wall.y1_m), (wall.x2_m, wall.y2_m)], None))
+    robot = _ccw(_robot_outline(world))
+    start = world.robot_start
+    pose = f"({start.x_m:g}, {start.y_m:g}) m, heading {math.degrees(start.heading_rad):g}°"
+    for path, label, poly, circle in objects:
+        if (_polygons_overlap(robot, _ccw(poly)) if poly is not None
+                else circle is not None and _circle_overlaps_polygon(*circle, robot)):
+            return path, f"{label} overlaps the robot at its start {pose}"
+    for path, label, (x, y, r) in at_start:
         if _circle_overlaps_polygon(x, y, r, robot):
-            raise ScenarioError(f"{where}: {label} puts its object at ({x:.3g}, {y:.3g}) m at "
-                                f"the start, onto the robot at {pose}")
+            return path, (f"{label} puts its object at ({x:.3g}, {y:.3g}) m at the start, onto "
+                          f"the robot at {pose}")
+    return None
 
 
 def builtin_names() -> list[str]:
@@ -802,8 +752,4 @@ def load_scenario(name_or_path: str) -> Scenario:
             f"unknown scenario {name_or_path!r}: built-ins are {', '.join(builtin_names())}, "
             "or give a path to a .json file"
         )
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ScenarioError(f"{source}: not valid JSON: {exc}") from exc
-    return parse_scenario(data, source=source)
+    return decode_scenario(text, source=source)
