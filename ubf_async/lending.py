@@ -29,9 +29,9 @@ should not add or remove the loop's readers and writers.
 Lending is opt-in (``UBF_LOOP=lending``, :func:`new_event_loop`): the entry points' default
 is the same class with lending off (:func:`new_idle_event_loop`), asyncio's selector loop plus
 :meth:`~LendingEventLoop.idle` — no other thread ever runs loop code. Measured in
-``python -m bench.latency --only loops`` (docs/latency.md), lending saves a few per cent of a
-reflex's median and nothing at p99: not worth being the mechanism every maintainer of async
-code must understand first.
+``python -m bench.latency --only loops`` (docs/latency.md, "Which event loop"), lending takes
+5-9 % off a reflex's median and nothing off its p99 (worse on a busy host): not worth being
+the mechanism every maintainer of async code must understand first.
 
 The same moment — the loop about to wait — is what :meth:`LendingEventLoop.idle` reports:
 every task is blocked and no callback is ready, so whatever the caller's last step set off
@@ -69,10 +69,9 @@ LOOP_HELP = (
     f"{LOOP_ENV} chooses the event loop. Unset or {LOOP_ENV}=asyncio (the default): asyncio's "
     f"own selector loop; no other thread ever runs loop code. Opt-in: {LOOP_ENV}=lending, "
     f"while the loop is idle zenoh's threads run a sample's handler (a reflex) themselves "
-    f"instead of waking the loop thread — a few per cent off a reflex's median, nothing off "
-    f"its p99, and a priority inversion in busy processes; {LOOP_ENV}=uvloop (pip install "
-    f"'ubf-async[fast]'), no faster here and unable to run a simulation in lockstep. Figures: "
-    f"docs/latency.md")
+    f"instead of waking the loop thread: 5-9 % off a reflex's median, a worse p99 on a busy "
+    f"host; {LOOP_ENV}=uvloop (pip install 'ubf-async[fast]'): no steady gain, cannot run a "
+    f"simulation in lockstep. Figures: docs/latency.md, \"Which event loop\"")
 """What every entry point's ``--help`` says about the event loop
 (:func:`ubf_async.bus.add_event_loop_help`)."""
 
