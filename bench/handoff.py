@@ -1,6 +1,7 @@
 """The bridge hand-off: what it costs to get a sample from a transport thread to a handler on
-the event loop, piece by piece, on the lending loop every entry point runs on
-(:mod:`ubf_async.lending`), on asyncio's plain loop and on uvloop (when installed).
+the event loop, piece by piece, on the opt-in lending loop (:mod:`ubf_async.lending`,
+``UBF_LOOP=lending``), on asyncio's plain loop (what every entry point runs on by default)
+and on uvloop (when installed).
 
     python -m bench.handoff [--n 3000] [--baseline OLD_BUS_PY] [--json FILE]
 

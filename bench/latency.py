@@ -33,6 +33,13 @@ Sections (each prints n, median, p90, p99 and max, and the ratios the issue asks
              not installed is reported as skipped.
 7. breakdown in-process costs of the pieces: zenoh same-session delivery, the bridge hand-off,
              decode, snapshot + evaluate, encode, put.
+8. loops     the event loop decision: the reflex round trip (controller as it runs, at 100 Hz
+             and back-to-back) and the obstacle reaction of the launch's default controller,
+             on asyncio's plain loop (the baseline), the lending loop and uvloop (if
+             installed), in rounds: in each round every loop is measured, in an order that
+             rotates from round to round (the reflex's servers interleaved sample by sample),
+             so the host's noise falls on each loop alike. Medians and p99 of all rounds
+             pooled, ratios to the plain loop, and the spread of the per-round median ratios.
 
 Every figure comes from ``time.monotonic_ns()`` stamps carried in the messages and read on
 the same host (CLOCK_MONOTONIC is shared by all processes), by the process that observed the
@@ -63,7 +70,8 @@ from typing import Any
 from bench.latency_stats import fmt_us, header, ratio, row, summarize
 
 ROOT = Path(__file__).resolve().parent.parent
-SECTIONS = ("floor", "reflex", "periodic", "obstacle", "camera", "peers", "breakdown")
+SECTIONS = ("floor", "reflex", "periodic", "obstacle", "camera", "peers", "breakdown",
+            "loops")
 CAMERA_PERIOD_S = 0.11
 REFLEX_AIM = 1.25
 """Issue 12's aim: the reflex round trip's median at most this many times the floor's."""
@@ -188,16 +196,25 @@ SERVERS: dict[str, dict[str, Any]] = {
     "echo": {"role": "echo"},
     "as_run": {"role": "controller", "mode": "event", "trigger": "range/front",
                "instrument": False},
-    "controller": {"role": "controller", "mode": "event", "trigger": "range/front"},
+    "controller": {"role": "controller", "mode": "event", "trigger": "range/front",
+                   "loop": "lending"},
     "plain_loop": {"role": "controller", "mode": "event", "trigger": "range/front",
                    "loop": "asyncio"},
     "tree_echo": {"role": "tree_echo"},
 }
 """What answers the round trips: the raw echo (the floor); the controller in event mode (its
-tick runs inside ingest) as it runs for a user (``as_run``: no observers), the same observed
-through its hooks (``controller``: where the time goes) and observed on asyncio's plain loop
-(``plain_loop``: every sample handed to the loop thread); and the Python floor
-(``tree_echo``: the same tree evaluated in the echo's zenoh callback)."""
+tick runs inside ingest) as it runs for a user (``as_run``: no observers, the default event
+loop), the same observed through its hooks on the lending loop (``controller``: where the time
+goes) and observed on asyncio's plain loop (``plain_loop``: every sample handed to the loop
+thread); and the Python floor (``tree_echo``: the same tree evaluated in the echo's zenoh
+callback). Section 8 adds ``loop_<name>``: ``as_run`` on each event loop."""
+
+BASELINE_LOOP = "asyncio"
+"""Section 8's baseline: asyncio's plain loop."""
+LOOPS = (BASELINE_LOOP, "lending", "uvloop")
+"""The event loops section 8 compares (:data:`ubf_async.cli.LOOP_CHOICES`)."""
+for _loop in LOOPS:
+    SERVERS[f"loop_{_loop}"] = {**SERVERS["as_run"], "loop": _loop}
 
 REFLEX_SERVERS = ("echo", "as_run", "controller", "plain_loop", "tree_echo")
 
@@ -364,12 +381,15 @@ def measure_sim_jitter(rate_hz: float, *, duration_s: float, warmup_s: float = 1
     }
 
 
-def measure_robot(controller: str, *, trials: int, frames: int = 0, seed: int = 2
-                  ) -> dict[str, Any]:
+def measure_robot(controller: str, *, trials: int, frames: int = 0, seed: int = 2,
+                  loop: str | None = None) -> dict[str, Any]:
     """IR + camera stand-ins against one of :data:`CONTROLLERS` ("sync", "default",
     "periodic", "event"). With ``trials`` > 0: obstacle reactions; camera path in any case
-    (without trials the IR stays silent unless the controller needs it as its trigger)."""
+    (without trials the IR stays silent unless the controller needs it as its trigger).
+    ``loop``: the controller's event loop (default: the entry points' default)."""
     server: dict[str, Any] = {"role": "controller", **CONTROLLERS[controller][1]}
+    if loop is not None:
+        server["loop"] = loop
     budget = 60 + trials * 3.0 + frames * CAMERA_PERIOD_S * 2
     (served,), sensed = serve_and_measure(
         [server],
@@ -399,6 +419,80 @@ def measure_robot(controller: str, *, trials: int, frames: int = 0, seed: int = 
         "capture_to_command": summarize(capture_to_cmd),
         "camera_publish_to_command": summarize(publish_to_cmd),
     }
+
+
+def available_loops() -> tuple[str, ...]:
+    """:data:`LOOPS` without uvloop when it is not installed."""
+    try:
+        import uvloop  # noqa: F401
+    except ImportError:
+        return tuple(x for x in LOOPS if x != "uvloop")
+    return LOOPS
+
+
+LOOP_PATHS = {
+    "reflex_100hz": "reflex round trip, 100 Hz",
+    "reflex_b2b": "reflex round trip, back-to-back",
+    "obstacle": "obstacle reaction, default controller",
+}
+"""Section 8's paths: the reflex (event mode, the controller as it runs, no observers) and
+the launch's default controller (periodic 50 Hz + reflex on ``range/``) reacting to an
+obstacle."""
+
+
+def measure_loops(loops: tuple[str, ...], *, rounds: int, warmup: int, count: int,
+                  b2b: int, trials: int, log: Callable[[str], None] = lambda _: None
+                  ) -> dict[str, Any]:
+    """Each path of :data:`LOOP_PATHS` on each event loop, in ``rounds`` rounds; the loops'
+    order rotates every round, and the reflex's servers answer interleaved samples. Returns
+    the pooled summaries, the per-round medians and ratios to :data:`BASELINE_LOOP`."""
+    pooled: dict[str, dict[str, list[int]]] = {p: {x: [] for x in loops} for p in LOOP_PATHS}
+    medians: dict[str, dict[str, list[float]]] = {p: {x: [] for x in loops}
+                                                  for p in LOOP_PATHS}
+    sent = {x: 0 for x in loops}
+    lost = {x: 0 for x in loops}
+    lent = {x: 0 for x in loops}
+    missed = {x: 0 for x in loops}
+
+    def keep(path: str, loop: str, values: list[int]) -> None:
+        pooled[path][loop].extend(values)
+        if values:
+            medians[path][loop].append(statistics.median(values) / 1e3)
+
+    for r in range(rounds):
+        order = loops[r % len(loops):] + loops[:r % len(loops)]
+        log(f"    round {r + 1}/{rounds}: {', '.join(order)}")
+        for path, rate, n in (("reflex_100hz", 100, count), ("reflex_b2b", 0, b2b)):
+            got = measure_rtt(*(f"loop_{x}" for x in order), rate_hz=rate, warmup=warmup,
+                              count=n)
+            for x in order:
+                g = got[f"loop_{x}"]
+                keep(path, x, g["rtt_ns"])
+                sent[x] += g["sent"]
+                lost[x] += g["lost"]
+                lent[x] += g["controller"]["direct"] or 0
+        for x in order:
+            o = measure_robot("default", trials=trials, seed=2 + r, loop=x)
+            keep("obstacle", x, o["reaction_ns"])
+            missed[x] += o["missed"]
+    out: dict[str, Any] = {"loops": list(loops), "rounds": rounds, "baseline": BASELINE_LOOP,
+                           "sent": sent, "lost": lost, "lent": lent, "obstacles_missed": missed,
+                           "paths": {}}
+    for path in LOOP_PATHS:
+        base = summarize(pooled[path][BASELINE_LOOP]) if BASELINE_LOOP in loops else None
+        per: dict[str, Any] = {}
+        for x in loops:
+            summary = summarize(pooled[path][x])
+            round_ratios = [a / b for a, b in zip(medians[path][x],
+                                                  medians[path].get(BASELINE_LOOP, []),
+                                                  strict=False) if b]
+            per[x] = {**summary, "round_medians_us": medians[path][x],
+                      "ratio_median": ratio(summary, base),
+                      "ratio_p99": ratio(summary, base, "p99_us"),
+                      "round_ratio_lo": min(round_ratios, default=None),
+                      "round_ratio_hi": max(round_ratios, default=None)}
+        out["paths"][path] = per
+    return out
 
 
 def measure_peers(*, warmup: int, count: int, ticks: int) -> dict[str, Any]:
@@ -535,14 +629,19 @@ def counts(quick: bool) -> dict[str, Any]:
     if quick:
         return {"warm": 30, "rtt": 200, "b2b": 300, "ages": 40, "sim_s": 2.0,
                 "sync_trials": 10, "default_trials": 12, "periodic_trials": 12,
-                "event_trials": 12, "frames": 15, "dora": 200, "ticks": 300, "micro": 500}
+                "event_trials": 12, "frames": 15, "dora": 200, "ticks": 300, "micro": 500,
+                "loop_rounds": 3, "loop_rtt": 150, "loop_b2b": 200, "loop_trials": 6}
     return {"warm": 200, "rtt": 1500, "b2b": 3000, "ages": 300, "sim_s": 10.0,
             "sync_trials": 60, "default_trials": 100, "periodic_trials": 100,
-            "event_trials": 100, "frames": 100, "dora": 1500, "ticks": 2000, "micro": 2000}
+            "event_trials": 100, "frames": 100, "dora": 1500, "ticks": 2000, "micro": 2000,
+            "loop_rounds": 8, "loop_rtt": 500, "loop_b2b": 800, "loop_trials": 12}
 
 
-def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None]) -> dict[str, Any]:
+def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None],
+        rounds: int | None = None) -> dict[str, Any]:
     c = counts(quick)
+    if rounds is not None:
+        c["loop_rounds"] = rounds
     res: dict[str, Any] = {
         "date": datetime.date.today().isoformat(), "cores": os.cpu_count(),
         "python": sys.version.split()[0], "quick": quick, "counts": c,
@@ -590,6 +689,12 @@ def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None]) -> d
     if "breakdown" in sections:
         progress("in-process breakdown")
         res["breakdown"] = measure_breakdown(c["micro"])
+    if "loops" in sections:
+        loops = available_loops()
+        progress(f"event loops {', '.join(loops)}: {c['loop_rounds']} rounds, order rotating")
+        res["loops"] = measure_loops(loops, rounds=c["loop_rounds"], warmup=c["warm"] // 4,
+                                     count=c["loop_rtt"], b2b=c["loop_b2b"],
+                                     trials=c["loop_trials"], log=log)
     res["loadavg_end"] = os.getloadavg()
     res["ratios"] = ratios(res)
     return res
@@ -783,7 +888,35 @@ def report(res: dict[str, Any]) -> str:
         add("7. In-process costs (one process, no transport)")
         for k, v in res["breakdown"].items():
             add(row(k, v))
+    if "loops" in res:
+        lines.extend(loops_report(res["loops"]))
     return "\n".join(x for x in lines if x is not None)
+
+
+def loops_report(lp: dict[str, Any]) -> list[str]:
+    """Section 8's table: per path and loop, the pooled figures and the ratios to the
+    baseline (pooled median, pooled p99, and the lowest–highest per-round median ratio)."""
+    out = [f"8. Event loops: {lp['rounds']} rounds, each loop in every round, order rotating; "
+           f"ratios to asyncio's plain loop ({lp['baseline']}) measured in the same rounds",
+           f"  {'':<46} {'n':>6}  {'median':>9} {'p90':>9} {'p99':>9} {'max':>9}"
+           f"  {'×median':>7} {'×p99':>6}  per-round ×median"]
+    for path, label in LOOP_PATHS.items():
+        out.append(f"  {label}")
+        for loop, s in lp["paths"][path].items():
+            def x(v: float | None) -> str:
+                return f"{v:.2f}" if v is not None else "—"
+
+            spread = (f"{x(s['round_ratio_lo'])}–{x(s['round_ratio_hi'])}"
+                      if s.get("round_ratio_lo") is not None else "—")
+            out.append(row(f"  {loop}", s)
+                       + f"  {x(s.get('ratio_median')):>7} {x(s.get('ratio_p99')):>6}  {spread}")
+    out.append("  reflex samples lost (superseded in the bridge) / sent: " + ", ".join(
+        f"{x} {lp['lost'][x]}/{lp['sent'][x]}" for x in lp["loops"]))
+    out.append("  handled on zenoh's thread (loop lent): " + ", ".join(
+        f"{x} {lp['lent'][x]}" for x in lp["loops"]))
+    out.append("  obstacles missed: " + ", ".join(
+        f"{x} {lp['obstacles_missed'][x]}" for x in lp["loops"]))
+    return out
 
 
 def strip_raw(obj: Any) -> Any:
@@ -807,10 +940,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", metavar="FILE", help="also write every figure as JSON")
     parser.add_argument("--only", nargs="+", choices=SECTIONS, metavar="SECTION",
                         help=f"run only these sections ({', '.join(SECTIONS)})")
+    parser.add_argument("--rounds", type=int, metavar="N",
+                        help="section loops: rounds over the event loops (default 8, "
+                             "--quick 3); more rounds average more of a noisy host's load")
     args = parser.parse_args(argv)
     sections = tuple(args.only) if args.only else SECTIONS
     started = time.monotonic()
-    res = run(sections, args.quick, lambda m: print(m, file=sys.stderr, flush=True))
+    res = run(sections, args.quick, lambda m: print(m, file=sys.stderr, flush=True),
+              rounds=args.rounds)
     res["elapsed_s"] = time.monotonic() - started
     print(report(res))
     print(f"\n(run took {res['elapsed_s']:.0f} s)")

@@ -13,8 +13,8 @@ Prints ``READY`` once both components run, serves until its stdin closes, then p
 ``RESULT <json>`` with what the instrumentation saw.
 
 ``instrument: false`` leaves the hooks alone (the controller as it runs for a user; only the
-round trip is measured); ``loop`` chooses the event loop (``lending`` — the default of every
-entry point — or ``asyncio``'s plain loop, :func:`ubf_async.cli.loop_factory`).
+round trip is measured); ``loop`` chooses the event loop (``asyncio`` — the default of every
+entry point —, ``lending`` or ``uvloop``: ``UBF_LOOP``, :func:`ubf_async.cli.loop_factory`).
 
 ``role: "echo"`` — the transport floor's responder: raw zenoh, no asyncio, no ubf_async
 runtime. Its subscriber callback (on zenoh's thread) unpacks the sample and puts a minimal
@@ -361,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
         if profile_dir:  # cProfile the whole controller process (it slows every figure)
             import cProfile
 
-            name = f"{cfg['mode']}-{cfg.get('loop', 'lending')}"
+            name = f"{cfg['mode']}-{cfg.get('loop', 'default')}"
             with cProfile.Profile() as prof:
                 result = run_loop(controller_role(cfg))
             prof.dump_stats(os.path.join(profile_dir, f"controller-{name}-{os.getpid()}.prof"))

@@ -29,11 +29,19 @@ def pytest_configure(config: pytest.Config) -> None:
     asyncio.set_event_loop(None)
 
 
+LENDING_TESTS = ("test_lending.py",)
+"""Test modules of the opt-in lending loop itself (``UBF_LOOP=lending``): run on it."""
+
+
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
                                   ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
-    """Async tests run on the event loop every entry point runs on
-    (:func:`ubf_async.cli.loop_factory`'s default), which lends itself to zenoh's threads."""
-    return {"lending": lending.new_event_loop}
+    """Async tests run on the event loop every entry point runs on by default
+    (:func:`ubf_async.cli.loop_factory` without ``UBF_LOOP``: asyncio's selector loop that
+    tells the lockstep when it is idle and lends itself to no thread); the lending loop's own
+    tests (:data:`LENDING_TESTS`) on the lending loop."""
+    if item.path.name in LENDING_TESTS:
+        return {"lending": lending.new_event_loop}
+    return {"asyncio": lending.new_idle_event_loop}
 
 
 PORTS_PER_WORKER = 1500

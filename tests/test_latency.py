@@ -13,8 +13,13 @@ import pytest
 
 from bench import latency_dora
 from bench.latency import (
+    BASELINE_LOOP,
     CAMERA_PERIOD_S,
+    LOOP_PATHS,
+    available_loops,
+    loops_report,
     main,
+    measure_loops,
     measure_periodic_ages,
     measure_robot,
     measure_rtt,
@@ -28,12 +33,14 @@ pytestmark = pytest.mark.slow
 def test_reflex_at_100hz_every_command_matched_none_lost() -> None:
     both = measure_rtt("controller", "as_run", rate_hz=100, warmup=20, count=150)
     r = both["controller"]
-    # The controller as it runs (no observers) answers the same way, and its aggregator
-    # handled samples on zenoh's thread while the loop was idle (the lending loop).
+    # The controller as it runs (no observers, the default event loop) answers the same way,
+    # every sample handed to the loop thread (nothing lent); the observed one, on the opt-in
+    # lending loop, handled samples on zenoh's thread while the loop was idle.
     plain = both["as_run"]
     assert (plain["duplicates"], plain["unmatched"], plain["mismatched"]) == (0, 0, 0)
     assert plain["answered"] >= 0.85 * plain["sent"]
-    assert plain["controller"]["direct"] > 0
+    assert plain["controller"]["direct"] == 0
+    assert r["controller"]["direct"] > 0
     assert plain["controller"]["triggered"] >= plain["answered"]
     assert r["sent"] == 150
     assert (r["duplicates"], r["unmatched"], r["mismatched"]) == (0, 0, 0)
@@ -56,6 +63,23 @@ def test_reflex_at_100hz_every_command_matched_none_lost() -> None:
         if name != "command: put returned → sensor callback":
             assert seg["min_us"] >= 0, f"{name} went backwards: {seg['min_us']} µs"
     assert r["rtt"]["min_us"] > 0
+
+
+def test_each_event_loop_is_measured_in_the_same_rounds_against_the_plain_loop() -> None:
+    loops = available_loops()
+    assert loops[0] == BASELINE_LOOP and "lending" in loops
+    lp = measure_loops(loops, rounds=2, warmup=5, count=30, b2b=30, trials=2)
+    for path in LOOP_PATHS:
+        for loop in loops:
+            s = lp["paths"][path][loop]
+            assert s["n"] > 0 and len(s["round_medians_us"]) == 2, (path, loop)
+        assert lp["paths"][path][BASELINE_LOOP]["ratio_median"] == 1.0
+    # Only the lending loop lends itself to zenoh's threads.
+    assert lp["lent"]["lending"] > 0
+    assert all(lp["lent"][x] == 0 for x in loops if x != "lending")
+    assert all(lp["obstacles_missed"][x] == 0 for x in loops)
+    text = "\n".join(loops_report(lp))
+    assert "ratios to asyncio's plain loop" in text and "×median" in text
 
 
 def test_periodic_age_follows_the_tick_period() -> None:

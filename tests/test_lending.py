@@ -18,8 +18,14 @@ from ubf_async.aggregator import StateAggregator
 from ubf_async.bus import DIRECT_BURST, DIRECT_RATE_HZ, Bus
 from ubf_async.cli import loop_factory
 from ubf_async.controller import Controller
-from ubf_async.errors import ConfigurationError
-from ubf_async.lending import LendingEventLoop, _take, new_event_loop, run_if_idle
+from ubf_async.lending import (
+    LendingEventLoop,
+    _take,
+    idle_waiter,
+    new_event_loop,
+    new_idle_event_loop,
+    run_if_idle,
+)
 from ubf_async.protocol import decode
 from ubf_async.topics import DRIVE
 
@@ -39,19 +45,34 @@ def lend_when_idle(run: Any, fn: Any, *args: Any) -> bool:
 
 
 @pytest.mark.asyncio
-async def test_tests_run_on_the_lending_loop_as_the_entry_points_do() -> None:
-    assert isinstance(asyncio.get_running_loop(), LendingEventLoop)
-    assert loop_factory() is new_event_loop
-
-
-def test_the_loop_is_chosen_by_ubf_loop(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("UBF_LOOP", "asyncio")
-    assert loop_factory() is None  # asyncio's own loop: nothing is lent
+async def test_these_tests_run_on_the_lending_loop_that_ubf_loop_lending_chooses(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    loop = asyncio.get_running_loop()
+    assert isinstance(loop, LendingEventLoop) and loop.lends
     monkeypatch.setenv("UBF_LOOP", "lending")
     assert loop_factory() is new_event_loop
-    monkeypatch.setenv("UBF_LOOP", "tokio")
-    with pytest.raises(ConfigurationError, match="expected one of lending, asyncio, uvloop"):
-        loop_factory()
+
+
+def test_a_loop_that_does_not_lend_tells_when_it_is_idle_and_lends_nothing() -> None:
+    """The entry points' default (:func:`new_idle_event_loop`): the lockstep's ``idle()``,
+    no borrowing."""
+    loop = new_idle_event_loop()
+    try:
+        assert not loop.lends
+        assert run_if_idle(loop) is None  # the bus takes the usual road
+        assert loop.run_if_idle(lambda: None) is False
+        assert idle_waiter(loop) is not None
+
+        async def idle_then_done() -> str:
+            done = asyncio.Event()
+            asyncio.get_running_loop().call_soon(done.set)
+            await loop.idle()  # returns only once the callback has run
+            return "idle after set" if done.is_set() else "idle too early"
+
+        assert loop.run_until_complete(idle_then_done()) == "idle after set"
+        assert loop.lent_runs == 0
+    finally:
+        loop.close()
 
 
 @pytest.mark.asyncio

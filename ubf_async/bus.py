@@ -181,13 +181,20 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action) or text
 
 
+def add_event_loop_help(parser: argparse.ArgumentParser) -> None:
+    """Say in ``parser``'s help which event loop runs and what is opt-in
+    (:data:`ubf_async.lending.LOOP_HELP`); :func:`add_connection_arguments` does it."""
+    parser.add_argument_group("event loop (environment)", description=lending.LOOP_HELP)
+
+
 def add_connection_arguments(
     parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None,
     default_identity: str | None = None, default_connect: list[str] | None = None,
     robot_elsewhere: str | None = None,
 ) -> None:
     """Add ``--mode/-m --connect/-e --listen/-l --config --robot --multicast-scouting``,
-    ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``.
+    ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``, and the event loop's
+    help (:func:`add_event_loop_help`).
 
     ``default_connect``: where a tool attaching to a robot connects when neither the flags
     nor the ``--config`` file give an endpoint (typically ``[DEFAULT_LISTEN]``, where
@@ -233,6 +240,7 @@ def add_connection_arguments(
     parser.set_defaults(_default_listen=default_listen or [],
                         _default_identity=default_identity,
                         _default_connect=default_connect or [])
+    add_event_loop_help(parser)
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:

@@ -172,29 +172,38 @@ class StopGuard:
         os._exit(EXIT_INTERRUPTED)
 
 
-LOOP_ENV = "UBF_LOOP"
-LOOP_CHOICES = ("lending", "asyncio", "uvloop")
-LOOP_HELP = (f"event loop: asyncio's, lending itself to zenoh's threads while idle so a "
-             f"reflex is answered on the thread that brought its sample; {LOOP_ENV}=asyncio "
-             f"for asyncio's plain loop, {LOOP_ENV}=uvloop for uvloop "
-             f"(pip install 'ubf-async[fast]'); docs/latency.md has what each changes")
+LOOP_ENV = lending.LOOP_ENV
+DEFAULT_LOOP = "asyncio"
+"""The event loop without ``UBF_LOOP``: asyncio's own (the figures that decided it:
+docs/latency.md, "Which event loop")."""
+LOOP_CHOICES = (DEFAULT_LOOP, "lending", "uvloop")
+LOOP_HELP = lending.LOOP_HELP
 
 
-def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
-    """The event loop programs run on: by default a
-    :class:`~ubf_async.lending.LendingEventLoop` (asyncio's selector loop, which lets
-    zenoh's threads run short handlers while it waits: :mod:`ubf_async.lending`);
-    ``UBF_LOOP=asyncio``: asyncio's plain loop (``None``); ``UBF_LOOP=uvloop``: uvloop, which
-    hands samples to the loop a few µs faster than asyncio but cannot lend itself, and under
-    which a second Ctrl-C does not cut a stuck shutdown short (docs/latency.md)."""
-    choice = os.environ.get(LOOP_ENV, "lending").strip().lower() or "lending"
+def loop_factory() -> Callable[[], asyncio.AbstractEventLoop]:
+    """The event loop programs run on, chosen by ``UBF_LOOP``:
+
+    * unset or ``asyncio`` (the default): asyncio's selector loop, which lends itself to no
+      other thread; it only tells a simulation's lockstep when it has nothing left to run
+      (:func:`ubf_async.lending.new_idle_event_loop`);
+    * ``lending`` (opt-in): the same loop lending itself to zenoh's threads while it waits,
+      so a reflex is answered on the thread that brought its sample
+      (:func:`ubf_async.lending.new_event_loop`);
+    * ``uvloop`` (opt-in, ``pip install 'ubf-async[fast]'``): hands samples to the loop a
+      few µs faster than asyncio, cannot run a lockstep, and under it a second Ctrl-C does
+      not cut a stuck shutdown short.
+
+    Anything else raises :class:`~ubf_async.errors.ConfigurationError`."""
+    given = os.environ.get(LOOP_ENV, "")
+    choice = given.strip().lower() or DEFAULT_LOOP
     if choice not in LOOP_CHOICES:
-        raise ConfigurationError(f"{LOOP_ENV}={choice!r}: expected one of "
-                                 f"{', '.join(LOOP_CHOICES)}")
+        raise ConfigurationError(f"{LOOP_ENV}={given!r}: unknown event loop; expected one of "
+                                 f"{DEFAULT_LOOP} (the default), "
+                                 f"{', '.join(LOOP_CHOICES[1:])}")
+    if choice == "asyncio":
+        return lending.new_idle_event_loop
     if choice == "lending":
         return lending.new_event_loop
-    if choice == "asyncio":
-        return None
     try:
         import uvloop
     except ImportError:
@@ -207,11 +216,13 @@ def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
 def check_lockstep_loop() -> None:
     """Refuse, before anything starts, a simulation on a loop that cannot run it: simulated
     time advances in lockstep, which needs to know when the loop has nothing left to run
-    (:meth:`~ubf_async.lending.LendingEventLoop.idle`)."""
-    if loop_factory() is not lending.new_event_loop:
+    (:meth:`~ubf_async.lending.LendingEventLoop.idle`: the default loop and the lending
+    loop; not uvloop)."""
+    if loop_factory() not in (lending.new_idle_event_loop, lending.new_event_loop):
         raise ConfigurationError(
-            f"a simulation advances in lockstep, which needs the default event loop: unset "
-            f"{LOOP_ENV} ({os.environ.get(LOOP_ENV)!r} cannot tell when a step's work is done)")
+            f"a simulation advances in lockstep, which needs to know when the event loop is "
+            f"idle: {LOOP_ENV}={os.environ.get(LOOP_ENV)!r} cannot tell; unset {LOOP_ENV} "
+            f"(asyncio, the default) or set {LOOP_ENV}=lending")
 
 
 def run_loop(main: Coroutine[Any, Any, T]) -> T:

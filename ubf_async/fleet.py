@@ -51,6 +51,7 @@ from ubf_async.bus import (
     Bus,
     ConnectionOptions,
     HelpFormatter,
+    add_event_loop_help,
     decode_or_count,
     follow_sim_clock,
 )
@@ -477,6 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--controllers-only", default=None, metavar="NAME,...",
                         help="run only these robots' controllers, in this one process (what the "
                              "launcher starts with --controllers-per-process above 1)")
+    add_event_loop_help(parser)
     return parser
 
 

@@ -49,7 +49,7 @@ from ubf_async.bus import (
     connection_options,
     follow_sim_clock,
 )
-from ubf_async.cli import LOOP_HELP, check_lockstep_loop, run_main, speed_argument
+from ubf_async.cli import check_lockstep_loop, run_main, speed_argument
 from ubf_async.clock import Clock, SimClock, WallClock
 from ubf_async.component import Component, HealthMonitor
 from ubf_async.controller import Controller, TickMode
@@ -87,8 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
             f"(the shipped '{DEFAULT_ROBOT_FILE}' file). Other processes attach over zenoh "
             "with --connect <the endpoint printed at start> and the same --robot."
         ),
-        epilog=(f"Environment: {LOOP_HELP}. UBF_RENDER_PROCESS=0: simulated cameras render "
-                f"in a thread of this process instead of a render process (docs/fleet.md)."),
+        epilog=("Environment: UBF_RENDER_PROCESS=0: simulated cameras render in a thread of "
+                "this process instead of a render process (docs/fleet.md); UBF_LOOP: see "
+                "\"event loop\" above."),
         formatter_class=HelpFormatter,
     )
     parser.add_argument(

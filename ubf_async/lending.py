@@ -26,6 +26,13 @@ exceptions: it must not rely on the identity of the thread it runs on
 (``threading.get_ident()``; a publisher that does simply takes the thread-safe road), and it
 should not add or remove the loop's readers and writers.
 
+Lending is opt-in (``UBF_LOOP=lending``, :func:`new_event_loop`): the entry points' default
+is the same class with lending off (:func:`new_idle_event_loop`), asyncio's selector loop plus
+:meth:`~LendingEventLoop.idle` — no other thread ever runs loop code. Measured in
+``python -m bench.latency --only loops`` (docs/latency.md, "Which event loop"), lending takes
+5-9 % off a reflex's median and nothing off its p99 (worse on a busy host): not worth being
+the mechanism every maintainer of async code must understand first.
+
 The same moment — the loop about to wait — is what :meth:`LendingEventLoop.idle` reports:
 every task is blocked and no callback is ready, so whatever the caller's last step set off
 has run to its end. The simulator's lockstep barrier is built on it
@@ -53,7 +60,20 @@ from typing import Any, TypeVarTuple
 
 Ts = TypeVarTuple("Ts")
 
-__all__ = ["LendingEventLoop", "idle_waiter", "new_event_loop", "run_if_idle"]
+__all__ = ["LOOP_ENV", "LOOP_HELP", "LendingEventLoop", "idle_waiter", "new_event_loop",
+           "new_idle_event_loop", "run_if_idle"]
+
+LOOP_ENV = "UBF_LOOP"
+"""The environment variable that chooses the event loop (:func:`ubf_async.cli.loop_factory`)."""
+LOOP_HELP = (
+    f"{LOOP_ENV} chooses the event loop. Unset or {LOOP_ENV}=asyncio (the default): asyncio's "
+    f"own selector loop; no other thread ever runs loop code. Opt-in: {LOOP_ENV}=lending, "
+    f"while the loop is idle zenoh's threads run a sample's handler (a reflex) themselves "
+    f"instead of waking the loop thread: 5-9 % off a reflex's median, a worse p99 on a busy "
+    f"host; {LOOP_ENV}=uvloop (pip install 'ubf-async[fast]'): no steady gain, cannot run a "
+    f"simulation in lockstep. Figures: docs/latency.md, \"Which event loop\"")
+"""What every entry point's ``--help`` says about the event loop
+(:func:`ubf_async.bus.add_event_loop_help`)."""
 
 
 def _take(lock: threading.Lock) -> None:
@@ -85,6 +105,8 @@ class _LendingSelector(selectors.DefaultSelector):
         # waiting for that moment (the simulator's step barrier) are woken instead of waiting.
         if loop._wake_idle_waiters():
             return super().select(0)
+        if not loop.lends:
+            return super().select(timeout)
         loop._wanted = False
         loop._run_lock.release()
         try:
@@ -100,7 +122,10 @@ class LendingEventLoop(asyncio.SelectorEventLoop):
     """asyncio's selector event loop, which other threads may borrow while it waits (module
     docstring). Everything else is asyncio's own."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, lend: bool = True) -> None:
+        self.lends = lend
+        """Whether other threads may borrow the loop (:meth:`run_if_idle`). Without, this is
+        asyncio's selector loop that tells when it is idle (:meth:`idle`), nothing more."""
         self._run_lock = threading.Lock()
         self._run_lock.acquire()  # held except while the loop waits in select()
         self._wanted = True
@@ -155,7 +180,8 @@ class LendingEventLoop(asyncio.SelectorEventLoop):
         the loop is busy, not running, closed or in debug mode. On the loop's own thread it
         always returns ``False`` (the loop is busy: it is running the caller). An exception
         from ``callback`` propagates to the caller, after the loop is given back."""
-        if self._wanted or self.get_debug() or not self._run_lock.acquire(blocking=False):
+        if (not self.lends or self._wanted or self.get_debug()
+                or not self._run_lock.acquire(blocking=False)):
             return False
         if self._wanted:  # the loop thread woke meanwhile: it goes first
             self._run_lock.release()
@@ -182,9 +208,16 @@ def _nothing() -> None:
 
 
 def new_event_loop() -> LendingEventLoop:
-    """A new :class:`LendingEventLoop` (what :func:`ubf_async.cli.loop_factory` makes by
-    default)."""
+    """A new :class:`LendingEventLoop` that lends itself (``UBF_LOOP=lending``,
+    :func:`ubf_async.cli.loop_factory`)."""
     return LendingEventLoop()
+
+
+def new_idle_event_loop() -> LendingEventLoop:
+    """A new :class:`LendingEventLoop` that lends itself to no thread: asyncio's selector
+    loop plus :meth:`~LendingEventLoop.idle`, which simulated time's lockstep needs — the
+    default of every entry point (:func:`ubf_async.cli.loop_factory`)."""
+    return LendingEventLoop(lend=False)
 
 
 def idle_waiter(loop: asyncio.AbstractEventLoop) -> Callable[[], Awaitable[None]] | None:
@@ -194,5 +227,6 @@ def idle_waiter(loop: asyncio.AbstractEventLoop) -> Callable[[], Awaitable[None]
 
 
 def run_if_idle(loop: asyncio.AbstractEventLoop) -> Callable[..., bool] | None:
-    """``loop.run_if_idle`` for a :class:`LendingEventLoop`, ``None`` for any other loop."""
-    return loop.run_if_idle if isinstance(loop, LendingEventLoop) else None
+    """``loop.run_if_idle`` for a :class:`LendingEventLoop` that lends, ``None`` for any
+    other loop."""
+    return loop.run_if_idle if isinstance(loop, LendingEventLoop) and loop.lends else None

@@ -183,8 +183,8 @@ class LockstepParticipant(Component):
         idle = lending.idle_waiter(asyncio.get_running_loop())
         if idle is None:
             raise ConfigurationError(
-                "--lockstep needs ubf_async's event loop (the default; not UBF_LOOP=asyncio "
-                "or uvloop): it tells when the work of a simulated instant is done")
+                "--lockstep needs ubf_async's event loop (the default, or UBF_LOOP=lending; "
+                "not uvloop): it tells when the work of a simulated instant is done")
         publisher = self.publisher(LOCKSTEP_ACK, self.participant)
         token = self.bus.declare_token(self.key)
         try:

@@ -36,6 +36,7 @@ from ubf_async.bus import (
     Bus,
     ConnectionOptions,
     HelpFormatter,
+    add_event_loop_help,
     load_zenoh_config,
 )
 from ubf_async.cli import run_main
@@ -105,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--quiet", action="store_true",
                         help="print only the endpoints, not the robots coming and going")
+    add_event_loop_help(parser)
     return parser
 
 

@@ -182,8 +182,8 @@ class SimulatorComponent(Component):
         if idle is None:
             raise ConfigurationError(
                 "simulated time advances in lockstep, which needs ubf_async's event loop "
-                "(lending.new_event_loop, the default of every entry point); UBF_LOOP=asyncio "
-                "or uvloop cannot tell when a step's work is done")
+                "(lending.new_idle_event_loop, the default of every entry point, or "
+                "UBF_LOOP=lending); uvloop cannot tell when a step's work is done")
         self._idle = idle
         served = [self._serve(bus, robot)
                   for robot, bus in enumerate((self.bus, *self.more_robots))]
