@@ -53,6 +53,8 @@ class Run:
             for key in path[:-1]:
                 parent = parent[key]
             del parent[path[-1]]
+        # Whether the machine kept up with --speed is measured in wall time, too.
+        out["warnings"] = [w for w in out["warnings"] if "asked for (--speed)" not in w]
         return out
 
 
@@ -90,8 +92,8 @@ def test_a_scenario_runs_the_same_at_any_speed_and_under_load(tmp_path: Path,
     with hogs(core):
         loaded = launch(tmp_path / "loaded", scenario, duration, cpus=core)
     assert_same(loaded, flat_out, "pinned beside a busy loop")
-    # The loaded run was slower in wall time: what it reached says so, not its results.
-    assert loaded.summary["real_time_factor"] < flat_out.summary["real_time_factor"]
+    # (That the busy loop is real: test_the_cpu_hog_loads_the_cores_it_is_given. Which run
+    # was faster in wall time is not asserted: beside other tests, the flat-out one may not be.)
 
     short = launch(tmp_path / "flat-out-short", scenario, SHORT_S)
     real_time = launch(tmp_path / "real-time", scenario, SHORT_S, speed="1")
