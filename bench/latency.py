@@ -439,10 +439,10 @@ def measure_breakdown(n: int = 2000) -> dict[str, Any]:
     import zenoh
 
     from bench.latency_robot import reflex_tree
-    from ubf_async.aggregator import StateAggregator
-    from ubf_async.bus import ConnectionOptions, Subscription
-    from ubf_async.clock import WallClock
-    from ubf_async.protocol import Keys, decode, encode
+    from ubf_async.runtime.aggregator import StateAggregator
+    from ubf_async.runtime.bus import ConnectionOptions, Subscription
+    from ubf_async.runtime.clock import WallClock
+    from ubf_async.wire.protocol import Keys, decode, encode
 
     out: dict[str, Any] = {}
     sample = msgpack.packb({"schema": "range", "v": 1, "stamp_ns": time.monotonic_ns(),

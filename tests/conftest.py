@@ -16,9 +16,9 @@ import msgspec
 import pytest
 import pytest_asyncio
 
-from ubf_async import lending
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.clock import Hold, WallClock
+from ubf_async.runtime import lending
+from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.clock import Hold, WallClock
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -32,7 +32,7 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
                                   ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
     """Async tests run on the event loop every entry point runs on
-    (:func:`ubf_async.cli.loop_factory`'s default), which lends itself to zenoh's threads."""
+    (:func:`ubf_async.cli.run.loop_factory`'s default), which lends itself to zenoh's threads."""
     return {"lending": lending.new_event_loop}
 
 
@@ -67,7 +67,7 @@ async def eventually(
 class LoopClock:
     """The robot's clock as the event loop's own time: wall time on a normal loop, virtual
     time in a test marked ``@pytest.mark.looptime`` (which fast-forwards the loop's time
-    whenever every task waits on a timer). :class:`~ubf_async.clock.WallClock` reads
+    whenever every task waits on a timer). :class:`~ubf_async.runtime.clock.WallClock` reads
     ``time.monotonic_ns()``, which looptime cannot move: a component stamped and scheduled by
     this clock runs on one virtual time with the loop's own timers (restart backoffs,
     heartbeats, ``asyncio.wait_for``). Only for buses without zenoh threads (the in-process
@@ -161,7 +161,7 @@ class SimRobot:
                  **device_options: object) -> None:
         from components.sim.component import SimulatorComponent, simulated_devices
         from components.sim.world import World
-        from ubf_async.clock import SimClock
+        from ubf_async.runtime.clock import SimClock
 
         self.clock = SimClock()
         bus.clock = self.clock
@@ -192,9 +192,9 @@ async def start_seeking_robot(bus: Bus, run: object) -> tuple[object, list[objec
     controller and the run's own components, started in that order. Returns (controller,
     components); close the components in reverse order."""
     from components.sim.component import simulated_devices
-    from ubf_async.aggregator import StateAggregator
     from ubf_async.behaviors import seek_pink_ball
-    from ubf_async.controller import Controller
+    from ubf_async.runtime.aggregator import StateAggregator
+    from ubf_async.runtime.controller import Controller
 
     devices = simulated_devices(bus=bus, world=run.world, seed=run.seed)  # type: ignore[attr-defined]
     run.add_devices(devices)  # type: ignore[attr-defined]

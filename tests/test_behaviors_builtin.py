@@ -11,13 +11,13 @@ from typing import Any
 import msgspec
 import pytest
 
-from ubf_async import registry
-from ubf_async.action import Action
-from ubf_async.arbiters import Conditional, MonteCarlo, conditional, predicate_from
-from ubf_async.behavior import Arbiter, Behavior, Composite, FunctionBehavior
+from ubf_async.assembly import registry
 from ubf_async.behaviors import Avoid, Chase, Drive, Flee, Search, Stop
+from ubf_async.core.action import Action
+from ubf_async.core.arbiters import Conditional, MonteCarlo, conditional, predicate_from
+from ubf_async.core.behavior import Arbiter, Behavior, Composite, FunctionBehavior
+from ubf_async.core.state import Reading, State
 from ubf_async.errors import ConfigurationError, PluginError
-from ubf_async.state import Reading, State
 
 INJECTED = frozenset({"name", "rng"})
 ARBITER_NAMES = ("HighestActivation", "HighestPriority", "PriorityMerge", "PriorityFusion",
@@ -143,7 +143,7 @@ def test_conditional_refuses_bad_predicate_params_when_built() -> None:
 
 
 def test_conditional_predicate_by_module_reference_and_by_callable() -> None:
-    by_reference = Conditional(predicate="ubf_async.predicates:source_fresh",
+    by_reference = Conditional(predicate="ubf_async.behaviors.predicates:source_fresh",
                                predicate_params={"source": "range/front"})
     assert by_reference.predicate(State.of(range__front={"range_mm": 1, "status": "ok"}))
     assert not by_reference.predicate(State())

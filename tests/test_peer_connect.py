@@ -15,7 +15,7 @@ import pytest
 
 from tests.conftest import eventually, free_port
 from tests.remote_robot import Process
-from ubf_async.bus import Bus, ConnectionOptions, endpoint_locators
+from ubf_async.runtime.bus import Bus, ConnectionOptions, endpoint_locators
 
 
 @pytest.mark.asyncio
