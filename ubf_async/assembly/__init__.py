@@ -2,6 +2,8 @@
 
 * :mod:`~ubf_async.assembly.registry` — plug-ins by entry point (behaviours, arbiters,
   predicates, device kinds, backends, simulators);
+* :mod:`~ubf_async.assembly.plugins` — plug-ins by name where the core takes objects (a
+  predicate by name for ``Conditional``);
 * :mod:`~ubf_async.assembly.context` — ``DeviceContext``, what a backend factory is handed;
 * :mod:`~ubf_async.assembly.devices` — building a device and its backend by name;
 * :mod:`~ubf_async.assembly.robotfile` — robot files (typed YAML, ``FILE:LINE`` errors);

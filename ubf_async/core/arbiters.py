@@ -19,24 +19,24 @@ Common rules (where the original UBF code was loose, these are the sane choices)
 
 Every arbiter is built from keywords with plain-data values, so a robot file can name it
 (entry-point group ``ubf_async.arbiters``): the six deterministic ones take none,
-``MonteCarlo(hold_ticks=…, seed=…)`` and ``Conditional(predicate="sees_color",
-predicate_params={…})`` (a predicate by registered name or ``module:factory`` reference,
-resolved and checked when the arbiter is built). ``rng`` is injected by the robot-file loader.
+``MonteCarlo(hold_ticks=…, seed=…)``, and ``Conditional`` through
+:func:`ubf_async.assembly.plugins.conditional` (a predicate by registered name or
+``module:factory`` reference, resolved and checked when the arbiter is built). ``rng`` is
+injected by the robot-file loader.
 """
 
 from __future__ import annotations
 
 import random
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Annotated, Any
 
 import msgspec
 
-from ubf_async.assembly import registry
 from ubf_async.core.action import FIELDS, NUMERIC_FIELDS, Action, clamp_command
 from ubf_async.core.behavior import Arbiter, Candidate, Child, Decision
 from ubf_async.core.state import State
-from ubf_async.errors import ConfigurationError, PluginError
+from ubf_async.errors import ConfigurationError
 
 __all__ = [
     "NO_DECISION",
@@ -50,8 +50,6 @@ __all__ = [
     "PriorityFusion",
     "PriorityMerge",
     "UtilityFusion",
-    "conditional",
-    "predicate_from",
 ]
 
 Predicate = Callable[[State], bool]
@@ -289,40 +287,6 @@ class MonteCarlo(Arbiter):
         return f"{self.name}(hold_ticks={self.hold_ticks})"
 
 
-def predicate_from(reference: str, params: Mapping[str, Any] | None = None) -> Predicate:
-    """The predicate a robot file names: ``reference`` is a name registered in the
-    ``ubf_async.predicates`` group (``sees_color``) or a ``module:factory`` reference, and
-    ``params`` the keyword parameters of that *factory*, which returns ``State -> bool``.
-
-    ``params`` are checked against the factory's signature
-    (:func:`~ubf_async.assembly.registry.parameters_of`) before it is called. Raises
-    :class:`~ubf_async.errors.PluginError` for an unknown or unusable factory and
-    :class:`~ubf_async.errors.ConfigurationError` for parameters it refuses.
-    """
-    factory = registry.PREDICATES.get(reference)
-    if not callable(factory):
-        raise PluginError(f"predicate {reference!r} is a {type(factory).__name__}, not a "
-                          f"factory returning State -> bool")
-    try:
-        parameters = registry.parameters_of(factory)
-    except (TypeError, ValueError) as exc:
-        raise PluginError(f"predicate {reference!r} has parameters a robot file cannot give: "
-                          f"{exc}") from exc
-    try:
-        checked = msgspec.convert(dict(params or {}), parameters)
-    except (msgspec.ValidationError, TypeError) as exc:
-        raise ConfigurationError(f"predicate {reference!r}: {exc}") from exc
-    kwargs = {field: getattr(checked, field) for field in checked.__struct_fields__}
-    try:
-        predicate = factory(**kwargs)
-    except (TypeError, ValueError) as exc:  # ConfigurationError is a ValueError
-        raise ConfigurationError(f"predicate {reference!r}: {exc}") from exc
-    if not callable(predicate):
-        raise PluginError(f"predicate factory {reference!r} returned a "
-                          f"{type(predicate).__name__}, not a State -> bool callable")
-    return predicate
-
-
 class Conditional(Arbiter):
     """A predicate on the state picks one of exactly two children.
 
@@ -332,40 +296,25 @@ class Conditional(Arbiter):
     of children is refused when the children or the arbiter are set
     (:meth:`validate`), not on a tick.
 
-    ``predicate`` is either a callable ``State -> bool`` (from code) or, from data, the name
-    of a registered predicate factory (``"sees_color"``) or a ``module:factory`` reference,
-    built with ``predicate_params`` — resolved and checked here, so an unknown name or a bad
-    parameter fails now, never at the first tick::
+    ``predicate`` is a callable ``State -> bool``. A predicate by name (a registered factory such
+    as ``"sees_color"``, or a ``module:factory`` reference, with its parameters) is what a
+    robot file gives: :func:`ubf_async.assembly.plugins.conditional` resolves it, checks it and
+    builds this arbiter, so an unknown name or a bad parameter fails then, never at a tick::
 
-        Conditional(predicate="sees_color", predicate_params={"min_pixels": 1})
         Conditional(lambda state: state.value("range/front", "range_mm", 9999) < 200)
     """
 
     name = "Conditional"
 
-    def __init__(
-        self,
-        predicate: str | Predicate,
-        *,
-        predicate_params: Mapping[str, Any] | None = None,
-        label: str | None = None,
-    ) -> None:
-        if isinstance(predicate, str):
-            self.predicate: Predicate = predicate_from(predicate, predicate_params)
-            shown = ", ".join(f"{k}={v!r}" for k, v in (predicate_params or {}).items())
-            default_label = f"{predicate}({shown})" if shown else predicate
-        elif callable(predicate):
-            if predicate_params:
-                raise ConfigurationError(
-                    "Conditional: predicate_params go with a predicate given by name; "
-                    "a callable predicate takes none")
-            self.predicate = predicate
-            default_label = getattr(predicate, "__name__", "predicate")
-        else:
+    def __init__(self, predicate: Predicate, *, label: str | None = None) -> None:
+        if isinstance(predicate, str) or not callable(predicate):
+            # The core knows no plug-in registry: names are resolved in the assembly.
             raise ConfigurationError(
-                f"Conditional: predicate must be a registered name, a 'module:factory' "
-                f"reference or a callable, got {type(predicate).__name__}")
-        self.label = label or default_label
+                f"Conditional: predicate must be a callable State -> bool, got "
+                f"{type(predicate).__name__} (a predicate by name: "
+                f"ubf_async.assembly.plugins.conditional)")
+        self.predicate: Predicate = predicate
+        self.label = label or getattr(predicate, "__name__", "predicate")
 
     def validate(self, children: Sequence[Child]) -> None:
         if len(children) != 2:
@@ -386,17 +335,3 @@ class Conditional(Arbiter):
 
     def describe(self) -> str:
         return f"{self.name}({self.label})"
-
-
-def conditional(
-    *,
-    predicate: str,
-    predicate_params: dict[str, Any] | None = None,
-    label: str | None = None,
-) -> Conditional:
-    """:class:`Conditional` from plain data — the ``Conditional`` entry point's target.
-
-    The class also takes a Python callable, which no robot file can give; this factory's
-    parameters are what :func:`~ubf_async.assembly.registry.parameters_of` can check.
-    """
-    return Conditional(predicate, predicate_params=predicate_params, label=label)
