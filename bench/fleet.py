@@ -56,7 +56,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.fleet import FleetStatus
 
 ROOT = Path(__file__).resolve().parent.parent

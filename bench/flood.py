@@ -27,8 +27,9 @@ from typing import Any
 
 from tests.conftest import free_port
 from ubf_async.behaviors import seek_pink_ball
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
 from ubf_async.wire.protocol import Message
 

@@ -42,9 +42,10 @@ from typing import Any
 
 import zenoh
 
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime import bus as current_bus
 from ubf_async.runtime import lending
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 
 SAMPLE = bytes(60)
 """About the size of an encoded range sample."""

@@ -55,8 +55,9 @@ from typing import Any
 from ubf_async import Action, Behavior, Child, Composite, HighestPriority, State
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.cli.run import run_loop
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
 
 AVOID_BELOW_MM = 200

@@ -48,7 +48,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from ubf_async.runtime.bus import ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.wire.protocol import Keys
 
 FAR_MM = 600

@@ -32,7 +32,8 @@ from typing import Any
 
 from bench.latency_stats import percentile
 from bench.processes import terminate
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -40,19 +40,13 @@ import yaml
 from components.devices import make_backend, make_device, requires_simulator
 from ubf_async.assembly import registry
 from ubf_async.assembly.context import DeviceContext
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
 from ubf_async.runtime import clockdomain, lockstep, refusals
-from ubf_async.runtime.bus import (
-    DEFAULT_ATTACH_TIMEOUT_S,
-    Bus,
-    HelpFormatter,
-    add_connection_arguments,
-    connection_options,
-    follow_sim_clock,
-    wait_for_robot,
-)
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
 from ubf_async.runtime.clock import Clock, SimClock, WallClock
 from ubf_async.runtime.component import Component, ensure_name_free
+from ubf_async.runtime.simclock import follow_sim_clock
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
 """Maps the parsed command line to keyword parameters (of the device or of its backend)."""

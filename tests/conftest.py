@@ -16,8 +16,9 @@ import msgspec
 import pytest
 import pytest_asyncio
 
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime import lending
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import Hold, WallClock
 
 

@@ -28,8 +28,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ubf_async.behaviors import seek_pink_ball
+from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import Bus, add_connection_arguments, connection_options
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.hostclock import RobotTimeBeacon

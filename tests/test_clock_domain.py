@@ -19,9 +19,10 @@ from tests.conftest import eventually
 from tests.remote_robot import Process
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.core.action import Action
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime import clockdomain
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.clockdomain import ClockDomainWatch, foreign_clock
 from ubf_async.runtime.controller import Controller

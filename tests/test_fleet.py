@@ -20,7 +20,8 @@ from components.sim.ranging import beam_distance_m
 from components.sim.world import ROBOT_COLOR, Arena, Pose2D, World, WorldConfig
 from tests.conftest import eventually, free_port, read_until, spawn, stop
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.fleet import load_fleet
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import DRIVE, MOTORS

@@ -13,9 +13,10 @@ from collections.abc import Callable
 import pytest
 
 from tests.conftest import eventually, read_until
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime import clockdomain
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import WallClock
 from ubf_async.runtime.hostclock import OffsetEstimator, RobotTimeBeacon, RobotTimeClock
 from ubf_async.wire.protocol import decode

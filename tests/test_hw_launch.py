@@ -35,7 +35,8 @@ from tests.conftest import as_dict, eventually, read_until, stop
 from tests.i2c_testbus import TestBus, ads1115, gp2y0e
 from tests.pinlog import holds, load
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools import launch
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY, RANGE

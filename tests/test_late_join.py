@@ -23,9 +23,10 @@ import pytest
 
 from tests.conftest import eventually
 from tests.remote_robot import Process
+from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime import clockdomain
-from ubf_async.runtime.bus import DEFAULT_LISTEN, Bus, ConnectionOptions, Publisher
+from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.clock import SimClock, WallClock
 from ubf_async.runtime.refusals import RefusalNotices, RefusalWatch
 from ubf_async.wire.protocol import decode

@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import eventually
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -347,7 +347,8 @@ async def test_live_arbiter_swap_changes_the_winner_and_a_bad_change_leaves_no_g
         tmp_path: Path, endpoint: str, robot: str) -> None:
     import asyncio
 
-    from ubf_async.runtime.bus import Bus, ConnectionOptions
+    from ubf_async.net.options import ConnectionOptions
+    from ubf_async.runtime.bus import Bus
     from ubf_async.wire.protocol import decode
 
     path = tmp_path / "live.yaml"

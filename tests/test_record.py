@@ -23,8 +23,9 @@ import msgpack
 import pytest
 
 from tests.conftest import eventually
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.net.transport import InProcessTransport
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.tools.record import McapRecorder
 

@@ -15,7 +15,8 @@ from typing import Any
 import pytest
 
 from tests.conftest import eventually, free_port, read_until, spawn, stop
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.router import FleetRoster, router_options
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -30,7 +30,8 @@ import zenoh
 from tests.conftest import as_dict, eventually, free_port, read_until
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.secure import access_control, apply, identities_for, init
 from ubf_async.wire.protocol import decode
 

@@ -23,8 +23,9 @@ from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.world import Arena, WorldConfig
 from tests.conftest import SimRobot, eventually
 from ubf_async.runtime import clock as clock_module
-from ubf_async.runtime.bus import Bus, follow_sim_clock
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
+from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.runtime.timesource import ClockAction, ClockFollower
 from ubf_async.wire.protocol import decode
 

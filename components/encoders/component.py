@@ -33,9 +33,10 @@ from components.encoders.quadrature import (
     edges_to_radians,
 )
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
-from ubf_async.runtime.bus import Bus, decode_or_count
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY
 
 

@@ -48,9 +48,10 @@ from components.motors.pwm import (
     clamp_drive,
     pulse_widths,
 )
-from ubf_async.runtime.bus import Bus, decode_or_count
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SilenceLimit, sleep_until
 from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import DRIVE, MOTORS
 
 log = logging.getLogger(__name__)

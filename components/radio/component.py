@@ -12,8 +12,9 @@ from typing import Annotated
 import msgspec
 
 from components.radio.backend import RadioBackend
-from ubf_async.runtime.bus import Bus, decode_or_count
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import RADIO, RADIO_SEND
 
 

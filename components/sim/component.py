@@ -57,9 +57,10 @@ from components.sim.world import World
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime import lending, lockstep
-from ubf_async.runtime.bus import Bus, Publisher, decode_or_count
+from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD
 
 log = logging.getLogger(__name__)

@@ -32,10 +32,11 @@ from ubf_async.assembly.simulation import (
 )
 from ubf_async.cli import ending
 from ubf_async.errors import ConfigurationError, ScenarioError
-from ubf_async.runtime.bus import Bus, decode_or_count
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import CONTROLLER_STATUS
 
 FOUND_DISTANCE_M = 1.0

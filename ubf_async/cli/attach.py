@@ -10,8 +10,9 @@ import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 
+from ubf_async.cli.args import connection_options
 from ubf_async.runtime import clockdomain
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, connection_options, wait_for_robot
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
 
 
 def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str) -> None:

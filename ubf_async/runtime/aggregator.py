@@ -47,11 +47,11 @@ from ubf_async import throttle
 from ubf_async.core.action import Action
 from ubf_async.core.state import Reading, State
 from ubf_async.runtime import clockdomain, refusals
-from ubf_async.runtime.bus import Bus, Subscription, decode_or_count
+from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import SilenceLimit
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
-from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, clip
+from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, clip, decode_or_count
 from ubf_async.wire.topics import sensor_topic
 
 log = logging.getLogger(__name__)
@@ -241,7 +241,7 @@ class StateAggregator(Component):
         self._silence: OrderedDict[str, None] = OrderedDict()
         """Unprotected sources, the one silent longest first (eviction order)."""
         self.malformed: dict[str, int] = {}
-        """Rejected samples per key (at most :data:`~ubf_async.runtime.bus.MAX_COUNTED_KEYS`
+        """Rejected samples per key (at most :data:`~ubf_async.wire.protocol.MAX_COUNTED_KEYS`
         keys)."""
         self.refused: Counter[str] = Counter()
         """Valid samples refused, per :class:`~ubf_async.runtime.ordering.Refusal` (all sources)."""

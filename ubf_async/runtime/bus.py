@@ -1,4 +1,7 @@
-"""The runtime's side of the network: connection options, the bus, and the bridge into asyncio.
+"""The bus: the bridge from the transport's threads into asyncio, and attaching to a robot.
+
+How a session is configured (connection options, zenoh configuration, session errors) is
+:mod:`ubf_async.net.options`; the command-line flags that make them, :mod:`ubf_async.cli.args`.
 
 A :class:`Bus` moves its bytes through a transport (:mod:`ubf_async.net.transport`): a zenoh
 session (:meth:`Bus.open`, what runs) or the in-process transport (``Bus(transport=...)``,
@@ -45,27 +48,33 @@ reply without blocking the loop (zenoh's query runs in a worker thread).
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import dataclasses
 import itertools
-import json
 import logging
-import re
 import secrets
-import socket
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
 import zenoh
 
-from ubf_async import throttle
 from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.net.options import (
+    DEFAULT_ROBOT,
+    START_ROBOT_HINT,
+    ConnectionOptions,
+    NoRobotError,
+    bind_free_ports,
+    endpoint_locators,
+    listening,
+    refused_error,
+    session_error,
+    zenoh_message,
+)
 from ubf_async.net.transport import (
     Connection,
     Declaration,
@@ -76,22 +85,16 @@ from ubf_async.net.transport import (
     intersects,
 )
 from ubf_async.runtime import lending
-from ubf_async.runtime.clock import Clock, SimClock, WallClock
-from ubf_async.runtime.timesource import ClockAction, ClockFollower
-from ubf_async.wire.protocol import INT64_MAX, ROOT, Keys, ProtocolError, decode, encode
-from ubf_async.wire.topics import CLOCK, Data, Topic
+from ubf_async.runtime.clock import Clock, WallClock
+from ubf_async.wire.protocol import INT64_MAX, ROOT, Keys, ProtocolError, encode
+from ubf_async.wire.topics import Data, Topic
 
 log = logging.getLogger(__name__)
-
-DEFAULT_ROBOT = "mini"
-DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 _monotonic_ns = time.monotonic_ns
 
 DRAIN_BATCH = 256
 """Samples a subscription hands to its handler in one pass of the event loop."""
-MAX_COUNTED_KEYS = 1024
-"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
 DIRECT_RATE_HZ = 1000.0
 """Samples per second a direct subscription may have handled on the transport's thread
 (:mod:`~ubf_async.runtime.lending`), beyond a burst of :data:`DIRECT_BURST`: a robot's sensors send
@@ -109,331 +112,6 @@ QueryHandler = Callable[[str, bytes], bytes]
 :meth:`Bus.declare_queryable`)."""
 
 
-# ---------------------------------------------------------------------------------------------
-# Connection options shared by every entry point (the zenoh examples' flags)
-
-RECONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
-"""How often a session retries a lost connection (zenoh's ``connect/retry``): from 250 ms,
-backing off to at most 1 s — zenoh's default backs off to 4 s — so a client whose router
-restarts is back within about a second of the router's return (``docs/fleet.md``)."""
-
-
-@dataclass(kw_only=True)
-class ConnectionOptions:
-    """How to join the zenoh network, plus which robot to talk about."""
-
-    robot: str = DEFAULT_ROBOT
-    mode: str = "peer"
-    connect: list[str] = field(default_factory=list)
-    listen: list[str] = field(default_factory=list)
-    config: Path | None = None
-    multicast_scouting: bool = False
-    """Off by default: a robot is found through explicit endpoints, never by accident."""
-    secure: Path | None = None
-    """Secure mode: a set-up directory made by ``python -m ubf_async.secure init``."""
-    identity: str | None = None
-    """Secure mode: who this process is (``robot``, ``inspector``, a remote behaviour's name
-    …); its credentials are ``<secure>/identities/<identity>.json``."""
-
-    @staticmethod
-    def secure_fields(args: argparse.Namespace) -> dict[str, Any]:
-        """``secure`` and ``identity`` from :func:`add_connection_arguments` flags: the
-        entry point's default identity applies only with ``--secure``."""
-        secure = getattr(args, "secure", None)
-        identity = getattr(args, "identity", None)
-        if secure is not None and identity is None:
-            identity = getattr(args, "_default_identity", None)
-        return {"secure": secure, "identity": identity}
-
-    def zenoh_config(self) -> zenoh.Config:
-        """The zenoh configuration: the ``config`` file, then these options over it; in secure
-        mode the identity's credentials (and for ``robot`` the password dictionary and the
-        ACL), and client mode for every identity but ``robot`` (see :mod:`ubf_async.net.secure`).
-        Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up."""
-        conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
-        conf.insert_json5("mode", json.dumps(self.mode))
-        if self.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(self.connect))
-        if self.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(self.listen))
-        if not self.multicast_scouting:
-            conf.insert_json5("scouting/multicast/enabled", "false")
-        if conf.get_json("connect/retry") == "null":  # the file's own retry wins
-            conf.insert_json5("connect/retry", json.dumps(RECONNECT_RETRY))
-        if self.secure is not None:
-            from ubf_async.net import secure as secure  # only secure mode needs it
-
-            secure.apply(conf, directory=self.secure, identity=self.identity, robot=self.robot,
-                         listen=self.listen)
-        elif self.identity is not None:
-            raise ConfigurationError(f"--identity {self.identity} needs --secure DIR")
-        return conf
-
-
-class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows an option's default unless its help already speaks of it or there is none."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        default = action.default
-        if ("default" in text or default is None or default is False or default == []
-                or default is argparse.SUPPRESS):
-            return text
-        return super()._get_help_string(action) or text
-
-
-def add_connection_arguments(
-    parser: argparse.ArgumentParser, *, default_listen: list[str] | None = None,
-    default_identity: str | None = None, default_connect: list[str] | None = None,
-    robot_elsewhere: str | None = None,
-) -> None:
-    """Add ``--mode/-m --connect/-e --listen/-l --config --robot --multicast-scouting``,
-    ``--secure DIR --identity NAME`` (and ``--version``) to ``parser``.
-
-    ``default_connect``: where a tool attaching to a robot connects when neither the flags
-    nor the ``--config`` file give an endpoint (typically ``[DEFAULT_LISTEN]``, where
-    ``python -m ubf_async.launch`` listens); applied by :func:`connection_options`.
-    ``robot_elsewhere``: for a tool that learns its robot elsewhere (replay: from the file),
-    what ``--robot`` defaults to, in words for the help; ``--robot`` then defaults to ``None``
-    and the tool sets ``args.robot`` before :func:`connection_options`."""
-    from ubf_async import __version__
-
-    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    group = parser.add_argument_group("connection (shared by every ubf_async entry point)")
-    group.add_argument("--mode", "-m", choices=("peer", "client"), default=None,
-                       help="zenoh session mode (default: the --config file's, else peer)")
-    connect_help = "endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
-    if default_connect:
-        connect_help = (f"endpoint of the robot (repeatable; default: "
-                        f"{' '.join(default_connect)}, where launch listens, unless --listen "
-                        f"is given)")
-    group.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT",
-                       help=connect_help)
-    listen_help = "endpoint to listen on, e.g. tcp/127.0.0.1:7448 (repeatable)"
-    if default_listen:
-        listen_help += (f"; default: {' '.join(default_listen)} unless the --config file "
-                        "sets listen endpoints or --mode is client")
-    group.add_argument("--listen", "-l", action="append", default=None, metavar="ENDPOINT",
-                       help=listen_help)
-    group.add_argument("--config", type=Path, default=None, metavar="FILE",
-                       help="zenoh JSON5 configuration file (the flags given override it)")
-    group.add_argument("--robot", default=DEFAULT_ROBOT if robot_elsewhere is None else None,
-                       help="robot name: keys live under ubf/<robot>/" + (
-                           f" (default: {robot_elsewhere})" if robot_elsewhere else ""))
-    group.add_argument("--multicast-scouting", action="store_true",
-                       help="also discover peers by UDP multicast (off by default)")
-    group.add_argument("--secure", type=Path, default=None, metavar="DIR",
-                       help="secure mode: authenticate with the credentials in DIR (made by "
-                            "`python -m ubf_async.secure init`); see docs/security.md")
-    identity_help = ("with --secure: who this process is (robot, inspector, operator, a "
-                     "remote behaviour's slot name, device-KIND-NAME); all but robot connect "
-                     "as clients")
-    if default_identity:
-        identity_help += f"; default: {default_identity}"
-    group.add_argument("--identity", default=None, metavar="NAME", help=identity_help)
-    parser.set_defaults(_default_listen=default_listen or [],
-                        _default_identity=default_identity,
-                        _default_connect=default_connect or [])
-
-
-def connection_options(args: argparse.Namespace) -> ConnectionOptions:
-    """Build :class:`ConnectionOptions` from parsed :func:`add_connection_arguments` flags.
-
-    A ``--config`` file is read here (so a missing or malformed one is refused before anything
-    starts) and only the flags actually given override it: ``--listen`` replaces its
-    ``listen/endpoints`` and ``--connect`` its ``connect/endpoints``; without the flag, the
-    file's endpoints (and ``mode``, when ``--mode`` defaults to ``None``) are kept, and the
-    entry point's default listen endpoint (launch's) applies only when neither sets one, and
-    not to a ``client`` (it joins a router); a tool's default connect endpoint only when
-    neither sets any endpoint.
-    Raises :class:`~ubf_async.errors.ConfigurationError`.
-    """
-    file_conf = load_zenoh_config(args.config) if args.config is not None else None
-    mode = getattr(args, "mode", None) or _config_value(file_conf, "mode") or "peer"
-    if not isinstance(mode, str):
-        raise ConfigurationError(f"--config {args.config}: `mode` must be a string, got {mode!r}")
-    listen = args.listen
-    if listen is None:
-        from_file = _config_endpoints(file_conf, "listen", mode)
-        default = [] if mode == "client" else getattr(args, "_default_listen", [])
-        listen = from_file if from_file is not None else list(default)  # clients: the router
-    connect = list(args.connect) or _config_endpoints(file_conf, "connect", mode) or []
-    if not connect and not listen:  # a tool's default: the robot's endpoint
-        connect = list(getattr(args, "_default_connect", []))
-    try:
-        Keys(args.robot)
-    except ProtocolError as exc:
-        raise ConfigurationError(f"--robot: {exc}") from None
-    options = ConnectionOptions(
-        robot=args.robot, mode=mode, connect=connect, listen=list(listen),
-        config=args.config, multicast_scouting=args.multicast_scouting,
-        **ConnectionOptions.secure_fields(args),
-    )
-    try:  # every endpoint and value is checked now, not when the session opens
-        options.zenoh_config()
-    except zenoh.ZError as exc:
-        raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
-    return options
-
-
-def load_zenoh_config(path: Path) -> zenoh.Config:
-    """Read a zenoh JSON5 configuration file; :class:`ConfigurationError` if it cannot be."""
-    if not path.is_file():
-        raise ConfigurationError(f"--config {path}: no such file")
-    try:
-        return zenoh.Config.from_file(str(path))
-    except zenoh.ZError as exc:
-        raise ConfigurationError(f"--config {path}: {zenoh_message(exc)}") from None
-
-
-def _config_value(conf: zenoh.Config | None, key: str) -> Any:
-    """``key`` of a configuration read from a file, or ``None`` where the file leaves zenoh's
-    default (zenoh reports its defaults as if they were set)."""
-    if conf is None:
-        return None
-    try:
-        value = conf.get_json(key)
-        if value == zenoh.Config().get_json(key):
-            return None
-        return json.loads(value)
-    except (zenoh.ZError, ValueError):
-        return None
-
-
-def _config_endpoints(conf: zenoh.Config | None, section: str, mode: str) -> list[str] | None:
-    """``<section>/endpoints`` set by a configuration file (a list, or one list per mode:
-    this ``mode``'s); ``None`` if the file sets none."""
-    value = _config_value(conf, f"{section}/endpoints")
-    if value is None:
-        return None
-    if isinstance(value, dict):
-        value = value.get(mode, [])
-    if isinstance(value, list) and all(isinstance(e, str) for e in value):
-        return list(value)
-    return None
-
-
-_RUST_LOCATION = re.compile(r"\s*\bat /\S+\.rs:\d+\.?")
-
-
-def zenoh_message(exc: BaseException) -> str:
-    """A zenoh error's message without the Rust source locations it carries."""
-    text = _RUST_LOCATION.sub("", str(exc)).strip()
-    if (wrapped := re.search(r'msg: "((?:[^"\\]|\\.)*)"', text)) is not None:
-        text = wrapped[1]  # Json5Err(Message { msg: "...", location: ... }) -> the message
-    return re.sub(r"\s+", " ", text).rstrip(" .!") or type(exc).__name__
-
-
-_PORT_ZERO = re.compile(
-    r"^(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]*\]|[^:/?#\[\]]+):0(?P<rest>[?#].*)?$")
-
-
-def bind_free_ports(endpoints: list[str]) -> list[str]:
-    """The endpoints with each ``…:0`` port replaced by a port free now, so the endpoints a
-    process prints are the ones it listens on (zenoh-python 1.10 does not say which port it
-    bound: ``SessionInfo`` has no locators, and its admin space is off by default). The OS
-    picks the port (bind to port 0, read it, release it); another program could take it in
-    the instant before zenoh binds it, and opening then fails as "port in use"."""
-    resolved = []
-    for endpoint in endpoints:
-        match = _PORT_ZERO.match(endpoint)
-        if match is None:
-            resolved.append(endpoint)
-            continue
-        host = match["host"].strip("[]")
-        kind = socket.SOCK_DGRAM if match["proto"] in ("udp", "quic") else socket.SOCK_STREAM
-        try:
-            family, *_, address = socket.getaddrinfo(host, 0, type=kind)[0]
-            with socket.socket(family, kind) as probe:
-                probe.bind(address)
-                port = probe.getsockname()[1]
-        except OSError:  # an address we cannot bind: zenoh will say what is wrong with it
-            resolved.append(endpoint)
-            continue
-        resolved.append(f"{match['proto']}/{match['host']}:{port}{match['rest'] or ''}")
-    return resolved
-
-
-class SessionError(UbfError, ConnectionError):
-    """A zenoh session that cannot be opened, or does not reach the robot (one line that
-    says what to do)."""
-
-
-class PortInUseError(SessionError):
-    """A listen endpoint whose port another process already holds."""
-
-
-class NoRobotError(SessionError):
-    """Nothing to connect to: no robot answers at the endpoints given."""
-
-
-class RefusedError(SessionError):
-    """Something listens at the robot's endpoint but did not accept this process's zenoh
-    session: a robot in secure mode refusing its credentials, as far as can be told."""
-
-
-START_ROBOT_HINT = ("is the robot running? `python -m ubf_async.launch` prints the endpoint "
-                    "to pass to --connect")
-
-_TCP_ENDPOINT = re.compile(
-    r"^(?:tcp|tls|ws)/(?P<host>\[[^\]]*\]|[^:/?#\[\]]+):(?P<port>\d+)(?:[?#].*)?$")
-
-
-def listening(endpoint: str, *, timeout_s: float = 1.0) -> bool:
-    """Whether a TCP connection to ``endpoint`` (``tcp/``, ``tls/``, ``ws/``) opens: something
-    listens there. zenoh reports a refused handshake (a secure robot's authentication) exactly
-    as it reports nothing listening, so this tells the two apart. Blocking."""
-    match = _TCP_ENDPOINT.match(endpoint)
-    if match is None:
-        return False  # udp, quic, unix sockets …: not probed
-    try:
-        with socket.create_connection((match["host"].strip("[]"), int(match["port"])),
-                                      timeout=timeout_s):
-            return True
-    except (OSError, ValueError):
-        return False
-
-
-def refused_error(options: ConnectionOptions, *, timeout_s: float = 1.0) -> RefusedError | None:
-    """For a session that reached nothing: a :class:`RefusedError` saying so if something
-    listens at one of its ``connect`` endpoints (:func:`listening`), else ``None``. Blocking:
-    run it in a thread."""
-    open_at = [e for e in options.connect if listening(e, timeout_s=timeout_s)]
-    if not open_at:
-        return None
-    if options.secure is None:
-        credentials = ("this process gave none: pass the robot's set-up with --secure DIR "
-                       "--identity NAME")
-    else:
-        credentials = (f"this process gave identity {options.identity!r} of {options.secure}, "
-                       f"which the robot's set-up does not have with that password (another "
-                       f"set-up, or one made again with `python -m ubf_async.secure init "
-                       f"--force`)")
-    tls = ("; over tls/, a certificate the robot does not trust looks the same"
-           if any(e.startswith("tls/") for e in open_at) else "")
-    return RefusedError(
-        f"the robot at {' '.join(open_at)} refused the connection: something listens there but "
-        f"did not let this process's zenoh session in, as a robot in secure mode does without "
-        f"valid credentials (docs/security.md); {credentials}{tls}")
-
-
-def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError:
-    """Turn zenoh's error on opening a session into a one-line :class:`SessionError`."""
-    text = zenoh_message(exc)
-    if "Address already in use" in text or "address already in use" in text.lower():
-        bound = re.search(r"bound to (\S+?):? \[", text)
-        where = bound[1] if bound else " ".join(options.listen)
-        return PortInUseError(
-            f"cannot listen on {where}: the port is already in use (another robot or program "
-            f"listens there); stop it, or choose another endpoint with --listen "
-            f"(e.g. --listen tcp/127.0.0.1:0 for any free port)")
-    if "Unable to connect" in text:
-        return NoRobotError(f"no robot to connect to: nothing answered at "
-                            f"{' '.join(options.connect)} ({START_ROBOT_HINT})")
-    return SessionError(f"cannot open a zenoh session (listen={' '.join(options.listen) or '-'}"
-                        f", connect={' '.join(options.connect) or '-'}): {text}")
-
-
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
 
 CONNECT_GRACE_S = 2.0
@@ -442,31 +120,6 @@ CONNECT_CHECK_S = 0.5
 """How often the links to the ``connect`` endpoints are looked at."""
 CONNECT_REMIND_S = 60.0
 """While an endpoint stays unanswered, the warning is repeated this often."""
-_IP_ENDPOINT = re.compile(r"^(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]*\]|[^:/?#\[\]]+)"
-                          r":(?P<port>\d+)")
-
-
-def endpoint_locators(endpoint: str) -> set[str]:
-    """The locators a link to ``endpoint`` may have as its destination: the endpoint without
-    its ``?``/``#`` options and, for an IP endpoint given by host name, one per address the
-    name resolves to (``tcp/localhost:7447`` → ``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``)."""
-    plain = re.split(r"[?#]", endpoint, maxsplit=1)[0]
-    found = {plain}
-    match = _IP_ENDPOINT.match(plain)
-    if match is None:
-        return found
-    proto, host, port = match["proto"], match["host"].strip("[]"), int(match["port"])
-    try:
-        addresses = {info[4][0] for info in socket.getaddrinfo(host, port)}
-    except OSError:  # a name that does not resolve now: zenoh will keep trying it too
-        return found
-    for address in addresses:
-        address = str(address)
-        found.add(f"{proto}/[{address}]:{port}" if ":" in address
-                  else f"{proto}/{address}:{port}")
-    return found
-
-
 async def watch_connect_endpoints(bus: Bus, endpoints: list[str], *,
                                   grace_s: float = CONNECT_GRACE_S,
                                   check_s: float = CONNECT_CHECK_S,
@@ -1148,64 +801,3 @@ class Bus:
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
-
-
-def follow_sim_clock(
-    bus: Bus, clock: SimClock, malformed: dict[str, int], *,
-    follower: ClockFollower | None = None,
-) -> Subscription:
-    """Drive ``clock`` from the simulator's samples on ``ubf/<robot>/clock``.
-
-    Malformed samples are counted in ``malformed``. What a valid sample may do is decided by
-    ``follower`` (a new :class:`~ubf_async.runtime.timesource.ClockFollower` if not given — pass one
-    to pin an epoch or to read its counters): advance the clock, reset it to a new run's time,
-    or nothing (refused, counted and logged by the follower). The first sample taken resets
-    the clock (``clock.resets``) if nothing had started it yet.
-    """
-    key = CLOCK.key(bus.keys)
-    policy = follower if follower is not None else ClockFollower(name=f"{bus.robot} clock")
-
-    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, malformed, key, topic=CLOCK)
-        if message is None:
-            return
-        verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.epoch,
-                               wall_ns=received_ns)
-        if verdict.action is ClockAction.ADVANCE and clock.started.is_set():
-            clock.advance_to(message.stamp_ns)
-        elif verdict.action is ClockAction.ADVANCE:
-            # The first time heard starts this process's time, as a new run does: joining a
-            # run (or a replay) mid-way is not seconds of missed ticks since 0.
-            clock.reset_to(message.stamp_ns)
-        elif verdict.action is ClockAction.RESET:
-            clock.reset_to(message.stamp_ns)
-
-    # Direct, as the state aggregator's samples are: on an ordered bus the clock is then
-    # handled in the order it was sent among them, not after samples sent later.
-    return bus.subscribe(key, on_sample, direct=True)
-
-
-def decode_or_count(
-    payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
-    topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
-    on_error: Callable[[ProtocolError], None] | None = None,
-) -> Any | None:
-    """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
-    :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
-    per key), pass it to ``on_error`` if given, and return ``None``. ``counter`` keeps at most
-    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
-    try:
-        if decoder is not None:
-            return decoder(payload)
-        return decode(payload, topic=topic) if topic is not None else decode(payload,
-                                                                             schema=schema)
-    except ProtocolError as exc:
-        n = counter.get(key, 0) + 1
-        counter[key] = n
-        if len(counter) > MAX_COUNTED_KEYS:
-            del counter[next(iter(counter))]
-        if throttle.first_and_every(n):
-            log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
-        if on_error is not None:
-            on_error(exc)
-        return None

@@ -53,8 +53,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from ubf_async.runtime.bus import Bus, follow_sim_clock
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import Clock, SimClock
+from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.wire.protocol import ProtocolError, clip, decode
 from ubf_async.wire.topics import CONTROLLER_STATUS, ROBOT_TIME
 

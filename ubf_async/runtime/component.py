@@ -34,7 +34,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Subscription, decode_or_count
+from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Subscription
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import (
     HEARTBEAT,
     MAX_ANNOUNCED,

@@ -32,9 +32,10 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from ubf_async.runtime.bus import Bus, Subscription, decode_or_count
+from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import Hold
 from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import ROBOT_TIME
 
 log = logging.getLogger(__name__)

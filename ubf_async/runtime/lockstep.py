@@ -35,9 +35,10 @@ from dataclasses import dataclass, field
 
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime import lending
-from ubf_async.runtime.bus import Bus, Subscription, decode_or_count
+from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import LOCKSTEP_ACK
 
 log = logging.getLogger(__name__)

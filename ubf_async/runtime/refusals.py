@@ -31,9 +31,9 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ubf_async.runtime.bus import Bus, Publisher, Subscription, decode_or_count
+from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.runtime.ratelimit import TokenBucket
-from ubf_async.wire.protocol import ProtocolError, clip
+from ubf_async.wire.protocol import ProtocolError, clip, decode_or_count
 from ubf_async.wire.topics import MAX_REFUSAL_DETAIL, REFUSED, RefusalNotice
 
 log = logging.getLogger(__name__)

@@ -52,9 +52,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import msgspec
 
 from ubf_async.errors import ConfigurationError, ProtocolError
-from ubf_async.runtime.bus import (
-    Bus,
-)
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message, decode
 from ubf_async.wire.topics import BY_SCHEMA, PlainData

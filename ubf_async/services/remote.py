@@ -36,23 +36,16 @@ from dataclasses import dataclass
 from typing import Any, TextIO
 
 from ubf_async import throttle
+from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
 from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime import clockdomain, lockstep, refusals
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import (
-    DEFAULT_ATTACH_TIMEOUT_S,
-    DEFAULT_LISTEN,
-    Bus,
-    Publisher,
-    add_connection_arguments,
-    connection_options,
-    decode_or_count,
-    wait_for_robot,
-)
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, Publisher, wait_for_robot
 from ubf_async.runtime.clock import Clock, WallClock
 from ubf_async.runtime.component import Component, ensure_name_free
 from ubf_async.runtime.ordering import SampleOrder, ahead_of_clock
@@ -62,6 +55,7 @@ from ubf_async.wire.protocol import (
     ProtocolError,
     check_segment,
     decode,
+    decode_or_count,
     encode_data,
 )
 from ubf_async.wire.topics import (

@@ -54,18 +54,14 @@ from ubf_async.assembly.simulation import (
     FleetMember,
     SimulationOptions,
 )
+from ubf_async.cli.args import HelpFormatter
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import (
-    ROOT,
-    Bus,
-    ConnectionOptions,
-    HelpFormatter,
-    decode_or_count,
-    follow_sim_clock,
-)
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import ROOT, Bus
 from ubf_async.runtime.clock import SimClock
-from ubf_async.wire.protocol import Keys, ProtocolError
+from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.wire.protocol import Keys, ProtocolError, decode_or_count
 from ubf_async.wire.topics import CONTROLLER_STATUS
 
 PROG = "python -m ubf_async.fleet"

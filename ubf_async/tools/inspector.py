@@ -44,18 +44,13 @@ import msgpack
 import msgspec
 import yaml
 
+from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.cli.run import STOP_SIGNALS
 from ubf_async.errors import UbfError
+from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.net.transport import intersects
 from ubf_async.runtime import clockdomain
-from ubf_async.runtime.bus import (
-    DEFAULT_LISTEN,
-    Bus,
-    QueryError,
-    add_connection_arguments,
-    connection_options,
-    wait_for_robot,
-)
+from ubf_async.runtime.bus import Bus, QueryError, wait_for_robot
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.services.live import encode_request, render_tree_data
 from ubf_async.services.live import request as tree_request

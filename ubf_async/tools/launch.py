@@ -55,25 +55,19 @@ from ubf_async.assembly.simulation import (
     Simulator,
 )
 from ubf_async.cli import ending
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import LOOP_HELP, check_lockstep_loop, run_main
 from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
 from ubf_async.runtime import lockstep
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import (
-    DEFAULT_LISTEN,
-    DEFAULT_ROBOT,
-    Bus,
-    ConnectionOptions,
-    HelpFormatter,
-    add_connection_arguments,
-    connection_options,
-    follow_sim_clock,
-)
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import Clock, SimClock, WallClock
 from ubf_async.runtime.component import Component, HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.runtime.heap import freeze_startup_objects
 from ubf_async.runtime.hostclock import RobotTimeBeacon
+from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.services.live import TreeService
 from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.services.liveview import FoxgloveServer

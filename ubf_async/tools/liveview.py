@@ -10,9 +10,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.cli.run import run_main
-from ubf_async.runtime.bus import HelpFormatter, add_connection_arguments
 from ubf_async.services.liveview import (
     DEFAULT_HOST,
     DEFAULT_PORT,

@@ -48,14 +48,11 @@ from mcap.writer import CompressionType, Writer
 
 from ubf_async import __version__, throttle
 from ubf_async.cli import ending
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError, ProtocolError
-from ubf_async.runtime.bus import (
-    Bus,
-    HelpFormatter,
-    add_connection_arguments,
-)
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component, ensure_name_free
 from ubf_async.services.liveview import LiveMessage, LiveView
 from ubf_async.wire.protocol import PROTOCOL_VERSION, Message, decode

@@ -56,20 +56,12 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel
 
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
 from ubf_async.net.transport import intersects
-from ubf_async.runtime.bus import (
-    DEFAULT_ATTACH_TIMEOUT_S,
-    DEFAULT_LISTEN,
-    Bus,
-    HelpFormatter,
-    NoRobotError,
-    RawPublisher,
-    add_connection_arguments,
-    connection_options,
-    wait_for_robot,
-)
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, RawPublisher, wait_for_robot
 from ubf_async.runtime.clock import SimClock
 
 log = logging.getLogger(__name__)
@@ -496,7 +488,7 @@ async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
                              settle_s: float = SETTLE_S, poll_s: float = 0.01) -> list[str]:
     """Wait until something subscribes to ``keys``: return as soon as every key has a
     subscriber, or ``settle_s`` after the first one had (the keys still without one are
-    returned). :class:`~ubf_async.runtime.bus.NoRobotError` when none has after ``timeout_s``.
+    returned). :class:`~ubf_async.net.options.NoRobotError` when none has after ``timeout_s``.
 
     zenoh delivers a sample only to the subscribers its publisher knows when it is put
     (declarations travel asynchronously), so a replay that started before the robot's

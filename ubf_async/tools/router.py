@@ -13,8 +13,8 @@ hosts), ``--connect`` for other routers, a JSON5 ``--config`` under them, multic
 unless asked. It prints which robots are alive on it (their components' liveliness tokens) as
 they come and go.
 
-Sessions made by :class:`~ubf_async.runtime.bus.ConnectionOptions` retry a lost connection every
-:data:`~ubf_async.runtime.bus.RECONNECT_RETRY` (at most 1 s apart, where zenoh's default backs off
+Sessions made by :class:`~ubf_async.net.options.ConnectionOptions` retry a lost connection every
+:data:`~ubf_async.net.options.RECONNECT_RETRY` (at most 1 s apart, where zenoh's default backs off
 to 4 s), so a restarted router has every client back within about a second of its return. While a
 client is disconnected, what it publishes is lost (zenoh keeps no queue for an absent
 router) and what it subscribes to does not arrive: a robot's motors stop on their watchdog, its
@@ -31,14 +31,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
+from ubf_async.cli.args import HelpFormatter
 from ubf_async.cli.run import run_main
-from ubf_async.runtime.bus import (
-    ROOT,
-    Bus,
-    ConnectionOptions,
-    HelpFormatter,
-    load_zenoh_config,
-)
+from ubf_async.net.options import ConnectionOptions, load_zenoh_config
+from ubf_async.runtime.bus import ROOT, Bus
 
 PROG = "python -m ubf_async.router"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"

@@ -21,13 +21,15 @@ new kind of sensor) is checked generically (:func:`plain`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import logging
+from collections.abc import Callable, Mapping
 from typing import Annotated, Any, Generic, TypeVar, overload
 
 import msgspec
 from msgspec import Meta
 
 # Defined with the rest of the exception tree; re-exported here, where it has always been.
+from ubf_async import throttle
 from ubf_async.errors import ProtocolError as ProtocolError
 
 # The key builders live below topics (which needs them) and are re-exported here, where they
@@ -247,3 +249,37 @@ def _check_schema(schema: object) -> str:
         raise ProtocolError(f"schema: {schema!r:.80} is not a string of 1 to "
                             f"{MAX_SCHEMA_CHARS} characters")
     return schema
+
+
+# -- decoding what arrives, counting what is refused --------------------------------------------
+
+log = logging.getLogger(__name__)
+
+MAX_COUNTED_KEYS = 1024
+"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
+
+
+def decode_or_count(
+    payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
+    topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
+    on_error: Callable[[ProtocolError], None] | None = None,
+) -> Any | None:
+    """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
+    :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
+    per key), pass it to ``on_error`` if given, and return ``None``. ``counter`` keeps at most
+    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
+    try:
+        if decoder is not None:
+            return decoder(payload)
+        return decode(payload, topic=topic) if topic is not None else decode(payload,
+                                                                             schema=schema)
+    except ProtocolError as exc:
+        n = counter.get(key, 0) + 1
+        counter[key] = n
+        if len(counter) > MAX_COUNTED_KEYS:
+            del counter[next(iter(counter))]
+        if throttle.first_and_every(n):
+            log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
+        if on_error is not None:
+            on_error(exc)
+        return None
