@@ -27,7 +27,7 @@ from typing import Any
 
 from ubf_async.behaviors.obstacles import DEFAULT_HOLD_S, Avoid
 from ubf_async.core.behavior import Behavior
-from ubf_async.services.remote import remote_parser, run_remote_behavior
+from ubf_async.tools.remote_host import remote_parser, run_remote_behavior
 
 
 class AvoidObstacles(Avoid):

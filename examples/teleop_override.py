@@ -22,7 +22,7 @@ from typing import NamedTuple
 from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior
 from ubf_async.core.state import State
-from ubf_async.services.remote import remote_parser, run_remote_behavior
+from ubf_async.tools.remote_host import remote_parser, run_remote_behavior
 
 
 class Step(NamedTuple):

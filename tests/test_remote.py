@@ -38,12 +38,12 @@ from ubf_async.services.remote import (
     RemoteBehaviorHost,
     RemoteBehaviors,
     Vote,
-    choose_clock,
     parse_remote_spec,
     remote_spec,
     vote_data,
     vote_key,
 )
+from ubf_async.tools.remote_host import choose_clock
 from ubf_async.wire.protocol import Keys, ProtocolError, decode, encode
 
 EXAMPLES = ROOT / "examples"

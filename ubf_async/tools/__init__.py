@@ -3,7 +3,8 @@
 
 ``launch`` (the composition root of one robot), ``fleet``, ``inspector``, ``record``,
 ``replay``, ``liveview``, ``router``, ``secure`` and ``robotfile_check``
-(``python -m ubf_async.robotfile``).
+(``python -m ubf_async.robotfile``); and ``remote_host``, what a remote behaviour's own program
+(``examples/avoid_obstacles.py``) runs.
 
 May import anything of the framework; nothing imports it but the top-level entry modules (and
 tests).
