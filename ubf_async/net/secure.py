@@ -215,7 +215,7 @@ class SecureSetup:
     def load(cls, directory: Path) -> SecureSetup:
         """Read ``DIR/secure.json``. Raises :class:`ConfigurationError`."""
         data = _read_json(directory / MANIFEST, what="the secure set-up (run `python -m "
-                          f"ubf_async.tools.secure init {directory} --robot-file FILE` first)")
+                          f"ubf_async.secure init {directory} --robot-file FILE` first)")
         if data.get("format") != FORMAT:
             raise ConfigurationError(f"{directory / MANIFEST}: unknown format "
                                      f"{data.get('format')!r} (expected {FORMAT})")

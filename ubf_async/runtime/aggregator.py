@@ -41,7 +41,6 @@ from array import array
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import ParamSpec
 
 from ubf_async import throttle
 from ubf_async.core.action import Action
@@ -50,6 +49,7 @@ from ubf_async.runtime import clockdomain, refusals
 from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import SilenceLimit
 from ubf_async.runtime.component import Component
+from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, clip, decode_or_count
 from ubf_async.wire.topics import sensor_topic
@@ -70,7 +70,6 @@ sample before the robot did, by a few ms of wall time — multiplied by the simu
 DEFAULT_FORGET_AFTER_S = 60.0
 """An unprotected source silent this long (robot clock) is dropped from the state."""
 
-P = ParamSpec("P")
 SampleHook = Callable[[str, "SourceEntry"], None]
 """``callback(source, entry)``: an accepted sample was stored
 (:meth:`StateAggregator.on_sample`)."""
@@ -78,31 +77,6 @@ ReceiveHook = Callable[[str, bytes, int], None]
 """``callback(key, payload, received_ns)``: a raw sample reached the aggregator."""
 IngestHook = Callable[[str, Message, int], None]
 """``callback(source, message, received_ns)``: a decoded sample is offered to ingest."""
-
-
-def add_hook(hooks: list[Callable[P, None]], callback: Callable[P, None]) -> Callable[[], None]:
-    """Append ``callback`` to ``hooks``; returns a remover (idempotent)."""
-    hooks.append(callback)
-
-    def remove() -> None:
-        if callback in hooks:
-            hooks.remove(callback)
-
-    return remove
-
-
-def run_hooks(hooks: list[Callable[P, None]], what: str, *args: P.args, **kwargs: P.kwargs
-              ) -> None:
-    """Call each of ``hooks`` in the order they were added. One that raises is logged and
-    removed (it is an observer: its failure must not stop what it observes). Callers check
-    ``if hooks:`` first, so no hook costs one truth test."""
-    for hook in tuple(hooks):
-        try:
-            hook(*args, **kwargs)
-        except Exception:
-            log.exception("%s hook %r raised: removed", what, hook)
-            if hook in hooks:
-                hooks.remove(hook)
 
 
 class RecentCounts:

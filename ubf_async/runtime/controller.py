@@ -74,10 +74,11 @@ from ubf_async import throttle
 from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior, Composite, Trace
 from ubf_async.core.state import State
-from ubf_async.runtime.aggregator import SourceEntry, StateAggregator, add_hook, run_hooks
+from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import Clock, WallClock, every
 from ubf_async.runtime.component import Component
+from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ratelimit import TokenBucket
 from ubf_async.wire.protocol import clip
 from ubf_async.wire.topics import (

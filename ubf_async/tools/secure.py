@@ -1,9 +1,9 @@
 """``python -m ubf_async.secure``: generate and show a robot's secure-mode set-up.
 
 The command line over :mod:`ubf_async.net.secure` (the library: identities, the ACL,
-:func:`~ubf_async.net.secure.apply`), whose names it re-exports, where they have always been
-imported from. The library lives apart because reading a robot file (``init``) needs
-:mod:`ubf_async.assembly.robotfile`, far above the connection code that applies a set-up.
+:func:`~ubf_async.net.secure.apply`; import those from there). The library lives apart because
+reading a robot file (``init``) needs :mod:`ubf_async.assembly.robotfile`, far above the
+connection code that applies a set-up.
 ``docs/security.md`` has the threat model, the set-up and the limits.
 """
 
@@ -15,50 +15,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ubf_async.errors import ConfigurationError
-from ubf_async.net.secure import (
-    ACL,
-    ALL_MESSAGES,
-    BUILTIN,
-    FORMAT,
-    IDENTITIES,
-    INSPECTOR,
-    MANIFEST,
-    OPERATOR,
-    PASSWORDS,
-    READ_MESSAGES,
-    ROBOT,
-    Identity,
-    SecureSetup,
-    access_control,
-    apply,
-    identities_for,
-    identity_file,
-    init,
-)
+from ubf_async.net.secure import SecureSetup, init
 
-__all__ = [
-    "ACL",
-    "ALL_MESSAGES",
-    "BUILTIN",
-    "FORMAT",
-    "IDENTITIES",
-    "INSPECTOR",
-    "MANIFEST",
-    "OPERATOR",
-    "PASSWORDS",
-    "READ_MESSAGES",
-    "ROBOT",
-    "Identity",
-    "SecureSetup",
-    "access_control",
-    "apply",
-    "build_parser",
-    "describe",
-    "identities_for",
-    "identity_file",
-    "init",
-    "main",
-]
+__all__ = ["build_parser", "describe", "main"]
 
 
 # ---------------------------------------------------------------------------------------------
