@@ -21,12 +21,11 @@ entry point — or ``asyncio``'s plain loop, :func:`ubf_async.cli.run.loop_facto
 runtime. Its subscriber callback (on zenoh's thread) unpacks the sample and puts a minimal
 ``drive``-shaped msgpack reply with ``based_on`` at once.
 
-``role: "tree_echo"`` — the Python floor: the echo doing the controller's essential work in
-its zenoh callback — decode and validate the sample (``ubf_async.wire.protocol``), store it in a
+``role: "tree_echo"`` — the Python floor: the echo doing the controller's essential work in its
+zenoh callback — decode and validate the sample (``ubf_async.wire.protocol``), store it in a
 :class:`~ubf_async.runtime.aggregator.StateAggregator`, snapshot, evaluate :func:`reflex_tree`,
-encode
-the ``drive`` command — with no bus, no event loop, no hooks, no bookkeeping: what any Python
-controller of this tree pays at least.
+encode the ``drive`` command — with no bus, no event loop, no hooks, no bookkeeping: what any
+Python controller of this tree pays at least.
 
 ``role: "simrobot"`` — the full simulated robot in this process (simulator at speed 1 on
 wall-clock pacing, camera, encoders, IR, motors, radio) plus aggregator and the launch's

@@ -7,11 +7,10 @@ parameters of its device kind's ``build_device``.
 
 The device and its backend are looked up in the registry (:mod:`ubf_async.assembly.registry`)
 exactly as launch looks them up for a robot file: ``--backend`` lists the backends registered for
-the
-kind. When the backend needs a simulator (its ``requires_simulator``), the process follows the
-simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from
-that simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running
-simulated robot at any time. This module knows no simulator by name.
+the kind. When the backend needs a simulator (its ``requires_simulator``), the process follows the
+simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from that
+simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running simulated
+robot at any time. This module knows no simulator by name.
 
 Any other backend (real hardware, the radio on a terminal) stamps on the robot's clock too:
 with ``--clock auto`` (the default) it waits until the robot says which clock it runs on,
