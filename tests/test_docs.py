@@ -1,7 +1,8 @@
 """README.md and docs/*.md read against the code (issue 28): every command they show names an
 entry point that exists, with options it takes; the numbers and messages they quote are the
-ones the code uses. (docs/your-robot.md is executed whole by tests/test_tutorial.py, and
-docs/recording.md's snippets by tests/test_record.py.)"""
+ones the code uses. (Every command shown is also run, by tests/test_doc_commands.py;
+docs/your-robot.md is executed whole by tests/test_tutorial.py, and docs/recording.md's
+snippets by tests/test_record.py.)"""
 
 from __future__ import annotations
 
@@ -29,9 +30,10 @@ FLAG = re.compile(r"--?[A-Za-z][\w-]*")
 
 # -- the commands the docs show -----------------------------------------------------------------
 
-def shell_texts(markdown: str) -> Iterator[tuple[int, str]]:
+def shell_texts(markdown: str, *, inline: bool = True) -> Iterator[tuple[int, str]]:
     """``(line, text)``: each command of a shell code block (a line, with its ``\\``
-    continuations) and each inline code span outside code blocks that starts with ``python``."""
+    continuations) and (``inline``) each inline code span outside code blocks that starts with
+    ``python``."""
     prose: list[str] = []
     block: str | None = None  # the open code block's language
     command: tuple[int, str] | None = None
@@ -48,6 +50,8 @@ def shell_texts(markdown: str) -> Iterator[tuple[int, str]]:
         command = (start, text) if line.rstrip().endswith("\\") else None
         if command is None:
             yield start, text
+    if not inline:
+        return
     joined = "\n".join(prose)
     for match in re.finditer(r"`(python[^`]*)`", joined):
         yield joined.count("\n", 0, match.start()) + 1, match.group(1)

@@ -169,17 +169,26 @@ AVOID = [str(REPOSITORY / "examples" / "avoid_obstacles.py"), "--clock", "sim", 
 
 def test_a_remote_behaviour_in_lockstep_gives_the_same_run_under_load(tmp_path: Path) -> None:
     """examples/avoid_obstacles.py in its own process, joined with --lockstep, on
-    obstacle-course: twice — once with both processes pinned to one core beside a busy loop
-    — byte-identical, and the example is what gets the robot round the box."""
+    obstacle-course: the example is what gets the robot round the box; and run again with
+    both processes pinned to one core beside a busy loop, the run's first LOADED_S simulated
+    seconds (the example already steering) are byte-identical."""
     idle = launch_with_participant(tmp_path / "idle", duration_s=60, participant=AVOID)
     core = available_cpus()[:1]
     with hogs(core):
-        loaded = launch_with_participant(tmp_path / "loaded", duration_s=60,
+        loaded = launch_with_participant(tmp_path / "loaded", duration_s=LOADED_S,
                                          participant=AVOID, cpus=core)
-    assert_same(loaded, idle, "a remote behaviour in lockstep, under load")
+    assert loaded.summary["sim_time_s"] == pytest.approx(LOADED_S)
+    assert loaded.trajectory.count(b"\n") >= 20 * LOADED_S  # a row every 50 ms simulated
+    assert idle.trajectory.startswith(loaded.trajectory), "under load: trajectories differ"
+    assert loaded.summary["ticks"]["winner_share"]["avoid_obstacles"] > 0, loaded.summary
     assert idle.summary["expected"]["pass"], idle.summary["expected"]
     assert idle.summary["ticks"]["winner_share"]["avoid_obstacles"] > 0
     assert "dropped from the barrier" not in idle.output + loaded.output
+
+
+LOADED_S = 25.0
+"""Simulated seconds of the loaded run of the remote behaviour: past the example's first
+turns away from the box, which is what a lost or late vote would change."""
 
 
 def test_a_participant_that_vanishes_or_falls_silent_is_dropped_and_the_run_goes_on(

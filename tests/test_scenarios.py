@@ -363,9 +363,10 @@ def test_obstacle_course_with_the_avoid_behaviour_gets_round(
 @pytest.mark.asyncio
 async def test_the_avoid_obstacles_example_in_its_own_process_matters(
         tmp_path: Path, robot: str) -> None:
-    """``python -m ubf_async.launch --scenario obstacle-course`` (the shipped robot), once
-    alone and once with ``python examples/avoid_obstacles.py`` attached over zenoh: alone it
-    pushes against the box; with the example it gets round and settles at the ball.
+    """``python -m ubf_async.launch --scenario obstacle-course`` (the shipped robot) with
+    ``python examples/avoid_obstacles.py`` attached over zenoh gets round the box and settles
+    at the ball; alone, the same robot on the same course pushes against the box
+    (:func:`test_obstacle_course_the_thesis_tree_pushes_against_the_box`, the same launch).
 
     The example listens and the robot connects to it, so the example is up and following the
     robot's clock before simulated time starts (its first vote comes within a few steps,
@@ -383,7 +384,6 @@ async def test_the_avoid_obstacles_example_in_its_own_process_matters(
         assert proc.returncode == 0, printed.decode()
         return json.loads((folder / "summary.json").read_text("utf-8"))  # type: ignore[no-any-return]
 
-    alone = await launch(tmp_path / "alone")
     example = await spawn(str(ROOT / "examples" / "avoid_obstacles.py"), "--listen",
                           example_endpoint, "--robot", robot, "--clock", "sim", "--quiet")
     try:
@@ -393,14 +393,10 @@ async def test_the_avoid_obstacles_example_in_its_own_process_matters(
         assert "votes in 'seek_pink_ball'" in printed and "(priority 3" in printed
     finally:
         await stop(example)
-    for summary in (alone, with_example):
-        assert_odometry_tracks_the_heading(summary, label="obstacle-course (processes)")
-    runs = {label: Run(summary, read_trajectory_csv(tmp_path / label / "trajectory.csv"),
-                       tmp_path / label)
-            for label, summary in (("alone", alone), ("with", with_example))}
-    assert "avoid_obstacles" not in alone["ticks"]["winner_share"]
-    assert_pushes_against_the_box(runs["alone"])
-    assert_gets_round_the_box(runs["with"], avoid="avoid_obstacles")
+    assert_odometry_tracks_the_heading(with_example, label="obstacle-course (processes)")
+    run = Run(with_example, read_trajectory_csv(tmp_path / "with" / "trajectory.csv"),
+              tmp_path / "with")
+    assert_gets_round_the_box(run, avoid="avoid_obstacles")
 
 
 def test_busy_room(tmp_path: Path, endpoint: str, robot: str) -> None:

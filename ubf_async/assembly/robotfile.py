@@ -193,6 +193,31 @@ class RemotesSpec(Spec):
     max_remotes: Annotated[int, msgspec.Meta(ge=0, le=4096)] = 64
 
 
+ROS_NAMESPACE = r"^/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$"
+ROS_TOPIC = r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$"
+
+
+class Ros2Spec(Spec):
+    """The ROS 2 bridge launch runs in-process (``ubf_async.services.ros2``, docs/ros2.md)."""
+
+    what: ClassVar[str] = "`ros2`"
+
+    enabled: bool = True
+    domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 0
+    distro: Literal["humble", "jazzy", "kilted"] = "jazzy"
+    namespace: Annotated[str, msgspec.Meta(pattern=ROS_NAMESPACE)] | None = None
+    """The node's namespace (default ``/<robot>``)."""
+    node: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] = "ubf_bridge"
+    cmd_vel_in: Annotated[str, msgspec.Meta(pattern=ROS_TOPIC, max_length=128)] = "cmd_vel_in"
+    slot: Name = "teleop"
+    """The `remote:` slot the inbound Twists vote in (its composite: the one holding it)."""
+    ttl_s: Annotated[float, msgspec.Meta(ge=0.001, le=60.0)] = 0.5
+    max_linear_m_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 0.34
+    """Calibration: the robot's forward speed at ``speed`` 100 (m/s)."""
+    max_angular_rad_s: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] = 1.62
+    """Calibration: its turn rate at ``turn`` 100, to the left (rad/s)."""
+
+
 class RobotFile(Spec):
     """A robot: its name, devices, controller and behaviour tree."""
 
@@ -208,6 +233,8 @@ class RobotFile(Spec):
     devices: list[DeviceSpec] = []
     controller: ControllerSpec = msgspec.field(default_factory=ControllerSpec)
     remotes: RemotesSpec = msgspec.field(default_factory=RemotesSpec)
+    ros2: Ros2Spec | None = None
+    """The ROS 2 bridge (absent: none)."""
 
 
 # -- file positions ---------------------------------------------------------------------------
@@ -697,6 +724,9 @@ def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Ro
                             "`children`)", ("tree",))
     builder = TreeBuilder(locator=locator, seed=spec.seed if seed is None else seed)
     root = builder.composite(spec.tree, ("tree",))
+    if spec.ros2 is not None and not any(s.name == spec.ros2.slot for s in builder.remotes):
+        raise locator.error(f"ros2: slot {spec.ros2.slot!r} is not a `remote:` slot of the tree "
+                            f"(its Twists vote there; docs/ros2.md)", ("ros2",), key="slot")
     return Robot(spec=spec, source=locator.source, root=root, devices=devices,
                  locator=locator, remotes=builder.remotes)
 

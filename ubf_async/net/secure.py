@@ -46,6 +46,9 @@ ROBOT = "robot"
 INSPECTOR = "inspector"
 OPERATOR = "operator"
 BUILTIN = (ROBOT, INSPECTOR, OPERATOR)
+ROS2_BRIDGE, ROS2_READER, ROS2_DRIVER = "ros2-bridge", "ros2-reader", "ros2-driver"
+ROS2_IDENTITIES = (ROS2_BRIDGE, ROS2_READER, ROS2_DRIVER)
+"""With a robot file's ``ros2:`` section (docs/ros2.md)."""
 MANIFEST = "secure.json"
 PASSWORDS = "passwords.txt"
 ACL = "acl.json"
@@ -69,6 +72,9 @@ class Identity:
     """A device: ``(kind, name)``."""
     simulated: bool = False
     """A device whose backend drives the simulator (it may put ``sim/pulses``)."""
+    ros2: tuple[int, str] | None = None
+    """A ROS 2 identity (``ros2-bridge``, ``ros2-reader``, ``ros2-driver``): the robot file's
+    ROS domain id and namespace (docs/ros2.md)."""
 
     def as_data(self) -> dict[str, Any]:
         data: dict[str, Any] = {"name": self.name, "role": self.role}
@@ -77,15 +83,18 @@ class Identity:
         if self.device is not None:
             data["device"] = list(self.device)
             data["simulated"] = self.simulated
+        if self.ros2 is not None:
+            data["ros2"] = list(self.ros2)
         return data
 
     @classmethod
     def of_data(cls, data: Mapping[str, Any]) -> Identity:
-        device = data.get("device")
+        device, ros2 = data.get("device"), data.get("ros2")
         return cls(name=str(data["name"]), role=str(data["role"]),
                    composites=tuple(data.get("composites", ())),
                    device=(str(device[0]), str(device[1])) if device else None,
-                   simulated=bool(data.get("simulated", False)))
+                   simulated=bool(data.get("simulated", False)),
+                   ros2=(int(ros2[0]), str(ros2[1])) if ros2 else None)
 
     def describe(self) -> str:
         if self.role == "remote":
@@ -93,6 +102,13 @@ class Identity:
         if self.role == "device" and self.device is not None:
             return f"device {self.device[0]}/{self.device[1]}" + (
                 " (simulated: may drive the simulator's wheels)" if self.simulated else "")
+        if self.ros2 is not None:
+            where = f"ROS domain {self.ros2[0]}, {self.ros2[1]}"
+            return {ROS2_BRIDGE: f"the ROS 2 bridge as its own process ({where}): votes as "
+                                 f"{', '.join(self.composites)}",
+                    ROS2_READER: f"a ROS 2 node that reads the robot's topics ({where})",
+                    ROS2_DRIVER: f"a ROS 2 node that reads and drives (cmd_vel_in; {where})",
+                    }[self.role]
         return {ROBOT: "the robot: every key of the robot",
                 INSPECTOR: "read-only: subscribe and liveliness",
                 OPERATOR: "read, and the tree service (show and change the tree)"}[self.role]
@@ -108,10 +124,17 @@ def identities_for(robot: Any, *, devices: Iterable[str] = ()) -> list[Identity]
     for slot in robot.remotes:
         composites.setdefault(slot.name, []).append(slot.composite)
     for name, where in composites.items():
-        if name in BUILTIN or name.startswith("device-"):
+        if name in BUILTIN or name.startswith(("device-", "ros2-")):
             raise ConfigurationError(f"remote slot {name!r}: the name is taken by a built-in "
-                                     f"identity ({', '.join(BUILTIN)}, device-*)")
+                                     f"identity ({', '.join(BUILTIN)}, device-*, ros2-*)")
         out.append(Identity(name=name, role="remote", composites=tuple(sorted(set(where)))))
+    ros2 = getattr(getattr(robot, "spec", None), "ros2", None)
+    if ros2 is not None and ros2.enabled:
+        ros_at: tuple[int, str] = (ros2.domain_id, ros2.namespace or f"/{robot.name}")
+        slot = tuple(sorted({s.key for s in robot.remotes if s.name == ros2.slot}))
+        out += [Identity(name=ROS2_BRIDGE, role=ROS2_BRIDGE, composites=slot, ros2=ros_at),
+                Identity(name=ROS2_READER, role=ROS2_READER, ros2=ros_at),
+                Identity(name=ROS2_DRIVER, role=ROS2_DRIVER, ros2=ros_at)]
     known = {f"{d.kind}/{d.name}": d for d in robot.devices}
     for wanted in devices:
         device = known.get(wanted)
@@ -136,7 +159,14 @@ def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]
       composites it has a slot in), its ``heartbeat/N``, and hold the token ``alive/N``;
     * ``operator``: also query ``tree`` (show *and* change the tree: one key serves both);
     * ``device-K-N``: also put ``sensor/K/N``, ``heartbeat/K-N`` and ``status/K-N``, hold
-      ``alive/K-N`` and, for a simulated backend, put ``sim/pulses``.
+      ``alive/K-N`` and, for a simulated backend, put ``sim/pulses``;
+    * with a ``ros2:`` section, the ROS 2 keys of its domain ``D`` and namespace ``NS``
+      (``D/NS/**``, ``D/clock/**``, and the graph ``@ros2_lv/D/**``): ``ros2-reader`` and
+      ``ros2-driver`` may subscribe to them, hold their own graph tokens and query the graph;
+      ``ros2-driver`` also put ``D/NS/cmd_vel_in/**``; ``ros2-bridge`` (the bridge in a
+      process of its own) put the ROS keys and vote in its slot (``vote/<composite>/<slot>``,
+      ``alive/<slot>``, ``alive/ros2``, ``heartbeat/ros2``). ROS keys go out (egress) to the
+      ROS identities only.
 
     Nobody but ``robot`` may put ``cmd/*`` (drive, seek_color, radio, leds), ``clock`` or
     other ``sim/*`` keys, declare a queryable, reply, or delete. Egress (what the session
@@ -151,6 +181,11 @@ def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]
         {"id": "read", "rules": ["read"],
          "subjects": [_subject_id(i) for i in identities if i.role != ROBOT]},
     ]
+    ros = [i for i in identities if i.ros2 is not None]
+    if ros:
+        rules.append(_rule("ros2-egress", ALL_MESSAGES, _ros_keys(ros[0]), flow="egress"))
+        policies.append({"id": "ros2-egress", "rules": ["ros2-egress"],
+                         "subjects": [_subject_id(i) for i in ros]})
     for identity in identities:
         own = _own_rules(prefix, identity)
         rules += own
@@ -176,8 +211,33 @@ def _subject_id(identity: Identity) -> str:
     return f"user-{identity.name}"
 
 
+def _ros_keys(identity: Identity, topic: str = "**") -> list[str]:
+    """The ROS 2 keys of an identity's domain and namespace: data, ``/clock`` and graph."""
+    assert identity.ros2 is not None
+    domain, namespace = identity.ros2
+    data = f"{domain}/{namespace.strip('/')}/{topic}".replace("//", "/")
+    return [data] if topic != "**" else [data, f"{domain}/clock/**", f"@ros2_lv/{domain}/**"]
+
+
 def _own_rules(prefix: str, identity: Identity) -> list[dict[str, Any]]:
     name = identity.name
+    if identity.ros2 is not None:
+        keys = _ros_keys(identity)
+        graph = [k for k in keys if k.startswith("@")]
+        rules = [_rule(f"{name}-read", ("declare_subscriber", "declare_liveliness_subscriber",
+                                        "liveliness_query"), keys),
+                 _rule(f"{name}-token", ("liveliness_token",), graph)]
+        if identity.role == ROS2_DRIVER:
+            rules.append(_rule(f"{name}-put", ("put",), _ros_keys(identity, "cmd_vel_in/**")))
+        if identity.role == ROS2_BRIDGE:
+            # composites: the slot's key, composite/slot
+            votes = [f"{prefix}/vote/{slot}" for slot in identity.composites]
+            alive = [f"{prefix}/alive/{slot.rsplit('/', 1)[1]}" for slot in identity.composites]
+            rules += [_rule(f"{name}-put", ("put",), [*keys[:2], *votes,
+                                                      f"{prefix}/heartbeat/ros2"]),
+                      _rule(f"{name}-alive", ("liveliness_token",),
+                            [*alive, f"{prefix}/alive/ros2"])]
+        return rules
     if identity.role == ROBOT:
         return [_rule(f"{name}-all", ALL_MESSAGES, [f"{prefix}/**"])]
     if identity.role == OPERATOR:
@@ -215,7 +275,7 @@ class SecureSetup:
     def load(cls, directory: Path) -> SecureSetup:
         """Read ``DIR/secure.json``. Raises :class:`ConfigurationError`."""
         data = _read_json(directory / MANIFEST, what="the secure set-up (run `python -m "
-                          f"ubf_async.secure init {directory} --robot-file FILE` first)")
+                          f"ubf_async.tools.secure init {directory} --robot-file FILE` first)")
         if data.get("format") != FORMAT:
             raise ConfigurationError(f"{directory / MANIFEST}: unknown format "
                                      f"{data.get('format')!r} (expected {FORMAT})")

@@ -28,6 +28,7 @@ import asyncio
 import contextlib
 import functools
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple, Protocol
@@ -209,6 +210,34 @@ class _ZenohQuery:
             self._query.drop()
 
 
+CALLBACK_THREADS_JOIN_S = 2.0
+"""How long closing a zenoh connection waits, at most, for its callback threads to end."""
+
+
+class _CallbackThread:
+    """The Python thread zenoh-python runs one declaration's callback on, known once its
+    ``drop`` ran there (after the declaration or the session is gone)."""
+
+    __slots__ = ("dropped", "thread")
+
+    def __init__(self) -> None:
+        self.dropped = threading.Event()
+        self.thread: threading.Thread | None = None
+
+    def on_drop(self) -> None:
+        self.thread = threading.current_thread()
+        self.dropped.set()
+
+    def finished(self) -> bool:
+        return self.thread is not None and not self.thread.is_alive()
+
+    def join(self, deadline: float) -> None:
+        if self.dropped.wait(max(0.0, deadline - time.monotonic())):
+            assert self.thread is not None
+            if self.thread is not threading.current_thread():
+                self.thread.join(max(0.0, deadline - time.monotonic()))
+
+
 class ZenohConnection:
     """A bus's connection through an open zenoh session (callbacks on zenoh's threads).
 
@@ -218,16 +247,27 @@ class ZenohConnection:
     (``Callback(..., indirect=False)``), in the order a session sent them — what lockstep
     needs (an acknowledgement must not overtake the vote sent before it,
     :mod:`ubf_async.runtime.lockstep`). The callbacks only copy and hand over, so zenoh's thread
-    is held briefly."""
+    is held briefly.
+
+    Those callback threads outlive ``session.close()`` for a moment (each ends once its
+    channel is dropped); :meth:`close` waits for them, so none is left running in zenoh
+    when the interpreter exits (which on Python 3.11 aborts the process: "FATAL: exception
+    not rethrown")."""
 
     callbacks_on_loop = False
 
     def __init__(self, session: zenoh.Session, *, ordered: bool = False) -> None:
         self.session = session
         self.ordered = ordered
+        self._callback_threads: list[_CallbackThread] = []
 
     def _handler(self, callback: Callable[[Any], None]) -> Any:
-        return zenoh.handlers.Callback(callback, indirect=False) if self.ordered else callback
+        if self.ordered:
+            return zenoh.handlers.Callback(callback, indirect=False)
+        self._callback_threads = [t for t in self._callback_threads if not t.finished()]
+        end = _CallbackThread()
+        self._callback_threads.append(end)
+        return zenoh.handlers.Callback(callback, end.on_drop)
 
     def declare_publisher(self, key: str) -> OutgoingPublisher:
         return _ZenohPublisher(self.session.declare_publisher(key))
@@ -264,7 +304,7 @@ class ZenohConnection:
         def on_query(query: zenoh.Query) -> None:
             callback(_ZenohQuery(query))
 
-        return _ZenohDeclaration(self.session.declare_queryable(key, on_query))
+        return _ZenohDeclaration(self.session.declare_queryable(key, self._handler(on_query)))
 
     async def get(self, key: str, payload: bytes | None, *, timeout_s: float) -> GetResult:
         def get() -> GetResult:  # in a worker thread, so a queryable on the loop can answer
@@ -290,7 +330,13 @@ class ZenohConnection:
         return [str(link.dst) for link in self.session.info.links()]
 
     async def close(self) -> None:
-        await asyncio.to_thread(self.session.close)
+        await asyncio.to_thread(self._close)
+
+    def _close(self) -> None:
+        self.session.close()
+        deadline = time.monotonic() + CALLBACK_THREADS_JOIN_S
+        for end in self._callback_threads:
+            end.join(deadline)
 
 
 class ZenohTransport:

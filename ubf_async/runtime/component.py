@@ -321,6 +321,23 @@ class HealthMonitor:
         entry.publishes = data.publishes
         self.changed.set()
 
+    async def heard_from_all(self, within_s: float) -> bool:
+        """Wait until every component whose token this has seen has also sent a heartbeat
+        (which announces what it publishes), at most ``within_s``; whether it came to that.
+        Call after :meth:`start`: on a busy machine the robot's tokens and heartbeats can take
+        seconds to arrive, and a judgement on "who publishes what" must not come before."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + within_s
+        while True:
+            self.changed.clear()
+            alive = [h for h in self.components.values() if h.alive]
+            if alive and all(h.last_heartbeat_s is not None for h in alive):
+                return True
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.changed.wait(), deadline - loop.time())
+            if loop.time() >= deadline:
+                return False
+
     def alive_names(self) -> list[str]:
         return sorted(name for name, h in self.components.items() if h.alive)
 

@@ -351,18 +351,23 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
         tool.subscribe(f"{ROOT}/*/status/controller", status.on_status, latest=False)
         clock = SimClock()
         follow_sim_clock(tool, clock, {})
-        while world.returncode is None:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(world.wait(), args.status_period_s)
-            if not args.quiet:
-                print(status.line(sim_s=clock.now_ns() / 1e9 if clock.started.is_set()
-                                  else None), file=out, flush=True)
-            for name, proc in procs.items():
-                if name not in ("world",) and proc.returncode is not None:
-                    print(f"fleet: {name} exited with status {proc.returncode} "
-                          f"(log: {logs / (name + '.log')})", file=out, flush=True)
-                    procs.pop(name)
-                    break
+        try:
+            while world.returncode is None:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(world.wait(), args.status_period_s)
+                if not args.quiet:
+                    print(status.line(sim_s=clock.now_ns() / 1e9 if clock.started.is_set()
+                                      else None), file=out, flush=True)
+                for name, proc in procs.items():
+                    if name not in ("world",) and proc.returncode is not None:
+                        print(f"fleet: {name} exited with status {proc.returncode} "
+                              f"(log: {logs / (name + '.log')})", file=out, flush=True)
+                        procs.pop(name)
+                        break
+        except asyncio.CancelledError:
+            # A stop signal ends the run as the world's duration does: the world and the
+            # controllers stop (the world writes its summary as it stops), then the summary.
+            await stop_all({name: proc for name, proc in procs.items() if name != "router"})
         if world.returncode != 0:
             print(f"fleet: the world exited with status {world.returncode}: "
                   f"{tail(logs / 'world.log')}", file=sys.stderr)

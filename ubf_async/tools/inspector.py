@@ -45,7 +45,7 @@ import msgspec
 import yaml
 
 from ubf_async.cli.args import add_connection_arguments, connection_options
-from ubf_async.cli.run import STOP_SIGNALS
+from ubf_async.cli.run import STOP_SIGNALS, run_main
 from ubf_async.errors import UbfError
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.net.transport import intersects
@@ -72,6 +72,9 @@ MAX_TICK_KINDS = 16
 ECHO_QUIET_S = 2.0
 """How long ``echo`` hears nothing before it says whether anything publishes the key: four
 heartbeats of every component, which announce what each publishes."""
+HEARD_WITHIN_S = 5.0
+"""How much longer ``echo`` and ``info`` wait, at most, for a heartbeat of every live
+component before they say who publishes what (on a busy machine they can be late)."""
 
 def expected_schema(keys: Keys, key: str) -> str | None:
     """The schema a key requires (``cmd/drive`` → ``drive``, ``sensor/camera/x`` →
@@ -475,12 +478,20 @@ async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     async def say_if_unpublished() -> None:
         await asyncio.sleep(ECHO_QUIET_S)
         if shown == 0:
-            print(await unpublished(bus, monitor, key_expr), file=sys.stderr, flush=True)
+            await monitor.heard_from_all(HEARD_WITHIN_S)
+            if shown == 0:
+                print(await unpublished(bus, monitor, key_expr), file=sys.stderr, flush=True)
 
+    started = asyncio.get_running_loop().time()
     note = asyncio.create_task(say_if_unpublished())
     try:
         with contextlib.suppress(TimeoutError):  # --seconds elapsed
             await asyncio.wait_for(done.wait(), args.seconds)
+        if (not note.done() and shown == 0
+                and asyncio.get_running_loop().time() - started >= ECHO_QUIET_S):
+            # --seconds ended while the note waited for heartbeats: say what is known.
+            note.cancel()
+            print(await unpublished(bus, monitor, key_expr), file=sys.stderr, flush=True)
     finally:
         note.cancel()
         monitor.close()
@@ -492,7 +503,7 @@ async def unpublished(bus: Bus, monitor: HealthMonitor, key_expr: str) -> str:
     component announces publishing it (heartbeats, docs/protocol.md), and the keys they do
     announce that look like it. It goes on waiting."""
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=1.0)
-    alive = {bus.keys.component_of_alive(t) for t in tokens}
+    alive = {bus.keys.component_of_alive(t) for t in tokens} | set(monitor.alive_names())
     publishers = announcing(monitor, key_expr, alive)
     if publishers:
         return (f"# nothing on {key_expr} yet, though {', '.join(sorted(publishers))} "
@@ -918,6 +929,7 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     # Heartbeats come every 0.5 s: listening at least a second hears every live component.
     listen_s = max(args.seconds, 1.0)
     await asyncio.sleep(listen_s)
+    await monitor.heard_from_all(HEARD_WITHIN_S)
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=args.timeout)
     monitor.close()
     alive = {bus.keys.component_of_alive(t) for t in tokens}
@@ -1090,18 +1102,18 @@ async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
         return 2
     try:
         return await COMMANDS[args.command](bus, args, out)
+    except BrokenPipeError:  # `... | head`
+        return 0
     finally:
         await bus.aclose()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Ends as every command does (README): the first Ctrl-C or SIGTERM ends a watching
+    command (``state --watch``, ``hz``, ``echo``) with status 0, a second at once (130)."""
     args = build_parser().parse_args(argv)
-    try:
-        return asyncio.run(run(args))
-    except KeyboardInterrupt:
-        return 130
-    except BrokenPipeError:  # `... | head`
-        return 0
+    out = sys.stdout  # itself, not run_main's guarded stream: `... | head` ends the command
+    return run_main(lambda: run(args, out), prog=PROG)
 
 
 if __name__ == "__main__":

@@ -54,9 +54,8 @@ from ubf_async.assembly.simulation import (
     SimulationRun,
     Simulator,
 )
-from ubf_async.cli import ending
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
-from ubf_async.cli.run import LOOP_HELP, check_lockstep_loop, run_main
+from ubf_async.cli.run import LOOP_HELP, check_lockstep_loop, ending, run_main
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
 from ubf_async.runtime import lockstep
@@ -434,6 +433,15 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
                                    slots=robot.remotes)
         components += [aggregator, controller, remotes, tree_service, *devices]
+        if spec.ros2 is not None and spec.ros2.enabled:  # docs/ros2.md
+            from ubf_async.services.ros2.bridge import Ros2Bridge, settings_of_spec
+            try:
+                ros2 = settings_of_spec(spec.ros2, robot.remotes)
+            except ValueError as exc:
+                raise ConfigurationError(f"{robot.source}: {exc}") from None
+            components.append(Ros2Bridge(bus=bus, settings=ros2))
+            print(f"  ROS 2 bridge: {ros2.namespace_for(options.robot)}/{ros2.node}, domain "
+                  f"{ros2.domain_id}, {ros2.distro} (docs/ros2.md)", file=out)
         if not clock.is_simulated:  # its clock, for processes on other hosts
             components.append(RobotTimeBeacon(bus=bus))
         if args.lockstep:  # last started: the simulator waits for it once all else runs

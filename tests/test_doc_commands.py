@@ -1,0 +1,966 @@
+"""Every command README.md and docs/*.md show, run (issue 28).
+
+tests/test_docs.py checks that each command shown parses with its entry point's real parser;
+here each one runs, through its real entry point, as a subprocess, and the test asserts what
+the page says it does (an exit status and a line of its output, a file it writes, another
+process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py.
+
+A command shown is a simple command of a shell code block, or of an inline code span starting
+with ``python`` that is not a form with placeholders (:func:`a_form`: ``secure init DIR
+--robot-file FILE``). Each test names the
+commands it runs (:func:`runs`); a command that cannot run here says why in :data:`NOT_RUN`.
+:func:`test_every_command_shown_is_run_or_says_why_not` fails for a command added to a page
+that neither covers, and for one that a test runs but no page shows any more — so a command
+edited on a page is noticed, and run as edited.
+
+What a test changes in a command, and only that:
+
+* the documented endpoint (``tcp/127.0.0.1:7447``, ``tcp/192.168.1.10:7447``, a Foxglove port)
+  becomes a free loopback port, and a command that relies on the default endpoint is given
+  that port explicitly (``--listen`` for a robot, ``--connect`` for a tool);
+* a command that runs until stopped is stopped with Ctrl-C (SIGINT) once the test has seen
+  what it waits for, or is bounded with its own ``--duration`` (a scenario: 4 simulated s);
+* ``~`` is a temporary folder, a placeholder (``DIR``, ``...``) what the page says it stands
+  for, and each page's commands run in a temporary folder of their own (``examples/`` linked
+  in, a fleet file's router on a free port).
+
+Commands that attach to a robot share one: the quick start's (:func:`robot`).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import functools
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TypeVar
+
+import pytest
+
+from tests.conftest import free_port, repository_env
+from tests.foxglove_client import FoxgloveClient
+from tests.test_docs import DOCS, ROOT, shell_texts, tokens
+
+TUTORIAL = ROOT / "docs" / "your-robot.md"
+DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447")
+ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
+WAIT_S = 90.0  # for a line of output: generous, for a loaded machine
+STOP_S = 30.0  # for a process to end once stopped (the bound is 5 s; a loaded machine is slow)
+
+
+# -- the commands the pages show --------------------------------------------------------------
+
+def simple_commands(text: str) -> Iterator[list[str]]:
+    """The simple commands of a shell text (split at ``&&``, ``&``, ``;``, ``|``), comments
+    dropped."""
+    command: list[str] = []
+    for token in [*tokens(text), ";"]:
+        if token and set(token) <= set("();<>|&"):
+            if command:
+                yield command
+            command = []
+        else:
+            command.append(token)
+
+
+@functools.cache
+def shown(*, inline: bool = True) -> dict[str, list[str]]:
+    """Every simple command of the pages' shell blocks and (``inline``) of their inline code
+    spans that start with ``python`` (its words joined by spaces) → where it is shown."""
+    found: dict[str, list[str]] = {}
+    for doc in DOCS:
+        if doc == TUTORIAL:
+            continue
+        for line, text in shell_texts(doc.read_text("utf-8"), inline=inline):
+            for command in simple_commands(text):
+                found.setdefault(" ".join(command), []).append(f"{doc.relative_to(ROOT)}:{line}")
+    return found
+
+
+PLACEHOLDER = re.compile(r"[A-Z][A-Z_]+(?:\.\w+)?|.*[…<>].*|\[.*|.*\]")
+
+
+def a_form(command: str) -> bool:
+    """An inline mention that shows the form of a command rather than a command to run: a
+    placeholder (``FILE``, ``DIR``, ``[--quick]``, ``…``), or a piece of
+    ``components.<device>``."""
+    words = command.split(" ")
+    if words[0] != "python" or words[-1].endswith("."):
+        return True
+    return any(PLACEHOLDER.fullmatch(word) for word in words)
+
+
+RUN: dict[str, str] = {}
+"""Command shown → the test that runs it."""
+
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def runs(*commands: str) -> Callable[[F], F]:
+    """Declare the commands shown that the decorated test runs."""
+    def declare(test: F) -> F:
+        for command in commands:
+            RUN[command] = test.__name__
+        return test
+    return declare
+
+
+ROS_MACHINE = ("a ROS 2 installation with rmw_zenoh (none here): test_ros2_sees_the_robot_"
+               "through_a_router does what it does with tests/ros2_side.py, an rmw_zenoh "
+               "implementation independent of ubf_async.services.ros2")
+
+NOT_RUN = {
+    "python3 -m venv .venv":
+        "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
+        "install the project's build dependencies without the network)",
+    ". .venv/bin/activate": "the quick start's installation (see python3 -m venv)",
+    "pip install -e .[test]": "the quick start's installation (see python3 -m venv)",
+    "python -m pytest": "the test suite this test is part of (.ci/run runs it)",
+    "python -m pytest tests/test_latency.py": "part of the test suite this test is part of",
+    "pip install -e .[hardware]":
+        "installs gpiozero and smbus2 into the environment running the tests (they are test "
+        "dependencies here; the gpio check below runs on them)",
+    "sudo apt install python3-lgpio": "root, and a Raspberry Pi's packages",
+    "sudo usermod -aG gpio,i2c $USER": "root, and a Raspberry Pi's groups",
+    "sudo raspi-config nonint do_i2c 0": "root, and a Raspberry Pi's configuration tool",
+    "ls -l /dev/gpiochip* /dev/i2c-1": "a Raspberry Pi's GPIO and I²C device files",
+    "i2cdetect -y 1": "a Raspberry Pi's I²C bus with the rangers and the ADC on it",
+    "python -m ubf_async.launch examples/robots/pi-whegs.yaml":
+        "a real robot: its motors and encoders need GPIO pins and its rangers /dev/i2c-1; "
+        "test_the_pi_robot_file_checks runs it with --check (tests/test_hw_launch.py runs it "
+        "on gpiozero's mock pins and a test I²C bus)",
+    "python -m bench.latency":
+        "about 4 minutes, past the doc tests' time budget: test_the_latency_bench_explains_"
+        "itself runs its --help; tests/test_latency.py runs its sections in short runs",
+    "python -m bench.latency --quick": "about 45 s (see python -m bench.latency)",
+    "python -m bench.latency --json out.json": "the full run (see python -m bench.latency)",
+    "python -m bench.latency --only reflex obstacle":
+        "146 s measured here (see python -m bench.latency)",
+    "python -m bench.realtime --runs 5 --duration 20":
+        "five runs of 20 simulated s, each also without the camera and flat out: minutes",
+    "python -m ubf_async.inspector echo ubf/pi-whegs/sensor/encoders/wheels":
+        "a running pi-whegs robot: real GPIO encoders",
+    "python -m components.motors --backend gpio":
+        "real GPIO motors (tests/test_hw_launch.py runs it on gpiozero's mock pins)",
+    "python -m bench.fleet --search":
+        "fleets of 1, 2, 4 and 8 robots for 90 simulated s each, twice: many minutes",
+    "python -m bench.tick": "13 s measured here, past the doc tests' time budget",
+    "python -m bench.handoff": "49 s measured here, past the doc tests' time budget",
+    "python -m bench.margins": "37 s measured here, past the doc tests' time budget",
+    "python -m bench.flood": "25 s measured here, past the doc tests' time budget",
+    "python -m bench.realtime": "several runs of the simulated robot at --speed 5: minutes",
+    "python -m bench.soak": "an hour of simulated time flat out (--sim-s 3600)",
+    "python -m bench.fleet": "fleets of 1 to 8 robots through the fleet launcher: minutes",
+    "python -m ubf_async.fleet":
+        "the program's name (it needs a fleet file): its runs shown with one run above",
+    "python -m ubf_async.inspector":
+        "the program's name (it needs a command): the inspector commands shown run above",
+    "python -m ubf_async.record":
+        "the program's name in prose: the recorder commands shown with arguments run above",
+    "python -m components.camera":
+        "the program's name in prose (a device in a process of its own): components.range, "
+        "shown with arguments, runs above",
+    "export RMW_IMPLEMENTATION=rmw_zenoh_cpp": ROS_MACHINE,
+    'export ZENOH_CONFIG_OVERRIDE=connect/endpoints=["tcp/ROBOT_HOST:7447"]': ROS_MACHINE,
+    "export ZENOH_ROUTER_CHECK_ATTEMPTS=-1": ROS_MACHINE,
+    "ros2 node list": ROS_MACHINE,
+    "ros2 topic list -t": ROS_MACHINE,
+    "ros2 topic echo /mini/odom": ROS_MACHINE,
+    "ros2 run teleop_twist_keyboard teleop_twist_keyboard --ros-args -r "
+    "cmd_vel:=/mini/cmd_vel_in": ROS_MACHINE,
+    "python -m ubf_async.inspector echo":
+        "the inspector's echo named in prose (it needs a KEY): echo with one runs above",
+    "python -m ubf_async.inspector tree":
+        "the inspector's tree named in prose (it needs a verb): docs/your-robot.md runs tree "
+        "show and set-arbiter (tests/test_tutorial.py)",
+    "python -m bench.ros2": "the bridge's latency, 300 samples each way: past the time budget",
+    "python -m ubf_async.fleet fleet.yaml --world-only":
+        "what the fleet launcher starts as its own process: every fleet run here runs it",
+}
+
+
+def test_every_command_shown_is_run_or_says_why_not() -> None:
+    in_blocks = set(shown(inline=False))
+    inline = {c for c in set(shown()) - in_blocks if not a_form(c)}
+    assert in_blocks - set(RUN) - set(NOT_RUN) == set(), "shown, neither run nor said why not"
+    assert inline - set(RUN) - set(NOT_RUN) == set(), "shown, neither run nor said why not"
+    assert set(RUN) - set(shown()) == set(), "run here, but no page shows it (any more)"
+    assert set(NOT_RUN) - set(shown()) == set(), "said why not run, but no page shows it"
+    assert set(RUN) & set(NOT_RUN) == set()
+
+
+def test_what_is_a_form_and_what_a_command() -> None:
+    assert not a_form("python -m bench.codec")
+    assert a_form("python -m ubf_async.secure init DIR --robot-file FILE")
+    assert a_form("python -m bench.latency [--quick] [--json FILE]")
+    assert a_form("python -m ubf_async.fleet FLEET.yaml --controllers-only r1,r2 …")
+    assert a_form("python -m components.") and a_form("device")
+    assert not a_form("python -m ubf_async.launch --help")
+    assert not a_form("python -m ubf_async.record --no-live-channels")
+
+
+# -- running them --------------------------------------------------------------------------
+
+def environment(home: Path) -> dict[str, str]:
+    """This repository's code (tests.conftest.repository_env), the console scripts of the
+    environment running the tests on PATH, ``~`` a temporary folder."""
+    env = repository_env()
+    env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
+    env["HOME"] = str(home)
+    return env
+
+
+def argv(command: str, *, endpoint: str | None = None, home: Path | None = None,
+         add: tuple[str, ...] = (), replace: dict[str, list[str]] | None = None) -> list[str]:
+    """The command shown (a key of :func:`shown`) as arguments to run: ``python`` is this
+    interpreter, the documented endpoint ``endpoint``, ``~`` ``home``, an optional part
+    (``[--speed 5]``) taken, a word in ``replace`` its words; ``add`` appended."""
+    assert command in shown(), f"no page shows {command!r}"
+    words: list[str] = []
+    for word in command.split(" "):
+        if word.startswith("[-"):
+            word = word[1:]
+        if word.endswith("]") and "[" not in word:
+            word = word[:-1]
+        if replace and word in replace:
+            words += replace[word]
+            continue
+        if word == "python":
+            word = sys.executable
+        elif word in DOCUMENTED_ENDPOINTS:
+            assert endpoint is not None, command
+            word = endpoint
+        elif word.startswith("~/"):
+            assert home is not None, command
+            word = str(home / word[2:])
+        words.append(word)
+    return [*words, *add]
+
+
+class Proc:
+    """A command running in the background, its output (stdout and stderr) read line by line
+    on a thread: :meth:`wait_for` a line, :meth:`interrupt` it as Ctrl-C does."""
+
+    def __init__(self, args: list[str], *, cwd: Path, env: dict[str, str]) -> None:
+        self.args = args
+        self.popen = subprocess.Popen(args, cwd=cwd, env=env, stdout=subprocess.PIPE,
+                                      stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                      start_new_session=True)
+        self.lines: list[str] = []
+        self.ended = False
+        self.changed = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.popen.stdout is not None
+        with self.popen.stdout:
+            for line in self.popen.stdout:
+                with self.changed:
+                    self.lines.append(line.rstrip("\n"))
+                    self.changed.notify_all()
+        with self.changed:
+            self.ended = True
+            self.changed.notify_all()
+
+    @property
+    def output(self) -> str:
+        with self.changed:
+            return "\n".join(self.lines)
+
+    def __str__(self) -> str:
+        return f"$ {' '.join(self.args)}\n{self.output}"
+
+    def wait_for(self, pattern: str, *, after: int = 0, timeout_s: float = WAIT_S
+                 ) -> re.Match[str]:
+        """The first line (from line ``after`` on) in which ``pattern`` is found, waiting for
+        it as long as the process prints; fails if it ends or ``timeout_s`` passes first."""
+        deadline = time.monotonic() + timeout_s
+        compiled = re.compile(pattern)
+        seen = after
+        with self.changed:
+            while True:
+                for line in self.lines[seen:]:
+                    if match := compiled.search(line):
+                        return match
+                seen = len(self.lines)
+                assert not self.ended, f"ended without a line like {pattern!r}:\n{self}"
+                left = deadline - time.monotonic()
+                assert left > 0, f"no line like {pattern!r} within {timeout_s} s:\n{self}"
+                self.changed.wait(left)
+
+    def finish(self, *, timeout_s: float = WAIT_S) -> int:
+        """Its exit status, once it has ended by itself (and its output is all read)."""
+        code = self.popen.wait(timeout_s)
+        with self.changed:
+            self.changed.wait_for(lambda: self.ended, timeout_s)
+        return code
+
+    def interrupt(self, *, timeout_s: float = STOP_S) -> int:
+        """Ctrl-C: SIGINT, then its exit status."""
+        self.popen.send_signal(signal.SIGINT)
+        return self.finish(timeout_s=timeout_s)
+
+    def kill(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.popen.pid, signal.SIGKILL)
+        self.popen.wait()
+
+
+@dataclass
+class Page:
+    """Where a page's commands run: a folder of their own, ``examples/`` linked in."""
+
+    cwd: Path
+    home: Path
+    env: dict[str, str]
+    procs: list[Proc]
+
+    def start(self, command: str, *, endpoint: str | None = None, add: tuple[str, ...] = (),
+              replace: dict[str, list[str]] | None = None, env: dict[str, str] | None = None
+              ) -> Proc:
+        proc = Proc(argv(command, endpoint=endpoint, home=self.home, add=add, replace=replace),
+                    cwd=self.cwd, env={**self.env, **(env or {})})
+        self.procs.append(proc)
+        return proc
+
+    def run(self, command: str, *, endpoint: str | None = None, add: tuple[str, ...] = (),
+            replace: dict[str, list[str]] | None = None, env: dict[str, str] | None = None,
+            status: int = 0) -> str:
+        """Run it to its end; it must exit with ``status``. Its output."""
+        return ended(self.start(command, endpoint=endpoint, add=add, replace=replace, env=env),
+                     status=status)
+
+
+def ended(proc: Proc, *, status: int = 0) -> str:
+    """``proc``'s output once it has ended by itself with ``status``."""
+    code = proc.finish()
+    assert code == status, f"exit status {code}, not {status}:\n{proc}"
+    return proc.output
+
+
+def stopped(proc: Proc) -> str:
+    """Ctrl-C: ``proc`` stops, exits 0, and says it stopped. Its output."""
+    code = proc.interrupt()
+    assert code == 0, f"exit status {code} after Ctrl-C:\n{proc}"
+    assert "stopping (press Ctrl-C again to quit at once)" in proc.output, proc
+    return proc.output
+
+
+@contextlib.contextmanager
+def page(tmp: Path) -> Iterator[Page]:
+    """A :class:`Page` in ``tmp``; whatever it started is killed when the block ends."""
+    cwd = tmp / "work"
+    (cwd / "examples").mkdir(parents=True)
+    for item in (ROOT / "examples").iterdir():
+        if item.name != "fleets":
+            (cwd / "examples" / item.name).symlink_to(item)
+    fleets = cwd / "examples" / "fleets"
+    fleets.mkdir()
+    for fleet in (ROOT / "examples" / "fleets").glob("*.yaml"):
+        text = fleet.read_text("utf-8")
+        assert "router: tcp/127.0.0.1:7447\n" in text, fleet
+        (fleets / fleet.name).write_text(
+            text.replace("router: tcp/127.0.0.1:7447\n", f"router: tcp/127.0.0.1:{free_port()}\n"))
+    home = tmp / "home"
+    home.mkdir()
+    here = Page(cwd, home, environment(home), [])
+    try:
+        yield here
+    finally:
+        for proc in here.procs:
+            proc.kill()
+
+
+def together(*steps: Callable[[], object]) -> None:
+    """Run ``steps`` at the same time (each on a thread); fail as the first that fails."""
+    with concurrent.futures.ThreadPoolExecutor(len(steps)) as pool:
+        for future in [pool.submit(step) for step in steps]:
+            future.result()
+
+
+def loopback() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+# -- README.md: the quick start, and what to try while that robot runs --------------------------
+
+QUICK_START = "python -m ubf_async.launch"
+RANGE = "python -m components.range --connect tcp/127.0.0.1:7447 --name left --yaw-deg 45"
+ECHO = "python -m ubf_async.inspector echo ubf/mini/sensor/range/left --count 3"
+AVOID = "python examples/avoid_obstacles.py --connect tcp/127.0.0.1:7447"
+TELEOP = "python examples/teleop_override.py --connect tcp/127.0.0.1:7447 --speed 30 --turn 0"
+COMPONENTS = "python -m ubf_async.inspector components"
+STATE = "python -m ubf_async.inspector state --watch"
+HZ = "python -m ubf_async.inspector hz cmd/drive"
+STATE_ONCE = "python -m ubf_async.inspector state"
+ROS2_BRIDGE = "python -m ubf_async.ros2 --connect tcp/127.0.0.1:7447 --distro jazzy"
+
+
+@dataclass
+class Robot:
+    endpoint: str
+    proc: Proc
+    page: Page
+
+    def tool(self) -> tuple[str, str]:
+        """What a tool shown without ``--connect`` (the documented default) is given."""
+        return ("--connect", self.endpoint)
+
+
+@pytest.fixture(scope="class")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    """The README's quick start (on a free port instead of 7447): the robot every command
+    shown "while a robot runs" attaches to. Stopped with Ctrl-C at the end."""
+    endpoint = loopback()
+    with page(tmp_path_factory.mktemp("readme")) as here:
+        proc = here.start(QUICK_START, add=("--listen", endpoint))
+        proc.wait_for(r"^\[mini\] [\d.]+s \| drive .* \| tick [\d.]+Hz")
+        yield Robot(endpoint, proc, here)
+        stopped(proc)
+        assert proc.lines[-1] == "ubf_async: stopped", proc
+
+
+LIVEVIEW = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447"
+LIVEVIEW_PORT = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447 --port 8765"
+FOXGLOVE = "python -m ubf_async.launch --scenario ball-behind --foxglove"
+
+
+def served_to_foxglove(proc: Proc, port: int) -> None:
+    """``proc`` serves the robot at ``ws://127.0.0.1:PORT``: a Foxglove client gets the drive
+    command from it, and ``proc`` says so when stopped."""
+    proc.wait_for(rf"ws://127\.0\.0\.1:{port}\b")
+    with FoxgloveClient(f"ws://127.0.0.1:{port}") as client:
+        client.wait_for_topics({"/ubf/cmd/drive"})
+        client.subscribe({"/ubf/cmd/drive"})
+        [drive] = client.collect({"/ubf/cmd/drive"})["/ubf/cmd/drive"][:1]
+    assert {"speed", "winners"} <= set(drive.decoded["data"]), drive.decoded
+
+
+RECORD = "python -m ubf_async.record --connect tcp/127.0.0.1:7447 --out rec/ --duration 10"
+RECORD_PROGRESS = ("python -m ubf_async.record --connect tcp/127.0.0.1:7447 --out rec/ "
+                   "--progress")
+REPLAY_REC = "python -m ubf_async.replay rec/mini.mcap --speed 2"
+RECORD_RUN = ("python -m ubf_async.launch --scenario ball-in-sight --speed 5 --duration 20 "
+              "--record out/")
+FRESH_CONTROLLER = "python -m ubf_async.launch --no-sim --sim-time"
+REPLAY_OUT = "python -m ubf_async.replay out/mini.mcap --speed 2"
+RECORD_ORIGINALS = "python -m ubf_async.record --no-live-channels"
+
+
+def fresh_controller(here: Page) -> tuple[Proc, str]:
+    """docs/recording.md's fresh controller (same tree, no simulator), on a free port."""
+    endpoint = loopback()
+    return here.start(FRESH_CONTROLLER, add=("--listen", endpoint)), endpoint
+
+
+def replayed(here: Page, replay: str, controller: tuple[Proc, str]) -> None:
+    """``replay`` (its file recorded by now) into a fresh ``controller``: it replays every
+    message, and the controller decides on them."""
+    proc, endpoint = controller
+    proc.wait_for(rf"listening on {endpoint}")
+    since = len(proc.lines)
+    out = here.run(replay, add=("--connect", endpoint))
+    assert re.search(r"replaying \S+mini\.mcap onto robot 'mini' \(2x", out), out
+    assert re.search(r": [1-9]\d* messages replayed, at worst \d+ ms behind", out), out
+    # the controller ticked on the recorded clock and inputs: a status line with a source
+    proc.wait_for(r"^\[mini\] [\d.]+s \| drive .*\| camera/front \d+ms", after=since)
+    stopped(proc)
+
+
+class TestWhileTheQuickStartRobotRuns:
+    """README.md's "Things to try" while a robot runs, each attaching to the quick start's
+    robot (:func:`robot`, one for the class: stopped once these tests are done)."""
+
+    @pytest.mark.slow
+    @runs(QUICK_START)
+    def test_the_quick_start_prints_its_endpoint_tree_and_status_line(
+            self, robot: Robot) -> None:
+        printed = robot.proc.output
+        assert f"listening on {robot.endpoint}" in printed
+        assert f"attach with: --connect {robot.endpoint} --robot mini" in printed
+        assert "    seek_pink_ball <PriorityMerge>" in printed  # the tree
+        # the status line: tick rate, a source with its age, the drive and who won, the sim's pace
+        robot.proc.wait_for(r"^\[mini\] .*\| drive [-+]\d+/[-+]\d+ \(.+\) \| tick [\d.]+Hz.* \| "
+                            r"sim [\d.]+s x[\d.]+ \| .*camera/front \d+ms")
+
+    @pytest.mark.slow
+    @runs(RANGE, ECHO)
+    def test_a_second_range_finder_attaches_and_echo_shows_three_of_its_samples(
+            self, robot: Robot) -> None:
+        ranger = robot.page.start(RANGE, endpoint=robot.endpoint)
+        echoed = robot.page.run(ECHO, add=robot.tool())
+        samples = [line for line in echoed.splitlines()
+                   if line.startswith("ubf/mini/sensor/range/left range #")]
+        assert len(samples) == 3, echoed
+        assert all('"model": "ir-10-80"' in line for line in samples), echoed
+        stopped(ranger)
+
+    @pytest.mark.slow
+    @runs(AVOID, TELEOP)
+    def test_obstacle_avoidance_and_teleop_attach_and_teleop_outranks_the_tree(
+            self, robot: Robot) -> None:
+        since = len(robot.proc.lines)
+        avoid = robot.page.start(AVOID, endpoint=robot.endpoint)
+        teleop = robot.page.start(TELEOP, endpoint=robot.endpoint)
+        teleop.wait_for(r"^\[teleop\] votes \d+: speed=\+30 turn=\+0 .*\| robot drive \+30/\+0 "
+                        r"\(teleop\)")
+        robot.proc.wait_for(r"\| drive \+30/\+0 \(teleop\) \|", after=since)
+        avoid.wait_for(r"^\[avoid_obstacles\] votes \d+: .*\| robot drive ")
+        for proc in (teleop, avoid):
+            assert "clock: simulated time (ubf/mini/clock)" in proc.output, proc
+            stopped(proc)
+
+    @pytest.mark.slow
+    @runs(COMPONENTS, STATE, HZ, STATE_ONCE)
+    def test_the_inspector_lists_components_watches_state_and_measures_drive_rates(
+            self, robot: Robot) -> None:
+        watch = robot.page.start(STATE, add=robot.tool())
+        hz = robot.page.start(HZ, add=robot.tool())
+        once = robot.page.start(STATE_ONCE, add=robot.tool())
+        listed = robot.page.run(COMPONENTS, add=robot.tool()).splitlines()
+        assert {"aggregator", "controller", "camera-front", "motors-main", "sim"} <= set(listed)
+        watch.wait_for(r"^robot 'mini', controller: periodic mode, tick [\d.]+Hz")
+        watch.wait_for(r"^  camera/front +age +\d+ ms")  # sources with their ages
+        watch.wait_for(r"^last tick \('\*' = won")  # and why the robot did what it did
+        hz.wait_for(r"^ubf/mini/cmd/drive: average rate [\d.]+ Hz")
+        hz.wait_for(r"^  ticked by clock: average rate [\d.]+ Hz")
+        state = ended(once)
+        assert re.search(r"^robot 'mini', controller: periodic mode", state, re.M), once
+        assert re.search(r"^drive: speed [-+]\d+ turn [-+]\d+  won by: ", state, re.M), once
+        assert "\n# " not in state  # once: a single block
+        stopped(watch)
+        stopped(hz)
+
+    @pytest.mark.slow
+    @runs(LIVEVIEW, LIVEVIEW_PORT, FOXGLOVE)
+    def test_the_robot_is_served_live_to_a_foxglove_client(
+            self, robot: Robot, tmp_path: Path) -> None:
+        # The README's liveview has the default port (8765), docs/liveview.md names it: each a
+        # free port here, given with --port.
+        ports = [free_port() for _ in range(3)]
+        with page(tmp_path) as here:
+            launched = here.start(FOXGLOVE, add=(str(ports[2]), "--listen", loopback()))
+            # one at a time: each is a component named 'foxglove' on the robot
+            for command, port in ((LIVEVIEW, ports[0]), (LIVEVIEW_PORT, ports[1])):
+                view = robot.page.start(command, endpoint=robot.endpoint,
+                                        add=() if "--port" in command else ("--port", str(port)),
+                                        replace={"8765": [str(port)]})
+                served_to_foxglove(view, port)
+                assert re.search(r"\d+ of \d+ messages converted went to 1 Foxglove client",
+                                 stopped(view)), view
+            served_to_foxglove(launched, ports[2])
+            assert re.search(r"live view: \d+ of \d+ messages converted went to 1 Foxglove client",
+                             stopped(launched)), launched
+
+    @pytest.mark.slow
+    @runs(RECORD, RECORD_PROGRESS, REPLAY_REC, RECORD_RUN, FRESH_CONTROLLER, REPLAY_OUT,
+          RECORD_ORIGINALS)
+    def test_recordings_made_of_the_bus_replay_into_a_fresh_controller(
+            self, robot: Robot, tmp_path: Path) -> None:
+        with page(tmp_path) as recording_md:  # docs/recording.md's commands, in a folder of theirs
+            controllers = [fresh_controller(robot.page), fresh_controller(recording_md)]
+
+            def readme() -> None:  # record from another process, then replay
+                # One recorder at a time: each is a component named 'recorder' on the robot.
+                progress = recording_md.start(RECORD_PROGRESS, endpoint=robot.endpoint)
+                progress.wait_for(r"^recorded [1-9]\d* messages \(0 dropped, \d+ queued\) to "
+                                  r"rec/mini\.mcap$")
+                assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove "
+                                 r"channels in rec/mini\.mcap$", stopped(progress)), progress
+                originals = recording_md.start(RECORD_ORIGINALS, add=robot.tool())
+                originals.wait_for(r"recording robot 'mini' to recordings/mini\.mcap$")
+                # only the original messages, none of the live view's channels
+                assert re.search(r": [1-9]\d* messages in recordings/mini\.mcap$",
+                                 stopped(originals)), originals
+                out = robot.page.run(RECORD, endpoint=robot.endpoint)  # 10 s
+                assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove "
+                                 r"channels in rec/mini\.mcap$", out), out
+                replayed(robot.page, REPLAY_REC, controllers[0])
+
+            def recording() -> None:  # launch --record, then replay
+                endpoint = loopback()
+                run = recording_md.start(RECORD_RUN, add=("--listen", endpoint))
+                run.wait_for(r"^\[mini\] [\d.]+s \| drive ")
+                # launch --record's recorder is 'recorder' too: another needs another --name
+                second = recording_md.run(RECORD_PROGRESS, endpoint=endpoint, status=2)
+                assert "a component named 'recorder' is already alive on robot 'mini'" in second
+                assert "give this recorder another --name" in second
+                out = ended(run)
+                assert "  expected: turns to the ball, approaches and stops" in out, out
+                assert re.search(r"^  recorded [1-9]\d* messages and \d+ in the live view's "
+                                 r"Foxglove channels to out/mini\.mcap$", out, re.M), out
+                replayed(recording_md, REPLAY_OUT, controllers[1])
+
+            together(readme, recording)
+
+    @pytest.mark.slow
+    @runs(ROS2_BRIDGE)
+    def test_the_ros2_bridge_attaches_to_the_running_robot(self, robot: Robot) -> None:
+        # its status line sooner than every 5 s
+        bridge = robot.page.start(ROS2_BRIDGE, endpoint=robot.endpoint,
+                                  add=("--status-period-s", "0.5"))
+        bridge.wait_for(r"^ROS 2 bridge of robot 'mini': node /mini/ubf_bridge, domain 0, "
+                        r"jazzy; clock: ")
+        bridge.wait_for(r"^\[ros2\] sent: .*/mini/odom [1-9]\d*.* \| cmd_vel_in: 0 taken, "
+                        r"refused: none$")
+        stopped(bridge)
+
+
+# -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,
+#    robot-file.md) ------------------------------------------------------------------------
+
+KEEP_AWAY = ("python -m ubf_async.launch --scenario keep-away --speed 5 --summary "
+             "out/summary.json --record out/")
+KEEP_AWAY_MAX = ("python -m ubf_async.launch --scenario keep-away --speed max --summary "
+                 "out/summary.json")
+KEEP_AWAY_RECORDED = "python -m ubf_async.launch --scenario keep-away --speed 5 --record out/"
+SYNC = "python -m ubf_async.launch --tick sync"
+MY_ROBOT = "python -m ubf_async.launch my_robot.yaml"
+MY_ROBOT_SCENARIO = "python -m ubf_async.launch my_robot.yaml [--scenario keep-away] [--speed 5]"
+MY_ROBOT_CHECK = "python -m ubf_async.launch my_robot.yaml --check"
+ROBOTFILE_CHECK = "python -m ubf_async.robotfile check my_robot.yaml"
+PLUGINS = "python -m ubf_async.robotfile plugins"
+SHORT_RUN = ("--duration", "4")  # simulated seconds: the scenarios run 60 s and more
+WALL_FIELDS = {"wall_time_s", "real_time_factor", "real_time_factor_windows", "speed_requested",
+               "warnings", "command_line", "recording"}
+WALL_TICK_FIGURE = re.compile(r"tick_us_|periodic_jitter_ms_")  # not _robot_ms: robot time
+
+
+@pytest.mark.slow
+@runs(KEEP_AWAY, KEEP_AWAY_MAX, KEEP_AWAY_RECORDED, SYNC)
+def test_the_scenarios_run_with_summary_pictures_and_recording_the_same_at_any_speed(
+        tmp_path: Path) -> None:
+    with (page(tmp_path / "readme") as readme, page(tmp_path / "flat-out") as flat_out,
+          page(tmp_path / "recording") as recording_md):
+        quiet = ("--listen", "tcp/127.0.0.1:0")
+        runs_ = [readme.start(KEEP_AWAY, add=(*SHORT_RUN, *quiet)),
+                 flat_out.start(KEEP_AWAY_MAX, add=(*SHORT_RUN, *quiet)),
+                 recording_md.start(KEEP_AWAY_RECORDED, add=(*SHORT_RUN, *quiet)),
+                 readme.start(SYNC, add=("--duration", "2", *quiet))]
+        for run in runs_:
+            out = ended(run)
+            assert out.splitlines()[-1] == "ubf_async: stopped", run
+        keep_away, max_, recorded, sync = (run.output for run in runs_)
+        assert "controller: sync on each camera/front sample (the thesis's loop" in sync, sync
+        assert re.search(r"^\[mini\] .*\| sync [\d.]+Hz \(camera/front\)", sync, re.M), sync
+        for out in (keep_away, max_, recorded):
+            assert "scenario 'keep-away'" in out
+            assert "  expected: keeps turning the way it last saw the ball" in out
+        for here in (readme, recording_md):  # the MCAP recording of the bus, and pictures
+            assert (here.cwd / "out" / "mini.mcap").stat().st_size > 0
+            assert list((here.cwd / "out").glob("frame_*.png"))
+            assert (here.cwd / "out" / "trajectory.png").exists()
+        assert "summary written to out/summary.json" in keep_away
+        assert "summary written to out/summary.json" in max_
+        assert not (recording_md.cwd / "out" / "summary.json").exists()
+        # "the same run, byte for byte": all but the wall-clock figures
+        summaries = [json.loads((here.cwd / "out" / "summary.json").read_text())
+                     for here in (readme, flat_out)]
+        assert summaries[0]["sim_time_s"] == 4.0
+        for summary in summaries:
+            for key in WALL_FIELDS:
+                summary.pop(key, None)
+            for key in [k for k in summary["ticks"] if WALL_TICK_FIGURE.match(k)]:
+                summary["ticks"].pop(key)  # what a tick costs: CPU time
+        assert summaries[0] == summaries[1]
+
+
+@pytest.mark.slow
+@runs(MY_ROBOT, MY_ROBOT_SCENARIO, MY_ROBOT_CHECK, ROBOTFILE_CHECK, PLUGINS)
+def test_a_robot_file_is_checked_and_launched(tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        shutil.copy(ROBOT_FILE, here.cwd / "my_robot.yaml")  # a robot file of one's own
+        robot = here.start(MY_ROBOT, add=("--listen", loopback()))
+        scenario = here.start(MY_ROBOT_SCENARIO, add=(*SHORT_RUN, "--listen", "tcp/127.0.0.1:0"))
+        checked = here.run(MY_ROBOT_CHECK)
+        assert checked.splitlines()[0] == "my_robot.yaml: robot 'mini' — OK", checked
+        assert "seek_pink_ball <PriorityMerge>" in checked  # the tree
+        assert here.run(ROBOTFILE_CHECK).startswith("my_robot.yaml: robot 'mini', 6 device(s) ")
+        plugins = here.run(PLUGINS)
+        assert re.search(r"^ubf_async\.behaviors:", plugins, re.M), plugins
+        assert re.search(r"\bchase\b", plugins), plugins
+        robot.wait_for(r"^\[mini\] [\d.]+s \| drive .* \| tick [\d.]+Hz")
+        assert "(my_robot.yaml)" in robot.output
+        stopped(robot)
+        out = ended(scenario)
+        assert "scenario 'keep-away'" in out and "5x real time" in out, scenario
+
+
+# -- fleets (README.md, fleet.md) ---------------------------------------------------------
+
+ROUTER = "python -m ubf_async.router"
+R1 = "python -m ubf_async.launch --robot r1 --mode client --connect tcp/127.0.0.1:7447"
+R2 = "python -m ubf_async.launch --robot r2 --mode client --connect tcp/127.0.0.1:7447"
+ROBOTS = "python -m ubf_async.inspector robots --connect tcp/127.0.0.1:7447"
+PAIR = "python -m ubf_async.fleet examples/fleets/pair.yaml --summary fleet.json"
+SEARCH = "python -m ubf_async.fleet examples/fleets/search.yaml --summary search.json"
+
+
+@pytest.mark.slow
+@runs(ROUTER, R1, R2, ROBOTS)
+def test_two_robots_meet_at_a_router_and_the_inspector_lists_both(tmp_path: Path) -> None:
+    endpoint = loopback()
+    with page(tmp_path) as here:
+        router = here.start(ROUTER, add=("--listen", endpoint))
+        router.wait_for(rf"^router: listening on {endpoint}$")
+        robots = [here.start(R1, endpoint=endpoint), here.start(R2, endpoint=endpoint)]
+        for name, robot in zip(("r1", "r2"), robots, strict=True):
+            robot.wait_for(rf"a client of the router at {endpoint}$")
+            robot.wait_for(rf"^  attach with: --mode client --connect {endpoint} --robot {name}$")
+        router.wait_for(r"robots alive: r1 \(11 components\), r2 \(11 components\)")
+        listed = here.run(ROBOTS, endpoint=endpoint).splitlines()
+        assert listed[0].split() == ["ROBOT", "COMPONENTS", "PERIODIC", "Hz", "ALL", "TICKS",
+                                     "Hz", "MODE", "WINNING"], listed
+        assert [row.split()[:2] for row in listed[1:]] == [["r1", "11"], ["r2", "11"]], listed
+        assert all(" periodic " in row for row in listed[1:]), listed
+        for proc in (*robots, router):
+            stopped(proc)
+
+
+@pytest.mark.slow
+@runs(PAIR, SEARCH)
+def test_fleets_run_in_one_world_and_write_their_summary_when_stopped(tmp_path: Path) -> None:
+    # The fleet files run 30 s and 90 s at 1x: stopped with Ctrl-C once every robot ticks,
+    # which writes the summary as the world's end does.
+    with page(tmp_path) as here:
+        often = ("--status-period-s", "0.5")  # the first status line sooner
+        fleets = {"fleet.json": (here.start(PAIR, add=often), ["r1", "r2"]),
+                  "search.json": (here.start(SEARCH, add=often), ["s1", "s2", "s3", "s4"])}
+        for proc, names in fleets.values():
+            proc.wait_for(r"^fleet t=[\d.]+s" + "".join(rf" \| {n} \d+Hz \S+" for n in names))
+        for summary, (proc, names) in fleets.items():
+            out = stopped(proc)
+            for name in names:
+                assert re.search(rf"^  {name}: \d+ ticks, ", out, re.M), proc
+            written = json.loads((here.cwd / summary).read_text())
+            assert sorted(written["robots"]) == names
+            assert all(r["ticks"] > 0 for r in written["robots"].values()), written
+            assert written["sim_time_s"] > 0
+
+
+# -- secure mode (security.md) --------------------------------------------------------------
+
+SECURE_INIT = "python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file my-robot.yaml"
+SECURE_SHOW = "python -m ubf_async.secure show ~/.ubf/mini-secure"
+SECURE_ROBOT = ("python -m ubf_async.launch my-robot.yaml --listen tcp/192.168.1.10:7447 "
+                "--secure ~/.ubf/mini-secure")
+SECURE_TELEOP = ("python examples/teleop_override.py --connect tcp/192.168.1.10:7447 --robot mini "
+                 "--secure DIR")
+SECURE_INSPECTOR = ("python -m ubf_async.inspector components --connect tcp/192.168.1.10:7447 "
+                    "--robot mini --secure DIR --identity inspector")
+
+
+def handed_over(secure: Path, identity: str, to: Path) -> Path:
+    """What security.md's step 4 gives another machine: ``DIR/identities/NAME.json`` only."""
+    (to / "identities").mkdir(parents=True, mode=0o700)
+    shutil.copy(secure / "identities" / f"{identity}.json", to / "identities")
+    (to / "identities" / f"{identity}.json").chmod(0o600)
+    return to
+
+
+@pytest.mark.slow
+@runs(SECURE_INIT, SECURE_SHOW, SECURE_ROBOT, SECURE_TELEOP, SECURE_INSPECTOR)
+def test_the_secure_set_up_step_by_step(tmp_path: Path) -> None:
+    # The robot's address (192.168.1.10) is a free loopback port here.
+    endpoint = loopback()
+    with page(tmp_path) as here:
+        shutil.copy(ROBOT_FILE, here.cwd / "my-robot.yaml")  # it has the remote slot teleop
+        made = here.run(SECURE_INIT)
+        shown_ = here.run(SECURE_SHOW)
+        secure = here.home / ".ubf" / "mini-secure"
+        for identity in ("robot", "inspector", "operator", "teleop"):
+            assert f"--secure {secure} --identity {identity}" in made
+            assert f"--secure {secure} --identity {identity}" in shown_
+            assert (secure / "identities" / f"{identity}.json").stat().st_mode & 0o077 == 0
+        assert {"acl.json", "passwords.txt", "secure.json"} <= {p.name for p in secure.iterdir()}
+        robot = here.start(SECURE_ROBOT, endpoint=endpoint)
+        robot.wait_for(r"^\[mini\] [\d.]+s \| drive ")
+        teleop_dir = handed_over(secure, "teleop", here.home / "teleop")
+        inspector_dir = handed_over(secure, "inspector", here.home / "inspector")
+        since = len(robot.lines)
+        teleop = here.start(SECURE_TELEOP, endpoint=endpoint, replace={"DIR": [str(teleop_dir)]})
+        robot.wait_for(r"\| drive \+\d+/\+0 \(teleop\) \|", after=since)
+        listed = here.run(SECURE_INSPECTOR, endpoint=endpoint,
+                          replace={"DIR": [str(inspector_dir)]}).splitlines()
+        assert {"controller", "motors-main", "teleop"} <= set(listed), listed
+        stopped(teleop)
+        stopped(robot)
+
+
+# -- a real robot's commands (README.md, hardware.md), on gpiozero's mock pins -------------
+
+MOTORS_CHECK = ("python -m components.motors --backend gpio --check --robot-file "
+                "examples/robots/pi-whegs.yaml")
+MOTORS_HELP = "python -m components.motors --help"
+MOCK_PINS = {"GPIOZERO_PIN_FACTORY": "mock", "GPIOZERO_MOCK_PIN_CLASS": "mockpwmpin"}
+
+
+@pytest.mark.slow
+@runs(MOTORS_CHECK)
+def test_the_wiring_check_runs_on_mock_pins_where_no_wheel_turns(tmp_path: Path) -> None:
+    """The check needs a lifted robot with motors and encoders: on gpiozero's mock pins it
+    runs every step, pulses the motors' pins, and reports — rightly — that no encoder saw a
+    wheel turn. (tests/test_hw_launch.py checks the pulses on the pins.)"""
+    with page(tmp_path) as here:
+        out = here.run(MOTORS_CHECK, env=MOCK_PINS, status=1)
+        assert "checking the wiring of examples/robots/pi-whegs.yaml: each wheel 1 s" in out
+        for step in ("left forward", "left reverse", "right forward", "right reverse"):
+            assert re.search(rf"^{step}: [\d.]+ ms for 1 s", out, re.M), out
+        assert out.count("FAIL: the left encoder saw 0 edges") == 2, out
+        assert out.splitlines()[-1] == "4 of 4 steps failed", out
+
+
+PI_LAUNCH = "python -m ubf_async.launch examples/robots/pi-whegs.yaml"
+
+
+def test_the_pi_robot_file_checks(tmp_path: Path) -> None:
+    """``launch examples/robots/pi-whegs.yaml`` needs a Raspberry Pi's GPIO and I²C (see
+    NOT_RUN): its file loads and checks, as launch does before anything starts."""
+    with page(tmp_path) as here:
+        out = here.run(PI_LAUNCH, add=("--check",))
+        assert out.splitlines()[0] == "examples/robots/pi-whegs.yaml: robot 'pi-whegs' — OK", out
+
+
+# -- benchmarks and tools shown --------------------------------------------------------------
+
+LATENCY_HELP = "python -m bench.latency --help"
+CPU_HOG = "python -m bench.cpu_hog -- python -m pytest ..."
+CALIBRATE = "python -m components.sim.calibrate --update-doc docs/scenarios.md"
+
+
+@runs(LATENCY_HELP)
+def test_the_latency_bench_explains_itself(tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        out = here.run(LATENCY_HELP)
+    assert "usage: python -m bench.latency [-h] [--quick] [--json FILE]" in out
+    for section in ("floor", "reflex", "periodic", "obstacle", "camera", "peers"):
+        assert section in out.split("--only", 1)[1]
+
+
+@pytest.mark.slow
+@runs(CPU_HOG, CALIBRATE)
+def test_tests_run_beside_a_busy_loop_per_core_and_the_calibration_table_is_current(
+        tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        # `...`: a test of its own (the suite's own tests would take the busy machine long)
+        (here.cwd / "test_under_load.py").write_text(
+            "import os\n\ndef test_the_cores_are_busy():\n    assert os.cpu_count()\n")
+        hogged = here.start(CPU_HOG, replace={
+            "...": ["test_under_load.py", "-q", "-p", "no:cacheprovider", "--rootdir", "."]})
+        (here.cwd / "docs").mkdir()
+        shutil.copy(ROOT / "docs" / "scenarios.md", here.cwd / "docs")
+        out = here.run(CALIBRATE)
+        assert "updated the calibration table in docs/scenarios.md" in out
+        # the table shown is the one the simulator renders now
+        assert ((here.cwd / "docs" / "scenarios.md").read_text("utf-8")
+                == (ROOT / "docs" / "scenarios.md").read_text("utf-8"))
+        assert re.search(r"^1 passed", ended(hogged), re.M), hogged
+
+
+LAUNCH_HELP = "python -m ubf_async.launch --help"
+SCHEMA = "python -m ubf_async.robotfile schema"
+SOAK_HELP = "python -m bench.soak --help"
+
+
+@pytest.mark.slow
+@runs(LAUNCH_HELP, SCHEMA, SOAK_HELP, MOTORS_HELP)
+def test_the_helps_shown_list_what_the_pages_say_and_the_schema_is_the_shipped_one(
+        tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        procs = [here.start(c) for c in (LAUNCH_HELP, SCHEMA, SOAK_HELP, MOTORS_HELP)]
+        launch, schema, soak, motors = (ended(proc) for proc in procs)
+    for option in ("--scenario", "--speed", "--summary", "--record", "--foxglove", "--tick",
+                   "--duration", "--check", "--secure"):
+        assert option in launch
+    assert schema == (ROOT / "ubf_async" / "robot-file.schema.json").read_text("utf-8").rstrip()
+    for option in ("--sim-s", "--warmup-s", "--record", "--limit-mib"):  # resources.md
+        assert option in soak
+    assert "--check" in motors.split("wiring check", 1)[1]  # hardware.md
+
+
+CODEC = "python -m bench.codec"
+SEEKCOLOR = "python -m bench.seekcolor"
+SIM_CALIBRATE = "python -m components.sim.calibrate"
+TRACK_CALIBRATE = "python -m components.encoders.calibrate"
+
+
+@pytest.mark.slow
+@runs(CODEC, SEEKCOLOR, SIM_CALIBRATE, TRACK_CALIBRATE)
+def test_the_quick_benchmarks_and_the_calibrations_shown(tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        procs = [here.start(c) for c in (CODEC, SEEKCOLOR, SIM_CALIBRATE, TRACK_CALIBRATE)]
+        codec, seekcolor, sim, track = (ended(proc) for proc in procs)
+    # decode + validate and encode of each message type, beside plain msgpack
+    assert re.search(r"^drive +\d+ +[\d.]+ µs .* [\d.]+×$", codec, re.M), codec
+    # seekcolor per frame vs a per-pixel Python loop
+    assert re.search(r"^speed-up of seekcolor over the loop \(median / median\): \d+×$",
+                     seekcolor, re.M), seekcolor
+    # the simulated camera's pink count vs distance
+    assert sim.splitlines()[1].split() == ["distance_m", "max_bin_mean", "min", "max",
+                                           "total_mean"], sim
+    assert re.search(r"^ +0\.45 +[\d.]+ +\d+ +\d+ +[\d.]+$", sim, re.M), sim
+    # the effective track the simulated Mini-WHEGS has: 0.420 m (hardware.md, scenarios.md)
+    [fitted] = re.findall(r"^effective track: ([\d.]+) m", track, re.M)
+    assert round(float(fitted), 3) == 0.420, track
+
+
+# -- ROS 2 (README.md, ros2.md) --------------------------------------------------------------
+
+ROS2_ROUTER = "python -m ubf_async.router --listen tcp/0.0.0.0:7447"
+ROS2_ROBOT = "python -m ubf_async.launch my_robot.yaml --mode client --connect tcp/127.0.0.1:7447"
+
+
+def ros2_section() -> str:
+    """ros2.md's robot-file section (its first yaml block)."""
+    text = (ROOT / "docs" / "ros2.md").read_text("utf-8")
+    section = text.split("```yaml\n", 1)[1].split("```", 1)[0]
+    assert section.startswith("ros2:\n"), section
+    return section
+
+
+@pytest.mark.slow
+@runs(ROS2_ROUTER, ROS2_ROBOT)
+def test_ros2_sees_the_robot_through_a_router(tmp_path: Path) -> None:
+    """ros2.md's two hosts on one: the router (on loopback, not 0.0.0.0), the robot with the
+    page's ``ros2:`` section as a client, and the ROS side (tests/ros2_side.py) doing what
+    the page's ros2 commands do: list the node and topics, echo odom, drive with Twists."""
+    from tests.ros2_side import RosSide
+
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    with page(tmp_path) as here:
+        (here.cwd / "my_robot.yaml").write_text(ROBOT_FILE.read_text("utf-8") + ros2_section())
+        router = here.start(ROS2_ROUTER, endpoint=endpoint)
+        router.wait_for(rf"^router: listening on {endpoint}$")
+        robot = here.start(ROS2_ROBOT, endpoint=endpoint)
+        robot.wait_for(r"ROS 2 bridge: /mini/ubf_bridge, domain 0, jazzy")
+        robot.wait_for(r"^\[mini\] [\d.]+s \| drive ")
+        ros = RosSide(port)
+        try:
+            ros.send(op="list")
+            listed = ros.wait("list")
+            assert any(node.endswith("/NN/%/%mini/ubf_bridge") for node in listed["nodes"]), listed
+            assert ["/mini/odom", ["nav_msgs/msg/Odometry"]] in listed["topics"], listed
+            ros.send(op="sub", topic="/mini/odom", type="nav_msgs/msg/Odometry")
+            ros.wait("subscribed")
+            since = len(robot.lines)
+            ros.send(op="pub", topic="/mini/cmd_vel_in", linear=0.034, angular=0.0,
+                     rate_hz=20, count=40)  # speed +10 for 2 s
+            robot.wait_for(r"\| drive \+10/\+0 \(teleop\) \|", after=since)
+            ros.wait("pub_done")
+            assert ros.received("/mini/odom"), "no odom message"
+        finally:
+            ros.close()
+        stopped(robot)
+        stopped(router)
