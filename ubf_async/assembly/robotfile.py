@@ -198,7 +198,7 @@ ROS_TOPIC = r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$"
 
 
 class Ros2Spec(Spec):
-    """The ROS 2 bridge launch runs in-process (``ubf_async.services.ros2``, docs/ros2.md)."""
+    """The ROS 2 bridge launch runs in-process (``ubf_async.ros2``, docs/ros2.md)."""
 
     what: ClassVar[str] = "`ros2`"
 
