@@ -5,10 +5,10 @@
 For each message type the robot exchanges (``range``, ``camera.seekcolor``, ``encoders``,
 ``drive``, ``vote``, ``heartbeat``, ``clock``) it times, on one realistic payload:
 
-* ``decode``: :func:`ubf_async.protocol.decode` of the payload (msgpack unpacking, the
-  envelope's and the schema's validation) — whatever codec ``ubf_async.protocol`` holds when
+* ``decode``: :func:`ubf_async.wire.protocol.decode` of the payload (msgpack unpacking, the
+  envelope's and the schema's validation) — whatever codec ``ubf_async.wire.protocol`` holds when
   it runs;
-* ``encode``: :func:`ubf_async.protocol.encode` of the decoded data (validation and packing),
+* ``encode``: :func:`ubf_async.wire.protocol.encode` of the decoded data (validation and packing),
   handed back exactly as ``decode`` returned it, so the figure holds for a codec of plain
   dicts and for one of typed structs alike;
 * the floor beside each: plain ``msgpack.unpackb`` / ``msgpack.packb`` of the same
@@ -35,9 +35,9 @@ from typing import Any
 
 import msgpack
 
-import ubf_async.remote  # noqa: F401  (the current codec registers the vote schema there)
+import ubf_async.services.remote  # noqa: F401  (the current codec registers the vote schema there)
 from bench.latency_stats import fmt_us, percentile
-from ubf_async import protocol
+from ubf_async.wire import protocol
 
 STAMP_NS = 1_700_000_000_000_000_000
 PUB = 4_242_424_242
@@ -142,7 +142,7 @@ def report(res: dict[str, Any]) -> str:
             f"{fmt_us2(e['p99_us']):>8} {fmt_us2(p['median_us']):>8} "
             f"{e['median_us'] / p['median_us']:>4.1f}×")
     lines.append("")
-    lines.append("decode/encode: ubf_async.protocol (validation included); unpackb/packb: "
+    lines.append("decode/encode: ubf_async.wire.protocol (validation included); unpackb/packb: "
                  "plain msgpack of the same envelope, no validation (the floor); "
                  "×: codec / floor.")
     return "\n".join(lines)
@@ -154,7 +154,7 @@ def fmt_us2(value_us: float) -> str:
 
 
 def codec_name() -> str:
-    """Which implementation ``ubf_async.protocol`` holds (its decoder's module)."""
+    """Which implementation ``ubf_async.wire.protocol`` holds (its decoder's module)."""
     return f"{protocol.decode.__module__}.decode"
 
 
@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m bench.codec",
         description="Decode + validate and encode costs per message type through "
-                    "ubf_async.protocol, beside plain msgpack of the same payload. "
+                    "ubf_async.wire.protocol, beside plain msgpack of the same payload. "
                     "A few seconds.")
     parser.add_argument("--calls", type=int, default=40_000,
                         help="calls timed per figure")

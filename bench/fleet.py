@@ -56,8 +56,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.fleet import FleetStatus
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.tools.fleet import FleetStatus
 
 ROOT = Path(__file__).resolve().parent.parent
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")

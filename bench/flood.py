@@ -26,11 +26,12 @@ import time
 from typing import Any
 
 from tests.conftest import free_port
-from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.controller import Controller
-from ubf_async.protocol import Message
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.controller import Controller
+from ubf_async.wire.protocol import Message
 
 RATE_HZ = 50.0
 
@@ -109,7 +110,7 @@ def in_process_tick_cost(sources: int) -> dict[str, float]:
     """Tick cost with ``sources`` sources in the table, without zenoh (for comparison)."""
 
     class FakeBus:
-        from ubf_async.clock import WallClock
+        from ubf_async.runtime.clock import WallClock
         clock = WallClock()
 
     agg = StateAggregator(bus=FakeBus(), max_sources=max(sources, 1))  # type: ignore[arg-type]

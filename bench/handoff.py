@@ -1,5 +1,5 @@
 """The bridge hand-off: what it costs to get a sample from a transport thread to a handler on
-the event loop, piece by piece, on the opt-in lending loop (:mod:`ubf_async.lending`,
+the event loop, piece by piece, on the opt-in lending loop (:mod:`ubf_async.runtime.lending`,
 ``UBF_LOOP=lending``), on asyncio's plain loop (what every entry point runs on by default)
 and on uvloop (when installed).
 
@@ -20,9 +20,9 @@ Sections (medians, p99 and max in µs):
 * ``zenoh put → bus handler`` — a plain zenoh session puts, a :class:`Bus` on another session
   (loopback TCP) delivers to its handler: the hand-off with zenoh's own thread in front.
 
-``--baseline`` loads another version of ``ubf_async/bus.py`` (e.g. ``git show
-HEAD~1:ubf_async/bus.py > /tmp/old_bus.py``) and measures its ``Subscription`` in the same run,
-so before/after figures share the machine's load.
+``--baseline`` loads another version of ``ubf_async/runtime/bus.py`` (e.g. ``git show
+HEAD~1:ubf_async/runtime/bus.py > /tmp/old_bus.py``) and measures its ``Subscription`` in the same
+run, so before/after figures share the machine's load.
 """
 
 from __future__ import annotations
@@ -43,15 +43,16 @@ from typing import Any
 
 import zenoh
 
-from ubf_async import bus as current_bus
-from ubf_async import lending
-from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime import bus as current_bus
+from ubf_async.runtime import lending
+from ubf_async.runtime.bus import Bus
 
 SAMPLE = bytes(60)
 """About the size of an encoded range sample."""
 PACE_S = 0.002
 """Between two samples of the one-at-a-time measurements: a sensor's pace (500 Hz), under
-the direct subscriptions' budget (``ubf_async.bus.DIRECT_RATE_HZ``), and the loop goes back
+the direct subscriptions' budget (``ubf_async.runtime.bus.DIRECT_RATE_HZ``), and the loop goes back
 to sleep in between as it does between sensor samples."""
 LoopFactory = Callable[[], asyncio.AbstractEventLoop]
 
@@ -263,7 +264,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=3000, help="samples per measurement")
     parser.add_argument("--baseline", type=Path, default=None, metavar="BUS_PY",
-                        help="another ubf_async/bus.py to measure beside this one")
+                        help="another ubf_async/runtime/bus.py to measure beside this one")
     parser.add_argument("--json", type=Path, default=None, metavar="FILE")
     args = parser.parse_args()
     results = run(args.n, args.baseline)

@@ -212,7 +212,7 @@ callback). Section 8 adds ``loop_<name>``: ``as_run`` on each event loop."""
 BASELINE_LOOP = "asyncio"
 """Section 8's baseline: asyncio's plain loop."""
 LOOPS = (BASELINE_LOOP, "lending", "uvloop")
-"""The event loops section 8 compares (:data:`ubf_async.cli.LOOP_CHOICES`)."""
+"""The event loops section 8 compares (:data:`ubf_async.cli.run.LOOP_CHOICES`)."""
 for _loop in LOOPS:
     SERVERS[f"loop_{_loop}"] = {**SERVERS["as_run"], "loop": _loop}
 
@@ -533,10 +533,11 @@ def measure_breakdown(n: int = 2000) -> dict[str, Any]:
     import zenoh
 
     from bench.latency_robot import reflex_tree
-    from ubf_async.aggregator import StateAggregator
-    from ubf_async.bus import ConnectionOptions, Subscription
-    from ubf_async.clock import WallClock
-    from ubf_async.protocol import Keys, decode, encode
+    from ubf_async.net.options import ConnectionOptions
+    from ubf_async.runtime.aggregator import StateAggregator
+    from ubf_async.runtime.bus import Subscription
+    from ubf_async.runtime.clock import WallClock
+    from ubf_async.wire.protocol import Keys, decode, encode
 
     out: dict[str, Any] = {}
     sample = msgpack.packb({"schema": "range", "v": 1, "stamp_ns": time.monotonic_ns(),

@@ -6,10 +6,10 @@ Two nodes, like the ubf_async reflex path (see ``bench/latency.py``):
   ``time.monotonic_ns()``, packs it as the ubf_async msgpack envelope and sends it; when a
   command comes back it matches ``based_on.seq`` to its sample and records the round trip
   (``time.monotonic_ns()`` at the event minus the sample's stamp).
-* ``controller`` — decodes and validates the sample with ``ubf_async.protocol.decode``,
+* ``controller`` — decodes and validates the sample with ``ubf_async.wire.protocol.decode``,
   evaluates the same behaviour tree as the ubf_async controller (avoid above the thesis's
-  seek-the-pink-ball) on a :class:`~ubf_async.state.State` of that sample, and sends a
-  ``drive`` command encoded with ``ubf_async.protocol.encode`` carrying ``based_on``.
+  seek-the-pink-ball) on a :class:`~ubf_async.core.state.State` of that sample, and sends a
+  ``drive`` command encoded with ``ubf_async.wire.protocol.encode`` carrying ``based_on``.
 
 So both sides do the work the ubf_async path does, minus its aggregator and asyncio bridge;
 what differs is the middleware (dora's shared-memory/TCP daemon) and its node runtime.
@@ -83,8 +83,8 @@ def controller_node() -> None:
     from dora import Node
 
     from bench.latency_robot import reflex_tree
-    from ubf_async.protocol import decode, encode
-    from ubf_async.state import Reading, State
+    from ubf_async.core.state import Reading, State
+    from ubf_async.wire.protocol import decode, encode
 
     node = Node()
     tree = reflex_tree()

@@ -5,8 +5,9 @@ Run as a child process by ``bench/latency.py``::
     python -m bench.latency_robot '<json config>'
 
 ``role: "controller"`` — a zenoh session listening on a loopback endpoint, the project's
-:class:`~ubf_async.aggregator.StateAggregator` and :class:`~ubf_async.controller.Controller`
-with :func:`reflex_tree` (avoid above the thesis's seek-the-pink-ball), configured by
+:class:`~ubf_async.runtime.aggregator.StateAggregator` and
+:class:`~ubf_async.runtime.controller.Controller` with :func:`reflex_tree` (avoid above the
+thesis's seek-the-pink-ball), configured by
 ``mode`` (periodic, sync or event), ``rate_hz``, ``trigger`` and ``reflex`` (the periodic
 controller's ``reflex_sources``; ``python -m ubf_async.launch`` defaults to ``["range/"]``).
 Prints ``READY`` once both components run, serves until its stdin closes, then prints
@@ -14,17 +15,17 @@ Prints ``READY`` once both components run, serves until its stdin closes, then p
 
 ``instrument: false`` leaves the hooks alone (the controller as it runs for a user; only the
 round trip is measured); ``loop`` chooses the event loop (``asyncio`` — the default of every
-entry point —, ``lending`` or ``uvloop``: ``UBF_LOOP``, :func:`ubf_async.cli.loop_factory`).
+entry point —, ``lending`` or ``uvloop``: ``UBF_LOOP``, :func:`ubf_async.cli.run.loop_factory`).
 
 ``role: "echo"`` — the transport floor's responder: raw zenoh, no asyncio, no ubf_async
 runtime. Its subscriber callback (on zenoh's thread) unpacks the sample and puts a minimal
 ``drive``-shaped msgpack reply with ``based_on`` at once.
 
-``role: "tree_echo"`` — the Python floor: the echo doing the controller's essential work in
-its zenoh callback — decode and validate the sample (``ubf_async.protocol``), store it in a
-:class:`~ubf_async.aggregator.StateAggregator`, snapshot, evaluate :func:`reflex_tree`, encode
-the ``drive`` command — with no bus, no event loop, no hooks, no bookkeeping: what any Python
-controller of this tree pays at least.
+``role: "tree_echo"`` — the Python floor: the echo doing the controller's essential work in its
+zenoh callback — decode and validate the sample (``ubf_async.wire.protocol``), store it in a
+:class:`~ubf_async.runtime.aggregator.StateAggregator`, snapshot, evaluate :func:`reflex_tree`,
+encode the ``drive`` command — with no bus, no event loop, no hooks, no bookkeeping: what any
+Python controller of this tree pays at least.
 
 ``role: "simrobot"`` — the full simulated robot in this process (simulator at speed 1 on
 wall-clock pacing, camera, encoders, IR, motors, radio) plus aggregator and the launch's
@@ -51,11 +52,12 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from ubf_async import Action, Behavior, Child, Composite, HighestPriority, State
-from ubf_async.aggregator import SourceEntry, StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.cli import run_loop
-from ubf_async.controller import Controller
+from ubf_async.cli.run import run_loop
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.controller import Controller
 
 AVOID_BELOW_MM = 200
 AVOID_SPEED = -50.0
@@ -238,7 +240,7 @@ async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
     from components.sim.component import SimulatorComponent, simulated_devices
     from components.sim.scenes import ball_in_view
     from components.sim.world import World
-    from ubf_async.clock import SimClock
+    from ubf_async.runtime.clock import SimClock
 
     clock = SimClock()
     bus = await Bus.open(ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]]),
@@ -284,7 +286,7 @@ def serve_raw(cfg: dict[str, Any], answer: Callable[[bytes, int], bytes]) -> dic
     ``cmd/drive``; serves until stdin closes."""
     import zenoh
 
-    from ubf_async.protocol import Keys
+    from ubf_async.wire.protocol import Keys
 
     keys = Keys(cfg["robot"])
     session = zenoh.open(ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]])
@@ -320,9 +322,9 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
 
 def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
-    from ubf_async.clock import WallClock
-    from ubf_async.protocol import Keys, decode, encode
-    from ubf_async.topics import RANGE, BasedOn, Drive
+    from ubf_async.runtime.clock import WallClock
+    from ubf_async.wire.protocol import Keys, decode, encode
+    from ubf_async.wire.topics import RANGE, BasedOn, Drive
 
     class StandInBus:  # what StateAggregator.ingest and snapshot read
         clock = WallClock()
@@ -349,7 +351,7 @@ def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     cfg = json.loads((argv or sys.argv[1:])[0])
     role = cfg["role"]
-    if "loop" in cfg:  # the event loop this controller runs on (ubf_async.cli.loop_factory)
+    if "loop" in cfg:  # the event loop this controller runs on (ubf_async.cli.run.loop_factory)
         os.environ["UBF_LOOP"] = cfg["loop"]
 
     if role == "echo":

@@ -48,8 +48,8 @@ from typing import Any
 import msgpack
 import zenoh
 
-from ubf_async.bus import ConnectionOptions
-from ubf_async.protocol import Keys
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.wire.protocol import Keys
 
 FAR_MM = 600
 NEAR_MM = 120

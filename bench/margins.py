@@ -11,8 +11,8 @@
 
 (b) **Staleness.** A sensor in its own process (``python -m bench.margins sensor ...``)
     publishes ``range`` samples declaring ``period_s`` in bursts, with silences between them.
-    Here a :class:`~ubf_async.aggregator.StateAggregator` (the robot's state) is polled every
-    millisecond; each trial is the time from the last sample's stamp until the snapshot marks
+    Here a :class:`~ubf_async.runtime.aggregator.StateAggregator` (the robot's state) is polled
+    every millisecond; each trial is the time from the last sample's stamp until the snapshot marks
     the source stale, in periods (the goal is 2).
 
 Every time is ``CLOCK_MONOTONIC`` of this host, read in one process or carried in stamps.
@@ -32,8 +32,9 @@ from typing import Any
 
 from bench.latency_stats import percentile
 from bench.processes import terminate
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.protocol import decode
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT = "margins"
@@ -147,7 +148,7 @@ async def measure_watchdog(trials: int, burst_s: float, timeout_s: float | None)
 
 
 async def measure_staleness(trials: int, period_s: float) -> list[float]:
-    from ubf_async.aggregator import StateAggregator
+    from ubf_async.runtime.aggregator import StateAggregator
 
     endpoint = free_endpoint()
     bus = await Bus.open(ConnectionOptions(robot=ROBOT, listen=[endpoint]))

@@ -35,9 +35,9 @@ import zenoh
 
 from bench.latency_stats import fmt_us, header, row, summarize
 from bench.processes import terminate
-from ubf_async.protocol import decode, encode
-from ubf_async.ros2 import keys as rk
-from ubf_async.ros2 import messages as rm
+from ubf_async.services.ros2 import keys as rk
+from ubf_async.services.ros2 import messages as rm
+from ubf_async.wire.protocol import decode, encode
 
 ROBOT = "bench"
 LINEAR, ANGULAR = 0.34, 1.62

@@ -3,8 +3,8 @@
 The device kinds (entry points ``ubf_async.devices``) and their backends
 (``ubf_async.backends``, ``<kind>.<backend>``) are looked up by name, exactly as launch does
 for a robot file; their keyword parameters are checked with
-:func:`ubf_async.registry.parameters_of` before anything is built. A device started on its own
-(:mod:`components.standalone`) and the simulator's in-process helper
+:func:`ubf_async.assembly.registry.parameters_of` before anything is built. A device started on its
+own (:mod:`components.standalone`) and the simulator's in-process helper
 (:func:`components.sim.component.simulated_devices`) both build through :func:`make_device`.
 """
 
@@ -15,10 +15,9 @@ from typing import Any
 
 import msgspec
 
-from ubf_async import registry
-from ubf_async.component import Component
-from ubf_async.context import DeviceContext
-from ubf_async.devices import (
+from ubf_async.assembly import registry
+from ubf_async.assembly.context import DeviceContext
+from ubf_async.assembly.devices import (
     BACKEND_INJECTED,
     DEVICE_INJECTED,
     build_device,
@@ -26,6 +25,7 @@ from ubf_async.devices import (
     typed_params,
 )
 from ubf_async.errors import ConfigurationError
+from ubf_async.runtime.component import Component
 
 __all__ = ["BACKEND_INJECTED", "DEFAULT_NAMES", "DEVICE_INJECTED", "KINDS", "checked",
            "make_backend", "make_device", "requires_simulator"]

@@ -5,22 +5,22 @@ Every device entry point shares the connection flags of all ubf_async entry poin
 ``--wait-for-sim-s`` and ``--log-level``, and adds its own options, which it maps to the
 parameters of its device kind's ``build_device``.
 
-The device and its backend are looked up in the registry (:mod:`ubf_async.registry`) exactly
-as launch looks them up for a robot file: ``--backend`` lists the backends registered for the
-kind. When the backend needs a simulator (its ``requires_simulator``), the process follows the
-simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from
-that simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running
-simulated robot at any time. This module knows no simulator by name.
+The device and its backend are looked up in the registry (:mod:`ubf_async.assembly.registry`)
+exactly as launch looks them up for a robot file: ``--backend`` lists the backends registered for
+the kind. When the backend needs a simulator (its ``requires_simulator``), the process follows the
+simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from that
+simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running simulated
+robot at any time. This module knows no simulator by name.
 
 Any other backend (real hardware, the radio on a terminal) stamps on the robot's clock too:
 with ``--clock auto`` (the default) it waits until the robot says which clock it runs on,
 however long the robot takes to start — simulated time (``ubf/<robot>/clock``: followed), or
 its host's ``CLOCK_MONOTONIC`` (followed through ``ubf/<robot>/time`` from another host) —
 and takes this host's clock only when the robot says nothing of it within ``--clock-wait-s``;
-its start-up line says which (:func:`ubf_async.clockdomain.follow_robot_clock`).
+its start-up line says which (:func:`ubf_async.runtime.clockdomain.follow_robot_clock`).
 
 Whatever the backend, the process says on its stderr, at once, when the robot refuses its
-samples, and why (:class:`ubf_async.refusals.RefusalWatch`).
+samples, and why (:class:`ubf_async.runtime.refusals.RefusalWatch`).
 """
 
 from __future__ import annotations
@@ -37,20 +37,15 @@ from typing import Any
 import yaml
 
 from components.devices import make_backend, make_device, requires_simulator
-from ubf_async import clockdomain, lockstep, refusals, registry
-from ubf_async.bus import (
-    DEFAULT_ATTACH_TIMEOUT_S,
-    Bus,
-    HelpFormatter,
-    add_connection_arguments,
-    connection_options,
-    follow_sim_clock,
-    wait_for_robot,
-)
-from ubf_async.cli import run_main
-from ubf_async.clock import Clock, SimClock, WallClock
-from ubf_async.component import Component, ensure_name_free
-from ubf_async.context import DeviceContext
+from ubf_async.assembly import registry
+from ubf_async.assembly.context import DeviceContext
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.run import run_main
+from ubf_async.runtime import clockdomain, lockstep, refusals
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
+from ubf_async.runtime.clock import Clock, SimClock, WallClock
+from ubf_async.runtime.component import Component, ensure_name_free
+from ubf_async.runtime.simclock import follow_sim_clock
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
 """Maps the parsed command line to keyword parameters (of the device or of its backend)."""

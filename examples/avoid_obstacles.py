@@ -25,9 +25,9 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from ubf_async.behavior import Behavior
 from ubf_async.behaviors.obstacles import DEFAULT_HOLD_S, Avoid
-from ubf_async.remote import remote_parser, run_remote_behavior
+from ubf_async.core.behavior import Behavior
+from ubf_async.tools.remote_host import remote_parser, run_remote_behavior
 
 
 class AvoidObstacles(Avoid):

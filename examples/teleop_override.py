@@ -19,10 +19,10 @@ import sys
 from collections.abc import Sequence
 from typing import NamedTuple
 
-from ubf_async.action import Action
-from ubf_async.behavior import Behavior
-from ubf_async.remote import remote_parser, run_remote_behavior
-from ubf_async.state import State
+from ubf_async.core.action import Action
+from ubf_async.core.behavior import Behavior
+from ubf_async.core.state import State
+from ubf_async.tools.remote_host import remote_parser, run_remote_behavior
 
 
 class Step(NamedTuple):

@@ -16,9 +16,10 @@ import msgspec
 import pytest
 import pytest_asyncio
 
-from ubf_async import lending
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.clock import Hold, WallClock
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime import lending
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import Hold, WallClock
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -36,7 +37,7 @@ LENDING_TESTS = ("test_lending.py",)
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
                                   ) -> dict[str, Callable[[], asyncio.AbstractEventLoop]]:
     """Async tests run on the event loop every entry point runs on by default
-    (:func:`ubf_async.cli.loop_factory` without ``UBF_LOOP``: asyncio's selector loop that
+    (:func:`ubf_async.cli.run.loop_factory` without ``UBF_LOOP``: asyncio's selector loop that
     tells the lockstep when it is idle and lends itself to no thread); the lending loop's own
     tests (:data:`LENDING_TESTS`) on the lending loop."""
     if item.path.name in LENDING_TESTS:
@@ -98,7 +99,7 @@ async def eventually(
 class LoopClock:
     """The robot's clock as the event loop's own time: wall time on a normal loop, virtual
     time in a test marked ``@pytest.mark.looptime`` (which fast-forwards the loop's time
-    whenever every task waits on a timer). :class:`~ubf_async.clock.WallClock` reads
+    whenever every task waits on a timer). :class:`~ubf_async.runtime.clock.WallClock` reads
     ``time.monotonic_ns()``, which looptime cannot move: a component stamped and scheduled by
     this clock runs on one virtual time with the loop's own timers (restart backoffs,
     heartbeats, ``asyncio.wait_for``). Only for buses without zenoh threads (the in-process
@@ -192,7 +193,7 @@ class SimRobot:
                  **device_options: object) -> None:
         from components.sim.component import SimulatorComponent, simulated_devices
         from components.sim.world import World
-        from ubf_async.clock import SimClock
+        from ubf_async.runtime.clock import SimClock
 
         self.clock = SimClock()
         bus.clock = self.clock
@@ -223,9 +224,9 @@ async def start_seeking_robot(bus: Bus, run: object) -> tuple[object, list[objec
     controller and the run's own components, started in that order. Returns (controller,
     components); close the components in reverse order."""
     from components.sim.component import simulated_devices
-    from ubf_async.aggregator import StateAggregator
     from ubf_async.behaviors import seek_pink_ball
-    from ubf_async.controller import Controller
+    from ubf_async.runtime.aggregator import StateAggregator
+    from ubf_async.runtime.controller import Controller
 
     devices = simulated_devices(bus=bus, world=run.world, seed=run.seed)  # type: ignore[attr-defined]
     run.add_devices(devices)  # type: ignore[attr-defined]

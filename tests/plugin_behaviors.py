@@ -6,9 +6,9 @@ from typing import Annotated
 
 import msgspec
 
-from ubf_async.action import Action
-from ubf_async.behavior import Behavior
-from ubf_async.state import State
+from ubf_async.core.action import Action
+from ubf_async.core.behavior import Behavior
+from ubf_async.core.state import State
 
 
 class Spin(Behavior):

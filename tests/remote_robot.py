@@ -3,7 +3,7 @@
     python -m tests.remote_robot --listen tcp/127.0.0.1:7450 --robot r1
 
 It opens a bus, runs a state aggregator, the controller with the thesis's seek_pink_ball tree,
-:class:`~ubf_async.remote.RemoteBehaviors`, a stand-in camera that publishes fixed
+:class:`~ubf_async.services.remote.RemoteBehaviors`, a stand-in camera that publishes fixed
 seekcolor bins every 0.11 s (pink in the centre by default, so seek-the-pink-ball chases:
 speed +40, turn 0) and, as a robot on wall time does, its clock on ``ubf/<robot>/time``; it
 tells senders what it refuses (``ubf/<robot>/refused/...``), as launch does. It prints
@@ -27,13 +27,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, add_connection_arguments, connection_options
-from ubf_async.component import Component
-from ubf_async.controller import Controller
-from ubf_async.hostclock import RobotTimeBeacon
-from ubf_async.remote import RemoteBehaviors, remote_spec
+from ubf_async.cli.args import add_connection_arguments, connection_options
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.component import Component
+from ubf_async.runtime.controller import Controller
+from ubf_async.runtime.hostclock import RobotTimeBeacon
+from ubf_async.services.remote import RemoteBehaviors, remote_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 

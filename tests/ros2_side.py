@@ -1,5 +1,5 @@
 """The ROS 2 side of tests/test_ros2*.py, in a process of its own: zenoh-ros2-sdk, an
-implementation of rmw_zenoh's wire format independent of ubf_async.ros2.
+implementation of rmw_zenoh's wire format independent of ubf_async.services.ros2.
 
 It is given the message definitions below (as in the ROS 2 interface packages) and computes
 the type hashes itself (``zenoh_ros2_sdk.utils.get_type_hash``), so it needs no network.

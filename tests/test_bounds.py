@@ -7,8 +7,9 @@ import itertools
 
 import pytest
 
-from ubf_async.bus import DRAIN_BATCH, MAX_COUNTED_KEYS, Subscription, decode_or_count
-from ubf_async.component import MAX_WATCHED_COMPONENTS, HealthMonitor
+from ubf_async.runtime.bus import DRAIN_BATCH, Subscription
+from ubf_async.runtime.component import MAX_WATCHED_COMPONENTS, HealthMonitor
+from ubf_async.wire.protocol import MAX_COUNTED_KEYS, decode_or_count
 
 
 def test_malformed_counts_keep_at_most_max_counted_keys() -> None:

@@ -23,14 +23,10 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import free_port
-from ubf_async.bus import (
-    Bus,
-    ConnectionOptions,
-    add_connection_arguments,
-    connection_options,
-    wait_for_robot,
-)
+from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus, wait_for_robot
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

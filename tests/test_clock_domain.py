@@ -17,19 +17,20 @@ import pytest
 
 from tests.conftest import eventually
 from tests.remote_robot import Process
-from ubf_async import clockdomain
-from ubf_async.action import Action
-from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.clock import SimClock
-from ubf_async.clockdomain import ClockDomainWatch, foreign_clock
-from ubf_async.controller import Controller
-from ubf_async.inspector import format_clock_domain
-from ubf_async.ordering import Refusal
-from ubf_async.protocol import Message, decode
-from ubf_async.remote import RemoteBehaviors, Vote
-from ubf_async.topics import Range
+from ubf_async.core.action import Action
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime import clockdomain
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.clockdomain import ClockDomainWatch, foreign_clock
+from ubf_async.runtime.controller import Controller
+from ubf_async.runtime.ordering import Refusal
+from ubf_async.services.remote import RemoteBehaviors, Vote
+from ubf_async.tools.inspector import format_clock_domain
+from ubf_async.wire.protocol import Message, decode
+from ubf_async.wire.topics import Range
 
 ROOT = Path(__file__).resolve().parent.parent
 S = 10**9
@@ -65,7 +66,7 @@ def test_the_watch_counts_per_source_warns_once_and_every_100th(
     caplog: pytest.LogCaptureFixture
 ) -> None:
     watch = ClockDomainWatch(robot="mini", max_sources=2)
-    caplog.set_level(logging.WARNING, logger="ubf_async.clockdomain")
+    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
     assert not watch.check("range/ok", 12 * S + 1000, now_ns=12 * S, simulated=True)
     for _ in range(150):
         assert watch.check("range/wall", WALL_NS, now_ns=12 * S, simulated=True)
@@ -96,7 +97,7 @@ def test_the_watch_counts_per_source_warns_once_and_every_100th(
 def test_each_clock_reads_right_in_a_sentence(caplog: pytest.LogCaptureFixture) -> None:
     """Issue 28: a warning read "looks like the another clock"."""
     watch = ClockDomainWatch(robot="mini")
-    caplog.set_level(logging.WARNING, logger="ubf_async.clockdomain")
+    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
     for _ in range(100):
         watch.check("range/far", 2 * S, now_ns=5000 * S, simulated=False)
     watch.check("range/wall", WALL_NS, now_ns=12 * S, simulated=True)

@@ -21,12 +21,12 @@ from components.devices import (
 from components.range.ir import IR_MODELS
 from components.sim.scenarios import load_scenario
 from components.sim.world import World, WorldConfig
-from ubf_async import registry
-from ubf_async.bus import Bus
-from ubf_async.clock import SimClock
-from ubf_async.component import Component
+from ubf_async.assembly import registry
+from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
 from ubf_async.errors import ConfigurationError, PluginError, ScenarioError
-from ubf_async.simulation import DeviceContext, SimulationOptions, SimulationRun
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.component import Component
 
 EXPECTED_PARAMETERS = {
     "camera": {"latency_s", "hfov_deg", "view_scale"},

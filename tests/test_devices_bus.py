@@ -15,9 +15,9 @@ from components.sim.backends import SimRadioBackend
 from components.sim.world import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually
 from ubf_async import Action, FunctionBehavior
-from ubf_async.aggregator import StateAggregator
-from ubf_async.bus import Bus
-from ubf_async.controller import Controller
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.controller import Controller
 
 
 @pytest.mark.asyncio

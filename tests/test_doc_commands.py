@@ -118,7 +118,7 @@ def runs(*commands: str) -> Callable[[F], F]:
 
 ROS_MACHINE = ("a ROS 2 installation with rmw_zenoh (none here): test_ros2_sees_the_robot_"
                "through_a_router does what it does with tests/ros2_side.py, an rmw_zenoh "
-               "implementation independent of ubf_async.ros2")
+               "implementation independent of ubf_async.services.ros2")
 
 NOT_RUN = {
     "python3 -m venv .venv":

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from ubf_async.aggregator import STALE_PERIODS
+from ubf_async.runtime.aggregator import STALE_PERIODS
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

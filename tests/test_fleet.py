@@ -19,11 +19,12 @@ from components.sim.camera_render import render_camera
 from components.sim.ranging import beam_distance_m
 from components.sim.world import ROBOT_COLOR, Arena, Pose2D, World, WorldConfig
 from tests.conftest import eventually, free_port, read_until, spawn, stop
-from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.errors import ConfigurationError
-from ubf_async.fleet import load_fleet
-from ubf_async.protocol import decode
-from ubf_async.topics import DRIVE, MOTORS
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.tools.fleet import load_fleet
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import DRIVE, MOTORS
 
 ROOT = Path(__file__).resolve().parent.parent
 ARENA = Arena(x_min_m=-2, x_max_m=2, y_min_m=-2, y_max_m=2)
@@ -94,8 +95,8 @@ async def test_robots_placed_on_each_other_or_outside_the_arena_are_refused(
 ) -> None:
     from components.sim.fleet import fleet_world_config
     from components.sim.scenarios import load_scenario
+    from ubf_async.assembly.simulation import FleetMember
     from ubf_async.errors import ScenarioError
-    from ubf_async.simulation import FleetMember
 
     base = load_scenario("ball-in-sight").world
 

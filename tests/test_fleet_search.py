@@ -15,13 +15,13 @@ import pytest
 
 from components.sim.world import Arena, Pose2D, World, WorldConfig
 from tests.conftest import free_port
+from ubf_async.assembly.devices import build_device
+from ubf_async.assembly.robotfile import load_robot
+from ubf_async.assembly.simulation import DeviceContext
 from ubf_async.behaviors.fleet import GoToReport, ReportBall, format_report, parse_report
-from ubf_async.bus import Bus
-from ubf_async.devices import build_device
-from ubf_async.robotfile import load_robot
-from ubf_async.simulation import DeviceContext
-from ubf_async.state import State
-from ubf_async.transport import InProcessTransport
+from ubf_async.core.state import State
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.bus import Bus
 
 ROOT = Path(__file__).resolve().parent.parent
 S = 10**9

@@ -1,6 +1,6 @@
 """Fuzzing the wire contract: every topic's decoder and encoder, and the generic path.
 
-For every topic in :data:`ubf_async.topics.TOPICS` (iterated, so a new topic is fuzzed
+For every topic in :data:`ubf_async.wire.topics.TOPICS` (iterated, so a new topic is fuzzed
 without touching this file) and for a schema not declared there, ``protocol.decode`` and
 ``protocol.encode`` are fed random bytes, valid msgpack of wrong shapes, envelopes with
 mutated fields, and valid data (built from the topic's type with ``msgspec.inspect``) with
@@ -34,8 +34,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ubf_async import topics
-from ubf_async.protocol import (
+from ubf_async.wire import topics
+from ubf_async.wire.protocol import (
     INT64_MAX,
     MAX_CONTAINER_LEN,
     MAX_DEPTH,
@@ -47,7 +47,7 @@ from ubf_async.protocol import (
     decode,
     encode,
 )
-from ubf_async.topics import TOPICS, PlainData, Topic
+from ubf_async.wire.topics import TOPICS, PlainData, Topic
 
 GENERIC_SCHEMA = "fuzz.newkind"
 """A schema declared nowhere: its data takes the generic path."""
@@ -462,7 +462,7 @@ def mutated_envelopes(draw: st.DrawFn, topic: Topic[Any] | None) -> dict[Any, An
 
 @pytest.mark.parametrize("topic", TOPICS, ids=[t.name for t in TOPICS])
 def test_every_field_of_every_topic_is_bounded(topic: Topic[Any]) -> None:
-    """The conventions of ubf_async.topics, checked on the type info: every float bounded
+    """The conventions of ubf_async.wire.topics, checked on the type info: every float bounded
     (msgspec lets NaN and ±inf through a plain ``float``), every string and array with a
     ``max_length``; generic data (``Any``) is checked by ``plain``."""
     seen: set[type] = set()

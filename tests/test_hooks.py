@@ -14,13 +14,13 @@ import pytest
 
 from tests.conftest import as_dict, eventually
 from ubf_async import Action, FunctionBehavior, State
-from ubf_async.aggregator import SourceEntry, StateAggregator
-from ubf_async.behavior import Trace
-from ubf_async.bus import Bus
-from ubf_async.clock import WallClock
-from ubf_async.component import Component
-from ubf_async.controller import Controller
-from ubf_async.protocol import Keys, Message, ProtocolError, decode
+from ubf_async.core.behavior import Trace
+from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import WallClock
+from ubf_async.runtime.component import Component
+from ubf_async.runtime.controller import Controller
+from ubf_async.wire.protocol import Keys, Message, ProtocolError, decode
 
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
 
@@ -98,7 +98,7 @@ def test_a_raising_sample_hook_is_logged_and_removed_the_others_go_on(
 
     agg.on_sample(faulty)
     agg.on_sample(lambda source, entry: calls.append("good"))
-    with caplog.at_level(logging.ERROR, logger="ubf_async.aggregator"):
+    with caplog.at_level(logging.ERROR, logger="ubf_async.runtime.hooks"):
         for seq in (1, 2, 3):
             assert agg.ingest("range/front", message(seq), 0)
     assert calls == ["faulty", "good", "good", "good"]
@@ -244,7 +244,7 @@ async def test_a_raising_tick_hook_is_cut_off_and_the_controller_goes_on(
     drives: list[dict[str, Any]] = []
     robot_bus.subscribe(robot_bus.keys.cmd("drive"),
                         lambda k, p, t: drives.append(as_dict(decode(p).data)), latest=False)
-    with caplog.at_level(logging.ERROR, logger="ubf_async.aggregator"):
+    with caplog.at_level(logging.ERROR, logger="ubf_async.runtime.hooks"):
         await start(agg, ctl)
         await eventually(lambda: len(drives) >= 3, what="three commands")
     await ctl.aclose()

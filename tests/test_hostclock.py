@@ -13,13 +13,14 @@ from collections.abc import Callable
 import pytest
 
 from tests.conftest import eventually, read_until
-from ubf_async import clockdomain
-from ubf_async.aggregator import StateAggregator
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.clock import WallClock
-from ubf_async.hostclock import OffsetEstimator, RobotTimeBeacon, RobotTimeClock
-from ubf_async.protocol import decode
-from ubf_async.topics import RANGE, ROBOT_TIME
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime import clockdomain
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import WallClock
+from ubf_async.runtime.hostclock import OffsetEstimator, RobotTimeBeacon, RobotTimeClock
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import RANGE, ROBOT_TIME
 
 S = 10**9
 MS = 10**6

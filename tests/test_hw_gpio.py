@@ -31,11 +31,11 @@ from components.motors.gpio import GpioMotorBackend, gpio_backend
 from components.motors.pwm import DEFAULT_PWM, pulse_widths
 from tests.conftest import LoopClock, eventually
 from tests.pinlog import holds
-from ubf_async.bus import Bus
 from ubf_async.errors import ConfigurationError
-from ubf_async.protocol import decode
-from ubf_async.topics import DRIVE, ENCODERS, MOTORS, Encoders
-from ubf_async.transport import InProcessTransport
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import DRIVE, ENCODERS, MOTORS, Encoders
 
 HOLD_S = 2 * DEFAULT_PWM.period_ms / 1000.0
 """Two 20 ms periods: how long the init and stop pulses must stay on the pins."""
@@ -313,7 +313,7 @@ async def test_encoders_component_counts_edges_driven_from_another_thread(
     seen: list[tuple[int, int]] = []
 
     def on_counts(key: str, payload: bytes, received_ns: int) -> None:
-        from ubf_async.protocol import decode
+        from ubf_async.wire.protocol import decode
 
         data = decode(payload, topic=ENCODERS).data
         seen.append((data.left_edges, data.right_edges))

@@ -34,11 +34,12 @@ from components.motors.pwm import (
 from tests.conftest import as_dict, eventually, read_until, stop
 from tests.i2c_testbus import TestBus, ads1115, gp2y0e
 from tests.pinlog import holds, load
-from ubf_async import launch
-from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.errors import ConfigurationError
-from ubf_async.protocol import decode
-from ubf_async.topics import ENCODERS, MOTORS, ODOMETRY, RANGE
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.tools import launch
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY, RANGE
 
 ROOT = Path(__file__).resolve().parent.parent
 PI_WHEGS = ROOT / "examples" / "robots" / "pi-whegs.yaml"

@@ -2,17 +2,18 @@
 
 * ``ubf_async`` (the framework) imports nothing of ``components``;
 * the device packages and ``components/standalone.py`` import neither the simulator
-  (``components.sim``) nor launch (``ubf_async.launch``): they find a simulator, like any
+  (``components.sim``) nor launch (``ubf_async.tools.launch``): they find a simulator, like any
   backend, through the registry;
 * only the simulator imports pymunk;
 * only the hardware backends (and ``components/hardware.py``, what they share) import the
   hardware libraries, gpiozero and smbus2: they are an optional extra, and a robot without
   them (the simulated one) runs — checked by running it with both made unimportable.
 
-The same directions, and the layers of the flat package (no import circles; wire < connection
-< bus < components < controller < assembly), are contracts of ``lint-imports``
-(``[tool.importlinter]`` in pyproject.toml, run by .ci/run); the last tests here show that it
-refuses a deliberately upward import on a scratch copy of the packages.
+The same directions, the rooms of the framework (``ubf_async``'s subpackages, high to low:
+tools, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle) and no import
+circles are contracts of ``lint-imports`` (``[tool.importlinter]`` in pyproject.toml, run by
+.ci/run); the last tests here show that it refuses a deliberately upward import on a scratch
+copy of the packages.
 
 Static imports only (``import``/``from … import`` anywhere in a module, including inside
 functions and ``if TYPE_CHECKING:``), and imports by a literal name
@@ -96,7 +97,7 @@ def test_the_framework_imports_no_component() -> None:
 def test_devices_import_neither_the_simulator_nor_launch(where: tuple[str, str]) -> None:
     paths = modules_under(*where)
     assert paths, where
-    assert offending(paths, "components.sim", "ubf_async.launch") == {}
+    assert offending(paths, "components.sim", "ubf_async.tools", "ubf_async.launch") == {}
 
 
 def test_only_the_simulator_imports_pymunk() -> None:
@@ -192,10 +193,10 @@ def test_hardware_backends_say_how_to_install_what_they_need(tmp_path: Path) -> 
     # building a hardware backend says which extra to install.
     env, log = without_hardware_libraries(tmp_path)
     code = """
-import ubf_async.launch, components.motors.component, components.encoders.component
+import ubf_async.tools.launch, components.motors.component, components.encoders.component
 import components.range.component, components.motors.gpio, components.encoders.gpio
 import components.range.i2c
-from ubf_async.robotfile import load_robot
+from ubf_async.assembly.robotfile import load_robot
 load_robot("mini-whegs")
 from ubf_async.errors import ConfigurationError
 from components.range.i2c import i2c_backend
@@ -242,15 +243,25 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
 
 
 @pytest.mark.parametrize(("edits", "broken"), [
-    # Upward without a circle: errors (the lowest layer) takes the clock.
-    ({"ubf_async/errors.py": "import ubf_async.clock  # noqa"},
-     ["Runtime layers"]),
-    # The circle this package had: topics taking the key builders back from protocol.
-    ({"ubf_async/topics.py": "from ubf_async.protocol import decode  # noqa"},
-     ["No import circles", "Runtime layers"]),
+    # Upward without a circle: errors (the floor) takes the clock.
+    ({"ubf_async/errors.py": "import ubf_async.runtime.clock  # noqa"},
+     ["ubf_async's rooms"]),
+    # The runtime reaching up for the plug-in registry (the assembly's).
+    ({"ubf_async/runtime/controller.py": "from ubf_async.assembly import registry  # noqa"},
+     ["ubf_async's rooms", "No import circles"]),
+    # The core reaching for the network, a room beside it.
+    ({"ubf_async/core/state.py": "import ubf_async.net.transport  # noqa"},
+     ["ubf_async's rooms"]),
+    # The circle this package had, inside one room: topics taking the key builders back from
+    # protocol.
+    ({"ubf_async/wire/topics.py": "from ubf_async.wire.protocol import decode  # noqa"},
+     ["No import circles"]),
     # The framework reaching for a component.
-    ({"ubf_async/bus.py": "import components.sim.world  # noqa"},
+    ({"ubf_async/runtime/bus.py": "import components.sim.world  # noqa"},
      ["The framework imports no component"]),
+    # A component reaching for a tool.
+    ({"components/sim/liveview.py": "import ubf_async.tools.liveview  # noqa"},
+     ["Nothing below the tools imports a tool"]),
 ])
 def test_lint_imports_refuses_an_upward_import(tmp_path: Path, edits: dict[str, str],
                                                broken: list[str]) -> None:

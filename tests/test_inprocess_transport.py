@@ -8,10 +8,11 @@ import threading
 
 import pytest
 
-from ubf_async.bus import DRAIN_BATCH, Bus, ConnectionOptions, QueryError
 from ubf_async.errors import ConfigurationError
-from ubf_async.protocol import decode
-from ubf_async.transport import InProcessTransport, KeyExprError, SettleError
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.transport import InProcessTransport, KeyExprError, SettleError
+from ubf_async.runtime.bus import DRAIN_BATCH, Bus, QueryError
+from ubf_async.wire.protocol import decode
 
 RANGE = {"range_mm": 420, "status": "ok"}
 

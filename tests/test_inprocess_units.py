@@ -16,21 +16,21 @@ import pytest
 import pytest_asyncio
 
 from tests.conftest import as_dict
-from ubf_async.action import Action
-from ubf_async.aggregator import StateAggregator
-from ubf_async.arbiters import HighestPriority
-from ubf_async.behavior import Behavior, Composite
 from ubf_async.behaviors.basic import Drive
-from ubf_async.bus import Bus
-from ubf_async.clock import SimClock
-from ubf_async.component import Component
-from ubf_async.controller import Controller
-from ubf_async.ordering import Refusal
-from ubf_async.protocol import decode
-from ubf_async.remote import RemoteBehavior, RemoteBehaviorHost, RemoteBehaviors
-from ubf_async.state import State
-from ubf_async.topics import TRACE, TickTrace
-from ubf_async.transport import InProcessTransport
+from ubf_async.core.action import Action
+from ubf_async.core.arbiters import HighestPriority
+from ubf_async.core.behavior import Behavior, Composite
+from ubf_async.core.state import State
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.component import Component
+from ubf_async.runtime.controller import Controller
+from ubf_async.runtime.ordering import Refusal
+from ubf_async.services.remote import RemoteBehavior, RemoteBehaviorHost, RemoteBehaviors
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import TRACE, TickTrace
 
 START_NS = 10**9
 RANGE_PERIOD_S = 0.2

@@ -14,14 +14,14 @@ import pytest
 
 from tests.conftest import free_port
 from tests.remote_robot import ROOT, Process, start_robot
-from ubf_async.inspector import (
+from ubf_async.tools.inspector import (
     build_parser,
     expected_schema,
     format_sample,
     resolve_key,
     tree_request_data,
 )
-from ubf_async.protocol import Keys, encode
+from ubf_async.wire.protocol import Keys, encode
 
 EXAMPLES = ROOT / "examples"
 ROBOT_COMPONENTS = ["aggregator", "camera-front", "controller", "remotes", "robot-time"]
@@ -252,7 +252,7 @@ def test_formatting_helpers() -> None:
 
 
 def test_state_shows_refusals_and_quarantined_behaviours() -> None:
-    from ubf_async.inspector import format_state
+    from ubf_async.tools.inspector import format_state
 
     status = {
         "mode": "periodic", "sources": [

@@ -18,10 +18,11 @@ import pytest
 
 from tests.conftest import eventually, free_port
 from tests.remote_robot import Process
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.inspector import build_parser
-from ubf_async.protocol import decode
-from ubf_async.topics import HEARTBEAT, LEDS, RANGE
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.tools.inspector import build_parser
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import HEARTBEAT, LEDS, RANGE
 
 ROOT = Path(__file__).resolve().parent.parent
 

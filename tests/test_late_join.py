@@ -23,13 +23,14 @@ import pytest
 
 from tests.conftest import eventually
 from tests.remote_robot import Process
-from ubf_async import clockdomain
-from ubf_async.bus import DEFAULT_LISTEN, Bus, ConnectionOptions, Publisher
-from ubf_async.clock import SimClock, WallClock
-from ubf_async.protocol import decode
-from ubf_async.refusals import RefusalNotices, RefusalWatch
-from ubf_async.topics import CLOCK, CONTROLLER_STATUS, REFUSED, REMOTES_STATUS
-from ubf_async.transport import InProcessTransport
+from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime import clockdomain
+from ubf_async.runtime.bus import Bus, Publisher
+from ubf_async.runtime.clock import SimClock, WallClock
+from ubf_async.runtime.refusals import RefusalNotices, RefusalWatch
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import CLOCK, CONTROLLER_STATUS, REFUSED, REMOTES_STATUS
 
 ROOT = Path(__file__).resolve().parent.parent
 S = 10**9

@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import eventually
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.protocol import decode
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 

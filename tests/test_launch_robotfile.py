@@ -163,8 +163,8 @@ forward = "ubf_test_plugin:Forward"
 PLUGIN_MODULE = '''\
 """A behaviour package, as a third party would ship it."""
 
-from ubf_async.action import Action
-from ubf_async.behavior import Behavior
+from ubf_async.core.action import Action
+from ubf_async.core.behavior import Behavior
 
 
 class Forward(Behavior):
@@ -347,8 +347,9 @@ async def test_live_arbiter_swap_changes_the_winner_and_a_bad_change_leaves_no_g
         tmp_path: Path, endpoint: str, robot: str) -> None:
     import asyncio
 
-    from ubf_async.bus import Bus, ConnectionOptions
-    from ubf_async.protocol import decode
+    from ubf_async.net.options import ConnectionOptions
+    from ubf_async.runtime.bus import Bus
+    from ubf_async.wire.protocol import decode
 
     path = tmp_path / "live.yaml"
     path.write_text(LIVE_ROBOT.format(robot=robot))

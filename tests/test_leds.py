@@ -20,10 +20,11 @@ from components.leds.component import LedsComponent
 from components.sim.backends import SimLedBackend
 from components.sim.record import LED_DARK_BGR, LED_LIT_BGR, annotate_frame, read_trajectory_csv
 from tests.conftest import as_dict, eventually
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.protocol import ProtocolError, decode, encode
-from ubf_async.topics import LED_STATE, LEDS, LedState
-from ubf_async.transport import InProcessTransport
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import ProtocolError, decode, encode
+from ubf_async.wire.topics import LED_STATE, LEDS, LedState
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,4 +1,4 @@
-"""The lending event loop (ubf_async.lending): a transport thread runs a short handler at
+"""The lending event loop (ubf_async.runtime.lending): a transport thread runs a short handler at
 once while the loop waits in select(), never beside loop code, and whatever it schedules is
 run by the loop thread; direct subscriptions and the reflex path use it on real zenoh."""
 
@@ -14,11 +14,11 @@ import pytest
 
 from tests.conftest import eventually
 from ubf_async import Action, FunctionBehavior
-from ubf_async.aggregator import StateAggregator
-from ubf_async.bus import DIRECT_BURST, DIRECT_RATE_HZ, Bus
-from ubf_async.cli import loop_factory
-from ubf_async.controller import Controller
-from ubf_async.lending import (
+from ubf_async.cli.run import loop_factory
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import DIRECT_BURST, DIRECT_RATE_HZ, Bus
+from ubf_async.runtime.controller import Controller
+from ubf_async.runtime.lending import (
     LendingEventLoop,
     _take,
     idle_waiter,
@@ -26,8 +26,8 @@ from ubf_async.lending import (
     new_idle_event_loop,
     run_if_idle,
 )
-from ubf_async.protocol import decode
-from ubf_async.topics import DRIVE
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import DRIVE
 
 
 def lend_when_idle(run: Any, fn: Any, *args: Any) -> bool:

@@ -14,15 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from ubf_async.action import Action
-from ubf_async.aggregator import StateAggregator
-from ubf_async.arbiters import (
+from ubf_async.core.action import Action
+from ubf_async.core.arbiters import (
     Conditional,
     HighestActivation,
     HighestPriority,
     PriorityMerge,
 )
-from ubf_async.behavior import (
+from ubf_async.core.behavior import (
     Arbiter,
     Behavior,
     Candidate,
@@ -32,10 +31,11 @@ from ubf_async.behavior import (
     FunctionBehavior,
     Trace,
 )
-from ubf_async.bus import Bus
-from ubf_async.controller import Controller
+from ubf_async.core.state import State
 from ubf_async.errors import ConfigurationError
-from ubf_async.state import State
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.controller import Controller
 
 ROOT = Path(__file__).resolve().parent.parent
 STATE = State.of(now_ns=0)
@@ -150,7 +150,7 @@ def test_shutdown_continues_past_a_child_that_raises_and_logs_it(
     root = tree(log, fail_shutdown={"c", "d"})
     root.setup()
     log.clear()
-    with caplog.at_level(logging.ERROR, logger="ubf_async.behavior"):
+    with caplog.at_level(logging.ERROR, logger="ubf_async.core.behavior"):
         root.shutdown()  # does not raise
     assert log == ["shutdown d", "shutdown c", "shutdown b", "shutdown a"]
     failed = [r for r in caplog.records if r.levelno == logging.ERROR]
@@ -414,12 +414,13 @@ def test_evaluate_of_a_leaf_and_of_a_composite() -> None:
 
 def test_arbiters_import_first_in_a_fresh_interpreter() -> None:
     for code in (
-        "import ubf_async.arbiters",
-        "import ubf_async.behavior",
-        "import ubf_async.predicates",
-        "from ubf_async.arbiters import Arbiter; from ubf_async.behavior import Arbiter as A;"
-        " assert Arbiter is A",
-        "from ubf_async.behavior import Behavior, Composite, Child, Candidate, Decision, Trace",
+        "import ubf_async.core.arbiters",
+        "import ubf_async.core.behavior",
+        "import ubf_async.behaviors.predicates",
+        "from ubf_async.core.arbiters import Arbiter; "
+        "from ubf_async.core.behavior import Arbiter as A; assert Arbiter is A",
+        "from ubf_async.core.behavior import "
+        "Behavior, Composite, Child, Candidate, Decision, Trace",
     ):
         done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                               text=True, timeout=60)
@@ -427,7 +428,7 @@ def test_arbiters_import_first_in_a_fresh_interpreter() -> None:
 
 
 def test_behavior_module_never_imports_arbiters() -> None:
-    source = (ROOT / "ubf_async" / "behavior.py").read_text()
+    source = (ROOT / "ubf_async" / "core" / "behavior.py").read_text()
     imported: list[str] = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.Import):

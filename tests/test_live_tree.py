@@ -20,14 +20,15 @@ import pytest
 import pytest_asyncio
 
 from tests.conftest import eventually, read_until
-from ubf_async.action import Action
-from ubf_async.aggregator import StateAggregator
-from ubf_async.arbiters import HighestPriority
-from ubf_async.behavior import Behavior, Composite
 from ubf_async.behaviors.basic import Drive
-from ubf_async.bus import Bus, QueryError
-from ubf_async.controller import Controller
-from ubf_async.live import (
+from ubf_async.core.action import Action
+from ubf_async.core.arbiters import HighestPriority
+from ubf_async.core.behavior import Behavior, Composite
+from ubf_async.core.state import State
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus, QueryError
+from ubf_async.runtime.controller import Controller
+from ubf_async.services.live import (
     REQUEST_SCHEMA,
     TreeService,
     decode_reply,
@@ -35,9 +36,8 @@ from ubf_async.live import (
     render_tree_data,
     request,
 )
-from ubf_async.protocol import ProtocolError, decode, encode
-from ubf_async.remote import RemoteBehaviorHost, RemoteBehaviors
-from ubf_async.state import State
+from ubf_async.services.remote import RemoteBehaviorHost, RemoteBehaviors
+from ubf_async.wire.protocol import ProtocolError, decode, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.asyncio
@@ -523,15 +523,15 @@ async def test_inspector_changes_a_launched_robot(endpoint: str, robot: str) -> 
         assert code == 0, err
         assert "seek_pink_ball <HighestPriority>" in out
         # The robot's console shows the change it applied (at launch's default log level) …
-        line = await logged(proc, "ubf_async.live:")
-        assert line.endswith(" INFO ubf_async.live: tree changed, version 1: composite "
+        line = await logged(proc, "ubf_async.services.live:")
+        assert line.endswith(" INFO ubf_async.services.live: tree changed, version 1: composite "
                              "'seek_pink_ball' now arbitrates with HighestPriority"), line
         code, _, err = await inspector("tree", "set-child", "seek_pink_ball", "nobody",
                                        "--weight", "2", *conn)
         assert code == 1 and "has no child 'nobody'" in err
         # … as it shows one it refused.
-        line = await logged(proc, "ubf_async.live:")
-        assert " WARNING ubf_async.live: refused tree request set_child: composite " \
+        line = await logged(proc, "ubf_async.services.live:")
+        assert " WARNING ubf_async.services.live: refused tree request set_child: composite " \
                "'seek_pink_ball' has no child 'nobody'" in line, line
     finally:
         proc.terminate()

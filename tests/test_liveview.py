@@ -25,7 +25,7 @@ import pytest
 
 from tests.conftest import free_port
 from tests.foxglove_client import FoxgloveClient
-from ubf_async.liveview import (
+from ubf_async.services.liveview import (
     TRAIL_REFRESH_S,
     TRAIL_STEP_M,
     LiveMessage,
@@ -34,8 +34,8 @@ from ubf_async.liveview import (
     TruthConverter,
     layout_json,
 )
-from ubf_async.protocol import Message
-from ubf_async.topics import Drive, Range, SimTruth, TruthRobot
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import Drive, Range, SimTruth, TruthRobot
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -179,7 +179,7 @@ def test_the_standalone_bridge_serves_a_running_robot(running: Any, endpoint: st
 
 
 def test_foxglove_without_a_port_leaves_the_robot_file_alone() -> None:
-    from ubf_async.launch import parse_args
+    from ubf_async.tools.launch import parse_args
 
     pi = "examples/robots/pi-whegs.yaml"
     for argv, port, robot_file in (

@@ -1,7 +1,7 @@
-"""Which event loop the entry points run on (:func:`ubf_async.cli.loop_factory`, ``UBF_LOOP``):
-by default asyncio's selector loop that lends itself to no thread (it only tells the lockstep
-when it is idle); the lending loop and uvloop are opt-in. The decision and its figures:
-docs/latency.md, "Which event loop"."""
+"""Which event loop the entry points run on (:func:`ubf_async.cli.run.loop_factory`,
+``UBF_LOOP``): by default asyncio's selector loop that lends itself to no thread (it only
+tells the lockstep when it is idle); the lending loop and uvloop are opt-in. The decision and
+its figures: docs/latency.md, "Which event loop"."""
 
 from __future__ import annotations
 
@@ -13,8 +13,9 @@ import sys
 import pytest
 
 from tests.conftest import REPOSITORY, repository_env
-from ubf_async import cli, lending
+from ubf_async.cli import run as cli
 from ubf_async.errors import ConfigurationError
+from ubf_async.runtime import lending
 
 
 def test_without_ubf_loop_the_default_is_the_loop_that_lends_nothing(

@@ -22,9 +22,10 @@ from components.encoders.calibrate import (
 )
 from components.encoders.odometry import EFFECTIVE_TRACK_M
 from tests.conftest import eventually, read_until, spawn, stop
-from ubf_async.bus import Bus, ConnectionOptions
 from ubf_async.errors import ConfigurationError
-from ubf_async.protocol import decode
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import decode
 
 
 def test_fit_on_the_simulated_robot_matches_the_default() -> None:

@@ -29,8 +29,8 @@ def test_every_entry_point_has_version(module: str) -> None:
     assert out.stdout.strip() == f"python -m {module} {ubf_async.__version__}"
 
 
-@pytest.mark.parametrize(("script", "target"), [("ubf-launch", "ubf_async.launch:main"),
-                                                 ("ubf-inspect", "ubf_async.inspector:main")])
+@pytest.mark.parametrize(("script", "target"), [("ubf-launch", "ubf_async.tools.launch:main"),
+                                                 ("ubf-inspect", "ubf_async.tools.inspector:main")])
 def test_console_scripts(script: str, target: str) -> None:
     scripts = {ep.name: ep.value for ep in metadata.entry_points(group="console_scripts")}
     assert scripts.get(script) == target

@@ -15,7 +15,8 @@ import pytest
 
 from tests.conftest import eventually, free_port
 from tests.remote_robot import Process
-from ubf_async.bus import Bus, ConnectionOptions, endpoint_locators
+from ubf_async.net.options import ConnectionOptions, endpoint_locators
+from ubf_async.runtime.bus import Bus
 
 
 @pytest.mark.asyncio

@@ -7,14 +7,14 @@ import math
 import msgpack
 import pytest
 
-from ubf_async.protocol import (
+from ubf_async.wire.protocol import (
     MAX_PAYLOAD_BYTES,
     Keys,
     ProtocolError,
     decode,
     encode,
 )
-from ubf_async.topics import Range
+from ubf_async.wire.topics import Range
 
 
 def envelope(data: object, **overrides: object) -> bytes:

@@ -23,10 +23,11 @@ import msgpack
 import pytest
 
 from tests.conftest import eventually
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.clock import SimClock
-from ubf_async.record import McapRecorder
-from ubf_async.transport import InProcessTransport
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.tools.record import McapRecorder
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

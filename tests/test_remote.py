@@ -26,24 +26,25 @@ import pytest
 from tests.conftest import eventually
 from tests.remote_robot import ROOT, Process, start_robot
 from ubf_async import Action, Composite, Conditional, FunctionBehavior, PriorityMerge, State
-from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.clock import SimClock, WallClock
-from ubf_async.controller import Controller
-from ubf_async.protocol import Keys, ProtocolError, decode, encode
-from ubf_async.remote import (
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock, WallClock
+from ubf_async.runtime.controller import Controller
+from ubf_async.services.remote import (
     DEFAULT_TTL_S,
     RemoteBehavior,
     RemoteBehaviorHost,
     RemoteBehaviors,
     Vote,
-    choose_clock,
     parse_remote_spec,
     remote_spec,
     vote_data,
     vote_key,
 )
+from ubf_async.tools.remote_host import choose_clock
+from ubf_async.wire.protocol import Keys, ProtocolError, decode, encode
 
 EXAMPLES = ROOT / "examples"
 PINK = {"bins": [0, 0, 60, 0, 0], "total": 60}  # chase: speed +40, turn 0

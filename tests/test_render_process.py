@@ -29,7 +29,7 @@ from components.sim.camera_render import DEFAULT_CAMERA
 from components.sim.render_process import ENV_VAR, RenderProcess, shared_render_process
 from components.sim.world import Arena, BallConfig, Pose2D, RobotView, World, WorldConfig
 from tests.test_sim_camera import busy_arena
-from ubf_async.simulation import DeviceContext
+from ubf_async.assembly.simulation import DeviceContext
 
 ROOT = Path(__file__).resolve().parent.parent
 

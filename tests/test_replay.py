@@ -25,14 +25,15 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from tests.remote_robot import Process
-from ubf_async.aggregator import StateAggregator
-from ubf_async.bus import Bus, ConnectionOptions, NoRobotError
-from ubf_async.clock import SimClock
-from ubf_async.controller import Controller, TickMode
+from ubf_async.assembly.robotfile import load_robot
 from ubf_async.errors import ConfigurationError
-from ubf_async.replay import Recording, replay, wait_for_listeners
-from ubf_async.robotfile import load_robot
-from ubf_async.transport import InProcessTransport
+from ubf_async.net.options import ConnectionOptions, NoRobotError
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.controller import Controller, TickMode
+from ubf_async.tools.replay import Recording, replay, wait_for_listeners
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

@@ -12,21 +12,8 @@ import msgspec
 import pytest
 import yaml
 
-from ubf_async.arbiters import (
-    CommandFusion,
-    Conditional,
-    HighestActivation,
-    HighestPriority,
-    MonteCarlo,
-    PriorityFusion,
-    PriorityMerge,
-    UtilityFusion,
-)
-from ubf_async.behavior import Composite
-from ubf_async.behaviors.pink_ball import Chase, Flee, Search
-from ubf_async.errors import ConfigurationError, RobotFileError, UbfError
-from ubf_async.registry import ARBITERS
-from ubf_async.robotfile import (
+from ubf_async.assembly.registry import ARBITERS
+from ubf_async.assembly.robotfile import (
     DEFAULT_ROBOT_FILE,
     RobotFile,
     decode_robot_file,
@@ -40,6 +27,19 @@ from ubf_async.robotfile import (
     schema_text,
     shipped_schema_text,
 )
+from ubf_async.behaviors.pink_ball import Chase, Flee, Search
+from ubf_async.core.arbiters import (
+    CommandFusion,
+    Conditional,
+    HighestActivation,
+    HighestPriority,
+    MonteCarlo,
+    PriorityFusion,
+    PriorityMerge,
+    UtilityFusion,
+)
+from ubf_async.core.behavior import Composite
+from ubf_async.errors import ConfigurationError, RobotFileError, UbfError
 
 TREE_ONLY = """\
 name: tester
@@ -349,7 +349,7 @@ def test_node_with_neither_behaviour_nor_arbiter() -> None:
 def test_a_behaviour_factory_returning_something_else() -> None:
     text = TREE_ONLY.replace("behavior: flee", "behavior: tests.plugin_behaviors:not_a_behavior")
     error = refused(text)
-    assert "not a ubf_async.behavior.Behavior" in str(error)
+    assert "not a ubf_async.core.behavior.Behavior" in str(error)
 
 
 def test_invalid_yaml_says_where() -> None:

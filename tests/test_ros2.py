@@ -20,7 +20,7 @@ import zenoh
 
 from tests.conftest import free_port
 from tests.ros2_side import RosSide
-from ubf_async.protocol import Message, decode
+from ubf_async.wire.protocol import Message, decode
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT = "rros"

@@ -16,11 +16,11 @@ from zenoh_ros2_sdk.entity import EndpointEntity, EntityKind, NodeEntity
 from zenoh_ros2_sdk.keyexpr import endpoint_liveliness_keyexpr
 
 from tests.conftest import eventually
-from ubf_async.bus import Bus
-from ubf_async.protocol import decode
-from ubf_async.ros2 import keys as rk
-from ubf_async.ros2.bridge import Ros2Bridge, Ros2Settings
-from ubf_async.topics import CAMERA, CAMERA_VIEW
+from ubf_async.runtime.bus import Bus
+from ubf_async.services.ros2 import keys as rk
+from ubf_async.services.ros2.bridge import Ros2Bridge, Ros2Settings
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import CAMERA, CAMERA_VIEW
 
 HEADER = b"\x00\x01\x00\x00"
 GID = bytes(range(16))

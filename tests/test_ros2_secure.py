@@ -20,8 +20,8 @@ import pytest
 from tests.conftest import free_port
 from tests.ros2_side import RosSide
 from tests.test_ros2 import wait_until
-from ubf_async.robotfile import load_robot
-from ubf_async.securemode import init
+from ubf_async.assembly.robotfile import load_robot
+from ubf_async.net.secure import init
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT = "rsec"

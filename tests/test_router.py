@@ -15,8 +15,9 @@ from typing import Any
 import pytest
 
 from tests.conftest import eventually, free_port, read_until, spawn, stop
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.router import FleetRoster, router_options
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.tools.router import FleetRoster, router_options
 
 ROOT = Path(__file__).resolve().parent.parent
 RECONNECT_BOUND_S = 2.0
@@ -35,7 +36,7 @@ def test_the_roster_counts_components_per_robot() -> None:
 
 
 def test_the_router_is_a_router_with_the_shared_flags(tmp_path: Path) -> None:
-    from ubf_async.router import build_parser
+    from ubf_async.tools.router import build_parser
 
     args = build_parser().parse_args([])
     options = router_options(args)

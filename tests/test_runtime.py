@@ -22,14 +22,15 @@ import pytest_asyncio
 from tests.conftest import LoopClock, as_dict, eventually
 from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
-from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus, Publisher, follow_sim_clock
-from ubf_async.clock import SimClock
-from ubf_async.component import Component, HealthMonitor
-from ubf_async.controller import Controller
-from ubf_async.protocol import decode
-from ubf_async.transport import InProcessTransport
+from ubf_async.net.transport import InProcessTransport
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus, Publisher
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.component import Component, HealthMonitor
+from ubf_async.runtime.controller import Controller
+from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.wire.protocol import decode
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}

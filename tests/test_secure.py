@@ -1,7 +1,7 @@
 """Secure mode: generated credentials and ACL, and a robot that only its own processes steer.
 
 The unit tests check what ``python -m ubf_async.secure init`` writes and what
-:func:`ubf_async.secure.apply` refuses. The process tests launch the robot (``python -m
+:func:`ubf_async.net.secure.apply` refuses. The process tests launch the robot (``python -m
 ubf_async.launch --secure DIR``) and attack it from separate processes that speak plain
 zenoh + msgpack — without credentials, and with the read-only inspector's — while a
 configured remote behaviour (the teleop example) and an inspector session keep working. The
@@ -28,11 +28,12 @@ import pytest_asyncio
 import zenoh
 
 from tests.conftest import as_dict, eventually, free_port, read_until
-from ubf_async.bus import Bus, ConnectionOptions
+from ubf_async.assembly.robotfile import load_robot
 from ubf_async.errors import ConfigurationError
-from ubf_async.protocol import decode
-from ubf_async.robotfile import load_robot
-from ubf_async.secure import access_control, apply, identities_for, init
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.secure import access_control, apply, identities_for, init
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"

@@ -26,8 +26,8 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.conftest import REPOSITORY, free_port, repository_env
-from ubf_async.cli import EXIT_ERROR, EXIT_NOW_BUDGET_S, STOP_BOUND_S
-from ubf_async.fleet import FLEET_STOP_BOUND_S
+from ubf_async.cli.run import EXIT_ERROR, EXIT_NOW_BUDGET_S, STOP_BOUND_S
+from ubf_async.tools.fleet import FLEET_STOP_BOUND_S
 
 SIMULATED_SECOND = "| sim 1."
 """In launch's status line: a simulated second has passed (there is a run to save)."""
@@ -271,7 +271,7 @@ def test_a_component_whose_aclose_raises_does_not_skip_the_rest_of_the_end(
     out = tmp_path / "out"
     robot = launch(commands, tmp_path, "--duration", "1", "--summary",
                    str(out / "summary.json"), "--record", str(out / "rec"),
-                   fault="ubf_async.live.TreeService")
+                   fault="ubf_async.services.live.TreeService")
     code = robot.proc.wait(timeout=START_S)
     for reader in robot._readers.values():
         reader.join(timeout=5)

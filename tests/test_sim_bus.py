@@ -22,11 +22,11 @@ from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.component import DEVICES
 from components.sim.world import Arena, BallConfig, Pose2D, WorldConfig
 from tests.conftest import SimRobot, as_dict, eventually
-from ubf_async.aggregator import StateAggregator
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.bus import Bus
-from ubf_async.controller import Controller
-from ubf_async.protocol import decode
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.controller import Controller
+from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 

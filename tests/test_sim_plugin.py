@@ -12,10 +12,10 @@ import pytest
 from components.sim.remote import RemoteWorld
 from components.sim.world import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually, start_seeking_robot
-from ubf_async import registry
-from ubf_async.bus import Bus
-from ubf_async.clock import SimClock
-from ubf_async.simulation import SimulationOptions, Simulator
+from ubf_async.assembly import registry
+from ubf_async.assembly.simulation import SimulationOptions, Simulator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
 
 
 def simulator() -> Simulator:

@@ -24,10 +24,10 @@ from components.sim.record import (
 )
 from components.sim.world import Arena, BallConfig, World, WorldConfig
 from tests.conftest import start_seeking_robot
-from ubf_async import registry
-from ubf_async.bus import Bus
-from ubf_async.clock import SimClock
-from ubf_async.simulation import SimulationOptions
+from ubf_async.assembly import registry
+from ubf_async.assembly.simulation import SimulationOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
 
 PERIOD_S = 0.05  # the runner's sampling period
 
@@ -176,7 +176,7 @@ async def test_a_recorded_run_streams_every_sample_and_keeps_a_bounded_trajector
 LAUNCH_WITH_A_PLOT_SPY = r"""
 import json, sys
 import components.sim.runner as runner
-from ubf_async.launch import main
+from ubf_async.tools.launch import main
 
 drawn = []
 save = runner.save_run_plot

@@ -14,8 +14,9 @@ import pytest
 
 from components.sim.world import Arena, Pose2D, WorldConfig
 from tests.conftest import SimRobot, as_dict, eventually
-from ubf_async.bus import Bus, ConnectionOptions
-from ubf_async.protocol import decode
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}

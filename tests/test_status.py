@@ -20,9 +20,9 @@ from pathlib import Path
 import pytest
 
 from tests.test_inprocess_units import RANGE_PERIOD_S, Rig, tree
-from ubf_async.aggregator import StateAggregator
-from ubf_async.controller import Controller, TickMode
-from ubf_async.status import fit, tick_label
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.controller import Controller, TickMode
+from ubf_async.services.status import fit, tick_label
 
 ROOT = Path(__file__).resolve().parent.parent
 FIELDS = ["[mini] 12.3s", "drive +40/+30 (chase,flee)", "tick 50.0Hz +reflex 24.9Hz",
@@ -141,8 +141,8 @@ def test_without_a_terminal_each_period_is_one_plain_line(tmp_path: Path) -> Non
 
 
 def test_the_plan_and_the_inspector_use_the_status_lines_labels() -> None:
-    from ubf_async.inspector import format_state
-    from ubf_async.status import planned_ticks
+    from ubf_async.services.status import planned_ticks
+    from ubf_async.tools.inspector import format_state
 
     # launch --check: a sync controller does not tick at the clock's rate, nor take reflexes.
     check = subprocess.run([sys.executable, "-m", "ubf_async.launch", "--check", "--tick",

@@ -1,8 +1,8 @@
 """Time you can trust: only the robot's simulator moves simulated time, a new run is
 recognised by everyone, and safety deadlines hold in wall time when simulated time stops.
 
-The policy (:class:`~ubf_async.timesource.ClockFollower`) and the deadline rule
-(:class:`~ubf_async.clock.SilenceLimit`) are unit-tested; the rest runs real processes on
+The policy (:class:`~ubf_async.runtime.timesource.ClockFollower`) and the deadline rule
+(:class:`~ubf_async.runtime.clock.SilenceLimit`) are unit-tested; the rest runs real processes on
 loopback zenoh: a simulator in this process, devices and a controller in their own, and an
 outsider publishing plain zenoh + msgpack.
 """
@@ -22,11 +22,12 @@ import pytest
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.world import Arena, WorldConfig
 from tests.conftest import SimRobot, eventually
-from ubf_async import clock as clock_module
-from ubf_async.bus import Bus, follow_sim_clock
-from ubf_async.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
-from ubf_async.protocol import decode
-from ubf_async.timesource import ClockAction, ClockFollower
+from ubf_async.runtime import clock as clock_module
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
+from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.runtime.timesource import ClockAction, ClockFollower
+from ubf_async.wire.protocol import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -93,7 +94,7 @@ def test_refusals_are_counted_and_logged_first_and_every_100th(
 ) -> None:
     f = ClockFollower()
     f.offer(stamp_ns=S, epoch="a", wall_ns=0)
-    with caplog.at_level(logging.WARNING, logger="ubf_async.timesource"):
+    with caplog.at_level(logging.WARNING, logger="ubf_async.runtime.timesource"):
         for i in range(250):
             f.offer(stamp_ns=0, epoch="a" if i % 2 else "b", wall_ns=1)
     assert f.refused == {"backwards": 125, "other epoch": 125} and f.refused_total == 250
@@ -139,9 +140,9 @@ async def test_a_reset_wakes_sleepers_and_reanchors_every() -> None:
 
 @pytest.mark.asyncio
 async def test_the_controllers_periodic_ticks_reanchor_on_a_new_run(robot_bus: Bus) -> None:
-    from ubf_async.aggregator import StateAggregator
-    from ubf_async.behavior import FunctionBehavior
-    from ubf_async.controller import Controller
+    from ubf_async.core.behavior import FunctionBehavior
+    from ubf_async.runtime.aggregator import StateAggregator
+    from ubf_async.runtime.controller import Controller
 
     clock = SimClock(start_ns=1000 * S)
     robot_bus.clock = clock

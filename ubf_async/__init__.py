@@ -6,8 +6,8 @@ The core (this module's exports) is pure Python: no I/O, no middleware.
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
 
-from ubf_async.action import COMMAND_LIMIT, STOP, Action, SeekColor, clamp_command
-from ubf_async.arbiters import (
+from ubf_async.core.action import COMMAND_LIMIT, STOP, Action, SeekColor, clamp_command
+from ubf_async.core.arbiters import (
     Arbiter,
     CommandFusion,
     Conditional,
@@ -18,7 +18,7 @@ from ubf_async.arbiters import (
     PriorityMerge,
     UtilityFusion,
 )
-from ubf_async.behavior import (
+from ubf_async.core.behavior import (
     Behavior,
     Candidate,
     Child,
@@ -28,6 +28,7 @@ from ubf_async.behavior import (
     Trace,
     behavior,
 )
+from ubf_async.core.state import Reading, State
 from ubf_async.errors import (
     ConfigurationError,
     PluginError,
@@ -37,7 +38,6 @@ from ubf_async.errors import (
     TreeChangeError,
     UbfError,
 )
-from ubf_async.state import Reading, State
 
 try:
     __version__ = _version("ubf-async")

@@ -1,7 +1,7 @@
 """One exception tree with one root, :class:`UbfError`.
 
 Library code raises these; only a command line's ``main()`` turns them into an exit status
-(:func:`ubf_async.cli.run_main`). Each subclass also derives from the built-in exception a
+(:func:`ubf_async.cli.run.run_main`). Each subclass also derives from the built-in exception a
 caller would naturally catch (``ValueError``, ``LookupError``), so existing ``except
 ValueError`` code keeps working.
 

@@ -34,10 +34,11 @@ import msgspec
 from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
 from components.camera.view import DEFAULT_VIEW_SCALE, draw_view, encode_jpeg
-from ubf_async import ending
-from ubf_async.bus import Bus, decode_or_count
-from ubf_async.component import Component
-from ubf_async.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
+from ubf_async.cli import ending
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
 
 OV9655_LATENCY_S = 0.11
 

@@ -15,7 +15,7 @@ import cv2
 import msgspec
 import numpy as np
 
-from ubf_async.context import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
 

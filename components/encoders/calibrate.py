@@ -52,14 +52,16 @@ from components.encoders.odometry import EFFECTIVE_TRACK_M, wrap_angle
 from components.encoders.quadrature import edges_to_radians
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from components.motors.pwm import pulse_widths
-from ubf_async.action import Action
-from ubf_async.attach import attached_bus
 from ubf_async.behaviors.basic import Drive
-from ubf_async.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, add_connection_arguments, decode_or_count
-from ubf_async.cli import run_main
+from ubf_async.cli.args import add_connection_arguments
+from ubf_async.cli.attach import attached_bus
+from ubf_async.cli.run import run_main
+from ubf_async.core.action import Action
 from ubf_async.errors import ConfigurationError
-from ubf_async.remote import RemoteBehaviorHost
-from ubf_async.topics import ENCODERS, SIM_TRUTH
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus
+from ubf_async.services.remote import RemoteBehaviorHost
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import ENCODERS, SIM_TRUTH
 
 DEFAULT_TURNS: tuple[tuple[float, float], ...] = (
     (40.0, 30.0), (40.0, -30.0), (40.0, 60.0), (40.0, -60.0), (10.0, 80.0), (10.0, -80.0),
@@ -136,7 +138,7 @@ def measure_turns(rig: TurnRig, commands: Sequence[tuple[float, float]] = DEFAUL
 
 def simulated_rig(simulator: str = "mini-whegs") -> TurnRig:
     """The turn rig of a simulator plug-in (registry ``ubf_async.simulators``)."""
-    from ubf_async.registry import SIMULATORS
+    from ubf_async.assembly.registry import SIMULATORS
 
     plugin = SIMULATORS.get(simulator)()
     make_rig = getattr(plugin, "turn_rig", None)

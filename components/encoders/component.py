@@ -33,10 +33,11 @@ from components.encoders.quadrature import (
     edges_to_radians,
 )
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
-from ubf_async.bus import Bus, decode_or_count
-from ubf_async.clock import every
-from ubf_async.component import Component
-from ubf_async.topics import ENCODERS, MOTORS, ODOMETRY
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import every
+from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY
 
 
 def wheel_speed_rad_s(edges: int, timing: EdgeTiming,

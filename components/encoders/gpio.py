@@ -33,7 +33,7 @@ import numpy as np
 
 from components import hardware
 from components.encoders.backend import EdgeTiming
-from ubf_async.context import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 
 log = logging.getLogger(__name__)
 

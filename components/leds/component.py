@@ -17,10 +17,11 @@ import msgspec
 
 from components.leds.backend import LedBackend
 from components.leds.bank import MAX_LEDS, LedBank
-from ubf_async.bus import Bus, decode_or_count
-from ubf_async.clock import every
-from ubf_async.component import Component
-from ubf_async.topics import LED_STATE, LEDS
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import every
+from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import LED_STATE, LEDS
 
 
 class LedsComponent(Component):

@@ -238,7 +238,7 @@ def release(*closers: Callable[[], object]) -> None:
 
 def _backends(robot_file: str) -> tuple[Any, Any, MotorCalibration, MotorCalibration]:
     from components.motors.component import DEFAULT_LEFT_CALIBRATION, DEFAULT_RIGHT_CALIBRATION
-    from ubf_async.robotfile import load_robot
+    from ubf_async.assembly.robotfile import load_robot
 
     robot = load_robot(robot_file)
     found = {d.kind: d for d in reversed(robot.devices)}

@@ -8,7 +8,7 @@
 * **Watchdog:** if no valid drive command has arrived for ``timeout_s`` (default
   :data:`DEFAULT_TIMEOUT_S`, 110 ms), it applies the stop pulse — a controller that dies
   cannot leave the robot driving. The deadline follows
-  :class:`~ubf_async.clock.SilenceLimit`: ``timeout_s`` of robot time, or — when the robot
+  :class:`~ubf_async.runtime.clock.SilenceLimit`: ``timeout_s`` of robot time, or — when the robot
   clock's source has gone silent (a simulator that died, not one holding time on purpose) —
   ``max(timeout_s, 0.5 s)`` of wall time. A new simulation run (the clock reset) also stops
   the wheels: a command of the old run does not hold in the new one.
@@ -48,10 +48,11 @@ from components.motors.pwm import (
     clamp_drive,
     pulse_widths,
 )
-from ubf_async.bus import Bus, decode_or_count
-from ubf_async.clock import SilenceLimit, sleep_until
-from ubf_async.component import Component
-from ubf_async.topics import DRIVE, MOTORS
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SilenceLimit, sleep_until
+from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import DRIVE, MOTORS
 
 log = logging.getLogger(__name__)
 
@@ -231,8 +232,8 @@ def build_device(
 ) -> MotorsComponent:
     """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
     wheels when no drive command arrived for ``timeout_s`` (robot clock; also in wall time
-    when the clock's source goes silent, see :class:`~ubf_async.clock.SilenceLimit`) and when
-    it closes.
+    when the clock's source goes silent, see :class:`~ubf_async.runtime.clock.SilenceLimit`) and
+    when it closes.
     ``left`` / ``right``: each motor's calibration (:class:`MotorTrim`); default: the
     thesis's measured Mini-WHEGS motors."""
     return MotorsComponent(

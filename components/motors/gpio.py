@@ -32,7 +32,7 @@ import msgspec
 
 from components import hardware
 from components.motors.pwm import DEFAULT_PWM, hold_s
-from ubf_async.context import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 # One limit for speed, turn and the wheel command ``u``: the UBF's, re-exported here.
-from ubf_async.action import COMMAND_LIMIT as COMMAND_LIMIT
-from ubf_async.action import clamp_command
+from ubf_async.core.action import COMMAND_LIMIT as COMMAND_LIMIT
+from ubf_async.core.action import clamp_command
 
 MEASURED_ZERO_MS = 1.55
 """Pulse at which both real motors stand still (the nominal zero is 1.5 ms)."""

@@ -12,9 +12,10 @@ from typing import Annotated
 import msgspec
 
 from components.radio.backend import RadioBackend
-from ubf_async.bus import Bus, decode_or_count
-from ubf_async.component import Component
-from ubf_async.topics import RADIO, RADIO_SEND
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.component import Component
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import RADIO, RADIO_SEND
 
 
 class RadioComponent(Component):

@@ -11,7 +11,7 @@ import sys
 import threading
 from typing import TextIO
 
-from ubf_async.context import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 
 
 class StdioRadioBackend:

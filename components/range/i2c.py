@@ -29,7 +29,7 @@ import msgspec
 
 from components import hardware
 from components.range.backend import MountPose, RangeReadError
-from ubf_async.context import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
 

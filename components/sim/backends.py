@@ -35,7 +35,7 @@ from components.sim.render_process import (
     shared_render_process,
 )
 from components.sim.world import WorldConfig, WorldSnapshot
-from ubf_async.context import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
 

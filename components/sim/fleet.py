@@ -23,20 +23,21 @@ from components.sim.component import SimulatorComponent
 from components.sim.runner import DEFAULT_SCENARIO, lateness_summary, rounded
 from components.sim.scenarios import check_placement, load_scenario
 from components.sim.world import Pose2D, World, WorldConfig, WorldSnapshot
-from ubf_async import ending
-from ubf_async.bus import Bus, decode_or_count
-from ubf_async.clock import SimClock
-from ubf_async.component import Component
-from ubf_async.errors import ConfigurationError, ScenarioError
-from ubf_async.heap import freeze_startup_objects
-from ubf_async.simulation import (
+from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
     DeviceContext,
     FleetMember,
     SimulationOptions,
     describe_speed,
 )
-from ubf_async.topics import CONTROLLER_STATUS
+from ubf_async.cli import ending
+from ubf_async.errors import ConfigurationError, ScenarioError
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.component import Component
+from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import CONTROLLER_STATUS
 
 FOUND_DISTANCE_M = 1.0
 FOUND_BEARING_DEG = 30.0

@@ -1,4 +1,4 @@
-"""The simulated arena in a live view (:mod:`ubf_async.liveview`): ``sim/world`` →
+"""The simulated arena in a live view (:mod:`ubf_async.services.liveview`): ``sim/world`` →
 ``/arena`` (``foxglove.SceneUpdate`` in frame ``world``).
 
 Walls, box obstacles, distractors, the ball and the robot's body as 3-D primitives. The
@@ -16,8 +16,8 @@ from typing import Any
 from components.miniwhegs import MINI_WHEGS
 from components.sim.wire import snapshot_from_data
 from components.sim.world import WorldSnapshot
-from ubf_async.liveview import LiveMessage, foxglove_message, pose, rgba, timestamp
-from ubf_async.protocol import Message
+from ubf_async.services.liveview import LiveMessage, foxglove_message, pose, rgba, timestamp
+from ubf_async.wire.protocol import Message
 
 SCENE_PERIOD_S = 0.1
 WALL_THICKNESS_M = 0.01

@@ -1,6 +1,6 @@
 """The ``mini-whegs`` simulator plug-in (entry point ``ubf_async.simulators``).
 
-:class:`MiniWhegsSimulator` implements :class:`ubf_async.simulation.Simulator`:
+:class:`MiniWhegsSimulator` implements :class:`ubf_async.assembly.simulation.Simulator`:
 
 * :meth:`~MiniWhegsSimulator.open` builds a :class:`~components.sim.runner.SimulationRun` —
   the pymunk world of a scenario, the simulator component, simulated time, summary and
@@ -20,9 +20,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
-from ubf_async.bus import Bus
-from ubf_async.clock import SimClock
-from ubf_async.simulation import FleetMember, SimulationOptions
+from ubf_async.assembly.simulation import FleetMember, SimulationOptions
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import SimClock
 
 if TYPE_CHECKING:
     from components.sim.remote import RemoteWorld

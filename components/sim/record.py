@@ -25,7 +25,7 @@ from components.camera.seekcolor import SeekResult
 from components.camera.view import draw_view
 from components.sim.scenarios import CAMERA_OFFSET_M
 from components.sim.world import WorldSnapshot
-from ubf_async.topics import LedState
+from ubf_async.wire.topics import LedState
 
 
 @dataclass(frozen=True, slots=True)

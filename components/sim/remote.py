@@ -17,8 +17,9 @@ import numpy as np
 
 from components.sim.wire import snapshot_from_data
 from components.sim.world import RobotConfig, WorldConfig, WorldSnapshot
-from ubf_async.bus import Bus, Publisher, Subscription, decode_or_count
-from ubf_async.topics import SIM_PULSES, SIM_WORLD
+from ubf_async.runtime.bus import Bus, Publisher, Subscription
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import SIM_PULSES, SIM_WORLD
 
 log = logging.getLogger(__name__)
 

@@ -1,9 +1,9 @@
 """One simulated run of the Mini-WHEGS, as launch drives it through the simulator seam.
 
-:class:`SimulationRun` implements :class:`ubf_async.simulation.SimulationRun` (the
+:class:`SimulationRun` implements :class:`ubf_async.assembly.simulation.SimulationRun` (the
 :class:`~components.sim.plugin.MiniWhegsSimulator` plug-in's ``open()`` builds it from
-:class:`~ubf_async.simulation.SimulationOptions`): the world the simulated device backends are
-given, the simulator component, simulated time, the status-line suffix and, at the end, the
+:class:`~ubf_async.assembly.simulation.SimulationOptions`): the world the simulated device backends
+are given, the simulator component, simulated time, the status-line suffix and, at the end, the
 summary (``summary_path``) and recording (``record_dir``: trajectory.csv, trajectory.png,
 annotated camera frames). Launch builds the devices (from the robot file, through the
 registry) and hands them over with :meth:`SimulationRun.add_devices`.
@@ -51,13 +51,14 @@ from components.sim.record import (
 from components.sim.scenarios import Scenario, load_scenario
 from components.sim.world import World, wrap_angle
 from ubf_async import __version__
-from ubf_async.bus import Bus, Subscription, decode_or_count
-from ubf_async.clock import SimClock, every
-from ubf_async.component import Component
-from ubf_async.controller import Controller
+from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, describe_speed
 from ubf_async.errors import ConfigurationError
-from ubf_async.simulation import FLAT_OUT, SimulationOptions, describe_speed
-from ubf_async.topics import LED_STATE, LedState
+from ubf_async.runtime.bus import Bus, Subscription
+from ubf_async.runtime.clock import SimClock, every
+from ubf_async.runtime.component import Component
+from ubf_async.runtime.controller import Controller
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import LED_STATE, LedState
 
 SLOW_SHARE = 0.95
 """A run is reported slow when it reached less than this share of the speed asked for."""

@@ -2,8 +2,8 @@
 
 Decoding a scenario document into :class:`ScenarioFile` checks every field's type and range
 and refuses unknown fields, listing the valid ones — the robot file's mechanism: these types
-derive from :class:`ubf_async.robotfile.Spec`, and :mod:`components.sim.scenarios` reports
-msgspec's errors at ``FILE:LINE`` through :class:`ubf_async.robotfile.Locator`. What needs
+derive from :class:`ubf_async.assembly.robotfile.Spec`, and :mod:`components.sim.scenarios` reports
+msgspec's errors at ``FILE:LINE`` through :class:`ubf_async.assembly.robotfile.Locator`. What needs
 more than one field — a script naming a distractor, placement in the arena — is checked there,
 when the runtime :class:`~components.sim.scenarios.Scenario` is built.
 
@@ -17,7 +17,7 @@ from typing import Annotated, Any, ClassVar, Literal
 import msgspec
 
 from components.sim.world import BALL_DIAMETER_M, ORANGE
-from ubf_async.robotfile import Spec
+from ubf_async.assembly.robotfile import Spec
 
 __all__ = ["STEP_KINDS", "ArenaSpec", "DistractorSpec", "ExpectSpec", "FromCameraSpec",
            "LightingChange", "LightingSpec", "ObstacleSpec", "OutOfViewSpec", "PositionSpec",

@@ -67,8 +67,7 @@ from components.sim.world import (
     World,
     WorldConfig,
 )
-from ubf_async.errors import ScenarioError
-from ubf_async.robotfile import (
+from ubf_async.assembly.robotfile import (
     YAML_LOADER,
     Locator,
     Path_,
@@ -76,6 +75,7 @@ from ubf_async.robotfile import (
     first_duplicate_key,
     format_path,
 )
+from ubf_async.errors import ScenarioError
 
 __all__ = ["BallScript", "BallStep", "LightingChange", "ObjectScript", "Push", "Scenario",
            "ScenarioError", "builtin_names", "decode_scenario", "load_scenario",

@@ -20,7 +20,7 @@ from components.sim.world import (
     WorldSnapshot,
 )
 
-# The world snapshot's topic (ubf_async.topics.SIM_WORLD) is checked generically on the wire
+# The world snapshot's topic (ubf_async.wire.topics.SIM_WORLD) is checked generically on the wire
 # and then by snapshot_from_data.
 
 

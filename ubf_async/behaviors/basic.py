@@ -1,16 +1,16 @@
 """Two trivial behaviours a robot file often needs: ``stop`` and ``drive``.
 
 * :class:`Stop` always asks for speed 0, turn 0 — a fallback at the lowest priority, or the
-  "else" branch of a :class:`~ubf_async.arbiters.Conditional`.
+  "else" branch of a :class:`~ubf_async.core.arbiters.Conditional`.
 * :class:`Drive` always asks for a constant speed and turn (cruise, spin in place, …).
 """
 
 from __future__ import annotations
 
-from ubf_async.action import Action
-from ubf_async.behavior import Behavior
 from ubf_async.behaviors.params import Command, Vote, check
-from ubf_async.state import State
+from ubf_async.core.action import Action
+from ubf_async.core.behavior import Behavior
+from ubf_async.core.state import State
 
 
 class Stop(Behavior):

@@ -21,12 +21,12 @@ from typing import Annotated
 
 import msgspec
 
-from ubf_async.action import Action
-from ubf_async.behavior import Behavior
 from ubf_async.behaviors.params import Command, Pixels, check
 from ubf_async.behaviors.pink_ball import CAMERA_SOURCE, pink_bins
-from ubf_async.state import State
-from ubf_async.topics import require_field
+from ubf_async.core.action import Action
+from ubf_async.core.behavior import Behavior
+from ubf_async.core.state import State
+from ubf_async.wire.topics import require_field
 
 ODOMETRY_SOURCE = "odometry/wheels"
 RADIO_SOURCE = "radio/link"

@@ -1,8 +1,8 @@
 """Annotated parameter types for behaviours and predicates built from robot files.
 
 A factory's keyword annotations become its robot-file parameter schema
-(:func:`ubf_async.registry.parameters_of`), so a constraint written here is checked when the
-robot file is loaded. Code that builds a behaviour directly bypasses msgspec; :func:`check`
+(:func:`ubf_async.assembly.registry.parameters_of`), so a constraint written here is checked when
+the robot file is loaded. Code that builds a behaviour directly bypasses msgspec; :func:`check`
 repeats the same bounds at construction, so both paths refuse the same values.
 """
 
@@ -13,7 +13,7 @@ from typing import Annotated
 
 import msgspec
 
-from ubf_async.action import COMMAND_LIMIT
+from ubf_async.core.action import COMMAND_LIMIT
 from ubf_async.errors import ConfigurationError
 
 Command = Annotated[float, msgspec.Meta(ge=-COMMAND_LIMIT, le=COMMAND_LIMIT)]

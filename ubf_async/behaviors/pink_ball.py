@@ -29,12 +29,12 @@ from typing import Annotated
 
 import msgspec
 
-from ubf_async.action import Action
-from ubf_async.arbiters import PriorityMerge
-from ubf_async.behavior import Behavior, Child, Composite
 from ubf_async.behaviors.params import Command, LedMask, Pixels, check
-from ubf_async.state import State
-from ubf_async.topics import require_field
+from ubf_async.core.action import Action
+from ubf_async.core.arbiters import PriorityMerge
+from ubf_async.core.behavior import Behavior, Child, Composite
+from ubf_async.core.state import State
+from ubf_async.wire.topics import require_field
 
 CAMERA_SOURCE = "camera/front"
 BIN_TURNS: tuple[float, ...] = (60.0, 30.0, 0.0, -30.0, -60.0)
@@ -197,7 +197,7 @@ def seek_pink_ball(
     name: str = "seek_pink_ball",
 ) -> Composite:
     """The thesis's composite: search at priority 2; chase and flee share priority 1 and are
-    summed by :class:`~ubf_async.arbiters.PriorityMerge`.
+    summed by :class:`~ubf_async.core.arbiters.PriorityMerge`.
 
     Search only acts without pink and chase/flee only with it, so the two priority levels
     never compete in practice; search sits above so that it supersedes them, as in the

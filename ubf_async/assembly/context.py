@@ -1,0 +1,29 @@
+"""What a device backend factory is handed: :class:`DeviceContext`.
+
+Its own small module, below everything that builds devices (:mod:`ubf_async.assembly.devices`,
+:mod:`ubf_async.assembly.robotfile`) and below :mod:`ubf_async.assembly.simulation` (which
+re-exports it), so building a device never imports the simulator seam.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ubf_async.runtime.bus import Bus
+    from ubf_async.runtime.clock import Clock
+
+
+@dataclass(kw_only=True)
+class DeviceContext:
+    """What a backend factory receives besides its own parameters."""
+
+    bus: Bus
+    clock: Clock
+    seed: int = 0
+    """The run's seed: backends with noise derive their random streams from it."""
+    simulation: Any = None
+    """The world of the simulator the backend requires (``None`` without one)."""
+    extras: Mapping[str, Any] = field(default_factory=dict)

@@ -1,0 +1,73 @@
+"""Building a device from its plug-ins: a device kind and a backend, found by name.
+
+A device kind (entry point ``ubf_async.devices``) is a factory ``(*, bus, name, backend,
+**params)`` returning a :class:`~ubf_async.runtime.component.Component`; a backend
+(``ubf_async.backends``, named ``KIND.NAME``) is a factory ``(*, context, **params)``. Their
+other keyword parameters are checked with :func:`~ubf_async.assembly.registry.parameters_of`. Launch
+(through a robot file) and a device started on its own both build through here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import msgspec
+
+from ubf_async.assembly.context import DeviceContext
+from ubf_async.assembly.registry import accepts, parameters_of
+from ubf_async.errors import ConfigurationError
+from ubf_async.runtime.component import Component
+
+DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
+"""Parameters of a device kind's factory the builder supplies itself."""
+BACKEND_INJECTED = frozenset({"context"})
+"""Parameters of a backend factory the builder supplies itself."""
+
+
+def requires_simulator(factory: Callable[..., Any]) -> str | None:
+    """The simulator plug-in a backend factory needs (its ``requires_simulator``), or None."""
+    name = getattr(factory, "requires_simulator", None)
+    if name is not None and not isinstance(name, str):
+        raise ConfigurationError(f"{factory!r}: requires_simulator must be a str or None, "
+                                 f"got {name!r}")
+    return name
+
+
+def typed_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
+                 injected: frozenset[str]) -> dict[str, Any]:
+    """``params`` checked against ``factory``'s keyword parameters, defaults filled in.
+    Raises ``msgspec.ValidationError`` naming the field."""
+    struct = parameters_of(factory, injected=injected)
+    return msgspec.structs.asdict(msgspec.convert(dict(params), struct))
+
+
+def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: Any,
+                 params: Mapping[str, Any], context: DeviceContext) -> Component:
+    """The component of device kind ``kind`` (its factory ``factory``) reading or driving
+    ``backend``, with already checked ``params``; the run's seed and clock go to a factory
+    that takes them, and so does each of ``context.extras`` the robot file does not set (a
+    fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …). The device
+    owns ``backend``: it is closed with the component, or at once if no component is made."""
+    # What the run knows fills the parameters the robot file left unset (None).
+    extra: dict[str, Any] = {
+        key: value for key, value in context.extras.items()
+        if params.get(key) is None and accepts(factory, key)}
+    params = {key: value for key, value in params.items() if key not in extra}
+    if accepts(factory, "seed"):
+        extra["seed"] = context.seed
+    if accepts(factory, "clock"):
+        extra["clock"] = context.clock
+    close = getattr(backend, "close", None)
+    try:
+        component = factory(bus=context.bus, name=name, backend=backend, **extra, **params)
+        if not isinstance(component, Component):
+            raise ConfigurationError(f"device kind {kind!r} returned "
+                                     f"{type(component).__name__}, not a Component")
+    except BaseException:
+        if callable(close):  # refused: its pins and buses are not left held
+            close()
+        raise
+    if callable(close):  # the device owns its backend: closed with it, after its last command
+        component.close_on_exit(close)
+    return component

@@ -1,0 +1,803 @@
+"""The bus: the bridge from the transport's threads into asyncio, and attaching to a robot.
+
+How a session is configured (connection options, zenoh configuration, session errors) is
+:mod:`ubf_async.net.options`; the command-line flags that make them, :mod:`ubf_async.cli.args`.
+
+A :class:`Bus` moves its bytes through a transport (:mod:`ubf_async.net.transport`): a zenoh
+session (:meth:`Bus.open`, what runs) or the in-process transport (``Bus(transport=...)``,
+for unit tests). Everything below is the same on both.
+
+zenoh-python is synchronous and runs subscriber callbacks on its own threads. The bridge
+here is deliberate about that hand-off:
+
+* the transport's callback does almost nothing: it copies the key and payload bytes, stores
+  them and, if no drain is already pending, schedules one with ``loop.call_soon_threadsafe``
+  (``loop.call_soon`` for a transport whose callbacks run on the loop) — it never calls the
+  transport, never blocks and never runs user code;
+* the drain runs on the event loop and calls the handler for each stored sample;
+* in **latest** mode a burst on one key coalesces to the newest sample (what a state
+  aggregator wants); in **every** mode samples queue up to a bound, and overflow drops the
+  oldest and is counted.
+
+A handler that raises is logged with its traceback and counted; the subscription keeps going
+(a handler bug must not take the robot down). Measure the hand-off with ``bench/handoff.py``
+and ``bench/latency``.
+
+A **direct** subscription (``subscribe(..., direct=True)``: the state aggregator's) skips the
+hand-off when it can: on a
+:class:`~ubf_async.runtime.lending.LendingEventLoop` — the loop every entry point runs on — a sample
+that finds the loop idle and nothing of its subscription pending is drained at once on the
+transport's thread, with the loop lent to it (:mod:`ubf_async.runtime.lending`): same handler, same
+order, same counters, one thread at a time, and no wake-up of the loop thread on the way — up
+to :data:`DIRECT_RATE_HZ` samples a second; a flood beyond it takes the usual road and
+coalesces.
+
+Samples between components of the **same** :class:`Bus` (one process) never take that detour:
+a :class:`Publisher` hands them straight to the matching subscriptions of its bus, on the loop
+(``loop.call_soon``), and transport subscribers are declared **remote only** (zenoh:
+``allowed_origin=REMOTE``) so they only bring in samples from other buses. A sample published
+on the loop is therefore handled on the loop's next iterations without waiting for a zenoh
+thread to get the GIL — which is what lets a simulated robot run several times faster than
+real time without its own commands arriving late in simulated time. Semantics (latest/every,
+counters, handler errors) are the same for both paths.
+
+Queries take the same road: :meth:`Bus.declare_queryable` answers each query on the event
+loop (the transport's callback only hands it over), and :meth:`Bus.query` awaits the first
+reply without blocking the loop (zenoh's query runs in a worker thread).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import itertools
+import logging
+import secrets
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.net.options import (
+    DEFAULT_ROBOT,
+    START_ROBOT_HINT,
+    ConnectionOptions,
+    NoRobotError,
+    bind_free_ports,
+    endpoint_locators,
+    listening,
+    refused_error,
+    session_error,
+    zenoh_message,
+)
+from ubf_async.net.transport import (
+    Connection,
+    Declaration,
+    IncomingQuery,
+    Transport,
+    ZenohConnection,
+    ZenohTransport,
+    intersects,
+)
+from ubf_async.runtime import lending
+from ubf_async.runtime.clock import Clock, WallClock
+from ubf_async.wire.protocol import INT64_MAX, ROOT, Keys, ProtocolError, encode
+from ubf_async.wire.topics import Data, Topic
+
+log = logging.getLogger(__name__)
+
+_monotonic_ns = time.monotonic_ns
+
+DRAIN_BATCH = 256
+"""Samples a subscription hands to its handler in one pass of the event loop."""
+DIRECT_RATE_HZ = 1000.0
+"""Samples per second a direct subscription may have handled on the transport's thread
+(:mod:`~ubf_async.runtime.lending`), beyond a burst of :data:`DIRECT_BURST`: a robot's sensors send
+a few hundred; above that — a flood — samples take the usual road and coalesce, so the
+transport's threads never hold the GIL for long against the loop."""
+DIRECT_BURST = 100
+"""Samples a direct subscription may have handled on the transport's thread back to back,
+before :data:`DIRECT_RATE_HZ` paces it."""
+
+SampleHandler = Callable[[str, bytes, int], None]
+"""``handler(key, payload, received_ns)`` — runs on the event loop."""
+
+QueryHandler = Callable[[str, bytes], bytes]
+"""``handler(key, payload) -> reply payload`` — runs on the event loop (see
+:meth:`Bus.declare_queryable`)."""
+
+
+DEFAULT_ATTACH_TIMEOUT_S = 10.0
+
+CONNECT_GRACE_S = 2.0
+"""How long a peer's ``connect`` endpoint may stay unanswered before it is reported."""
+CONNECT_CHECK_S = 0.5
+"""How often the links to the ``connect`` endpoints are looked at."""
+CONNECT_REMIND_S = 60.0
+"""While an endpoint stays unanswered, the warning is repeated this often."""
+async def watch_connect_endpoints(bus: Bus, endpoints: list[str], *,
+                                  grace_s: float = CONNECT_GRACE_S,
+                                  check_s: float = CONNECT_CHECK_S,
+                                  remind_s: float = CONNECT_REMIND_S) -> None:
+    """Report, as warnings, the ``connect`` endpoints of a peer session that nothing answers
+    at (after ``grace_s``, then every ``remind_s``), and when one answers after all or its link
+    is lost; zenoh retries them meanwhile (:data:`RECONNECT_RETRY`). Runs until cancelled
+    (the bus closes)."""
+    connection = bus._connection
+    links = getattr(connection, "link_destinations", None)
+    if links is None:
+        return  # a transport without links to look at (the in-process one)
+    locators = {e: await asyncio.to_thread(endpoint_locators, e) for e in endpoints}
+    loop = asyncio.get_running_loop()
+    opened = loop.time()
+    up: dict[str, bool] = dict.fromkeys(endpoints, False)
+    warned_at: dict[str, float] = {}  # endpoints reported unanswered, and when last
+    ever_up: set[str] = set()
+    while True:
+        try:
+            destinations = set(links())
+        except Exception:  # a closing session: nothing left to watch
+            return
+        now = loop.time()
+        for endpoint in endpoints:
+            reached = bool(locators[endpoint] & destinations)
+            if reached and not up[endpoint]:
+                if endpoint in warned_at:
+                    log.warning("connected to %s%s", endpoint, " again" if endpoint in ever_up
+                                else f" after {now - opened:.0f} s")
+                    del warned_at[endpoint]
+                ever_up.add(endpoint)
+            elif not reached and up[endpoint]:
+                log.warning("lost the connection to %s: retrying until it answers again",
+                            endpoint)
+                warned_at[endpoint] = now
+            elif not reached and (
+                    (endpoint not in warned_at and now - opened >= grace_s)
+                    or (endpoint in warned_at and now - warned_at[endpoint] >= remind_s)):
+                if await asyncio.to_thread(listening, endpoint):
+                    # Something accepts TCP there and still no link: it refuses this session.
+                    log.warning("%s (--connect) does not let this session in after %.0f s: "
+                                "something listens there, as a robot in secure mode does to a "
+                                "process without valid credentials (docs/security.md); "
+                                "retrying every second", endpoint, now - opened)
+                else:
+                    log.warning("nothing answers at %s (--connect) after %.0f s: retrying "
+                                "every second until it does (%s)", endpoint, now - opened,
+                                START_ROBOT_HINT)
+                warned_at[endpoint] = now
+            up[endpoint] = reached
+        await asyncio.sleep(check_s)
+
+
+async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
+                         any_robot: bool = False) -> None:
+    """For a process attaching to a running robot: wait until the session reaches another
+    zenoh node and one of the robot's components is alive there (its liveliness token
+    ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
+    nothing answered at the endpoints or the robot there has another name, or
+    :class:`RefusedError` when something listens there but never let the session in.
+
+    Returns at once for a session that only listens (in ``peer`` mode without ``connect``
+    endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
+    anything. ``any_robot``: any robot's component will do (a tool looking at a fleet)."""
+    options = bus.options
+    if not options.connect and options.mode != "client":
+        return
+    where = " ".join(options.connect) or "(the configured router)"
+    deadline = time.monotonic() + timeout_s
+    reached = False
+    while True:
+        reached = reached or bus.reached_peers()
+        alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
+        if reached and await bus.alive_tokens(alive, timeout_s=1.0):
+            return
+        if time.monotonic() >= deadline:
+            break
+        await asyncio.sleep(0.05)
+    if not reached:
+        refused = await asyncio.to_thread(refused_error, options)
+        if refused is not None:
+            raise refused
+        raise NoRobotError(f"no robot to connect to: nothing answered at {where} within "
+                           f"{timeout_s:g}s ({START_ROBOT_HINT})")
+    seen = sorted({key.split("/")[1] for key in await bus.alive_tokens(
+        f"{ROOT}/*/alive/*", timeout_s=1.0)} - {bus.robot})
+    other = f"; robots there: {', '.join(seen)} (check --robot)" if seen else ""
+    raise NoRobotError(f"no robot {bus.robot!r} answered at {where} within {timeout_s:g}s: "
+                       f"a zenoh node is there, but none of the robot's components is alive"
+                       f"{other}")
+
+
+# ---------------------------------------------------------------------------------------------
+# The bridge
+
+
+@dataclass
+class BridgeStats:
+    received: int = 0
+    delivered: int = 0
+    coalesced: int = 0
+    """Samples overwritten by a newer one on the same key before the loop drained them."""
+    dropped: int = 0
+    """Samples dropped from a full queue (``every`` mode)."""
+    handler_errors: int = 0
+    direct: int = 0
+    """Hand-offs run on the transport's thread while the loop was idle (``direct=True``)."""
+
+
+class Subscription:
+    """A subscriber whose samples are delivered on the event loop (the bridge)."""
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        handler: SampleHandler,
+        *,
+        latest: bool,
+        max_queue: int = 1024,
+        name: str = "",
+        direct: bool = False,
+    ) -> None:
+        self._loop = loop
+        self._handler = handler
+        self._latest = latest
+        self._run_if_idle = lending.run_if_idle(loop) if direct else None
+        """Runs the drain on the transport's thread while the loop waits (:mod:`.lending`)."""
+        self._direct_tokens = float(DIRECT_BURST)
+        self._direct_refilled_ns = _monotonic_ns()
+        self._lock = threading.Lock()
+        self._pending_latest: dict[str, tuple[bytes, int]] = {}
+        self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
+        self._max_pending = max_queue
+        """Distinct keys waiting in latest mode (a new key beyond them is dropped)."""
+        self._scheduled = False
+        self._closed = False
+        self._declaration: Declaration | None = None
+        self._on_close: Callable[[Subscription], None] | None = None
+        self.name = name
+        self.stats = BridgeStats()
+
+    # transport thread --------------------------------------------------------------------
+    def push_from_loop(self, key: str, payload: bytes) -> None:
+        """:meth:`push` for callbacks that run on the loop's own thread (in-process)."""
+        self.push(key, payload, on_loop=True)
+
+    @property
+    def pending(self) -> bool:
+        """Whether samples wait for a drain."""
+        return self._scheduled
+
+    def push(self, key: str, payload: bytes, *, on_loop: bool = False) -> None:
+        """Hand one sample to the loop; callable from any thread, never blocks for long.
+
+        ``on_loop=True`` (only from the loop's own thread) schedules the drain with
+        ``call_soon``, skipping the thread-safe wake-up."""
+        received_ns = _monotonic_ns()
+        stats = self.stats
+        with self._lock:
+            if self._closed:
+                return
+            stats.received += 1
+            if self._latest:
+                pending = self._pending_latest
+                if key in pending:
+                    stats.coalesced += 1
+                elif len(pending) >= self._max_pending:
+                    # A flood of distinct keys must not grow memory or the loop's next batch.
+                    stats.dropped += 1
+                    return
+                pending[key] = (payload, received_ns)
+            else:
+                queue = self._pending_queue
+                if len(queue) == self._max_pending:  # full: append drops the oldest
+                    stats.dropped += 1
+                queue.append((key, payload, received_ns))
+            if self._scheduled:
+                return
+            self._scheduled = True
+            lend = self._run_if_idle
+            if on_loop or (lend is not None and not self._take_direct_token(received_ns)):
+                lend = None
+        if on_loop:
+            self._loop.call_soon(self._drain)
+            return
+        if lend is not None and lend(self._drain):
+            stats.direct += 1
+            return
+        try:  # noqa: SIM105 — contextlib.suppress would add ≈ 0.4 µs to every hand-off
+            self._loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:  # a closed loop: nothing left to deliver to
+            pass
+
+    def _take_direct_token(self, now_ns: int) -> bool:
+        """The budget of samples handled on the transport's thread (:data:`DIRECT_RATE_HZ`);
+        call with the lock held."""
+        tokens = min(float(DIRECT_BURST), self._direct_tokens
+                     + (now_ns - self._direct_refilled_ns) * (DIRECT_RATE_HZ / 1e9))
+        self._direct_refilled_ns = now_ns
+        if tokens < 1.0:
+            self._direct_tokens = tokens
+            return False
+        self._direct_tokens = tokens - 1.0
+        return True
+
+    # event loop --------------------------------------------------------------------------
+    def _drain(self) -> None:
+        with self._lock:
+            if self._latest:
+                pending = self._pending_latest
+                if len(pending) <= DRAIN_BATCH:  # the usual case: take the whole dict
+                    self._pending_latest = {}
+                    batch = [(k, p, t) for k, (p, t) in pending.items()]
+                    more = False
+                else:
+                    keys = list(itertools.islice(pending, DRAIN_BATCH))
+                    batch = [(k, *pending.pop(k)) for k in keys]
+                    more = True
+            else:
+                queue = self._pending_queue
+                if len(queue) <= DRAIN_BATCH:
+                    batch = list(queue)
+                    queue.clear()
+                    more = False
+                else:
+                    batch = [queue.popleft() for _ in range(DRAIN_BATCH)]
+                    more = True
+            # With more waiting the drain stays scheduled, but yields to the loop first:
+            # a flood is handled in slices, never in one pass that starves other tasks.
+            self._scheduled = more
+        if more:
+            self._loop.call_soon(self._drain)
+        handler = self._handler
+        stats = self.stats
+        for key, payload, received_ns in batch:
+            if self._closed:
+                return
+            try:
+                handler(key, payload, received_ns)
+            except Exception:
+                stats.handler_errors += 1
+                log.exception("handler of subscription %s failed on %s", self.name, key)
+            else:
+                stats.delivered += 1
+
+    def close(self) -> None:
+        """Stop delivering; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._on_close is not None:
+            self._on_close(self)
+        if self._declaration is not None:
+            self._declaration.undeclare()
+
+
+class Publisher:
+    """Publishes validated messages of one schema on one key, numbering them.
+
+    Every instance draws a random publisher identity (``pub``: 1 ≤ pub < 2**63) that goes in
+    each envelope, so receivers order its samples by ``seq`` per publisher and recognise a
+    restarted component (a new instance, a new ``pub``, ``seq`` from 1 again) as a new
+    publisher rather than as a replay (:mod:`ubf_async.runtime.ordering`)."""
+
+    def __init__(self, bus: Bus, key: str, schema: str, *, period_s: float | None) -> None:
+        self.key = key
+        self.schema = schema
+        self.period_s = period_s
+        self.seq = 0
+        self.pub = secrets.randbelow(INT64_MAX) + 1
+        self._bus = bus
+        self._out = bus._connection.declare_publisher(key)
+        self._closed = False
+
+    def publish(self, data: Data | Mapping[str, Any], *,
+                stamp_ns: int | None = None) -> tuple[int, int]:
+        """Encode and send one sample (the topic's typed message, or a map of its fields,
+        validated either way): to the matching subscriptions of this bus (on the loop)
+        and through the transport to other buses. Returns ``(seq, stamp_ns)`` of what was sent.
+        Call it on the bus's event loop."""
+        stamp = self._bus.clock.now_ns() if stamp_ns is None else stamp_ns
+        self.seq += 1
+        payload = encode(self.schema, data, stamp_ns=stamp, seq=self.seq, period_s=self.period_s,
+                         pub=self.pub)
+        local = self._bus._local_subscriptions(self.key)
+        if local:
+            on_loop = threading.get_ident() == self._bus._loop_thread
+            for sub in local:
+                sub.push(self.key, payload, on_loop=on_loop)
+        self._out.put(payload)
+        return self.seq, stamp
+
+    def has_subscribers(self) -> bool:
+        """Whether a subscriber matching this key is known: on this bus, or to the transport."""
+        return bool(self._bus._local_subscriptions(self.key)) or self._out.has_remote_subscribers()
+
+    async def wait_for_subscribers(self, timeout_s: float = 5.0) -> None:
+        """Wait until a matching subscriber is known (declarations propagate asynchronously:
+        a sample put before that is not delivered to it). Raises TimeoutError."""
+        deadline = time.monotonic() + timeout_s
+        while not self.has_subscribers():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no subscriber for {self.key} within {timeout_s}s")
+            await asyncio.sleep(0.01)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._out.undeclare()
+
+
+class QueryError(UbfError, RuntimeError):
+    """A queryable answered with an error instead of a reply (see :meth:`Bus.query`)."""
+
+
+@dataclass
+class QueryStats:
+    received: int = 0
+    answered: int = 0
+    refused: int = 0
+    """Queries answered with an error at once because ``max_pending`` were waiting."""
+    handler_errors: int = 0
+
+
+class Queryable:
+    """A queryable whose queries are answered on the event loop.
+
+    The transport's callback only takes the query (its payload already copied) and schedules
+    the answer on the loop (``call_soon_threadsafe`` from a zenoh thread, ``call_soon`` on the
+    loop's own); the handler runs there, so what it reads or changes is never touched by a
+    transport thread. Its return value is the reply; a handler that raises is logged and
+    counted, and the querier gets an error reply. At most ``max_pending`` queries wait for the
+    loop; more are refused with an error reply at once (a flood cannot queue up work).
+    """
+
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, key: str, handler: QueryHandler, *,
+        max_pending: int = 64, callbacks_on_loop: bool = False,
+    ) -> None:
+        self.key = key
+        self._loop = loop
+        self._handler = handler
+        self._max_pending = max_pending
+        self._on_loop = callbacks_on_loop
+        self._pending = 0
+        self._lock = threading.Lock()
+        self._closed = False
+        self._declaration: Declaration | None = None
+        self._on_close: Callable[[Queryable], None] | None = None
+        self.stats = QueryStats()
+
+    @property
+    def pending(self) -> bool:
+        """Whether queries wait for the loop."""
+        return self._pending > 0
+
+    # transport thread --------------------------------------------------------------------
+    def on_query(self, query: IncomingQuery) -> None:
+        """The transport's callback: hand the query to the loop, never block."""
+        with self._lock:
+            self.stats.received += 1
+            refuse = "closed" if self._closed else (
+                "busy" if self._pending >= self._max_pending else "")
+            if refuse:
+                self.stats.refused += 1
+            else:
+                self._pending += 1
+        if refuse:
+            self._error(query, f"{self.key}: {refuse}, try again")
+            return
+        if self._on_loop:
+            self._loop.call_soon(self._answer, query)
+            return
+        try:
+            self._loop.call_soon_threadsafe(self._answer, query)
+        except RuntimeError:  # the loop is closed: nobody will answer
+            self._error(query, f"{self.key}: closed")
+
+    @staticmethod
+    def _error(query: IncomingQuery, text: str) -> None:
+        query.reply_err(text)
+        query.drop()
+
+    # event loop --------------------------------------------------------------------------
+    def _answer(self, query: IncomingQuery) -> None:
+        with self._lock:
+            self._pending -= 1
+            closed = self._closed
+        if closed:
+            self._error(query, f"{self.key}: closed")
+            return
+        try:
+            reply = self._handler(query.key, query.payload)
+        except Exception as exc:
+            self.stats.handler_errors += 1
+            log.exception("handler of queryable %s failed", self.key)
+            self._error(query, f"{self.key}: internal error: {type(exc).__name__}: {exc}")
+            return
+        try:
+            query.reply(self.key, reply)
+            self.stats.answered += 1
+        except Exception as exc:  # the transport's error (zenoh.ZError): the querier left
+            log.warning("cannot reply to a query on %s: %s", self.key, exc)
+        finally:
+            query.drop()
+
+    def close(self) -> None:
+        """Stop answering (queries still waiting get an error reply); idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._on_close is not None:
+            self._on_close(self)
+        if self._declaration is not None:
+            self._declaration.undeclare()
+
+
+class RawPublisher:
+    """Puts payloads on one key as they are (:meth:`Bus.raw_publisher`)."""
+
+    def __init__(self, bus: Bus, key: str) -> None:
+        self._bus = bus
+        self.key = key
+        self._out = bus._connection.declare_publisher(key)
+
+    def put(self, payload: bytes) -> None:
+        local = self._bus._local_subscriptions(self.key)
+        if local:
+            on_loop = threading.get_ident() == self._bus._loop_thread
+            for sub in local:
+                sub.push(self.key, payload, on_loop=on_loop)
+        self._out.put(payload)
+
+    def close(self) -> None:
+        self._out.undeclare()
+
+
+class Bus:
+    """One robot's view of the network, used from one event loop.
+
+    The bytes move through a transport (:mod:`ubf_async.net.transport`), as an HTTP client's
+    requests go through its transport: ``Bus.open(options)`` opens a zenoh session and is what
+    every entry point uses; ``Bus(transport=InProcessTransport(), robot="mini")`` connects to a
+    network inside the loop (unit tests: several buses on one transport see each other as
+    processes do). The bus adds the same things on either: the hand-off onto the loop, same-bus
+    delivery, latest/every modes, bounded queues and counted handler errors.
+
+    Construct it on its event loop. Open with ``async with await Bus.open(options) as bus``
+    or ``bus = await Bus.open(...)`` and ``await bus.aclose()`` (idempotent).
+    """
+
+    def __init__(
+        self, *, transport: Transport, options: ConnectionOptions | None = None,
+        robot: str | None = None, clock: Clock | None = None,
+    ) -> None:
+        """``options`` (their ``robot``) or ``robot`` name the robot (default
+        :data:`DEFAULT_ROBOT`); ``clock`` stamps what this bus publishes (default: the wall
+        clock). Raises :class:`~ubf_async.errors.ConfigurationError` for a bad robot name or
+        ``robot`` contradicting ``options``."""
+        if options is None:
+            options = ConnectionOptions(robot=robot or DEFAULT_ROBOT)
+        elif robot is not None and robot != options.robot:
+            raise ConfigurationError(f"Bus: robot={robot!r} but options.robot="
+                                     f"{options.robot!r}")
+        try:
+            self.keys = Keys(options.robot)
+        except ProtocolError as exc:
+            raise ConfigurationError(f"robot name: {exc}") from None
+        self.options = options
+        self.clock: Clock = clock or WallClock()
+        self.transport = transport
+        self._loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
+        self._subscriptions: list[Subscription] = []
+        self._queryables: list[Queryable] = []
+        self._local: list[tuple[str, Subscription]] = []
+        self._local_by_key: dict[str, list[Subscription]] = {}
+        """Which local subscriptions each published key reaches; cleared on any change."""
+        self._closed = False
+        self._connection: Connection = transport.connect(loop=self._loop,
+                                                         pending=self._has_pending)
+        self._connect_watch: asyncio.Task[None] | None = None
+
+    @classmethod
+    async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None,
+                   ordered: bool = False) -> Bus:
+        """Open a zenoh session (in a worker thread: opening can take a while) and a bus on it.
+
+        ``ordered``: samples of every key are handed to the loop in the order the sending
+        session sent them (:class:`~ubf_async.net.transport.ZenohConnection`): for the processes
+        of a lockstep run.
+
+        Listen endpoints on port 0 get a free port first (:func:`bind_free_ports`), so
+        ``bus.options.listen`` names the ports really listened on. Raises
+        :class:`SessionError` with a one-line message (:class:`PortInUseError` for a port
+        taken, :class:`NoRobotError` when nothing answers a ``client``,
+        :class:`RefusedError` when something there refuses it)."""
+        options = dataclasses.replace(options, listen=bind_free_ports(options.listen))
+        try:
+            config = options.zenoh_config()
+        except zenoh.ZError as exc:
+            raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
+        try:
+            session = await asyncio.to_thread(zenoh.open, config)
+        except zenoh.ZError as exc:
+            error = session_error(options, exc)
+            if isinstance(error, NoRobotError):  # or something there refused us
+                refused = await asyncio.to_thread(refused_error, options)
+                raise (refused or error) from None
+            raise error from None
+        bus = cls(transport=ZenohTransport(session, ordered=ordered), options=options,
+                  clock=clock)
+        if options.mode == "peer" and options.connect:
+            # A client fails to open when nothing answers; a peer opens all the same and
+            # zenoh keeps trying in the background: say so, as a robot should.
+            bus._connect_watch = asyncio.get_running_loop().create_task(
+                watch_connect_endpoints(bus, options.connect), name="ubf-connect-watch")
+        return bus
+
+    @property
+    def robot(self) -> str:
+        return self.options.robot
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The zenoh session under a bus made by :meth:`open` (tests and tools reach around
+        the bus with it); :class:`~ubf_async.errors.ConfigurationError` on another
+        transport."""
+        if isinstance(self._connection, ZenohConnection):
+            return self._connection.session
+        raise ConfigurationError(f"this bus runs on {type(self.transport).__name__}, not on a "
+                                 f"zenoh session")
+
+    def _has_pending(self) -> bool:
+        """Whether a subscription holds undelivered samples or a queryable unanswered
+        queries (what :meth:`InProcessTransport.settle` waits for)."""
+        return (any(sub.pending for sub in self._subscriptions)
+                or any(q.pending for q in self._queryables))
+
+    def _bridge_callback(self, sub: Subscription) -> Callable[[str, bytes], None]:
+        return sub.push_from_loop if self._connection.callbacks_on_loop else sub.push
+
+    def publisher(self, topic: Topic[Any] | str, *parts: str, period_s: float | None = None,
+                  **named_parts: str) -> Publisher:
+        """A publisher of ``topic`` (:mod:`ubf_async.wire.topics`) on its key for this robot:
+        ``bus.publisher(CAMERA, "front", period_s=0.11)``. For a schema not declared there,
+        give the key and the schema name instead: ``bus.publisher(key, "my.schema")``."""
+        if isinstance(topic, Topic):
+            return Publisher(self, topic.key(self.keys, *parts, **named_parts), topic.schema,
+                             period_s=period_s)
+        if len(parts) != 1 or named_parts:
+            raise TypeError("publisher(key, schema): give the key and one schema name")
+        return Publisher(self, topic, parts[0], period_s=period_s)
+
+    def raw_publisher(self, key: str) -> RawPublisher:
+        """A publisher of payloads exactly as given (no encoding, no checks: a tool replaying
+        recorded messages); subscribers of this bus receive them too."""
+        return RawPublisher(self, key)
+
+    def subscribe(
+        self, key_expr: str, handler: SampleHandler, *, latest: bool = True,
+        max_queue: int = 1024, direct: bool = False,
+    ) -> Subscription:
+        """Deliver samples matching ``key_expr`` to ``handler`` on the event loop.
+
+        ``direct=True``: on a :class:`~ubf_async.runtime.lending.LendingEventLoop` (the one every
+        entry point runs on), a sample from another process that finds the loop idle is
+        handled at once on the transport's thread, with the loop lent to it, instead of
+        waking the loop thread (:mod:`ubf_async.runtime.lending`); for short handlers on a latency
+        path."""
+        sub = Subscription(self._loop, handler, latest=latest, max_queue=max_queue,
+                           name=key_expr, direct=direct)
+        # Samples from this bus arrive through Publisher.publish instead (module docstring).
+        sub._declaration = self._connection.declare_subscriber(key_expr,
+                                                               self._bridge_callback(sub))
+        sub._on_close = self._forget
+        self._subscriptions.append(sub)
+        self._local.append((key_expr, sub))
+        self._local_by_key.clear()
+        return sub
+
+    def _forget(self, sub: Subscription) -> None:
+        """Drop a closed subscription, so a bus that outlives many component restarts does
+        not keep every subscription it ever made."""
+        if sub in self._subscriptions:
+            self._subscriptions.remove(sub)
+        if any(s is sub for _, s in self._local):
+            self._local = [(expr, s) for expr, s in self._local if s is not sub]
+            self._local_by_key.clear()
+
+    def _local_subscriptions(self, key: str) -> list[Subscription]:
+        """The open subscriptions of this bus whose key expression matches ``key``."""
+        subs = self._local_by_key.get(key)
+        if subs is None:
+            subs = [sub for sub_expr, sub in self._local if intersects(sub_expr, key)]
+            self._local_by_key[key] = subs
+        return subs
+
+    def declare_token(self, key: str) -> Declaration:
+        """A liveliness token on ``key``; ``token.undeclare()`` (or closing the bus) ends it."""
+        return self._connection.declare_token(key)
+
+    def watch_liveliness(
+        self, key_expr: str, on_change: Callable[[str, bool], None]
+    ) -> Subscription:
+        """Call ``on_change(key, alive)`` on the loop for tokens appearing/vanishing,
+        starting with those alive now."""
+
+        def handler(key: str, payload: bytes, received_ns: int) -> None:
+            on_change(key, payload == b"+")
+
+        sub = Subscription(self._loop, handler, latest=False, name=f"liveliness {key_expr}")
+        push = self._bridge_callback(sub)
+
+        def on_token(key: str, alive: bool) -> None:
+            # The token's kind travels in the payload slot of the generic bridge.
+            push(key, b"+" if alive else b"-")
+
+        sub._declaration = self._connection.declare_liveliness_subscriber(key_expr, on_token)
+        sub._on_close = self._forget
+        self._subscriptions.append(sub)
+        return sub
+
+    async def alive_tokens(self, key_expr: str, *, timeout_s: float = 2.0) -> list[str]:
+        """Keys of the liveliness tokens currently alive under ``key_expr``."""
+        return await self._connection.liveliness_get(key_expr, timeout_s=timeout_s)
+
+    def declare_queryable(
+        self, key: str, handler: QueryHandler, *, max_pending: int = 64
+    ) -> Queryable:
+        """Answer queries on ``key`` (a concrete key) with ``handler(key, payload) -> reply``,
+        called on the event loop; queries from this bus are answered too."""
+        queryable = Queryable(self._loop, key, handler, max_pending=max_pending,
+                              callbacks_on_loop=self._connection.callbacks_on_loop)
+        queryable._declaration = self._connection.declare_queryable(key, queryable.on_query)
+        queryable._on_close = self._queryables.remove
+        self._queryables.append(queryable)
+        return queryable
+
+    async def query(
+        self, key: str, payload: bytes | None = None, *, timeout_s: float = 5.0
+    ) -> bytes:
+        """Send one query on ``key`` and return the first reply's payload.
+
+        Raises :class:`TimeoutError` when nothing answered within ``timeout_s`` (at once when
+        no queryable matching ``key`` is known), :class:`QueryError` when the queryable
+        answered with an error. The loop is never blocked (zenoh's query runs in a worker
+        thread), so a queryable on this same loop can answer it."""
+        answer, errors = await self._connection.get(key, payload, timeout_s=timeout_s)
+        if answer is not None:
+            return answer
+        if errors:
+            raise QueryError("; ".join(errors))
+        raise TimeoutError(f"nothing answered a query on {key} within {timeout_s:g}s")
+
+    def reached_peers(self) -> bool:
+        """Whether the transport reaches another node now (see :func:`wait_for_robot`)."""
+        return self._connection.reached_peers()
+
+    async def aclose(self) -> None:
+        """Undeclare everything and close the connection (the zenoh session); idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._connect_watch is not None:
+            self._connect_watch.cancel()
+        for sub in list(self._subscriptions):
+            sub.close()
+        for queryable in list(self._queryables):
+            queryable.close()
+        await self._connection.close()
+
+    async def __aenter__(self) -> Bus:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()

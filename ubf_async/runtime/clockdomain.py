@@ -1,0 +1,361 @@
+"""Samples stamped on another clock than the robot's: recognised, counted and reported.
+
+Every ``stamp_ns`` is meant to be on the robot clock (``docs/protocol.md``, *The robot
+clock*): simulated time when a simulator publishes ``ubf/<robot>/clock``, else the robot
+host's ``CLOCK_MONOTONIC``. A sender that stamps with another clock — the usual case: a
+plain script stamping ``time.monotonic_ns()`` or ``time.time_ns()`` while the robot runs on
+simulated time — produces ages that mean nothing: a stamp far ahead is refused as from the
+future, one far behind is taken with an age of minutes or decades. This module tells such
+samples apart so the robot can say so, once per source, with how to fix it.
+
+**The rule** (:func:`foreign_clock`, pure): a stamp ``offset = stamp − now`` away from the
+robot clock is from another clock domain when
+
+* ``|offset|`` exceeds :data:`CLOSE_S` (1 s: nearer than that the clocks cannot be told
+  apart, and the age is nearly right anyway), and
+* it is plausibly **wall-clock time** (``CLOCK_REALTIME``, ``time.time_ns()``): at least
+  :data:`REALTIME_FLOOR_NS` (2001-09-09), which neither simulated time nor a host's uptime
+  reaches; or
+* the robot runs on simulated time and it is within :data:`HOST_MATCH_S` of **this host's
+  CLOCK_MONOTONIC** (a sender on the robot's host stamping ``time.monotonic_ns()``); or
+* ``|offset|`` exceeds :data:`FAR_S` (10 s): no sample of a running robot's own clock
+  arrives ten seconds early (those beyond 0.5 s are refused as from the future anyway) or
+  ten seconds late — e.g. simulated-time stamps sent to a robot on wall time.
+
+What it does **not** change: how the sample is judged. A sample stamped ahead is still
+refused (``future``), so a foreign stamp never pins a source; one stamped behind is still
+taken with its true, large age. Detection only adds the report: :class:`ClockDomainWatch`
+counts such samples per source (sensor sources ``"<kind>/<name>"``, remote votes
+``"vote/<composite>/<behaviour>"``), logs a warning with the fix the first time per source
+(and every 100th sample after; past :data:`MAX_WARNED_SOURCES` sources one summary per 100
+samples, so a flood of names cannot flood the log), and its
+:meth:`~ClockDomainWatch.status` goes into the controller's status, which
+``python -m ubf_async.inspector state`` shows.
+
+One watch serves a bus (:func:`watch`): the robot's aggregator and its remote behaviours
+report into the same table.
+
+The other half — a process learning which clock the robot is on, however long the robot takes
+to start — is :func:`follow_robot_clock` (``--clock auto`` of the remote behaviours and of
+``python -m components.<device>`` with a backend that needs no simulator;
+``docs/protocol.md`` shows the same in plain zenoh + msgpack).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import time
+import weakref
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import Clock, SimClock
+from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.wire.protocol import ProtocolError, clip, decode
+from ubf_async.wire.topics import CONTROLLER_STATUS, ROBOT_TIME
+
+log = logging.getLogger(__name__)
+
+CLOSE_S = 1.0
+"""Stamps nearer than this to the robot clock are never called foreign."""
+CLOSE_NS = round(CLOSE_S * 1e9)
+FAR_S = 10.0
+"""Stamps further than this from the robot clock are foreign whatever they look like."""
+HOST_MATCH_S = 5.0
+"""How near this host's ``CLOCK_MONOTONIC`` a stamp must be to be called that clock."""
+REALTIME_FLOOR_NS = 10**18
+"""Stamps from here on (2001-09-09 as Unix time, 31.7 years as uptime or simulated time)
+are taken for wall-clock time."""
+MAX_SOURCES = 256
+"""Sources remembered (the least recently seen forgotten first)."""
+MAX_WARNED_SOURCES = 32
+"""Sources warned about one by one; beyond them (a flood of names) one summary warning per
+100 foreign samples."""
+MAX_REPORTED = 32
+"""Sources listed in :meth:`ClockDomainWatch.status`."""
+
+ClockName = Literal["wall clock", "host monotonic clock", "another clock"]
+
+
+def foreign_clock(stamp_ns: int, *, now_ns: int, simulated: bool,
+                  host_monotonic_ns: int) -> ClockName | None:
+    """Which other clock ``stamp_ns`` looks like, or ``None`` if it may be the robot clock
+    (now ``now_ns``; ``simulated``: the robot runs on simulated time). The module docstring
+    states the rule."""
+    offset = stamp_ns - now_ns
+    if -CLOSE_NS <= offset <= CLOSE_NS:
+        return None
+    if stamp_ns >= REALTIME_FLOOR_NS > now_ns:
+        return "wall clock"
+    if simulated and abs(stamp_ns - host_monotonic_ns) <= HOST_MATCH_S * 1e9:
+        return "host monotonic clock"
+    if abs(offset) > FAR_S * 1e9:
+        return "another clock"
+    return None
+
+
+def the(clock: str) -> str:
+    """A :data:`ClockName` in a sentence: "the wall clock", but "another clock"."""
+    return clock if clock == "another clock" else f"the {clock}"
+
+
+def how_to_stamp(robot: str, simulated: bool) -> str:
+    """The fix, in one sentence, for a sender stamping on the wrong clock."""
+    if simulated:
+        return (f"this robot runs on simulated time: stamp with the stamp_ns of the newest "
+                f"sample on ubf/{robot}/clock, not the host's clock (docs/protocol.md, "
+                f"'The robot clock')")
+    return ("this robot runs on its host's CLOCK_MONOTONIC: stamp with time.monotonic_ns() "
+            "on that host (a simulated-time stamp means the sender follows a simulator this "
+            "robot does not; docs/protocol.md, 'The robot clock')")
+
+
+@dataclass(slots=True)
+class ForeignSource:
+    """What the watch knows about one source stamping on another clock."""
+
+    samples: int
+    clock: ClockName
+    offset_s: float
+    """The last such sample's ``stamp − now`` in seconds."""
+
+
+class ClockDomainWatch:
+    """Counts and reports samples stamped on another clock (module docstring).
+
+    :meth:`check` runs on the event loop for every sample the robot ingests (its common case
+    is one subtraction); the rest is bookkeeping for the few that are foreign.
+    """
+
+    def __init__(self, *, robot: str, max_sources: int = MAX_SOURCES) -> None:
+        if max_sources < 1:
+            raise ValueError(f"max_sources must be ≥ 1, got {max_sources}")
+        self.robot = robot
+        self.max_sources = max_sources
+        self.sources: OrderedDict[str, ForeignSource] = OrderedDict()
+        """Per source, least recently seen first (bounded by ``max_sources``)."""
+        self.total = 0
+        """Foreign samples so far, all sources."""
+        self.warned_sources = 0
+        """Sources warned about one by one (at most :data:`MAX_WARNED_SOURCES`)."""
+
+    def check(self, source: str, stamp_ns: int, *, now_ns: int, simulated: bool) -> bool:
+        """Whether the sample of ``source`` stamped ``stamp_ns`` is from another clock
+        domain (robot clock ``now_ns``); if so count it, and warn the first time per source
+        and every 100th sample after."""
+        offset = stamp_ns - now_ns
+        if -CLOSE_NS <= offset <= CLOSE_NS:
+            return False
+        clock = foreign_clock(stamp_ns, now_ns=now_ns, simulated=simulated,
+                              host_monotonic_ns=time.monotonic_ns())
+        if clock is None:
+            return False
+        self.total += 1
+        entry = self.sources.get(source)
+        if entry is None:
+            entry = self.sources[source] = ForeignSource(0, clock, 0.0)
+            if len(self.sources) > self.max_sources:
+                self.sources.popitem(last=False)
+        else:
+            self.sources.move_to_end(source)
+        entry.samples += 1
+        entry.clock = clock
+        entry.offset_s = offset / 1e9
+        if entry.samples == 1 and self.warned_sources < MAX_WARNED_SOURCES:
+            self.warned_sources += 1
+            log.warning("%s: sample stamped %+.6g s from the robot clock looks like %s, "
+                        "not the robot's: its age means nothing (%s); %s", clip(source),
+                        offset / 1e9, the(clock), "refused as from the future" if offset > 0
+                        else "taken with that age", how_to_stamp(self.robot, simulated))
+        elif entry.samples % 100 == 0:
+            log.warning("%s: %d samples stamped on %s so far", clip(source),
+                        entry.samples, the(clock))
+        elif self.warned_sources >= MAX_WARNED_SOURCES and self.total % 100 == 1:
+            log.warning("%d samples stamped on another clock so far, from more sources than "
+                        "warned about one by one (%d; a flood of names?): see the "
+                        "controller's status", self.total, MAX_WARNED_SOURCES)
+        return True
+
+    def check_on(self, bus: Bus, source: str, stamp_ns: int, now_ns: int) -> bool:
+        """:meth:`check` with ``bus.clock``'s kind (simulated or not)."""
+        return self.check(source, stamp_ns, now_ns=now_ns,
+                          simulated=bus.clock.is_simulated)
+
+    def count(self, source: str) -> int:
+        entry = self.sources.get(source)
+        return entry.samples if entry is not None else 0
+
+    def status(self) -> list[dict[str, Any]]:
+        """The sources seen stamping on another clock, most recently seen first (at most
+        :data:`MAX_REPORTED`): ``{"source", "samples", "clock", "offset_s"}`` each."""
+        out: list[dict[str, Any]] = []
+        for source, entry in reversed(self.sources.items()):
+            if len(out) >= MAX_REPORTED:
+                break
+            out.append({"source": clip(source), "samples": entry.samples,
+                        "clock": entry.clock, "offset_s": entry.offset_s})
+        return out
+
+
+_WATCHES: weakref.WeakKeyDictionary[Bus, ClockDomainWatch] = weakref.WeakKeyDictionary()
+
+
+def watch(bus: Bus) -> ClockDomainWatch:
+    """The watch of ``bus`` (made on first use): everything ingesting samples on the bus
+    reports into one table. A bus-like stand-in that cannot be weakly referenced (a test
+    double) gets a watch of its own at each call: keep the one returned."""
+    keys = getattr(bus, "keys", None)
+    robot = keys.robot if keys is not None else "<robot>"
+    try:
+        found = _WATCHES.get(bus)
+        if found is None:
+            found = _WATCHES[bus] = ClockDomainWatch(robot=robot)
+    except TypeError:  # not hashable or not weakly referenceable
+        return ClockDomainWatch(robot=robot)
+    return found
+
+
+# ---------------------------------------------------------------------------------------------
+# Learning the robot's clock
+
+ClockMode = Literal["auto", "wall", "sim", "robot"]
+DEFAULT_CLOCK_WAIT_S = 10.0
+"""How long ``auto`` waits for the robot to say which clock it runs on before taking this
+host's. A robot started with ``python -m ubf_async.launch`` says so within about 0.5 s of its
+controller starting (its status, and its clock or time samples), so this only runs out
+against a robot that publishes none of them."""
+HOST = socket.gethostname()[:253]
+"""This host's name, as a robot's status and time samples name theirs."""
+WAITING_SAID_AFTER_S = 1.0
+"""``auto`` says it is waiting once this long has passed without an answer."""
+
+
+async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
+                             wait_s: float = DEFAULT_CLOCK_WAIT_S,
+                             say: Callable[[str], None] | None = None) -> Clock:
+    """Put ``bus`` on the robot's clock and return it:
+
+    * ``wall`` keeps ``bus.clock`` (this host's ``CLOCK_MONOTONIC``: right on the robot's
+      host);
+    * ``sim`` waits for ``ubf/<robot>/clock`` and follows it (under
+      :class:`~ubf_async.runtime.timesource.ClockFollower`'s rules);
+    * ``robot`` waits for ``ubf/<robot>/time`` and follows the robot host's clock through its
+      offset (:class:`~ubf_async.runtime.hostclock.RobotTimeClock`: for a process on another host);
+    * ``auto`` waits until the robot says which clock it runs on, however long it takes to
+      start: a sample on ``ubf/<robot>/clock`` (simulated time: follow it); a sample on
+      ``ubf/<robot>/time`` (its host's clock: follow its offset from another host, else keep
+      ``bus.clock``); or its controller's status (``status/controller``: ``clock`` and
+      ``host``), which says so even while the robot's simulator is still starting — then it
+      waits for the simulated time, or for the time samples of the robot's host. Only when
+      the robot says nothing of the kind within ``wait_s`` (not a ubf_async robot, or an old
+      one) does it keep ``bus.clock``, and says so.
+
+    ``say`` gets a line for the user when the wait is long or ends without an answer (it is
+    logged as well)."""
+    from ubf_async.runtime.hostclock import RobotTimeClock  # its beacon is a component
+
+    if mode == "wall":
+        return bus.clock
+
+    def tell(line: str, *, warn: bool = False) -> None:
+        (log.warning if warn else log.info)("%s", line)
+        if say is not None:
+            say(line)
+
+    sim = SimClock()
+    robot_time = RobotTimeClock()
+    sim_sub = follow_sim_clock(bus, sim, {}) if mode in ("auto", "sim") else None
+    time_sub = robot_time.follow(bus) if mode in ("auto", "robot") else None
+    status: dict[str, Any] = {}
+    heard_status = asyncio.Event()
+
+    def on_status(key: str, payload: bytes, received_ns: int) -> None:
+        try:
+            message = decode(payload)
+        except ProtocolError:
+            return  # not ours to count: the status keys are everyone's
+        data = message.data
+        if (message.schema == CONTROLLER_STATUS.schema and isinstance(data, dict)
+                and data.get("clock") in ("simulated", "monotonic")):
+            status.update(clock=data["clock"], host=data.get("host"))
+            heard_status.set()
+
+    status_sub = (bus.subscribe(CONTROLLER_STATUS.key_expr(bus.keys), on_status)
+                  if mode == "auto" else None)
+    robot = bus.robot
+    loop = asyncio.get_running_loop()
+    started = loop.time()
+    deadline = started + wait_s
+    waiting_said = False
+    chosen: Clock | None = None
+    try:
+        while chosen is None:
+            if sim.started.is_set():
+                log.info("following the simulated time on %s", bus.keys.clock)
+                chosen = sim
+                break
+            if robot_time.ready.is_set():
+                if mode == "robot" or robot_time.host != HOST:
+                    log.info("following the clock of the robot's host %s on %s (offset "
+                             "%+.3f s)", robot_time.host or "(unnamed)",
+                             ROBOT_TIME.key(bus.keys), robot_time.estimator.offset_ns / 1e9)
+                    chosen = robot_time
+                    break
+                log.info("robot %r runs on this host's CLOCK_MONOTONIC (%s)", robot,
+                         ROBOT_TIME.key(bus.keys))
+                return bus.clock
+            if status.get("clock") == "monotonic" and status.get("host") == HOST:
+                log.info("robot %r runs on this host's CLOCK_MONOTONIC (its status)", robot)
+                return bus.clock
+            now = loop.time()
+            if mode == "auto" and not status and now >= deadline:
+                tell(f"robot {robot!r} said nothing of its clock within {wait_s:g} s (no "
+                     f"sample on {bus.keys.clock} or {ROBOT_TIME.key(bus.keys)}, no status "
+                     f"from its controller): stamping with this host's CLOCK_MONOTONIC",
+                     warn=True)
+                return bus.clock
+            # (``sim`` and ``robot`` wait for what they were told to: their callers say so.)
+            if mode == "auto" and not waiting_said and now - started >= WAITING_SAID_AFTER_S:
+                waiting_said = True
+                if status.get("clock") == "simulated":
+                    tell(f"robot {robot!r} runs on simulated time: waiting for its "
+                         f"simulator's clock on {bus.keys.clock} ...")
+                elif status:
+                    tell(f"robot {robot!r} runs on the clock of host {status.get('host')}: "
+                         f"waiting for its time on {ROBOT_TIME.key(bus.keys)} ...")
+                else:
+                    tell(f"waiting for robot {robot!r} to say which clock it runs on ...")
+            # Until the next news, or until there is something to say.
+            timeouts = []
+            if mode == "auto" and not waiting_said:
+                timeouts.append(started + WAITING_SAID_AFTER_S - now)
+            if mode == "auto" and not status:
+                timeouts.append(deadline - now)
+            heard_status.clear()
+            waits = [asyncio.ensure_future(event.wait())
+                     for event in (sim.started, robot_time.ready, heard_status)]
+            try:
+                await asyncio.wait(waits, timeout=max(0.0, min(timeouts)) if timeouts else None,
+                                   return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                for waiting in waits:
+                    waiting.cancel()
+    finally:
+        if status_sub is not None:
+            status_sub.close()
+        if sim_sub is not None and chosen is not sim:
+            sim_sub.close()
+        if time_sub is not None and chosen is not robot_time:
+            time_sub.close()
+    bus.clock = chosen
+    return chosen
+
+
+def describe(clock: Clock, *, robot: str) -> str:
+    """Which clock a process stamps with, for its start-up line."""
+    return clock.describe(robot)

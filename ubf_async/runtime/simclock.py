@@ -1,0 +1,46 @@
+"""Following a simulator's clock: a :class:`~ubf_async.runtime.clock.SimClock` driven by the
+samples on ``ubf/<robot>/clock``, as the :class:`~ubf_async.runtime.timesource.ClockFollower`
+policy allows."""
+
+from __future__ import annotations
+
+from ubf_async.runtime.bus import Bus, Subscription
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.timesource import ClockAction, ClockFollower
+from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.topics import CLOCK
+
+
+def follow_sim_clock(
+    bus: Bus, clock: SimClock, malformed: dict[str, int], *,
+    follower: ClockFollower | None = None,
+) -> Subscription:
+    """Drive ``clock`` from the simulator's samples on ``ubf/<robot>/clock``.
+
+    Malformed samples are counted in ``malformed``. What a valid sample may do is decided by
+    ``follower`` (a new :class:`~ubf_async.runtime.timesource.ClockFollower` if not given — pass one
+    to pin an epoch or to read its counters): advance the clock, reset it to a new run's time,
+    or nothing (refused, counted and logged by the follower). The first sample taken resets
+    the clock (``clock.resets``) if nothing had started it yet.
+    """
+    key = CLOCK.key(bus.keys)
+    policy = follower if follower is not None else ClockFollower(name=f"{bus.robot} clock")
+
+    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
+        message = decode_or_count(payload, malformed, key, topic=CLOCK)
+        if message is None:
+            return
+        verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.epoch,
+                               wall_ns=received_ns)
+        if verdict.action is ClockAction.ADVANCE and clock.started.is_set():
+            clock.advance_to(message.stamp_ns)
+        elif verdict.action is ClockAction.ADVANCE:
+            # The first time heard starts this process's time, as a new run does: joining a
+            # run (or a replay) mid-way is not seconds of missed ticks since 0.
+            clock.reset_to(message.stamp_ns)
+        elif verdict.action is ClockAction.RESET:
+            clock.reset_to(message.stamp_ns)
+
+    # Direct, as the state aggregator's samples are: on an ordered bus the clock is then
+    # handled in the order it was sent among them, not after samples sent later.
+    return bus.subscribe(key, on_sample, direct=True)

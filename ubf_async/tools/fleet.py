@@ -1,0 +1,507 @@
+"""A fleet: ``python -m ubf_async.fleet FLEET.yaml`` — router, one simulated world, robots.
+
+A fleet file (YAML, ``docs/fleet.md``) lists the robots — a name, a robot file and a start pose
+each — and the world they share (a scenario's arena, ball and scripts, the speed, the seed)::
+
+    world: {scenario: ball-in-sight, speed: 1, duration_s: 30}
+    robots:
+      - {name: r1, robot_file: mini-whegs, start: {x_m: 0.0, y_m: 0.0, heading_deg: 0}}
+      - {name: r2, start: {x_m: -0.4, y_m: 0.5, heading_deg: -45}}
+
+The launcher starts, each in its own process:
+
+1. a zenoh router (``python -m ubf_async.router``) on the file's ``router`` endpoint — unless
+   ``--router EP`` names one already running;
+2. one controller per robot: ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time
+   --robot NAME --mode client --connect ROUTER`` (its devices run in the world; it follows the
+   world's simulated time);
+3. the world (``python -m ubf_async.fleet FLEET.yaml --world-only``): the simulator plug-in the
+   robots' devices need holds every robot in one world and runs their simulated devices, each
+   on its robot's keys. It waits for every robot's controller before time starts, so a run is
+   the same however long the processes took to start.
+
+While it runs it prints one status line per period for the whole fleet (each robot's periodic
+tick rate and who wins its drive command, from its controller's status), and at the end a
+summary per robot (``--summary FILE.json``). The world's duration ends the run; Ctrl-C ends it
+early. Each process's output goes to a log file in ``--log-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import dataclasses
+import json
+import math
+import os
+import signal
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated, Any, Literal, TextIO
+
+import msgspec
+from msgspec import Meta
+
+from ubf_async.assembly.registry import SIMULATORS
+from ubf_async.assembly.robotfile import Robot, load_robot
+from ubf_async.assembly.simulation import (
+    CONTROLLER_SUMMARY_FIELDS,
+    FLAT_OUT,
+    FleetMember,
+    SimulationOptions,
+)
+from ubf_async.cli.args import HelpFormatter, add_event_loop_help
+from ubf_async.cli.run import run_main
+from ubf_async.errors import ConfigurationError
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.runtime.bus import ROOT, Bus
+from ubf_async.runtime.clock import SimClock
+from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.wire.protocol import Keys, ProtocolError, decode_or_count
+from ubf_async.wire.topics import CONTROLLER_STATUS
+
+PROG = "python -m ubf_async.fleet"
+MAX_ROBOTS = 32
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+CONTROLLERS_WAIT_S = 60.0
+"""How long the world waits for every robot's controller before giving up."""
+
+Finite = Annotated[float, Meta(ge=-1e6, le=1e6)]
+
+
+class StartPose(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    x_m: Finite
+    y_m: Finite
+    heading_deg: Annotated[float, Meta(ge=-360.0, le=360.0)] = 0.0
+
+
+class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    name: Annotated[str, Meta(min_length=1, max_length=64)]
+    start: StartPose
+    robot_file: str = "mini-whegs"
+
+
+class FleetWorld(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    scenario: str | None = None
+    """A built-in scenario or a scenario file: the arena, ball and scripts (its robot start is
+    replaced by the robots'); ``None``: the simulator's default."""
+    speed: Annotated[float, Meta(gt=0.0, le=1000.0)] | Literal["max"] = 1.0
+    """× real time, or ``max``: flat out."""
+    seed: int | None = None
+    duration_s: Annotated[float, Meta(gt=0.0, le=1e6)] | None = None
+
+
+class FleetFile(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
+    robots: Annotated[list[FleetRobot], Meta(min_length=1, max_length=MAX_ROBOTS)]
+    world: FleetWorld = FleetWorld()
+    router: str = DEFAULT_ROUTER
+    """The router's endpoint: where the launcher starts one, and where everyone connects."""
+
+
+@dataclasses.dataclass(slots=True)
+class Fleet:
+    """A fleet file, checked: every robot file loaded, names unique, one simulator."""
+
+    spec: FleetFile
+    source: Path
+    robots: dict[str, Robot]
+    simulator: str
+
+
+def load_fleet(path: Path) -> Fleet:
+    """Read and check a fleet file; :class:`ConfigurationError` naming what is wrong."""
+    if not path.is_file():
+        raise ConfigurationError(f"no fleet file {path}")
+    try:
+        spec = msgspec.yaml.decode(path.read_bytes(), type=FleetFile)
+    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        raise ConfigurationError(f"{path}: {exc}") from None
+    names = [r.name for r in spec.robots]
+    doubled = sorted({n for n in names if names.count(n) > 1})
+    if doubled:
+        raise ConfigurationError(f"{path}: robot names must be unique; twice: "
+                                 f"{', '.join(doubled)}")
+    robots: dict[str, Robot] = {}
+    simulators: set[str] = set()
+    for entry in spec.robots:
+        try:
+            Keys(entry.name)
+        except ProtocolError as exc:
+            raise ConfigurationError(f"{path}: robot {entry.name!r}: {exc}") from None
+        robot_file = entry.robot_file
+        if not Path(robot_file).is_absolute() and (path.parent / robot_file).is_file():
+            robot_file = str(path.parent / robot_file)  # relative to the fleet file
+        robot = load_robot(robot_file, seed=spec.world.seed)
+        needs = {d.requires_simulator for d in robot.devices if d.requires_simulator}
+        if not needs:
+            raise ConfigurationError(f"{path}: robot {entry.name}'s file {robot.source} has no "
+                                     f"simulated device: nothing for the world to host")
+        simulators |= needs
+        robots[entry.name] = dataclasses.replace(robot, source=robot_file)
+    if len(simulators) != 1:
+        raise ConfigurationError(f"{path}: the robots need several simulators "
+                                 f"({', '.join(sorted(simulators))}); a fleet shares one world")
+    return Fleet(spec=spec, source=path, robots=robots, simulator=simulators.pop())
+
+
+# ---------------------------------------------------------------------------------------------
+# The world process
+
+
+async def run_world(fleet: Fleet, *, router: str, out: TextIO,
+                    summary_path: Path | None, lockstep: bool = False) -> int:
+    """The world process. With ``lockstep`` simulated time starts once every robot's
+    controller has joined its lockstep, and waits for each of them at every step."""
+    spec = fleet.spec
+    clock = SimClock()
+    buses: list[Bus] = []
+    try:
+        for entry in spec.robots:
+            buses.append(await Bus.open(ConnectionOptions(robot=entry.name, mode="client",
+                                                          connect=[router]), clock=clock,
+                                        ordered=lockstep))
+        await wait_for_controllers(buses[0], [r.name for r in spec.robots],
+                                   timeout_s=CONTROLLERS_WAIT_S, lockstep=lockstep)
+        members = [FleetMember(name=entry.name, x_m=entry.start.x_m, y_m=entry.start.y_m,
+                               heading_deg=entry.start.heading_deg,
+                               devices=tuple(d for d in fleet.robots[entry.name].devices
+                                             if d.requires_simulator))
+                   for entry in spec.robots]
+        options = SimulationOptions(
+            scenario=spec.world.scenario,
+            speed=math.inf if spec.world.speed == FLAT_OUT else float(spec.world.speed),
+            seed=spec.world.seed,
+            duration_s=spec.world.duration_s,
+            lockstep_participants=len(spec.robots) if lockstep else 0)
+        simulator = SIMULATORS.get(fleet.simulator)()
+        summary = await simulator.host_fleet(buses=buses, clock=clock, members=members,
+                                             options=options, out=out)
+        if summary_path is not None:
+            await asyncio.to_thread(summary_path.write_text,
+                                    json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        return 0
+    finally:
+        for bus in buses:
+            await bus.aclose()
+
+
+async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: float,
+                               lockstep: bool = False) -> None:
+    """Until every robot's controller is alive (its liveliness token) and, with
+    ``lockstep``, has joined the lockstep (its participant token: by then its subscriptions
+    are known here too, so nothing the world sends from its first instant on is lost to
+    it); a :class:`ConnectionError` naming the missing after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    pattern = f"{ROOT}/*/lockstep/controller" if lockstep else f"{ROOT}/*/alive/controller"
+    missing = list(robots)
+    while missing:
+        alive = {key.split("/")[1] for key in await bus.alive_tokens(pattern, timeout_s=1.0)}
+        missing = [r for r in robots if r not in alive]
+        if not missing:
+            return
+        if time.monotonic() > deadline:
+            raise ConnectionError(f"no controller of {', '.join(missing)} came up within "
+                                  f"{timeout_s:g} s (see their logs)")
+        await asyncio.sleep(0.1)
+
+
+async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
+                          out: TextIO, lockstep: bool = False) -> int:
+    """Several robots' controllers in this one process, each exactly as
+    ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time --robot NAME --mode client``
+    runs it (its own session, aggregator, controller, remote behaviours, tree service), all
+    on this process's event loop."""
+    from ubf_async.tools import launch  # the composition root of one robot
+
+    unknown = sorted(set(names) - set(fleet.robots))
+    if unknown:
+        raise ConfigurationError(f"--controllers-only: no robot {', '.join(unknown)} in "
+                                 f"{fleet.source}")
+    runs = []
+    for name in names:
+        args = launch.build_parser().parse_args(
+            [fleet.robots[name].source, "--no-sim", "--sim-time", "--robot", name, "--mode",
+             "client", "--connect", router, "--quiet", *(["--lockstep"] if lockstep else [])])
+        runs.append(launch.run_robot(launch.plan_launch(args), args, out))
+    tasks = [asyncio.ensure_future(run) for run in runs]
+    try:
+        return max(await asyncio.gather(*tasks))
+    finally:  # one failing (or a Ctrl-C) ends them all, each saving and closing as launch does
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# The launcher
+
+
+@dataclasses.dataclass(slots=True)
+class RobotView:
+    """What the fleet's status line knows of one robot (its controller's last status)."""
+
+    status: dict[str, Any] = dataclasses.field(default_factory=dict)
+    heard_s: float | None = None
+
+
+class FleetStatus:
+    """Every robot's controller status, from ``ubf/<robot>/status/controller``."""
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.robots = {name: RobotView() for name in names}
+        self.malformed: dict[str, int] = {}
+
+    def on_status(self, key: str, payload: bytes, received_ns: int) -> None:
+        robot = key.split("/")[1]
+        view = self.robots.get(robot)
+        message = decode_or_count(payload, self.malformed, key, topic=CONTROLLER_STATUS)
+        if view is None or message is None:
+            return
+        view.status = dict(message.data)
+        view.heard_s = time.monotonic()
+
+    def line(self, *, sim_s: float | None) -> str:
+        parts = []
+        for name, view in self.robots.items():
+            status = view.status
+            rate = status.get("periodic_rate_hz")
+            hz = f"{rate:.0f}Hz" if isinstance(rate, int | float) else "--"
+            winners = ",".join(status.get("winners") or []) or ("stop" if status else "--")
+            parts.append(f"{name} {hz} {winners}")
+        head = f"fleet t={sim_s:.1f}s" if sim_s is not None else "fleet"
+        return f"{head} | " + " | ".join(parts)
+
+
+async def spawn(args: Sequence[str], log: Path) -> asyncio.subprocess.Process:
+    with log.open("wb") as sink:  # the child keeps its own descriptor
+        return await asyncio.create_subprocess_exec(
+            sys.executable, *args, stdout=sink, stderr=asyncio.subprocess.STDOUT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            # Its own process group: a Ctrl-C at the terminal reaches the launcher only, which
+            # stops each child once (a second signal would make a child exit at once).
+            start_new_session=True)
+
+
+CHILD_STOP_S = 4.0
+"""How long the launcher waits for its children after SIGTERM before SIGKILL: long enough for
+a launch to save its results (it takes under a second; its own bound is 5 s)."""
+FLEET_STOP_BOUND_S = CHILD_STOP_S + 2.0
+"""The launcher's stop bound: its children's wait, then the router's (docs/fleet.md)."""
+
+
+async def stop_all(procs: dict[str, asyncio.subprocess.Process], *,
+                   grace_s: float = CHILD_STOP_S) -> list[str]:
+    """SIGTERM to every child still running (a launch saves its results), wait for them all
+    at most ``grace_s``, SIGKILL those still there and say which; return their names."""
+    running = {name: proc for name, proc in procs.items() if proc.returncode is None}
+    for proc in running.values():
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGTERM)
+    if running:
+        await asyncio.wait([asyncio.ensure_future(p.wait()) for p in running.values()],
+                           timeout=grace_s)
+    killed = [name for name, proc in running.items() if proc.returncode is None]
+    for name in killed:
+        with contextlib.suppress(ProcessLookupError):
+            running[name].kill()
+        await running[name].wait()
+    if killed:
+        print(f"fleet: {', '.join(killed)} did not stop within {grace_s:g} s of SIGTERM: "
+              f"killed (SIGKILL)", file=sys.stderr)
+    return killed
+
+
+async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
+    spec = fleet.spec
+    router = args.router or spec.router
+    logs = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix="ubf-fleet-"))
+    logs.mkdir(parents=True, exist_ok=True)
+    world_summary = logs / "world-summary.json"
+    procs: dict[str, asyncio.subprocess.Process] = {}
+    tool: Bus | None = None
+    try:
+        if args.router is None:
+            procs["router"] = await spawn(["-m", "ubf_async.router", "--listen", router,
+                                           "--quiet"], logs / "router.log")
+        print(f"fleet: {len(spec.robots)} robots on the router at {router}; logs in {logs}",
+              file=out, flush=True)
+        # The launcher's own session (on the first robot's keys, for the world's clock): it
+        # retries until the router listens.
+        tool = await open_when_up(router, robot=spec.robots[0].name, timeout_s=20.0)
+        per = args.controllers_per_process
+        for group in (spec.robots[i:i + per] for i in range(0, len(spec.robots), per)):
+            names = [entry.name for entry in group]
+            command = (["-m", "ubf_async.launch", fleet.robots[names[0]].source, "--no-sim",
+                        "--sim-time", "--robot", names[0], "--mode", "client", "--connect",
+                        router, "--quiet", *(["--lockstep"] if args.lockstep else [])]
+                       if per == 1 else
+                       ["-m", "ubf_async.fleet", str(fleet.source), "--controllers-only",
+                        ",".join(names), "--router", router,
+                        "--lockstep" if args.lockstep else "--no-lockstep"])
+            procs["+".join(names)] = await spawn(command, logs / f"{'+'.join(names)}.log")
+        world_args = ["-m", "ubf_async.fleet", str(fleet.source), "--world-only", "--router",
+                      router, "--summary", str(world_summary),
+                      "--lockstep" if args.lockstep else "--no-lockstep"]
+        procs["world"] = world = await spawn(world_args, logs / "world.log")
+        status = FleetStatus([r.name for r in spec.robots])
+        tool.subscribe(f"{ROOT}/*/status/controller", status.on_status, latest=False)
+        clock = SimClock()
+        follow_sim_clock(tool, clock, {})
+        try:
+            while world.returncode is None:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(world.wait(), args.status_period_s)
+                if not args.quiet:
+                    print(status.line(sim_s=clock.now_ns() / 1e9 if clock.started.is_set()
+                                      else None), file=out, flush=True)
+                for name, proc in procs.items():
+                    if name not in ("world",) and proc.returncode is not None:
+                        print(f"fleet: {name} exited with status {proc.returncode} "
+                              f"(log: {logs / (name + '.log')})", file=out, flush=True)
+                        procs.pop(name)
+                        break
+        except asyncio.CancelledError:
+            # A stop signal ends the run as the world's duration does: the world and the
+            # controllers stop (the world writes its summary as it stops), then the summary.
+            await stop_all({name: proc for name, proc in procs.items() if name != "router"})
+        if world.returncode != 0:
+            print(f"fleet: the world exited with status {world.returncode}: "
+                  f"{tail(logs / 'world.log')}", file=sys.stderr)
+        return await asyncio.to_thread(finish, fleet, status, world_summary, args, out,
+                                       world.returncode or 0)
+    finally:
+        # The controllers and the world together (a world in lockstep stops waiting for a
+        # controller that is gone), the router once they have left it.
+        router_proc = procs.pop("router", None)
+        await stop_all(procs)
+        if tool is not None:
+            await tool.aclose()
+        if router_proc is not None:
+            await stop_all({"router": router_proc}, grace_s=1.0)
+
+
+async def open_when_up(router: str, *, robot: str, timeout_s: float) -> Bus:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return await Bus.open(ConnectionOptions(robot=robot, mode="client",
+                                                    connect=[router]))
+        except ConnectionError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.1)
+
+
+def tail(path: Path, lines: int = 3) -> str:
+    with contextlib.suppress(OSError):
+        return " / ".join(path.read_text(errors="replace").strip().splitlines()[-lines:])
+    return ""
+
+
+def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argparse.Namespace,
+           out: TextIO, code: int) -> int:
+    world: dict[str, Any] = {}
+    with contextlib.suppress(OSError, ValueError):
+        world = json.loads(world_summary.read_text(encoding="utf-8"))
+    robots: dict[str, Any] = {}
+    for entry in fleet.spec.robots:
+        in_world = dict(world.get("robots", {}).get(entry.name, {}))
+        # The controller's figures as the world heard them in simulated time (the same at
+        # any speed, in lockstep), else its last status heard here.
+        heard = in_world.pop("controller", None) or status.robots[entry.name].status
+        s = {field: heard.get(field) for field in CONTROLLER_SUMMARY_FIELDS}
+        robots[entry.name] = {"robot_file": entry.robot_file, **s, **in_world}
+        share = s.get("winner_share") or {}
+        top = ", ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1]))
+        travelled = robots[entry.name].get("travelled_m")
+        found_at = robots[entry.name].get("found_s")
+        found = f"found the ball at {found_at} s" if found_at is not None else "no ball found"
+        print(f"  {entry.name}: {s.get('ticks', '?')} ticks, "
+              f"{travelled if travelled is not None else '?'} m travelled, {found}; "
+              f"won: {top or '--'}", file=out)
+    summary = {"fleet": str(fleet.source), "scenario": world.get("scenario"),
+               "lockstep": args.lockstep,
+               "sim_time_s": world.get("sim_time_s"),
+               "real_time_factor": world.get("real_time_factor"),
+               "first_found_s": world.get("first_found_s"),
+               "all_found_s": world.get("all_found_s"), "robots": robots}
+    if world.get("first_found_s") is not None:
+        everyone = (f"all {len(robots)} by {world['all_found_s']} s"
+                    if world.get("all_found_s") is not None else "not all of them")
+        print(f"  the ball: first found at {world['first_found_s']} s (simulated), "
+              f"{everyone}", file=out)
+    if args.summary is not None:
+        args.summary.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    return code
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=HelpFormatter,
+        description="Run a fleet of robots in one simulated world (docs/fleet.md): a zenoh "
+                    "router, the world with every robot's simulated devices, and one "
+                    "controller process per robot.")
+    parser.add_argument("fleet_file", type=Path, metavar="FLEET.yaml")
+    parser.add_argument("--router", default=None, metavar="ENDPOINT",
+                        help="use the router already running at ENDPOINT instead of starting "
+                             "one (default: start one on the fleet file's `router`)")
+    parser.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
+                        help="write a summary per robot when the run ends")
+    parser.add_argument("--log-dir", default=None, metavar="DIR",
+                        help="where each process's output goes (default: a new temporary "
+                             "directory, printed)")
+    parser.add_argument("--status-period-s", type=float, default=2.0, metavar="S",
+                        help="how often the fleet's status line is printed")
+    parser.add_argument("--quiet", action="store_true", help="no status lines")
+    parser.add_argument("--check", action="store_true",
+                        help="load and check the fleet file and every robot file, and exit")
+    parser.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=True,
+                        help="the controllers take part in the world's lockstep (simulated "
+                             "time waits for each of them at every step): a run is the same "
+                             "on any machine, at any load; --no-lockstep: they follow the "
+                             "world's clock as it goes (faster with many robots, not "
+                             "repeatable)")
+    parser.add_argument("--world-only", action="store_true",
+                        help="run only the world (what the launcher starts as its own process)")
+    parser.add_argument("--controllers-per-process", type=int, default=1, metavar="K",
+                        help="run the robots' controllers K to a process (fewer processes for "
+                             "a small machine; 1: each its own, as launch runs one)")
+    parser.add_argument("--controllers-only", default=None, metavar="NAME,...",
+                        help="run only these robots' controllers, in this one process (what the "
+                             "launcher starts with --controllers-per-process above 1)")
+    add_event_loop_help(parser)
+    return parser
+
+
+async def main_async(args: argparse.Namespace, out: TextIO) -> int:
+    fleet = load_fleet(args.fleet_file)
+    if args.check:
+        for entry in fleet.spec.robots:
+            print(f"{entry.name}: {fleet.robots[entry.name].source} at ({entry.start.x_m:g}, "
+                  f"{entry.start.y_m:g}) m, heading {entry.start.heading_deg:g}°", file=out)
+        return 0
+    if args.world_only:
+        return await run_world(fleet, router=args.router or fleet.spec.router, out=out,
+                               summary_path=args.summary, lockstep=args.lockstep)
+    if args.controllers_only is not None:
+        return await run_controllers(fleet, args.controllers_only.split(","),
+                                     router=args.router or fleet.spec.router, out=out,
+                                     lockstep=args.lockstep)
+    if args.controllers_per_process < 1:
+        raise ConfigurationError(f"--controllers-per-process must be ≥ 1, got "
+                                 f"{args.controllers_per_process}")
+    return await run_fleet(fleet, args, out)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_main(lambda: main_async(args, sys.stdout), prog=PROG,
+                    stop_bound_s=FLEET_STOP_BOUND_S)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,661 @@
+"""``python -m ubf_async.launch [ROBOT_FILE]`` — run a robot; the one composition root.
+
+Launch is the only place that wires things together: it reads a robot file
+(:mod:`ubf_async.assembly.robotfile`; without one, the shipped ``mini-whegs`` file: the simulated
+Mini-WHEGS seeking the pink ball), opens the zenoh session (listening on a loopback endpoint
+by default, printed at start so other processes can attach with ``--connect``), builds the
+devices through the plug-in registries, starts a simulator only if some device's backend
+needs one, and runs the state aggregator, the UBF controller with the file's behaviour tree,
+the remote-behaviour slots and the live-tree service. It prints a one-line live status until
+Ctrl-C, SIGTERM or ``--duration`` elapses, then shuts everything down cleanly.
+
+Everything a user can get wrong (the robot file, a scenario, options, the ``--config`` file,
+the folders ``--summary``/``--record`` write into) is checked before the robot starts; a port
+already in use is one line too. Errors become exit status 2 in :func:`main` (through
+:func:`ubf_async.cli.run.run_main`) and nowhere else. A ``--config`` file is overridden only by
+the flags actually given: the default listen endpoint applies only when neither ``--listen``
+nor the file sets one; for ``…:0`` the port really listened on is printed.
+
+The end of a run never loses its results: if the summary or recording cannot be written, the
+summary is printed instead and the exit status is 2. A second Ctrl-C or SIGTERM exits at once
+(status 130), whatever the shutdown is stuck on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import io
+import json
+import logging
+import math
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+from ubf_async import __version__
+from ubf_async.assembly.registry import SIMULATORS
+from ubf_async.assembly.robotfile import (
+    DEFAULT_ROBOT_FILE,
+    ResolvedDevice,
+    Robot,
+    builtin_robot_files,
+    load_robot,
+)
+from ubf_async.assembly.simulation import (
+    FLAT_OUT,
+    DeviceContext,
+    SimulationOptions,
+    SimulationRun,
+    Simulator,
+)
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.run import check_lockstep_loop, ending, run_main
+from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
+from ubf_async.runtime import lockstep
+from ubf_async.runtime.aggregator import StateAggregator
+from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.clock import Clock, SimClock, WallClock
+from ubf_async.runtime.component import Component, HealthMonitor
+from ubf_async.runtime.controller import Controller, TickMode
+from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.runtime.hostclock import RobotTimeBeacon
+from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.services.live import TreeService
+from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
+from ubf_async.services.liveview import FoxgloveServer
+from ubf_async.services.remote import RemoteBehaviors, remote_spec
+from ubf_async.services.status import StatusWriter, planned_ticks, status_fields
+from ubf_async.tools.liveview import add_host_argument
+from ubf_async.tools.record import McapRecorder
+
+log = logging.getLogger("ubf_async.tools.launch")
+
+PROG = "python -m ubf_async.launch"
+
+
+def speed_argument(text: str) -> float:
+    """``--speed``'s value: a factor > 0, or ``max`` (flat out: ``math.inf``)."""
+    if text.strip().lower() == FLAT_OUT:
+        return math.inf
+    try:
+        speed = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number > 0 or {FLAT_OUT!r}, got {text!r}") from None
+    if not (math.isfinite(speed) and speed > 0):
+        raise argparse.ArgumentTypeError(
+            f"expected a number > 0 or {FLAT_OUT!r}, got {text!r}")
+    return speed
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description=(
+            "Run a UBF robot described by a robot file (docs/robot-file.md): zenoh session, "
+            "its devices, state aggregator, controller with its behaviour tree, and a live "
+            "status line. Without ROBOT_FILE: the simulated Mini-WHEGS seeking the pink ball "
+            f"(the shipped '{DEFAULT_ROBOT_FILE}' file). Other processes attach over zenoh "
+            "with --connect <the endpoint printed at start> and the same --robot."
+        ),
+        epilog=("Environment: UBF_RENDER_PROCESS=0: simulated cameras render in a thread of "
+                "this process instead of a render process (docs/fleet.md); UBF_LOOP: see "
+                "\"event loop\" above."),
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument(
+        "robot_file", nargs="?", default=DEFAULT_ROBOT_FILE, metavar="ROBOT_FILE",
+        help=f"a robot file (.yaml) or a shipped one ({', '.join(builtin_robot_files())}); "
+             f"default: {DEFAULT_ROBOT_FILE}")
+    parser.add_argument("--check", action="store_true",
+                        help="load and check the robot file (every name and parameter), print "
+                             "what would run, and exit without starting anything")
+    add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN],
+                             default_identity="robot")  # secure mode: see ubf_async.tools.secure
+    parser.set_defaults(robot=None)  # the robot file names the robot unless --robot is given
+    ctl = parser.add_argument_group("controller (override the robot file's `controller:`)")
+    ctl.add_argument("--rate-hz", type=float, default=None,
+                     help="tick rate in periodic mode (robot file default: 50)")
+    ctl.add_argument("--tick", dest="tick_mode", choices=[m.value for m in TickMode],
+                     default=None,
+                     help="periodic: own clock; sync: wait for each sample of the sync source "
+                          "(the camera: the thesis's loop); event: tick on each sample of "
+                          "--trigger (robot file default: periodic)")
+    ctl.add_argument("--trigger", default=None, metavar="SOURCE",
+                     help="source that triggers ticks in --tick event, e.g. range/front")
+    ctl.add_argument("--reflex", action="append", default=None, metavar="PREFIX",
+                     help="in periodic mode, also tick at once on each sample of sources "
+                          "starting with PREFIX (repeatable; robot file default: range/ — the "
+                          "IR finders; --reflex '' for none)")
+    ctl.add_argument("--remote", type=remote_spec, action="append", default=[],
+                     metavar="[COMPOSITE/]NAME=PRIORITY[:WEIGHT]",
+                     help="place remote behaviour NAME (docs/protocol.md, 'Remote behaviours') "
+                          "at PRIORITY[:WEIGHT] in its composite, as a `remote:` slot of the "
+                          "tree does (repeatable); other remote behaviours get what they ask "
+                          "for unless the robot file says `remotes: {only_declared: true}`")
+    world = parser.add_argument_group("where the devices come from")
+    world.add_argument("--no-sim", action="store_true",
+                       help="no simulator: devices whose backend needs one are not started "
+                            "here; they attach over zenoh from other processes")
+    world.add_argument("--sim-time", action="store_true",
+                       help="with --no-sim: follow the simulation time published on "
+                            "ubf/<robot>/clock by a simulator in another process")
+    world.add_argument("--lockstep", action="store_true",
+                       help="with --sim-time: take part in the simulator's lockstep, so it "
+                            "does not pass a simulated instant before this controller has "
+                            "handled it (docs/protocol.md, Lockstep): a repeatable run")
+    world.add_argument("--devices", default=None, metavar="KIND[/NAME],...",
+                       help="start only these devices of the robot file (e.g. motors,camera); "
+                            "others can attach later")
+    sim = parser.add_argument_group("simulated run (when a device's backend is simulated)")
+    sim.add_argument("--scenario", default=None, metavar="NAME|PATH",
+                     help="world and scripted ball: a built-in scenario or a scenario .json file "
+                          "(docs/scenarios.md); default: ball-in-sight, run until stopped")
+    sim.add_argument("--speed", type=speed_argument, default=1.0, metavar="K|max",
+                     help="run the simulation K times faster than real time, or 'max': flat "
+                          "out, as fast as the machine allows (every component, camera latency "
+                          "included, follows the simulated clock, which advances in lockstep: "
+                          "the same run at any speed)")
+    sim.add_argument("--lockstep-participants", type=int, default=0, metavar="N",
+                     help="hold simulated time at its start until N processes started with "
+                          "--lockstep (remote behaviours, devices) have joined its lockstep, "
+                          "so a run with them is repeatable from its first instant")
+    sim.add_argument("--seed", type=int, default=None,
+                     help="seed for every random source (default: the scenario's)")
+    sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
+                     help="write a JSON summary of the run when it ends")
+    sim.add_argument("--record", type=Path, default=None, metavar="DIR",
+                     help="record every message on the robot's keys to DIR/<robot>.mcap "
+                          "(docs/recording.md; simulated or not) and, for a simulated run, "
+                          "write trajectory.csv, trajectory.png and annotated camera frames")
+    sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
+                     help="simulated seconds between recorded camera frames")
+    view = parser.add_argument_group("live view")
+    view.add_argument("--foxglove", type=int, nargs="?", const=DEFAULT_FOXGLOVE_PORT,
+                      default=None, metavar="PORT",
+                      help="serve the robot live to Foxglove on ws://HOST:PORT (PORT default "
+                           f"{DEFAULT_FOXGLOVE_PORT}, 0: any free port; docs/liveview.md); a "
+                           "word after it that is not a number is not its PORT (--foxglove "
+                           "ROBOT_FILE runs ROBOT_FILE)")
+    add_host_argument(view)
+    run = parser.add_argument_group("run")
+    run.add_argument("--duration", type=float, default=None, metavar="S",
+                     help="stop after S seconds (simulated seconds when simulating; default: "
+                          "the scenario's duration if --scenario is given, else until Ctrl-C)")
+    run.add_argument("--status-period-s", type=float, default=0.5,
+                     help="how often (wall seconds) the status line refreshes")
+    run.add_argument("--quiet", action="store_true", help="no status line")
+    run.add_argument("--log-level", default="WARNING",
+                     choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+                     help="what is logged on the console (WARNING: warnings, and the live "
+                          "tree changes applied)")
+    return parser
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ControllerSettings:
+    """The robot file's ``controller:`` with the command line's overrides applied."""
+
+    mode: TickMode
+    rate_hz: float
+    reflex: tuple[str, ...]
+    sync_source: str
+    trigger: str | None
+
+    @classmethod
+    def of(cls, robot: Robot, args: argparse.Namespace) -> ControllerSettings:
+        spec = robot.spec.controller
+        mode = TickMode(args.tick_mode or spec.mode)
+        rate_hz = spec.rate_hz if args.rate_hz is None else args.rate_hz
+        if not rate_hz > 0:
+            raise ConfigurationError(f"--rate-hz must be > 0, got {rate_hz:g}")
+        trigger = args.trigger or spec.trigger
+        if mode is TickMode.EVENT and not trigger:
+            raise ConfigurationError("--tick event needs --trigger SOURCE (or `trigger:` in "
+                                     "the robot file's controller)")
+        reflex = spec.reflex if args.reflex is None else args.reflex
+        return cls(mode=mode, rate_hz=rate_hz, reflex=tuple(p for p in reflex if p),
+                   sync_source=spec.sync_source, trigger=trigger)
+
+    def planned(self) -> str:
+        """What will tick the controller, in the status line's terms."""
+        return planned_ticks(self.mode, rate_hz=self.rate_hz, reflex=self.reflex,
+                             sync_source=self.sync_source, trigger=self.trigger)
+
+
+def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
+    """The robot file's devices, narrowed by ``--devices KIND[/NAME],...``."""
+    if wanted is None:
+        return list(robot.devices)
+    names = [w.strip() for w in wanted.split(",") if w.strip()]
+    known = {d.kind for d in robot.devices} | {f"{d.kind}/{d.name}" for d in robot.devices}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigurationError(f"--devices: {', '.join(unknown)} not in {robot.source}; its "
+                                 f"devices: {', '.join(sorted(known))}")
+    return [d for d in robot.devices if d.kind in names or f"{d.kind}/{d.name}" in names]
+
+
+@dataclass(slots=True, kw_only=True)
+class LaunchPlan:
+    """Everything checked before the robot starts."""
+
+    robot: Robot
+    devices: list[ResolvedDevice]
+    """Devices this process builds."""
+    elsewhere: list[ResolvedDevice]
+    """Devices of the file left to other processes (``--no-sim`` with simulated backends)."""
+    simulator: Simulator | None
+    sim_options: SimulationOptions | None
+    controller: ControllerSettings
+    connection: ConnectionOptions
+    """The zenoh session's options: the flags given over the ``--config`` file over launch's
+    default listen endpoint."""
+
+
+def plan_launch(args: argparse.Namespace) -> LaunchPlan:
+    """Load and check the robot file and options; nothing starts. Raises :class:`UbfError`."""
+    robot = load_robot(args.robot_file, seed=args.seed)
+    devices = selected_devices(robot, args.devices)
+    simulators = sorted({d.requires_simulator for d in devices if d.requires_simulator})
+    if len(simulators) > 1:
+        raise ConfigurationError(f"{robot.source}: devices need several simulators "
+                                 f"({', '.join(simulators)}); one robot runs in one")
+    elsewhere: list[ResolvedDevice] = []
+    simulator: Simulator | None = None
+    options: SimulationOptions | None = None
+    if args.sim_time and not args.no_sim:
+        raise ConfigurationError("--sim-time only makes sense with --no-sim")
+    if args.lockstep and not args.sim_time:
+        raise ConfigurationError("--lockstep only makes sense with --no-sim --sim-time (a "
+                                 "simulator of this process already steps in lockstep)")
+    if args.no_sim:
+        elsewhere = [d for d in devices if d.requires_simulator]
+        devices = [d for d in devices if not d.requires_simulator]
+    elif simulators:
+        check_lockstep_loop()
+        simulator = SIMULATORS.get(simulators[0])()
+        options = SimulationOptions(
+            scenario=args.scenario, speed=args.speed, seed=args.seed,
+            duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
+            record_every_s=args.record_every_s,
+            lockstep_participants=args.lockstep_participants,
+            command_line=("python", "-m", "ubf_async.launch", *sys.argv[1:]))
+        simulator.check(options)  # an unknown scenario is refused here, not after the bus opens
+    if simulator is None:
+        given = [flag for flag, value in (("--scenario", args.scenario),
+                                          ("--summary", args.summary)) if value is not None]
+        if given:
+            why = ("--no-sim is given" if args.no_sim
+                   else f"no device of {robot.source} is simulated")
+            raise ConfigurationError(f"{', '.join(given)}: there is no simulator ({why})")
+    check_outputs(args.summary, args.record)
+    if args.duration is not None and not args.duration > 0:
+        raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
+    args.robot = args.robot or robot.name or DEFAULT_ROBOT
+    return LaunchPlan(robot=robot, devices=devices, elsewhere=elsewhere, simulator=simulator,
+                      sim_options=options, controller=ControllerSettings.of(robot, args),
+                      connection=connection_options(args))
+
+
+def check_outputs(summary: Path | None, record: Path | None) -> None:
+    """Make the folders ``--summary`` and ``--record`` write into, and check that a file can
+    be created there, so a run never ends with nowhere to put its results. Raises
+    :class:`ConfigurationError`."""
+    if summary is not None and summary.is_dir():
+        raise ConfigurationError(f"--summary {summary}: is a directory; give a file name, "
+                                 f"e.g. {summary / 'summary.json'}")
+    if record is not None and record.exists() and not record.is_dir():
+        raise ConfigurationError(f"--record {record}: exists and is not a directory")
+    for flag, folder in (("--summary", summary.parent if summary else None),
+                         ("--record", record)):
+        if folder is None:
+            continue
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as exc:
+            found = next((p for p in (folder, *folder.parents) if p.exists()), None)
+            reason = (f"{found} is not a directory" if found is not None and not found.is_dir()
+                      else exc.strerror or str(exc))
+            raise ConfigurationError(f"{flag}: cannot write in {folder}: {reason}") from None
+
+
+class ResultsNotSavedError(UbfError, OSError):
+    """The run's summary or recording could not be written at the end of the run; the summary
+    was printed instead (the message says where writing failed)."""
+
+
+async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+    """Run the planned robot until ``--duration``, SIGTERM or Ctrl-C.
+
+    Whatever ends the run (an error too), :func:`_end` saves the results, then closes every
+    component and the session, each step bounded and done even if an earlier one failed."""
+    robot = plan.robot
+    simulated = plan.simulator is not None
+    clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
+    # A simulator's process and a lockstep participant hand samples over in the order they
+    # were sent: a participant's acknowledgement never overtakes what it sent before it. So
+    # does a follower of simulated time: a sample never overtakes the clock sent before it
+    # (the first one above all: before it the follower has no time, and refuses the sample).
+    bus = await Bus.open(plan.connection, clock=clock,
+                         ordered=simulated or args.sim_time or args.lockstep)
+    options = bus.options  # with the port really listened on for a `:0` endpoint
+    components: list[Component] = []
+    health = HealthMonitor(bus)
+    sim_run: SimulationRun | None = None
+    controller: Controller | None = None
+    recorder: McapRecorder | None = None
+    live: FoxgloveServer | None = None
+    try:
+        if options.mode == "client":
+            routers = " ".join(options.connect) or "(the --config file's router)"
+            print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, a client of "
+                  f"the router at {routers}", file=out)
+            print(f"  attach with: --mode client --connect {routers.split()[0]} --robot "
+                  f"{options.robot}", file=out)
+        else:
+            endpoints = " ".join(options.listen) or "(not listening)"
+            print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
+                  f"{endpoints}", file=out)
+            if options.listen:
+                print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
+                      file=out)
+        if args.record is not None:  # first started, last closed: it sees the whole run
+            recorder = McapRecorder(bus=bus, out=args.record)
+            await recorder.start()
+            components.append(recorder)
+            print(f"  recording the bus to {recorder.path}", file=out)
+        if args.foxglove is not None:
+            live = FoxgloveServer(bus=bus, port=args.foxglove, host=args.foxglove_host)
+            await live.start()
+            components.append(live)
+            print(f"  live in Foxglove on {live.url} (layout: docs/foxglove-layout.json)",
+                  file=out)
+        seed = robot.spec.seed or 0
+        if plan.simulator is not None and plan.sim_options is not None:
+            assert isinstance(clock, SimClock)
+            sim_run = plan.simulator.open(bus=bus, clock=clock, options=plan.sim_options)
+            seed = sim_run.seed
+            print(f"  {sim_run.describe()}", file=out)
+        elif isinstance(clock, SimClock):
+            follow_sim_clock(bus, clock, {})
+            print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
+                  file=out)
+        if plan.elsewhere:
+            print("  not started here (their backends need the simulator; attach them from "
+                  "other processes): " + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere),
+                  file=out)
+        if not plan.devices and not plan.elsewhere and sim_run is None:
+            print("  no devices here: waiting for devices to attach over zenoh", file=out)
+        if clock.is_simulated and args.seed is None and seed != robot.spec.seed:
+            # The behaviours draw from the run's seed (a controller following a simulator
+            # elsewhere: the file's, else 0), so a simulated run is repeatable.
+            robot = robot.reseeded(seed)
+        context = DeviceContext(bus=bus, clock=clock, seed=seed,
+                                simulation=sim_run.world if sim_run is not None else None)
+        devices: list[Component] = []
+        try:
+            for device in plan.devices:
+                devices.append(device.build(context=context))
+        except BaseException:  # the ones built hold their pins and buses: closed below
+            components += devices
+            raise
+        spec = robot.spec
+        settings = plan.controller
+        # The robot's own sources are never evicted to make room for unknown ones.
+        protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
+        protected.update(s for s in (settings.sync_source, settings.trigger) if s)
+        aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
+                                     default_stale_after_s=spec.controller.default_stale_after_s,
+                                     protected_sources=protected, notify_refusals=True)
+        root = robot.root
+        controller = Controller(
+            bus=bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
+            mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
+            reflex_sources=settings.reflex,
+            # In lockstep each status is of a simulated instant (a fleet's world reads them).
+            status_clock=clock if args.lockstep else None,
+        )
+        remotes = RemoteBehaviors(
+            bus=bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
+            only_configured=spec.remotes.only_declared,
+            default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
+            max_remotes=spec.remotes.max_remotes, notify_refusals=True,
+        )
+        tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
+                                   slots=robot.remotes)
+        components += [aggregator, controller, remotes, tree_service, *devices]
+        if spec.ros2 is not None and spec.ros2.enabled:  # docs/ros2.md
+            from ubf_async.services.ros2.bridge import Ros2Bridge, settings_of_spec
+            try:
+                ros2 = settings_of_spec(spec.ros2, robot.remotes)
+            except ValueError as exc:
+                raise ConfigurationError(f"{robot.source}: {exc}") from None
+            components.append(Ros2Bridge(bus=bus, settings=ros2))
+            print(f"  ROS 2 bridge: {ros2.namespace_for(options.robot)}/{ros2.node}, domain "
+                  f"{ros2.domain_id}, {ros2.distro} (docs/ros2.md)", file=out)
+        if not clock.is_simulated:  # its clock, for processes on other hosts
+            components.append(RobotTimeBeacon(bus=bus))
+        if args.lockstep:  # last started: the simulator waits for it once all else runs
+            components.append(lockstep.LockstepParticipant(bus=bus, participant=controller.name))
+        if sim_run is not None:
+            sim_run.add_devices(devices)
+            components += sim_run.components()
+        # No remote behaviour may vote under the name of one of the robot's own components.
+        remotes.reserve(c.name for c in components)
+        health.start()
+        for component in components:
+            await component.start()
+        if sim_run is not None:
+            sim_run.start(controller)
+        here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
+        print(f"  devices: {here or 'none here'}", file=out)
+        print(f"  controller: {settings.planned()}; tree:", file=out)
+        for line in root.render_tree().splitlines():
+            print(f"    {line}", file=out)
+        for slot in robot.remotes:
+            print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
+        out.flush()
+        freeze_startup_objects()  # the start-up's objects: out of the collector's way
+        await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
+    except asyncio.CancelledError:
+        pass  # a stop signal: the end below is the same as for any other end
+    finally:
+        code = await _end(sim_run, controller, components, health, bus, recorder, live, out)
+    return code
+
+
+RESULTS_BOUND_S = 30.0
+"""Wall time the end gives to writing the run's summary and recording (the summary first):
+long enough for a loaded machine's plot and last frame, short of a write stuck for ever. After
+a stop signal the whole stop is bounded tighter (:data:`ubf_async.cli.run.STOP_BOUND_S`)."""
+CLOSE_BOUND_S = 5.0
+"""Wall time the end gives to closing one component (a recorder drains its queue for at most
+:data:`~ubf_async.tools.record.DEFAULT_DRAIN_S`) or the zenoh session."""
+
+
+EXIT_DEGRADED = 3
+"""The run ended and its results were saved, but it was not the robot file's run: a behaviour
+was quarantined (it kept failing and stopped voting) or the tree was changed live."""
+
+
+class ShutdownError(UbfError):
+    """A step of the end failed (logged as it happened); everything else was still done."""
+
+
+async def _end(sim_run: SimulationRun | None, controller: Controller | None,
+               components: list[Component], health: HealthMonitor, bus: Bus,
+               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO) -> int:
+    """The end of a run, whatever ended it (:class:`~ubf_async.cli.ending.Ending`): the results
+    written, every component closed (last started first: the recorder sees everything), the
+    session closed — each step bounded, each done even if one before failed — and only then
+    the report printed. Results that could not be written are printed instead
+    (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`
+    (exit status 2 either way). Otherwise the exit status: 0, or :data:`EXIT_DEGRADED`."""
+    end = ending.Ending(log)
+    degraded = []
+    if controller is not None:
+        if quarantined := controller.quarantined():
+            degraded.append(f"quarantined: {', '.join(quarantined)}")
+        if controller.tree_changes:
+            degraded.append(f"the tree was changed live {len(controller.tree_changes)} time(s)")
+    report = io.StringIO()  # printed last: a console that went away cannot cost a result
+    unsaved = False
+    if sim_run is not None and controller is not None:
+        print("  saving the run's results ...", file=out)
+        out.flush()
+        run = sim_run
+        unsaved = await end.step("saving the run's results",
+                                 lambda: run.finish(controller, report),
+                                 bound_s=RESULTS_BOUND_S) is None
+    for component in reversed(components):
+        await end.step(f"closing {component.name}", component.aclose, bound_s=CLOSE_BOUND_S)
+    health.close()
+    await end.step("closing the zenoh session", bus.aclose, bound_s=CLOSE_BOUND_S,
+                   overrun_is_failure=False)
+    out.write(report.getvalue())
+    if recorder is not None:
+        stats = recorder.stats
+        print(f"  recorded {stats.written} messages"
+              + (f" and {stats.live} in the live view's Foxglove channels"
+                 if stats.live else "")
+              + f" to {', '.join(str(p) for p in stats.files)}"
+              + (f" ({stats.dropped} dropped: the disk did not keep up)"
+                 if stats.dropped else "")
+              + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
+    if live is not None:
+        print(f"  live view: {live.stats.summary()}", file=out)
+    if unsaved and sim_run is not None and controller is not None:
+        print_unsaved_summary(sim_run, controller, end, out)
+    print("ubf_async: stopped" + (f", but not as the robot file describes ({'; '.join(degraded)})"
+                                  if degraded else ""), file=out)
+    out.flush()
+    if unsaved:
+        raise ResultsNotSavedError(f"could not save the run's results ({end.failures[0]}); "
+                                   f"its summary was printed instead")
+    if not end.ok:
+        raise ShutdownError(f"the run ended, but {'; '.join(end.failures)}")
+    return EXIT_DEGRADED if degraded else 0
+
+
+def print_unsaved_summary(sim_run: SimulationRun, controller: Controller,
+                          end: ending.Ending, out: TextIO) -> None:
+    """The results were not written (a full disk, a folder removed during the run, a write
+    stuck past its bound): print the summary as JSON so they are not lost."""
+    try:
+        summary = sim_run.summary(controller)
+    except Exception as exc:
+        end.fail("making the run's summary", f"{type(exc).__name__}: {exc}")
+        return
+    print("ubf_async: the run's summary, not saved:", file=out)
+    print(json.dumps(summary, indent=2, default=str), file=out)
+
+
+async def _run_until_done(
+    args: argparse.Namespace, out: TextIO, robot: str, controller: Controller,
+    aggregator: StateAggregator, health: HealthMonitor, sim_run: SimulationRun | None,
+) -> None:
+    """Print the status line until the run's duration has passed (forever without one)."""
+    wall_start = time.monotonic()
+    duration = sim_run.duration_s if sim_run is not None else args.duration
+
+    def elapsed() -> float:
+        return sim_run.elapsed_s() if sim_run is not None else time.monotonic() - wall_start
+
+    writer = StatusWriter(out)
+
+    async def report() -> None:
+        try:
+            while True:
+                await asyncio.sleep(args.status_period_s)
+                writer.write(status_fields(
+                    robot, elapsed(), controller, aggregator, health,
+                    simulation=sim_run.status_suffix() if sim_run is not None else ""))
+        finally:
+            writer.end()
+
+    if duration is None:
+        await (asyncio.Event().wait() if args.quiet else report())
+        return
+    reporter = None if args.quiet else asyncio.create_task(report())
+    try:
+        # A simulated run ends the moment simulated time reaches its duration.
+        await (sim_run.until_elapsed(duration) if sim_run is not None
+               else asyncio.sleep(duration))
+    finally:
+        if reporter is not None:
+            reporter.cancel()
+            await asyncio.gather(reporter, return_exceptions=True)
+
+
+def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
+    robot = plan.robot
+    print(f"{robot.source}: robot {robot.name!r} — OK", file=out)
+    for device in plan.devices + plan.elsewhere:
+        sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
+        print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
+    settings = plan.controller
+    print(f"  controller: {settings.planned()}", file=out)
+    for line in robot.root.render_tree().splitlines():
+        print(f"    {line}", file=out)
+    for slot in robot.remotes:
+        print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
+
+
+def optional_port_only_if_numeric(argv: Sequence[str]) -> list[str]:
+    """``--foxglove [PORT]``: argparse gives an optional value whatever word follows, so
+    ``launch --foxglove my_robot.yaml`` would read the robot file as the port. The word after
+    ``--foxglove`` is its PORT only if it is a number; otherwise the flag stands alone."""
+    out = list(argv)
+    for i, word in enumerate(out[:-1]):
+        if word == "--":
+            break
+        following = out[i + 1]
+        if (word == "--foxglove" and not following.startswith("-")
+                and not following.strip().isdigit()):
+            out[i] = f"--foxglove={DEFAULT_FOXGLOVE_PORT}"
+    return out
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The command line (``sys.argv[1:]`` by default), parsed by :func:`build_parser`."""
+    words = sys.argv[1:] if argv is None else argv
+    return build_parser().parse_args(optional_port_only_if_numeric(words))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    # Deprecations in what a user wrote (old scenario fields …) are for the user to see.
+    warnings.filterwarnings("default", category=DeprecationWarning,
+                            module=r"(ubf_async|components)(\.|$)")
+    logging.basicConfig(
+        level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    if logging.getLogger().level == logging.WARNING:
+        # An accepted live tree change is news on the robot's console, as a refused one (a
+        # warning) is: shown at the default level too, hidden only by --log-level ERROR.
+        logging.getLogger("ubf_async.services.live").setLevel(logging.INFO)
+    try:
+        plan = plan_launch(args)
+    except UbfError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    if args.check:
+        print_plan(plan)
+        return 0
+    log.info("ubf_async %s", __version__)
+    # sys.stdout read at run time: run_main makes it a stream that cannot fail the end.
+    return run_main(lambda: run_robot(plan, args, sys.stdout), prog=PROG)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,80 @@
+"""``python -m ubf_async.liveview`` (``ubf-liveview``): serve a running robot live to Foxglove
+from another process. The live view itself (converters, the Foxglove server) is
+:mod:`ubf_async.services.liveview`, which ``launch --foxglove`` runs in the robot's process."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments
+from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
+from ubf_async.cli.run import run_main
+from ubf_async.services.liveview import (
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    FoxgloveServer,
+    layout_json,
+)
+
+PROG = "python -m ubf_async.liveview"
+
+
+def add_host_argument(parser: Any) -> None:
+    parser.add_argument("--foxglove-host", default=DEFAULT_HOST, metavar="HOST",
+                        help="address the Foxglove server binds (loopback by default: it has no "
+                             "authentication)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=HelpFormatter,
+        description="Serve a running robot live to Foxglove (docs/liveview.md), from another "
+                    "process: open ws://HOST:PORT in Foxglove and import "
+                    "docs/foxglove-layout.json. Ctrl-C or SIGTERM stops it.")
+    add_connection_arguments(parser)
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT,
+                        help="the Foxglove WebSocket server's port (0: any free port)")
+    add_host_argument(parser)
+    add_attach_arguments(parser, name="foxglove", who="the live view")
+    parser.add_argument("--layout", type=Path, default=None, metavar="FILE",
+                        help="write the Foxglove layout to FILE (- for stdout) and exit")
+    return parser
+
+
+async def serve(args: argparse.Namespace, *,
+                ready: Callable[[FoxgloveServer], None] | None = None) -> int:
+    async with attached_bus(args) as bus:
+        server = FoxgloveServer(bus=bus, port=args.port, host=args.foxglove_host,
+                                name=args.name)
+        await server.start()
+        try:
+            print(f"{PROG}: robot {bus.robot!r} live on {server.url} (Foxglove: open "
+                  f"connection → Foxglove WebSocket)", flush=True)
+            if ready is not None:
+                ready(server)
+            await run_until_stopped(args.duration)
+            return 0
+        finally:
+            await server.aclose()
+            print(f"{PROG}: {server.stats.summary()}", flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.layout is not None:
+        text = layout_json()
+        if str(args.layout) == "-":
+            print(text, end="")
+        else:
+            args.layout.write_text(text, encoding="utf-8")
+        return 0
+    logging.basicConfig(level="WARNING", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run_main(lambda: serve(args), prog=PROG)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,574 @@
+"""Replaying a recording onto the bus: ``python -m ubf_async.replay FILE.mcap``.
+
+A recording of :mod:`ubf_async.tools.record` is published back with its **original bytes** and
+**original timing**: message ``i`` goes out ``(log_timeᵢ − log_time₀) / K`` wall seconds after
+the first at ``--speed K`` (1 by default), or as fast as the bus takes them with ``--fast``.
+A simulated run's recording carries the simulator's clock (``ubf/<robot>/clock``), so a fresh
+controller that follows it — ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time`` —
+runs on the recorded simulated time, whatever the pace.
+
+By default only what a controller **takes in** is replayed: sensor samples, remote votes and
+the clock (``sensor/**``, ``vote/**``, ``clock``). The commands, traces, heartbeats and status
+of the recorded run are what a re-run produces, so they are left out (``--only`` chooses other
+keys, relative to ``ubf/<robot>/``). The messages go to the keys of the robot recorded in the
+file (its ``ubf_async`` metadata), or of ``--robot`` when given.
+
+The recording's first clock sample goes out first: a simulator sends each instant's clock
+after that instant's samples, so a recording that starts mid-run (a recorder attached to a
+running robot) would otherwise begin with samples stamped ahead of a follower's clock, which
+has no time yet.
+
+A paced replay that falls behind the recorded timing says so on stderr as soon as it is
+:data:`WARN_BEHIND_S` behind (and again each time it falls twice as far behind), and in its
+last line, with what held it up meanwhile
+(:class:`Lag`): waiting for a CPU (a busy machine), reading the file, zenoh's ``put``, its
+own computing, or none of those (the process was stopped).
+
+Before the first message goes out the tool waits until the robot is there (it connects to
+``tcp/127.0.0.1:7447``, where ``launch`` listens, unless given ``--connect`` or ``--listen``)
+**and** something subscribes to what it replays: zenoh delivers a sample only to the
+subscribers known when it is put, so a replay into nobody would publish into the void and
+report success. Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
+
+In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
+the re-run's :class:`~ubf_async.runtime.clock.SimClock` and a ``settle`` (the in-process
+transport's), :func:`replay` advances the clock to each message's time itself and waits until
+everything
+delivered has been handled — a deterministic re-run, tick for tick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import os
+import queue
+import sys
+import threading
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel
+
+from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.run import run_main
+from ubf_async.errors import ConfigurationError
+from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
+from ubf_async.net.transport import intersects
+from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, RawPublisher, wait_for_robot
+from ubf_async.runtime.clock import SimClock
+
+log = logging.getLogger(__name__)
+
+CONTROLLER_INPUTS = ("sensor/**", "vote/**", "clock")
+"""What is replayed by default: what a controller takes in (keys under ``ubf/<robot>/``)."""
+CLOCK_LOOKAHEAD = 1000
+CLOCK_LOOKAHEAD_NS = 100_000_000
+"""How far into a recording (messages, recorded time) its first clock sample is looked for,
+to be sent first (:meth:`Recording.__iter__`); a simulator sends one every step."""
+
+
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    key: str
+    payload: bytes
+    log_time_ns: int
+
+
+class Recording:
+    """The messages of an MCAP recording of ``robot`` (``None``: the file's) whose keys match
+    ``only`` (key expressions relative to ``ubf/<robot>/``), in log-time order."""
+
+    def __init__(self, path: Path, *, only: Sequence[str] = CONTROLLER_INPUTS,
+                 robot: str | None = None) -> None:
+        self.path = path
+        try:
+            with path.open("rb") as f:
+                reader = make_reader(f)
+                metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        except (OSError, ValueError, McapError) as exc:
+            raise ConfigurationError(f"{path}: not a readable MCAP recording ({exc})") from None
+        recorded = metadata.get("ubf_async", {}).get("robot")
+        if recorded is None:
+            raise ConfigurationError(f"{path}: not a ubf_async recording (no ubf_async "
+                                     f"metadata)")
+        self.recorded_robot = recorded
+        self.robot = robot or recorded
+        self.simulated = metadata["ubf_async"].get("clock") == "simulated"
+        self._from = f"ubf/{recorded}/"
+        self._patterns = [self._from + o.strip("/") for o in only]
+        clock = self._from + "clock"
+        self._clock_key = (f"ubf/{self.robot}/clock"
+                           if any(intersects(p, clock) for p in self._patterns) else None)
+
+    def _replayed_on(self, channel: Channel) -> str | None:
+        """The key a recorded channel's messages are replayed on, or ``None``: not replayed
+        (the live view's Foxglove channels are derived; another robot's, or not in
+        ``only``)."""
+        topic = channel.topic
+        if (channel.message_encoding != "msgpack" or not topic.startswith(self._from)
+                or not any(intersects(p, topic) for p in self._patterns)):
+            return None
+        return f"ubf/{self.robot}/{topic[len(self._from):]}"
+
+    def __iter__(self) -> Iterator[Recorded]:
+        """The messages in log-time order, except that the first clock sample (when the clock
+        is replayed) comes first, at the first message's time: a simulator sends an instant's
+        clock after its samples, and a follower that has no time yet would find those samples
+        ahead of its clock."""
+        messages = self._messages()
+        if self._clock_key is None:
+            yield from messages
+            return
+        held: list[Recorded] = []
+        for message in messages:
+            if message.key == self._clock_key:
+                start = held[0].log_time_ns if held else message.log_time_ns
+                yield Recorded(message.key, message.payload, start)
+                yield from held
+                break
+            held.append(message)
+            if (len(held) >= CLOCK_LOOKAHEAD
+                    or message.log_time_ns - held[0].log_time_ns > CLOCK_LOOKAHEAD_NS):
+                yield from held  # no clock near the start: nothing to move
+                break
+        else:
+            yield from held
+            return
+        yield from messages
+
+    def _messages(self) -> Iterator[Recorded]:
+        replayed_on: dict[int, str | None] = {}  # by channel id: decided once per channel
+        with self.path.open("rb") as f:
+            for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+                if channel.id not in replayed_on:
+                    replayed_on[channel.id] = self._replayed_on(channel)
+                key = replayed_on[channel.id]
+                if key is not None:
+                    yield Recorded(key, message.data, message.log_time)
+
+    def keys(self) -> list[str]:
+        """The keys (under ``ubf/<robot>/``) this recording publishes on, sorted. Reads the
+        file's summary; a file without one (a killed recorder's) is read through."""
+        with self.path.open("rb") as f:
+            summary = make_reader(f).get_summary()
+        if summary is None:
+            return sorted({m.key for m in self})
+        replayed = (self._replayed_on(c) for c in summary.channels.values())
+        return sorted({key for key in replayed if key is not None})
+
+    async def read_ahead(self, *, batch: int = 256, batches: int = 8,
+                         times: ThreadTimes | None = None) -> AsyncIterator[Recorded]:
+        """:meth:`__iter__` with the file read and decompressed on a thread (never on the
+        event loop), at most ``batches`` × ``batch`` messages ahead of the consumer. The
+        reading thread notes its times in ``times`` after each batch."""
+        ahead: queue.Queue[list[Recorded] | BaseException | None] = queue.Queue(batches)
+        stop = threading.Event()
+
+        def put(item: list[Recorded] | BaseException | None) -> bool:
+            while not stop.is_set():  # bounded, and called off when the consumer leaves
+                try:
+                    ahead.put(item, timeout=0.1)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+
+        def read() -> None:
+            cpu_wait = _CpuWait()  # this thread's
+
+            def note() -> None:
+                if times is not None:
+                    times.cpu_s, times.cpu_wait_s = time.thread_time(), cpu_wait.seconds()
+
+            try:
+                chunk: list[Recorded] = []
+                for message in self:
+                    chunk.append(message)
+                    if len(chunk) == batch:
+                        note()
+                        if not put(chunk):
+                            return
+                        chunk = []
+                note()
+                if chunk and not put(chunk):
+                    return
+                put(None)
+            except BaseException as exc:  # handed over: raised on the loop, in the consumer
+                put(exc)
+            finally:
+                cpu_wait.close()
+
+        reader = threading.Thread(target=read, name=f"replay:{self.path.name}", daemon=True)
+        reader.start()
+        try:
+            while True:
+                item = await asyncio.to_thread(ahead.get)
+                if item is None:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                for message in item:
+                    yield message
+        finally:
+            stop.set()
+            # Wake a get still waiting in its worker thread (a cancelled replay), so that the
+            # loop's executor can shut down; a full queue has nobody waiting on it.
+            with contextlib.suppress(queue.Full):
+                ahead.put_nowait(None)
+
+
+Settle = Callable[[], Awaitable[None]]
+
+
+@dataclass
+class ThreadTimes:
+    """A thread's CPU time and its wait for a CPU (:class:`_CpuWait`; ``None`` where not
+    measurable), as it last noted them, for another thread to read."""
+
+    cpu_s: float = 0.0
+    cpu_wait_s: float | None = 0.0
+
+
+WARN_BEHIND_S = 0.1
+"""How far behind the recorded timing a paced replay falls before it says why (five periods
+of a 50 Hz controller that follows the replayed clock: it sees its time jump by as much)."""
+
+
+class _CpuWait:
+    """How long the calling thread has waited for a CPU while ready to run (Linux's
+    ``/proc/thread-self/schedstat``, second field); ``None`` where that is not available."""
+
+    def __init__(self) -> None:
+        try:
+            self._fd: int | None = os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+        except (OSError, AttributeError):
+            self._fd = None
+
+    def seconds(self) -> float | None:
+        if self._fd is None:
+            return None
+        try:
+            return int(os.pread(self._fd, 128, 0).split()[1]) / 1e9
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+@dataclass(frozen=True, slots=True)
+class _Since:
+    """Where the replay stood at a moment: its thread's times and the reader's."""
+
+    at_s: float
+    cpu_wait_s: float | None
+    computing_s: float
+    waited_for_reader_s: float
+    publishing_s: float
+    reader_cpu_s: float
+    reader_cpu_wait_s: float | None
+
+    def __sub__(self, then: _Since) -> _Since:
+        def minus(a: float | None, b: float | None) -> float | None:
+            return None if a is None or b is None else a - b
+
+        return _Since(self.at_s - then.at_s, minus(self.cpu_wait_s, then.cpu_wait_s),
+                      self.computing_s - then.computing_s,
+                      self.waited_for_reader_s - then.waited_for_reader_s,
+                      self.publishing_s - then.publishing_s,
+                      self.reader_cpu_s - then.reader_cpu_s,
+                      minus(self.reader_cpu_wait_s, then.reader_cpu_wait_s))
+
+
+@dataclass(frozen=True, slots=True)
+class Lag:
+    """How far a paced replay fell behind, and what held it up since it was last on time
+    (``elapsed_s``)."""
+
+    behind_s: float
+    at_s: float
+    """When, in the recording's time from its first message."""
+    elapsed_s: float
+    cpu_wait_s: float | None
+    """Ready to run but waiting for a CPU, the replay's thread or its reader's while it was
+    waited for: the machine is busy (``None``: not measurable here)."""
+    computing_s: float
+    """The replay's thread on the CPU: its own work."""
+    reading_s: float
+    """Waiting for the reading thread while it read and decompressed the file."""
+    publishing_s: float
+    """Inside zenoh's ``put``: the network or the receivers did not take the messages."""
+
+    @classmethod
+    def of(cls, behind_s: float, at_s: float, spent: _Since) -> Lag:
+        """From what was ``spent`` since the replay was last on time. Waiting for the reader
+        counts as reading only while the reader ran, and as waiting for a CPU while it
+        waited for one; the rest of that wait is left unexplained (a stopped process)."""
+        waited = spent.waited_for_reader_s
+        reading = min(waited, max(0.0, spent.reader_cpu_s))
+        cpu_wait = spent.cpu_wait_s
+        if cpu_wait is not None and spent.reader_cpu_wait_s is not None:
+            cpu_wait += min(waited - reading, max(0.0, spent.reader_cpu_wait_s))
+            # Both threads may have waited at once: no more than the time left unexplained.
+            cpu_wait = min(cpu_wait, max(0.0, spent.at_s - reading - spent.computing_s
+                                         - spent.publishing_s))
+        return cls(behind_s=behind_s, at_s=at_s, elapsed_s=spent.at_s, cpu_wait_s=cpu_wait,
+                   computing_s=spent.computing_s, reading_s=reading,
+                   publishing_s=spent.publishing_s)
+
+    def cause(self) -> str:
+        """What held the replay up, largest first, each part that counts (≥ 10 % of the
+        time): one clause each."""
+        parts: list[tuple[float, str]] = []
+        if self.cpu_wait_s is not None:
+            cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+                os.cpu_count() or 1)
+            load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+            parts.append((self.cpu_wait_s,
+                          f"waited {_ms(self.cpu_wait_s)} for a CPU (the machine is busy: "
+                          f"load average {load:.1f} on {cores} "
+                          f"{'core' if cores == 1 else 'cores'})"))
+        parts.append((self.reading_s, f"waited {_ms(self.reading_s)} for the file to be read and "
+                                            f"decompressed"))
+        parts.append((self.publishing_s,
+                      f"spent {_ms(self.publishing_s)} in zenoh's put (the network or the "
+                      f"receivers did not take the messages as fast)"))
+        parts.append((self.computing_s, f"computed for {_ms(self.computing_s)}"))
+        rest = self.elapsed_s - sum(s for s, _ in parts)
+        parts.append((rest, f"neither ran nor waited for a CPU for {_ms(rest)} (it was "
+                            f"stopped — Ctrl-Z, a debugger, a suspended machine — or held up "
+                            f"by another of its threads)"
+                      if self.cpu_wait_s is not None else
+                      f"did not run for {_ms(rest)} (a busy machine, or it was stopped)"))
+        counted = sorted((p for p in parts if p[0] >= max(0.1 * self.elapsed_s, 0.005)),
+                         key=lambda p: -p[0])
+        if not counted:
+            return "nothing measured stands out"
+        return "meanwhile this process " + "; it ".join(text for _, text in counted)
+
+    def describe(self) -> str:
+        return (f"{_ms(self.behind_s)} behind the recorded timing, {self.at_s:.1f} s into the "
+                f"recording: {self.cause()}")
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.0f} ms"
+
+
+@dataclass
+class ReplayStats:
+    published: int = 0
+    late_s: float = 0.0
+    """How far behind the recording's timing the replay fell at worst (paced replays)."""
+    lag: Lag | None = None
+    """What held it up then, when that was at least :data:`WARN_BEHIND_S`."""
+
+
+async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
+                 clock: SimClock | None = None, settle: Settle | None = None,
+                 on_behind: Callable[[Lag], None] | None = None) -> ReplayStats:
+    """Publish ``recording`` on ``bus``: paced at ``speed`` × the recorded timing (``None``:
+    as fast as possible). With ``clock``, each message is published at its recorded time on
+    that clock (advanced here); with ``settle``, each message is handled before the next.
+    A paced replay calls ``on_behind`` when it first falls :data:`WARN_BEHIND_S` behind, and
+    again each time it falls twice as far behind as when it last did (``stats.lag`` keeps
+    the worst)."""
+    if speed is not None and not speed > 0:
+        raise ConfigurationError(f"speed must be > 0, got {speed}")
+    publishers: dict[str, RawPublisher] = {}
+    stats = ReplayStats()
+    first_ns: int | None = None
+    wall_start = 0.0
+    cpu_wait = _CpuWait()
+    reader = ThreadTimes()
+    waited_for_reader_s = publishing_s = 0.0
+    monotonic = time.monotonic
+    on_time: _Since | None = None
+    warn_at_s = WARN_BEHIND_S
+
+    def now_since(at_s: float) -> _Since:
+        return _Since(at_s, cpu_wait.seconds(), time.thread_time(), waited_for_reader_s,
+                      publishing_s, reader.cpu_s, reader.cpu_wait_s)
+
+    asked_s = monotonic()
+    try:
+        async for message in recording.read_ahead(times=reader):
+            now = monotonic()
+            waited_for_reader_s += now - asked_s
+            if first_ns is None:
+                # The schedule starts with the first message in hand, not before the file
+                # was opened: reading the first chunk is not lateness.
+                first_ns, wall_start = message.log_time_ns, now
+                on_time = now_since(now)
+            if speed is not None:
+                due = wall_start + (message.log_time_ns - first_ns) / 1e9 / speed
+                delay = due - now
+                if delay > 0:
+                    on_time = now_since(due)  # what happens from here on is lateness
+                    await asyncio.sleep(delay)
+                elif -delay > stats.late_s:
+                    stats.late_s = -delay
+                    if -delay >= WARN_BEHIND_S and on_time is not None:
+                        stats.lag = Lag.of(-delay, (message.log_time_ns - first_ns) / 1e9,
+                                           now_since(now) - on_time)
+                        if -delay >= warn_at_s and on_behind is not None:
+                            warn_at_s = 2 * -delay  # a few lines however late it gets
+                            on_behind(stats.lag)
+            if clock is not None and message.log_time_ns > clock.now_ns():
+                clock.advance_to(message.log_time_ns)
+                if settle is not None:
+                    await settle()  # what was due by then runs before the message arrives
+            publisher = publishers.get(message.key)
+            if publisher is None:
+                publisher = publishers[message.key] = bus.raw_publisher(message.key)
+            put_s = monotonic()
+            publisher.put(message.payload)
+            publishing_s += monotonic() - put_s
+            stats.published += 1
+            if settle is not None:
+                await settle()
+            elif speed is None and stats.published % 64 == 0:
+                await asyncio.sleep(0)  # let the loop breathe
+            asked_s = monotonic()
+    finally:
+        cpu_wait.close()
+        for publisher in publishers.values():
+            publisher.close()
+    return stats
+
+
+# -- python -m ubf_async.replay --------------------------------------------------------------
+
+PROG = "python -m ubf_async.replay"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, formatter_class=HelpFormatter,
+        description="Publish an MCAP recording (python -m ubf_async.record, launch --record) "
+                    "back onto the bus with its original bytes and timing, so a controller "
+                    "or a behaviour can be re-run on recorded inputs (docs/recording.md). A "
+                    "simulated run's clock is replayed too: re-run the controller with "
+                    "'python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time'.")
+    parser.add_argument("file", type=Path, metavar="FILE.mcap")
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN],
+                             robot_elsewhere="the robot recorded in the file")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=float, default=1.0, metavar="K",
+                      help="K times the recorded pace")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    parser.add_argument("--only", default=",".join(CONTROLLER_INPUTS), metavar="KEYS",
+                        help="comma-separated key expressions under ubf/<robot>/ to replay "
+                             "(default: what a controller takes in; '**' for everything)")
+    parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
+                        metavar="S",
+                        help="how long to wait for the robot and for a subscriber of what is "
+                             "replayed before giving up (exit status 2)")
+    return parser
+
+
+PROBE_SCHEMA = "replay.probe"
+"""The schema named by the publishers :func:`wait_for_listeners` declares to learn who
+subscribes (they never publish)."""
+SETTLE_S = 1.0
+"""Once a key has a subscriber, how long the others get to show theirs (a robot starting up
+declares its subscriptions within milliseconds of each other)."""
+
+
+async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
+                             settle_s: float = SETTLE_S, poll_s: float = 0.01) -> list[str]:
+    """Wait until something subscribes to ``keys``: return as soon as every key has a
+    subscriber, or ``settle_s`` after the first one had (the keys still without one are
+    returned). :class:`~ubf_async.net.options.NoRobotError` when none has after ``timeout_s``.
+
+    zenoh delivers a sample only to the subscribers its publisher knows when it is put
+    (declarations travel asynchronously), so a replay that started before the robot's
+    subscriptions had arrived would publish into nothing."""
+    probes = [bus.publisher(key, PROBE_SCHEMA) for key in keys]
+
+    def missing() -> list[str]:
+        return [p.key for p in probes if not p.has_subscribers()]
+
+    # Polling zenoh's matching status, as Publisher.wait_for_subscribers does.
+    try:
+        deadline = time.monotonic() + timeout_s
+        while (unheard := missing()) and len(unheard) == len(probes):
+            if time.monotonic() >= deadline:
+                raise NoRobotError(
+                    f"nobody subscribes to what this would replay ({len(keys)} keys under "
+                    f"ubf/{bus.robot}/: {_some(keys, bus.keys.prefix)}) within "
+                    f"{timeout_s:g}s: start the "
+                    f"robot to feed first, e.g. `python -m ubf_async.launch ROBOT_FILE "
+                    f"--no-sim --sim-time`, and check --connect and --robot")
+            await asyncio.sleep(poll_s)
+        settled = time.monotonic() + settle_s  # one has a subscriber: the others' chance
+        while unheard and time.monotonic() < settled:
+            await asyncio.sleep(poll_s)
+            unheard = missing()
+        return unheard
+    finally:
+        for probe in probes:
+            probe.close()
+
+
+async def _main(args: argparse.Namespace) -> int:
+    only = [k for k in args.only.split(",") if k.strip()]
+    recording = await asyncio.to_thread(Recording, args.file, only=only, robot=args.robot)
+    keys = await asyncio.to_thread(recording.keys)
+    if not keys:
+        raise ConfigurationError(f"{args.file}: nothing to replay: no message of robot "
+                                 f"{recording.recorded_robot!r} on {', '.join(only)}")
+    args.robot = recording.robot  # --robot, else the file's
+    options = connection_options(args)
+    bus = await Bus.open(options)
+    try:
+        await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
+        unheard = await wait_for_listeners(bus, keys, timeout_s=args.wait_for_robot_s)
+        print(f"{PROG}: replaying {args.file} onto robot {recording.robot!r} "
+              f"({'as fast as possible' if args.fast else f'{args.speed:g}x'}; "
+              f"{', '.join(only)}: {len(keys)} keys"
+              + (f", {len(unheard)} with no subscriber: {_some(unheard, bus.keys.prefix)}"
+                 if unheard else "") + ")", flush=True)
+        stats = await replay(recording, bus=bus, speed=None if args.fast else args.speed,
+                             on_behind=_warn_behind)
+        print(f"{PROG}: {stats.published} messages replayed"
+              + (f", at worst {stats.late_s * 1e3:.0f} ms behind" if stats.late_s > 0.01
+                 else "")
+              + (f", {stats.lag.at_s:.1f} s into the recording: {stats.lag.cause()}"
+                 if stats.lag is not None else ""), flush=True)
+        return 0
+    finally:
+        await bus.aclose()
+
+
+def _warn_behind(lag: Lag) -> None:
+    print(f"{PROG}: falling behind: {lag.describe()}. Going on: late messages go out at once, "
+          f"in order, so a controller following the replayed clock sees its time jump (its "
+          f"status counts the ticks it skips as overruns)", file=sys.stderr, flush=True)
+
+
+def _some(keys: Sequence[str], prefix: str, shown: int = 3) -> str:
+    short = [k.removeprefix(prefix + "/") for k in keys[:shown]]
+    return ", ".join(short) + (f" and {len(keys) - shown} more" if len(keys) > shown else "")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.fast and not args.speed > 0:
+        parser.error(f"--speed must be > 0, got {args.speed:g}")
+    logging.basicConfig(level="WARNING", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run_main(lambda: _main(args), prog=PROG)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

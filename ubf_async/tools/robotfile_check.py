@@ -1,0 +1,60 @@
+"""``python -m ubf_async.robotfile``: check robot files, print their JSON Schema, list the
+plug-ins. The robot files themselves are :mod:`ubf_async.assembly.robotfile`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from ubf_async import __version__
+from ubf_async.assembly import registry
+from ubf_async.assembly.robotfile import load_robot, schema_text
+from ubf_async.errors import ConfigurationError
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m ubf_async.robotfile",
+        description="Check robot files, print their JSON Schema, list the plug-ins.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    check = sub.add_parser("check", help="load robot files as launch would; print the tree")
+    check.add_argument("files", nargs="+", metavar="FILE")
+    schema = sub.add_parser("schema", help="print the JSON Schema (or write it with --write)")
+    schema.add_argument("--write", type=Path, default=None, metavar="FILE")
+    sub.add_parser("plugins", help="list the registered behaviours, arbiters, devices …")
+    args = parser.parse_args(argv)
+    if args.command == "schema":
+        if args.write is None:
+            sys.stdout.write(schema_text())
+        else:
+            args.write.write_text(schema_text(), encoding="utf-8")
+        return 0
+    if args.command == "plugins":
+        for reg in (registry.BEHAVIORS, registry.ARBITERS, registry.PREDICATES,
+                    registry.DEVICES, registry.BACKENDS, registry.SIMULATORS):
+            print(f"{reg.group}:")
+            for name in reg.names():
+                print(f"  {name:<20} {reg.origin(name)}")
+        return 0
+    status = 0
+    for file in args.files:
+        try:
+            robot = load_robot(file)
+        except ConfigurationError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            status = 1
+            continue
+        print(f"{robot.source}: robot {robot.name!r}, {len(robot.devices)} device(s)"
+              + (f" {', '.join(f'{d.kind}/{d.name} ({d.backend})' for d in robot.devices)}"
+                 if robot.devices else ""))
+        print(robot.root.render_tree())
+        for slot in robot.remotes:
+            print(f"  remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]")
+    return status
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

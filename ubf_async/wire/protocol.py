@@ -1,0 +1,285 @@
+"""The wire protocol: key expressions and the msgpack codec (version 1).
+
+Everything another process needs to attach to a robot is here and in ``docs/protocol.md``;
+this module is its executable form. Pure functions, no zenoh: the bus module moves bytes,
+this one turns them into validated messages and back.
+
+Every payload is a msgpack map (the *envelope*)::
+
+    {"schema": "range", "v": 1, "stamp_ns": 1234, "seq": 7, "period_s": 0.05,
+     "pub": 81985529216486895, "data": {...}}
+
+(``period_s`` and ``pub`` are optional.)
+
+What each schema's ``data`` holds is declared once, with its constraints, in
+:mod:`ubf_async.wire.topics`; this module decodes and encodes through those types with msgspec.
+Decoding treats every payload as untrusted: a size limit, every decoder error caught, types,
+ranges, lengths and finiteness checked, nesting bounded. Whatever is wrong, the only
+exception that escapes is :class:`ProtocolError`. Data of a schema not declared there (a
+new kind of sensor) is checked generically (:func:`plain`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping
+from typing import Annotated, Any, Generic, TypeVar, overload
+
+import msgspec
+from msgspec import Meta
+
+# Defined with the rest of the exception tree; re-exported here, where it has always been.
+from ubf_async import throttle
+from ubf_async.errors import ProtocolError as ProtocolError
+
+# The key builders live below topics (which needs them) and are re-exported here, where they
+# have always been.
+from ubf_async.wire.keys import ROOT as ROOT
+from ubf_async.wire.keys import Keys as Keys
+from ubf_async.wire.keys import check_segment as check_segment
+from ubf_async.wire.topics import (
+    BY_SCHEMA,
+    INT64_MAX,
+    MAX_CONTAINER_LEN,
+    MAX_DEPTH,
+    MAX_NAME_CHARS,
+    MAX_STR_LEN,
+    PlainData,
+    StampNs,
+    Topic,
+    plain,
+)
+
+__all__ = ["INT64_MAX", "MAX_CONTAINER_LEN", "MAX_DEPTH", "MAX_NAME_CHARS", "MAX_STR_LEN",
+           "Keys", "Message", "ProtocolError", "check_segment", "clip", "decode", "encode",
+           "plain"]
+
+PROTOCOL_VERSION = 1
+MAX_PAYLOAD_BYTES = 256 * 1024
+
+
+def clip(value: str, max_len: int = MAX_NAME_CHARS) -> str:
+    """``value`` cut to ``max_len`` characters (the last one an ellipsis when cut): for names
+    copied into outgoing messages, which must never fail their own validation."""
+    return value if len(value) <= max_len else value[: max_len - 1] + "…"
+
+
+
+# ---------------------------------------------------------------------------------------------
+# The envelope and the codec
+
+T = TypeVar("T")
+
+
+class Message(msgspec.Struct, Generic[T], frozen=True, kw_only=True, gc=False):
+    """A decoded, validated payload. ``data`` is the topic's typed message
+    (:mod:`ubf_async.wire.topics`), or a plain map for a schema not declared there. (A msgspec
+    Struct rather than a dataclass: it is made for every sample, and is cheaper to make.)"""
+
+    schema: str
+    stamp_ns: int
+    seq: int
+    data: T
+    period_s: float | None = None
+    version: int = PROTOCOL_VERSION
+    pub: int | None = None
+    """The publisher's identity (random, new for every publisher instance) or ``None`` for a
+    client that does not send one; see :mod:`ubf_async.runtime.ordering`."""
+
+
+PublisherId = Annotated[int, Meta(ge=1, le=INT64_MAX)]
+
+
+MAX_SCHEMA_CHARS = 64
+
+
+class _Envelope(msgspec.Struct, forbid_unknown_fields=True, omit_defaults=True):
+    schema: Annotated[str, Meta(min_length=1, max_length=MAX_SCHEMA_CHARS)]
+    v: Annotated[int, Meta(ge=1, le=1000)]
+    stamp_ns: StampNs
+    seq: Annotated[int, Meta(ge=0, le=INT64_MAX)]
+    data: msgspec.Raw
+    period_s: Annotated[float, Meta(ge=1e-6, le=3600.0)] | None = None
+    pub: PublisherId | None = None
+
+
+_ENVELOPE = msgspec.msgpack.Decoder(_Envelope)
+_ENCODER = msgspec.msgpack.Encoder()
+_DECODERS: dict[str, msgspec.msgpack.Decoder[Any]] = {
+    schema: msgspec.msgpack.Decoder(topic.type)
+    for schema, topic in BY_SCHEMA.items() if topic.type is not PlainData
+}
+_GENERIC = msgspec.msgpack.Decoder()
+
+
+def _where(exc: Exception, part: str) -> str:
+    """msgspec's message with its ``$`` path named after the part decoded."""
+    return str(exc).replace("`$`", f"`{part}`").replace("`$.", f"`{part}.")
+
+
+def decode_data(schema: str, raw: bytes | memoryview | msgspec.Raw) -> Any:
+    """Decode and validate the ``data`` of ``schema`` from its msgpack bytes (raises
+    :class:`ProtocolError` and nothing else)."""
+    decoder = _DECODERS.get(schema)
+    try:
+        if decoder is not None:
+            return decoder.decode(raw)
+        data = _GENERIC.decode(raw)
+    except msgspec.MsgspecError as exc:
+        raise ProtocolError(f"{schema} data: {_where(exc, 'data')}") from None
+    except RecursionError:
+        raise ProtocolError("data nested too deeply") from None
+    except (ValueError, TypeError) as exc:  # raised by a type's own checks
+        raise ProtocolError(f"{schema} data: {exc}") from None
+    if not isinstance(data, dict):
+        raise ProtocolError(f"data: expected a map, got {type(data).__name__}")
+    return plain(data)
+
+
+@overload
+def decode(payload: bytes | bytearray | memoryview, *, topic: Topic[T]) -> Message[T]: ...
+@overload
+def decode(payload: bytes | bytearray | memoryview, *,
+           schema: str | None = None) -> Message[Any]: ...
+def decode(payload: bytes | bytearray | memoryview, *, schema: str | None = None,
+           topic: Topic[Any] | None = None) -> Message[Any]:
+    """Decode an untrusted payload. Raises :class:`ProtocolError` and nothing else.
+
+    ``topic`` (or ``schema``), when given, is what the key requires: a drive key only accepts
+    ``"drive"``, so ``decode(p, topic=DRIVE).data`` is a :class:`~ubf_async.wire.topics.Drive`.
+    """
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    try:
+        envelope = _ENVELOPE.decode(payload)
+    except msgspec.MsgspecError as exc:
+        raise ProtocolError(f"envelope: {_where(exc, 'envelope')}") from None
+    except RecursionError:
+        raise ProtocolError("payload nested too deeply") from None
+    except (ValueError, TypeError) as exc:  # e.g. a string that is not UTF-8
+        raise ProtocolError(f"envelope: {exc}") from None
+    if envelope.v != PROTOCOL_VERSION:
+        raise ProtocolError(f"envelope.v: version {envelope.v} unsupported "
+                            f"(this side speaks {PROTOCOL_VERSION})")
+    expected = topic.schema if topic is not None else schema
+    if expected is not None and envelope.schema != expected:
+        raise ProtocolError(f"envelope.schema: expected {expected!r}, got {envelope.schema!r}")
+    return Message(
+        schema=envelope.schema,
+        stamp_ns=envelope.stamp_ns,
+        seq=envelope.seq,
+        data=decode_data(envelope.schema, envelope.data),
+        period_s=envelope.period_s,
+        pub=envelope.pub,
+    )
+
+
+def encode_data(schema: str, data: Any) -> bytes:
+    """The msgpack bytes of ``data`` for ``schema``, validated exactly as a receiver will:
+    ``data`` is the topic's message (or a map of its fields; a plain map for a schema not
+    declared in :mod:`ubf_async.wire.topics`). Raises :class:`ProtocolError`."""
+    topic = BY_SCHEMA.get(schema)
+    kind = topic.type if topic is not None else PlainData
+    try:
+        if kind is PlainData:
+            if not isinstance(data, Mapping):
+                raise ProtocolError(f"{schema} data: expected a map, got {type(data).__name__}")
+            return _ENCODER.encode(plain(dict(data)))
+        if isinstance(data, kind):
+            raw = _ENCODER.encode(data)
+            _DECODERS[schema].decode(raw)  # the constraints, as the receiver checks them
+            return raw
+        if isinstance(data, Mapping):
+            return _ENCODER.encode(msgspec.convert(dict(data), kind))
+    except msgspec.MsgspecError as exc:
+        raise ProtocolError(f"{schema} data: {_where(exc, 'data')}") from None
+    except RecursionError:
+        raise ProtocolError(f"{schema} data: nested too deeply") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # OverflowError: an int beyond uint64
+        raise ProtocolError(f"{schema} data: {exc}") from None
+    raise ProtocolError(f"{schema} data: expected {kind.__name__} or a map of its fields, "
+                        f"got {type(data).__name__}")
+
+
+def encode(
+    schema: str | Topic[Any],
+    data: Any,
+    *,
+    stamp_ns: int,
+    seq: int,
+    period_s: float | None = None,
+    pub: int | None = None,
+) -> bytes:
+    """Build a payload of ``schema`` (a name or a :class:`~ubf_async.wire.topics.Topic`). The data
+    is validated like incoming data, so this side never publishes what it would itself
+    reject (raises :class:`ProtocolError`). ``pub`` is the publisher's identity
+    (:class:`~ubf_async.runtime.bus.Publisher` sets it)."""
+    name = schema.schema if isinstance(schema, Topic) else _check_schema(schema)
+    raw = encode_data(name, data)
+    return encode_raw(name, raw, stamp_ns=stamp_ns, seq=seq, period_s=period_s, pub=pub)
+
+
+def encode_raw(schema: str, raw: bytes, *, stamp_ns: int, seq: int,
+               period_s: float | None = None, pub: int | None = None) -> bytes:
+    """An envelope around data already encoded and validated by :func:`encode_data`."""
+    _check_schema(schema)
+    if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or not (
+            0 <= stamp_ns <= INT64_MAX):
+        raise ProtocolError(f"stamp_ns: {stamp_ns!r} is not an integer in [0, 2**63-1]")
+    if isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= INT64_MAX:
+        raise ProtocolError(f"seq: {seq!r} is not an integer in [0, 2**63-1]")
+    if pub is not None and (isinstance(pub, bool) or not isinstance(pub, int)
+                            or not 1 <= pub <= INT64_MAX):
+        raise ProtocolError(f"pub: {pub!r} is not an integer in [1, 2**63-1]")
+    if period_s is not None and (isinstance(period_s, bool)
+                                 or not isinstance(period_s, int | float)
+                                 or not 1e-6 <= period_s <= 3600.0):
+        raise ProtocolError(f"period_s: {period_s!r} is not a number in [1e-6, 3600]")
+    payload = _ENCODER.encode(_Envelope(
+        schema=schema, v=PROTOCOL_VERSION, stamp_ns=stamp_ns, seq=seq, data=msgspec.Raw(raw),
+        period_s=None if period_s is None else float(period_s), pub=pub))
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    return payload
+
+
+def _check_schema(schema: object) -> str:
+    """``schema`` if it is a name receivers accept in an envelope."""
+    if not isinstance(schema, str) or not 0 < len(schema) <= MAX_SCHEMA_CHARS:
+        raise ProtocolError(f"schema: {schema!r:.80} is not a string of 1 to "
+                            f"{MAX_SCHEMA_CHARS} characters")
+    return schema
+
+
+# -- decoding what arrives, counting what is refused --------------------------------------------
+
+log = logging.getLogger(__name__)
+
+MAX_COUNTED_KEYS = 1024
+"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
+
+
+def decode_or_count(
+    payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
+    topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
+    on_error: Callable[[ProtocolError], None] | None = None,
+) -> Any | None:
+    """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
+    :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
+    per key), pass it to ``on_error`` if given, and return ``None``. ``counter`` keeps at most
+    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
+    try:
+        if decoder is not None:
+            return decoder(payload)
+        return decode(payload, topic=topic) if topic is not None else decode(payload,
+                                                                             schema=schema)
+    except ProtocolError as exc:
+        n = counter.get(key, 0) + 1
+        counter[key] = n
+        if len(counter) > MAX_COUNTED_KEYS:
+            del counter[next(iter(counter))]
+        if throttle.first_and_every(n):
+            log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
+        if on_error is not None:
+            on_error(exc)
+        return None
