@@ -147,6 +147,10 @@ NOT_RUN = {
     "python -m bench.latency --json out.json": "the full run (see python -m bench.latency)",
     "python -m bench.latency --only reflex obstacle":
         "146 s measured here (see python -m bench.latency)",
+    "python -m bench.latency --only loops":
+        "each event loop in interleaved rounds: minutes (see python -m bench.latency)",
+    "python -m bench.latency --only loops --rounds 12":
+        "each event loop, 12 interleaved rounds: minutes (see python -m bench.latency)",
     "python -m bench.realtime --runs 5 --duration 20":
         "five runs of 20 simulated s, each also without the camera and flat out: minutes",
     "python -m ubf_async.inspector echo ubf/pi-whegs/sensor/encoders/wheels":
