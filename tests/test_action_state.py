@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from ubf_async import Action, Reading, SeekColor, State, clamp_command
+from ubf_async import Action, ColorBox, Reading, State, clamp_command
 
 
 def test_unset_is_distinguishable_from_zero() -> None:
@@ -36,7 +36,7 @@ def test_invalid_actions_are_refused(kwargs) -> None:
 
 def test_seek_color_normalised_and_describe() -> None:
     a = Action(speed=40, turn=-30, seek_color=((90, 20, 40), (255, 120, 160)))
-    assert isinstance(a.seek_color, SeekColor)
+    assert isinstance(a.seek_color, ColorBox)
     assert a.describe() == "speed=+40 turn=-30 seek_color=[90, 20, 40]..[255, 120, 160] vote=1"
 
 

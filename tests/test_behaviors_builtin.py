@@ -13,7 +13,7 @@ import pytest
 
 from ubf_async.assembly import registry
 from ubf_async.assembly.plugins import conditional, predicate_from
-from ubf_async.behaviors import Avoid, Chase, Drive, Flee, Search, Stop
+from ubf_async.behaviors import Avoid, Chase, ConstantDrive, Flee, Search, Stop
 from ubf_async.core.action import Action
 from ubf_async.core.arbiters import Conditional, MonteCarlo
 from ubf_async.core.behavior import Arbiter, Behavior, Composite, FunctionBehavior
@@ -24,7 +24,7 @@ INJECTED = frozenset({"name", "rng"})
 ARBITER_NAMES = ("HighestActivation", "HighestPriority", "PriorityMerge", "PriorityFusion",
                  "UtilityFusion", "CommandFusion", "MonteCarlo", "Conditional")
 BEHAVIOR_CLASSES = {"search": Search, "chase": Chase, "flee": Flee, "avoid": Avoid,
-                    "stop": Stop, "drive": Drive}
+                    "stop": Stop, "drive": ConstantDrive}
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 

@@ -27,7 +27,7 @@ from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.clockdomain import ClockDomainWatch, foreign_clock
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal
-from ubf_async.services.remote import RemoteBehaviors, Vote
+from ubf_async.services.remote import ReceivedVote, RemoteBehaviors
 from ubf_async.tools.inspector import format_clock_domain
 from ubf_async.wire.protocol import Message, decode
 from ubf_async.wire.topics import Range
@@ -128,8 +128,9 @@ async def test_aggregator_and_votes_report_into_the_controllers_status(robot_bus
     assert not aggregator.ingest("range/wall", sample(WALL_NS, 1), 0)
     assert aggregator.refused[Refusal.FUTURE] == 1
     # This host's CLOCK_MONOTONIC on a vote.
-    vote = Vote(composite="seek_pink_ball", behavior="teleop", action=Action(speed=10.0, vote=1.0),
-                stamp_ns=time.monotonic_ns(), seq=1)
+    vote = ReceivedVote(composite="seek_pink_ball", behavior="teleop",
+                        action=Action(speed=10.0, vote=1.0),
+                        stamp_ns=time.monotonic_ns(), seq=1)
     assert not remotes.accept(vote)
     assert remotes.future  # refused (max_future_s), as before
     status = controller.status()["clock_domain"]

@@ -17,7 +17,7 @@ import pytest
 from components.range.backend import MountPose
 from components.sim.camera_render import render_camera
 from components.sim.ranging import beam_distance_m
-from components.sim.world import ROBOT_COLOR, Arena, Pose2D, World, WorldConfig
+from components.sim.world import ROBOT_COLOR, Arena, World, WorldConfig, WorldPose
 from tests.conftest import eventually, free_port, read_until, spawn, stop
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
@@ -33,7 +33,7 @@ ARENA = Arena(x_min_m=-2, x_max_m=2, y_min_m=-2, y_max_m=2)
 def two_robots(gap_m: float = 0.5) -> World:
     """Robot 0 at the origin facing +x, robot 1 ``gap_m`` ahead facing it."""
     return World(WorldConfig(arena=ARENA, more_robots=(
-        Pose2D(x_m=gap_m, y_m=0.0, heading_rad=math.pi),)))
+        WorldPose(x_m=gap_m, y_m=0.0, heading_rad=math.pi),)))
 
 
 def test_robots_see_each_other_in_ir_and_camera() -> None:

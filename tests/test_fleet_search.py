@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from components.sim.world import Arena, Pose2D, World, WorldConfig
+from components.sim.world import Arena, World, WorldConfig, WorldPose
 from tests.conftest import free_port
 from ubf_async.assembly.devices import build_device
 from ubf_async.assembly.robotfile import load_robot
@@ -82,7 +82,7 @@ async def test_the_robots_of_one_world_share_the_air_and_one_frame() -> None:
     """radio.air: what one robot sends, the others receive, not itself; the encoders of a
     fleet's robot start from its pose in the world."""
     world = World(WorldConfig(arena=Arena(x_min_m=-2, x_max_m=2, y_min_m=-2, y_max_m=2),
-                              more_robots=(Pose2D(x_m=1.0, y_m=0.5), Pose2D(x_m=-1.0))))
+                              more_robots=(WorldPose(x_m=1.0, y_m=0.5), WorldPose(x_m=-1.0))))
     robot = load_robot(str(ROOT / "examples" / "robots" / "fleet-whegs.yaml"))
     radio = next(d for d in robot.devices if d.kind == "radio")
     encoders = next(d for d in robot.devices if d.kind == "encoders")

@@ -16,7 +16,7 @@ import pytest
 import pytest_asyncio
 
 from tests.conftest import as_dict
-from ubf_async.behaviors.basic import Drive
+from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.core.action import Action
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Behavior, Composite
@@ -263,7 +263,7 @@ async def test_a_remote_vote_from_another_bus_attaches_drives_and_detaches_with_
     ctl = Controller(bus=rig.robot, aggregator=agg, root=root, rate_hz=10)
     await rig.start(agg, remotes, ctl)
     host_bus = Bus(transport=rig.net, robot="unit", clock=rig.clock)
-    host = RemoteBehaviorHost(bus=host_bus, behavior=Drive(name="cruise", speed=30.0),
+    host = RemoteBehaviorHost(bus=host_bus, behavior=ConstantDrive(name="cruise", speed=30.0),
                               composite="root", rate_hz=10, ttl_s=1.0)
     await host.start()
     await rig.net.settle()

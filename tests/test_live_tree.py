@@ -20,7 +20,7 @@ import pytest
 import pytest_asyncio
 
 from tests.conftest import eventually, read_until
-from ubf_async.behaviors.basic import Drive
+from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.core.action import Action
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Behavior, Composite
@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.asyncio
 
 
-class Recording(Drive):
+class Recording(ConstantDrive):
     """A constant drive behaviour that records its lifecycle calls."""
 
     def __init__(self, *, name: str, speed: float, vote: float) -> None:
@@ -314,7 +314,7 @@ async def test_load_replaces_the_tree_between_ticks(live: LiveRobot, peer_bus: B
     assert reply["version"] == 1
     assert render_tree_data(reply["tree"]).splitlines() == [
         "second <HighestActivation>",
-        "  spin (Drive) [p=0 w=1]",
+        "  spin (ConstantDrive) [p=0 w=1]",
         "  stop (Stop) [p=3 w=1]",
     ]
     assert reply["slots"] == [{"composite": "second", "name": "teleop", "priority": 9,
@@ -351,7 +351,7 @@ async def test_load_moves_remote_children_to_the_new_tree(
     robot, components = await start_robot(robot_bus, make_tree(), with_remotes=True)
     remotes = robot.remotes
     assert remotes is not None
-    host = RemoteBehaviorHost(bus=peer_bus, behavior=Drive(name="teleop", speed=77, vote=1),
+    host = RemoteBehaviorHost(bus=peer_bus, behavior=ConstantDrive(name="teleop", speed=77, vote=1),
                               composite="root", rate_hz=50.0, priority=10, ttl_s=2.0)
     try:
         await host.start()

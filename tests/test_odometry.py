@@ -6,14 +6,14 @@ import math
 
 import pytest
 
-from components.encoders.odometry import Odometry, Pose2D, wrap_angle
+from components.encoders.odometry import OdometryPose, WheelOdometry, wrap_angle
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 
 R = MINI_WHEGS.wheel_radius_m
 TRACK = MINI_WHEGS.track_width_m
 
 
-def approx_pose(pose: Pose2D, x_m: float, y_m: float, heading_rad: float) -> None:
+def approx_pose(pose: OdometryPose, x_m: float, y_m: float, heading_rad: float) -> None:
     assert pose.x_m == pytest.approx(x_m, abs=1e-12)
     assert pose.y_m == pytest.approx(y_m, abs=1e-12)
     assert pose.heading_rad == pytest.approx(heading_rad, abs=1e-12)
@@ -21,14 +21,14 @@ def approx_pose(pose: Pose2D, x_m: float, y_m: float, heading_rad: float) -> Non
 
 @pytest.mark.parametrize("revolutions", [1, 3, 10])
 def test_straight_run(revolutions: int) -> None:
-    odo = Odometry()
+    odo = WheelOdometry()
     angle = 2 * math.pi * revolutions
     pose = odo.update(angle, angle)
     approx_pose(pose, revolutions * 2 * math.pi * R, 0.0, 0.0)
 
 
 def test_straight_run_backwards_in_steps() -> None:
-    odo = Odometry()
+    odo = WheelOdometry()
     for _ in range(100):
         odo.update(-0.1, -0.1)
     approx_pose(odo.pose, -10 * R, 0.0, 0.0)
@@ -36,13 +36,13 @@ def test_straight_run_backwards_in_steps() -> None:
 
 @pytest.mark.parametrize("wheel_angle", [0.3, 1.0, -0.7])
 def test_turn_in_place(wheel_angle: float) -> None:
-    odo = Odometry()
+    odo = WheelOdometry()
     pose = odo.update(-wheel_angle, wheel_angle)
     approx_pose(pose, 0.0, 0.0, 2 * R * wheel_angle / TRACK)
 
 
 def test_turn_in_place_wraps_heading() -> None:
-    odo = Odometry()
+    odo = WheelOdometry()
     # a half turn and a bit more to the left: heading wraps to just above -π
     wheel_angle = (math.pi + 0.1) * TRACK / (2 * R)
     pose = odo.update(-wheel_angle, wheel_angle)
@@ -66,7 +66,7 @@ def test_quarter_circle_left() -> None:
     d_right = (rho + TRACK / 2) * (math.pi / 2) / R
     assert d_left == pytest.approx(5.497787143782138)
     assert d_right == pytest.approx(10.210176124166829)
-    pose = Odometry().update(d_left, d_right)
+    pose = WheelOdometry().update(d_left, d_right)
     approx_pose(pose, 0.1, 0.1, math.pi / 2)
 
 
@@ -77,7 +77,7 @@ def test_quarter_circle_backwards_from_a_pose() -> None:
     +π/2, so the signed radius is −0.2 m: the centre of the circle is 0.2 m to the robot's
     right, at (1.2, 2.0). A quarter turn about it takes the robot to (1.2, 1.8), facing −x.
     """
-    odo = Odometry(pose=Pose2D(x_m=1.0, y_m=2.0, heading_rad=math.pi / 2))
+    odo = WheelOdometry(pose=OdometryPose(x_m=1.0, y_m=2.0, heading_rad=math.pi / 2))
     rho = 0.2
     d_left = -(rho + TRACK / 2) * (math.pi / 2) / R
     d_right = -(rho - TRACK / 2) * (math.pi / 2) / R
@@ -88,8 +88,8 @@ def test_quarter_circle_backwards_from_a_pose() -> None:
 @pytest.mark.parametrize("steps", [2, 10, 1000])
 def test_many_small_steps_equal_one_big_step(steps: int) -> None:
     d_left, d_right = 7.0, 11.0
-    big = Odometry().update(d_left, d_right)
-    odo = Odometry()
+    big = WheelOdometry().update(d_left, d_right)
+    odo = WheelOdometry()
     for _ in range(steps):
         odo.update(d_left / steps, d_right / steps)
     assert odo.pose.x_m == pytest.approx(big.x_m, abs=1e-9)
@@ -101,17 +101,17 @@ def test_full_circle_returns_home() -> None:
     rho = 0.15
     d_left = (rho - TRACK / 2) * 2 * math.pi / R
     d_right = (rho + TRACK / 2) * 2 * math.pi / R
-    odo = Odometry()
+    odo = WheelOdometry()
     for _ in range(37):
         odo.update(d_left / 37, d_right / 37)
     approx_pose(odo.pose, 0.0, 0.0, 0.0)
 
 
 def test_other_geometry_and_reset() -> None:
-    odo = Odometry(MiniWhegsGeometry(wheel_radius_m=0.05, track_width_m=0.2))
+    odo = WheelOdometry(MiniWhegsGeometry(wheel_radius_m=0.05, track_width_m=0.2))
     odo.update(2.0, 2.0)
     approx_pose(odo.pose, 0.1, 0.0, 0.0)
-    odo.reset(Pose2D(x_m=1.0, y_m=-1.0, heading_rad=3 * math.pi))
+    odo.reset(OdometryPose(x_m=1.0, y_m=-1.0, heading_rad=3 * math.pi))
     approx_pose(odo.pose, 1.0, -1.0, math.pi)
     odo.reset()
     approx_pose(odo.pose, 0.0, 0.0, 0.0)
@@ -127,33 +127,33 @@ def test_wrap_angle() -> None:
 
 def test_bad_input_rejected() -> None:
     with pytest.raises(ValueError, match="finite"):
-        Odometry().update(math.nan, 0.0)
+        WheelOdometry().update(math.nan, 0.0)
     with pytest.raises(ValueError, match="finite"):
-        Odometry().reset(Pose2D(x_m=math.inf))
+        WheelOdometry().reset(OdometryPose(x_m=math.inf))
     with pytest.raises(ValueError, match="positive"):
-        Odometry(MiniWhegsGeometry(track_width_m=0.0))
+        WheelOdometry(MiniWhegsGeometry(track_width_m=0.0))
 
 
 def test_effective_track_scales_the_heading_only() -> None:
     """A skid-steer robot's odometry integrates the heading with its effective track: the
     same wheel rotations turn it track/effective times less and drive it as far."""
-    physical, effective = Odometry(), Odometry(effective_track_m=0.42)
+    physical, effective = WheelOdometry(), WheelOdometry(effective_track_m=0.42)
     assert effective.track_m == 0.42 and physical.track_m == MINI_WHEGS.track_width_m
     for odo in (physical, effective):
         odo.update(-1.0, 1.0)
     assert effective.pose.heading_rad == pytest.approx(
         wrap_angle(physical.pose.heading_rad * MINI_WHEGS.track_width_m / 0.42))
-    a, b = Odometry(), Odometry(effective_track_m=0.42)
+    a, b = WheelOdometry(), WheelOdometry(effective_track_m=0.42)
     assert a.update(2.0, 2.0) == b.update(2.0, 2.0)
     for bad in (0.0, -0.1, math.nan):
         with pytest.raises(ValueError, match="effective_track_m"):
-            Odometry(effective_track_m=bad)
+            WheelOdometry(effective_track_m=bad)
 
 
 def test_unwrapped_heading_counts_full_turns() -> None:
     """Three and a half turns to the left, then one back: the pose's heading wraps, the
     unwrapped heading counts every turn (an error past 180° must stay visible)."""
-    odo = Odometry(pose=Pose2D(heading_rad=0.5))
+    odo = WheelOdometry(pose=OdometryPose(heading_rad=0.5))
     quarter = (math.pi / 2) * TRACK / (2 * R)  # wheel angle for a quarter turn in place
     for _ in range(14):
         odo.update(-quarter, quarter)
@@ -162,6 +162,6 @@ def test_unwrapped_heading_counts_full_turns() -> None:
     for _ in range(4):
         odo.update(quarter, -quarter)
     assert odo.heading_unwrapped_rad == pytest.approx(0.5 + 5 * math.pi)
-    odo.reset(Pose2D(heading_rad=3 * math.pi))
+    odo.reset(OdometryPose(heading_rad=3 * math.pi))
     assert odo.heading_unwrapped_rad == pytest.approx(3 * math.pi)
     assert odo.pose.heading_rad == pytest.approx(math.pi)

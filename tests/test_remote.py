@@ -34,10 +34,10 @@ from ubf_async.runtime.clock import SimClock, WallClock
 from ubf_async.runtime.controller import Controller
 from ubf_async.services.remote import (
     DEFAULT_TTL_S,
+    ReceivedVote,
     RemoteBehavior,
     RemoteBehaviorHost,
     RemoteBehaviors,
-    Vote,
     parse_remote_spec,
     remote_spec,
     vote_data,
@@ -70,12 +70,12 @@ def test_vote_round_trip_keeps_every_action_field() -> None:
                     message="hi", leds=5)
     data = vote_data(action, ttl_s=0.3, priority=10, weight=0.5)
     payload = encode("vote", data, stamp_ns=123, seq=7)
-    vote = Vote.decode(Keys("r"), "ubf/r/vote/seek_pink_ball/teleop", payload)
+    vote = ReceivedVote.decode(Keys("r"), "ubf/r/vote/seek_pink_ball/teleop", payload)
     assert (vote.composite, vote.behavior, vote.stamp_ns, vote.seq) == (
         "seek_pink_ball", "teleop", 123, 7)
     assert vote.action == action
     assert (vote.ttl_s, vote.priority, vote.weight) == (0.3, 10, 0.5)
-    abstain = Vote.decode(Keys("r"), "ubf/r/vote/c/b", encode("vote", vote_data(None),
+    abstain = ReceivedVote.decode(Keys("r"), "ubf/r/vote/c/b", encode("vote", vote_data(None),
                                                                  stamp_ns=1, seq=1))
     assert abstain.action == Action(vote=0) and abstain.action.abstains
     assert (abstain.ttl_s, abstain.priority, abstain.weight) == (None, None, None)

@@ -27,7 +27,7 @@ from components.sim.backends import SimCameraBackend, WorldView, camera_backend
 from components.sim.calibrate import ball_ahead_world
 from components.sim.camera_render import DEFAULT_CAMERA
 from components.sim.render_process import ENV_VAR, RenderProcess, shared_render_process
-from components.sim.world import Arena, BallConfig, Pose2D, RobotView, World, WorldConfig
+from components.sim.world import Arena, BallConfig, RobotView, World, WorldConfig, WorldPose
 from tests.test_sim_camera import busy_arena
 from ubf_async.assembly.simulation import DeviceContext
 
@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _fleet_robot() -> WorldView:
     fleet = World(WorldConfig(arena=Arena(), ball=BallConfig(x_m=0.8, y_m=0.0),
-                              more_robots=(Pose2D(x_m=0.4, y_m=0.1), Pose2D(x_m=-0.5)),
+                              more_robots=(WorldPose(x_m=0.4, y_m=0.1), WorldPose(x_m=-0.5)),
                               seed=9))
     return RobotView(fleet, 2)
 

@@ -20,7 +20,7 @@ import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.component import DEVICES
-from components.sim.world import Arena, BallConfig, Pose2D, WorldConfig
+from components.sim.world import Arena, BallConfig, WorldConfig, WorldPose
 from tests.conftest import SimRobot, as_dict, eventually
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.runtime.aggregator import StateAggregator
@@ -123,7 +123,7 @@ async def test_camera_sample_is_at_least_the_capture_latency_old(robot_bus: Bus)
 @pytest.mark.asyncio
 async def test_ir_finder_reads_a_wall_at_the_right_distance(robot_bus: Bus) -> None:
     agg = StateAggregator(bus=robot_bus)
-    config = WorldConfig(arena=Arena(), robot_start=Pose2D(x_m=1.0, y_m=0.0, heading_rad=0.0))
+    config = WorldConfig(arena=Arena(), robot_start=WorldPose(x_m=1.0, y_m=0.0, heading_rad=0.0))
     async with SimRobot(robot_bus, config, speed=4, devices=("range",)) as robot, agg:
         await eventually(lambda: "range/front" in agg.entries and
                          agg.entries["range/front"].version >= 10, what="10 IR readings")
@@ -131,7 +131,7 @@ async def test_ir_finder_reads_a_wall_at_the_right_distance(robot_bus: Bus) -> N
         true_mm = (1.5 - 1.0 - 0.05) * 1000  # arena wall at x=1.5, sensor 5 cm ahead of centre
         assert reading["status"] == "ok"
         assert 0.89 * true_mm <= reading["range_mm"] <= 1.11 * true_mm
-        robot.world.place_robot(Pose2D(x_m=0.0, y_m=0.0, heading_rad=0.0))
+        robot.world.place_robot(WorldPose(x_m=0.0, y_m=0.0, heading_rad=0.0))
         version = agg.entries["range/front"].version
         await eventually(lambda: agg.entries["range/front"].version > version + 2)
         far = agg.snapshot()["range/front"].value  # 1.45 m: beyond the 10–80 cm model

@@ -20,9 +20,9 @@ from components.sim.world import (
     BoxObstacle,
     Distractor,
     Lighting,
-    Pose2D,
     World,
     WorldConfig,
+    WorldPose,
 )
 
 SEEDS = range(8)
@@ -203,7 +203,7 @@ def test_wall_chunks_take_the_shortcut_only_when_clipping_would_change_nothing()
     rng = np.random.default_rng(7)
     shortcut = clipped_by_hand = 0
     for _ in range(40):
-        world.place_robot(Pose2D(x_m=float(rng.uniform(-1.4, 1.4)),
+        world.place_robot(WorldPose(x_m=float(rng.uniform(-1.4, 1.4)),
                                  y_m=float(rng.uniform(-1.4, 1.4)),
                                  heading_rad=float(rng.uniform(-math.pi, math.pi))))
         snap = world.snapshot()

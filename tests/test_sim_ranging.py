@@ -13,10 +13,10 @@ from components.sim.world import (
     BallConfig,
     BoxObstacle,
     Distractor,
-    Pose2D,
     Wall,
     World,
     WorldConfig,
+    WorldPose,
 )
 
 FRONT = MountPose(x_m=0.05, y_m=0.0, yaw_rad=0.0)
@@ -37,7 +37,7 @@ def test_front_sensor_reads_wall_distance_minus_mount_offset() -> None:
 
 
 def test_robot_pose_is_applied() -> None:
-    start = Pose2D(x_m=1.0, y_m=1.0, heading_rad=math.pi / 2)
+    start = WorldPose(x_m=1.0, y_m=1.0, heading_rad=math.pi / 2)
     wall = Wall(x1_m=0.0, y1_m=1.55, x2_m=2.0, y2_m=1.55)
     snap = World(WorldConfig(robot_start=start, walls=(wall,))).snapshot()
     assert beam_distance_m(snap, FRONT, 1.5) == pytest.approx(0.5)

@@ -20,11 +20,11 @@ from components.sim.world import (
     THESIS_DRIVE_COMMANDS,
     Arena,
     BallConfig,
-    Pose2D,
     RobotConfig,
     SteadyDrive,
     World,
     WorldConfig,
+    WorldPose,
     drive_table,
     format_drive_table,
     steady_drive,
@@ -60,7 +60,7 @@ def test_straight_drive_moves_as_far_as_the_wheels_turned() -> None:
 
 
 def test_straight_drive_respects_start_pose() -> None:
-    start = Pose2D(x_m=1.0, y_m=-0.5, heading_rad=math.pi / 2)
+    start = WorldPose(x_m=1.0, y_m=-0.5, heading_rad=math.pi / 2)
     world = World(WorldConfig(robot_start=start))
     world.set_motor_pulses(*matched_pulses(1.8))
     run(world, 1.0)
@@ -289,7 +289,7 @@ def test_contacts_name_what_touched_the_robot_and_when() -> None:
     assert touched["obstacles[0]"] < world.time_s - 2.0  # left the box long ago
     world.set_motor_pulses(*matched_pulses(1.5))
     # Put down beside the (static) orange ball, the pink ball dropped against its other side.
-    world.place_robot(Pose2D(x_m=0.0, y_m=0.3 - 0.0325 - 0.035 + 0.002))
+    world.place_robot(WorldPose(x_m=0.0, y_m=0.3 - 0.0325 - 0.035 + 0.002))
     world.place_ball(0.0, 0.3 - 0.0325 - 0.07 - 0.0325 + 0.002)
     world.shift_robot(0.0, 0.0, 0.01)
     run(world, 0.05, dt=0.005)

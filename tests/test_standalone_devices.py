@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from components.sim.world import Arena, Pose2D, WorldConfig
+from components.sim.world import Arena, WorldConfig, WorldPose
 from tests.conftest import SimRobot, as_dict, eventually
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
@@ -150,7 +150,7 @@ async def test_devices_in_their_own_processes_use_the_simulator_in_this_one(
     """No launch: the simulator runs in this process; an IR finder and the motors started
     with ``python -m components.<device>`` find it through the registry, follow its clock,
     measure its world and drive its wheels."""
-    config = WorldConfig(arena=Arena(), robot_start=Pose2D(x_m=1.0, y_m=0.0, heading_rad=0.0))
+    config = WorldConfig(arena=Arena(), robot_start=WorldPose(x_m=1.0, y_m=0.0, heading_rad=0.0))
     readings: list[tuple[int, dict]] = []
     applied: list[dict] = []
     procs: list[subprocess.Popen[str]] = []

@@ -6,7 +6,7 @@ The core (this module's exports) is pure Python: no I/O, no middleware.
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
 
-from ubf_async.core.action import COMMAND_LIMIT, STOP, Action, SeekColor, clamp_command
+from ubf_async.core.action import COMMAND_LIMIT, STOP, Action, ColorBox, clamp_command
 from ubf_async.core.arbiters import (
     Arbiter,
     CommandFusion,
@@ -52,6 +52,7 @@ __all__ = [
     "Behavior",
     "Candidate",
     "Child",
+    "ColorBox",
     "CommandFusion",
     "Composite",
     "Conditional",
@@ -68,7 +69,6 @@ __all__ = [
     "Reading",
     "RobotFileError",
     "ScenarioError",
-    "SeekColor",
     "State",
     "Trace",
     "TreeChangeError",

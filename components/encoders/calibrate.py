@@ -52,7 +52,7 @@ from components.encoders.odometry import EFFECTIVE_TRACK_M, wrap_angle
 from components.encoders.quadrature import edges_to_radians
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from components.motors.pwm import pulse_widths
-from ubf_async.behaviors.basic import Drive
+from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.cli.args import add_connection_arguments
 from ubf_async.cli.attach import attached_bus
 from ubf_async.cli.run import run_main
@@ -87,7 +87,7 @@ class TurnRig(Protocol):
 
     def drive(self, *, left_ms: float, right_ms: float, settle_s: float,
               measure_s: float) -> tuple[float, float, float]:
-        """Drive with these pulses for ``settle_s`` (not measured), then ``measure_s`` more;
+        """ConstantDrive with these pulses for ``settle_s`` (not measured), then ``measure_s`` more;
         return ``(Δθ_left, Δθ_right, true yaw)`` in radians over the measured part."""
         ...
 
@@ -125,7 +125,7 @@ def fit_effective_track(turns: Sequence[Turn],
 
 def measure_turns(rig: TurnRig, commands: Sequence[tuple[float, float]] = DEFAULT_TURNS, *,
                   settle_s: float = 1.0, measure_s: float = 3.0) -> list[Turn]:
-    """Drive each speed/turn command (through the HAL's pulse calibration) on ``rig``."""
+    """ConstantDrive each speed/turn command (through the HAL's pulse calibration) on ``rig``."""
     turns = []
     for speed, turn in commands:
         pulses = pulse_widths(speed, turn)
@@ -206,7 +206,8 @@ class Latest:
 
 class RobotTurnRig:
     """Drives a running robot through turns over the bus (see the module docstring): a remote
-    behaviour in the slot ``name`` of ``composite`` — a :class:`~ubf_async.behaviors.basic.Drive`
+    behaviour in the slot ``name`` of ``composite`` — a
+    :class:`~ubf_async.behaviors.basic.ConstantDrive`
     whose action is the turn's command while it is driven, a stop otherwise: never an
     abstention, so the robot's own tree cannot move it between turns (a person may be
     measuring) — the wheels from the encoders ``encoders``' samples, the true yaw from the
@@ -222,7 +223,7 @@ class RobotTurnRig:
         self.rest_s = rest_s
         self.timeout_s = timeout_s
         self.out = out
-        self.commands = Drive(name=name)
+        self.commands = ConstantDrive(name=name)
         self.host = RemoteBehaviorHost(bus=bus, behavior=self.commands, composite=composite,
                                        rate_hz=25.0, ttl_s=0.5, priority=priority)
         self.wheels: WheelReading | None = None
@@ -310,7 +311,7 @@ class RobotTurnRig:
     async def measure(self, commands: Sequence[tuple[float, float]], *,
                       answer: Callable[[int, float, float], Awaitable[float]] | None = None
                       ) -> list[Turn]:
-        """Drive each command; the true yaw from ``answer(index, speed, turn)`` in degrees
+        """ConstantDrive each command; the true yaw from ``answer(index, speed, turn)`` in degrees
         when given (the robot is held still while it is awaited), else from the simulator's
         truth."""
         turns = []

@@ -25,7 +25,7 @@ from typing import Annotated, Literal
 import msgspec
 
 from components.encoders.backend import EdgeTiming, EncoderBackend
-from components.encoders.odometry import EFFECTIVE_TRACK_M, Odometry, Pose2D
+from components.encoders.odometry import EFFECTIVE_TRACK_M, OdometryPose, WheelOdometry
 from components.encoders.quadrature import (
     DirectionMode,
     QuadratureDecoder,
@@ -65,7 +65,7 @@ class EncodersComponent(Component):
         geometry: MiniWhegsGeometry = MINI_WHEGS,
         initial_states: tuple[int, int] | None = None,
         effective_track_m: float | None = EFFECTIVE_TRACK_M,
-        origin: Pose2D | None = None,
+        origin: OdometryPose | None = None,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=f"encoders-{name}", **component_options)
@@ -79,7 +79,7 @@ class EncodersComponent(Component):
         left0, right0 = initial_states if initial_states is not None else (None, None)
         self.left = QuadratureDecoder(mode=mode, initial_state=left0)
         self.right = QuadratureDecoder(mode=mode, initial_state=right0)
-        self.odometry = Odometry(geometry, pose=origin, effective_track_m=effective_track_m)
+        self.odometry = WheelOdometry(geometry, pose=origin, effective_track_m=effective_track_m)
         self.malformed: dict[str, int] = {}
         self.update_hooks: list[Callable[[], None]] = []
         """Called on the event loop right after each odometry update, before anything else
@@ -162,5 +162,5 @@ def build_device(
     mode = DirectionMode.COMMANDED if direction == "commanded" else DirectionMode.PHASE
     return EncodersComponent(bus=bus, backend=backend, name=name, period_s=period_s, mode=mode,
                              initial_states=initial, effective_track_m=effective_track_m,
-                             origin=Pose2D(x_m=origin_x_m or 0.0, y_m=origin_y_m or 0.0,
+                             origin=OdometryPose(x_m=origin_x_m or 0.0, y_m=origin_y_m or 0.0,
                                            heading_rad=math.radians(origin_heading_deg or 0.0)))

@@ -36,7 +36,7 @@ def wrap_angle(angle_rad: float) -> float:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class Pose2D:
+class OdometryPose:
     """Planar pose in the odometry frame (REP-103: x forward at start, y left)."""
 
     x_m: float = 0.0
@@ -58,14 +58,14 @@ def _sinc(x: float) -> float:
     return math.sin(x) / x
 
 
-class Odometry:
-    """Accumulates a :class:`Pose2D` from per-step wheel rotation increments."""
+class WheelOdometry:
+    """Accumulates a :class:`OdometryPose` from per-step wheel rotation increments."""
 
     def __init__(
         self,
         geometry: MiniWhegsGeometry = MINI_WHEGS,
         *,
-        pose: Pose2D | None = None,
+        pose: OdometryPose | None = None,
         effective_track_m: float | None = None,
     ) -> None:
         """``effective_track_m``: the track the heading is integrated with (see the module
@@ -81,12 +81,12 @@ class Odometry:
             raise ValueError(f"effective_track_m must be a positive number, got {track!r}")
         self.geometry = geometry
         self.track_m = track
-        self._pose = Pose2D()
+        self._pose = OdometryPose()
         self._heading_unwrapped_rad = 0.0
-        self.reset(pose or Pose2D())
+        self.reset(pose or OdometryPose())
 
     @property
-    def pose(self) -> Pose2D:
+    def pose(self) -> OdometryPose:
         return self._pose
 
     @property
@@ -96,16 +96,17 @@ class Odometry:
         past 180° in a long run; only the unwrapped heading shows it."""
         return self._heading_unwrapped_rad
 
-    def reset(self, pose: Pose2D | None = None) -> None:
+    def reset(self, pose: OdometryPose | None = None) -> None:
         """Start again from ``pose`` (the origin by default)."""
-        pose = pose or Pose2D()
+        pose = pose or OdometryPose()
         for name in ("x_m", "y_m", "heading_rad"):
             if not math.isfinite(getattr(pose, name)):
                 raise ValueError(f"pose.{name} must be finite, got {getattr(pose, name)!r}")
-        self._pose = Pose2D(x_m=pose.x_m, y_m=pose.y_m, heading_rad=wrap_angle(pose.heading_rad))
+        self._pose = OdometryPose(x_m=pose.x_m, y_m=pose.y_m,
+                                  heading_rad=wrap_angle(pose.heading_rad))
         self._heading_unwrapped_rad = pose.heading_rad
 
-    def update(self, d_left_rad: float, d_right_rad: float) -> Pose2D:
+    def update(self, d_left_rad: float, d_right_rad: float) -> OdometryPose:
         """Advance by the wheel rotations since the previous update and return the new pose."""
         if not (math.isfinite(d_left_rad) and math.isfinite(d_right_rad)):
             raise ValueError(
@@ -117,7 +118,7 @@ class Odometry:
         half = d_heading / 2.0
         chord = ds * _sinc(half)
         direction = self._pose.heading_rad + half
-        self._pose = Pose2D(
+        self._pose = OdometryPose(
             x_m=self._pose.x_m + chord * math.cos(direction),
             y_m=self._pose.y_m + chord * math.sin(direction),
             heading_rad=wrap_angle(self._pose.heading_rad + d_heading),

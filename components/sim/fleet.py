@@ -22,7 +22,7 @@ from typing import Any, TextIO
 from components.sim.component import SimulatorComponent
 from components.sim.runner import DEFAULT_SCENARIO, lateness_summary, rounded
 from components.sim.scenarios import check_placement, load_scenario
-from components.sim.world import Pose2D, World, WorldConfig, WorldSnapshot
+from components.sim.world import World, WorldConfig, WorldPose, WorldSnapshot
 from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
     DeviceContext,
@@ -60,7 +60,7 @@ def fleet_world_config(base: WorldConfig, members: Sequence[FleetMember], *,
     (:class:`ScenarioError`) a robot outside the arena, on an object, or on another robot."""
     if not members:
         raise ConfigurationError("a fleet needs at least one robot")
-    poses = [Pose2D(x_m=m.x_m, y_m=m.y_m, heading_rad=math.radians(m.heading_deg))
+    poses = [WorldPose(x_m=m.x_m, y_m=m.y_m, heading_rad=math.radians(m.heading_deg))
              for m in members]
     for member, pose in zip(members, poses, strict=True):
         check_placement(replace(base, robot_start=pose), where=f"robot {member.name}")

@@ -62,10 +62,10 @@ from components.sim.world import (
     BoxObstacle,
     Distractor,
     Lighting,
-    Pose2D,
     Wall,
     World,
     WorldConfig,
+    WorldPose,
 )
 from ubf_async.assembly.robotfile import (
     YAML_LOADER,
@@ -444,7 +444,7 @@ def _world(spec: ScenarioFile, scripted: Collection[str], names: Sequence[str],
     r, a = spec.robot, spec.arena
     try:
         return WorldConfig(
-            robot_start=Pose2D(x_m=r.x_m, y_m=r.y_m, heading_rad=math.radians(r.heading_deg)),
+            robot_start=WorldPose(x_m=r.x_m, y_m=r.y_m, heading_rad=math.radians(r.heading_deg)),
             ball=None if spec.ball is None else BallConfig(x_m=spec.ball.x_m,
                                                            y_m=spec.ball.y_m),
             arena=None if a is None else Arena(x_min_m=a.x_min_m, y_min_m=a.y_min_m,

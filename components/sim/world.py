@@ -121,7 +121,7 @@ def wrap_angle(angle_rad: float) -> float:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class Pose2D:
+class WorldPose:
     """A planar pose: position (m) and heading (rad, CCW from +x)."""
 
     x_m: float = 0.0
@@ -343,9 +343,9 @@ class RobotConfig:
 class WorldConfig:
     """Everything needed to build a :class:`World`; ``seed`` drives all randomness."""
 
-    robot_start: Pose2D = field(default_factory=Pose2D)
+    robot_start: WorldPose = field(default_factory=WorldPose)
     robot: RobotConfig = field(default_factory=RobotConfig)
-    more_robots: tuple[Pose2D, ...] = ()
+    more_robots: tuple[WorldPose, ...] = ()
     """Start poses of further robots of the same make in this world (a fleet): robot ``i``
     (1, 2, …) starts at ``more_robots[i - 1]``; robot 0 at ``robot_start``. Each sees the
     others in its camera and IR (:meth:`World.snapshot_for`)."""
@@ -600,7 +600,7 @@ class World:
         """Per robot, built on demand by :meth:`snapshot_for` (dropped when the world
         changes)."""
 
-    def _add_robot(self, pose: Pose2D, *, index: int) -> _RobotBody:
+    def _add_robot(self, pose: WorldPose, *, index: int) -> _RobotBody:
         rc = self._config.robot
         geo = rc.geometry
         moment = pymunk.moment_for_box(geo.mass_kg, (geo.length_m, geo.width_m))
@@ -697,7 +697,7 @@ class World:
             self._space.reindex_shapes_for_body(ball.body)
             self._snapshots = {}
 
-    def place_robot(self, pose: Pose2D, *, robot: int = 0) -> None:
+    def place_robot(self, pose: WorldPose, *, robot: int = 0) -> None:
         """Teleport ``robot`` to ``pose`` and stop it (wheel angles are kept)."""
         with self._lock:
             body = self._robots[robot].body

@@ -3,7 +3,7 @@ group: ``search``/``chase``/``flee`` (:mod:`.pink_ball`, the thesis's seek-the-p
 demonstration), ``avoid`` (:mod:`.obstacles`), ``stop`` and ``drive`` (:mod:`.basic`),
 ``report_ball`` and ``go_to_report`` (:mod:`.fleet`, a fleet's cooperative search)."""
 
-from ubf_async.behaviors.basic import Drive, Stop
+from ubf_async.behaviors.basic import ConstantDrive, Stop
 from ubf_async.behaviors.fleet import GoToReport, ReportBall
 from ubf_async.behaviors.obstacles import Avoid, nearest_obstacle
 from ubf_async.behaviors.pink_ball import (
@@ -19,7 +19,7 @@ __all__ = [
     "CAMERA_SOURCE",
     "Avoid",
     "Chase",
-    "Drive",
+    "ConstantDrive",
     "Flee",
     "GoToReport",
     "ReportBall",

@@ -24,7 +24,7 @@ LedMask = Annotated[int, msgspec.Meta(ge=0, le=255)]
 """A count of image pixels (≥ 0)."""
 Millimetres = Annotated[int, msgspec.Meta(gt=0)]
 """A distance in millimetres (> 0)."""
-Vote = Annotated[float, msgspec.Meta(ge=0)]
+VoteWeight = Annotated[float, msgspec.Meta(ge=0)]
 """An action's vote (≥ 0; 0 means "no opinion")."""
 
 

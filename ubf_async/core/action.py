@@ -19,7 +19,7 @@ FIELDS: tuple[str, ...] = ("speed", "turn", "seek_color", "message", "leds")
 NUMERIC_FIELDS: tuple[str, ...] = ("speed", "turn")
 
 
-class SeekColor(NamedTuple):
+class ColorBox(NamedTuple):
     """An inclusive RGB box the camera's seekcolor should look for."""
 
     lo: tuple[int, int, int]
@@ -37,7 +37,7 @@ def _check_rgb(name: str, rgb: Any) -> None:
 
 def _check_extras(
     seek_color: Any, message: str | None, leds: int | None
-) -> SeekColor | None:
+) -> ColorBox | None:
     if seek_color is not None:
         if not isinstance(seek_color, tuple) or len(seek_color) != 2:
             raise ValueError(f"Action.seek_color must be (lo, hi), got {seek_color!r}")
@@ -46,7 +46,7 @@ def _check_extras(
         _check_rgb("hi", hi)
         if any(a > b for a, b in zip(lo, hi, strict=True)):
             raise ValueError(f"Action.seek_color lo {lo} exceeds hi {hi}")
-        seek_color = SeekColor(lo, hi)
+        seek_color = ColorBox(lo, hi)
     if message is not None and (not isinstance(message, str) or len(message) > MAX_MESSAGE_CHARS):
         raise ValueError(f"Action.message must be a str of at most {MAX_MESSAGE_CHARS} chars")
     if leds is not None and (
@@ -93,7 +93,7 @@ class Action(_ActionFields):
         speed: float | None = None,
         turn: float | None = None,
         vote: float = 1.0,
-        seek_color: SeekColor | tuple[tuple[int, int, int], tuple[int, int, int]] | None = None,
+        seek_color: ColorBox | tuple[tuple[int, int, int], tuple[int, int, int]] | None = None,
         message: str | None = None,
         leds: int | None = None,
     ) -> Action:

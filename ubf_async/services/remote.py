@@ -148,7 +148,7 @@ def vote_data(
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class Vote:
+class ReceivedVote:
     """One decoded, validated vote."""
 
     composite: str
@@ -163,14 +163,14 @@ class Vote:
     """The voting publisher's identity (envelope ``pub``), if it sent one."""
 
     @classmethod
-    def decode(cls, keys: Keys, key: str, payload: bytes) -> Vote:
+    def decode(cls, keys: Keys, key: str, payload: bytes) -> ReceivedVote:
         """Parse key and payload (raises :class:`ProtocolError`, nothing else)."""
         composite, behavior = parse_vote_key(keys, key)
         message = decode(payload, topic=VOTE)
         return cls.of_message(composite, behavior, message)
 
     @classmethod
-    def of_message(cls, composite: str, behavior: str, message: Message[VoteData]) -> Vote:
+    def of_message(cls, composite: str, behavior: str, message: Message[VoteData]) -> ReceivedVote:
         data = message.data
         return cls(
             composite=composite, behavior=behavior, action=action_of_vote(data),
@@ -424,13 +424,14 @@ class RemoteBehaviors(Component):
         """Handle one sample on ``ubf/<robot>/vote/**``."""
         notices = self.notices
         vote = decode_or_count(
-            payload, self.malformed, key, decoder=lambda p: Vote.decode(self.bus.keys, key, p),
+            payload, self.malformed, key,
+            decoder=lambda p: ReceivedVote.decode(self.bus.keys, key, p),
             on_error=None if notices is None else
             lambda exc: notices.report(key, "malformed", f"malformed vote: {exc}"))
         if vote is not None:
             self.accept(vote, key=key)
 
-    def accept(self, vote: Vote, *, key: str = "") -> bool:
+    def accept(self, vote: ReceivedVote, *, key: str = "") -> bool:
         """Take a validated vote (arrived on ``key``, by default its own vote key): create or
         attach its remote child as needed."""
         key = key or self._key(vote.composite, vote.behavior)
