@@ -86,6 +86,7 @@ from ubf_async.net.transport import (
 )
 from ubf_async.runtime import lending
 from ubf_async.runtime.clock import Clock, WallClock
+from ubf_async.runtime.ratelimit import TokenBucket
 from ubf_async.wire.protocol import INT64_MAX, ROOT, Keys, ProtocolError, encode
 from ubf_async.wire.topics import Data, Topic
 
@@ -248,8 +249,10 @@ class Subscription:
         self._latest = latest
         self._run_if_idle = lending.run_if_idle(loop) if direct else None
         """Runs the drain on the transport's thread while the loop waits (:mod:`.lending`)."""
-        self._direct_tokens = float(DIRECT_BURST)
-        self._direct_refilled_ns = _monotonic_ns()
+        self._direct_budget = TokenBucket(rate_hz=DIRECT_RATE_HZ, burst=DIRECT_BURST,
+                                          now_ns=_monotonic_ns())
+        """Samples handled on the transport's thread (:data:`DIRECT_RATE_HZ`); used with the
+        lock held."""
         self._lock = threading.Lock()
         self._pending_latest: dict[str, tuple[bytes, int]] = {}
         self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
@@ -301,7 +304,7 @@ class Subscription:
                 return
             self._scheduled = True
             lend = self._run_if_idle
-            if on_loop or (lend is not None and not self._take_direct_token(received_ns)):
+            if on_loop or (lend is not None and not self._direct_budget.take(received_ns)):
                 lend = None
         if on_loop:
             self._loop.call_soon(self._drain)
@@ -313,18 +316,6 @@ class Subscription:
             self._loop.call_soon_threadsafe(self._drain)
         except RuntimeError:  # a closed loop: nothing left to deliver to
             pass
-
-    def _take_direct_token(self, now_ns: int) -> bool:
-        """The budget of samples handled on the transport's thread (:data:`DIRECT_RATE_HZ`);
-        call with the lock held."""
-        tokens = min(float(DIRECT_BURST), self._direct_tokens
-                     + (now_ns - self._direct_refilled_ns) * (DIRECT_RATE_HZ / 1e9))
-        self._direct_refilled_ns = now_ns
-        if tokens < 1.0:
-            self._direct_tokens = tokens
-            return False
-        self._direct_tokens = tokens - 1.0
-        return True
 
     # event loop --------------------------------------------------------------------------
     def _drain(self) -> None:
