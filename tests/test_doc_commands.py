@@ -476,7 +476,9 @@ def replayed(here: Page, replay: str, controller: tuple[Proc, str]) -> None:
     since = len(proc.lines)
     out = here.run(replay, add=("--connect", endpoint))
     assert re.search(r"replaying \S+mini\.mcap onto robot 'mini' \(2x", out), out
-    assert re.search(r": [1-9]\d* messages replayed, at worst \d+ ms behind", out), out
+    # How far behind it fell (said only past 10 ms) depends on the machine, not on the docs.
+    assert re.search(r": [1-9]\d* messages replayed(, at worst \d+ ms behind|$)", out,
+                     re.MULTILINE), out
     # the controller ticked on the recorded clock and inputs: a status line with a source
     proc.wait_for(r"^\[mini\] [\d.]+s \| drive .*\| camera/front \d+ms", after=since)
     stopped(proc)
