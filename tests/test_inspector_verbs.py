@@ -168,7 +168,11 @@ async def test_info_names_the_live_components_that_announce_the_key(
     # Another process with two components on the robot: one announces its range finder in its
     # heartbeat, one left (its token gone) still announcing it; a third publisher on the key
     # announces nothing.
-    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint]))
+    # The inspector connects to this process too: peers that meet only through the robot find
+    # each other by gossip, which on a busy machine can take longer than the inspector listens.
+    here = f"tcp/127.0.0.1:{free_port()}"
+    bus = await Bus.open(ConnectionOptions(robot="insp", connect=[robot_endpoint],
+                                           listen=[here]))
     key = bus.keys.sensor("range", "side")
     side = bus.publisher(RANGE, "side", period_s=0.05)
     stray = bus.publisher(RANGE, "side", period_s=0.05)
@@ -187,7 +191,7 @@ async def test_info_names_the_live_components_that_announce_the_key(
     try:
         await eventually(lambda: bus.reached_peers(), what="the robot")
         result = await asyncio.to_thread(inspect, robot_endpoint, "info", "sensor/range/side",
-                                         "--seconds", "1.5")
+                                         "--seconds", "1.5", "--connect", here)
     finally:
         running.cancel()
         token.undeclare()
