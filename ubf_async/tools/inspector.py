@@ -932,7 +932,9 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     await monitor.heard_from_all(HEARD_WITHIN_S)
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=args.timeout)
     monitor.close()
-    alive = {bus.keys.component_of_alive(t) for t in tokens}
+    # What the monitor's own liveliness subscription saw counts too: a query for the tokens
+    # can come back short on a busy machine.
+    alive = {bus.keys.component_of_alive(t) for t in tokens} | set(monitor.alive_names())
     publishers = announcing(monitor, key_expr, alive)
     print(format_publishers(publishers, alive=alive, announcing={
         c for c, health in monitor.components.items() if health.publishes}), file=out)
