@@ -96,6 +96,9 @@ def speed_argument(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """Launch's command line: the robot file, the connection flags, then an argument group per
+    topic (the controller, where the devices come from, a simulated run, the live view, the
+    run itself)."""
     parser = argparse.ArgumentParser(
         prog=PROG,
         description=(
@@ -110,6 +113,20 @@ def build_parser() -> argparse.ArgumentParser:
                 "\"event loop\" above."),
         formatter_class=HelpFormatter,
     )
+    add_robot_file_arguments(parser)
+    add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN],
+                             default_identity="robot")  # secure mode: see ubf_async.tools.secure
+    parser.set_defaults(robot=None)  # the robot file names the robot unless --robot is given
+    add_controller_arguments(parser)
+    add_device_arguments(parser)
+    add_simulation_arguments(parser)
+    add_live_view_arguments(parser)
+    add_run_arguments(parser)
+    return parser
+
+
+def add_robot_file_arguments(parser: argparse.ArgumentParser) -> None:
+    """ROBOT_FILE, and ``--check``: check it and what would run, and exit."""
     parser.add_argument(
         "robot_file", nargs="?", default=DEFAULT_ROBOT_FILE, metavar="ROBOT_FILE",
         help=f"a robot file (.yaml) or a shipped one ({', '.join(builtin_robot_files())}); "
@@ -117,9 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--check", action="store_true",
                         help="load and check the robot file (every name and parameter), print "
                              "what would run, and exit without starting anything")
-    add_connection_arguments(parser, default_listen=[DEFAULT_LISTEN],
-                             default_identity="robot")  # secure mode: see ubf_async.tools.secure
-    parser.set_defaults(robot=None)  # the robot file names the robot unless --robot is given
+
+
+def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
+    """How the controller ticks, and where remote behaviours vote: the robot file's
+    ``controller:`` overridden."""
     ctl = parser.add_argument_group("controller (override the robot file's `controller:`)")
     ctl.add_argument("--rate-hz", type=float, default=None,
                      help="tick rate in periodic mode (robot file default: 50)")
@@ -140,6 +159,11 @@ def build_parser() -> argparse.ArgumentParser:
                           "at PRIORITY[:WEIGHT] in its composite, as a `remote:` slot of the "
                           "tree does (repeatable); other remote behaviours get what they ask "
                           "for unless the robot file says `remotes: {only_declared: true}`")
+
+
+def add_device_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where the devices come from: a simulator here, another process, or the
+    hardware."""
     world = parser.add_argument_group("where the devices come from")
     world.add_argument("--no-sim", action="store_true",
                        help="no simulator: devices whose backend needs one are not started "
@@ -154,6 +178,10 @@ def build_parser() -> argparse.ArgumentParser:
     world.add_argument("--devices", default=None, metavar="KIND[/NAME],...",
                        help="start only these devices of the robot file (e.g. motors,camera); "
                             "others can attach later")
+
+
+def add_simulation_arguments(parser: argparse.ArgumentParser) -> None:
+    """A simulated run: its scenario, speed, seed, and what it writes at its end."""
     sim = parser.add_argument_group("simulated run (when a device's backend is simulated)")
     sim.add_argument("--scenario", default=None, metavar="NAME|PATH",
                      help="world and scripted ball: a built-in scenario or a scenario .json file "
@@ -177,6 +205,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "write trajectory.csv, trajectory.png and annotated camera frames")
     sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
                      help="simulated seconds between recorded camera frames")
+
+
+def add_live_view_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--foxglove``: the robot served live to Foxglove."""
     view = parser.add_argument_group("live view")
     view.add_argument("--foxglove", type=int, nargs="?", const=DEFAULT_FOXGLOVE_PORT,
                       default=None, metavar="PORT",
@@ -185,6 +217,10 @@ def build_parser() -> argparse.ArgumentParser:
                            "word after it that is not a number is not its PORT (--foxglove "
                            "ROBOT_FILE runs ROBOT_FILE)")
     add_host_argument(view)
+
+
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """How long the run lasts, and what it says on the console meanwhile."""
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",
                      help="stop after S seconds (simulated seconds when simulating; default: "
@@ -196,7 +232,6 @@ def build_parser() -> argparse.ArgumentParser:
                      choices=["DEBUG", "INFO", "WARNING", "ERROR"],
                      help="what is logged on the console (WARNING: warnings, and the live "
                           "tree changes applied)")
-    return parser
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
