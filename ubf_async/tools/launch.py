@@ -34,7 +34,7 @@ import tempfile
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
@@ -369,12 +369,57 @@ class ResultsNotSavedError(UbfError, OSError):
     was printed instead (the message says where writing failed)."""
 
 
+@dataclass(slots=True, kw_only=True)
+class RobotRun:
+    """What a run has opened so far: whatever ended the run, :func:`_end` closes all of it."""
+
+    bus: Bus
+    clock: Clock
+    health: HealthMonitor
+    components: list[Component] = field(default_factory=list)
+    """In the order they start; closed in the reverse order."""
+    sim_run: SimulationRun | None = None
+    controller: Controller | None = None
+    recorder: McapRecorder | None = None
+    live: FoxgloveServer | None = None
+
+
 async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     """Run the planned robot until ``--duration``, SIGTERM or Ctrl-C.
 
     Whatever ends the run (an error too), :func:`_end` saves the results, then closes every
     component and the session, each step bounded and done even if an earlier one failed."""
-    robot = plan.robot
+    run = await _open_session(plan, args)
+    options = run.bus.options  # with the port really listened on for a `:0` endpoint
+    try:
+        _print_session(plan.robot, options, out)
+        await _start_recording(run, args, out)
+        seed = _open_simulation(plan, run, out)
+        robot = plan.robot
+        if run.clock.is_simulated and args.seed is None and seed != robot.spec.seed:
+            # The behaviours draw from the run's seed (a controller following a simulator
+            # elsewhere: the file's, else 0), so a simulated run is repeatable.
+            robot = robot.reseeded(seed)
+        devices = _build_devices(plan, run, seed)
+        controller, aggregator, remotes = _build_control(plan, robot, run, args, seed, devices)
+        _add_ros2_bridge(robot, run, options.robot, out)
+        _add_clock_components(run, args, controller, devices)
+        await _start_components(run, remotes, controller)
+        _print_started(plan, robot, out)
+        freeze_startup_objects()  # the start-up's objects: out of the collector's way
+        await _run_until_done(args, out, options.robot, controller, aggregator, run.health,
+                              run.sim_run)
+    except asyncio.CancelledError:
+        pass  # a stop signal: the end below is the same as for any other end
+    finally:
+        code = await _end(run.sim_run, run.controller, run.components, run.health, run.bus,
+                          run.recorder, run.live, out)
+    return code
+
+
+async def _open_session(plan: LaunchPlan, args: argparse.Namespace) -> RobotRun:
+    """The run's clock (simulated time when a simulator runs here or ``--sim-time`` follows
+    one elsewhere) and its zenoh session."""
     simulated = plan.simulator is not None
     clock: Clock = SimClock() if simulated or args.sim_time else WallClock()
     # A simulator's process and a lockstep participant hand samples over in the order they
@@ -383,130 +428,161 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
     # (the first one above all: before it the follower has no time, and refuses the sample).
     bus = await Bus.open(plan.connection, clock=clock,
                          ordered=simulated or args.sim_time or args.lockstep)
-    options = bus.options  # with the port really listened on for a `:0` endpoint
-    components: list[Component] = []
-    health = HealthMonitor(bus)
-    sim_run: SimulationRun | None = None
-    controller: Controller | None = None
-    recorder: McapRecorder | None = None
-    live: FoxgloveServer | None = None
+    return RobotRun(bus=bus, clock=clock, health=HealthMonitor(bus))
+
+
+def _print_session(robot: Robot, options: ConnectionOptions, out: TextIO) -> None:
+    """Where the robot is on zenoh, and how other processes attach to it."""
+    if options.mode == "client":
+        routers = " ".join(options.connect) or "(the --config file's router)"
+        print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, a client of "
+              f"the router at {routers}", file=out)
+        print(f"  attach with: --mode client --connect {routers.split()[0]} --robot "
+              f"{options.robot}", file=out)
+    else:
+        endpoints = " ".join(options.listen) or "(not listening)"
+        print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
+              f"{endpoints}", file=out)
+        if options.listen:
+            print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
+                  file=out)
+
+
+async def _start_recording(run: RobotRun, args: argparse.Namespace, out: TextIO) -> None:
+    """``--record`` and ``--foxglove``: started first (and closed last), they see the whole
+    run."""
+    if args.record is not None:
+        run.recorder = McapRecorder(bus=run.bus, out=args.record)
+        await run.recorder.start()
+        run.components.append(run.recorder)
+        print(f"  recording the bus to {run.recorder.path}", file=out)
+    if args.foxglove is not None:
+        run.live = FoxgloveServer(bus=run.bus, port=args.foxglove, host=args.foxglove_host)
+        await run.live.start()
+        run.components.append(run.live)
+        print(f"  live in Foxglove on {run.live.url} (layout: docs/foxglove-layout.json)",
+              file=out)
+
+
+def _open_simulation(plan: LaunchPlan, run: RobotRun, out: TextIO) -> int:
+    """The planned simulator opened on the session, or (``--sim-time``) the simulation time of
+    one elsewhere followed; says which devices come from elsewhere. Returns the run's seed:
+    the simulator's, else the robot file's, else 0."""
+    seed = plan.robot.spec.seed or 0
+    if plan.simulator is not None and plan.sim_options is not None:
+        assert isinstance(run.clock, SimClock)
+        run.sim_run = plan.simulator.open(bus=run.bus, clock=run.clock,
+                                          options=plan.sim_options)
+        seed = run.sim_run.seed
+        print(f"  {run.sim_run.describe()}", file=out)
+    elif isinstance(run.clock, SimClock):
+        follow_sim_clock(run.bus, run.clock, {})
+        print(f"  no simulator here: following the simulation time on {run.bus.keys.clock}",
+              file=out)
+    if plan.elsewhere:
+        print("  not started here (their backends need the simulator; attach them from "
+              "other processes): " + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere),
+              file=out)
+    if not plan.devices and not plan.elsewhere and run.sim_run is None:
+        print("  no devices here: waiting for devices to attach over zenoh", file=out)
+    return seed
+
+
+def _build_devices(plan: LaunchPlan, run: RobotRun, seed: int) -> list[Component]:
+    """This process's devices, built through the plug-in registries (not started yet)."""
+    context = DeviceContext(bus=run.bus, clock=run.clock, seed=seed,
+                            simulation=run.sim_run.world if run.sim_run is not None else None)
+    devices: list[Component] = []
     try:
-        if options.mode == "client":
-            routers = " ".join(options.connect) or "(the --config file's router)"
-            print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, a client of "
-                  f"the router at {routers}", file=out)
-            print(f"  attach with: --mode client --connect {routers.split()[0]} --robot "
-                  f"{options.robot}", file=out)
-        else:
-            endpoints = " ".join(options.listen) or "(not listening)"
-            print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
-                  f"{endpoints}", file=out)
-            if options.listen:
-                print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
-                      file=out)
-        if args.record is not None:  # first started, last closed: it sees the whole run
-            recorder = McapRecorder(bus=bus, out=args.record)
-            await recorder.start()
-            components.append(recorder)
-            print(f"  recording the bus to {recorder.path}", file=out)
-        if args.foxglove is not None:
-            live = FoxgloveServer(bus=bus, port=args.foxglove, host=args.foxglove_host)
-            await live.start()
-            components.append(live)
-            print(f"  live in Foxglove on {live.url} (layout: docs/foxglove-layout.json)",
-                  file=out)
-        seed = robot.spec.seed or 0
-        if plan.simulator is not None and plan.sim_options is not None:
-            assert isinstance(clock, SimClock)
-            sim_run = plan.simulator.open(bus=bus, clock=clock, options=plan.sim_options)
-            seed = sim_run.seed
-            print(f"  {sim_run.describe()}", file=out)
-        elif isinstance(clock, SimClock):
-            follow_sim_clock(bus, clock, {})
-            print(f"  no simulator here: following the simulation time on {bus.keys.clock}",
-                  file=out)
-        if plan.elsewhere:
-            print("  not started here (their backends need the simulator; attach them from "
-                  "other processes): " + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere),
-                  file=out)
-        if not plan.devices and not plan.elsewhere and sim_run is None:
-            print("  no devices here: waiting for devices to attach over zenoh", file=out)
-        if clock.is_simulated and args.seed is None and seed != robot.spec.seed:
-            # The behaviours draw from the run's seed (a controller following a simulator
-            # elsewhere: the file's, else 0), so a simulated run is repeatable.
-            robot = robot.reseeded(seed)
-        context = DeviceContext(bus=bus, clock=clock, seed=seed,
-                                simulation=sim_run.world if sim_run is not None else None)
-        devices: list[Component] = []
-        try:
-            for device in plan.devices:
-                devices.append(device.build(context=context))
-        except BaseException:  # the ones built hold their pins and buses: closed below
-            components += devices
-            raise
-        spec = robot.spec
-        settings = plan.controller
-        # The robot's own sources are never evicted to make room for unknown ones.
-        protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
-        protected.update(s for s in (settings.sync_source, settings.trigger) if s)
-        aggregator = StateAggregator(bus=bus, stale_after_s=spec.controller.stale_after_s,
-                                     default_stale_after_s=spec.controller.default_stale_after_s,
-                                     protected_sources=protected, notify_refusals=True)
-        root = robot.root
-        controller = Controller(
-            bus=bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
-            mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
-            reflex_sources=settings.reflex,
-            # In lockstep each status is of a simulated instant (a fleet's world reads them).
-            status_clock=clock if args.lockstep else None,
-        )
-        remotes = RemoteBehaviors(
-            bus=bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
-            only_configured=spec.remotes.only_declared,
-            default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
-            max_remotes=spec.remotes.max_remotes, notify_refusals=True,
-        )
-        tree_service = TreeService(bus=bus, controller=controller, remotes=remotes, seed=seed,
-                                   slots=robot.remotes)
-        components += [aggregator, controller, remotes, tree_service, *devices]
-        if spec.ros2 is not None and spec.ros2.enabled:  # docs/ros2.md
-            from ubf_async.services.ros2.bridge import Ros2Bridge, settings_of_spec
-            try:
-                ros2 = settings_of_spec(spec.ros2, robot.remotes)
-            except ValueError as exc:
-                raise ConfigurationError(f"{robot.source}: {exc}") from None
-            components.append(Ros2Bridge(bus=bus, settings=ros2))
-            print(f"  ROS 2 bridge: {ros2.namespace_for(options.robot)}/{ros2.node}, domain "
-                  f"{ros2.domain_id}, {ros2.distro} (docs/ros2.md)", file=out)
-        if not clock.is_simulated:  # its clock, for processes on other hosts
-            components.append(RobotTimeBeacon(bus=bus))
-        if args.lockstep:  # last started: the simulator waits for it once all else runs
-            components.append(lockstep.LockstepParticipant(bus=bus, participant=controller.name))
-        if sim_run is not None:
-            sim_run.add_devices(devices)
-            components += sim_run.components()
-        # No remote behaviour may vote under the name of one of the robot's own components.
-        remotes.reserve(c.name for c in components)
-        health.start()
-        for component in components:
-            await component.start()
-        if sim_run is not None:
-            sim_run.start(controller)
-        here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
-        print(f"  devices: {here or 'none here'}", file=out)
-        print(f"  controller: {settings.planned()}; tree:", file=out)
-        for line in root.render_tree().splitlines():
-            print(f"    {line}", file=out)
-        for slot in robot.remotes:
-            print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
-        out.flush()
-        freeze_startup_objects()  # the start-up's objects: out of the collector's way
-        await _run_until_done(args, out, options.robot, controller, aggregator, health, sim_run)
-    except asyncio.CancelledError:
-        pass  # a stop signal: the end below is the same as for any other end
-    finally:
-        code = await _end(sim_run, controller, components, health, bus, recorder, live, out)
-    return code
+        for device in plan.devices:
+            devices.append(device.build(context=context))
+    except BaseException:  # the ones built hold their pins and buses: closed at the end
+        run.components += devices
+        raise
+    return devices
+
+
+def _build_control(plan: LaunchPlan, robot: Robot, run: RobotRun, args: argparse.Namespace,
+                   seed: int, devices: list[Component]
+                   ) -> tuple[Controller, StateAggregator, RemoteBehaviors]:
+    """The state aggregator, the controller with the robot's tree, the remote behaviours'
+    slots and the live-tree service, added to the run's components after them the devices."""
+    spec = robot.spec
+    settings = plan.controller
+    # The robot's own sources are never evicted to make room for unknown ones.
+    protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
+    protected.update(s for s in (settings.sync_source, settings.trigger) if s)
+    aggregator = StateAggregator(bus=run.bus, stale_after_s=spec.controller.stale_after_s,
+                                 default_stale_after_s=spec.controller.default_stale_after_s,
+                                 protected_sources=protected, notify_refusals=True)
+    root = robot.root
+    controller = run.controller = Controller(
+        bus=run.bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
+        mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
+        reflex_sources=settings.reflex,
+        # In lockstep each status is of a simulated instant (a fleet's world reads them).
+        status_clock=run.clock if args.lockstep else None,
+    )
+    remotes = RemoteBehaviors(
+        bus=run.bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
+        only_configured=spec.remotes.only_declared,
+        default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
+        max_remotes=spec.remotes.max_remotes, notify_refusals=True,
+    )
+    tree_service = TreeService(bus=run.bus, controller=controller, remotes=remotes, seed=seed,
+                               slots=robot.remotes)
+    run.components += [aggregator, controller, remotes, tree_service, *devices]
+    return controller, aggregator, remotes
+
+
+def _add_ros2_bridge(robot: Robot, run: RobotRun, robot_name: str, out: TextIO) -> None:
+    """The ROS 2 bridge, if the robot file enables it (docs/ros2.md)."""
+    spec = robot.spec
+    if spec.ros2 is None or not spec.ros2.enabled:
+        return
+    from ubf_async.services.ros2.bridge import Ros2Bridge, settings_of_spec
+    try:
+        ros2 = settings_of_spec(spec.ros2, robot.remotes)
+    except ValueError as exc:
+        raise ConfigurationError(f"{robot.source}: {exc}") from None
+    run.components.append(Ros2Bridge(bus=run.bus, settings=ros2))
+    print(f"  ROS 2 bridge: {ros2.namespace_for(robot_name)}/{ros2.node}, domain "
+          f"{ros2.domain_id}, {ros2.distro} (docs/ros2.md)", file=out)
+
+
+def _add_clock_components(run: RobotRun, args: argparse.Namespace, controller: Controller,
+                          devices: list[Component]) -> None:
+    """What keeps time with other processes: the robot's clock for other hosts (wall time),
+    the lockstep participant (``--lockstep``), or the simulator's own components."""
+    if not run.clock.is_simulated:  # its clock, for processes on other hosts
+        run.components.append(RobotTimeBeacon(bus=run.bus))
+    if args.lockstep:  # last started: the simulator waits for it once all else runs
+        run.components.append(lockstep.LockstepParticipant(bus=run.bus,
+                                                           participant=controller.name))
+    if run.sim_run is not None:
+        run.sim_run.add_devices(devices)
+        run.components += run.sim_run.components()
+
+
+async def _start_components(run: RobotRun, remotes: RemoteBehaviors,
+                            controller: Controller) -> None:
+    """Every component started in order, then the simulation."""
+    # No remote behaviour may vote under the name of one of the robot's own components.
+    remotes.reserve(c.name for c in run.components)
+    run.health.start()
+    for component in run.components:
+        await component.start()
+    if run.sim_run is not None:
+        run.sim_run.start(controller)
+
+
+def _print_started(plan: LaunchPlan, robot: Robot, out: TextIO) -> None:
+    """What runs here: the devices, how the controller ticks, the tree."""
+    here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
+    print(f"  devices: {here or 'none here'}", file=out)
+    print(f"  controller: {plan.controller.planned()}; tree:", file=out)
+    print_tree(robot, out)
+    out.flush()
 
 
 RESULTS_BOUND_S = 30.0
@@ -638,8 +714,12 @@ def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
     for device in plan.devices + plan.elsewhere:
         sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
         print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
-    settings = plan.controller
-    print(f"  controller: {settings.planned()}", file=out)
+    print(f"  controller: {plan.controller.planned()}", file=out)
+    print_tree(robot, out)
+
+
+def print_tree(robot: Robot, out: TextIO) -> None:
+    """The robot's behaviour tree, and its remote behaviours' slots."""
     for line in robot.root.render_tree().splitlines():
         print(f"    {line}", file=out)
     for slot in robot.remotes:
