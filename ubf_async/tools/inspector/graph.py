@@ -21,7 +21,7 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.tools.inspector import common, samples
 from ubf_async.wire import topics
-from ubf_async.wire.protocol import ROOT, ProtocolError, decode
+from ubf_async.wire.protocol import ROOT, Keys, ProtocolError, decode
 
 
 def add_robots_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
@@ -253,21 +253,7 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     monitor = HealthMonitor(bus)  # the heartbeats: what each component announces
     monitor.start()
     bus.subscribe(key_expr, on_sample, latest=False, max_queue=1 << 16)
-    declared = [t for t in topics.TOPICS if intersects(t.key_expr(bus.keys), key_expr)]
-    print(f"key: {key_expr}", file=out)
-    if not declared:
-        print("declared topic: none (an undeclared kind: any schema, data a map of plain "
-              "values; docs/protocol.md)", file=out)
-    for topic in declared:
-        print(f"declared topic: {topic.name} — {topic.doc}\n  key: {topic.key_expr(bus.keys)}"
-              f"\n  schema: {topic.schema}", file=out)
-        type_info = msgspec.inspect.type_info(topic.type)
-        if isinstance(type_info, msgspec.inspect.StructType):
-            for f in type_info.fields:
-                need = "" if f.required else " (optional)"
-                print(f"  {f.name}: {describe_type(f.type)}{need}", file=out)
-        else:
-            print("  data: a map of plain values (checked generically)", file=out)
+    print_declared(bus.keys, key_expr, out)
     out.flush()
     # Heartbeats come every 0.5 s: listening at least a second hears every live component.
     listen_s = max(args.seconds, 1.0)
@@ -294,6 +280,26 @@ async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
               f"({window.count / listen_s:.1f} Hz), from {len(ids)} publisher(s)"
               + (f": {'; '.join(named)}" if named else ""), file=out)
     return 0
+
+
+def print_declared(keys: Keys, key_expr: str, out: TextIO) -> None:
+    """The first part of ``info``: the declared topics ``key_expr`` belongs to, each with its
+    schema and every field with its type and bounds."""
+    declared = [t for t in topics.TOPICS if intersects(t.key_expr(keys), key_expr)]
+    print(f"key: {key_expr}", file=out)
+    if not declared:
+        print("declared topic: none (an undeclared kind: any schema, data a map of plain "
+              "values; docs/protocol.md)", file=out)
+    for topic in declared:
+        print(f"declared topic: {topic.name} — {topic.doc}\n  key: {topic.key_expr(keys)}"
+              f"\n  schema: {topic.schema}", file=out)
+        type_info = msgspec.inspect.type_info(topic.type)
+        if isinstance(type_info, msgspec.inspect.StructType):
+            for f in type_info.fields:
+                need = "" if f.required else " (optional)"
+                print(f"  {f.name}: {describe_type(f.type)}{need}", file=out)
+        else:
+            print("  data: a map of plain values (checked generically)", file=out)
 
 
 def format_publishers(publishers: dict[str, list[topics.Published]], *, alive: set[str],
