@@ -2,33 +2,32 @@
 
 The device kinds (entry points ``ubf_async.devices``) and their backends
 (``ubf_async.backends``, ``<kind>.<backend>``) are looked up by name, exactly as launch does
-for a robot file; their keyword parameters are checked with
-:func:`ubf_async.assembly.registry.parameters_of` before anything is built. A device started on its
-own (:mod:`components.standalone`) and the simulator's in-process helper
+for a robot file; their keyword parameters are checked before anything is built, by the check a
+robot file's go through (:func:`ubf_async.assembly.registry.checked_params`): the same mistake,
+the same :class:`~ubf_async.errors.ParameterError`. A device started on its own
+(:mod:`components.standalone`) and the simulator's in-process helper
 (:func:`components.sim.component.simulated_devices`) both build through :func:`make_device`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
-
-import msgspec
 
 from ubf_async.assembly import registry
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.devices import (
     BACKEND_INJECTED,
     DEVICE_INJECTED,
+    backend_label,
     build_device,
+    device_label,
     requires_simulator,
-    typed_params,
 )
-from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.component import Component
 
-__all__ = ["BACKEND_INJECTED", "DEFAULT_NAMES", "DEVICE_INJECTED", "KINDS", "checked",
-           "make_backend", "make_device", "requires_simulator"]
+__all__ = ["BACKEND_INJECTED", "DEFAULT_NAMES", "DEVICE_INJECTED", "KINDS", "make_backend",
+           "make_device", "requires_simulator"]
 
 KINDS = ("motors", "encoders", "camera", "range", "radio", "leds")
 """The built-in device kinds."""
@@ -37,24 +36,12 @@ DEFAULT_NAMES: dict[str, str] = {"camera": "front", "motors": "main", "encoders"
 """Each built-in kind's usual source name (``sensor/<kind>/<name>``)."""
 
 
-def checked(factory: Callable[..., Any], params: Mapping[str, Any], *,
-            injected: frozenset[str], what: str) -> dict[str, Any]:
-    """``params`` checked against ``factory``'s keyword parameters (defaults filled in).
-
-    Raises :class:`~ubf_async.errors.ConfigurationError` naming ``what`` and the field.
-    """
-    try:
-        return typed_params(factory, params, injected=injected)
-    except msgspec.ValidationError as exc:
-        raise ConfigurationError(f"{what}: {exc}") from None
-
-
 def make_backend(kind: str, backend: str, *, context: DeviceContext,
                  params: Mapping[str, Any] | None = None) -> Any:
     """The backend ``backend`` of device ``kind``, built with ``params`` in ``context``."""
     factory = registry.get_backend(kind, backend)
-    values = checked(factory, params or {}, injected=BACKEND_INJECTED,
-                     what=f"backend {kind}.{backend}")
+    values = registry.checked_params(factory, params or {}, injected=BACKEND_INJECTED,
+                                     what=backend_label(kind, backend))
     return factory(context=context, **values)
 
 
@@ -72,6 +59,7 @@ def make_device(
     kind's factory; the run's seed and clock are given to a factory that takes them."""
     factory = registry.DEVICES.get(kind)
     name = name if name is not None else DEFAULT_NAMES.get(kind, kind)
-    values = checked(factory, params or {}, injected=DEVICE_INJECTED, what=f"{kind} {name!r}")
+    values = registry.checked_params(factory, params or {}, injected=DEVICE_INJECTED,
+                                     what=device_label(kind, name))
     return build_device(factory, kind=kind, name=name, backend=backend, params=values,
                         context=context)

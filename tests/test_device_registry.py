@@ -22,8 +22,15 @@ from components.range.ir import IR_MODELS
 from components.sim.scenarios import load_scenario
 from components.sim.world import World, WorldConfig
 from ubf_async.assembly import registry
+from ubf_async.assembly.robotfile import load_robot_text
 from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
-from ubf_async.errors import ConfigurationError, PluginError, ScenarioError
+from ubf_async.errors import (
+    ConfigurationError,
+    ParameterError,
+    PluginError,
+    RobotFileError,
+    ScenarioError,
+)
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
@@ -167,6 +174,47 @@ async def test_devices_build_through_the_registry_on_a_world(robot_bus: Bus) -> 
         make_device("range", context=context, backend=None, params={"yaw_deg": "left"})
     with pytest.raises(ConfigurationError, match=r"backend encoders\.sim.*glitch"):
         make_backend("encoders", "sim", context=context, params={"glitch": 0.1})
+
+
+# The same bad parameter, given in a robot file and to a device started on its own (the
+# parameters are checked before anything is built: no bus is needed): the device kind, its
+# params, its backend's, and where in the robot file the mistake is.
+SAME_MISTAKES = [
+    ("range", {"yaw_deg": "left"}, {}, "params.yaw_deg"),
+    ("range", {"model": "GP2Y9999"}, {}, "params.model"),
+    ("range", {"yaw": 10}, {}, "params"),
+    ("range", {}, {"noise": 1}, "backend_params"),
+    ("encoders", {}, {"glitch": 0.1}, "backend_params"),
+    ("encoders", {}, {"glitch_probability": 1.5}, "backend_params.glitch_probability"),
+]
+
+
+@pytest.mark.parametrize(("kind", "params", "backend_params", "place"), SAME_MISTAKES)
+def test_a_robot_file_and_a_device_on_its_own_refuse_a_parameter_alike(
+        kind: str, params: dict[str, Any], backend_params: dict[str, Any], place: str) -> None:
+    context = DeviceContext(bus=None, clock=SimClock())  # type: ignore[arg-type]
+    with pytest.raises(ParameterError) as alone:
+        if params:
+            make_device(kind, context=context, backend=None, name="front", params=params)
+        else:
+            make_backend(kind, "sim", context=context, params=backend_params)
+    text = ("name: tester\n"
+            "tree: {name: root, arbiter: HighestPriority, children: [{behavior: stop}]}\n"
+            "devices:\n"
+            f"  - kind: {kind}\n"
+            "    name: front\n"
+            "    backend: sim\n"
+            f"    params: {json.dumps(params)}\n"
+            f"    backend_params: {json.dumps(backend_params)}\n")
+    with pytest.raises(RobotFileError) as in_file:
+        load_robot_text(text, source="robot.yaml")
+    refusal = alone.value
+    line = 7 if place.startswith("params") else 8
+    assert str(in_file.value) == f"robot.yaml:{line}: {refusal.told_at(f'devices[0].{place}')}"
+    # One refusal: the device or its backend named alike, the mistake, what it does take.
+    assert refusal.what == (f"{kind} 'front'" if params else f"backend {kind}.sim")
+    assert next(iter({**params, **backend_params})) in str(refusal)
+    assert str(refusal).endswith(f"; it takes: {', '.join(refusal.takes) or 'none'}")
 
 
 @pytest.mark.asyncio

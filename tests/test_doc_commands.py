@@ -157,7 +157,7 @@ NOT_RUN = {
         "a running pi-whegs robot: real GPIO encoders",
     "python -m components.motors --backend gpio":
         "real GPIO motors (tests/test_hw_launch.py runs it on gpiozero's mock pins)",
-    "python -m bench.fleet --search":
+    "python -m bench.fleet_scaling --search":
         "fleets of 1, 2, 4 and 8 robots for 90 simulated s each, twice: many minutes",
     "python -m bench.tick": "13 s measured here, past the doc tests' time budget",
     "python -m bench.handoff": "49 s measured here, past the doc tests' time budget",
@@ -165,7 +165,8 @@ NOT_RUN = {
     "python -m bench.flood": "25 s measured here, past the doc tests' time budget",
     "python -m bench.realtime": "several runs of the simulated robot at --speed 5: minutes",
     "python -m bench.soak": "an hour of simulated time flat out (--sim-s 3600)",
-    "python -m bench.fleet": "fleets of 1 to 8 robots through the fleet launcher: minutes",
+    "python -m bench.fleet_scaling":
+        "fleets of 1 to 8 robots through the fleet launcher: minutes",
     "python -m ubf_async.fleet":
         "the program's name (it needs a fleet file): its runs shown with one run above",
     "python -m ubf_async.inspector":

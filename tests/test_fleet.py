@@ -93,8 +93,8 @@ def test_fleet_files_with_mistakes_are_refused_clearly(tmp_path: Path, text: str
 async def test_robots_placed_on_each_other_or_outside_the_arena_are_refused(
     tmp_path: Path,
 ) -> None:
-    from components.sim.fleet import fleet_world_config
     from components.sim.scenarios import load_scenario
+    from components.sim.shared_world import fleet_world_config
     from ubf_async.assembly.simulation import FleetMember
     from ubf_async.errors import ScenarioError
 

@@ -18,7 +18,7 @@ from tests.conftest import free_port
 from ubf_async.assembly.devices import build_device
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.assembly.simulation import DeviceContext
-from ubf_async.behaviors.fleet import GoToReport, ReportBall, format_report, parse_report
+from ubf_async.behaviors.ball_reports import GoToReport, ReportBall, format_report, parse_report
 from ubf_async.core.state import State
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.bus import Bus

@@ -11,6 +11,7 @@ ValueError`` code keeps working.
     ├── ProtocolError        a payload or key that does not follow docs/protocol.md
     └── ConfigurationError   something a user wrote or asked for is wrong
         ├── RobotFileError   a robot file (docs/robot-file.md), with its file and line
+        ├── ParameterError   parameters a plug-in's factory refuses (its signature says why)
         ├── ScenarioError    a scenario file (docs/scenarios.md)
         ├── PluginError      an unknown or broken behaviour/arbiter/device/backend name
         └── TreeChangeError  a live change of the running tree that was refused
@@ -51,6 +52,31 @@ class RobotFileError(ConfigurationError):
         if self.line is not None:
             where += f":{self.line}"
         return f"{where}: {self.message}"
+
+
+class ParameterError(ConfigurationError):
+    """Parameters that the signature of a plug-in's factory refuses
+    (:func:`ubf_async.assembly.registry.checked_params`).
+
+    ``what`` names the factory (``backend encoders.sim``), ``problem`` is msgspec's (``Object
+    contains unknown field `glitch```), ``at`` the field's place in msgspec's notation
+    (``$.glitch``; empty for the parameters as a whole) and ``takes`` the parameters the factory
+    takes. ``str()`` reads ``WHAT: PROBLEM (at $.FIELD); it takes: A, B``; a robot file tells
+    the same refusal at its own place (:meth:`told_at`), after ``FILE:LINE:``.
+    """
+
+    def __init__(self, what: str, problem: str, *, at: str = "",
+                 takes: tuple[str, ...] = ()) -> None:
+        self.what = what
+        self.problem = problem
+        self.at = at
+        self.takes = takes
+        super().__init__(self.told_at(at))
+
+    def told_at(self, place: str) -> str:
+        """The refusal with the field's place named ``place`` (none when empty)."""
+        where = f" (at {place})" if place else ""
+        return f"{self.what}: {self.problem}{where}; it takes: {', '.join(self.takes) or 'none'}"
 
 
 class ScenarioError(ConfigurationError):

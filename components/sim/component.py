@@ -143,7 +143,7 @@ class SimulatorComponent(Component):
         self.step_lateness_s: deque[float] = deque(maxlen=STEP_LATENESS_KEPT)
         """How late each step started, in wall seconds after its due time (the last
         ``STEP_LATENESS_KEPT``): what every follower of this clock inherits as tick jitter
-        (``bench.fleet``)."""
+        (``bench.fleet_scaling``)."""
 
     def real_time_factor(self) -> float | None:
         """Simulated seconds per wall second from the simulator's start (once the components

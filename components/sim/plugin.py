@@ -10,7 +10,7 @@
   (``python -m components.<device>``) the world of a simulator running elsewhere, seen through
   the bus (:class:`~components.sim.remote.RemoteWorld`);
 * :meth:`~MiniWhegsSimulator.host_fleet` runs one world holding a fleet of robots
-  (:mod:`components.sim.fleet`, for ``python -m ubf_async.fleet``).
+  (:mod:`components.sim.shared_world`, for ``python -m ubf_async.fleet``).
 
 Importing this module is cheap: the simulator's modules (pymunk, OpenCV) load on first use.
 """
@@ -100,8 +100,8 @@ class MiniWhegsSimulator:
     async def host_fleet(self, *, buses: Sequence[Bus], clock: SimClock,
                          members: Sequence[FleetMember], options: SimulationOptions,
                          out: TextIO) -> dict[str, Any]:
-        """One world holding every robot of a fleet (:mod:`components.sim.fleet`)."""
-        from components.sim.fleet import host_fleet
+        """One world holding every robot of a fleet (:mod:`components.sim.shared_world`)."""
+        from components.sim.shared_world import host_fleet
 
         return await host_fleet(buses=buses, clock=clock, members=members, options=options,
                                 out=out)

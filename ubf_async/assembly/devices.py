@@ -3,7 +3,8 @@
 A device kind (entry point ``ubf_async.devices``) is a factory ``(*, bus, name, backend,
 **params)`` returning a :class:`~ubf_async.runtime.component.Component`; a backend
 (``ubf_async.backends``, named ``KIND.NAME``) is a factory ``(*, context, **params)``. Their
-other keyword parameters are checked with :func:`~ubf_async.assembly.registry.parameters_of`. Launch
+other keyword parameters are checked with :func:`~ubf_async.assembly.registry.checked_params`,
+the device and its backend named alike (:func:`device_label`, :func:`backend_label`). Launch
 (through a robot file) and a device started on its own both build through here.
 """
 
@@ -12,10 +13,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import msgspec
-
 from ubf_async.assembly.context import DeviceContext
-from ubf_async.assembly.registry import accepts, parameters_of
+from ubf_async.assembly.registry import accepts
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.component import Component
 
@@ -34,12 +33,14 @@ def requires_simulator(factory: Callable[..., Any]) -> str | None:
     return name
 
 
-def typed_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
-                 injected: frozenset[str]) -> dict[str, Any]:
-    """``params`` checked against ``factory``'s keyword parameters, defaults filled in.
-    Raises ``msgspec.ValidationError`` naming the field."""
-    struct = parameters_of(factory, injected=injected)
-    return msgspec.structs.asdict(msgspec.convert(dict(params), struct))
+def device_label(kind: str, name: str) -> str:
+    """How a refusal names a device (``range 'front'``), wherever it is built."""
+    return f"{kind} {name!r}"
+
+
+def backend_label(kind: str, backend: str) -> str:
+    """How a refusal names a device's backend (``backend encoders.sim``)."""
+    return f"backend {kind}.{backend}"
 
 
 def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: Any,

@@ -11,8 +11,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import msgspec
-
 from ubf_async.assembly import registry
 from ubf_async.core.arbiters import Conditional, Predicate
 from ubf_async.errors import ConfigurationError, PluginError
@@ -26,24 +24,16 @@ def predicate_from(reference: str, params: Mapping[str, Any] | None = None) -> P
     ``params`` the keyword parameters of that *factory*, which returns ``State -> bool``.
 
     ``params`` are checked against the factory's signature
-    (:func:`~ubf_async.assembly.registry.parameters_of`) before it is called. Raises
+    (:func:`~ubf_async.assembly.registry.checked_params`) before it is called. Raises
     :class:`~ubf_async.errors.PluginError` for an unknown or unusable factory and
-    :class:`~ubf_async.errors.ConfigurationError` for parameters it refuses.
+    :class:`~ubf_async.errors.ParameterError` (a ``ConfigurationError``) for parameters it
+    refuses.
     """
     factory = registry.PREDICATES.get(reference)
     if not callable(factory):
         raise PluginError(f"predicate {reference!r} is a {type(factory).__name__}, not a "
                           f"factory returning State -> bool")
-    try:
-        parameters = registry.parameters_of(factory)
-    except (TypeError, ValueError) as exc:
-        raise PluginError(f"predicate {reference!r} has parameters a robot file cannot give: "
-                          f"{exc}") from exc
-    try:
-        checked = msgspec.convert(dict(params or {}), parameters)
-    except (msgspec.ValidationError, TypeError) as exc:
-        raise ConfigurationError(f"predicate {reference!r}: {exc}") from exc
-    kwargs = {field: getattr(checked, field) for field in checked.__struct_fields__}
+    kwargs = registry.checked_params(factory, params or {}, what=f"predicate {reference!r}")
     try:
         predicate = factory(**kwargs)
     except (TypeError, ValueError) as exc:  # ConfigurationError is a ValueError

@@ -21,23 +21,27 @@ listing the known ones.
 
 A factory's keyword parameters are its robot-file parameters: :func:`parameters_of` turns its
 signature into a msgspec Struct, so what a robot file passes is type-checked before anything
-is built, and a missing or misspelt parameter is reported at load time.
+is built, and a missing or misspelt parameter is reported at load time. :func:`checked_params`
+is the one check every builder runs (a robot file, a device started on its own, a
+``Conditional``'s predicate): the same refusal, :class:`~ubf_async.errors.ParameterError`,
+for the same mistake.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
+import re
 import threading
 import typing
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any
 
 import msgspec
 import msgspec.inspect
 
-from ubf_async.errors import PluginError
+from ubf_async.errors import ParameterError, PluginError
 
 REFERENCE_SEPARATOR = ":"
 
@@ -198,6 +202,41 @@ def parameters_of(factory: Callable[..., Any], *, injected: Iterable[str] = ()) 
     struct = msgspec.defstruct(name, fields, kw_only=True, forbid_unknown_fields=True)
     _PARAMETER_CACHE[key] = struct
     return struct
+
+
+def checked_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
+                   injected: Iterable[str] = (), what: str) -> dict[str, Any]:
+    """``params`` checked against ``factory``'s keyword parameters (:func:`parameters_of`),
+    defaults filled in.
+
+    Raises :class:`~ubf_async.errors.ParameterError` naming ``what`` (``backend
+    encoders.sim``), the field and the parameters the factory takes, and
+    :class:`~ubf_async.errors.PluginError` for a factory whose parameters cannot be described.
+    """
+    try:
+        struct = parameters_of(factory, injected=injected)
+    except (TypeError, ValueError) as exc:
+        raise PluginError(f"{what}: its parameters cannot be described ({exc})") from None
+    takes = struct.__struct_fields__
+    if not isinstance(params, Mapping):
+        raise ParameterError(what, f"Expected `object`, got `{type(params).__name__}`",
+                             takes=takes)
+    try:
+        return msgspec.structs.asdict(msgspec.convert(dict(params), struct))
+    except msgspec.ValidationError as exc:
+        problem, at = validation_parts(exc)
+        raise ParameterError(what, problem, at=at, takes=takes) from None
+
+
+_VALIDATION_AT = re.compile(r"^(?P<problem>.*?)(?: - at `(?P<at>\$[^`]*)`)?$", re.S)
+
+
+def validation_parts(exc: msgspec.ValidationError) -> tuple[str, str]:
+    """msgspec's message split into the problem and the place (``$.tree.children[1]``; empty
+    for the object decoded itself)."""
+    match = _VALIDATION_AT.match(str(exc))
+    assert match is not None  # the pattern matches any text
+    return match.group("problem"), match.group("at") or ""
 
 
 def _data_type(annotation: Any) -> Any:

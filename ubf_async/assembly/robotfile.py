@@ -38,21 +38,23 @@ from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.devices import (
     BACKEND_INJECTED,
     DEVICE_INJECTED,
+    backend_label,
     build_device,
+    device_label,
     requires_simulator,
-    typed_params,
 )
 from ubf_async.assembly.registry import (
     ARBITERS,
     BEHAVIORS,
     DEVICES,
     accepts,
+    checked_params,
     get_backend,
     is_reference,
-    parameters_of,
+    validation_parts,
 )
 from ubf_async.core.behavior import Behavior, Child, Composite
-from ubf_async.errors import PluginError, RobotFileError
+from ubf_async.errors import ParameterError, PluginError, RobotFileError
 from ubf_async.runtime.component import Component
 
 FORMAT_VERSION: Final = 1
@@ -241,7 +243,6 @@ class RobotFile(Spec):
 
 Path_ = tuple[str | int, ...]
 _PATH_PART = re.compile(r"\.([A-Za-z_][A-Za-z0-9_]*)|\[(\d+)\]|\[\"?([^\]\"]*)\"?\]")
-_ERROR_AT = re.compile(r"^(?P<message>.*?)(?: - at `(?P<path>\$[^`]*)`)?$", re.S)
 _UNKNOWN_FIELD = re.compile(r"unknown field `([^`]+)`")
 
 
@@ -323,9 +324,7 @@ class Locator:
 
         ``root`` is the type decoded at ``base``: an unknown field is told the fields of the
         object it was found in (``None``: the caller lists them itself)."""
-        match = _ERROR_AT.match(str(exc))
-        assert match is not None
-        message, where = match.group("message"), match.group("path")
+        message, where = validation_parts(exc)
         relative = parse_error_path(where) if where else ()
         path = base + relative
         unknown = _UNKNOWN_FIELD.search(message)
@@ -334,8 +333,16 @@ class Locator:
             spec = struct_at(root, relative) if root is not None else None
             if spec is not None:
                 text += f"; {spec.what} takes: {', '.join(spec.__struct_fields__)}"
-            return self.error(text, path, key=unknown.group(1))
-        return self.error(text, path)
+        return self.error(text, path, key=unknown.group(1) if unknown else None)
+
+    def from_refusal(self, refusal: ParameterError, base: Path_) -> RobotFileError:
+        """Parameters refused (:func:`~ubf_async.assembly.registry.checked_params`, of the
+        mapping at ``base``) as the same refusal at its line, its field named by its place in
+        the file (``devices[0].params.yaw_deg``)."""
+        path = base + (parse_error_path(refusal.at) if refusal.at else ())
+        unknown = _UNKNOWN_FIELD.search(refusal.problem)
+        return self.error(refusal.told_at(format_path(path)), path,
+                          key=unknown.group(1) if unknown else None)
 
 
 YAML_LOADER: Final = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -570,19 +577,16 @@ class Robot:
         return sorted({d.requires_simulator for d in self.devices if d.requires_simulator})
 
 
-def _typed_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
-                  injected: frozenset[str], locator: Locator, path: Path_,
-                  what: str) -> dict[str, Any]:
+def _checked_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
+                    injected: frozenset[str], locator: Locator, path: Path_,
+                    what: str) -> dict[str, Any]:
+    """:func:`~ubf_async.assembly.registry.checked_params`, its refusal at the file's line."""
     try:
-        return typed_params(factory, params, injected=injected)
-    except msgspec.ValidationError as exc:
-        error = locator.from_validation(exc, path, root=None)
-        known = ", ".join(parameters_of(factory, injected=injected).__struct_fields__)
-        raise RobotFileError(f"{error.message}; {what} takes: {known or 'none'}",
-                             path=error.path, line=error.line) from None
-    except (TypeError, ValueError) as exc:
-        raise locator.error(f"{what}: its parameters cannot be described ({exc})",
-                            path) from None
+        return checked_params(factory, params, injected=injected, what=what)
+    except ParameterError as refusal:
+        raise locator.from_refusal(refusal, path) from None
+    except PluginError as exc:  # parameters that cannot be described
+        raise locator.error(str(exc), path) from None
 
 
 def _requires(factory: Callable[..., Any], parameter: str) -> bool:
@@ -621,8 +625,8 @@ class TreeBuilder:
         kind, params = (spec, {}) if isinstance(spec, str) else (spec.type, spec.params)
         at = path if isinstance(spec, str) else (*path, "type")
         factory = _lookup(lambda: ARBITERS.get(kind), self.locator, at, "arbiter")
-        values = _typed_params(factory, params, injected=INJECTED_TREE, locator=self.locator,
-                               path=(*path, "params"), what=f"arbiter {kind!r}")
+        values = _checked_params(factory, params, injected=INJECTED_TREE, locator=self.locator,
+                                 path=(*path, "params"), what=f"arbiter {kind!r}")
         try:
             return factory(**self._inject(factory), **values)
         except (ValueError, TypeError, LookupError) as exc:
@@ -632,9 +636,9 @@ class TreeBuilder:
         assert node.behavior is not None
         ref = node.behavior
         factory = _lookup(lambda: BEHAVIORS.get(ref), self.locator, path, "behavior")
-        values = _typed_params(factory, node.params, injected=INJECTED_TREE,
-                               locator=self.locator, path=(*path, "params"),
-                               what=f"behaviour {ref!r}")
+        values = _checked_params(factory, node.params, injected=INJECTED_TREE,
+                                 locator=self.locator, path=(*path, "params"),
+                                 what=f"behaviour {ref!r}")
         # The file's name if it gives one, else the factory's own (its `name` default, or
         # whatever it names the behaviour); only a factory that requires a name gets the one
         # it is referenced by.
@@ -695,15 +699,15 @@ class TreeBuilder:
 
 def _resolve_device(spec: DeviceSpec, locator: Locator, path: Path_) -> ResolvedDevice:
     factory = _lookup(lambda: DEVICES.get(spec.kind), locator, path, "kind")
-    params = _typed_params(factory, spec.params, injected=DEVICE_INJECTED, locator=locator,
-                           path=(*path, "params"), what=f"device kind {spec.kind!r}")
+    params = _checked_params(factory, spec.params, injected=DEVICE_INJECTED, locator=locator,
+                             path=(*path, "params"), what=device_label(spec.kind, spec.name))
     if is_reference(spec.kind) and not is_reference(spec.backend):
         raise locator.error(f"a device kind given as a reference ({spec.kind!r}) needs its "
                             f"backend as a 'module:factory' reference too", path, key="backend")
     backend = _lookup(lambda: get_backend(spec.kind, spec.backend), locator, path, "backend")
-    backend_params = _typed_params(backend, spec.backend_params, injected=BACKEND_INJECTED,
-                                   locator=locator, path=(*path, "backend_params"),
-                                   what=f"backend {spec.kind}.{spec.backend}")
+    backend_params = _checked_params(backend, spec.backend_params, injected=BACKEND_INJECTED,
+                                     locator=locator, path=(*path, "backend_params"),
+                                     what=backend_label(spec.kind, spec.backend))
     return ResolvedDevice(kind=spec.kind, name=spec.name, backend=spec.backend, factory=factory,
                           params=params, backend_factory=backend, backend_params=backend_params)
 

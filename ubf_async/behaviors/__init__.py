@@ -1,10 +1,10 @@
 """Reusable behaviours, each registered by name in the ``ubf_async.behaviors`` entry-point
 group: ``search``/``chase``/``flee`` (:mod:`.pink_ball`, the thesis's seek-the-pink-ball
 demonstration), ``avoid`` (:mod:`.obstacles`), ``stop`` and ``drive`` (:mod:`.basic`),
-``report_ball`` and ``go_to_report`` (:mod:`.fleet`, a fleet's cooperative search)."""
+``report_ball`` and ``go_to_report`` (:mod:`.ball_reports`, a fleet's cooperative search)."""
 
+from ubf_async.behaviors.ball_reports import GoToReport, ReportBall
 from ubf_async.behaviors.basic import ConstantDrive, Stop
-from ubf_async.behaviors.fleet import GoToReport, ReportBall
 from ubf_async.behaviors.obstacles import Avoid, nearest_obstacle
 from ubf_async.behaviors.pink_ball import (
     CAMERA_SOURCE,

@@ -51,13 +51,16 @@ import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import Clock, SimClock
 from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.wire.protocol import ProtocolError, clip, decode
 from ubf_async.wire.topics import CONTROLLER_STATUS, ROBOT_TIME
+
+if TYPE_CHECKING:
+    from ubf_async.runtime.hostclock import RobotTimeClock
 
 log = logging.getLogger(__name__)
 
@@ -257,24 +260,61 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
 
     ``say`` gets a line for the user when the wait is long or ends without an answer (it is
     logged as well)."""
-    from ubf_async.runtime.hostclock import RobotTimeClock  # its beacon is a component
-
     if mode == "wall":
         return bus.clock
+    wait = _ClockWait.listen(bus, mode=mode, wait_s=wait_s, say=say)
+    chosen: Clock | None = None
+    try:
+        while chosen is None:
+            chosen = wait.answer()
+            if chosen is None:
+                await wait.news()
+    finally:
+        wait.close(keeping=chosen)
+    if chosen is wait.sim or chosen is wait.robot_time:
+        bus.clock = chosen
+    return chosen
 
-    def tell(line: str, *, warn: bool = False) -> None:
-        (log.warning if warn else log.info)("%s", line)
-        if say is not None:
-            say(line)
 
-    sim = SimClock()
-    robot_time = RobotTimeClock()
-    sim_sub = follow_sim_clock(bus, sim, {}) if mode in ("auto", "sim") else None
-    time_sub = robot_time.follow(bus) if mode in ("auto", "robot") else None
-    status: dict[str, Any] = {}
-    heard_status = asyncio.Event()
+class _ClockWait:
+    """One wait of :func:`follow_robot_clock`: the subscriptions that hear the robot's clock,
+    and what the robot has said of it so far."""
 
-    def on_status(key: str, payload: bytes, received_ns: int) -> None:
+    def __init__(self, bus: Bus, *, mode: ClockMode, wait_s: float,
+                 say: Callable[[str], None] | None, robot_time: RobotTimeClock) -> None:
+        self.bus = bus
+        self.mode = mode
+        self.wait_s = wait_s
+        self.say = say
+        self.sim = SimClock()
+        self.robot_time = robot_time
+        self.status: dict[str, Any] = {}
+        """The controller's status, once heard: ``clock`` and ``host``."""
+        self.heard_status = asyncio.Event()
+        self.subscriptions: list[tuple[Subscription, Clock | None]] = []
+        """Each with the clock it feeds (kept open while that clock is followed)."""
+        self.loop = asyncio.get_running_loop()
+        self.started = self.loop.time()
+        self.deadline = self.started + wait_s
+        self.waiting_said = False
+
+    @classmethod
+    def listen(cls, bus: Bus, *, mode: ClockMode, wait_s: float,
+               say: Callable[[str], None] | None) -> _ClockWait:
+        """Start listening for what ``mode`` waits for."""
+        from ubf_async.runtime.hostclock import RobotTimeClock  # its beacon is a component
+
+        wait = cls(bus, mode=mode, wait_s=wait_s, say=say, robot_time=RobotTimeClock())
+        if mode in ("auto", "sim"):
+            wait.subscriptions.append((follow_sim_clock(bus, wait.sim, {}), wait.sim))
+        if mode in ("auto", "robot"):
+            wait.subscriptions.append((wait.robot_time.follow(bus), wait.robot_time))
+        if mode == "auto":
+            wait.subscriptions.append(
+                (bus.subscribe(CONTROLLER_STATUS.key_expr(bus.keys), wait.on_status), None))
+        return wait
+
+    def on_status(self, key: str, payload: bytes, received_ns: int) -> None:
         try:
             message = decode(payload)
         except ProtocolError:
@@ -282,78 +322,81 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
         data = message.data
         if (message.schema == CONTROLLER_STATUS.schema and isinstance(data, dict)
                 and data.get("clock") in ("simulated", "monotonic")):
-            status.update(clock=data["clock"], host=data.get("host"))
-            heard_status.set()
+            self.status.update(clock=data["clock"], host=data.get("host"))
+            self.heard_status.set()
 
-    status_sub = (bus.subscribe(CONTROLLER_STATUS.key_expr(bus.keys), on_status)
-                  if mode == "auto" else None)
-    robot = bus.robot
-    loop = asyncio.get_running_loop()
-    started = loop.time()
-    deadline = started + wait_s
-    waiting_said = False
-    chosen: Clock | None = None
-    try:
-        while chosen is None:
-            if sim.started.is_set():
-                log.info("following the simulated time on %s", bus.keys.clock)
-                chosen = sim
-                break
-            if robot_time.ready.is_set():
-                if mode == "robot" or robot_time.host != HOST:
-                    log.info("following the clock of the robot's host %s on %s (offset "
-                             "%+.3f s)", robot_time.host or "(unnamed)",
-                             ROBOT_TIME.key(bus.keys), robot_time.estimator.offset_ns / 1e9)
-                    chosen = robot_time
-                    break
-                log.info("robot %r runs on this host's CLOCK_MONOTONIC (%s)", robot,
-                         ROBOT_TIME.key(bus.keys))
-                return bus.clock
-            if status.get("clock") == "monotonic" and status.get("host") == HOST:
-                log.info("robot %r runs on this host's CLOCK_MONOTONIC (its status)", robot)
-                return bus.clock
-            now = loop.time()
-            if mode == "auto" and not status and now >= deadline:
-                tell(f"robot {robot!r} said nothing of its clock within {wait_s:g} s (no "
-                     f"sample on {bus.keys.clock} or {ROBOT_TIME.key(bus.keys)}, no status "
-                     f"from its controller): stamping with this host's CLOCK_MONOTONIC",
-                     warn=True)
-                return bus.clock
-            # (``sim`` and ``robot`` wait for what they were told to: their callers say so.)
-            if mode == "auto" and not waiting_said and now - started >= WAITING_SAID_AFTER_S:
-                waiting_said = True
-                if status.get("clock") == "simulated":
-                    tell(f"robot {robot!r} runs on simulated time: waiting for its "
-                         f"simulator's clock on {bus.keys.clock} ...")
-                elif status:
-                    tell(f"robot {robot!r} runs on the clock of host {status.get('host')}: "
-                         f"waiting for its time on {ROBOT_TIME.key(bus.keys)} ...")
-                else:
-                    tell(f"waiting for robot {robot!r} to say which clock it runs on ...")
-            # Until the next news, or until there is something to say.
-            timeouts = []
-            if mode == "auto" and not waiting_said:
-                timeouts.append(started + WAITING_SAID_AFTER_S - now)
-            if mode == "auto" and not status:
-                timeouts.append(deadline - now)
-            heard_status.clear()
-            waits = [asyncio.ensure_future(event.wait())
-                     for event in (sim.started, robot_time.ready, heard_status)]
-            try:
-                await asyncio.wait(waits, timeout=max(0.0, min(timeouts)) if timeouts else None,
-                                   return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                for waiting in waits:
-                    waiting.cancel()
-    finally:
-        if status_sub is not None:
-            status_sub.close()
-        if sim_sub is not None and chosen is not sim:
-            sim_sub.close()
-        if time_sub is not None and chosen is not robot_time:
-            time_sub.close()
-    bus.clock = chosen
-    return chosen
+    def answer(self) -> Clock | None:
+        """The clock to stamp with, once the robot has said which (or has said nothing for
+        too long); None while waiting."""
+        bus, robot = self.bus, self.bus.robot
+        if self.sim.started.is_set():
+            log.info("following the simulated time on %s", bus.keys.clock)
+            return self.sim
+        if self.robot_time.ready.is_set():
+            if self.mode == "robot" or self.robot_time.host != HOST:
+                log.info("following the clock of the robot's host %s on %s (offset %+.3f s)",
+                         self.robot_time.host or "(unnamed)", ROBOT_TIME.key(bus.keys),
+                         self.robot_time.estimator.offset_ns / 1e9)
+                return self.robot_time
+            log.info("robot %r runs on this host's CLOCK_MONOTONIC (%s)", robot,
+                     ROBOT_TIME.key(bus.keys))
+            return bus.clock
+        if self.status.get("clock") == "monotonic" and self.status.get("host") == HOST:
+            log.info("robot %r runs on this host's CLOCK_MONOTONIC (its status)", robot)
+            return bus.clock
+        if self.mode == "auto" and not self.status and self.loop.time() >= self.deadline:
+            self.tell(f"robot {robot!r} said nothing of its clock within {self.wait_s:g} s (no "
+                      f"sample on {bus.keys.clock} or {ROBOT_TIME.key(bus.keys)}, no status "
+                      f"from its controller): stamping with this host's CLOCK_MONOTONIC",
+                      warn=True)
+            return bus.clock
+        return None
+
+    async def news(self) -> None:
+        """Say once that the wait is long, then wait until the next news, or until there is
+        something to say."""
+        now = self.loop.time()
+        # (``sim`` and ``robot`` wait for what they were told to: their callers say so.)
+        if self.mode == "auto" and not self.waiting_said \
+                and now - self.started >= WAITING_SAID_AFTER_S:
+            self.waiting_said = True
+            self.tell(self.waiting_for())
+        timeouts = []
+        if self.mode == "auto" and not self.waiting_said:
+            timeouts.append(self.started + WAITING_SAID_AFTER_S - now)
+        if self.mode == "auto" and not self.status:
+            timeouts.append(self.deadline - now)
+        self.heard_status.clear()
+        waits = [asyncio.ensure_future(event.wait())
+                 for event in (self.sim.started, self.robot_time.ready, self.heard_status)]
+        try:
+            await asyncio.wait(waits, timeout=max(0.0, min(timeouts)) if timeouts else None,
+                               return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for waiting in waits:
+                waiting.cancel()
+
+    def waiting_for(self) -> str:
+        """What ``auto`` is waiting for, as far as the robot has said."""
+        robot, keys = self.bus.robot, self.bus.keys
+        if self.status.get("clock") == "simulated":
+            return (f"robot {robot!r} runs on simulated time: waiting for its simulator's "
+                    f"clock on {keys.clock} ...")
+        if self.status:
+            return (f"robot {robot!r} runs on the clock of host {self.status.get('host')}: "
+                    f"waiting for its time on {ROBOT_TIME.key(keys)} ...")
+        return f"waiting for robot {robot!r} to say which clock it runs on ..."
+
+    def tell(self, line: str, *, warn: bool = False) -> None:
+        (log.warning if warn else log.info)("%s", line)
+        if self.say is not None:
+            self.say(line)
+
+    def close(self, *, keeping: Clock | None) -> None:
+        """Close every subscription but the one feeding ``keeping``, the clock followed."""
+        for subscription, feeds in self.subscriptions:
+            if feeds is None or feeds is not keeping:
+                subscription.close()
 
 
 def describe(clock: Clock, *, robot: str) -> str:

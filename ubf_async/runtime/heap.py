@@ -4,7 +4,7 @@ A running robot process holds tens of thousands of long-lived objects made while
 (modules, the behaviour tree, zenoh declarations, the simulator's space and caches). CPython's
 oldest-generation collection walks all of them: measured in a fleet's world process, one such
 collection held the event loop for 30–40 ms, so every robot's clock stopped for as long
-(``bench.fleet``; ``docs/fleet.md``). :func:`freeze_startup_objects`, called by the entry
+(``bench.fleet_scaling``; ``docs/fleet.md``). :func:`freeze_startup_objects`, called by the entry
 points once everything has started, collects what start-up left behind and then moves every
 surviving object into the collector's permanent generation (:func:`gc.freeze`), so later
 collections walk only what the run itself allocates.

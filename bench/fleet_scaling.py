@@ -1,8 +1,8 @@
 """How a fleet scales on this machine: N robots in one simulated world, each controller in its
 own process, over a zenoh router, at 50 Hz and 1× real time.
 
-Run ``python -m bench.fleet [--robots 1,2,4,8] [--duration 20] [--json FILE]``. For each N it
-starts what ``python -m ubf_async.fleet`` starts — a router, N controllers
+Run ``python -m bench.fleet_scaling [--robots 1,2,4,8] [--duration 20] [--json FILE]``. For
+each N it starts what ``python -m ubf_async.fleet`` starts — a router, N controllers
 (``launch --no-sim --sim-time --robot rI --mode client``) and the world holding the N robots
 and their simulated devices (camera, IR, encoders, motors…) — runs the world for
 ``--duration`` simulated seconds at 1×, and reports, per N:
@@ -277,7 +277,7 @@ async def run_fleet(n: int, *, duration_s: float, folder: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.fleet", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m bench.fleet_scaling", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--robots", default="1,2,4,8",
                         help="fleet sizes to run, comma-separated (at most 8)")
