@@ -9,6 +9,8 @@ through ``tests.exit_probe``, which reports the threads alive when ``main()`` re
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import contextlib
 import json
 import os
@@ -18,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -26,7 +29,11 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.conftest import REPOSITORY, free_port, repository_env
+from ubf_async.cli import ending
 from ubf_async.cli.run import EXIT_ERROR, EXIT_NOW_BUDGET_S, STOP_BOUND_S
+from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.transport import ZenohConnection
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.fleet import FLEET_STOP_BOUND_S
 
 SIMULATED_SECOND = "| sim 1."
@@ -361,6 +368,113 @@ def test_every_entry_point_stops_within_its_bound_and_leaves_no_thread(
         code = program.stopped_within(STOP_BOUND_S)
         assert code == 0, program.text()
         assert_no_non_daemon_thread(program)
+
+
+# ---------------------------------------------------------------------------------------------
+# the threads calls leave the loop on
+
+
+class Held:
+    """Something a call holds (as ``_close`` held the zenoh session) whose release is seen."""
+
+    def __call__(self) -> str:
+        return "done"
+
+
+def published_while_held(future: concurrent.futures.Future[Any],
+                         ref: weakref.ref[Held]) -> threading.Event:
+    """Set if, when ``future``'s outcome is published (in the thread publishing it), the
+    object ``ref`` names was still alive."""
+    held = threading.Event()
+
+    def check(_: concurrent.futures.Future[Any]) -> None:
+        if ref() is not None:
+            held.set()
+
+    future.add_done_callback(check)
+    return held
+
+
+def test_a_call_thread_lets_go_of_the_call_before_its_result_is_published() -> None:
+    """A call's daemon thread may still be finishing when the program returns; it must not
+    hold the last reference to anything then — a zenoh session freed in it while the
+    interpreter finalizes aborts the process (``FATAL: exception not rethrown``: the session's
+    close re-enters Python). So by the time the result is out, the call is let go of."""
+    executor = ending.DaemonExecutor(bound_s=5.0)
+    start = threading.Event()
+    call, argument = Held(), Held()
+    refs = weakref.ref(call), weakref.ref(argument)
+    future = executor.submit(lambda f, a: (start.wait(), f())[1], call, argument)
+    held = [published_while_held(future, ref) for ref in refs]
+    del call, argument
+    start.set()
+    assert future.result(timeout=5.0) == "done"
+    assert [h.is_set() for h in held] == [False, False]
+    executor.shutdown()
+
+
+def test_a_call_cancelled_before_it_ran_is_let_go_of_too() -> None:
+    executor = ending.DaemonExecutor(bound_s=5.0, one_at_a_time=True)
+    start = threading.Event()
+    first = executor.submit(start.wait)
+    waiting = Held()
+    ref = weakref.ref(waiting)
+    second = executor.submit(waiting)
+    assert second.cancel()
+    del waiting
+    start.set()
+    first.result(timeout=5.0)
+    executor.shutdown()  # waits for both threads
+    assert ref() is None
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("ordered", [False, True], ids=["own-threads", "zenoh-threads"])
+async def test_a_closed_zenoh_bus_has_no_callback_left_to_run(ordered: bool) -> None:
+    """Samples still streaming in when a bus closes: once ``aclose`` returns, every
+    declaration's callback is done with (zenoh-python ran its ``drop``) and the callback
+    threads have ended — nothing is left to enter Python from zenoh as the interpreter exits."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robot = await Bus.open(ConnectionOptions(robot="ends", listen=[endpoint]), ordered=ordered)
+    sender = await Bus.open(ConnectionOptions(robot="ends", connect=[endpoint]))
+    try:
+        heard = asyncio.Event()
+        for n in range(3):
+            robot.subscribe(f"ubf/ends/t{n}", lambda key, payload, received_ns: heard.set())
+        robot.watch_liveliness("ubf/ends/alive/**", lambda key, up: None)
+        publisher = sender.raw_publisher("ubf/ends/t1")
+        deadline = time.monotonic() + START_S
+        while not heard.is_set():  # until the link carries samples (no fixed wait)
+            assert time.monotonic() < deadline, "no sample crossed the link"
+            publisher.put(b"x")
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(heard.wait(), 0.05)
+        streaming = asyncio.create_task(keep_publishing(publisher))
+        ends = list(transport_of(robot)._callback_ends)
+        assert len(ends) == 4
+        await robot.aclose()
+        assert all(end.dropped.is_set() for end in ends)
+        threads = [end.thread for end in ends]
+        if ordered:
+            assert threads == [None] * 4  # they ran on zenoh's threads: nothing to join
+        else:
+            assert all(t is not None and not t.is_alive() for t in threads), threads
+        streaming.cancel()
+    finally:
+        await robot.aclose()
+        await sender.aclose()
+
+
+async def keep_publishing(publisher: Any) -> None:
+    while True:
+        publisher.put(b"x")
+        await asyncio.sleep(0)
+
+
+def transport_of(bus: Bus) -> ZenohConnection:
+    connection = bus._connection
+    assert isinstance(connection, ZenohConnection)
+    return connection
 
 
 # ---------------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import functools
 import itertools
 import logging
 import os
@@ -178,6 +179,23 @@ def _run_quietly(finish: Callable[[float], None], timeout_s: float) -> None:
         finish(timeout_s)
 
 
+def _run_call(job: list[tuple[concurrent.futures.Future[T], Callable[[], T]]]) -> None:
+    """Run the call ``job`` holds for its future, letting go of it before the result is
+    published (:class:`DaemonExecutor`). (Taken out of the list here, not unpacked into
+    arguments: the caller's argument tuple would hold the call until this returns.)"""
+    future, call = job.pop()
+    if not future.set_running_or_notify_cancel():
+        return
+    try:
+        result = call()
+    except BaseException as exc:
+        del call
+        future.set_exception(exc)
+    else:
+        del call
+        future.set_result(result)
+
+
 class DaemonExecutor(concurrent.futures.ThreadPoolExecutor):
     """An event loop's default executor (``asyncio.to_thread``) whose work cannot keep the
     process alive: each call runs in a daemon thread of its own, and shutting down waits for
@@ -187,7 +205,14 @@ class DaemonExecutor(concurrent.futures.ThreadPoolExecutor):
     A thread per call: the calls that leave the loop are few (file writes, zenoh queries);
     ``one_at_a_time`` runs them one after another (CPU work that would only fight for the GIL).
     (A ``ThreadPoolExecutor`` only because asyncio accepts nothing else; none of its pool is
-    used.)"""
+    used.)
+
+    A call's thread lets go of the call — the function, its arguments and whatever they hold —
+    before its result is published, never after: otherwise a thread still finishing when the
+    program returns can drop the last reference to a zenoh session while the interpreter
+    finalizes, and the session's close, re-entering Python then, aborts the process
+    (``FATAL: exception not rethrown``). The stdlib's own workers ``del`` their work item for
+    the same reason."""
 
     def __init__(self, *, bound_s: float, name: str = "ubf-io",
                  one_at_a_time: bool = False) -> None:
@@ -202,15 +227,13 @@ class DaemonExecutor(concurrent.futures.ThreadPoolExecutor):
     def submit(self, fn: Callable[..., T], /, *args: Any,
                **kwargs: Any) -> concurrent.futures.Future[T]:
         future: concurrent.futures.Future[T] = concurrent.futures.Future()
+        job: list[tuple[concurrent.futures.Future[T], Callable[[], T]]] = [
+            (future, functools.partial(fn, *args, **kwargs))]  # the thread empties it
 
         def work() -> None:
             try:
                 with self._one_at_a_time:
-                    if future.set_running_or_notify_cancel():
-                        try:
-                            future.set_result(fn(*args, **kwargs))
-                        except BaseException as exc:
-                            future.set_exception(exc)
+                    _run_call(job)
             finally:
                 with self._calls_lock:
                     self._calls.discard(thread)

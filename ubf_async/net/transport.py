@@ -210,32 +210,37 @@ class _ZenohQuery:
             self._query.drop()
 
 
-CALLBACK_THREADS_JOIN_S = 2.0
-"""How long closing a zenoh connection waits, at most, for its callback threads to end."""
+CALLBACK_END_WAIT_S = 2.0
+"""How long closing a zenoh connection waits, at most, for its callbacks to be done with."""
 
 
-class _CallbackThread:
-    """The Python thread zenoh-python runs one declaration's callback on, known once its
-    ``drop`` ran there (after the declaration or the session is gone)."""
+class _CallbackEnd:
+    """When one declaration's callback can no longer enter Python: once zenoh-python has run
+    its ``drop``, which it does after the declaration or the session is gone and no call is in
+    flight — on the declaration's own callback thread (``own_thread``, the default
+    ``indirect`` callbacks: that thread is then joined too) or, for callbacks run on zenoh's
+    threads, on whichever thread let go of it last."""
 
-    __slots__ = ("dropped", "thread")
+    __slots__ = ("dropped", "own_thread", "thread")
 
-    def __init__(self) -> None:
+    def __init__(self, *, own_thread: bool) -> None:
+        self.own_thread = own_thread
         self.dropped = threading.Event()
         self.thread: threading.Thread | None = None
 
     def on_drop(self) -> None:
-        self.thread = threading.current_thread()
+        if self.own_thread:  # (asked on one of zenoh's threads, it would make a dummy)
+            self.thread = threading.current_thread()
         self.dropped.set()
 
     def finished(self) -> bool:
-        return self.thread is not None and not self.thread.is_alive()
+        return self.dropped.is_set() and (self.thread is None or not self.thread.is_alive())
 
-    def join(self, deadline: float) -> None:
-        if self.dropped.wait(max(0.0, deadline - time.monotonic())):
+    def wait(self, deadline: float) -> None:
+        dropped = self.dropped.wait(max(0.0, deadline - time.monotonic()))
+        if dropped and self.thread not in (None, threading.current_thread()):
             assert self.thread is not None
-            if self.thread is not threading.current_thread():
-                self.thread.join(max(0.0, deadline - time.monotonic()))
+            self.thread.join(max(0.0, deadline - time.monotonic()))
 
 
 class ZenohConnection:
@@ -249,25 +254,24 @@ class ZenohConnection:
     :mod:`ubf_async.runtime.lockstep`). The callbacks only copy and hand over, so zenoh's thread
     is held briefly.
 
-    Those callback threads outlive ``session.close()`` for a moment (each ends once its
-    channel is dropped); :meth:`close` waits for them, so none is left running in zenoh
-    when the interpreter exits (which on Python 3.11 aborts the process: "FATAL: exception
-    not rethrown")."""
+    Either way a callback can still be running, or about to run, when ``session.close()``
+    returns (a callback thread ends once its channel is dropped; a zenoh thread may be
+    mid-call). :meth:`close` waits until each declaration's callback is done with
+    (:class:`_CallbackEnd`), so no thread enters Python from zenoh while the interpreter
+    exits — which on Python 3.11 aborts the process ("FATAL: exception not rethrown")."""
 
     callbacks_on_loop = False
 
     def __init__(self, session: zenoh.Session, *, ordered: bool = False) -> None:
         self.session = session
         self.ordered = ordered
-        self._callback_threads: list[_CallbackThread] = []
+        self._callback_ends: list[_CallbackEnd] = []
 
     def _handler(self, callback: Callable[[Any], None]) -> Any:
-        if self.ordered:
-            return zenoh.handlers.Callback(callback, indirect=False)
-        self._callback_threads = [t for t in self._callback_threads if not t.finished()]
-        end = _CallbackThread()
-        self._callback_threads.append(end)
-        return zenoh.handlers.Callback(callback, end.on_drop)
+        self._callback_ends = [e for e in self._callback_ends if not e.finished()]
+        end = _CallbackEnd(own_thread=not self.ordered)
+        self._callback_ends.append(end)
+        return zenoh.handlers.Callback(callback, end.on_drop, indirect=not self.ordered)
 
     def declare_publisher(self, key: str) -> OutgoingPublisher:
         return _ZenohPublisher(self.session.declare_publisher(key))
@@ -334,9 +338,9 @@ class ZenohConnection:
 
     def _close(self) -> None:
         self.session.close()
-        deadline = time.monotonic() + CALLBACK_THREADS_JOIN_S
-        for end in self._callback_threads:
-            end.join(deadline)
+        deadline = time.monotonic() + CALLBACK_END_WAIT_S
+        for end in self._callback_ends:
+            end.wait(deadline)
 
 
 class ZenohTransport:
