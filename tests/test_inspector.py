@@ -21,6 +21,7 @@ from ubf_async.tools.inspector import (
     resolve_key,
     tree_request_data,
 )
+from ubf_async.tools.inspector.common import key_or_report
 from ubf_async.wire.protocol import Keys, encode
 
 EXAMPLES = ROOT / "examples"
@@ -249,6 +250,14 @@ def test_formatting_helpers() -> None:
                                 "data": {"b": b"\x01\x02"}})
     assert json.loads(format_sample(keys, "k", with_bytes, raw=False,
                                     as_json=True))["data"] == {"b": "0102"}
+
+
+def test_a_key_that_does_not_resolve_is_reported(capsys: pytest.CaptureFixture[str]) -> None:
+    keys = Keys("r")
+    assert key_or_report(keys, "cmd/drive") == "ubf/r/cmd/drive"
+    assert capsys.readouterr().err == ""
+    assert key_or_report(keys, " / ") is None
+    assert capsys.readouterr().err == "error: empty key\n"
 
 
 def test_state_shows_refusals_and_quarantined_behaviours() -> None:

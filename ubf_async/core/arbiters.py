@@ -171,10 +171,7 @@ class PriorityFusion(Arbiter):
     name = "PriorityFusion"
 
     def arbitrate(self, candidates: Sequence[Candidate], state: State) -> Decision:
-        if not candidates:
-            return NO_DECISION
-        ranked = _stable_desc(candidates, _priority_then_utility)
-        return _fieldwise(ranked, ranked[0].action.vote)
+        return _fused(candidates, _priority_then_utility)
 
 
 class UtilityFusion(Arbiter):
@@ -184,10 +181,7 @@ class UtilityFusion(Arbiter):
     name = "UtilityFusion"
 
     def arbitrate(self, candidates: Sequence[Candidate], state: State) -> Decision:
-        if not candidates:
-            return NO_DECISION
-        ranked = _stable_desc(candidates, _utility)
-        return _fieldwise(ranked, ranked[0].action.vote)
+        return _fused(candidates, _utility)
 
 
 def _stable_desc(
@@ -195,6 +189,17 @@ def _stable_desc(
 ) -> list[Candidate]:
     """Sorted by ``key`` descending; ``sorted`` is stable, so ties keep child order."""
     return sorted(candidates, key=key, reverse=True)
+
+
+def _fused(
+    candidates: Sequence[Candidate], key: Callable[[Candidate], float | tuple[float, ...]]
+) -> Decision:
+    """Field by field (:func:`_fieldwise`) over the candidates ranked by ``key``
+    (:func:`_stable_desc`), with the vote of the top-ranked one."""
+    if not candidates:
+        return NO_DECISION
+    ranked = _stable_desc(candidates, key)
+    return _fieldwise(ranked, ranked[0].action.vote)
 
 
 class CommandFusion(Arbiter):

@@ -58,7 +58,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 import zenoh
 
@@ -231,7 +231,30 @@ class BridgeStats:
     """Hand-offs run on the transport's thread while the loop was idle (``direct=True``)."""
 
 
-class Subscription:
+class _Declared:
+    """What :class:`Subscription` and :class:`Queryable` share: a declaration on the
+    transport, undone once on :meth:`close`, which also tells the bus (``_on_close``)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._closed = False
+        self._declaration: Declaration | None = None
+        self._on_close: Callable[[Self], None] | None = None
+
+    def close(self: Self) -> None:
+        """Stop delivering samples or answering queries (queries still waiting get an error
+        reply); idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._on_close is not None:
+            self._on_close(self)
+        if self._declaration is not None:
+            self._declaration.undeclare()
+
+
+class Subscription(_Declared):
     """A subscriber whose samples are delivered on the event loop (the bridge)."""
 
     def __init__(
@@ -244,6 +267,7 @@ class Subscription:
         name: str = "",
         direct: bool = False,
     ) -> None:
+        super().__init__()
         self._loop = loop
         self._handler = handler
         self._latest = latest
@@ -253,15 +277,11 @@ class Subscription:
                                           now_ns=_monotonic_ns())
         """Samples handled on the transport's thread (:data:`DIRECT_RATE_HZ`); used with the
         lock held."""
-        self._lock = threading.Lock()
         self._pending_latest: dict[str, tuple[bytes, int]] = {}
         self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
         self._max_pending = max_queue
         """Distinct keys waiting in latest mode (a new key beyond them is dropped)."""
         self._scheduled = False
-        self._closed = False
-        self._declaration: Declaration | None = None
-        self._on_close: Callable[[Subscription], None] | None = None
         self.name = name
         self.stats = BridgeStats()
 
@@ -357,17 +377,6 @@ class Subscription:
             else:
                 stats.delivered += 1
 
-    def close(self) -> None:
-        """Stop delivering; idempotent."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-        if self._on_close is not None:
-            self._on_close(self)
-        if self._declaration is not None:
-            self._declaration.undeclare()
-
 
 class Publisher:
     """Publishes validated messages of one schema on one key, numbering them.
@@ -438,7 +447,7 @@ class QueryStats:
     handler_errors: int = 0
 
 
-class Queryable:
+class Queryable(_Declared):
     """A queryable whose queries are answered on the event loop.
 
     The transport's callback only takes the query (its payload already copied) and schedules
@@ -453,16 +462,13 @@ class Queryable:
         self, loop: asyncio.AbstractEventLoop, key: str, handler: QueryHandler, *,
         max_pending: int = 64, callbacks_on_loop: bool = False,
     ) -> None:
+        super().__init__()
         self.key = key
         self._loop = loop
         self._handler = handler
         self._max_pending = max_pending
         self._on_loop = callbacks_on_loop
         self._pending = 0
-        self._lock = threading.Lock()
-        self._closed = False
-        self._declaration: Declaration | None = None
-        self._on_close: Callable[[Queryable], None] | None = None
         self.stats = QueryStats()
 
     @property
@@ -519,17 +525,6 @@ class Queryable:
             log.warning("cannot reply to a query on %s: %s", self.key, exc)
         finally:
             query.drop()
-
-    def close(self) -> None:
-        """Stop answering (queries still waiting get an error reply); idempotent."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-        if self._on_close is not None:
-            self._on_close(self)
-        if self._declaration is not None:
-            self._declaration.undeclare()
 
 
 class RawPublisher:

@@ -252,6 +252,20 @@ class Component:
             pub.close()
 
 
+class EveryMessageComponent(Component):
+    """A component that takes every message of its robot (``ubf/<robot>/**``), each in order
+    (``latest=False``), until closed: the recorder's and the live view's base. Subclasses
+    implement :meth:`_on_message`."""
+
+    async def run(self) -> None:
+        self.subscribe(f"{self.bus.keys.prefix}/**", self._on_message, latest=False)
+        await asyncio.Event().wait()  # until closed: the subscription does the work
+
+    def _on_message(self, key: str, payload: bytes, received_ns: int) -> None:
+        """One message, on the event loop. Override this."""
+        raise NotImplementedError
+
+
 @dataclass
 class ComponentHealth:
     name: str

@@ -53,7 +53,7 @@ import msgspec
 
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.component import Component
+from ubf_async.runtime.component import EveryMessageComponent
 from ubf_async.wire.protocol import Message, decode
 from ubf_async.wire.topics import BY_SCHEMA, PlainData
 
@@ -449,7 +449,7 @@ class _Subscriptions:
         return Listener()
 
 
-class FoxgloveServer(Component):
+class FoxgloveServer(EveryMessageComponent):
     """Serves one robot live to Foxglove (module docstring) on ``host``:``port`` (``port`` 0:
     any free port; :attr:`port` says which once started). Loopback by default: the server has
     no authentication, so bind it wider only on a network you trust."""
@@ -492,10 +492,6 @@ class FoxgloveServer(Component):
                 raise ConfigurationError(
                     f"Foxglove server on {self.host}:{self.requested_port}: {exc}") from None
         await super().start()
-
-    async def run(self) -> None:
-        self.subscribe(f"{self.bus.keys.prefix}/**", self._on_message, latest=False)
-        await asyncio.Event().wait()  # until closed: the subscription does the work
 
     def _on_message(self, key: str, payload: bytes, received_ns: int) -> None:
         self.stats.received += 1

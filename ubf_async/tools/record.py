@@ -53,7 +53,7 @@ from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_s
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.component import Component, ensure_name_free
+from ubf_async.runtime.component import EveryMessageComponent, ensure_name_free
 from ubf_async.services.liveview import LiveMessage, LiveView
 from ubf_async.wire.protocol import PROTOCOL_VERSION, Message, decode
 from ubf_async.wire.topics import BY_SCHEMA, PlainData, Topic
@@ -139,7 +139,7 @@ class RecorderStats:
     """Why writing stopped, if it did (a full disk)."""
 
 
-class McapRecorder(Component):
+class McapRecorder(EveryMessageComponent):
     """Records every message on the robot's keys to MCAP (module docstring).
 
     ``out`` is a directory (the file is ``<robot>.mcap`` in it) or a ``.mcap`` file.
@@ -186,10 +186,6 @@ class McapRecorder(Component):
             # Even a process that exits at once (a second Ctrl-C) leaves a finished file.
             self._unregister_exit_now = ending.on_exit_now(self._finish_now)
         await super().start()
-
-    async def run(self) -> None:
-        self.subscribe(f"{self.bus.keys.prefix}/**", self._on_message, latest=False)
-        await asyncio.Event().wait()  # until closed: the subscription does the work
 
     def _on_message(self, key: str, payload: bytes, received_ns: int) -> None:
         self.stats.received += 1

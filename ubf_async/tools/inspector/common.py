@@ -5,6 +5,7 @@ which live components announce publishing a key (their heartbeats)."""
 from __future__ import annotations
 
 import json
+import sys
 from typing import Any
 
 import msgspec
@@ -41,6 +42,16 @@ def resolve_key(keys: Keys, key: str) -> str:
     if not key:
         raise ValueError("empty key")
     return key if key.startswith("ubf/") or key.startswith("**") else f"{keys.prefix}/{key}"
+
+
+def key_or_report(keys: Keys, key: str) -> str | None:
+    """:func:`resolve_key`, or ``None`` once the error is printed on stderr (the verb then
+    exits 2)."""
+    try:
+        return resolve_key(keys, key)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
 
 
 def jsonable(value: Any) -> Any:

@@ -9,7 +9,6 @@ import asyncio
 import contextlib
 import dataclasses
 import json
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any, TextIO
@@ -235,10 +234,8 @@ def describe_type(info: msgspec.inspect.Type) -> str:
 
 
 async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
-    try:
-        key_expr = common.resolve_key(bus.keys, args.key)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    key_expr = common.key_or_report(bus.keys, args.key)
+    if key_expr is None:
         return 2
     seen: dict[str, samples.KeyWindow] = {}
 

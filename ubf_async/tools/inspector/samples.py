@@ -80,10 +80,8 @@ def format_sample(keys: Keys, key: str, payload: bytes, *, raw: bool, as_json: b
 
 async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     keys = bus.keys
-    try:
-        key_expr = common.resolve_key(keys, args.key)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    key_expr = common.key_or_report(keys, args.key)
+    if key_expr is None:
         return 2
     done = asyncio.Event()
     shown = 0
@@ -234,10 +232,8 @@ MIXED_TICKS = ("# every tick sends a drive command: the clock's periodic ticks a
 async def cmd_rate(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     """``hz`` and ``bw``: one line per key, once a second; for ``hz`` of drive commands, one
     more per kind of tick (:func:`tick_kind`)."""
-    try:
-        key_expr = common.resolve_key(bus.keys, args.key)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    key_expr = common.key_or_report(bus.keys, args.key)
+    if key_expr is None:
         return 2
     if args.window < 2:
         print("error: --window must be at least 2", file=sys.stderr)
