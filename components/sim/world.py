@@ -481,6 +481,15 @@ StepHook = Callable[["World", float], None]
 """Called at the start of every ``World.step`` with the world and the step's dt."""
 
 
+def _new_space() -> pymunk.Space:
+    space = pymunk.Space()
+    space.gravity = (0.0, 0.0)
+    space.damping = 1.0
+    space.collision_slop = 0.0005
+    space.iterations = 20
+    return space
+
+
 class World:
     """The simulated Mini-WHEGS world.
 
@@ -498,24 +507,34 @@ class World:
         self._floor_bodies: list[_FloorBody] = []
         self._lighting = cfg.lighting
 
-        space = pymunk.Space()
-        space.gravity = (0.0, 0.0)
-        space.damping = 1.0
-        space.collision_slop = 0.0005
-        space.iterations = 20
-        self._space = space
-
+        self._space = _new_space()
         self._labels: dict[pymunk.Shape, str] = {}
         """What each shape is, for :meth:`contacts`: ``arena``, ``walls[i]``,
         ``obstacles[i]``, ``distractors[i]``, ``ball``, ``robot i``."""
-        # Robots: robot 0 at robot_start, then the fleet's.
-        rc = cfg.robot
-        geo = rc.geometry
+        # The order things are added to the space is part of a seed's run: robots, ball,
+        # walls, obstacles, distractors.
         self._robots = [self._add_robot(pose, index=i)
                         for i, pose in enumerate((cfg.robot_start, *cfg.more_robots))]
         self._robot = self._robots[0].body
         self.air = RadioAir(len(self._robots))
         """What the robots' ``radio.air`` backends send each other."""
+        self._set_wheel_contacts(cfg)
+        self._ball: _FloorBody | None = None
+        if cfg.ball is not None:
+            self._ball = self._add_ball(cfg.ball)
+        self._walls = cfg.all_walls()
+        self._add_static_geometry(cfg)
+        self._distractor_bodies: list[pymunk.Body | None] = [
+            self._add_distractor(index, d) for index, d in enumerate(cfg.distractors)]
+
+        self._snapshots: dict[int, WorldSnapshot] = {}
+        """Per robot, built on demand by :meth:`snapshot_for` (dropped when the world
+        changes)."""
+
+    def _set_wheel_contacts(self, cfg: WorldConfig) -> None:
+        """The wheel-leg contacts and the friction they can carry (:meth:`_wheel_forces`)."""
+        rc = cfg.robot
+        geo = rc.geometry
         half_track = geo.track_width_m / 2
         half_base = rc.wheelbase_m / 2
         # Wheel-leg contacts (x, y, side) in the body frame; side 0 = left (+y), 1 = right.
@@ -534,71 +553,61 @@ class World:
         self._alpha: dict[float, float] = {}
         """The wheels' first-order lag factor per substep length (one or two lengths)."""
 
-        # Ball.
-        self._ball: _FloorBody | None = None
-        if cfg.ball is not None:
-            b = cfg.ball
-            self._ball = self._add_round_body(
-                b.x_m, b.y_m, b.radius_m, b.mass_kg, elasticity=b.elasticity,
-                damping_per_s=b.linear_damping_per_s, resistance=b.rolling_resistance,
-            )
-            self._labels.update(dict.fromkeys(self._ball.body.shapes, "ball"))
+    def _add_ball(self, b: BallConfig) -> _FloorBody:
+        ball = self._add_round_body(
+            b.x_m, b.y_m, b.radius_m, b.mass_kg, elasticity=b.elasticity,
+            damping_per_s=b.linear_damping_per_s, resistance=b.rolling_resistance,
+        )
+        self._labels.update(dict.fromkeys(ball.body.shapes, "ball"))
+        return ball
 
-        # Static geometry.
-        static = space.static_body
-        self._walls = cfg.all_walls()
+    def _add_static_geometry(self, cfg: WorldConfig) -> None:
+        """The arena's and the scenario's walls (``self._walls``), then the obstacle boxes."""
+        static = self._space.static_body
         arena_walls = len(cfg.arena.walls()) if cfg.arena is not None else 0
         for i, wall in enumerate(self._walls):
             seg = pymunk.Segment(static, (wall.x1_m, wall.y1_m), (wall.x2_m, wall.y2_m), 0.0)
-            seg.friction = 0.5
-            seg.elasticity = 0.3
-            space.add(seg)
-            self._labels[seg] = "arena" if i < arena_walls else f"walls[{i - arena_walls}]"
+            self._add_static_shape(seg, "arena" if i < arena_walls else f"walls[{i - arena_walls}]")
         for i, box in enumerate(cfg.boxes):
-            poly = pymunk.Poly(static, box.corners())
-            poly.friction = 0.5
-            poly.elasticity = 0.3
-            space.add(poly)
-            self._labels[poly] = f"obstacles[{i}]"
+            self._add_static_shape(pymunk.Poly(static, box.corners()), f"obstacles[{i}]")
 
-        # Distractors: static shapes, or floor bodies when movable.
-        self._distractor_bodies: list[pymunk.Body | None] = []
-        for index, d in enumerate(cfg.distractors):
-            if d.movable and d.kind == "box":
-                size = (d.length_m, d.width_m)
-                mbody = pymunk.Body(d.mass_kg, pymunk.moment_for_box(d.mass_kg, size))
-                mbody.position = (d.x_m, d.y_m)
-                mbody.angle = d.yaw_rad
-                mshape = pymunk.Poly.create_box(mbody, size)
-                mshape.friction = 0.5
-                mshape.elasticity = 0.3
-                space.add(mbody, mshape)
-                self._labels[mshape] = f"distractors[{index}]"
-                # A box slides rather than rolls: strong Coulomb friction.
-                self._floor_bodies.append(_FloorBody(mbody, 2.0, 0.4))
-                self._distractor_bodies.append(mbody)
-            elif d.movable:
-                fb = self._add_round_body(
-                    d.x_m, d.y_m, d.radius_m, d.mass_kg, elasticity=0.5,
-                    damping_per_s=0.5, resistance=0.02 if d.kind == "sphere" else 0.4,
-                )
-                self._labels.update(dict.fromkeys(fb.body.shapes, f"distractors[{index}]"))
-                self._distractor_bodies.append(fb.body)
-            else:
-                if d.kind == "box":
-                    corners = _box_corners(d.x_m, d.y_m, d.yaw_rad, d.length_m, d.width_m)
-                    dshape: pymunk.Shape = pymunk.Poly(static, corners)
-                else:
-                    dshape = pymunk.Circle(static, d.radius_m, offset=(d.x_m, d.y_m))
-                dshape.friction = 0.5
-                dshape.elasticity = 0.3
-                space.add(dshape)
-                self._labels[dshape] = f"distractors[{index}]"
-                self._distractor_bodies.append(None)
+    def _add_static_shape(self, shape: pymunk.Shape, label: str) -> None:
+        shape.friction = 0.5
+        shape.elasticity = 0.3
+        self._space.add(shape)
+        self._labels[shape] = label
 
-        self._snapshots: dict[int, WorldSnapshot] = {}
-        """Per robot, built on demand by :meth:`snapshot_for` (dropped when the world
-        changes)."""
+    def _add_distractor(self, index: int, d: Distractor) -> pymunk.Body | None:
+        """A distractor: a floor body when movable (its body returned), else a static shape."""
+        label = f"distractors[{index}]"
+        if d.movable and d.kind == "box":
+            size = (d.length_m, d.width_m)
+            mbody = pymunk.Body(d.mass_kg, pymunk.moment_for_box(d.mass_kg, size))
+            mbody.position = (d.x_m, d.y_m)
+            mbody.angle = d.yaw_rad
+            mshape = pymunk.Poly.create_box(mbody, size)
+            mshape.friction = 0.5
+            mshape.elasticity = 0.3
+            self._space.add(mbody, mshape)
+            self._labels[mshape] = label
+            # A box slides rather than rolls: strong Coulomb friction.
+            self._floor_bodies.append(_FloorBody(mbody, 2.0, 0.4))
+            return mbody
+        if d.movable:
+            fb = self._add_round_body(
+                d.x_m, d.y_m, d.radius_m, d.mass_kg, elasticity=0.5,
+                damping_per_s=0.5, resistance=0.02 if d.kind == "sphere" else 0.4,
+            )
+            self._labels.update(dict.fromkeys(fb.body.shapes, label))
+            return fb.body
+        static = self._space.static_body
+        if d.kind == "box":
+            corners = _box_corners(d.x_m, d.y_m, d.yaw_rad, d.length_m, d.width_m)
+            dshape: pymunk.Shape = pymunk.Poly(static, corners)
+        else:
+            dshape = pymunk.Circle(static, d.radius_m, offset=(d.x_m, d.y_m))
+        self._add_static_shape(dshape, label)
+        return None
 
     def _add_robot(self, pose: WorldPose, *, index: int) -> _RobotBody:
         rc = self._config.robot
