@@ -15,7 +15,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any, TextIO
 
@@ -110,15 +110,8 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
     simulator = SimulatorComponent(bus=buses[0], world=world, clock=clock, speed=options.speed,
                                    more_robots=buses[1:],
                                    lockstep_participants=options.lockstep_participants)
-    components: list[Component] = []
-    for index, (member, bus) in enumerate(zip(members, buses, strict=True)):
-        # Odometry in the world's frame: each robot's encoders start from its start pose.
-        origin = {"origin_x_m": member.x_m, "origin_y_m": member.y_m,
-                  "origin_heading_deg": member.heading_deg}
-        context = DeviceContext(bus=bus, clock=clock, seed=config.seed,
-                                simulation=world.robot(index), extras=origin)
-        components += [device.build(context=context) for device in member.devices]
-    components.append(simulator)  # last: time starts once the devices hold it
+    components = [*_fleet_devices(world, buses, clock, members, seed=config.seed),
+                  simulator]  # the simulator last: time starts once the devices hold it
     # Each controller's newest status, heard in simulated time: in lockstep the status of
     # an instant arrives before the controller acknowledges it, so these are the same
     # however fast the machine.
@@ -127,9 +120,7 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
     subscriptions = [bus.subscribe(CONTROLLER_STATUS.key(bus.keys, "controller"),
                                    _keep_status(statuses, index, malformed))
                      for index, bus in enumerate(buses)]
-    start_poses = [world.snapshot_for(i).robot for i in range(world.robot_count)]
-    travelled = [0.0] * world.robot_count
-    found_s: list[float | None] = [None] * world.robot_count
+    paths = _Paths(world)
     print(f"world: {scenario.name!r} with {len(members)} robots "
           f"({', '.join(m.name for m in members)}), {describe_speed(options.speed)}, "
           f"seed {config.seed}", file=out, flush=True)
@@ -143,18 +134,10 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
         if end_ns is not None:
             # Simulated time stops exactly at the end, however late this task notices it.
             clock.hold(end_ns)
-        last = [(p.x_m, p.y_m) for p in start_poses]
         try:
             while end_ns is None or clock.now_ns() < end_ns:
-                # Sample the paths every 0.1 simulated seconds (distance travelled per robot).
-                await clock.sleep(0.1)
-                for i in range(world.robot_count):
-                    snapshot = world.snapshot_for(i)
-                    now = snapshot.robot
-                    travelled[i] += math.hypot(now.x_m - last[i][0], now.y_m - last[i][1])
-                    last[i] = (now.x_m, now.y_m)
-                    if found_s[i] is None and snapshot.ball is not None and found(snapshot):
-                        found_s[i] = world.time_s - start_s
+                await clock.sleep(PATH_SAMPLE_S)
+                paths.sample(world, since_s=start_s)
         except asyncio.CancelledError:
             # Stopped (SIGTERM, Ctrl-C): the run so far is still summarised and saved.
             print(f"world: stopped at {world.time_s:.1f} simulated s", file=out, flush=True)
@@ -168,13 +151,65 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                            bound_s=WORLD_CLOSE_BOUND_S)
         for subscription in subscriptions:
             subscription.close()
-    ends = [world.snapshot_for(i).robot for i in range(world.robot_count)]
     rtf = simulator.real_time_factor()
+    summary = _fleet_summary(scenario.name, world, members, paths, statuses, rtf=rtf,
+                             lateness=simulator.step_lateness_s)
+    print(f"world: {world.time_s:.1f} simulated s at {rtf or 0:.2f}x real time", file=out,
+          flush=True)
+    return summary
+
+
+PATH_SAMPLE_S = 0.1
+"""How often (simulated s) the robots' paths are sampled: distance travelled, ball found."""
+
+
+def _fleet_devices(world: World, buses: Sequence[Bus], clock: SimClock,
+                   members: Sequence[FleetMember], *, seed: int) -> list[Component]:
+    """Each robot's simulated devices, on its own bus, with its odometry in the world's frame
+    (its encoders start from its start pose)."""
+    components: list[Component] = []
+    for index, (member, bus) in enumerate(zip(members, buses, strict=True)):
+        origin = {"origin_x_m": member.x_m, "origin_y_m": member.y_m,
+                  "origin_heading_deg": member.heading_deg}
+        context = DeviceContext(bus=bus, clock=clock, seed=seed,
+                                simulation=world.robot(index), extras=origin)
+        components += [device.build(context=context) for device in member.devices]
+    return components
+
+
+class _Paths:
+    """Each robot's path, sampled: its start, distance travelled, when it first found the
+    ball (simulated s since the start)."""
+
+    def __init__(self, world: World) -> None:
+        self.starts = [world.snapshot_for(i).robot for i in range(world.robot_count)]
+        self.travelled = [0.0] * world.robot_count
+        self.found_s: list[float | None] = [None] * world.robot_count
+        self._last = [(p.x_m, p.y_m) for p in self.starts]
+
+    def sample(self, world: World, *, since_s: float) -> None:
+        for i in range(world.robot_count):
+            snapshot = world.snapshot_for(i)
+            now = snapshot.robot
+            last = self._last[i]
+            self.travelled[i] += math.hypot(now.x_m - last[0], now.y_m - last[1])
+            self._last[i] = (now.x_m, now.y_m)
+            if self.found_s[i] is None and snapshot.ball is not None and found(snapshot):
+                self.found_s[i] = world.time_s - since_s
+
+
+def _fleet_summary(scenario: str, world: World, members: Sequence[FleetMember], paths: _Paths,
+                   statuses: Sequence[Mapping[str, Any]], *, rtf: float | None,
+                   lateness: Sequence[float]) -> dict[str, Any]:
+    """The world's summary: the run, and per robot its start and end, distance, when it found
+    the ball, and what its controller last said."""
+    ends = [world.snapshot_for(i).robot for i in range(world.robot_count)]
+    found_s = paths.found_s
     summary = {
-        "scenario": scenario.name,
+        "scenario": scenario,
         "sim_time_s": world.time_s,
         "real_time_factor": rtf,
-        "step_lateness": lateness_summary(simulator.step_lateness_s),
+        "step_lateness": lateness_summary(lateness),
         "first_found_s": min((f for f in found_s if f is not None), default=None),
         "all_found_s": None if None in found_s else max(f for f in found_s if f is not None),
         "robots": {
@@ -182,14 +217,12 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
                 "start": {"x_m": s.x_m, "y_m": s.y_m,
                           "heading_deg": math.degrees(s.heading_rad)},
                 "end": {"x_m": e.x_m, "y_m": e.y_m, "heading_deg": math.degrees(e.heading_rad)},
-                "travelled_m": travelled[i],
+                "travelled_m": paths.travelled[i],
                 "found_s": found_s[i],
                 "controller": {field: statuses[i].get(field)
                                for field in CONTROLLER_SUMMARY_FIELDS},
             }
-            for i, (member, s, e) in enumerate(zip(members, start_poses, ends, strict=True))
+            for i, (member, s, e) in enumerate(zip(members, paths.starts, ends, strict=True))
         },
     }
-    print(f"world: {world.time_s:.1f} simulated s at {rtf or 0:.2f}x real time", file=out,
-          flush=True)
     return rounded(summary)
