@@ -214,7 +214,7 @@ CALLBACK_END_WAIT_S = 2.0
 """How long closing a zenoh connection waits, at most, for its callbacks to be done with."""
 
 
-class _CallbackEnd:
+class CallbackEnd:
     """When one declaration's callback can no longer enter Python: once zenoh-python has run
     its ``drop``, which it does after the declaration or the session is gone and no call is in
     flight — on the declaration's own callback thread (``own_thread``, the default
@@ -236,7 +236,18 @@ class _CallbackEnd:
     def finished(self) -> bool:
         return self.dropped.is_set() and (self.thread is None or not self.thread.is_alive())
 
+    @classmethod
+    def handler(cls, callback: Callable[[Any], None], *,
+                on_zenoh_thread: bool) -> tuple[Any, CallbackEnd]:
+        """A zenoh-python handler running ``callback`` — on zenoh's own threads, in the order
+        samples arrive, when ``on_zenoh_thread`` (the callback must be brief), else on a
+        Python thread of its own — and the end to :meth:`wait` for once it is undeclared."""
+        end = cls(own_thread=not on_zenoh_thread)
+        return zenoh.handlers.Callback(callback, end.on_drop, indirect=not on_zenoh_thread), end
+
     def wait(self, deadline: float) -> None:
+        """Block until the callback is done with (:data:`CALLBACK_END_WAIT_S` at most is the
+        bound callers give), or ``deadline`` (``time.monotonic()``) passes."""
         dropped = self.dropped.wait(max(0.0, deadline - time.monotonic()))
         if dropped and self.thread not in (None, threading.current_thread()):
             assert self.thread is not None
@@ -257,7 +268,7 @@ class ZenohConnection:
     Either way a callback can still be running, or about to run, when ``session.close()``
     returns (a callback thread ends once its channel is dropped; a zenoh thread may be
     mid-call). :meth:`close` waits until each declaration's callback is done with
-    (:class:`_CallbackEnd`), so no thread enters Python from zenoh while the interpreter
+    (:class:`CallbackEnd`), so no thread enters Python from zenoh while the interpreter
     exits — which on Python 3.11 aborts the process ("FATAL: exception not rethrown")."""
 
     callbacks_on_loop = False
@@ -265,13 +276,13 @@ class ZenohConnection:
     def __init__(self, session: zenoh.Session, *, ordered: bool = False) -> None:
         self.session = session
         self.ordered = ordered
-        self._callback_ends: list[_CallbackEnd] = []
+        self._callback_ends: list[CallbackEnd] = []
 
     def _handler(self, callback: Callable[[Any], None]) -> Any:
         self._callback_ends = [e for e in self._callback_ends if not e.finished()]
-        end = _CallbackEnd(own_thread=not self.ordered)
+        handler, end = CallbackEnd.handler(callback, on_zenoh_thread=self.ordered)
         self._callback_ends.append(end)
-        return zenoh.handlers.Callback(callback, end.on_drop, indirect=not self.ordered)
+        return handler
 
     def declare_publisher(self, key: str) -> OutgoingPublisher:
         return _ZenohPublisher(self.session.declare_publisher(key))

@@ -46,6 +46,7 @@ import zenoh
 from ubf_async import throttle
 from ubf_async.assembly.robotfile import RemoteSlot, Ros2Spec
 from ubf_async.core.action import Action
+from ubf_async.net.transport import CALLBACK_END_WAIT_S, CallbackEnd
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.runtime.component import Component
 from ubf_async.services.remote import vote_data
@@ -239,6 +240,7 @@ class Ros2Bridge(Component):
         node_token = liveliness.declare_token(self.ros_node.token())
         cmd_in = rk.qualify(self.namespace, settings.cmd_vel_in)
         declared: list[Any] = [node_token]
+        inbound_end: CallbackEnd | None = None
         try:
             # Outbound: declared before any sample flows.
             self.ros_publisher("cmd_vel", rm.TWIST)
@@ -264,10 +266,10 @@ class Ros2Bridge(Component):
                                                behavior=settings.slot)
             self.in_key = rk.data_key(settings.domain_id, cmd_in, rm.TWIST, twist_hash)
             self._in_prefix = f"{settings.domain_id}/{cmd_in.lstrip('/')}/"
-            # On zenoh's own thread (it only copies and hands over): no callback thread of
-            # zenoh-python's own to outlive the session (transport.ZenohConnection).
-            declared.append(session.declare_subscriber(
-                self._in_prefix + "**", zenoh.handlers.Callback(self._on_zenoh, indirect=False)))
+            # On zenoh's own thread (it only copies and hands over); waited for once
+            # undeclared, so no call is left to enter Python (transport.CallbackEnd).
+            handler, inbound_end = CallbackEnd.handler(self._on_zenoh, on_zenoh_thread=True)
+            declared.append(session.declare_subscriber(self._in_prefix + "**", handler))
             self.keep(self.bus.watch_liveliness(
                 rk.endpoints_of(settings.domain_id, rk.PUBLISHER, cmd_in, rm.TWIST),
                 self._on_driver))
@@ -291,6 +293,9 @@ class Ros2Bridge(Component):
             for declaration in reversed(declared):
                 with contextlib.suppress(zenoh.ZError):
                     declaration.undeclare()
+            if inbound_end is not None and not inbound_end.dropped.is_set():
+                await asyncio.to_thread(inbound_end.wait,
+                                        time.monotonic() + CALLBACK_END_WAIT_S)
 
     # -- outbound ----------------------------------------------------------------------------
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
