@@ -42,7 +42,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from components.sim.world import Color, Lighting, Wall, WorldSnapshot
+from components.sim.world import WorldSnapshot
+from components.sim.world_config import Color, Lighting, Wall
 
 FRAME_WIDTH_PX = 1280
 FRAME_HEIGHT_PX = 1024
