@@ -1,4 +1,4 @@
-"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world.WorldSnapshot`.
+"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world_snapshot.WorldSnapshot`.
 
 A pinhole camera sits at the robot's front (``mount_x_m`` ahead of the body centre), 4 cm above
 the floor, looking forward and pitched up slightly, with the OV9655's 1280×1024 frame, ≈35°
@@ -42,8 +42,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from components.sim.world import WorldSnapshot
 from components.sim.world_config import Color, Lighting, Wall
+from components.sim.world_snapshot import WorldSnapshot
 
 FRAME_WIDTH_PX = 1280
 FRAME_HEIGHT_PX = 1024

@@ -59,8 +59,9 @@ The world is built from a :class:`~components.sim.world_config.WorldConfig`
 :class:`~components.sim.world_config.RobotConfig`, whose parameters are named above).
 
 ``World.step`` advances the physics in fixed-size substeps; after every step the world replaces
-its immutable :class:`WorldSnapshot`, which renderers and range queries may read from other
-threads (reading the ``snapshot()`` reference is atomic; the snapshot itself never changes).
+its immutable :class:`~components.sim.world_snapshot.WorldSnapshot`, which renderers and range
+queries may read from other threads (reading the ``snapshot()`` reference is atomic; the
+snapshot itself never changes).
 """
 
 from __future__ import annotations
@@ -77,18 +78,16 @@ from components.motors.pwm import pulse_widths, wheel_speed_rad_s
 from components.sim.air import RadioAir
 from components.sim.world_config import (
     BallConfig,
-    BoxObstacle,
     Color,
     Distractor,
-    DistractorKind,
     Lighting,
     RobotConfig,
-    Wall,
     WorldConfig,
     WorldPose,
     box_corners,
     require_finite,
 )
+from components.sim.world_snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
 ROBOT_COLOR: Color = (70, 72, 86)
 """The Mini-WHEGS's dark shell, as other robots' cameras see it."""
@@ -102,75 +101,6 @@ PUSH_LABEL = "push"
 def wrap_angle(angle_rad: float) -> float:
     """``angle_rad`` wrapped into ``[-π, π)``."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
-
-
-# --------------------------------------------------------------------------------------------
-# Snapshot
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class RobotState:
-    x_m: float
-    y_m: float
-    heading_rad: float
-    """Wrapped into ``[-π, π)``."""
-    heading_unwrapped_rad: float
-    """Continuous heading (counts full turns)."""
-    vx_m_s: float
-    """World-frame velocity."""
-    vy_m_s: float
-    yaw_rate_rad_s: float
-    left_wheel_angle_rad: float
-    right_wheel_angle_rad: float
-    left_wheel_speed_rad_s: float
-    right_wheel_speed_rad_s: float
-    left_pulse_ms: float
-    right_pulse_ms: float
-    length_m: float
-    width_m: float
-
-    @property
-    def forward_speed_m_s(self) -> float:
-        """Velocity along the robot's heading."""
-        return self.vx_m_s * math.cos(self.heading_rad) + self.vy_m_s * math.sin(self.heading_rad)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BallState:
-    x_m: float
-    y_m: float
-    vx_m_s: float
-    vy_m_s: float
-    radius_m: float
-    color: Color
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class DistractorState:
-    kind: DistractorKind
-    x_m: float
-    y_m: float
-    yaw_rad: float
-    radius_m: float
-    length_m: float
-    width_m: float
-    height_m: float
-    color: Color
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class WorldSnapshot:
-    """Immutable picture of the world after a step; safe to share between threads."""
-
-    time_s: float
-    step_count: int
-    robot: RobotState
-    ball: BallState | None
-    walls: tuple[Wall, ...]
-    boxes: tuple[BoxObstacle, ...]
-    distractors: tuple[DistractorState, ...]
-    lighting: Lighting
 
 
 # --------------------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ Frozen, validated value types only — no physics, no pymunk: the robot's start 
 (:class:`BoxObstacle`), distractors (:class:`Distractor`), the lighting (:class:`Lighting`), and
 :class:`WorldConfig`, which gathers them with the seed and the substep. Also the default
 colours and the small checks the types validate their fields with. Walls, boxes and lighting
-also travel in every :class:`~components.sim.world.WorldSnapshot`.
+also travel in every :class:`~components.sim.world_snapshot.WorldSnapshot`.
 """
 
 from __future__ import annotations
