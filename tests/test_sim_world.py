@@ -16,15 +16,14 @@ from components.motors.pwm import (
     pulse_widths,
     wheel_speed_rad_s,
 )
-from components.sim.world import (
+from components.sim.steady_drive import (
     THESIS_DRIVE_COMMANDS,
     SteadyDrive,
-    World,
     drive_table,
     format_drive_table,
     steady_drive,
-    wrap_angle,
 )
+from components.sim.world import World, wrap_angle
 from components.sim.world_config import Arena, BallConfig, RobotConfig, WorldConfig, WorldPose
 
 RADIUS = MINI_WHEGS.wheel_radius_m
