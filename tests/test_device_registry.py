@@ -20,7 +20,8 @@ from components.devices import (
 )
 from components.range.ir import IR_MODELS
 from components.sim.scenarios import load_scenario
-from components.sim.world import World, WorldConfig
+from components.sim.world import World
+from components.sim.world_config import WorldConfig
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot_text
 from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun

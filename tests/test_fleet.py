@@ -17,7 +17,8 @@ import pytest
 from components.range.backend import MountPose
 from components.sim.camera_render import render_camera
 from components.sim.ranging import beam_distance_m
-from components.sim.world import ROBOT_COLOR, Arena, World, WorldConfig, WorldPose
+from components.sim.world import ROBOT_COLOR, World
+from components.sim.world_config import Arena, WorldConfig, WorldPose
 from tests.conftest import eventually, free_port, read_until, spawn, stop
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions

@@ -13,7 +13,8 @@ from typing import Any
 
 import pytest
 
-from components.sim.world import Arena, World, WorldConfig, WorldPose
+from components.sim.world import World
+from components.sim.world_config import Arena, WorldConfig, WorldPose
 from tests.conftest import free_port
 from ubf_async.assembly.devices import build_device
 from ubf_async.assembly.robotfile import load_robot

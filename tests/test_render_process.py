@@ -27,7 +27,8 @@ from components.sim.backends import SimCameraBackend, WorldView, camera_backend
 from components.sim.calibrate import ball_ahead_world
 from components.sim.camera_render import DEFAULT_CAMERA
 from components.sim.render_process import ENV_VAR, RenderProcess, shared_render_process
-from components.sim.world import Arena, BallConfig, RobotView, World, WorldConfig, WorldPose
+from components.sim.world import RobotView, World
+from components.sim.world_config import Arena, BallConfig, WorldConfig, WorldPose
 from tests.test_sim_camera import busy_arena
 from ubf_async.assembly.simulation import DeviceContext
 

@@ -20,7 +20,8 @@ from components.sim.backends import (
     insert_glitches,
     quadrature_states,
 )
-from components.sim.world import BallConfig, World, WorldConfig
+from components.sim.world import World
+from components.sim.world_config import BallConfig, WorldConfig
 
 EDGES_PER_REV = 4096
 FORWARD_NEXT = {0: 1, 1: 3, 3: 2, 2: 0}

@@ -13,14 +13,14 @@ import pytest
 from components.camera.seekcolor import seekcolor
 from components.sim.calibrate import ball_ahead_world, main, pink_counts
 from components.sim.camera_render import DEFAULT_CAMERA, render_camera
-from components.sim.world import (
+from components.sim.world import World
+from components.sim.world_config import (
     ORANGE,
     Arena,
     BallConfig,
     BoxObstacle,
     Distractor,
     Lighting,
-    World,
     WorldConfig,
     WorldPose,
 )

@@ -9,12 +9,12 @@ import pytest
 from components.range.backend import MountPose
 from components.sim.backends import SimRangeBackend
 from components.sim.ranging import beam_distance_m, ray_box, ray_circle, ray_segment
-from components.sim.world import (
+from components.sim.world import World
+from components.sim.world_config import (
     BallConfig,
     BoxObstacle,
     Distractor,
     Wall,
-    World,
     WorldConfig,
     WorldPose,
 )

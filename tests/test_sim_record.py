@@ -22,7 +22,8 @@ from components.sim.record import (
     read_trajectory_csv,
     trajectory_sample,
 )
-from components.sim.world import Arena, BallConfig, World, WorldConfig
+from components.sim.world import World
+from components.sim.world_config import Arena, BallConfig, WorldConfig
 from tests.conftest import start_seeking_robot
 from ubf_async.assembly import registry
 from ubf_async.assembly.simulation import SimulationOptions

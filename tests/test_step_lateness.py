@@ -9,7 +9,8 @@ import pytest
 
 from components.sim.component import SimulatorComponent
 from components.sim.runner import lateness_summary
-from components.sim.world import World, WorldConfig
+from components.sim.world import World
+from components.sim.world_config import WorldConfig
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock

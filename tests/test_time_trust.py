@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
-from components.sim.world import Arena, WorldConfig
+from components.sim.world_config import Arena, WorldConfig
 from tests.conftest import SimRobot, eventually
 from ubf_async.runtime import clock as clock_module
 from ubf_async.runtime.bus import Bus

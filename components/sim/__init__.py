@@ -1,6 +1,8 @@
 """The Mini-WHEGS simulator: a pymunk world plus device backends (no bus, no asyncio).
 
-* :mod:`components.sim.world` — the 2-D world, scene description and immutable snapshots.
+* :mod:`components.sim.world` — the 2-D world.
+* :mod:`components.sim.world_config` — the scene description a world is built from.
+* :mod:`components.sim.world_snapshot` — the immutable snapshots a world's readers see.
 * :mod:`components.sim.camera_render` — the OpenCV-rendered OV9655 camera view.
 * :mod:`components.sim.render_process` — the process the simulated cameras render in (off
   the GIL of the process that steps the world).

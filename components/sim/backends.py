@@ -34,7 +34,8 @@ from components.sim.render_process import (
     render_process_wanted,
     shared_render_process,
 )
-from components.sim.world import WorldConfig, WorldSnapshot
+from components.sim.world_config import WorldConfig
+from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from components.camera.seekcolor import SUBSAMPLE_STEP, SeekResult, seekcolor
 from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera
-from components.sim.world import BallConfig, Distractor, Lighting, World, WorldConfig
+from components.sim.world import World
+from components.sim.world_config import BallConfig, Distractor, Lighting, WorldConfig
 from ubf_async.errors import ConfigurationError
 
 CONTACT_M = 0.035

@@ -1,4 +1,4 @@
-"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world.WorldSnapshot`.
+"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world_snapshot.WorldSnapshot`.
 
 A pinhole camera sits at the robot's front (``mount_x_m`` ahead of the body centre), 4 cm above
 the floor, looking forward and pitched up slightly, with the OV9655's 1280×1024 frame, ≈35°
@@ -42,7 +42,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from components.sim.world import Color, Lighting, Wall, WorldSnapshot
+from components.sim.world_config import Color, Lighting, Wall
+from components.sim.world_snapshot import WorldSnapshot
 
 FRAME_WIDTH_PX = 1280
 FRAME_HEIGHT_PX = 1024
@@ -704,39 +705,33 @@ def _wall_items(
     ]
 
 
-def render_camera(
-    snapshot: WorldSnapshot,
-    params: CameraParams = DEFAULT_CAMERA,
-    rng: np.random.Generator | None = None,
-    *,
-    grid: int = 1,
-) -> np.ndarray:
-    """Render the robot's camera view: an ``H×W×3`` ``uint8`` RGB frame (1024×1280 default).
+def _pitch_jitter_deg(params: CameraParams, rng: np.random.Generator | None) -> float:
+    """This frame's pitch jitter (the body's bob), drawn from ``rng``; 0 without noise."""
+    if rng is None or not params.pitch_jitter_deg > 0.0:
+        return 0.0
+    limit = min(3.0 * params.pitch_jitter_deg, _MAX_JITTER_DEG)
+    return float(np.clip(rng.normal(0.0, params.pitch_jitter_deg), -limit, limit))
 
-    ``rng`` drives the per-frame sensor noise (and the body's bob); ``None`` renders a
-    noise-free frame. ``grid`` > 1 renders only the full frame's pixels ``(grid·i, grid·j)``
-    into an image ``grid`` times smaller each way (``ceil(H/grid)×ceil(W/grid)``): with
-    ``grid = SUBSAMPLE_STEP`` exactly the pixels seekcolor's subsampler reads, at a fraction of
-    the cost. Those pixels get the same colours as in the full frame (same noise, same bob for
-    the same ``rng``), except that a polygon's edge may fall a pixel apart (rounding).
-    """
-    if grid < 1:
-        raise ValueError(f"grid must be >= 1, got {grid}")
-    jitter_deg = 0.0
-    if rng is not None and params.pitch_jitter_deg > 0.0:
-        limit = min(3.0 * params.pitch_jitter_deg, _MAX_JITTER_DEG)
-        jitter_deg = float(np.clip(rng.normal(0.0, params.pitch_jitter_deg), -limit, limit))
-    cam = _make_cam(snapshot, params, jitter_deg, grid)
+
+def _background_frame(params: CameraParams, jitter_deg: float, grid: int) -> np.ndarray:
+    """A fresh frame holding the background for the jittered pitch."""
     # Pitching up moves the horizon down the image: take the background rows higher up.
     f = params.focal_px
     p0 = math.radians(params.pitch_deg)
     shift = round(f * (math.tan(p0 + math.radians(jitter_deg)) - math.tan(p0)))
     top = _BG_MARGIN - shift
     if grid == 1:
-        frame = _background(params)[top:top + params.height_px].copy()
-    else:
-        frame = _background_grid(params, top, grid).copy()
-    # Auto exposure: a sphere filling much of the view turns the whole picture's gain down.
+        return _background(params)[top:top + params.height_px].copy()
+    return _background_grid(params, top, grid).copy()
+
+
+def _auto_expose(
+    frame: np.ndarray, snapshot: WorldSnapshot, params: CameraParams, cam: _Cam
+) -> tuple[float, Lighting]:
+    """Auto exposure: a sphere filling much of the view turns the whole picture's gain down.
+
+    Darkens the background already in ``frame``; returns the gain and the lighting to draw
+    the objects with."""
     spheres = [np.array([d.x_m, d.y_m, d.radius_m]) for d in snapshot.distractors
                if d.kind == "sphere"]
     if snapshot.ball is not None:
@@ -748,10 +743,19 @@ def render_camera(
         lighting = Lighting(brightness=lighting.brightness * gain, glare=lighting.glare)
         # A per-channel scalar: OpenCV's stubs know only arrays here.
         cv2.multiply(frame, (gain, gain, gain, 0.0), dst=frame)  # type: ignore[call-overload]
+    return gain, lighting
+
+
+def _scene_items(
+    snapshot: WorldSnapshot, params: CameraParams, cam: _Cam, brightness: float
+) -> list[tuple[float, int, Any]]:
+    """Everything to draw as ``(depth, kind, payload)``, farthest first: kind 0 a wall chunk
+    (:func:`_wall_items`), 1 a prism ``(footprint, height, colour)`` (box, cylinder, box-shaped
+    distractor), 2 a sphere ``(centre, radius, colour)`` (spherical distractor, ball)."""
     cam_xy = cam.position[:2]
     items: list[tuple[float, int, Any]] = []  # (depth, kind, payload: by kind)
 
-    items.extend(_wall_items(snapshot, params, cam, lighting.brightness))
+    items.extend(_wall_items(snapshot, params, cam, brightness))
 
     for box in snapshot.boxes:
         fp = _box_footprint(box.x_m, box.y_m, box.yaw_rad, box.length_m, box.width_m)
@@ -777,6 +781,14 @@ def render_camera(
         items.append((depth, 2, (centre, ball.radius_m, ball.color)))
 
     items.sort(key=lambda item: -item[0])
+    return items
+
+
+def _draw_items(
+    frame: np.ndarray, cam: _Cam, items: list[tuple[float, int, Any]], params: CameraParams,
+    lighting: Lighting, gain: float,
+) -> None:
+    """Paint :func:`_scene_items`'s items in their order (far to near) over ``frame``."""
     for _depth, kind, payload in items:
         if kind == 0:
             pts, projected, rgb = payload
@@ -791,6 +803,31 @@ def render_camera(
             centre, radius, color = payload
             _draw_sphere(frame, cam, centre, radius, color, params, lighting, gain)
 
+
+def render_camera(
+    snapshot: WorldSnapshot,
+    params: CameraParams = DEFAULT_CAMERA,
+    rng: np.random.Generator | None = None,
+    *,
+    grid: int = 1,
+) -> np.ndarray:
+    """Render the robot's camera view: an ``H×W×3`` ``uint8`` RGB frame (1024×1280 default).
+
+    ``rng`` drives the per-frame sensor noise (and the body's bob); ``None`` renders a
+    noise-free frame. ``grid`` > 1 renders only the full frame's pixels ``(grid·i, grid·j)``
+    into an image ``grid`` times smaller each way (``ceil(H/grid)×ceil(W/grid)``): with
+    ``grid = SUBSAMPLE_STEP`` exactly the pixels seekcolor's subsampler reads, at a fraction of
+    the cost. Those pixels get the same colours as in the full frame (same noise, same bob for
+    the same ``rng``), except that a polygon's edge may fall a pixel apart (rounding).
+    """
+    if grid < 1:
+        raise ValueError(f"grid must be >= 1, got {grid}")
+    jitter_deg = _pitch_jitter_deg(params, rng)
+    cam = _make_cam(snapshot, params, jitter_deg, grid)
+    frame = _background_frame(params, jitter_deg, grid)
+    gain, lighting = _auto_expose(frame, snapshot, params, cam)
+    items = _scene_items(snapshot, params, cam, lighting.brightness)
+    _draw_items(frame, cam, items, params, lighting, gain)
     if rng is not None:
         _add_noise(frame, params, rng, grid)
     return frame

@@ -15,7 +15,7 @@ from typing import Any
 
 from components.miniwhegs import MINI_WHEGS
 from components.sim.wire import snapshot_from_data
-from components.sim.world import WorldSnapshot
+from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.services.liveview import LiveMessage, foxglove_message, pose, rgba, timestamp
 from ubf_async.wire.protocol import Message
 

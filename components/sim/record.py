@@ -24,7 +24,7 @@ import numpy as np
 from components.camera.seekcolor import SeekResult
 from components.camera.view import draw_view
 from components.sim.scenarios import CAMERA_OFFSET_M
-from components.sim.world import WorldSnapshot
+from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.wire.topics import LedState
 
 

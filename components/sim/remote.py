@@ -16,7 +16,8 @@ import logging
 import numpy as np
 
 from components.sim.wire import snapshot_from_data
-from components.sim.world import RobotConfig, WorldConfig, WorldSnapshot
+from components.sim.world_config import RobotConfig, WorldConfig
+from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import SIM_PULSES, SIM_WORLD

@@ -9,8 +9,8 @@ worker per process that has simulated cameras, shared by all of them
 (:func:`shared_render_process`), started by the first camera's
 :meth:`~components.sim.backends.SimCameraBackend.prepare` (which runs in a thread, never on
 the event loop). For each frame the camera sends the worker the frame's immutable
-:class:`~components.sim.world.WorldSnapshot` (pickled: ≈1.2 KB for a robot of a fleet of 8,
-≈80 µs), its :class:`~components.sim.camera_render.CameraParams`, the frame's seed and the
+:class:`~components.sim.world_snapshot.WorldSnapshot` (pickled: ≈1.2 KB for a robot of a fleet
+of 8, ≈80 µs), its :class:`~components.sim.camera_render.CameraParams`, the frame's seed and the
 grid; the worker renders with ``np.random.default_rng(seed)`` exactly as the camera would
 have in its own thread and sends back the pixels (160×128×3 bytes on the camera device's
 grid of 8). Meanwhile the camera's thread waits on the pipe with the GIL released. The frames
@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 
 from components.sim.camera_render import CameraParams, render_camera, warm_up
-from components.sim.world import WorldSnapshot
+from components.sim.world_snapshot import WorldSnapshot
 
 log = logging.getLogger(__name__)
 

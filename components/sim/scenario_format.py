@@ -16,7 +16,7 @@ from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 
-from components.sim.world import BALL_DIAMETER_M, ORANGE
+from components.sim.world_config import BALL_DIAMETER_M, ORANGE
 from ubf_async.assembly.robotfile import Spec
 
 __all__ = ["STEP_KINDS", "ArenaSpec", "DistractorSpec", "ExpectSpec", "FromCameraSpec",

@@ -56,14 +56,14 @@ from components.sim.scenario_format import (
     StepSpec,
     WaveSpec,
 )
-from components.sim.world import (
+from components.sim.world import World
+from components.sim.world_config import (
     Arena,
     BallConfig,
     BoxObstacle,
     Distractor,
     Lighting,
     Wall,
-    World,
     WorldConfig,
     WorldPose,
 )

@@ -22,7 +22,9 @@ from typing import Any, TextIO
 from components.sim.component import SimulatorComponent
 from components.sim.runner import DEFAULT_SCENARIO, lateness_summary, rounded
 from components.sim.scenarios import check_placement, load_scenario
-from components.sim.world import World, WorldConfig, WorldPose, WorldSnapshot
+from components.sim.world import World
+from components.sim.world_config import WorldConfig, WorldPose
+from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
     DeviceContext,

@@ -17,9 +17,9 @@ forces this module computes itself every substep:
   ``μ_lat·m·g/4``), so a contact that slides sideways has less grip left to push with. How much
   slip mobilises the friction differs by direction, and that is what sets the turning rate: a
   three-spoke wheel-leg pushes through one or two spoke tips that scuff and dig in, so traction
-  builds up softly (full at :attr:`RobotConfig.longitudinal_slip_m_s`, a few cm/s), while a
-  spoke dragged sideways bites almost at once (full at :attr:`RobotConfig.lateral_slip_m_s`,
-  about 1 cm/s). Below these slips the force grows linearly with the slip, above them it stays
+  builds up softly (full at ``RobotConfig.longitudinal_slip_m_s``, a few cm/s), while a spoke
+  dragged sideways bites almost at once (full at ``RobotConfig.lateral_slip_m_s``, about
+  1 cm/s). Below these slips the force grows linearly with the slip, above them it stays
   at the friction limit and turns with the direction of the (scaled) slip.
 
   Turning therefore costs lateral sliding of the front and rear legs in opposite directions: the
@@ -34,8 +34,8 @@ forces this module computes itself every substep:
   ≈ 0.14 with the defaults (a real skid-steer robot's "effective track width" is the track
   divided by κ). Driving straight needs no slip once the robot is up to speed, so the encoders
   agree with the true distance; an in-place turn slips a lot but still turns. Run
-  ``python -m components.sim.world`` to print the steady yaw rates of the thesis's commands
-  (:func:`steady_drive`); for the defaults:
+  ``python -m components.sim.steady_drive`` to print the steady yaw rates of the thesis's
+  commands (:func:`~components.sim.steady_drive.steady_drive`); for the defaults:
 
   ===============  =========  ==========  ==========  ===========
   speed / turn     u (L / R)  yaw °/s     kinematic   forward m/s
@@ -54,9 +54,14 @@ forces this module computes itself every substep:
 * Walls are infinitely thin vertical surfaces (pymunk segments of radius 0); box obstacles and
   static distractors are static pymunk shapes.
 
+The world is built from a :class:`~components.sim.world_config.WorldConfig`
+(:mod:`components.sim.world_config` holds the scene description and the robot's model,
+:class:`~components.sim.world_config.RobotConfig`, whose parameters are named above).
+
 ``World.step`` advances the physics in fixed-size substeps; after every step the world replaces
-its immutable :class:`WorldSnapshot`, which renderers and range queries may read from other
-threads (reading the ``snapshot()`` reference is atomic; the snapshot itself never changes).
+its immutable :class:`~components.sim.world_snapshot.WorldSnapshot`, which renderers and range
+queries may read from other threads (reading the ``snapshot()`` reference is atomic; the
+snapshot itself never changes).
 """
 
 from __future__ import annotations
@@ -65,49 +70,31 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 import pymunk
 
-from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
-from components.motors.pwm import (
-    LEFT_MOTOR,
-    RIGHT_MOTOR,
-    MotorCharacteristic,
-    pulse_widths,
-    wheel_speed_rad_s,
-)
+from components.motors.pwm import wheel_speed_rad_s
 from components.sim.air import RadioAir
+from components.sim.world_config import (
+    BallConfig,
+    Color,
+    Distractor,
+    Lighting,
+    WorldConfig,
+    WorldPose,
+    box_corners,
+    require_finite,
+)
+from components.sim.world_snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
-Color = tuple[int, int, int]
-"""An 8-bit RGB colour."""
-
-BALL_PINK: Color = (236, 72, 132)
-"""Base (fully lit, unshaded) colour of the thesis's pink ball."""
-WALL_COLOR: Color = (200, 194, 160)
-"""Default wall colour: a neutral beige that never passes the pink rule."""
-BOX_COLOR: Color = (180, 168, 128)
-"""Default box-obstacle colour (cardboard), also neutral."""
-ORANGE: Color = (255, 140, 0)
 ROBOT_COLOR: Color = (70, 72, 86)
 """The Mini-WHEGS's dark shell, as other robots' cameras see it."""
 ROBOT_HEIGHT_M = 0.05
-"""A typical distractor colour (an orange ball) that must never read as pink."""
+"""The height of the dark box other robots' cameras and range finders see for a robot."""
 
-BALL_DIAMETER_M = 0.065
-
-
-def _require_finite(**values: float) -> None:
-    for name, value in values.items():
-        if not math.isfinite(value):
-            raise ValueError(f"{name} must be a finite number, got {value!r}")
-
-
-def _require_positive(**values: float) -> None:
-    for name, value in values.items():
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+PUSH_LABEL = "push"
+"""What :meth:`World.contacts` calls a hand's push (:meth:`World.shift_robot`)."""
 
 
 def wrap_angle(angle_rad: float) -> float:
@@ -116,340 +103,8 @@ def wrap_angle(angle_rad: float) -> float:
 
 
 # --------------------------------------------------------------------------------------------
-# Scene description
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class WorldPose:
-    """A planar pose: position (m) and heading (rad, CCW from +x)."""
-
-    x_m: float = 0.0
-    y_m: float = 0.0
-    heading_rad: float = 0.0
-
-    def __post_init__(self) -> None:
-        _require_finite(x_m=self.x_m, y_m=self.y_m, heading_rad=self.heading_rad)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BallConfig:
-    """The pink ball: light, rolls with damping, can be pushed by the robot."""
-
-    x_m: float
-    y_m: float
-    radius_m: float = BALL_DIAMETER_M / 2
-    mass_kg: float = 0.02
-    color: Color = BALL_PINK
-    linear_damping_per_s: float = 0.5
-    """Viscous part of the rolling loss: deceleration ``= damping · v``."""
-    rolling_resistance: float = 0.02
-    """Coulomb part of the rolling loss: deceleration ``= coefficient · g``."""
-    elasticity: float = 0.5
-
-    def __post_init__(self) -> None:
-        _require_finite(x_m=self.x_m, y_m=self.y_m)
-        _require_positive(radius_m=self.radius_m, mass_kg=self.mass_kg)
-        if self.linear_damping_per_s < 0.0 or self.rolling_resistance < 0.0:
-            raise ValueError("ball damping and rolling resistance must be >= 0")
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Wall:
-    """A vertical, infinitely thin wall standing on the segment (x1, y1)–(x2, y2)."""
-
-    x1_m: float
-    y1_m: float
-    x2_m: float
-    y2_m: float
-    height_m: float = 0.30
-    color: Color = WALL_COLOR
-
-    def __post_init__(self) -> None:
-        _require_finite(x1_m=self.x1_m, y1_m=self.y1_m, x2_m=self.x2_m, y2_m=self.y2_m)
-        _require_positive(height_m=self.height_m)
-        if (self.x1_m, self.y1_m) == (self.x2_m, self.y2_m):
-            raise ValueError("a wall needs two distinct end points")
-
-    @property
-    def length_m(self) -> float:
-        return math.hypot(self.x2_m - self.x1_m, self.y2_m - self.y1_m)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Arena:
-    """A rectangular arena: four walls around ``[x_min, x_max] × [y_min, y_max]``."""
-
-    x_min_m: float = -1.5
-    y_min_m: float = -1.5
-    x_max_m: float = 1.5
-    y_max_m: float = 1.5
-    height_m: float = 0.30
-    color: Color = WALL_COLOR
-
-    def __post_init__(self) -> None:
-        if not (self.x_min_m < self.x_max_m and self.y_min_m < self.y_max_m):
-            raise ValueError("Arena needs x_min < x_max and y_min < y_max")
-
-    def walls(self) -> tuple[Wall, ...]:
-        x0, y0, x1, y1 = self.x_min_m, self.y_min_m, self.x_max_m, self.y_max_m
-        corners = ((x0, y0), (x1, y0), (x1, y1), (x0, y1))
-        return tuple(
-            Wall(
-                x1_m=a[0], y1_m=a[1], x2_m=b[0], y2_m=b[1],
-                height_m=self.height_m, color=self.color,
-            )
-            for a, b in zip(corners, corners[1:] + corners[:1], strict=True)
-        )
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BoxObstacle:
-    """A static box: centre, size along its own x (length) and y (width), yaw, height."""
-
-    x_m: float
-    y_m: float
-    length_m: float
-    width_m: float
-    height_m: float = 0.10
-    yaw_rad: float = 0.0
-    color: Color = BOX_COLOR
-
-    def __post_init__(self) -> None:
-        _require_finite(x_m=self.x_m, y_m=self.y_m, yaw_rad=self.yaw_rad)
-        _require_positive(length_m=self.length_m, width_m=self.width_m, height_m=self.height_m)
-
-    def corners(self) -> tuple[tuple[float, float], ...]:
-        """Footprint corners, counter-clockwise, in the world frame."""
-        return _box_corners(
-            self.x_m, self.y_m, self.yaw_rad, self.length_m, self.width_m
-        )
-
-
-DistractorKind = Literal["cylinder", "sphere", "box"]
-
-PUSH_LABEL = "push"
-"""What :meth:`World.contacts` calls a hand's push (:meth:`World.shift_robot`)."""
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Distractor:
-    """A coloured object that is not the ball (e.g. an orange ball or a red can).
-
-    ``cylinder`` and ``sphere`` use ``radius_m``; ``box`` uses ``length_m``/``width_m``/``yaw_rad``.
-    ``height_m`` defaults to the diameter for a sphere and 0.10 m otherwise. A ``movable``
-    distractor is a dynamic body (it rolls like the ball); otherwise it is static.
-    """
-
-    kind: DistractorKind
-    x_m: float
-    y_m: float
-    color: Color = ORANGE
-    radius_m: float = BALL_DIAMETER_M / 2
-    length_m: float = 0.05
-    width_m: float = 0.05
-    height_m: float | None = None
-    yaw_rad: float = 0.0
-    movable: bool = False
-    mass_kg: float = 0.05
-
-    def __post_init__(self) -> None:
-        if self.kind not in ("cylinder", "sphere", "box"):
-            raise ValueError(f"unknown distractor kind {self.kind!r}")
-        _require_finite(x_m=self.x_m, y_m=self.y_m, yaw_rad=self.yaw_rad)
-        _require_positive(
-            radius_m=self.radius_m, length_m=self.length_m, width_m=self.width_m,
-            mass_kg=self.mass_kg,
-        )
-        if self.height_m is not None:
-            _require_positive(height_m=self.height_m)
-
-    @property
-    def effective_height_m(self) -> float:
-        if self.height_m is not None:
-            return self.height_m
-        return 2.0 * self.radius_m if self.kind == "sphere" else 0.10
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Lighting:
-    """Scene lighting, relative to the calibrated nominal (1.0, 1.0).
-
-    ``brightness`` multiplies the exposure of every rendered object (not the far background);
-    ``glare`` scales the angular size of the specular glare patch on shiny spheres (0 = none).
-    """
-
-    brightness: float = 1.0
-    glare: float = 1.0
-
-    def __post_init__(self) -> None:
-        _require_positive(brightness=self.brightness)
-        if not (math.isfinite(self.glare) and self.glare >= 0.0):
-            raise ValueError(f"glare must be >= 0, got {self.glare!r}")
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class RobotConfig:
-    """Mechanical and ground-contact model of the Mini-WHEGS."""
-
-    geometry: MiniWhegsGeometry = MINI_WHEGS
-    wheelbase_m: float = 0.06
-    """Distance between the front and rear wheel-leg contacts of a side."""
-    left_motor: MotorCharacteristic = LEFT_MOTOR
-    right_motor: MotorCharacteristic = RIGHT_MOTOR
-    motor_time_constant_s: float = 0.05
-    """First-order lag of the wheel speed behind the motor's target speed."""
-    mu_longitudinal: float = 0.8
-    """Friction coefficient along the body: a contact pushes with at most ``μ·m·g/4`` (so
-    ``μ·m·g/2`` per track)."""
-    mu_lateral: float = 0.8
-    """Friction coefficient across the body: a contact resists sideways sliding with at most
-    ``μ·m·g/4``. Together with ``mu_longitudinal`` it spans the friction ellipse; the floor's
-    Coulomb friction is the same both ways, what differs is the slip it takes (below)."""
-    longitudinal_slip_m_s: float = 0.06
-    """Slip between the wheel-legs' surface speed and the ground at which the traction reaches
-    its limit (linear below). Soft: the spoke tips scuff and dig in before they push fully. The
-    larger it is relative to ``lateral_slip_m_s`` the more of a wheel speed difference is lost to
-    slip instead of yaw (see the module docstring for the yaw fraction κ)."""
-    lateral_slip_m_s: float = 0.01
-    """Sideways sliding speed of a contact at which its lateral friction reaches the limit
-    (linear below). Stiff: a spoke dragged sideways bites at once. This grip along the robot's
-    length is what resists the yaw of a skid turn."""
-    body_friction: float = 0.4
-    """Friction of the robot's shell against walls, ball and obstacles."""
-
-    def __post_init__(self) -> None:
-        _require_positive(
-            wheelbase_m=self.wheelbase_m,
-            motor_time_constant_s=self.motor_time_constant_s,
-            mu_longitudinal=self.mu_longitudinal,
-            mu_lateral=self.mu_lateral,
-            longitudinal_slip_m_s=self.longitudinal_slip_m_s,
-            lateral_slip_m_s=self.lateral_slip_m_s,
-        )
-
-    @property
-    def yaw_fraction(self) -> float:
-        """κ: the steady yaw rate as a fraction of the kinematic ``(v_R − v_L)/track`` that the
-        linearised contact model predicts (see the module docstring)."""
-        a2 = (self.wheelbase_m / 2) ** 2
-        b2 = (self.geometry.track_width_m / 2) ** 2
-        c_long = self.mu_longitudinal / self.longitudinal_slip_m_s
-        c_lat = self.mu_lateral / self.lateral_slip_m_s
-        return c_long * b2 / (c_long * b2 + c_lat * a2)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class WorldConfig:
-    """Everything needed to build a :class:`World`; ``seed`` drives all randomness."""
-
-    robot_start: WorldPose = field(default_factory=WorldPose)
-    robot: RobotConfig = field(default_factory=RobotConfig)
-    more_robots: tuple[WorldPose, ...] = ()
-    """Start poses of further robots of the same make in this world (a fleet): robot ``i``
-    (1, 2, …) starts at ``more_robots[i - 1]``; robot 0 at ``robot_start``. Each sees the
-    others in its camera and IR (:meth:`World.snapshot_for`)."""
-    ball: BallConfig | None = None
-    arena: Arena | None = None
-    walls: tuple[Wall, ...] = ()
-    boxes: tuple[BoxObstacle, ...] = ()
-    distractors: tuple[Distractor, ...] = ()
-    lighting: Lighting = field(default_factory=Lighting)
-    seed: int = 0
-    substep_s: float = 0.002
-    """Largest physics substep; ``step(dt)`` splits dt into equal substeps no longer than it."""
-    gravity_m_s2: float = 9.81
-    """Only used for the friction caps (the 2-D world itself has no gravity)."""
-
-    def __post_init__(self) -> None:
-        _require_positive(substep_s=self.substep_s, gravity_m_s2=self.gravity_m_s2)
-
-    def all_walls(self) -> tuple[Wall, ...]:
-        arena = self.arena.walls() if self.arena is not None else ()
-        return arena + tuple(self.walls)
-
-
-# --------------------------------------------------------------------------------------------
-# Snapshot
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class RobotState:
-    x_m: float
-    y_m: float
-    heading_rad: float
-    """Wrapped into ``[-π, π)``."""
-    heading_unwrapped_rad: float
-    """Continuous heading (counts full turns)."""
-    vx_m_s: float
-    """World-frame velocity."""
-    vy_m_s: float
-    yaw_rate_rad_s: float
-    left_wheel_angle_rad: float
-    right_wheel_angle_rad: float
-    left_wheel_speed_rad_s: float
-    right_wheel_speed_rad_s: float
-    left_pulse_ms: float
-    right_pulse_ms: float
-    length_m: float
-    width_m: float
-
-    @property
-    def forward_speed_m_s(self) -> float:
-        """Velocity along the robot's heading."""
-        return self.vx_m_s * math.cos(self.heading_rad) + self.vy_m_s * math.sin(self.heading_rad)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class BallState:
-    x_m: float
-    y_m: float
-    vx_m_s: float
-    vy_m_s: float
-    radius_m: float
-    color: Color
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class DistractorState:
-    kind: DistractorKind
-    x_m: float
-    y_m: float
-    yaw_rad: float
-    radius_m: float
-    length_m: float
-    width_m: float
-    height_m: float
-    color: Color
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class WorldSnapshot:
-    """Immutable picture of the world after a step; safe to share between threads."""
-
-    time_s: float
-    step_count: int
-    robot: RobotState
-    ball: BallState | None
-    walls: tuple[Wall, ...]
-    boxes: tuple[BoxObstacle, ...]
-    distractors: tuple[DistractorState, ...]
-    lighting: Lighting
-
-
-# --------------------------------------------------------------------------------------------
 # World
 # --------------------------------------------------------------------------------------------
-
-
-def _box_corners(
-    x: float, y: float, yaw: float, length: float, width: float
-) -> tuple[tuple[float, float], ...]:
-    c, s = math.cos(yaw), math.sin(yaw)
-    hl, hw = length / 2, width / 2
-    local = ((hl, -hw), (hl, hw), (-hl, hw), (-hl, -hw))
-    return tuple((x + c * lx - s * ly, y + s * lx + c * ly) for lx, ly in local)
 
 
 @dataclass(slots=True)
@@ -602,7 +257,7 @@ class World:
             return fb.body
         static = self._space.static_body
         if d.kind == "box":
-            corners = _box_corners(d.x_m, d.y_m, d.yaw_rad, d.length_m, d.width_m)
+            corners = box_corners(d.x_m, d.y_m, d.yaw_rad, d.length_m, d.width_m)
             dshape: pymunk.Shape = pymunk.Poly(static, corners)
         else:
             dshape = pymunk.Circle(static, d.radius_m, offset=(d.x_m, d.y_m))
@@ -684,12 +339,12 @@ class World:
     def set_motor_pulses(self, left_ms: float, right_ms: float, *, robot: int = 0) -> None:
         """Set the PWM high time of each motor (ms) of ``robot``; takes effect at the next
         step."""
-        _require_finite(left_ms=left_ms, right_ms=right_ms)
+        require_finite(left_ms=left_ms, right_ms=right_ms)
         self._robots[robot].pulses = (float(left_ms), float(right_ms))
 
     def set_ball_velocity(self, vx_m_s: float, vy_m_s: float) -> None:
         """Give the ball a velocity (it then rolls and slows down on its own)."""
-        _require_finite(vx_m_s=vx_m_s, vy_m_s=vy_m_s)
+        require_finite(vx_m_s=vx_m_s, vy_m_s=vy_m_s)
         ball = self._require_ball()
         with self._lock:
             ball.body.velocity = (vx_m_s, vy_m_s)
@@ -697,7 +352,7 @@ class World:
 
     def place_ball(self, x_m: float, y_m: float) -> None:
         """Teleport the ball to (x, y) and stop it."""
-        _require_finite(x_m=x_m, y_m=y_m)
+        require_finite(x_m=x_m, y_m=y_m)
         ball = self._require_ball()
         with self._lock:
             ball.body.position = (x_m, y_m)
@@ -720,7 +375,7 @@ class World:
     def place_distractor(self, index: int, x_m: float, y_m: float) -> None:
         """Teleport movable distractor ``index`` (order of ``config.distractors``) to (x, y)
         and stop it. Raises ``ValueError`` for a static one (its shape is fixed)."""
-        _require_finite(x_m=x_m, y_m=y_m)
+        require_finite(x_m=x_m, y_m=y_m)
         body = self._distractor_bodies[index]
         if body is None:
             raise ValueError(f"distractor {index} is static: only a movable one can be moved")
@@ -734,7 +389,7 @@ class World:
     def shift_robot(self, dx_m: float, dy_m: float, d_heading_rad: float = 0.0) -> None:
         """Move the robot by (dx, dy) and turn it by ``d_heading_rad`` as a hand pushing it
         would: its velocities and wheels are left alone (the encoders see nothing)."""
-        _require_finite(dx_m=dx_m, dy_m=dy_m, d_heading_rad=d_heading_rad)
+        require_finite(dx_m=dx_m, dy_m=dy_m, d_heading_rad=d_heading_rad)
         with self._lock:
             x, y = self._robot.position
             self._robot.position = (x + dx_m, y + dy_m)
@@ -1020,122 +675,3 @@ class RobotView:
         if self.index == 0:
             return self.world.make_rng(stream)
         return np.random.default_rng([self.world.config.seed, stream, self.index])
-
-
-# --------------------------------------------------------------------------------------------
-# Steady-state drive measurements (``python -m components.sim.world``)
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SteadyDrive:
-    """The robot's steady motion for fixed pulses, measured in an empty world."""
-
-    left_ms: float
-    right_ms: float
-    yaw_rate_rad_s: float
-    """Mean yaw rate over the measuring window (CCW positive)."""
-    forward_speed_m_s: float
-    """Mean speed along the heading over the window (path length / time for a circle)."""
-    kinematic_yaw_rate_rad_s: float
-    """``(v_R − v_L)/track`` from the wheel surface speeds: the yaw rate without slip."""
-    kinematic_speed_m_s: float
-    """``(v_L + v_R)/2`` from the wheel surface speeds."""
-
-    @property
-    def yaw_rate_deg_s(self) -> float:
-        return math.degrees(self.yaw_rate_rad_s)
-
-    @property
-    def kinematic_yaw_rate_deg_s(self) -> float:
-        return math.degrees(self.kinematic_yaw_rate_rad_s)
-
-    @property
-    def turn_radius_m(self) -> float:
-        """Radius of the driven circle (``inf`` when not turning)."""
-        if abs(self.yaw_rate_rad_s) < 1e-6:
-            return math.inf
-        return abs(self.forward_speed_m_s / self.yaw_rate_rad_s)
-
-
-def steady_drive(
-    left_ms: float,
-    right_ms: float,
-    *,
-    robot: RobotConfig | None = None,
-    settle_s: float = 2.0,
-    window_s: float = 2.0,
-    dt_s: float = 0.005,
-) -> SteadyDrive:
-    """Drive an empty world with fixed pulses, let it settle, and measure the mean motion."""
-    world = World(WorldConfig(robot=robot if robot is not None else RobotConfig()))
-    world.set_motor_pulses(left_ms, right_ms)
-    for _ in range(round(settle_s / dt_s)):
-        world.step(dt_s)
-    start = world.snapshot().robot
-    forward = 0.0
-    steps = round(window_s / dt_s)
-    for _ in range(steps):
-        forward += world.step(dt_s).robot.forward_speed_m_s
-    end = world.snapshot().robot
-    rc = world.config.robot
-    radius = rc.geometry.wheel_radius_m
-    v_left = end.left_wheel_speed_rad_s * radius
-    v_right = end.right_wheel_speed_rad_s * radius
-    return SteadyDrive(
-        left_ms=left_ms,
-        right_ms=right_ms,
-        yaw_rate_rad_s=(end.heading_unwrapped_rad - start.heading_unwrapped_rad) / window_s,
-        forward_speed_m_s=forward / steps,
-        kinematic_yaw_rate_rad_s=(v_right - v_left) / rc.geometry.track_width_m,
-        kinematic_speed_m_s=0.5 * (v_left + v_right),
-    )
-
-
-THESIS_DRIVE_COMMANDS: tuple[tuple[float, float], ...] = (
-    (40.0, 0.0), (40.0, 30.0), (40.0, 60.0), (10.0, 80.0), (0.0, 100.0),
-)
-"""speed/turn pairs of the thesis's behaviours: chase straight, chase ±30, chase ±60, search,
-and a full in-place turn."""
-
-
-def drive_table(
-    commands: tuple[tuple[float, float], ...] = THESIS_DRIVE_COMMANDS,
-    *,
-    robot: RobotConfig | None = None,
-) -> list[tuple[float, float, SteadyDrive]]:
-    """``(speed, turn, SteadyDrive)`` for each command, through the default HAL calibration."""
-    rows = []
-    for speed, turn in commands:
-        pulses = pulse_widths(speed, turn)
-        rows.append(
-            (speed, turn, steady_drive(pulses.left_ms, pulses.right_ms, robot=robot))
-        )
-    return rows
-
-
-def _tidy(value: float, resolution: float) -> float:
-    """``value``, or 0.0 when it would print as ±0 (no "-0.0" in tables)."""
-    return 0.0 if abs(value) < resolution else value
-
-
-def format_drive_table(rows: list[tuple[float, float, SteadyDrive]]) -> str:
-    """A plain-text table of :func:`drive_table` rows."""
-    lines = [
-        "speed/turn   yaw °/s  kinematic °/s  fraction  forward m/s  kinematic m/s  radius m"
-    ]
-    for speed, turn, d in rows:
-        kinematic = d.kinematic_yaw_rate_rad_s
-        fraction = f"{d.yaw_rate_rad_s / kinematic:8.3f}" if abs(kinematic) > 1e-6 else "       -"
-        yaw, kin_yaw = _tidy(d.yaw_rate_deg_s, 0.05), _tidy(d.kinematic_yaw_rate_deg_s, 0.05)
-        lines.append(
-            f"{speed:+4.0f}/{turn:+4.0f}  {yaw:+8.1f}  {kin_yaw:+13.1f}  {fraction}  "
-            f"{_tidy(d.forward_speed_m_s, 5e-4):+11.3f}  "
-            f"{_tidy(d.kinematic_speed_m_s, 5e-4):+13.3f}  {d.turn_radius_m:8.3f}"
-        )
-    return "\n".join(lines)
-
-
-if __name__ == "__main__":
-    print(f"yaw fraction κ (linearised): {RobotConfig().yaw_fraction:.3f}")
-    print(format_drive_table(drive_table()))
