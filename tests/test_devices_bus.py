@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import threading
 from pathlib import Path
 
 import cv2
@@ -79,3 +81,48 @@ async def test_camera_component_on_real_footage_through_videocapture(
         bins = agg.snapshot().value("camera/front", "bins")
         assert bins is not None and sum(bins) > 0
         assert camera.last_frame_shape == (1024, 1280, 3)  # resized to the OV9655's frame
+
+
+class BlockingCamera:
+    """A camera backend whose capture waits until released, and which notes whether it was
+    closed while a capture was inside it (what crashes a real OpenCV capture)."""
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.capturing = threading.Event()
+        self.closed_mid_capture: bool | None = None
+
+    def prepare(self) -> None:
+        pass
+
+    def expose(self) -> None:
+        pass
+
+    def capture(self) -> np.ndarray:
+        self.capturing.set()
+        try:
+            assert self.release.wait(30.0), "never released"
+            return np.zeros((32, 40, 3), dtype=np.uint8)
+        finally:
+            self.capturing.clear()
+
+    def close(self) -> None:
+        self.closed_mid_capture = self.capturing.is_set()
+
+
+@pytest.mark.asyncio
+async def test_a_closing_camera_lets_its_capture_finish_before_closing_the_backend(
+        robot_bus: Bus) -> None:
+    backend = BlockingCamera()
+    camera = CameraComponent(bus=robot_bus, backend=backend, latency_s=0.0)
+    camera.close_on_exit(backend.close)  # as the device factory does
+    await camera.start()
+    await asyncio.to_thread(backend.capturing.wait, 30.0)
+    run_task = camera._tasks[0]
+    closing = asyncio.create_task(camera.aclose())
+    # Released only once the stop has reached the run: a camera that did not wait would
+    # have closed its backend under the capture by then.
+    await eventually(lambda: run_task.cancelling() > 0 or run_task.done(), what="the stop")
+    backend.release.set()
+    await closing
+    assert backend.closed_mid_capture is False

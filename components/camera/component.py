@@ -41,6 +41,11 @@ from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
 
 OV9655_LATENCY_S = 0.11
+CAPTURE_DRAIN_S = 2.0
+"""How long a closing camera waits, at most, for a capture in progress to leave its backend."""
+
+CaptureOutcome = tuple[SeekResult, tuple[int, ...], CameraView | None]
+"""What one capture gives: the seekcolor result, the frame's shape, the drawn view (if asked)."""
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +92,7 @@ class CameraComponent(Component):
         self.last_frame_shape: tuple[int, ...] | None = None
 
     def _capture(self, color: ColorRange, *,
-                 with_view: bool) -> tuple[SeekResult, tuple[int, ...], CameraView | None]:
+                 with_view: bool) -> CaptureOutcome:
         """Runs in a worker thread: capture, seekcolor and, when asked, the drawn view."""
         frame = self.backend.capture()
         result = seekcolor(frame, color, hfov_deg=self.hfov_deg)
@@ -127,9 +132,10 @@ class CameraComponent(Component):
             # Drawing and compressing the view costs ≈1 ms: only while someone looks.
             with_view = view_pub.has_subscribers()
             try:
-                result, shape, view = await asyncio.get_running_loop().run_in_executor(
+                capture = asyncio.get_running_loop().run_in_executor(
                     self._executor, functools.partial(self._capture, self.color,
                                                       with_view=with_view))
+                result, shape, view = await self._captured(capture)
                 hold.release()
                 await wake
             finally:
@@ -146,6 +152,22 @@ class CameraComponent(Component):
                 view_pub.publish(view, stamp_ns=stamp)
             if latency_ns == 0:
                 await asyncio.sleep(0)  # a zero-latency device must still let others run
+
+    async def _captured(self, capture: asyncio.Future[CaptureOutcome]) -> CaptureOutcome:
+        """The capture's outcome. Cancelled meanwhile (the component closing), it first lets
+        the capture's thread leave the backend (at most :data:`CAPTURE_DRAIN_S`): the backend
+        is closed next, and releasing an OpenCV capture in the middle of its ``read`` crashes
+        the process."""
+        try:
+            return await asyncio.shield(capture)
+        except asyncio.CancelledError:
+            done, _ = await asyncio.wait([capture], timeout=CAPTURE_DRAIN_S)
+            if not done:
+                log.warning("%s: a capture still running %g s after the stop; closing its "
+                            "backend anyway", self.name, CAPTURE_DRAIN_S)
+            elif not capture.cancelled():
+                capture.exception()  # retrieved: its failure does not matter any more
+            raise
 
     def _on_seek_color(self, key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, self.malformed, key, topic=SEEK_COLOR)
