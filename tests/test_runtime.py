@@ -156,8 +156,14 @@ async def test_malformed_samples_rejected_counted_and_good_ones_flow(
             raw_sensor.put(junk)
             raw_heartbeat.put(junk)
             raw_clock.put(junk)
-            # The bridge keeps only the newest sample per key; wait for each to be handled.
+            # The bridge keeps only the newest sample per key; wait for each to be handled on
+            # every key (on a busy machine two junk samples of one key could otherwise be
+            # coalesced into one).
             await eventually(lambda i=i: agg.malformed.get(sensor_key, 0) == i + 1)
+            await eventually(lambda i=i: health.malformed.get(keys.heartbeat("liar"), 0)
+                             == i + 1, what="the heartbeat's junk handled")
+            await eventually(lambda i=i: clock_errors.get(keys.clock, 0) == i + 1,
+                             what="the clock's junk handled")
         clock_pub.publish({}, stamp_ns=5_000_000_000)
         await eventually(lambda: clock.now_ns() == 5_000_000_000, what="good clock sample")
         last = {"range_mm": 777, "status": "ok"}
