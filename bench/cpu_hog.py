@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ctypes
 import functools
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Iterable, Iterator
@@ -35,6 +37,17 @@ def pin_to(cpus: Iterable[int]) -> None:
     os.sched_setaffinity(0, set(cpus))
 
 
+PR_SET_PDEATHSIG = 1
+
+
+def hog_preexec(cpu: int) -> None:
+    """A busy loop's set-up: pinned to ``cpu``, and killed by the kernel when its parent dies
+    (however it dies: a hog left spinning would load the machine for hours unnoticed)."""
+    pin_to([cpu])
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
 @contextlib.contextmanager
 def hogs(cpus: Iterable[int] | None = None) -> Iterator[list[subprocess.Popen[bytes]]]:
     """One busy loop per core of ``cpus`` (default: every available core) for the block."""
@@ -43,7 +56,7 @@ def hogs(cpus: Iterable[int] | None = None) -> Iterator[list[subprocess.Popen[by
     try:
         for cpu in chosen:
             procs.append(subprocess.Popen([sys.executable, "-c", BUSY_LOOP],
-                                          preexec_fn=functools.partial(pin_to, [cpu])))
+                                          preexec_fn=functools.partial(hog_preexec, cpu)))
         yield procs
     finally:
         for proc in procs:
@@ -77,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         parser.error("give the command to run after --")
+    # SIGTERM ends the command's wait like Ctrl-C, so the hogs are stopped on the way out.
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     with hogs(args.cpus) as procs:
         print(f"bench.cpu_hog: {len(procs)} busy loop(s) on cores "
               f"{args.cpus or available_cpus()}", file=sys.stderr, flush=True)

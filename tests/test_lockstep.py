@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -128,6 +129,42 @@ def test_the_cpu_hog_loads_the_cores_it_is_given() -> None:
         assert os.sched_getaffinity(procs[0].pid) == set(core)
         assert procs[0].poll() is None
     assert procs[0].poll() is not None  # stopped with the block
+
+
+@pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_stopped_cpu_hog_leaves_no_busy_loop_behind(how: signal.Signals) -> None:
+    """``python -m bench.cpu_hog -- CMD`` stopped from outside, even by SIGKILL: its busy
+    loops go with it (one left behind would load the machine unnoticed)."""
+    hog = subprocess.Popen([sys.executable, "-m", "bench.cpu_hog", "--cpus",
+                            str(available_cpus()[0]), "--", sys.executable, "-c",
+                            "import sys; sys.stdin.read()"],  # ends when the test lets it
+                           cwd=REPOSITORY, env=repository_env(), stdin=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    assert hog.stdin is not None and hog.stderr is not None
+    with hog.stdin, hog.stderr:
+        assert "busy loop(s)" in hog.stderr.readline()
+        loops = busy_loops_of(hog.pid)
+        assert len(loops) == 1
+        hog.send_signal(how)
+        hog.wait(timeout=30)
+    for pid in loops:  # reaped by init once dead; gone from /proc soon after
+        deadline = time.monotonic() + 30
+        while Path(f"/proc/{pid}").exists() and not zombie(pid):
+            assert time.monotonic() < deadline, f"busy loop {pid} outlived its hog"
+            time.sleep(0.05)  # polling another process's death: nothing to wait on instead
+
+
+def busy_loops_of(parent: int) -> list[int]:
+    children = Path(f"/proc/{parent}/task/{parent}/children").read_text().split()
+    return [int(pid) for pid in children
+            if "while True" in Path(f"/proc/{pid}/cmdline").read_text(errors="replace")]
+
+
+def zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except (FileNotFoundError, IndexError):
+        return True
 
 
 # ---------------------------------------------------------------------------------------------
