@@ -55,6 +55,8 @@ FAR_MM = 600
 NEAR_MM = 120
 AVOID_SPEED = -50.0
 CAMERA_BINS = [0, 0, 60, 0, 0]  # some pink straight ahead: chase (+40) when nothing is near
+LAST_COMMAND_WAIT_S = 3.0
+"""How long the end waits, at most, for the command based on the last camera frame."""
 
 
 class Harness:
@@ -302,9 +304,12 @@ def scenario_robot(h: Harness, cfg: dict[str, Any]) -> dict[str, Any]:
             # camera loop is not phase-locked to the controller's clock.
             capture += cam_ns + int(rng.uniform(0.0, idle_s) * 1e9)
     last_camera = cameras[-1][0] if cameras else None
-    with h.cond:  # let the last frame's command arrive (when commands are based on frames)
+    # Let the last frame's command arrive (when commands are based on frames): at once on an
+    # idle machine; the bound only says when to stop waiting on a busy one (0.3 s was passed
+    # there, and a frame that was commanded counted as not).
+    with h.cond:
         h.cond.wait_for(lambda: any(c[3] == "camera/front" and c[2] == last_camera
-                                    for c in h.commands[-8:]), timeout=0.3)
+                                    for c in h.commands[-8:]), timeout=LAST_COMMAND_WAIT_S)
         commands = list(h.commands)
     camera_commands = [(c[0], c[1], c[2]) for c in commands if c[3] == "camera/front"]
     return {"reactions": reactions, "cameras": cameras[warm_frames:],
