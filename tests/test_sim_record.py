@@ -148,7 +148,7 @@ async def test_a_recorded_run_streams_every_sample_and_keeps_a_bounded_trajector
         bus=robot_bus, clock=clock,
         options=SimulationOptions(scenario="ball-in-sight", speed=20, seed=4, duration_s=12.0,
                                   record_dir=folder, record_every_s=4.0))
-    run.trajectory = TrajectoryBuffer(capacity=8, recent=50)  # type: ignore[attr-defined]
+    run.trajectory_buffer = TrajectoryBuffer(capacity=8, recent=50)  # type: ignore[attr-defined]
     controller, components = await start_seeking_robot(robot_bus, run)
     try:
         run.start(controller)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from tests.conftest import REPOSITORY, free_port, repository_env
-from ubf_async.tools.launch import EXIT_DEGRADED
+from ubf_async.runs.wiring import EXIT_DEGRADED
 
 DEFAULT_ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"
 SEARCH = """    - behavior: search

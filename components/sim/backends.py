@@ -368,10 +368,12 @@ def camera_backend(*, context: DeviceContext, full_frames: bool = False,
     renders every pixel (slower, the same counts). ``render_process``: render in the
     process's render process (:mod:`components.sim.render_process`, shared by its simulated
     cameras), so rendering does not hold this process's GIL; ``false``, or
-    ``UBF_RENDER_PROCESS=0`` in the environment, renders in the camera's thread (the same
-    frames)."""
+    ``UBF_RENDER_PROCESS=0`` in the environment, or a run that starts no helper processes
+    (:attr:`~ubf_async.assembly.context.DeviceContext.helper_processes`), renders in the
+    camera's thread (the same frames)."""
     grid = 1 if full_frames else SUBSAMPLE_STEP
-    renderer = shared_render_process() if render_process and render_process_wanted() else None
+    wanted = render_process and context.helper_processes and render_process_wanted()
+    renderer = shared_render_process() if wanted else None
     return SimCameraBackend(_world(context, "camera.sim"), grid=grid, renderer=renderer)
 
 

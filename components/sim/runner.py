@@ -26,7 +26,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -147,7 +147,9 @@ class SimulationRun:
             bus=bus, world=self._world, clock=clock, speed=options.speed,
             lockstep_participants=options.lockstep_participants)
         self.devices: list[Component] = []
-        self.trajectory = TrajectoryBuffer()
+        self.trajectory_buffer = TrajectoryBuffer()
+        self._every_sample: list[TrajectorySample] | None = (
+            [] if options.keep_trajectory else None)
         self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
         """The last ``LISTED_FRAMES`` frames written (``frames_written`` counts them all)."""
         self.frames_written = 0
@@ -173,7 +175,11 @@ class SimulationRun:
     def samples(self) -> list[TrajectorySample]:
         """The trajectory kept in memory: the whole run decimated, the last minute at full
         rate (:class:`~components.sim.record.TrajectoryBuffer`). A copy: build it sparingly."""
-        return self.trajectory.samples()
+        return self.trajectory_buffer.samples()
+
+    def trajectory(self) -> list[dict[str, Any]]:
+        """Every sample, as ``trajectory.csv``'s rows (``options.keep_trajectory``)."""
+        return [asdict(s) for s in self._every_sample or ()]
 
     @property
     def seed(self) -> int:
@@ -231,7 +237,7 @@ class SimulationRun:
             self._audit()  # where both headings start
             self._audited_encoders.update_hooks.append(self._audit)
         self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
-        if self.options.record_dir is not None:
+        if self.options.record_dir is not None and self.options.pictures:
             # The LEDs as their devices report them (in this process or another): drawn on
             # the recorded frames.
             self._led_sub = self.bus.subscribe(LED_STATE.key_expr(self.bus.keys),
@@ -260,7 +266,7 @@ class SimulationRun:
 
     def _take_sample(self, controller: Controller) -> None:
         snap = self.world.snapshot()
-        last_sample = self.trajectory.last
+        last_sample = self.trajectory_buffer.last
         if last_sample is not None and last_sample.t_s == snap.time_s:
             return
         if self._audited_encoders is None:
@@ -270,7 +276,9 @@ class SimulationRun:
         sample = trajectory_sample(
             snap, speed_cmd=last.speed if last else None, turn_cmd=last.turn if last else None,
             winners="+".join(trace.winning_leaves()) if trace else "")
-        self.trajectory.append(sample)
+        self.trajectory_buffer.append(sample)
+        if self._every_sample is not None:
+            self._every_sample.append(sample)
         if self._csv is not None:
             self._csv.add(sample)
 
@@ -369,7 +377,7 @@ class SimulationRun:
                 self._recording_errors.append(str(exc))
             summary["recording"] = self._recording_summary(folder)
             await self._write_summary(summary)  # again: with the last frame, and what failed
-            report.append(f"  recorded {self.trajectory.count} samples and "
+            report.append(f"  recorded {self.trajectory_buffer.count} samples and "
                           f"{self.frames_written} frames in {folder}")
         expected = summary.get("expected")
         if expected is not None:
@@ -388,7 +396,8 @@ class SimulationRun:
 
     def _recording_summary(self, folder: Path) -> dict[str, Any]:
         return {"dir": str(folder), "trajectory_csv": "trajectory.csv",
-                "trajectory_png": "trajectory.png", "frames": [p.name for p in self.frames],
+                "trajectory_png": "trajectory.png" if self.options.pictures else None,
+                "frames": [p.name for p in self.frames],
                 "frames_written": self.frames_written, "errors": list(self._recording_errors)}
 
     async def _write_summary(self, summary: dict[str, Any]) -> None:
@@ -400,6 +409,8 @@ class SimulationRun:
         if self._csv is not None:
             self._csv.write(rest)
             self._csv.close()
+        if not self.options.pictures:
+            return
         events = [(step.at_s, f"ball: {step.kind}") for step in self.scenario.ball_script]
         save_run_plot(folder / "trajectory.png", self.samples, self.world.snapshot(),
                       title=f"{self.scenario.title} (seed {self.seed})", events=events)
@@ -461,7 +472,7 @@ class SimulationRun:
             "ticks": controller.stats.summary(),
             "camera_frames": sum(d.frames for d in self.devices
                                  if isinstance(d, CameraComponent)),
-            "trajectory_samples": self.trajectory.count,
+            "trajectory_samples": self.trajectory_buffer.count,
             "trajectory_samples_kept": len(samples),
         }
         out["contacts"] = self.audit.contacts_summary()

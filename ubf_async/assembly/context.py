@@ -26,4 +26,8 @@ class DeviceContext:
     """The run's seed: backends with noise derive their random streams from it."""
     simulation: Any = None
     """The world of the simulator the backend requires (``None`` without one)."""
+    helper_processes: bool = True
+    """Whether a backend may start helper processes of its own (a simulated camera's render
+    process); ``False`` for a run that must stay in the calling process (a library run:
+    :func:`ubf_async.runs.inprocess.run`), which then does that work in threads."""
     extras: Mapping[str, Any] = field(default_factory=dict)

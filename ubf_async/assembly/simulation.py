@@ -48,6 +48,12 @@ class SimulationOptions:
     summary_path: Path | None = None
     record_dir: Path | None = None
     record_every_s: float = 2.0
+    pictures: bool = True
+    """With ``record_dir``: besides ``trajectory.csv``, the trajectory's plot and annotated
+    camera frames (every ``record_every_s``). Without them a recording costs almost nothing."""
+    keep_trajectory: bool = False
+    """Keep every trajectory sample in memory, for :meth:`SimulationRun.trajectory` (a library
+    run's result); otherwise only a bounded, decimated history is kept."""
     lockstep_participants: int = 0
     """Hold simulated time at its start until this many lockstep participants of other
     processes have joined (:mod:`ubf_async.runtime.lockstep`)."""
@@ -104,6 +110,11 @@ class SimulationRun(Protocol):
 
     def summary(self, controller: Controller) -> dict[str, Any]:
         """The run's summary as it stands (what launch prints when :meth:`finish` failed)."""
+        ...
+
+    def trajectory(self) -> list[dict[str, Any]]:
+        """Every sample of the run's trajectory, one map per ``trajectory.csv`` row (its
+        columns, in order); empty unless the options asked to ``keep_trajectory``."""
         ...
 
 

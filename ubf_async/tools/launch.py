@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import io
-import json
 import logging
 import math
 import sys
@@ -34,7 +32,6 @@ import tempfile
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
@@ -47,31 +44,22 @@ from ubf_async.assembly.robotfile import (
     builtin_robot_files,
     load_robot,
 )
-from ubf_async.assembly.simulation import (
-    FLAT_OUT,
-    DeviceContext,
-    SimulationOptions,
-    SimulationRun,
-    Simulator,
-)
+from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, SimulationRun, Simulator
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
-from ubf_async.cli.run import check_lockstep_loop, ending, run_main
+from ubf_async.cli.run import check_lockstep_loop, run_main
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
-from ubf_async.runtime import lockstep
+from ubf_async.runs import wiring
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import Clock, SimClock, WallClock
-from ubf_async.runtime.component import Component, HealthMonitor
+from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.runtime.heap import freeze_startup_objects
-from ubf_async.runtime.hostclock import RobotTimeBeacon
-from ubf_async.runtime.simclock import follow_sim_clock
-from ubf_async.services.live import TreeService
 from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.services.liveview import FoxgloveServer
-from ubf_async.services.remote import RemoteBehaviors, remote_spec
-from ubf_async.services.status import StatusWriter, planned_ticks, status_fields
+from ubf_async.services.remote import remote_spec
+from ubf_async.services.status import StatusWriter, status_fields
 from ubf_async.tools.liveview import add_host_argument
 from ubf_async.tools.record import McapRecorder
 
@@ -234,37 +222,6 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> None:
                           "tree changes applied)")
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class ControllerSettings:
-    """The robot file's ``controller:`` with the command line's overrides applied."""
-
-    mode: TickMode
-    rate_hz: float
-    reflex: tuple[str, ...]
-    sync_source: str
-    trigger: str | None
-
-    @classmethod
-    def of(cls, robot: Robot, args: argparse.Namespace) -> ControllerSettings:
-        spec = robot.spec.controller
-        mode = TickMode(args.tick_mode or spec.mode)
-        rate_hz = spec.rate_hz if args.rate_hz is None else args.rate_hz
-        if not rate_hz > 0:
-            raise ConfigurationError(f"--rate-hz must be > 0, got {rate_hz:g}")
-        trigger = args.trigger or spec.trigger
-        if mode is TickMode.EVENT and not trigger:
-            raise ConfigurationError("--tick event needs --trigger SOURCE (or `trigger:` in "
-                                     "the robot file's controller)")
-        reflex = spec.reflex if args.reflex is None else args.reflex
-        return cls(mode=mode, rate_hz=rate_hz, reflex=tuple(p for p in reflex if p),
-                   sync_source=spec.sync_source, trigger=trigger)
-
-    def planned(self) -> str:
-        """What will tick the controller, in the status line's terms."""
-        return planned_ticks(self.mode, rate_hz=self.rate_hz, reflex=self.reflex,
-                             sync_source=self.sync_source, trigger=self.trigger)
-
-
 def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
     """The robot file's devices, narrowed by ``--devices KIND[/NAME],...``."""
     if wanted is None:
@@ -278,24 +235,7 @@ def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
     return [d for d in robot.devices if d.kind in names or f"{d.kind}/{d.name}" in names]
 
 
-@dataclass(slots=True, kw_only=True)
-class LaunchPlan:
-    """Everything checked before the robot starts."""
-
-    robot: Robot
-    devices: list[ResolvedDevice]
-    """Devices this process builds."""
-    elsewhere: list[ResolvedDevice]
-    """Devices of the file left to other processes (``--no-sim`` with simulated backends)."""
-    simulator: Simulator | None
-    sim_options: SimulationOptions | None
-    controller: ControllerSettings
-    connection: ConnectionOptions
-    """The zenoh session's options: the flags given over the ``--config`` file over launch's
-    default listen endpoint."""
-
-
-def plan_launch(args: argparse.Namespace) -> LaunchPlan:
+def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
     """Load and check the robot file and options; nothing starts. Raises :class:`UbfError`."""
     robot = load_robot(args.robot_file, seed=args.seed)
     devices = selected_devices(robot, args.devices)
@@ -335,9 +275,14 @@ def plan_launch(args: argparse.Namespace) -> LaunchPlan:
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
     args.robot = args.robot or robot.name or DEFAULT_ROBOT
-    return LaunchPlan(robot=robot, devices=devices, elsewhere=elsewhere, simulator=simulator,
-                      sim_options=options, controller=ControllerSettings.of(robot, args),
-                      connection=connection_options(args))
+    controller = wiring.ControllerSettings.of(robot, mode=args.tick_mode,
+                                              rate_hz=args.rate_hz, trigger=args.trigger,
+                                              reflex=args.reflex)
+    return wiring.RunPlan(robot=robot, devices=devices, elsewhere=elsewhere,
+                          simulator=simulator, sim_options=options, controller=controller,
+                          connection=connection_options(args),
+                          seed_given=args.seed is not None, remotes=dict(args.remote),
+                          lockstep=args.lockstep)
 
 
 def check_outputs(summary: Path | None, record: Path | None) -> None:
@@ -364,60 +309,36 @@ def check_outputs(summary: Path | None, record: Path | None) -> None:
             raise ConfigurationError(f"{flag}: cannot write in {folder}: {reason}") from None
 
 
-class ResultsNotSavedError(UbfError, OSError):
-    """The run's summary or recording could not be written at the end of the run; the summary
-    was printed instead (the message says where writing failed)."""
-
-
-@dataclass(slots=True, kw_only=True)
-class RobotRun:
-    """What a run has opened so far: whatever ended the run, :func:`_end` closes all of it."""
-
-    bus: Bus
-    clock: Clock
-    health: HealthMonitor
-    components: list[Component] = field(default_factory=list)
-    """In the order they start; closed in the reverse order."""
-    sim_run: SimulationRun | None = None
-    controller: Controller | None = None
-    recorder: McapRecorder | None = None
-    live: FoxgloveServer | None = None
-
-
-async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+async def run_robot(plan: wiring.RunPlan, args: argparse.Namespace,
+                    out: TextIO = sys.stdout) -> int:
     """Run the planned robot until ``--duration``, SIGTERM or Ctrl-C.
 
-    Whatever ends the run (an error too), :func:`_end` saves the results, then closes every
-    component and the session, each step bounded and done even if an earlier one failed."""
+    Whatever ends the run (an error too), :func:`ubf_async.runs.wiring.end` saves the results,
+    then closes every component and the session, each step bounded and done even if an earlier
+    one failed."""
     run = await _open_session(plan, args)
     options = run.bus.options  # with the port really listened on for a `:0` endpoint
     try:
         _print_session(plan.robot, options, out)
         await _start_recording(run, args, out)
-        seed = _open_simulation(plan, run, out)
-        robot = plan.robot
-        if run.clock.is_simulated and args.seed is None and seed != robot.spec.seed:
-            # The behaviours draw from the run's seed (a controller following a simulator
-            # elsewhere: the file's, else 0), so a simulated run is repeatable.
-            robot = robot.reseeded(seed)
-        devices = _build_devices(plan, run, seed)
-        controller, aggregator, remotes = _build_control(plan, robot, run, args, seed, devices)
-        _add_ros2_bridge(robot, run, options.robot, out)
-        _add_clock_components(run, args, controller, devices)
-        await _start_components(run, remotes, controller)
-        _print_started(plan, robot, out)
+        wiring.build_robot(plan, run, out)
+        assert run.robot is not None and run.controller is not None
+        assert run.aggregator is not None
+        _add_ros2_bridge(run.robot, run, options.robot, out)
+        wiring.add_clock_components(plan, run)
+        await wiring.start(run)
+        _print_started(plan, run.robot, out)
         freeze_startup_objects()  # the start-up's objects: out of the collector's way
-        await _run_until_done(args, out, options.robot, controller, aggregator, run.health,
-                              run.sim_run)
+        await _run_until_done(args, out, options.robot, run.controller, run.aggregator,
+                              run.health, run.sim_run)
     except asyncio.CancelledError:
         pass  # a stop signal: the end below is the same as for any other end
     finally:
-        code = await _end(run.sim_run, run.controller, run.components, run.health, run.bus,
-                          run.recorder, run.live, out)
+        code = await wiring.end(run, out)
     return code
 
 
-async def _open_session(plan: LaunchPlan, args: argparse.Namespace) -> RobotRun:
+async def _open_session(plan: wiring.RunPlan, args: argparse.Namespace) -> wiring.RobotRun:
     """The run's clock (simulated time when a simulator runs here or ``--sim-time`` follows
     one elsewhere) and its zenoh session."""
     simulated = plan.simulator is not None
@@ -428,7 +349,7 @@ async def _open_session(plan: LaunchPlan, args: argparse.Namespace) -> RobotRun:
     # (the first one above all: before it the follower has no time, and refuses the sample).
     bus = await Bus.open(plan.connection, clock=clock,
                          ordered=simulated or args.sim_time or args.lockstep)
-    return RobotRun(bus=bus, clock=clock, health=HealthMonitor(bus))
+    return wiring.RobotRun.on(bus)
 
 
 def _print_session(robot: Robot, options: ConnectionOptions, out: TextIO) -> None:
@@ -448,94 +369,34 @@ def _print_session(robot: Robot, options: ConnectionOptions, out: TextIO) -> Non
                   file=out)
 
 
-async def _start_recording(run: RobotRun, args: argparse.Namespace, out: TextIO) -> None:
+async def _start_recording(run: wiring.RobotRun, args: argparse.Namespace, out: TextIO) -> None:
     """``--record`` and ``--foxglove``: started first (and closed last), they see the whole
-    run."""
+    run; what they did is said at the end."""
     if args.record is not None:
-        run.recorder = McapRecorder(bus=run.bus, out=args.record)
-        await run.recorder.start()
-        run.components.append(run.recorder)
-        print(f"  recording the bus to {run.recorder.path}", file=out)
+        recorder = McapRecorder(bus=run.bus, out=args.record)
+        await recorder.start()
+        run.components.append(recorder)
+        run.end_notes.append(lambda: _recorded(recorder))
+        print(f"  recording the bus to {recorder.path}", file=out)
     if args.foxglove is not None:
-        run.live = FoxgloveServer(bus=run.bus, port=args.foxglove, host=args.foxglove_host)
-        await run.live.start()
-        run.components.append(run.live)
-        print(f"  live in Foxglove on {run.live.url} (layout: docs/foxglove-layout.json)",
+        live = FoxgloveServer(bus=run.bus, port=args.foxglove, host=args.foxglove_host)
+        await live.start()
+        run.components.append(live)
+        run.end_notes.append(lambda: f"  live view: {live.stats.summary()}")
+        print(f"  live in Foxglove on {live.url} (layout: docs/foxglove-layout.json)",
               file=out)
 
 
-def _open_simulation(plan: LaunchPlan, run: RobotRun, out: TextIO) -> int:
-    """The planned simulator opened on the session, or (``--sim-time``) the simulation time of
-    one elsewhere followed; says which devices come from elsewhere. Returns the run's seed:
-    the simulator's, else the robot file's, else 0."""
-    seed = plan.robot.spec.seed or 0
-    if plan.simulator is not None and plan.sim_options is not None:
-        assert isinstance(run.clock, SimClock)
-        run.sim_run = plan.simulator.open(bus=run.bus, clock=run.clock,
-                                          options=plan.sim_options)
-        seed = run.sim_run.seed
-        print(f"  {run.sim_run.describe()}", file=out)
-    elif isinstance(run.clock, SimClock):
-        follow_sim_clock(run.bus, run.clock, {})
-        print(f"  no simulator here: following the simulation time on {run.bus.keys.clock}",
-              file=out)
-    if plan.elsewhere:
-        print("  not started here (their backends need the simulator; attach them from "
-              "other processes): " + ", ".join(f"{d.kind}/{d.name}" for d in plan.elsewhere),
-              file=out)
-    if not plan.devices and not plan.elsewhere and run.sim_run is None:
-        print("  no devices here: waiting for devices to attach over zenoh", file=out)
-    return seed
+def _recorded(recorder: McapRecorder) -> str:
+    stats = recorder.stats
+    return (f"  recorded {stats.written} messages"
+            + (f" and {stats.live} in the live view's Foxglove channels" if stats.live else "")
+            + f" to {', '.join(str(p) for p in stats.files)}"
+            + (f" ({stats.dropped} dropped: the disk did not keep up)" if stats.dropped else "")
+            + (f"; writing failed: {stats.error}" if stats.error else ""))
 
 
-def _build_devices(plan: LaunchPlan, run: RobotRun, seed: int) -> list[Component]:
-    """This process's devices, built through the plug-in registries (not started yet)."""
-    context = DeviceContext(bus=run.bus, clock=run.clock, seed=seed,
-                            simulation=run.sim_run.world if run.sim_run is not None else None)
-    devices: list[Component] = []
-    try:
-        for device in plan.devices:
-            devices.append(device.build(context=context))
-    except BaseException:  # the ones built hold their pins and buses: closed at the end
-        run.components += devices
-        raise
-    return devices
-
-
-def _build_control(plan: LaunchPlan, robot: Robot, run: RobotRun, args: argparse.Namespace,
-                   seed: int, devices: list[Component]
-                   ) -> tuple[Controller, StateAggregator, RemoteBehaviors]:
-    """The state aggregator, the controller with the robot's tree, the remote behaviours'
-    slots and the live-tree service, added to the run's components after them the devices."""
-    spec = robot.spec
-    settings = plan.controller
-    # The robot's own sources are never evicted to make room for unknown ones.
-    protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
-    protected.update(s for s in (settings.sync_source, settings.trigger) if s)
-    aggregator = StateAggregator(bus=run.bus, stale_after_s=spec.controller.stale_after_s,
-                                 default_stale_after_s=spec.controller.default_stale_after_s,
-                                 protected_sources=protected, notify_refusals=True)
-    root = robot.root
-    controller = run.controller = Controller(
-        bus=run.bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
-        mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
-        reflex_sources=settings.reflex,
-        # In lockstep each status is of a simulated instant (a fleet's world reads them).
-        status_clock=run.clock if args.lockstep else None,
-    )
-    remotes = RemoteBehaviors(
-        bus=run.bus, root=root, config={**robot.remote_config(), **dict(args.remote)},
-        only_configured=spec.remotes.only_declared,
-        default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
-        max_remotes=spec.remotes.max_remotes, notify_refusals=True,
-    )
-    tree_service = TreeService(bus=run.bus, controller=controller, remotes=remotes, seed=seed,
-                               slots=robot.remotes)
-    run.components += [aggregator, controller, remotes, tree_service, *devices]
-    return controller, aggregator, remotes
-
-
-def _add_ros2_bridge(robot: Robot, run: RobotRun, robot_name: str, out: TextIO) -> None:
+def _add_ros2_bridge(robot: Robot, run: wiring.RobotRun, robot_name: str, out: TextIO) -> None:
     """The ROS 2 bridge, if the robot file enables it (docs/ros2.md)."""
     spec = robot.spec
     if spec.ros2 is None or not spec.ros2.enabled:
@@ -550,125 +411,13 @@ def _add_ros2_bridge(robot: Robot, run: RobotRun, robot_name: str, out: TextIO) 
           f"{ros2.domain_id}, {ros2.distro} (docs/ros2.md)", file=out)
 
 
-def _add_clock_components(run: RobotRun, args: argparse.Namespace, controller: Controller,
-                          devices: list[Component]) -> None:
-    """What keeps time with other processes: the robot's clock for other hosts (wall time),
-    the lockstep participant (``--lockstep``), or the simulator's own components."""
-    if not run.clock.is_simulated:  # its clock, for processes on other hosts
-        run.components.append(RobotTimeBeacon(bus=run.bus))
-    if args.lockstep:  # last started: the simulator waits for it once all else runs
-        run.components.append(lockstep.LockstepParticipant(bus=run.bus,
-                                                           participant=controller.name))
-    if run.sim_run is not None:
-        run.sim_run.add_devices(devices)
-        run.components += run.sim_run.components()
-
-
-async def _start_components(run: RobotRun, remotes: RemoteBehaviors,
-                            controller: Controller) -> None:
-    """Every component started in order, then the simulation."""
-    # No remote behaviour may vote under the name of one of the robot's own components.
-    remotes.reserve(c.name for c in run.components)
-    run.health.start()
-    for component in run.components:
-        await component.start()
-    if run.sim_run is not None:
-        run.sim_run.start(controller)
-
-
-def _print_started(plan: LaunchPlan, robot: Robot, out: TextIO) -> None:
+def _print_started(plan: wiring.RunPlan, robot: Robot, out: TextIO) -> None:
     """What runs here: the devices, how the controller ticks, the tree."""
     here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
     print(f"  devices: {here or 'none here'}", file=out)
     print(f"  controller: {plan.controller.planned()}; tree:", file=out)
     print_tree(robot, out)
     out.flush()
-
-
-RESULTS_BOUND_S = 30.0
-"""Wall time the end gives to writing the run's summary and recording (the summary first):
-long enough for a loaded machine's plot and last frame, short of a write stuck for ever. After
-a stop signal the whole stop is bounded tighter (:data:`ubf_async.cli.run.STOP_BOUND_S`)."""
-CLOSE_BOUND_S = 5.0
-"""Wall time the end gives to closing one component (a recorder drains its queue for at most
-:data:`~ubf_async.tools.record.DEFAULT_DRAIN_S`) or the zenoh session."""
-
-
-EXIT_DEGRADED = 3
-"""The run ended and its results were saved, but it was not the robot file's run: a behaviour
-was quarantined (it kept failing and stopped voting) or the tree was changed live."""
-
-
-class ShutdownError(UbfError):
-    """A step of the end failed (logged as it happened); everything else was still done."""
-
-
-async def _end(sim_run: SimulationRun | None, controller: Controller | None,
-               components: list[Component], health: HealthMonitor, bus: Bus,
-               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO) -> int:
-    """The end of a run, whatever ended it (:class:`~ubf_async.cli.ending.Ending`): the results
-    written, every component closed (last started first: the recorder sees everything), the
-    session closed — each step bounded, each done even if one before failed — and only then
-    the report printed. Results that could not be written are printed instead
-    (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`
-    (exit status 2 either way). Otherwise the exit status: 0, or :data:`EXIT_DEGRADED`."""
-    end = ending.Ending(log)
-    degraded = []
-    if controller is not None:
-        if quarantined := controller.quarantined():
-            degraded.append(f"quarantined: {', '.join(quarantined)}")
-        if controller.tree_changes:
-            degraded.append(f"the tree was changed live {len(controller.tree_changes)} time(s)")
-    report = io.StringIO()  # printed last: a console that went away cannot cost a result
-    unsaved = False
-    if sim_run is not None and controller is not None:
-        print("  saving the run's results ...", file=out)
-        out.flush()
-        run = sim_run
-        unsaved = await end.step("saving the run's results",
-                                 lambda: run.finish(controller, report),
-                                 bound_s=RESULTS_BOUND_S) is None
-    for component in reversed(components):
-        await end.step(f"closing {component.name}", component.aclose, bound_s=CLOSE_BOUND_S)
-    health.close()
-    await end.step("closing the zenoh session", bus.aclose, bound_s=CLOSE_BOUND_S,
-                   overrun_is_failure=False)
-    out.write(report.getvalue())
-    if recorder is not None:
-        stats = recorder.stats
-        print(f"  recorded {stats.written} messages"
-              + (f" and {stats.live} in the live view's Foxglove channels"
-                 if stats.live else "")
-              + f" to {', '.join(str(p) for p in stats.files)}"
-              + (f" ({stats.dropped} dropped: the disk did not keep up)"
-                 if stats.dropped else "")
-              + (f"; writing failed: {stats.error}" if stats.error else ""), file=out)
-    if live is not None:
-        print(f"  live view: {live.stats.summary()}", file=out)
-    if unsaved and sim_run is not None and controller is not None:
-        print_unsaved_summary(sim_run, controller, end, out)
-    print("ubf_async: stopped" + (f", but not as the robot file describes ({'; '.join(degraded)})"
-                                  if degraded else ""), file=out)
-    out.flush()
-    if unsaved:
-        raise ResultsNotSavedError(f"could not save the run's results ({end.failures[0]}); "
-                                   f"its summary was printed instead")
-    if not end.ok:
-        raise ShutdownError(f"the run ended, but {'; '.join(end.failures)}")
-    return EXIT_DEGRADED if degraded else 0
-
-
-def print_unsaved_summary(sim_run: SimulationRun, controller: Controller,
-                          end: ending.Ending, out: TextIO) -> None:
-    """The results were not written (a full disk, a folder removed during the run, a write
-    stuck past its bound): print the summary as JSON so they are not lost."""
-    try:
-        summary = sim_run.summary(controller)
-    except Exception as exc:
-        end.fail("making the run's summary", f"{type(exc).__name__}: {exc}")
-        return
-    print("ubf_async: the run's summary, not saved:", file=out)
-    print(json.dumps(summary, indent=2, default=str), file=out)
 
 
 async def _run_until_done(
@@ -708,7 +457,7 @@ async def _run_until_done(
             await asyncio.gather(reporter, return_exceptions=True)
 
 
-def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
+def print_plan(plan: wiring.RunPlan, out: TextIO = sys.stdout) -> None:
     robot = plan.robot
     print(f"{robot.source}: robot {robot.name!r} — OK", file=out)
     for device in plan.devices + plan.elsewhere:
