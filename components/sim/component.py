@@ -89,6 +89,19 @@ class _Served:
     clock_followed: bool = True
 
 
+@dataclass(slots=True, kw_only=True)
+class _Schedule:
+    """What the stepping carries from one step to the next."""
+
+    origin_s: float
+    """Wall time at which simulated time started, moved on by the time spent held."""
+    window_wall_s: float
+    window_sim_s: float
+    next_truth_s: float
+    next_world_s: float
+    steps: int = 0
+
+
 class SimulatorComponent(Component):
     def __init__(
         self,
@@ -218,56 +231,83 @@ class SimulatorComponent(Component):
         return served
 
     async def _step_forever(self, served: list[_Served], started_s: float) -> None:
-        next_truth_s = next_world_s = self.world.time_s
+        schedule = _Schedule(origin_s=started_s, window_wall_s=started_s,
+                             window_sim_s=self.world.time_s, next_truth_s=self.world.time_s,
+                             next_world_s=self.world.time_s)
         step_ns = round(self.step_s * 1e9)
-        schedule_origin_s = started_s  # wall time at which sim time started
-        window_wall_s, window_sim_s = started_s, self.world.time_s
-        steps = 0
         while True:
             next_ns = self.clock.now_ns() + step_ns
             barrier_started_s = time.monotonic()
             waited = await self._barrier(served, next_ns)
             if waited:  # time spent held is not made up afterwards in a burst of fast steps
-                schedule_origin_s += time.monotonic() - barrier_started_s
+                schedule.origin_s += time.monotonic() - barrier_started_s
             if self.speed != math.inf:
-                due_s = schedule_origin_s + (self.world.time_s + self.step_s
-                                              - self.sim_started_s) / self.speed
-                delay = due_s - time.monotonic()
-                if delay > 0:
-                    # The loop's timer has ~1 ms resolution, so this may oversleep; the
-                    # schedule is absolute, and the steps that fall due meanwhile run back to
-                    # back.
-                    await asyncio.sleep(delay)
-                else:
-                    self.late_steps += 1
-                self.step_lateness_s.append(max(0.0, time.monotonic() - due_s))
-            self.world.advance(self.step_s)
-            now_s = self.world.time_s
-            now_ns = round(now_s * 1e9)
-            self.clock.advance_to(now_ns)
-            wall_s = time.monotonic()
-            if wall_s - window_wall_s >= RTF_WINDOW_S:
-                self.rtf_windows.append((now_s - window_sim_s) / (wall_s - window_wall_s))
-                window_wall_s, window_sim_s = wall_s, now_s
-            steps += 1
-            # Whether anyone follows the clock, asked every CLOCK_MATCH_STEPS steps (zenoh's
-            # check is not free); the clock sample itself goes out at the barrier.
-            if steps % CLOCK_MATCH_STEPS == 1:
-                for robot in served:
-                    robot.clock_followed = robot.clock.has_subscribers()
-            truth_due = now_s >= next_truth_s
-            world_due = now_s >= next_world_s
+                await self._pace(schedule)
+            busy = self._step(served, schedule)
+            # Flat out, the instants at which nothing of this process is due pass without a
+            # round of the event loop: the barrier would find it idle at once (module
+            # docstring, Lockstep), so the run is the same, only faster.
+            while (self.speed == math.inf and not busy
+                   and self._barrier_is_idle(served, self.clock.now_ns() + step_ns)):
+                busy = self._step(served, schedule)
+
+    async def _pace(self, schedule: _Schedule) -> None:
+        """Sleep until the next step is due at ``speed`` × real time."""
+        due_s = schedule.origin_s + (self.world.time_s + self.step_s
+                                     - self.sim_started_s) / self.speed
+        delay = due_s - time.monotonic()
+        if delay > 0:
+            # The loop's timer has ~1 ms resolution, so this may oversleep; the schedule is
+            # absolute, and the steps that fall due meanwhile run back to back.
+            await asyncio.sleep(delay)
+        else:
+            self.late_steps += 1
+        self.step_lateness_s.append(max(0.0, time.monotonic() - due_s))
+
+    def _barrier_is_idle(self, served: list[_Served], next_ns: int) -> bool:
+        """Whether the barrier before the step to ``next_ns`` would pass at once, the event
+        loop having run nothing since the last step: no hold forbids it, and no process
+        elsewhere waits for this instant's clock sample (a lockstep participant, a follower)."""
+        held = self.clock.held_until_ns()
+        return ((held is None or held >= next_ns) and not self._lockstep.has_participants()
+                and not any(robot.clock_followed for robot in served))
+
+    def _step(self, served: list[_Served], schedule: _Schedule) -> bool:
+        """One step of the world and the clock, and what is published with it. Returns
+        whether it gave the event loop work: a sleeper woken, a sample published."""
+        self.world.advance(self.step_s)
+        now_s = self.world.time_s
+        now_ns = round(now_s * 1e9)
+        wakeup = self.clock.next_wakeup_ns()
+        busy = wakeup is not None and wakeup <= now_ns
+        self.clock.advance_to(now_ns)
+        wall_s = time.monotonic()
+        if wall_s - schedule.window_wall_s >= RTF_WINDOW_S:
+            self.rtf_windows.append((now_s - schedule.window_sim_s)
+                                    / (wall_s - schedule.window_wall_s))
+            schedule.window_wall_s, schedule.window_sim_s = wall_s, now_s
+        schedule.steps += 1
+        # Whether anyone follows the clock, asked every CLOCK_MATCH_STEPS steps (zenoh's
+        # check is not free); the clock sample itself goes out at the barrier.
+        if schedule.steps % CLOCK_MATCH_STEPS == 1:
             for robot in served:
-                # Truth and the world snapshot cost encoding time on the loop: build them
-                # only when some process listens (zenoh knows its matching subscribers).
-                if truth_due and robot.truth.has_subscribers():
-                    robot.truth.publish(self.truth(robot.robot), stamp_ns=now_ns)
-                if world_due and robot.world.has_subscribers():
-                    self._publish_world(robot)
-            if truth_due:
-                next_truth_s += self.truth_period_s
-            if world_due:
-                next_world_s += self.world_period_s
+                robot.clock_followed = robot.clock.has_subscribers()
+        truth_due = now_s >= schedule.next_truth_s
+        world_due = now_s >= schedule.next_world_s
+        for robot in served:
+            # Truth and the world snapshot cost encoding time on the loop: build them only
+            # when some process listens (zenoh knows its matching subscribers).
+            if truth_due and robot.truth.has_subscribers():
+                robot.truth.publish(self.truth(robot.robot), stamp_ns=now_ns)
+                busy = True
+            if world_due and robot.world.has_subscribers():
+                self._publish_world(robot)
+                busy = True
+        if truth_due:
+            schedule.next_truth_s += self.truth_period_s
+        if world_due:
+            schedule.next_world_s += self.world_period_s
+        return busy
 
     def _publish_world(self, robot: _Served) -> None:
         robot.world.publish(snapshot_to_data(self.world.snapshot_for(robot.robot)),

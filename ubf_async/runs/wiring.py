@@ -105,6 +105,13 @@ class RunPlan:
     """Take part in the lockstep of a simulator of another process (``--lockstep``)."""
     helper_processes: bool = True
     """Whether devices may start helper processes (:class:`DeviceContext`)."""
+    follow_clock: bool = True
+    """With a simulated clock and no simulator in the plan: follow the simulation time a
+    simulator elsewhere publishes. ``False`` when a simulator of this process drives the clock
+    (an in-process fleet's world)."""
+    status_on_robot_clock: bool = False
+    """The controller's status period is measured in robot time (each status is of a
+    simulated instant: what a fleet's world collects), not wall time."""
 
 
 def simulation_plan(robot: Robot, options: SimulationOptions, *, simulator: Simulator,
@@ -166,7 +173,7 @@ def open_simulation(plan: RunPlan, run: RobotRun, out: TextIO) -> int:
                                           options=plan.sim_options)
         seed = run.sim_run.seed
         print(f"  {run.sim_run.describe()}", file=out)
-    elif isinstance(run.clock, SimClock):
+    elif isinstance(run.clock, SimClock) and plan.follow_clock:
         follow_sim_clock(run.bus, run.clock, {})
         print(f"  no simulator here: following the simulation time on {run.bus.keys.clock}",
               file=out)
@@ -227,7 +234,7 @@ def _build_control(plan: RunPlan, robot: Robot, run: RobotRun, seed: int) -> Non
         mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
         reflex_sources=settings.reflex,
         # In lockstep each status is of a simulated instant (a fleet's world reads them).
-        status_clock=run.clock if plan.lockstep else None,
+        status_clock=run.clock if plan.status_on_robot_clock else None,
     )
     remotes = run.remotes = RemoteBehaviors(
         bus=run.bus, root=root, config={**robot.remote_config(), **plan.remotes},

@@ -169,6 +169,14 @@ class SimClock:
     def now_ns(self) -> int:
         return self._now
 
+    def next_wakeup_ns(self) -> int | None:
+        """The earliest time a sleeper waits for, if any (a simulator of this process steps
+        up to it without waking the loop: nothing of this process is due before it)."""
+        sleepers = self._sleepers
+        while sleepers and sleepers[0][2].done():  # cancelled sleepers: gone
+            heapq.heappop(sleepers)
+        return sleepers[0][0] if sleepers else None
+
     @contextlib.contextmanager
     def driven(self) -> Iterator[None]:
         """Declare, for the block's duration, that a simulator of this process drives the

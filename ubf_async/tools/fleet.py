@@ -33,7 +33,6 @@ import asyncio
 import contextlib
 import dataclasses
 import json
-import math
 import os
 import signal
 import sys
@@ -41,112 +40,31 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any, Literal, TextIO
-
-import msgspec
-from msgspec import Meta
+from typing import Any, TextIO
 
 from ubf_async.assembly.registry import SIMULATORS
-from ubf_async.assembly.robotfile import Robot, load_robot
 from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
-    FLAT_OUT,
-    FleetMember,
-    SimulationOptions,
 )
 from ubf_async.cli.args import HelpFormatter, add_event_loop_help
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
+from ubf_async.runs.fleet import (
+    Fleet,
+    load_fleet,
+    members_of,
+    world_options,
+)
 from ubf_async.runtime.bus import ROOT, Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.simclock import follow_sim_clock
-from ubf_async.wire.protocol import Keys, ProtocolError, decode_or_count
+from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import CONTROLLER_STATUS
 
 PROG = "python -m ubf_async.fleet"
-MAX_ROBOTS = 32
-DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 CONTROLLERS_WAIT_S = 60.0
 """How long the world waits for every robot's controller before giving up."""
-
-Finite = Annotated[float, Meta(ge=-1e6, le=1e6)]
-
-
-class StartPose(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
-    x_m: Finite
-    y_m: Finite
-    heading_deg: Annotated[float, Meta(ge=-360.0, le=360.0)] = 0.0
-
-
-class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
-    name: Annotated[str, Meta(min_length=1, max_length=64)]
-    start: StartPose
-    robot_file: str = "mini-whegs"
-
-
-class FleetWorld(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
-    scenario: str | None = None
-    """A built-in scenario or a scenario file: the arena, ball and scripts (its robot start is
-    replaced by the robots'); ``None``: the simulator's default."""
-    speed: Annotated[float, Meta(gt=0.0, le=1000.0)] | Literal["max"] = 1.0
-    """× real time, or ``max``: flat out."""
-    seed: int | None = None
-    duration_s: Annotated[float, Meta(gt=0.0, le=1e6)] | None = None
-
-
-class FleetFile(msgspec.Struct, forbid_unknown_fields=True, frozen=True):
-    robots: Annotated[list[FleetRobot], Meta(min_length=1, max_length=MAX_ROBOTS)]
-    world: FleetWorld = FleetWorld()
-    router: str = DEFAULT_ROUTER
-    """The router's endpoint: where the launcher starts one, and where everyone connects."""
-
-
-@dataclasses.dataclass(slots=True)
-class Fleet:
-    """A fleet file, checked: every robot file loaded, names unique, one simulator."""
-
-    spec: FleetFile
-    source: Path
-    robots: dict[str, Robot]
-    simulator: str
-
-
-def load_fleet(path: Path) -> Fleet:
-    """Read and check a fleet file; :class:`ConfigurationError` naming what is wrong."""
-    if not path.is_file():
-        raise ConfigurationError(f"no fleet file {path}")
-    try:
-        spec = msgspec.yaml.decode(path.read_bytes(), type=FleetFile)
-    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
-        raise ConfigurationError(f"{path}: {exc}") from None
-    names = [r.name for r in spec.robots]
-    doubled = sorted({n for n in names if names.count(n) > 1})
-    if doubled:
-        raise ConfigurationError(f"{path}: robot names must be unique; twice: "
-                                 f"{', '.join(doubled)}")
-    robots: dict[str, Robot] = {}
-    simulators: set[str] = set()
-    for entry in spec.robots:
-        try:
-            Keys(entry.name)
-        except ProtocolError as exc:
-            raise ConfigurationError(f"{path}: robot {entry.name!r}: {exc}") from None
-        robot_file = entry.robot_file
-        if not Path(robot_file).is_absolute() and (path.parent / robot_file).is_file():
-            robot_file = str(path.parent / robot_file)  # relative to the fleet file
-        robot = load_robot(robot_file, seed=spec.world.seed)
-        needs = {d.requires_simulator for d in robot.devices if d.requires_simulator}
-        if not needs:
-            raise ConfigurationError(f"{path}: robot {entry.name}'s file {robot.source} has no "
-                                     f"simulated device: nothing for the world to host")
-        simulators |= needs
-        robots[entry.name] = dataclasses.replace(robot, source=robot_file)
-    if len(simulators) != 1:
-        raise ConfigurationError(f"{path}: the robots need several simulators "
-                                 f"({', '.join(sorted(simulators))}); a fleet shares one world")
-    return Fleet(spec=spec, source=path, robots=robots, simulator=simulators.pop())
-
 
 # ---------------------------------------------------------------------------------------------
 # The world process
@@ -166,17 +84,9 @@ async def run_world(fleet: Fleet, *, router: str, out: TextIO,
                                         ordered=lockstep))
         await wait_for_controllers(buses[0], [r.name for r in spec.robots],
                                    timeout_s=CONTROLLERS_WAIT_S, lockstep=lockstep)
-        members = [FleetMember(name=entry.name, x_m=entry.start.x_m, y_m=entry.start.y_m,
-                               heading_deg=entry.start.heading_deg,
-                               devices=tuple(d for d in fleet.robots[entry.name].devices
-                                             if d.requires_simulator))
-                   for entry in spec.robots]
-        options = SimulationOptions(
-            scenario=spec.world.scenario,
-            speed=math.inf if spec.world.speed == FLAT_OUT else float(spec.world.speed),
-            seed=spec.world.seed,
-            duration_s=spec.world.duration_s,
-            lockstep_participants=len(spec.robots) if lockstep else 0)
+        members = members_of(fleet)
+        options = world_options(fleet,
+                                lockstep_participants=len(spec.robots) if lockstep else 0)
         simulator = SIMULATORS.get(fleet.simulator)()
         summary = await simulator.host_fleet(buses=buses, clock=clock, members=members,
                                              options=options, out=out)

@@ -282,7 +282,7 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
                           simulator=simulator, sim_options=options, controller=controller,
                           connection=connection_options(args),
                           seed_given=args.seed is not None, remotes=dict(args.remote),
-                          lockstep=args.lockstep)
+                          lockstep=args.lockstep, status_on_robot_clock=args.lockstep)
 
 
 def check_outputs(summary: Path | None, record: Path | None) -> None:
