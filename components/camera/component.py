@@ -25,6 +25,7 @@ configured.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import functools
 import logging
 from typing import Annotated
@@ -35,7 +36,7 @@ from components.camera.backend import CameraBackend
 from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
 from components.camera.view import DEFAULT_VIEW_SCALE, draw_view, encode_jpeg
 from ubf_async.cli import ending
-from ubf_async.runtime.bus import Bus
+from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import decode_or_count
 from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
@@ -50,16 +51,17 @@ CaptureOutcome = tuple[SeekResult, tuple[int, ...], CameraView | None]
 log = logging.getLogger(__name__)
 
 
-_RENDERS = ending.DaemonExecutor(bound_s=1.0, name="ubf-render", one_at_a_time=True)
+_RENDERS = ending.CallThread(name="ubf-render")
 """Where backends whose capture is CPU work in Python (a simulated camera rendering:
-``renders_in_python = True``) capture, one at a time, each in a daemon thread (a render that
-never returns cannot hold the process's exit). Several
-renders in parallel threads only contend for the GIL, and the event loop waits for it too: a
-fleet's world with 8 cameras stalled its steps by up to 30 ms (tick jitter p99 30 ms), with
-one render thread 5 ms (docs/fleet.md). A simulated camera now renders in a render process
-(:mod:`components.sim.render_process`) and its capture here mostly waits on it, but one at a
-time still suits it: the render process renders one frame at a time too. A real camera's
-capture waits on its device and keeps a thread of its own."""
+``renders_in_python = True``) capture: one thread for the process, started with the first such
+camera and ended with the last, on which their captures take turns. Several renders in
+parallel threads only contend for the GIL, and the event loop waits for it too: a fleet's
+world with 8 cameras stalled its steps by up to 30 ms (tick jitter p99 30 ms), with one render
+thread 5 ms (docs/fleet.md); and a thread per frame costs more than the frame's seekcolor. A
+simulated camera may render in a render process (:mod:`components.sim.render_process`) and its
+capture here then mostly waits on it; one at a time still suits it: the render process
+renders one frame at a time too. A real camera's capture waits on its device and keeps a
+thread of its own."""
 
 
 class CameraComponent(Component):
@@ -80,7 +82,7 @@ class CameraComponent(Component):
             raise ValueError(f"latency_s must be ≥ 0, got {latency_s}")
         self.source_name = name
         self.backend = backend
-        self._executor = _RENDERS if getattr(backend, "renders_in_python", False) else None
+        self._renders = _RENDERS if getattr(backend, "renders_in_python", False) else None
         self.latency_s = latency_s
         self.color = color
         self.hfov_deg = hfov_deg
@@ -111,13 +113,23 @@ class CameraComponent(Component):
                                   period_s=max(self.latency_s, 0.01))
         self.subscribe(SEEK_COLOR.key(keys), self._on_seek_color)
         clock = self.bus.clock
-        latency_ns = int(self.latency_s * 1e9)
         # Simulated time waits while the backend gets ready, whatever the simulation's speed.
         hold = clock.hold(clock.now_ns())
         try:
             await asyncio.to_thread(self.backend.prepare)
         finally:
             hold.release()
+        executor = self._renders.enter() if self._renders is not None else None
+        try:
+            await self._capture_forever(pub, view_pub, executor)
+        finally:
+            if self._renders is not None:  # joins its thread when it was the last camera
+                await asyncio.to_thread(self._renders.leave)
+
+    async def _capture_forever(self, pub: Publisher, view_pub: Publisher,
+                               executor: concurrent.futures.Executor | None) -> None:
+        clock = self.bus.clock
+        latency_ns = int(self.latency_s * 1e9)
         while True:
             stamp = clock.now_ns()
             deadline = stamp + latency_ns
@@ -133,7 +145,7 @@ class CameraComponent(Component):
             with_view = view_pub.has_subscribers()
             try:
                 capture = asyncio.get_running_loop().run_in_executor(
-                    self._executor, functools.partial(self._capture, self.color,
+                    executor, functools.partial(self._capture, self.color,
                                                       with_view=with_view))
                 result, shape, view = await self._captured(capture)
                 hold.release()

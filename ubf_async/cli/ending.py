@@ -25,6 +25,7 @@ import functools
 import itertools
 import logging
 import os
+import queue
 import threading
 import time
 from collections.abc import Awaitable, Callable
@@ -258,3 +259,65 @@ class DaemonExecutor(concurrent.futures.ThreadPoolExecutor):
             if stuck:
                 log.warning("%d call(s) still running in a thread after %g s: left behind",
                             len(stuck), self.bound_s)
+
+
+class CallThread(concurrent.futures.Executor):
+    """One daemon thread that runs the calls submitted to it one after another, for as long
+    as its users need it: work that comes often (a simulated camera's render, every frame)
+    pays for one thread instead of a thread per call (:class:`DaemonExecutor`), and the calls
+    take turns instead of contending for the GIL.
+
+    Shared by reference count: each user :meth:`enter`\\ s it when it starts and
+    :meth:`leave`\\ s it when it stops; the thread starts with the first user and ends with
+    the last (after the call in progress, waited for at most ``bound_s``), so nothing is left
+    running once every user has stopped. Its calls let go of what they hold before their
+    result is published, as :class:`DaemonExecutor`'s do; a daemon thread, it cannot keep the
+    process alive."""
+
+    def __init__(self, *, name: str, bound_s: float = 1.0) -> None:
+        self.name = name
+        self.bound_s = bound_s
+        self._lock = threading.Lock()
+        self._users = 0
+        self._queue: queue.SimpleQueue[list[Any] | None] | None = None
+        self._thread: threading.Thread | None = None
+
+    def enter(self) -> CallThread:
+        with self._lock:
+            self._users += 1
+            if self._thread is None:
+                calls: queue.SimpleQueue[list[Any] | None] = queue.SimpleQueue()
+                self._queue = calls
+                self._thread = threading.Thread(target=self._serve, args=(calls,),
+                                                name=self.name, daemon=True)
+                self._thread.start()
+        return self
+
+    def leave(self) -> None:
+        with self._lock:
+            self._users -= 1
+            if self._users > 0 or self._thread is None:
+                return
+            thread, calls = self._thread, self._queue
+            self._thread = self._queue = None
+        assert calls is not None
+        calls.put(None)  # after the calls already queued
+        thread.join(self.bound_s)
+        if thread.is_alive():
+            log.warning("%s: a call still running %g s after its last user stopped: left "
+                        "behind", self.name, self.bound_s)
+
+    def submit(self, fn: Callable[..., T], /, *args: Any,
+               **kwargs: Any) -> concurrent.futures.Future[T]:
+        future: concurrent.futures.Future[T] = concurrent.futures.Future()
+        with self._lock:
+            if self._queue is None:
+                raise RuntimeError(f"{self.name}: no user has entered it")
+            self._queue.put([(future, functools.partial(fn, *args, **kwargs))])
+        return future
+
+    @staticmethod
+    def _serve(calls: queue.SimpleQueue[list[Any] | None]) -> None:
+        while (job := calls.get()) is not None:
+            _run_call(job)
+            del job
