@@ -1,115 +1,171 @@
-"""How fast the simulated robot runs: the real-time factor achieved at ``--speed K``.
+"""How fast the simulated robot runs: launch flat out beside the in-process run, and the
+real-time factor achieved at ``--speed K``.
 
-Run ``python -m bench.realtime [--speed 5] [--runs 3] [--duration 30]``. Each run is the real
-main job, ``python -m ubf_async.launch --scenario S --speed K --duration D --quiet --summary``,
-in its own process; the figures come from its summary (``docs/scenarios.md``, Outputs). Three
-set-ups are measured in the same session, one run of each in turn so a slow patch of the
-machine hits all three:
+Run ``python -m bench.realtime [--runs 3] [--duration 30] [--speed 5] [--cpu N]``. Every
+set-up runs in a process of its own pinned to one core (``--cpu``, default the last core this
+process may use), so the figures are of one core whatever the machine has, and one run of each
+set-up goes in turn, so a slow patch of the machine hits them all:
 
-* **full robot** — every simulated device, the camera rendering the pixels of its
-  1280×1024 frames that seekcolor reads (the ``camera.sim`` backend's sparse frames);
-* **no camera** — the same run without the camera (``--devices motors,encoders,range,radio``):
-  the baseline, what the machine manages when nothing is rendered;
-* **flat out** — the full robot asked to run at ``--flat-out-speed`` (default 100×), which no
-  machine reaches: the factor achieved is the headroom above ``--speed``.
+* **launch flat out** — the main job as a user scripts it, ``python -m ubf_async.launch
+  --scenario S --speed max --duration D --quiet --summary F``: the full robot with its camera.
+  Two factors: *end to end*, simulated seconds over the process's whole wall time (start-up,
+  imports, the zenoh session, the render process, the end); and *simulator*, the summary's
+  ``real_time_factor`` (from the moment simulated time starts to its end).
+* **in-process** — the same run as a library call, ``ubf_async.experiment.run(…, duration_s=D)``,
+  in a process that makes two calls: the *first* (what one call costs in a fresh process,
+  the simulator's imports included) and the *next* (what each further run of a sweep's worker
+  costs). End to end is the call's wall time; simulator, the summary's factor.
+* **full robot / no camera at ×K** — launch at ``--speed K`` with and without the camera
+  (``--devices``): whether the machine keeps up with K, and what the camera costs.
 
-For each it prints the real-time factor over whole runs (median and min over runs), over
-0.25 s windows of wall time (the median over runs of each run's median window; the worst
-run's p1 — the window 99 % of that run's windows beat — and the slowest window of all), and
-ratios: achieved / requested, and full robot / no camera.
+It prints each run, then the medians, and the ratios in-process / launch flat out (end to end
+and simulator), measured in the same session. ``--runs 1 --duration 5`` is a quick look.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
 import tempfile
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from components.sim.component import DEVICES
 
 ROOT = Path(__file__).resolve().parent.parent
+CHILD_FLAG = "--in-process-child"
 
 
 @dataclass
 class Setup:
     name: str
-    speed: float
-    devices: str
-    runs: list[dict] = field(default_factory=list)
+    measure: Callable[[Path], dict[str, float]]
+    """One run: its figures (``end_to_end``, ``simulator``, …)."""
+    runs: list[dict[str, float]] = field(default_factory=list)
 
-    def factors(self) -> list[float]:
-        return [run["real_time_factor"] for run in self.runs]
-
-    def windows(self, stat: str) -> list[float]:
-        return [run["real_time_factor_windows"][stat] for run in self.runs]
+    def median(self, figure: str) -> float:
+        return statistics.median(run[figure] for run in self.runs)
 
 
-def run_once(setup: Setup, *, scenario: str, duration_s: float, folder: Path) -> dict:
-    summary = folder / f"{setup.name.replace(' ', '-')}-{len(setup.runs)}.json"
-    cmd = [sys.executable, "-m", "ubf_async.launch", "--scenario", scenario,
-           "--speed", f"{setup.speed:g}", "--duration", f"{duration_s:g}", "--devices",
-           setup.devices, "--quiet", "--summary", str(summary), "--listen", "tcp/127.0.0.1:0"]
+def pinned(cpu: int) -> Callable[[], None]:
+    return lambda: os.sched_setaffinity(0, {cpu})
+
+
+def launch_run(args: argparse.Namespace, *, speed: str, devices: str, folder: Path
+               ) -> dict[str, float]:
+    summary = folder / f"launch-{time.monotonic_ns()}.json"
+    cmd = [sys.executable, "-m", "ubf_async.launch", "--scenario", args.scenario, "--speed",
+           speed, "--duration", f"{args.duration:g}", "--devices", devices, "--quiet",
+           "--summary", str(summary), "--listen", "tcp/127.0.0.1:0"]
+    started = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
-                          timeout=duration_s * 10 + 60)
+                          timeout=args.duration * 20 + 120, preexec_fn=pinned(args.cpu))
+    wall = time.perf_counter() - started
     if proc.returncode != 0:
         raise SystemExit(f"run failed ({' '.join(cmd)}):\n{proc.stdout}\n{proc.stderr}")
     result = json.loads(summary.read_text("utf-8"))
-    setup.runs.append(result)
-    return result
+    return {"end_to_end": result["sim_time_s"] / wall, "simulator": result["real_time_factor"],
+            "wall_s": wall}
+
+
+def in_process_run(args: argparse.Namespace, folder: Path) -> dict[str, float]:
+    cmd = [sys.executable, "-m", "bench.realtime", CHILD_FLAG, "--scenario", args.scenario,
+           "--duration", f"{args.duration:g}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
+                          timeout=args.duration * 20 + 120, preexec_fn=pinned(args.cpu))
+    if proc.returncode != 0:
+        raise SystemExit(f"run failed ({' '.join(cmd)}):\n{proc.stdout}\n{proc.stderr}")
+    figures: dict[str, float] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return figures
+
+
+def child(scenario: str, duration_s: float) -> int:
+    """Two calls in this (fresh) process: the first, then the next; one line of JSON."""
+    from ubf_async import experiment
+
+    figures: dict[str, Any] = {}
+    for label in ("first", "next"):
+        started = time.perf_counter()
+        result = experiment.run("mini-whegs", scenario, duration_s=duration_s)
+        wall = time.perf_counter() - started
+        figures[f"{label}_end_to_end"] = result.summary["sim_time_s"] / wall
+        figures[f"{label}_simulator"] = result.summary["real_time_factor"]
+        figures[f"{label}_wall_s"] = wall
+    figures["end_to_end"] = figures["next_end_to_end"]
+    figures["simulator"] = figures["next_simulator"]
+    print(json.dumps(figures))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.realtime", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--speed", type=float, default=5.0, help="requested speed (default 5)")
-    parser.add_argument("--flat-out-speed", type=float, default=100.0,
-                        help="speed asked for the flat-out runs (default 100)")
+    parser.add_argument("--speed", type=float, default=5.0,
+                        help="the paced speed of the full robot / no camera runs (default 5)")
     parser.add_argument("--runs", type=int, default=3, help="runs per set-up (default 3)")
     parser.add_argument("--duration", type=float, default=30.0,
                         help="simulated seconds per run (default 30)")
     parser.add_argument("--scenario", default="ball-in-sight",
                         help="scenario to run (default ball-in-sight)")
+    parser.add_argument("--cpu", type=int, default=max(os.sched_getaffinity(0)),
+                        help="the core every run is pinned to (default: the last one)")
+    parser.add_argument(CHILD_FLAG, action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.in_process_child:
+        return child(args.scenario, args.duration)
     if args.runs < 1 or not args.speed > 0 or not args.duration > 0:
         parser.error("--runs must be >= 1, --speed and --duration > 0")
+    if args.cpu not in os.sched_getaffinity(0):
+        parser.error(f"--cpu {args.cpu}: not one of this process's cores "
+                     f"{sorted(os.sched_getaffinity(0))}")
 
+    every = ",".join(DEVICES)
     no_camera = ",".join(d for d in DEVICES if d != "camera")
     setups = [
-        Setup("full robot", args.speed, ",".join(DEVICES)),
-        Setup("no camera", args.speed, no_camera),
-        Setup("flat out", args.flat_out_speed, ",".join(DEVICES)),
+        Setup("launch flat out", lambda f: launch_run(args, speed="max", devices=every,
+                                                      folder=f)),
+        Setup("in-process", lambda f: in_process_run(args, f)),
+        Setup(f"full robot x{args.speed:g}",
+              lambda f: launch_run(args, speed=f"{args.speed:g}", devices=every, folder=f)),
+        Setup(f"no camera x{args.speed:g}",
+              lambda f: launch_run(args, speed=f"{args.speed:g}", devices=no_camera, folder=f)),
     ]
-    print(f"scenario {args.scenario}, {args.duration:g} s simulated per run, "
-          f"{args.runs} run(s) per set-up", flush=True)
+    print(f"scenario {args.scenario}, {args.duration:g} s simulated per run, {args.runs} "
+          f"run(s) per set-up, each process pinned to core {args.cpu}", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.runs):
             for setup in setups:
-                result = run_once(setup, scenario=args.scenario, duration_s=args.duration,
-                                  folder=Path(tmp))
-                print(f"  run {i + 1} {setup.name:<10} x{setup.speed:<5g} -> "
-                      f"x{result['real_time_factor']:.2f}  (camera frames "
-                      f"{result['camera_frames']}, ends {result['ball_distance_m']:.3f} m "
-                      f"from the ball)", flush=True)
+                figures = setup.measure(Path(tmp))
+                setup.runs.append(figures)
+                extra = (f" (first call x{figures['first_end_to_end']:.1f})"
+                         if "first_end_to_end" in figures else "")
+                print(f"  run {i + 1} {setup.name:<18} end to end x{figures['end_to_end']:6.2f}"
+                      f"  simulator x{figures['simulator']:6.2f}{extra}", flush=True)
 
     print()
-    print(f"{'set-up':<12}{'asked':>7}{'run med':>9}{'run min':>9}{'win med':>9}"
-          f"{'win p1':>8}{'win min':>9}{'achieved/asked':>16}")
+    print(f"{'set-up':<20}{'end to end':>12}{'simulator':>11}   (medians, x real time)")
     for setup in setups:
-        f = setup.factors()
-        print(f"{setup.name:<12}{setup.speed:>7g}{statistics.median(f):>9.2f}{min(f):>9.2f}"
-              f"{statistics.median(setup.windows('median')):>9.2f}"
-              f"{min(setup.windows('p1')):>8.2f}{min(setup.windows('min')):>9.2f}"
-              f"{statistics.median(f) / setup.speed:>16.3f}")
-    full, bare, flat = (statistics.median(s.factors()) for s in setups)
+        print(f"{setup.name:<20}{setup.median('end_to_end'):>12.2f}"
+              f"{setup.median('simulator'):>11.2f}")
+    launch, inproc, paced, bare = setups
+    first = statistics.median(run["first_end_to_end"] for run in inproc.runs)
+    print(f"{'in-process, first':<20}{first:>12.2f}")
     print()
-    print(f"full robot / no camera at x{args.speed:g}: {full / bare:.3f}")
-    print(f"headroom: flat out reaches x{flat:.2f}, {flat / args.speed:.2f}x the requested "
-          f"x{args.speed:g}")
+    print(f"in-process / launch flat out: end to end "
+          f"{inproc.median('end_to_end') / launch.median('end_to_end'):.2f}x "
+          f"(first call {first / launch.median('end_to_end'):.2f}x), simulator "
+          f"{inproc.median('simulator') / launch.median('simulator'):.2f}x")
+    print(f"at x{args.speed:g}: full robot reaches x{paced.median('simulator'):.2f} "
+          f"({paced.median('simulator') / args.speed:.3f} of asked), no camera "
+          f"x{bare.median('simulator'):.2f}; full / no camera "
+          f"{paced.median('simulator') / bare.median('simulator'):.3f}")
     return 0
 
 
