@@ -10,8 +10,8 @@
   them (the simulated one) runs — checked by running it with both made unimportable.
 
 The same directions, the rooms of the framework (``ubf_async``'s subpackages, high to low:
-tools, runs, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle) and no import
-circles are contracts of ``lint-imports`` (``[tool.importlinter]`` in pyproject.toml, run by
+tools, runs, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle) and no
+import circles are contracts of ``lint-imports`` (``[tool.importlinter]`` in pyproject.toml, run by
 .ci/run); the last tests here show that it refuses a deliberately upward import on a scratch
 copy of the packages.
 
