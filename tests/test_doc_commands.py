@@ -187,8 +187,8 @@ NOT_RUN = {
     "python -m ubf_async.inspector echo":
         "the inspector's echo named in prose (it needs a KEY): echo with one runs above",
     "python -m ubf_async.inspector tree":
-        "the inspector's tree named in prose (it needs a verb): docs/your-robot.md runs tree "
-        "show and set-arbiter (tests/test_tutorial.py)",
+        "the inspector's tree named in prose: docs/your-robot.md runs tree show and "
+        "set-arbiter (tests/test_tutorial.py); tests/test_inspector_verbs.py runs it alone",
     "python -m bench.ros2": "the bridge's latency, 300 samples each way: past the time budget",
     "python -m ubf_async.fleet fleet.yaml --world-only":
         "what the fleet launcher starts as its own process: every fleet run here runs it",
