@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import time
 from pathlib import Path
 
@@ -48,6 +49,41 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     assert json.loads(summary_path.read_text("utf-8"))["camera_frames"] == summary["camera_frames"]
     assert "summary written" in out.getvalue()
     assert "scenario 'ball-in-sight'" in run.describe()
+    # It ran its whole duration: judged.
+    assert summary["interrupted"] is None and summary["expected"]["judged"] is True
+
+
+@pytest.mark.asyncio
+async def test_a_run_stopped_before_its_duration_is_not_judged(robot_bus: Bus,
+                                                               tmp_path: Path) -> None:
+    """Issue 35: keep-away stopped by Ctrl-C at 14.6 of 70 s reported its expectation "met".
+    A run that ends before its duration (here: finished by whoever drives it at 0.5 s, as
+    launch does on a signal) says so in its summary and is not judged."""
+    clock = SimClock()
+    robot_bus.clock = clock
+    summary_path = tmp_path / "summary.json"
+    run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
+        scenario="keep-away", speed=math.inf, summary_path=summary_path))
+    assert run.duration_s == 70
+    controller, components = await start_seeking_robot(robot_bus, run)
+    out = io.StringIO()
+    try:
+        run.start(controller)
+        await run.until_elapsed(0.5)
+    finally:
+        summary = await run.finish(controller, out)
+        for component in reversed(components):
+            await component.aclose()
+    interrupted = summary["interrupted"]
+    assert interrupted["of_s"] == 70 and 0.5 <= interrupted["at_s"] < 70, interrupted
+    assert json.loads(summary_path.read_text("utf-8"))["interrupted"] == interrupted
+    expected = summary["expected"]
+    assert expected["pass"] is None and expected["judged"] is False, expected
+    assert expected["applicable"] is True and expected["criteria"] == []
+    why = f"interrupted at {interrupted['at_s']:.1f} s of 70 s"
+    assert expected["why"] == why
+    assert f"  expected: {expected['outcome']} — not judged ({why})\n" in out.getvalue()
+    assert "— met" not in out.getvalue()
 
 
 @pytest.mark.asyncio

@@ -375,6 +375,7 @@ class SimulationRun:
         if expected is not None:
             failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
             verdict = (f"not applicable ({expected['why']})" if not expected["applicable"]
+                       else f"not judged ({expected['why']})" if not expected["judged"]
                        else "not checked (the scenario gives no criteria)"
                        if expected["pass"] is None
                        else "met" if not failed else f"NOT met ({', '.join(failed)})")
@@ -437,6 +438,15 @@ class SimulationRun:
                 "position_error_m": math.hypot(x - robot.x_m, y - robot.y_m),
                 **self.audit.heading_summary()}
 
+    def interrupted(self) -> dict[str, float] | None:
+        """``{"at_s", "of_s"}`` for a run with a duration that ended before simulated time
+        reached it (stopped by a signal, or by whoever drives the run), else ``None``. Its
+        expectation is then not judged: the outcome describes the end of a whole run."""
+        duration = self.duration_s
+        if duration is None or self.clock.now_ns() >= round(duration * 1e9):
+            return None
+        return {"at_s": self.elapsed_s(), "of_s": duration}
+
     def summary(self, controller: Controller) -> dict[str, Any]:
         snap = self.world.snapshot()
         robot = snap.robot
@@ -453,6 +463,7 @@ class SimulationRun:
             "real_time_factor_windows": window_summary(self.simulator.rtf_windows),
             "speed_requested": (FLAT_OUT if self.options.speed == math.inf
                                 else self.options.speed),
+            "interrupted": self.interrupted(),
             "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad},
             "ball": None,
             "ball_distance_m": None,
