@@ -413,7 +413,8 @@ async def run_robot(plan: LaunchPlan, args: argparse.Namespace, out: TextIO = sy
         pass  # a stop signal: the end below is the same as for any other end
     finally:
         code = await _end(run.sim_run, run.controller, run.components, run.health, run.bus,
-                          run.recorder, run.live, out)
+                          run.recorder, run.live, out,
+                          saving=args.summary is not None or args.record is not None)
     return code
 
 
@@ -605,11 +606,13 @@ class ShutdownError(UbfError):
 
 async def _end(sim_run: SimulationRun | None, controller: Controller | None,
                components: list[Component], health: HealthMonitor, bus: Bus,
-               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO) -> int:
+               recorder: McapRecorder | None, live: FoxgloveServer | None, out: TextIO, *,
+               saving: bool) -> int:
     """The end of a run, whatever ended it (:class:`~ubf_async.cli.ending.Ending`): the results
     written, every component closed (last started first: the recorder sees everything), the
     session closed — each step bounded, each done even if one before failed — and only then
-    the report printed. Results that could not be written are printed instead
+    the report printed. ``saving``: results are written (``--summary``, ``--record``), which
+    may take a while, so it is said first. Results that could not be written are printed instead
     (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`
     (exit status 2 either way). Otherwise the exit status: 0, or :data:`EXIT_DEGRADED`."""
     end = ending.Ending(log)
@@ -622,8 +625,9 @@ async def _end(sim_run: SimulationRun | None, controller: Controller | None,
     report = io.StringIO()  # printed last: a console that went away cannot cost a result
     unsaved = False
     if sim_run is not None and controller is not None:
-        print("  saving the run's results ...", file=out)
-        out.flush()
+        if saving:
+            print("  saving the run's results ...", file=out)
+            out.flush()
         run = sim_run
         unsaved = await end.step("saving the run's results",
                                  lambda: run.finish(controller, report),
