@@ -31,7 +31,8 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     robot_bus.clock = clock
     summary_path = tmp_path / "summary.json"
     run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
-        scenario="ball-in-sight", speed=20, seed=4, duration_s=1.0, summary_path=summary_path))
+        scenario="ball-in-sight", speed=20, seed=4, duration_s=1.0, summary_path=summary_path,
+        record_dir=tmp_path / "rec", record_every_s=0.5))
     assert run.duration_s == 1.0 and run.seed == 4
     controller, components = await start_seeking_robot(robot_bus, run)
     out = io.StringIO()
@@ -39,6 +40,9 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
         run.start(controller)
         await run.until_elapsed(1.0)
         assert run.elapsed_s() == pytest.approx(1.0)
+        # The periodic frame of the last instant, as launch (which does more before its end)
+        # lets it be written; the final view is then of the same instant.
+        await eventually(lambda: run.frames_written == 3, what="the frame at 1.0 s")
         assert "sim 1.0s" in run.status_suffix()
     finally:
         summary = await run.finish(controller, out)
@@ -51,6 +55,12 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     assert "scenario 'ball-in-sight'" in run.describe()
     # It ran its whole duration: judged.
     assert summary["interrupted"] is None and summary["expected"]["judged"] is True
+    # A frame every 0.5 s, and the final view at 1.0 s: the instant of the last periodic one
+    # (issue 35: listed twice, and counted twice).
+    written = sorted(p.name for p in (tmp_path / "rec").glob("frame_*.png"))
+    assert written == ["frame_0000.00s.png", "frame_0000.50s.png", "frame_0001.00s.png"]
+    assert summary["recording"]["frames"] == written
+    assert summary["recording"]["frames_written"] == len(written)
 
 
 @pytest.mark.asyncio

@@ -151,6 +151,8 @@ class SimulationRun:
         self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
         """The last ``LISTED_FRAMES`` frames written (``frames_written`` counts them all)."""
         self.frames_written = 0
+        self._last_frame: Path | None = None
+        """The last frame begun (frames are taken in time order)."""
         self._csv: TrajectoryCsvWriter | None = None
         self._csv_write: asyncio.Future[None] | None = None
         self._recording_errors: list[str] = []
@@ -330,11 +332,17 @@ class SimulationRun:
 
     def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float,
                      leds: dict[str, LedState]) -> None:
+        path = folder / f"frame_{t_s:07.2f}s.png"
+        with self._frames_lock:  # the final frame may overlap a cancelled periodic one
+            # A run that ends on a recording instant has its periodic frame of that instant
+            # already: the final view would be the same file, listed and counted again.
+            if path == self._last_frame:
+                return
+            self._last_frame = path
         frame = camera.capture()
         image = annotate_frame(frame, seekcolor(frame), t_s=t_s, leds=leds)
-        path = folder / f"frame_{t_s:07.2f}s.png"
         cv2.imwrite(str(path), image)
-        with self._frames_lock:  # the final frame may overlap a cancelled periodic one
+        with self._frames_lock:
             self.frames.append(path)
             self.frames_written += 1
 
