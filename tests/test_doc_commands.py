@@ -434,6 +434,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         yield Robot(endpoint, proc, here)
         stopped(proc)
         assert proc.lines[-1] == "ubf_async: stopped", proc
+        assert "saving the run's results" not in proc.output  # none asked for (issue 35)
 
 
 LIVEVIEW = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447"
@@ -622,6 +623,9 @@ class TestWhileTheQuickStartRobotRuns:
         bridge.wait_for(r"^\[ros2\] sent: .*/mini/odom [1-9]\d*.* \| cmd_vel_in: 0 taken, "
                         r"refused: none$")
         stopped(bridge)
+        # It ends as the other tools do: a closing line with what it did (issue 35).
+        assert re.fullmatch(r"python -m ubf_async\.ros2: stopped; sent: .*/mini/odom [1-9]\d*"
+                            r".* \| cmd_vel_in: 0 taken, refused: none", bridge.lines[-1]), bridge
 
 
 # -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,
