@@ -33,7 +33,7 @@ import sys
 import tempfile
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
@@ -259,10 +259,12 @@ class ControllerSettings:
         return cls(mode=mode, rate_hz=rate_hz, reflex=tuple(p for p in reflex if p),
                    sync_source=spec.sync_source, trigger=trigger)
 
-    def planned(self) -> str:
-        """What will tick the controller, in the status line's terms."""
+    def planned(self, sources: Collection[str]) -> str:
+        """What will tick the controller, in the status line's terms, given the robot's own
+        ``sources`` (``kind/name`` of its devices, here or elsewhere)."""
         return planned_ticks(self.mode, rate_hz=self.rate_hz, reflex=self.reflex,
-                             sync_source=self.sync_source, trigger=self.trigger)
+                             sync_source=self.sync_source, trigger=self.trigger,
+                             sources=sources)
 
 
 def selected_devices(robot: Robot, wanted: str | None) -> list[ResolvedDevice]:
@@ -293,6 +295,11 @@ class LaunchPlan:
     connection: ConnectionOptions
     """The zenoh session's options: the flags given over the ``--config`` file over launch's
     default listen endpoint."""
+
+    def sources(self) -> list[str]:
+        """The robot file's sources (``kind/name``) this run has: its devices here and those
+        left to other processes."""
+        return [f"{d.kind}/{d.name}" for d in (*self.devices, *self.elsewhere)]
 
 
 def plan_launch(args: argparse.Namespace) -> LaunchPlan:
@@ -511,7 +518,7 @@ def _build_control(plan: LaunchPlan, robot: Robot, run: RobotRun, args: argparse
     spec = robot.spec
     settings = plan.controller
     # The robot's own sources are never evicted to make room for unknown ones.
-    protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
+    protected = set(plan.sources())
     protected.update(s for s in (settings.sync_source, settings.trigger) if s)
     aggregator = StateAggregator(bus=run.bus, stale_after_s=spec.controller.stale_after_s,
                                  default_stale_after_s=spec.controller.default_stale_after_s,
@@ -581,7 +588,7 @@ def _print_started(plan: LaunchPlan, robot: Robot, out: TextIO) -> None:
     """What runs here: the devices, how the controller ticks, the tree."""
     here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
     print(f"  devices: {here or 'none here'}", file=out)
-    print(f"  controller: {plan.controller.planned()}; tree:", file=out)
+    print(f"  controller: {plan.controller.planned(plan.sources())}; tree:", file=out)
     print_tree(robot, out)
     out.flush()
 
@@ -718,7 +725,7 @@ def print_plan(plan: LaunchPlan, out: TextIO = sys.stdout) -> None:
     for device in plan.devices + plan.elsewhere:
         sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
         print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
-    print(f"  controller: {plan.controller.planned()}", file=out)
+    print(f"  controller: {plan.controller.planned(plan.sources())}", file=out)
     print_tree(robot, out)
 
 
