@@ -252,3 +252,50 @@ def test_a_run_that_cannot_keep_the_speed_shows_what_scenarios_md_says(tmp_path:
     reached = float(shown[-1].group(0).rpartition("x")[2])
     assert 0 < reached < 1000
     assert re.search(as_pattern(warning), proc.stdout), (warning, proc.stdout)
+
+
+ROBOT_FILE_MD = ROOT / "docs" / "robot-file.md"
+QUOTED_ROBOT = "".join(f"# line {n}\n" for n in range(1, 15)) + """name: tester
+tree:
+  name: root
+  arbiter: PriorityMerge
+  children:
+    - behavior: search
+      priority: 2
+      params: {period_s: 4}
+    - behavior: chase
+      priority: 1
+"""
+"""The robot file of docs/robot-file.md's quoted errors: its first child at lines 20-22."""
+QUOTED_MISTAKES = [  # in the order the page quotes them
+    ("behavior: chase", "behavior: chsae"),
+    ("{period_s: 4}", "{perod_s: 4}"),
+    ("      priority: 2\n", "      priorty: 2\n"),
+    ("      priority: 2\n", "      priority: 2\n      priority: 3\n"),
+    ("      priority: 2\n", "      priority 2\n"),
+]
+
+
+def test_robot_file_md_quotes_the_errors_the_loader_gives() -> None:
+    """Issue 35: its list of known behaviours lacked go_to_report and report_ball."""
+    from ubf_async.assembly.robotfile import load_robot_text
+    from ubf_async.errors import UbfError
+
+    section = ROBOT_FILE_MD.read_text("utf-8").split("## Checked before anything starts", 1)[1]
+    quoted = section.split("```text\n", 1)[1].split("```", 1)[0].splitlines()
+    given = []
+    for old, new in QUOTED_MISTAKES:
+        assert old in QUOTED_ROBOT
+        with pytest.raises(UbfError) as refused:
+            load_robot_text(QUOTED_ROBOT.replace(old, new, 1), source="robot.yaml")
+        given.append(str(refused.value))
+    assert quoted == given
+
+
+def test_the_plug_in_groups_the_docs_name_are_the_registrys() -> None:
+    from ubf_async.assembly import registry
+
+    groups = {r.group for r in (registry.BEHAVIORS, registry.ARBITERS, registry.PREDICATES,
+                                registry.DEVICES, registry.BACKENDS, registry.SIMULATORS)}
+    section = ROBOT_FILE_MD.read_text("utf-8").split("## Plug-ins", 1)[1].split("\n## ", 1)[0]
+    assert set(re.findall(r"^\| `(ubf_async\.[\w.]+)` \|", section, re.M)) == groups
