@@ -299,3 +299,25 @@ def test_the_plug_in_groups_the_docs_name_are_the_registrys() -> None:
                                 registry.DEVICES, registry.BACKENDS, registry.SIMULATORS)}
     section = ROBOT_FILE_MD.read_text("utf-8").split("## Plug-ins", 1)[1].split("\n## ", 1)[0]
     assert set(re.findall(r"^\| `(ubf_async\.[\w.]+)` \|", section, re.M)) == groups
+
+
+def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_installs() -> None:
+    """Issue 35: the quick start installed the test extra (ruff, mypy, hypothesis, the ROS 2
+    test peer …) just to run the demo; the test command installs it, and so does .ci/run."""
+    readme = (ROOT / "README.md").read_text("utf-8")
+    commands = [tokens(text) for _, text in shell_texts(readme, inline=False)]
+    quick_start = next(c for c in commands if "ubf_async.launch" in c)
+    test = next(c for c in commands if c[-3:] == ["python", "-m", "pytest"])
+
+    def installs(words: list[str]) -> list[str]:
+        """What each `pip install -e X` of a command installs."""
+        return [words[i + 3] for i in range(len(words) - 3)
+                if words[i:i + 3] == ["pip", "install", "-e"]]
+
+    assert installs(quick_start) == ["."]
+    assert installs(test) == [".[test]"]
+    ci = [tokens(line) for line in (ROOT / ".ci" / "run").read_text("utf-8").splitlines()
+          if "pip install" in line and " -e " in line]
+    assert [installs([w for w in line if w not in ("--quiet", "python", "-m")])
+            for line in ci] == [[".[test]"]]
+    assert "python -m pytest" in (ROOT / ".ci" / "run").read_text("utf-8")
