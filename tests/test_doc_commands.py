@@ -3,7 +3,8 @@
 tests/test_docs.py checks that each command shown parses with its entry point's real parser;
 here each one runs, through its real entry point, as a subprocess, and the test asserts what
 the page says it does (an exit status and a line of its output, a file it writes, another
-process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py.
+process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py, and
+docs/your-device.md by tests/test_your_device.py.
 
 A command shown is a simple command of a shell code block, or of an inline code span starting
 with ``python`` that is not a form with placeholders (:func:`a_form`: ``secure init DIR
@@ -53,6 +54,7 @@ from tests.foxglove_client import FoxgloveClient
 from tests.test_docs import DOCS, ROOT, shell_texts, tokens
 
 TUTORIAL = ROOT / "docs" / "your-robot.md"
+DEVICE_GUIDE = ROOT / "docs" / "your-device.md"
 DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447")
 ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
 WAIT_S = 90.0  # for a line of output: generous, for a loaded machine
@@ -80,7 +82,7 @@ def shown(*, inline: bool = True) -> dict[str, list[str]]:
     spans that start with ``python`` (its words joined by spaces) → where it is shown."""
     found: dict[str, list[str]] = {}
     for doc in DOCS:
-        if doc == TUTORIAL:
+        if doc in (TUTORIAL, DEVICE_GUIDE):  # each executed whole by a test of its own
             continue
         for line, text in shell_texts(doc.read_text("utf-8"), inline=inline):
             for command in simple_commands(text):

@@ -321,3 +321,15 @@ def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_insta
     assert [installs([w for w in line if w not in ("--quiet", "python", "-m")])
             for line in ci] == [[".[test]"]]
     assert "python -m pytest" in (ROOT / ".ci" / "run").read_text("utf-8")
+
+
+def test_transport_md_imports_the_classes_its_examples_use() -> None:
+    """Issue 35: its ``Bus(...)`` example had no import line to say where Bus comes from."""
+    text = (ROOT / "docs" / "transport.md").read_text("utf-8")
+    code = "\n".join(re.findall(r"```python\n(.*?)```", text, re.S))
+    imports = "\n".join(line for line in code.splitlines()
+                        if line.startswith(("from ", "import ")))
+    namespace: dict[str, Any] = {}
+    exec(imports, namespace)  # every import line imports
+    used = set(re.findall(r"\b([A-Z]\w+)\(", code))
+    assert used and used <= set(namespace), used - set(namespace)
