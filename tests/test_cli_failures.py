@@ -2,7 +2,8 @@
 and an exit status other than 0, before the robot starts; results are never lost at the end
 of a run; nothing hangs — a second Ctrl-C or SIGTERM always exits.
 
-Every test runs the real command in a subprocess, with a timeout."""
+The commands run for real in subprocesses, with a timeout; how an argument is refused is
+parsed in this process."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -27,6 +29,8 @@ from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus, wait_for_robot
+from ubf_async.tools.launch import build_parser as launch_parser
+from ubf_async.tools.replay import build_parser as replay_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -249,6 +253,25 @@ async def test_listening_on_port_0_prints_the_port_bound(
         await wait_for_robot(bus, timeout_s=10)  # the printed endpoint reaches the robot
     finally:
         await bus.aclose()
+
+
+@pytest.mark.parametrize(("parser", "argv", "usage", "error"), [
+    (launch_parser, ["--speed", "fast"], "python -m ubf_async.launch [options] [ROBOT_FILE]",
+     "argument --speed: expected a number > 0 or 'max', got 'fast'"),
+    (replay_parser, ["x.mcap", "--speed", "fast"],
+     "python -m ubf_async.replay [options] FILE.mcap",
+     "argument --speed: invalid float value: 'fast'"),
+])
+def test_a_wrong_value_is_one_usage_line_and_the_error(
+        parser: Callable[[], argparse.ArgumentParser], argv: list[str], usage: str, error: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 35: the error came after twenty lines of usage listing every option (--help
+    explains them); each tool of the shared help formatter gives two lines."""
+    prog = usage.split(" [", 1)[0]
+    with pytest.raises(SystemExit) as exited:
+        parser().parse_args(argv)
+    assert exited.value.code == 2
+    assert capsys.readouterr().err.splitlines() == [f"usage: {usage}", f"{prog}: error: {error}"]
 
 
 def test_a_port_in_use_is_one_clear_line(endpoint: str) -> None:

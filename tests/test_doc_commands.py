@@ -3,7 +3,8 @@
 tests/test_docs.py checks that each command shown parses with its entry point's real parser;
 here each one runs, through its real entry point, as a subprocess, and the test asserts what
 the page says it does (an exit status and a line of its output, a file it writes, another
-process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py.
+process seeing it). docs/your-robot.md is run whole by tests/test_tutorial.py, and
+docs/your-device.md by tests/test_your_device.py.
 
 A command shown is a simple command of a shell code block, or of an inline code span starting
 with ``python`` that is not a form with placeholders (:func:`a_form`: ``secure init DIR
@@ -53,6 +54,7 @@ from tests.foxglove_client import FoxgloveClient
 from tests.test_docs import DOCS, ROOT, shell_texts, tokens
 
 TUTORIAL = ROOT / "docs" / "your-robot.md"
+DEVICE_GUIDE = ROOT / "docs" / "your-device.md"
 DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447")
 ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
 WAIT_S = 90.0  # for a line of output: generous, for a loaded machine
@@ -80,7 +82,7 @@ def shown(*, inline: bool = True) -> dict[str, list[str]]:
     spans that start with ``python`` (its words joined by spaces) → where it is shown."""
     found: dict[str, list[str]] = {}
     for doc in DOCS:
-        if doc == TUTORIAL:
+        if doc in (TUTORIAL, DEVICE_GUIDE):  # each executed whole by a test of its own
             continue
         for line, text in shell_texts(doc.read_text("utf-8"), inline=inline):
             for command in simple_commands(text):
@@ -125,7 +127,10 @@ NOT_RUN = {
         "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
         "install the project's build dependencies without the network)",
     ". .venv/bin/activate": "the quick start's installation (see python3 -m venv)",
-    "pip install -e .[test]": "the quick start's installation (see python3 -m venv)",
+    "pip install -e .": "the quick start's installation (see python3 -m venv)",
+    "pip install -e .[test]":
+        "the test command's installation of the test extra: .ci/run does it from a clean "
+        "clone (tests/test_docs.py checks that it installs the same)",
     "python -m pytest": "the test suite this test is part of (.ci/run runs it)",
     "python -m pytest tests/test_latency.py": "part of the test suite this test is part of",
     "pip install -e .[hardware]":
@@ -187,8 +192,8 @@ NOT_RUN = {
     "python -m ubf_async.inspector echo":
         "the inspector's echo named in prose (it needs a KEY): echo with one runs above",
     "python -m ubf_async.inspector tree":
-        "the inspector's tree named in prose (it needs a verb): docs/your-robot.md runs tree "
-        "show and set-arbiter (tests/test_tutorial.py)",
+        "the inspector's tree named in prose: docs/your-robot.md runs tree show and "
+        "set-arbiter (tests/test_tutorial.py); tests/test_inspector_verbs.py runs it alone",
     "python -m bench.ros2": "the bridge's latency, 300 samples each way: past the time budget",
     "python -m ubf_async.fleet fleet.yaml --world-only":
         "what the fleet launcher starts as its own process: every fleet run here runs it",
@@ -434,6 +439,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         yield Robot(endpoint, proc, here)
         stopped(proc)
         assert proc.lines[-1] == "ubf_async: stopped", proc
+        assert "saving the run's results" not in proc.output  # none asked for (issue 35)
 
 
 LIVEVIEW = "python -m ubf_async.liveview --connect tcp/127.0.0.1:7447"
@@ -622,6 +628,9 @@ class TestWhileTheQuickStartRobotRuns:
         bridge.wait_for(r"^\[ros2\] sent: .*/mini/odom [1-9]\d*.* \| cmd_vel_in: 0 taken, "
                         r"refused: none$")
         stopped(bridge)
+        # It ends as the other tools do: a closing line with what it did (issue 35).
+        assert re.fullmatch(r"python -m ubf_async\.ros2: stopped; sent: .*/mini/odom [1-9]\d*"
+                            r".* \| cmd_vel_in: 0 taken, refused: none", bridge.lines[-1]), bridge
 
 
 # -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,

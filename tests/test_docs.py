@@ -252,3 +252,84 @@ def test_a_run_that_cannot_keep_the_speed_shows_what_scenarios_md_says(tmp_path:
     reached = float(shown[-1].group(0).rpartition("x")[2])
     assert 0 < reached < 1000
     assert re.search(as_pattern(warning), proc.stdout), (warning, proc.stdout)
+
+
+ROBOT_FILE_MD = ROOT / "docs" / "robot-file.md"
+QUOTED_ROBOT = "".join(f"# line {n}\n" for n in range(1, 15)) + """name: tester
+tree:
+  name: root
+  arbiter: PriorityMerge
+  children:
+    - behavior: search
+      priority: 2
+      params: {period_s: 4}
+    - behavior: chase
+      priority: 1
+"""
+"""The robot file of docs/robot-file.md's quoted errors: its first child at lines 20-22."""
+QUOTED_MISTAKES = [  # in the order the page quotes them
+    ("behavior: chase", "behavior: chsae"),
+    ("{period_s: 4}", "{perod_s: 4}"),
+    ("      priority: 2\n", "      priorty: 2\n"),
+    ("      priority: 2\n", "      priority: 2\n      priority: 3\n"),
+    ("      priority: 2\n", "      priority 2\n"),
+]
+
+
+def test_robot_file_md_quotes_the_errors_the_loader_gives() -> None:
+    """Issue 35: its list of known behaviours lacked go_to_report and report_ball."""
+    from ubf_async.assembly.robotfile import load_robot_text
+    from ubf_async.errors import UbfError
+
+    section = ROBOT_FILE_MD.read_text("utf-8").split("## Checked before anything starts", 1)[1]
+    quoted = section.split("```text\n", 1)[1].split("```", 1)[0].splitlines()
+    given = []
+    for old, new in QUOTED_MISTAKES:
+        assert old in QUOTED_ROBOT
+        with pytest.raises(UbfError) as refused:
+            load_robot_text(QUOTED_ROBOT.replace(old, new, 1), source="robot.yaml")
+        given.append(str(refused.value))
+    assert quoted == given
+
+
+def test_the_plug_in_groups_the_docs_name_are_the_registrys() -> None:
+    from ubf_async.assembly import registry
+
+    groups = {r.group for r in (registry.BEHAVIORS, registry.ARBITERS, registry.PREDICATES,
+                                registry.DEVICES, registry.BACKENDS, registry.SIMULATORS)}
+    section = ROBOT_FILE_MD.read_text("utf-8").split("## Plug-ins", 1)[1].split("\n## ", 1)[0]
+    assert set(re.findall(r"^\| `(ubf_async\.[\w.]+)` \|", section, re.M)) == groups
+
+
+def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_installs() -> None:
+    """Issue 35: the quick start installed the test extra (ruff, mypy, hypothesis, the ROS 2
+    test peer …) just to run the demo; the test command installs it, and so does .ci/run."""
+    readme = (ROOT / "README.md").read_text("utf-8")
+    commands = [tokens(text) for _, text in shell_texts(readme, inline=False)]
+    quick_start = next(c for c in commands if "ubf_async.launch" in c)
+    test = next(c for c in commands if c[-3:] == ["python", "-m", "pytest"])
+
+    def installs(words: list[str]) -> list[str]:
+        """What each `pip install -e X` of a command installs."""
+        return [words[i + 3] for i in range(len(words) - 3)
+                if words[i:i + 3] == ["pip", "install", "-e"]]
+
+    assert installs(quick_start) == ["."]
+    assert installs(test) == [".[test]"]
+    ci = [tokens(line) for line in (ROOT / ".ci" / "run").read_text("utf-8").splitlines()
+          if "pip install" in line and " -e " in line]
+    assert [installs([w for w in line if w not in ("--quiet", "python", "-m")])
+            for line in ci] == [[".[test]"]]
+    assert "python -m pytest" in (ROOT / ".ci" / "run").read_text("utf-8")
+
+
+def test_transport_md_imports_the_classes_its_examples_use() -> None:
+    """Issue 35: its ``Bus(...)`` example had no import line to say where Bus comes from."""
+    text = (ROOT / "docs" / "transport.md").read_text("utf-8")
+    code = "\n".join(re.findall(r"```python\n(.*?)```", text, re.S))
+    imports = "\n".join(line for line in code.splitlines()
+                        if line.startswith(("from ", "import ")))
+    namespace: dict[str, Any] = {}
+    exec(imports, namespace)  # every import line imports
+    used = set(re.findall(r"\b([A-Z]\w+)\(", code))
+    assert used and used <= set(namespace), used - set(namespace)

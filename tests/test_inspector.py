@@ -79,7 +79,11 @@ def test_help_lists_commands_and_shared_flags() -> None:
         for flag in ("--connect", "--robot", "--timeout", "--json"):
             assert flag in out, (verb, flag)
     assert "--param" in inspect("tree", "set-arbiter", "--help").stdout
-    assert inspect("tree").returncode == 2  # a verb is required
+    # `tree` alone is `tree show` (issue 35: it was an error that named no verb), and the
+    # usage lists the verbs.
+    assert "{show,set-arbiter,set-child,load}" in verbs
+    alone = build_parser().parse_args(["tree"])
+    assert alone.tree_command == "show" and tree_request_data(alone) == {"op": "show"}
     bad_param = inspect("tree", "set-arbiter", "c", "MonteCarlo", "--param", "nokey")
     assert bad_param.returncode == 2 and "expected KEY=VALUE" in bad_param.stderr
 

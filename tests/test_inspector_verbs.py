@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import io
 import re
 import signal
 import subprocess
@@ -20,7 +21,7 @@ from tests.conftest import eventually, free_port
 from tests.remote_robot import Process
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
-from ubf_async.tools.inspector import build_parser
+from ubf_async.tools.inspector import build_parser, run
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import HEARTBEAT, LEDS, RANGE
 
@@ -87,6 +88,15 @@ def test_tree_takes_the_connection_flags_between_tree_and_its_verb(
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     assert "robot 'insp': tree version" in result.stdout and "seek_pink_ball" in result.stdout
+
+
+@pytest.mark.asyncio
+async def test_tree_without_a_verb_shows_the_tree(robot_endpoint: str) -> None:
+    out = io.StringIO()
+    args = build_parser().parse_args(["tree", "--connect", robot_endpoint, "--robot", "insp"])
+    assert await run(args, out) == 0
+    assert "robot 'insp': tree version" in out.getvalue()
+    assert "seek_pink_ball <PriorityMerge>" in out.getvalue()
 
 
 def test_hz_measures_the_drive_command_rate_and_each_kind_of_tick(robot_endpoint: str) -> None:

@@ -1,7 +1,7 @@
 """MCAP recording of the bus: a scenario run recorded by launch and read back by the mcap
 library alone (no ubf_async import: every message checked against the schema stored in the
 file), a killed recorder's file recovered by a streaming reader, drops counted when the disk
-does not keep up, and files split by size."""
+does not keep up, and files split by size; without a robot, nothing recorded and an error."""
 
 from __future__ import annotations
 
@@ -23,11 +23,13 @@ import msgpack
 import pytest
 
 from tests.conftest import eventually
-from ubf_async.net.options import ConnectionOptions
+from ubf_async.cli.args import connection_options
+from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions, NoRobotError
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
-from ubf_async.tools.record import McapRecorder
+from ubf_async.tools import liveview
+from ubf_async.tools.record import McapRecorder, build_parser, record
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -366,3 +368,20 @@ async def test_files_are_split_by_size_and_each_is_complete(tmp_path: Path) -> N
         assert recover(f).complete  # each part finished with its footer
     await robot.aclose()
     await device.aclose()
+
+
+@pytest.mark.asyncio
+async def test_without_a_robot_the_recorder_records_nothing_and_says_so(
+        tmp_path: Path, endpoint: str) -> None:
+    """Issue 35: it listened only, heard its own heartbeats and reported success. Like the
+    inspector and replay it now connects where launch listens, and no robot there is an
+    error (exit status 2, through run_main) before anything is written."""
+    for parser in (build_parser(), liveview.build_parser()):  # both attach through cli.attach
+        assert connection_options(parser.parse_args([])).connect == [DEFAULT_LISTEN]
+    out = tmp_path / "rec"
+    args = build_parser().parse_args(["--connect", endpoint, "--wait-for-robot-s", "0.5",
+                                      "--out", str(out)])
+    with pytest.raises(NoRobotError, match=f"no robot to connect to: nothing answered at "
+                                           f"{endpoint}"):
+        await record(args)
+    assert not out.exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import time
 from pathlib import Path
 
@@ -30,7 +31,8 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     robot_bus.clock = clock
     summary_path = tmp_path / "summary.json"
     run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
-        scenario="ball-in-sight", speed=20, seed=4, duration_s=1.0, summary_path=summary_path))
+        scenario="ball-in-sight", speed=20, seed=4, duration_s=1.0, summary_path=summary_path,
+        record_dir=tmp_path / "rec", record_every_s=0.5))
     assert run.duration_s == 1.0 and run.seed == 4
     controller, components = await start_seeking_robot(robot_bus, run)
     out = io.StringIO()
@@ -38,6 +40,9 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
         run.start(controller)
         await run.until_elapsed(1.0)
         assert run.elapsed_s() == pytest.approx(1.0)
+        # The periodic frame of the last instant, as launch (which does more before its end)
+        # lets it be written; the final view is then of the same instant.
+        await eventually(lambda: run.frames_written == 3, what="the frame at 1.0 s")
         assert "sim 1.0s" in run.status_suffix()
     finally:
         summary = await run.finish(controller, out)
@@ -48,6 +53,47 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     assert json.loads(summary_path.read_text("utf-8"))["camera_frames"] == summary["camera_frames"]
     assert "summary written" in out.getvalue()
     assert "scenario 'ball-in-sight'" in run.describe()
+    # It ran its whole duration: judged.
+    assert summary["interrupted"] is None and summary["expected"]["judged"] is True
+    # A frame every 0.5 s, and the final view at 1.0 s: the instant of the last periodic one
+    # (issue 35: listed twice, and counted twice).
+    written = sorted(p.name for p in (tmp_path / "rec").glob("frame_*.png"))
+    assert written == ["frame_0000.00s.png", "frame_0000.50s.png", "frame_0001.00s.png"]
+    assert summary["recording"]["frames"] == written
+    assert summary["recording"]["frames_written"] == len(written)
+
+
+@pytest.mark.asyncio
+async def test_a_run_stopped_before_its_duration_is_not_judged(robot_bus: Bus,
+                                                               tmp_path: Path) -> None:
+    """Issue 35: keep-away stopped by Ctrl-C at 14.6 of 70 s reported its expectation "met".
+    A run that ends before its duration (here: finished by whoever drives it at 0.5 s, as
+    launch does on a signal) says so in its summary and is not judged."""
+    clock = SimClock()
+    robot_bus.clock = clock
+    summary_path = tmp_path / "summary.json"
+    run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
+        scenario="keep-away", speed=math.inf, summary_path=summary_path))
+    assert run.duration_s == 70
+    controller, components = await start_seeking_robot(robot_bus, run)
+    out = io.StringIO()
+    try:
+        run.start(controller)
+        await run.until_elapsed(0.5)
+    finally:
+        summary = await run.finish(controller, out)
+        for component in reversed(components):
+            await component.aclose()
+    interrupted = summary["interrupted"]
+    assert interrupted["of_s"] == 70 and 0.5 <= interrupted["at_s"] < 70, interrupted
+    assert json.loads(summary_path.read_text("utf-8"))["interrupted"] == interrupted
+    expected = summary["expected"]
+    assert expected["pass"] is None and expected["judged"] is False, expected
+    assert expected["applicable"] is True and expected["criteria"] == []
+    why = f"interrupted at {interrupted['at_s']:.1f} s of 70 s"
+    assert expected["why"] == why
+    assert f"  expected: {expected['outcome']} — not judged ({why})\n" in out.getvalue()
+    assert "— met" not in out.getvalue()
 
 
 @pytest.mark.asyncio

@@ -5,6 +5,7 @@ and one plain line per period otherwise."""
 from __future__ import annotations
 
 import fcntl
+import io
 import json
 import os
 import pty
@@ -23,6 +24,7 @@ from tests.test_inprocess_units import RANGE_PERIOD_S, Rig, tree
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.services.status import fit, tick_label
+from ubf_async.tools.launch import parse_args, plan_launch, print_plan
 
 ROOT = Path(__file__).resolve().parent.parent
 FIELDS = ["[mini] 12.3s", "drive +40/+30 (chase,flee)", "tick 50.0Hz +reflex 24.9Hz",
@@ -155,6 +157,16 @@ def test_the_plan_and_the_inspector_use_the_status_lines_labels() -> None:
     assert planned_ticks(TickMode.PERIODIC, rate_hz=50, reflex=("range/",)) == \
         "periodic tick 50Hz +reflex on each range/ sample"
     assert planned_ticks(TickMode.PERIODIC, rate_hz=20) == "periodic tick 20Hz (no reflex)"
+    # Only the reflexes of sources the robot has (issue 35: "+reflex on each range/ sample"
+    # on a robot without a range finder).
+    assert planned_ticks(TickMode.PERIODIC, rate_hz=50, reflex=("range/", "bump/"),
+                         sources=["camera/front", "range/front"]) == \
+        "periodic tick 50Hz +reflex on each range/ sample"
+    assert planned_ticks(TickMode.PERIODIC, rate_hz=50, reflex=("range/",),
+                         sources=["camera/front"]) == "periodic tick 50Hz (no reflex source)"
+    without_range = io.StringIO()
+    print_plan(plan_launch(parse_args(["--devices", "camera,motors"])), without_range)
+    assert "  controller: periodic tick 50Hz (no reflex source)\n" in without_range.getvalue()
     # inspector state: the clock's ticks apart from the reflex ticks, as the status line.
     periodic = format_state({"mode": "periodic", "rate_hz": 75.0, "periodic_rate_hz": 50.0,
                              "rate_hz_target": 50}, robot="r", controller="controller",

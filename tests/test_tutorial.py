@@ -54,34 +54,36 @@ class Block:
     attrs: dict[str, str]
     flags: set[str]
     text: str
+    page: str = TUTORIAL.name
 
     def where(self) -> str:
-        return f"{TUTORIAL.name}:{self.line} ({self.lang} {' '.join(sorted(self.flags))})"
+        return f"{self.page}:{self.line} ({self.lang} {' '.join(sorted(self.flags))})"
 
 
-def parse_blocks(markdown: str) -> list[Block]:
+def parse_blocks(markdown: str, page: str = TUTORIAL.name) -> list[Block]:
+    """The fenced code blocks of ``markdown`` (the page ``page``), in order."""
     blocks: list[Block] = []
     lines = markdown.splitlines()
     i = 0
     while i < len(lines):
         assert not lines[i].lstrip().startswith("```") or lines[i].startswith("```"), (
-            f"{TUTORIAL.name}:{i + 1}: indented fence — not executed, write it unindented")
+            f"{page}:{i + 1}: indented fence — not executed, write it unindented")
         match = FENCE.match(lines[i])
         if not match:
             i += 1
             continue
         info = match.group(1).strip()
-        assert info, f"{TUTORIAL.name}:{i + 1}: a code block without an info string"
+        assert info, f"{page}:{i + 1}: a code block without an info string"
         lang, _, rest = info.partition(" ")
         attrs = dict(re.findall(r'(\w[\w-]*)="([^"]*)"', rest))
         flags = set(re.sub(r'\w[\w-]*="[^"]*"', " ", rest).split())
         start = i + 1
         i = start
         while i < len(lines) and lines[i] != "```":
-            assert not lines[i].startswith("```"), f"{TUTORIAL.name}:{i + 1}: nested fence"
+            assert not lines[i].startswith("```"), f"{page}:{i + 1}: nested fence"
             i += 1
-        assert i < len(lines), f"{TUTORIAL.name}:{start}: unclosed code block"
-        blocks.append(Block(start, lang, attrs, flags, "\n".join(lines[start:i]) + "\n"))
+        assert i < len(lines), f"{page}:{start}: unclosed code block"
+        blocks.append(Block(start, lang, attrs, flags, "\n".join(lines[start:i]) + "\n", page))
         i += 1
     return blocks
 

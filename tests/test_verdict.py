@@ -1,7 +1,8 @@
 """The end-of-run verdict says what ran (issue 28, item 6): a scenario's expectation is
 judged only on a robot that runs the behaviours it describes ("not applicable" otherwise), and
 a quarantined behaviour or a live change of the tree appears in the verdict and in the exit
-status (3). Every test runs the real launch in a subprocess."""
+status (3); a run stopped before its duration is not judged. Every test runs the real launch
+in a subprocess."""
 
 from __future__ import annotations
 
@@ -114,3 +115,10 @@ def test_a_live_tree_change_is_in_the_verdict_and_the_exit_status(tmp_path: Path
     assert "chase" in applied["what"] and "priority 3" in applied["what"], applied
     assert any("the tree was changed during the run" in w for w in summary["warnings"])
     assert "not as the robot file describes (the tree was changed live 1 time(s))" in output
+    # Stopped long before its 600 s (issue 35): not judged, and the summary says so. The
+    # saving is said after the stop (the output is stdout and stderr in one pipe).
+    assert summary["interrupted"]["of_s"] == 600, summary["interrupted"]
+    assert summary["expected"]["judged"] is False and summary["expected"]["pass"] is None
+    assert "— not judged (interrupted at " in output and "— met" not in output, output
+    assert (output.index("stopping (press Ctrl-C again to quit at once)")
+            < output.index("saving the run's results ...")), output

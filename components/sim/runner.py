@@ -153,6 +153,8 @@ class SimulationRun:
         self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
         """The last ``LISTED_FRAMES`` frames written (``frames_written`` counts them all)."""
         self.frames_written = 0
+        self._last_frame: Path | None = None
+        """The last frame begun (frames are taken in time order)."""
         self._csv: TrajectoryCsvWriter | None = None
         self._csv_write: asyncio.Future[None] | None = None
         self._recording_errors: list[str] = []
@@ -338,11 +340,17 @@ class SimulationRun:
 
     def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float,
                      leds: dict[str, LedState]) -> None:
+        path = folder / f"frame_{t_s:07.2f}s.png"
+        with self._frames_lock:  # the final frame may overlap a cancelled periodic one
+            # A run that ends on a recording instant has its periodic frame of that instant
+            # already: the final view would be the same file, listed and counted again.
+            if path == self._last_frame:
+                return
+            self._last_frame = path
         frame = camera.capture()
         image = annotate_frame(frame, seekcolor(frame), t_s=t_s, leds=leds)
-        path = folder / f"frame_{t_s:07.2f}s.png"
         cv2.imwrite(str(path), image)
-        with self._frames_lock:  # the final frame may overlap a cancelled periodic one
+        with self._frames_lock:
             self.frames.append(path)
             self.frames_written += 1
 
@@ -383,6 +391,7 @@ class SimulationRun:
         if expected is not None:
             failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
             verdict = (f"not applicable ({expected['why']})" if not expected["applicable"]
+                       else f"not judged ({expected['why']})" if not expected["judged"]
                        else "not checked (the scenario gives no criteria)"
                        if expected["pass"] is None
                        else "met" if not failed else f"NOT met ({', '.join(failed)})")
@@ -448,6 +457,15 @@ class SimulationRun:
                 "position_error_m": math.hypot(x - robot.x_m, y - robot.y_m),
                 **self.audit.heading_summary()}
 
+    def interrupted(self) -> dict[str, float] | None:
+        """``{"at_s", "of_s"}`` for a run with a duration that ended before simulated time
+        reached it (stopped by a signal, or by whoever drives the run), else ``None``. Its
+        expectation is then not judged: the outcome describes the end of a whole run."""
+        duration = self.duration_s
+        if duration is None or self.clock.now_ns() >= round(duration * 1e9):
+            return None
+        return {"at_s": self.elapsed_s(), "of_s": duration}
+
     def summary(self, controller: Controller) -> dict[str, Any]:
         snap = self.world.snapshot()
         robot = snap.robot
@@ -464,6 +482,7 @@ class SimulationRun:
             "real_time_factor_windows": window_summary(self.simulator.rtf_windows),
             "speed_requested": (FLAT_OUT if self.options.speed == math.inf
                                 else self.options.speed),
+            "interrupted": self.interrupted(),
             "robot": {"x_m": robot.x_m, "y_m": robot.y_m, "heading_rad": robot.heading_rad},
             "ball": None,
             "ball_distance_m": None,

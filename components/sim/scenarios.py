@@ -133,16 +133,25 @@ class Expectation:
     def judge(self, summary: Mapping[str, Any], *,
               ran: Callable[[str], bool] = lambda name: True) -> dict[str, Any]:
         """Each criterion's verdict, and ``pass``: all of them met — or ``None`` when the
-        file gives no criteria (nothing was checked: the outcome is only words), or when the
+        file gives no criteria (nothing was checked: the outcome is only words), when the
         robot did not run a behaviour the outcome describes (``ran(name)`` false; then
-        ``applicable`` is false and ``why`` says which)."""
+        ``applicable`` is false and ``why`` says which), or when the run ended before its
+        duration (the summary's ``interrupted``: ``{"at_s", "of_s"}``; then ``judged`` is
+        false and ``why`` says when): an outcome describes the end of a whole run."""
         missing = [name for name in self.behaviors if not ran(name)]
         if missing:
             return {"outcome": self.outcome, "criteria": [], "pass": None,
-                    "applicable": False,
+                    "applicable": False, "judged": False,
                     "why": f"the robot has no {', '.join(missing)}, which it describes"}
+        interrupted = summary.get("interrupted")
+        if interrupted:
+            return {"outcome": self.outcome, "criteria": [], "pass": None,
+                    "applicable": True, "judged": False,
+                    "why": f"interrupted at {interrupted['at_s']:.1f} s of "
+                           f"{interrupted['of_s']:g} s"}
         verdicts = [c.judge(summary) for c in self.criteria]
         return {"outcome": self.outcome, "criteria": verdicts, "applicable": True,
+                "judged": True,
                 "pass": all(v["pass"] for v in verdicts) if verdicts else None}
 
 

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable
 from pathlib import Path
 
 import zenoh
@@ -23,7 +24,20 @@ from ubf_async.wire.protocol import Keys, ProtocolError
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows an option's default unless its help already speaks of it or there is none."""
+    """Shows an option's default unless its help already speaks of it or there is none; and a
+    usage line of one line: ``PROG [options] POSITIONALS``."""
+
+    def add_usage(self, usage: str | None, actions: Iterable[argparse.Action],
+                  groups: Iterable[argparse._MutuallyExclusiveGroup],
+                  prefix: str | None = None) -> None:
+        if usage is None:
+            # The usage argparse builds lists every option: twenty lines before a mistake's
+            # one-line error. --help explains each option below it anyway.
+            actions = list(actions)
+            usage = " ".join(["%(prog)s", "[options]", *(
+                self._format_args(a, self._get_default_metavar_for_positional(a))
+                for a in actions if not a.option_strings and a.help is not argparse.SUPPRESS)])
+        super().add_usage(usage, actions, groups, prefix)
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""

@@ -48,6 +48,8 @@ STOP_BOUND_S = 5.0
 """How long a program may take to stop after the first Ctrl-C/SIGTERM (docs: README)."""
 EXIT_NOW_BUDGET_S = 1.0
 """Wall time an immediate exit gives to what must be finished (a recording's index)."""
+SAY_WAIT_S = 0.5
+"""How long the stop waits for the watcher thread to finish saying that it stops."""
 
 
 class StopGuard:
@@ -72,6 +74,8 @@ class StopGuard:
         """Why a message of the guard could not be written to stderr (the exit status says so)."""
         self._on_first: Callable[[], None] | None = None
         self._first_handled = False
+        self._stopping_claimed = False
+        self._stopping_said = threading.Event()
         self._lock = threading.Lock()
         self._exiting = threading.Lock()
 
@@ -112,6 +116,8 @@ class StopGuard:
             self._first_handled = True
         if not first:
             self.exit_now(signum)  # the watcher normally got there first
+        # Said before the stop begins, so that it comes before whatever the stop prints.
+        self._say_stopping(wait=True)
         if self._on_first is None:
             raise KeyboardInterrupt  # before the loop runs: nothing to stop cleanly yet
         self._on_first()
@@ -130,12 +136,23 @@ class StopGuard:
                     continue
                 self.signals += 1
                 if self.signals == 1:
-                    self._say(f"{self.prog}: stopping (press Ctrl-C again to quit at once)\n")
+                    self._say_stopping(wait=False)  # the main thread may be stuck in C
                     overdue = threading.Timer(self.stop_bound_s, self._overdue, args=(signum,))
                     overdue.daemon = True
                     overdue.start()
                 else:
                     self.exit_now(signum)
+
+    def _say_stopping(self, *, wait: bool) -> None:
+        """Say once, from whichever thread comes first, that the command is stopping.
+        ``wait``: if the other thread is saying it, wait (a bounded while) until it has."""
+        with self._lock:
+            claimed, self._stopping_claimed = self._stopping_claimed, True
+        if not claimed:
+            self._say(f"{self.prog}: stopping (press Ctrl-C again to quit at once)\n")
+            self._stopping_said.set()
+        elif wait:
+            self._stopping_said.wait(SAY_WAIT_S)
 
     def _overdue(self, signum: int) -> None:
         self._say(f"{self.prog}: not stopped {self.stop_bound_s:g} s after "

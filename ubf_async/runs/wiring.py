@@ -18,7 +18,7 @@ from __future__ import annotations
 import io
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
@@ -75,10 +75,12 @@ class ControllerSettings:
         return cls(mode=tick_mode, rate_hz=rate_hz, reflex=tuple(p for p in prefixes if p),
                    sync_source=spec.sync_source, trigger=trigger)
 
-    def planned(self) -> str:
-        """What will tick the controller, in the status line's terms."""
+    def planned(self, sources: Collection[str]) -> str:
+        """What will tick the controller, in the status line's terms, given the robot's own
+        ``sources`` (``kind/name`` of its devices, here or elsewhere)."""
         return planned_ticks(self.mode, rate_hz=self.rate_hz, reflex=self.reflex,
-                             sync_source=self.sync_source, trigger=self.trigger)
+                             sync_source=self.sync_source, trigger=self.trigger,
+                             sources=sources)
 
 
 @dataclass(slots=True, kw_only=True)
@@ -112,6 +114,11 @@ class RunPlan:
     status_on_robot_clock: bool = False
     """The controller's status period is measured in robot time (each status is of a
     simulated instant: what a fleet's world collects), not wall time."""
+
+    def sources(self) -> list[str]:
+        """The robot file's sources (``kind/name``) this run has: its devices here and those
+        left to other processes."""
+        return [f"{d.kind}/{d.name}" for d in (*self.devices, *self.elsewhere)]
 
 
 def simulation_plan(robot: Robot, options: SimulationOptions, *, simulator: Simulator,
@@ -222,7 +229,7 @@ def _build_control(plan: RunPlan, robot: Robot, run: RobotRun, seed: int) -> Non
     spec = robot.spec
     settings = plan.controller
     # The robot's own sources are never evicted to make room for unknown ones.
-    protected = {f"{d.kind}/{d.name}" for d in (*plan.devices, *plan.elsewhere)}
+    protected = set(plan.sources())
     protected.update(s for s in (settings.sync_source, settings.trigger) if s)
     aggregator = run.aggregator = StateAggregator(
         bus=run.bus, stale_after_s=spec.controller.stale_after_s,
@@ -286,11 +293,12 @@ EXIT_DEGRADED = 3
 was quarantined (it kept failing and stopped voting) or the tree was changed live."""
 
 
-async def end(run: RobotRun, out: TextIO) -> int:
+async def end(run: RobotRun, out: TextIO, *, saving: bool = False) -> int:
     """The end of a run, whatever ended it (:class:`~ubf_async.cli.ending.Ending`): the results
     written, every component closed (last started first: a recorder sees everything), the bus
     closed — each step bounded, each done even if one before failed — and only then the report
-    printed. Results that could not be written are printed instead
+    printed. ``saving``: results are written (a summary, a recording), which may take a while,
+    so it is said first. Results that could not be written are printed instead
     (:class:`ResultsNotSavedError`); any other failed step ends in :class:`ShutdownError`.
     Otherwise returns 0, or :data:`EXIT_DEGRADED`."""
     done = ending.Ending(log)
@@ -304,11 +312,12 @@ async def end(run: RobotRun, out: TextIO) -> int:
     report = io.StringIO()  # printed last: a console that went away cannot cost a result
     unsaved = False
     if sim_run is not None and controller is not None:
-        print("  saving the run's results ...", file=out)
-        out.flush()
-        saving = sim_run
+        if saving:
+            print("  saving the run's results ...", file=out)
+            out.flush()
+        sim = sim_run
         run.summary = await done.step("saving the run's results",
-                                      lambda: saving.finish(controller, report),
+                                      lambda: sim.finish(controller, report),
                                       bound_s=RESULTS_BOUND_S)
         unsaved = run.summary is None
     for component in reversed(run.components):

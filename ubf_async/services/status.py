@@ -15,7 +15,7 @@ controller seen from another process (``inspector state``, :func:`tick_rates`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from typing import TextIO
 
 from ubf_async.runtime.aggregator import StateAggregator
@@ -52,14 +52,20 @@ def tick_label(controller: Controller) -> str:
 
 
 def planned_ticks(mode: TickMode, *, rate_hz: float, reflex: Sequence[str] = (),
-                  sync_source: str = "", trigger: str | None = None) -> str:
+                  sync_source: str = "", trigger: str | None = None,
+                  sources: Collection[str] | None = None) -> str:
     """What will tick a controller, in the status line's terms, before it runs (the launch
     banner, ``launch --check``). Only a periodic controller ticks at ``rate_hz``: a sync or
     event controller ticks per sample and re-sends its last decision at ``rate_hz`` between
-    ticks (a hold), and it takes no reflex ticks."""
+    ticks (a hold), and it takes no reflex ticks. ``sources``: the robot's own sources
+    (``kind/name``); a reflex prefix that none of them starts with is not said, as none of
+    them will tick the controller (a robot without a range finder has no ``range/`` reflex)."""
     if mode is TickMode.PERIODIC:
+        ticking = [p for p in reflex
+                   if sources is None or any(s.startswith(p) for s in sources)]
         return (f"periodic tick {rate_hz:g}Hz"
-                + (f" +reflex on each {', '.join(reflex)} sample" if reflex else " (no reflex)"))
+                + (f" +reflex on each {', '.join(ticking)} sample" if ticking
+                   else " (no reflex source)" if reflex else " (no reflex)"))
     source = sync_source if mode is TickMode.SYNC else trigger
     loop = "the thesis's loop; " if mode is TickMode.SYNC else ""
     return (f"{mode.value} on each {source} sample ({loop}between ticks the decision is "

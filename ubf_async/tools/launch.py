@@ -334,7 +334,8 @@ async def run_robot(plan: wiring.RunPlan, args: argparse.Namespace,
     except asyncio.CancelledError:
         pass  # a stop signal: the end below is the same as for any other end
     finally:
-        code = await wiring.end(run, out)
+        code = await wiring.end(run, out,
+                                saving=args.summary is not None or args.record is not None)
     return code
 
 
@@ -415,7 +416,7 @@ def _print_started(plan: wiring.RunPlan, robot: Robot, out: TextIO) -> None:
     """What runs here: the devices, how the controller ticks, the tree."""
     here = ", ".join(f"{d.kind}/{d.name} ({d.backend})" for d in plan.devices)
     print(f"  devices: {here or 'none here'}", file=out)
-    print(f"  controller: {plan.controller.planned()}; tree:", file=out)
+    print(f"  controller: {plan.controller.planned(plan.sources())}; tree:", file=out)
     print_tree(robot, out)
     out.flush()
 
@@ -463,7 +464,7 @@ def print_plan(plan: wiring.RunPlan, out: TextIO = sys.stdout) -> None:
     for device in plan.devices + plan.elsewhere:
         sim = f", simulator {device.requires_simulator}" if device.requires_simulator else ""
         print(f"  device {device.kind}/{device.name}: backend {device.backend}{sim}", file=out)
-    print(f"  controller: {plan.controller.planned()}", file=out)
+    print(f"  controller: {plan.controller.planned(plan.sources())}", file=out)
     print_tree(robot, out)
 
 

@@ -13,6 +13,7 @@ from typing import Any
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.cli.run import run_main
+from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.services.liveview import (
     DEFAULT_HOST,
     DEFAULT_PORT,
@@ -35,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Serve a running robot live to Foxglove (docs/liveview.md), from another "
                     "process: open ws://HOST:PORT in Foxglove and import "
                     "docs/foxglove-layout.json. Ctrl-C or SIGTERM stops it.")
-    add_connection_arguments(parser)
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN])
     parser.add_argument("--port", type=int, default=DEFAULT_PORT,
                         help="the Foxglove WebSocket server's port (0: any free port)")
     add_host_argument(parser)

@@ -52,6 +52,7 @@ from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError, ProtocolError
+from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import EveryMessageComponent, ensure_name_free
 from ubf_async.services.liveview import LiveMessage, LiveView
@@ -394,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Record every message on a running robot's keys to an MCAP file "
                     "(docs/recording.md), from another process. Ctrl-C or SIGTERM ends the "
                     "recording and finishes the file.")
-    add_connection_arguments(parser)
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN])
     parser.add_argument("--out", type=Path, default=Path("recordings"), metavar="DIR|FILE",
                         help="a directory (the file is <robot>.mcap in it) or a .mcap file")
     add_attach_arguments(parser, name="recorder", who="the recorder")

@@ -84,7 +84,8 @@ async def serve(args: argparse.Namespace, settings: Ros2Settings) -> int:
         clock = await clockdomain.follow_robot_clock(bus, mode="auto")
         await ensure_name_free(bus, args.name, hint="start it with another --name")
         bridge = Ros2Bridge(bus=bus, settings=settings, name=args.name)
-        async with bridge:
+        await bridge.start()
+        try:
             print(f"ROS 2 bridge of robot {bus.robot!r}: node "
                   f"{bridge.namespace.rstrip('/')}/{settings.node}, domain "
                   f"{settings.domain_id}, {settings.distro}; clock: "
@@ -94,17 +95,27 @@ async def serve(args: argparse.Namespace, settings: Ros2Settings) -> int:
                 await attach.run_until_stopped(args.duration)
             finally:
                 status.cancel()
+        finally:
+            done = totals(bridge)  # before closing: its ROS publishers close with it
+            await bridge.aclose()
+            # The closing line every tool prints (record, liveview, replay): what it did.
+            print(f"{PROG}: stopped; {done}", flush=True)
         return 0
     finally:
         await bus.aclose()
 
 
-def status_line(bridge: Ros2Bridge) -> str:
+def totals(bridge: Ros2Bridge) -> str:
     """What the bridge sent and took in so far, and what it refused (per reason)."""
     sent = ", ".join(f"{p.topic} {p.sent}" for p in bridge.ros_publishers() if p.sent)
     refused = ", ".join(f"{reason} {n}" for reason, n in sorted(bridge.inbound.refused.items()))
-    return (f"[ros2] sent: {sent or 'nothing yet'} | {bridge.settings.cmd_vel_in}: "
+    return (f"sent: {sent or 'nothing yet'} | {bridge.settings.cmd_vel_in}: "
             f"{bridge.inbound.accepted} taken, refused: {refused or 'none'}")
+
+
+def status_line(bridge: Ros2Bridge) -> str:
+    """The periodic status line: :func:`totals` so far."""
+    return f"[ros2] {totals(bridge)}"
 
 
 async def report(bridge: Ros2Bridge, period_s: float) -> None:

@@ -37,10 +37,13 @@ def add_tree_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
         description="Show the robot's running behaviour tree or change it while it runs, "
                     "through its tree service (ubf/<robot>/tree; docs/protocol.md, 'Live tree "
                     "changes'). A change applies between two ticks, after the robot has "
-                    "validated it; a refused change leaves the tree as it was. Exit status: "
-                    "0 done, 1 refused by the robot, 2 no robot answered.",
+                    "validated it; a refused change leaves the tree as it was. Without a "
+                    "verb: show. Exit status: 0 done, 1 refused by the robot, 2 no robot "
+                    "answered.",
     )
-    verbs = tree.add_subparsers(dest="tree_command", required=True, metavar="VERB")
+    # `tree` alone shows the tree; the usage lists the verbs (no metavar hides them).
+    verbs = tree.add_subparsers(dest="tree_command", title="verbs")
+    tree.set_defaults(tree_command="show", json=False)
     show = verbs.add_parser("show", parents=[connection], help="print the running tree",
                             description="Print the running tree: composites with their "
                                         "arbiter, children with [p=priority w=weight].")
