@@ -10,6 +10,7 @@ outsider publishing plain zenoh + msgpack.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
 import subprocess
@@ -21,13 +22,14 @@ import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.world_config import Arena, WorldConfig
-from tests.conftest import SimRobot, eventually
+from tests.conftest import SimRobot, eventually, read_until, spawn, stop
 from ubf_async.runtime import clock as clock_module
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
 from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.runtime.timesource import ClockAction, ClockFollower
 from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import CLOCK, SIM_WORLD
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -418,6 +420,78 @@ async def test_a_restarted_simulator_is_followed_and_sensors_resume(
             assert samples[-1] <= second.clock.now_ns()
     finally:
         finish(sensor)
+
+
+class WithheldClock:
+    """A simulator as a sim-backed device in another process sees it, with its clock
+    withheld: the world snapshot goes out every 20 ms from the start, the clock only once
+    :meth:`release` is called (then every 5 ms, advancing from 12 s) — the order in which a
+    running robot answers a device that has just subscribed (the simulator publishes its
+    world whenever a process listens, its clock once it has noticed a follower, up to 20
+    steps later), made as long as the test needs."""
+
+    def __init__(self, bus: Bus, *, epoch: str) -> None:
+        from components.sim.wire import snapshot_to_data
+        from components.sim.world import World
+
+        self.token = bus.declare_token(bus.keys.alive("sim"))  # the robot, to attach to
+        self.world = bus.publisher(SIM_WORLD, period_s=0.02)
+        self.clock = bus.publisher(CLOCK, period_s=0.005)
+        self.snapshot = snapshot_to_data(World(floor()).snapshot_for(0))
+        self.epoch = epoch
+        self.now_ns = 12 * S
+        self.released = asyncio.Event()
+        self.task = asyncio.create_task(self._run())
+
+    def release(self) -> None:
+        self.released.set()
+
+    async def _run(self) -> None:
+        steps = 0
+        while True:  # the simulator's pace, not a wait for anything
+            if steps % 4 == 0:
+                self.world.publish(self.snapshot, stamp_ns=self.now_ns)
+            if self.released.is_set():
+                self.clock.publish({"epoch": self.epoch}, stamp_ns=self.now_ns)
+                self.now_ns += 5_000_000
+            steps += 1
+            await asyncio.sleep(0.005)
+
+    async def aclose(self) -> None:
+        self.task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self.task
+        self.token.undeclare()
+
+
+@pytest.mark.asyncio
+async def test_an_attached_device_stamps_nothing_before_it_hears_the_robots_time(
+    robot_bus: Bus, endpoint: str, robot: str
+) -> None:
+    """Issue 35: a range finder attached to a robot that had run for 12 s stamped its first
+    sample 0 — its clock's start, before any of the robot's time had reached it — and the
+    robot took it for another clock. With the world there and the clock withheld, the
+    device waits, says so, and its first sample is stamped on the robot's time."""
+    stamps: list[int] = []
+    robot_bus.subscribe(robot_bus.keys.sensor("range", "left"),
+                        lambda k, p, t: stamps.append(decode(p).stamp_ns), latest=False)
+    sim = WithheldClock(robot_bus, epoch="robot")
+    device = await spawn("-m", "components.range", "--connect", endpoint, "--robot", robot,
+                         "--name", "left")
+    waiting = asyncio.create_task(read_until(device, "waiting for the simulation time"))
+    try:
+        await eventually(lambda: waiting.done() or bool(stamps), timeout_s=30,
+                         what="the device to wait for the clock, or to publish")
+        assert not stamps, f"published before hearing the robot's time: stamped {stamps}"
+        await waiting  # (its error, if it ended otherwise)
+        sim.release()
+        await read_until(device, "attached")
+        await eventually(lambda: bool(stamps), timeout_s=10, what="the first sample")
+        assert stamps[0] >= 12 * S, stamps[:3]
+    finally:
+        waiting.cancel()
+        await stop(device)
+        await sim.aclose()
 
 
 @pytest.mark.asyncio

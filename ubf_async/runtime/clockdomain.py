@@ -235,7 +235,8 @@ against a robot that publishes none of them."""
 HOST = socket.gethostname()[:253]
 """This host's name, as a robot's status and time samples name theirs."""
 WAITING_SAID_AFTER_S = 1.0
-"""``auto`` says it is waiting once this long has passed without an answer."""
+"""A wait for the robot's clock says what it waits for once this long has passed without an
+answer."""
 
 
 async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
@@ -258,8 +259,9 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
       the robot says nothing of the kind within ``wait_s`` (not a ubf_async robot, or an old
       one) does it keep ``bus.clock``, and says so.
 
-    ``say`` gets a line for the user when the wait is long or ends without an answer (it is
-    logged as well)."""
+    ``say`` gets a line for the user when the wait is long (after
+    :data:`WAITING_SAID_AFTER_S`, in every mode) or ends without an answer (it is logged as
+    well)."""
     if mode == "wall":
         return bus.clock
     wait = _ClockWait.listen(bus, mode=mode, wait_s=wait_s, say=say)
@@ -356,13 +358,11 @@ class _ClockWait:
         """Say once that the wait is long, then wait until the next news, or until there is
         something to say."""
         now = self.loop.time()
-        # (``sim`` and ``robot`` wait for what they were told to: their callers say so.)
-        if self.mode == "auto" and not self.waiting_said \
-                and now - self.started >= WAITING_SAID_AFTER_S:
+        if not self.waiting_said and now - self.started >= WAITING_SAID_AFTER_S:
             self.waiting_said = True
             self.tell(self.waiting_for())
         timeouts = []
-        if self.mode == "auto" and not self.waiting_said:
+        if not self.waiting_said:
             timeouts.append(self.started + WAITING_SAID_AFTER_S - now)
         if self.mode == "auto" and not self.status:
             timeouts.append(self.deadline - now)
@@ -377,8 +377,14 @@ class _ClockWait:
                 waiting.cancel()
 
     def waiting_for(self) -> str:
-        """What ``auto`` is waiting for, as far as the robot has said."""
+        """What the wait is for: what ``sim`` and ``robot`` were told to follow, what ``auto``
+        expects as far as the robot has said."""
         robot, keys = self.bus.robot, self.bus.keys
+        if self.mode == "sim":
+            return f"waiting for the simulation time on {keys.clock} ..."
+        if self.mode == "robot":
+            return (f"waiting for the time of robot {robot!r}'s host on "
+                    f"{ROBOT_TIME.key(keys)} ...")
         if self.status.get("clock") == "simulated":
             return (f"robot {robot!r} runs on simulated time: waiting for its simulator's "
                     f"clock on {keys.clock} ...")
