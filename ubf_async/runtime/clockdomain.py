@@ -247,7 +247,9 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
     * ``wall`` keeps ``bus.clock`` (this host's ``CLOCK_MONOTONIC``: right on the robot's
       host);
     * ``sim`` waits for ``ubf/<robot>/clock`` and follows it (under
-      :class:`~ubf_async.runtime.timesource.ClockFollower`'s rules);
+      :class:`~ubf_async.runtime.timesource.ClockFollower`'s rules: the run of the robot at
+      the ``connect`` endpoints first, whatever other run of this robot name reaches the
+      bus);
     * ``robot`` waits for ``ubf/<robot>/time`` and follows the robot host's clock through its
       offset (:class:`~ubf_async.runtime.hostclock.RobotTimeClock`: for a process on another host);
     * ``auto`` waits until the robot says which clock it runs on, however long it takes to
@@ -264,7 +266,10 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
     well)."""
     if mode == "wall":
         return bus.clock
-    wait = _ClockWait.listen(bus, mode=mode, wait_s=wait_s, say=say)
+    # The robot's own run first, should another simulator of this robot name reach us too.
+    robot_sessions = await bus.connected_sessions()
+    wait = _ClockWait.listen(bus, mode=mode, wait_s=wait_s, say=say,
+                             robot_sessions=robot_sessions)
     chosen: Clock | None = None
     try:
         while chosen is None:
@@ -302,13 +307,17 @@ class _ClockWait:
 
     @classmethod
     def listen(cls, bus: Bus, *, mode: ClockMode, wait_s: float,
-               say: Callable[[str], None] | None) -> _ClockWait:
-        """Start listening for what ``mode`` waits for."""
+               say: Callable[[str], None] | None,
+               robot_sessions: frozenset[str] = frozenset()) -> _ClockWait:
+        """Start listening for what ``mode`` waits for (simulated time: the run published by
+        one of ``robot_sessions`` first, :class:`~ubf_async.runtime.timesource.ClockFollower`)."""
         from ubf_async.runtime.hostclock import RobotTimeClock  # its beacon is a component
 
         wait = cls(bus, mode=mode, wait_s=wait_s, say=say, robot_time=RobotTimeClock())
         if mode in ("auto", "sim"):
-            wait.subscriptions.append((follow_sim_clock(bus, wait.sim, {}), wait.sim))
+            wait.subscriptions.append((follow_sim_clock(bus, wait.sim, {},
+                                                        robot_sessions=robot_sessions),
+                                       wait.sim))
         if mode in ("auto", "robot"):
             wait.subscriptions.append((wait.robot_time.follow(bus), wait.robot_time))
         if mode == "auto":

@@ -278,10 +278,13 @@ class Heartbeat(Data, frozen=True, kw_only=True):
 
 
 class Clock(Data, frozen=True, kw_only=True):
-    """The simulator's time is the envelope's ``stamp_ns``; ``epoch`` names the run."""
+    """The simulator's time is the envelope's ``stamp_ns``; ``epoch`` names the run, ``zid``
+    (optional) the zenoh session publishing it, so that a follower can tell the run of the
+    robot it connected to from others that reach it."""
 
     real_time_factor: Annotated[float, Meta(ge=0.0, le=1e6)] | None = None
     epoch: Annotated[str, Meta(max_length=64)] | None = None
+    zid: Annotated[str, Meta(max_length=64)] | None = None
 
 
 class LockstepAck(Data, frozen=True, kw_only=True):
