@@ -770,6 +770,11 @@ class Bus:
         return self._connection.reached_peers()
 
     @property
+    def closed(self) -> bool:
+        """Whether :meth:`aclose` has been called (nothing can be declared any more)."""
+        return self._closed
+
+    @property
     def session_id(self) -> str | None:
         """This bus's session id on the network (zenoh's, hex), ``None`` on a transport
         without ids: what a simulator names itself by in its clock samples."""

@@ -275,6 +275,11 @@ class Heartbeat(Data, frozen=True, kw_only=True):
     running: Literal["yes", "no"] = "yes"
     publishes: Annotated[tuple[Published, ...], Meta(max_length=MAX_ANNOUNCED)] = ()
     """Optional: what the component publishes now (absent: it does not say)."""
+    pid: Annotated[int, Meta(ge=1, le=INT64_MAX)] | None = None
+    """Optional: the component's process id on its host (with ``host``: which process to look
+    at when the robot reports its samples)."""
+    host: Annotated[str, Meta(max_length=253)] | None = None
+    """Optional: the host the component runs on."""
 
 
 class Clock(Data, frozen=True, kw_only=True):
