@@ -10,7 +10,9 @@ exactly as launch looks them up for a robot file: ``--backend`` lists the backen
 the kind. When the backend needs a simulator (its ``requires_simulator``), the process follows the
 simulation time published on ``ubf/<robot>/clock`` and gets the running simulator's world from that
 simulator plug-in's ``attach()``, so a device can be added to, or removed from, a running simulated
-robot at any time. This module knows no simulator by name.
+robot at any time. Nothing that stamps is built before that time has been heard (waiting at most
+``--wait-for-sim-s``, and saying so after a second): the device's first sample is on the robot's
+clock. This module knows no simulator by name.
 
 Any other backend (real hardware, the radio on a terminal) stamps on the robot's clock too:
 with ``--clock auto`` (the default) it waits until the robot says which clock it runs on,
@@ -43,9 +45,8 @@ from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connecti
 from ubf_async.cli.run import run_main
 from ubf_async.runtime import clockdomain, lockstep, refusals
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
-from ubf_async.runtime.clock import Clock, SimClock, WallClock
+from ubf_async.runtime.clock import Clock
 from ubf_async.runtime.component import Component, ensure_name_free
-from ubf_async.runtime.simclock import follow_sim_clock
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
 """Maps the parsed command line to keyword parameters (of the device or of its backend)."""
@@ -115,7 +116,7 @@ def run_device(
                           "giving up")
     run.add_argument("--wait-for-sim-s", type=float, default=10.0, metavar="S",
                      help="with a simulated backend: how long to wait for the simulator's "
-                          "world before giving up")
+                          "time, then for its world, before giving up")
     run.add_argument("--clock", choices=("auto", "wall", "sim", "robot"), default="auto",
                      help="with a backend that needs no simulator: the robot clock to stamp "
                           "with: wall (this host's CLOCK_MONOTONIC), sim (follow "
@@ -174,8 +175,7 @@ class Device:
         simulator_name = requires_simulator(factory)
         simulator = registry.SIMULATORS.get(simulator_name)() if simulator_name else None
         options = connection_options(args)
-        clock: Clock = SimClock() if simulator is not None else WallClock()
-        bus = await Bus.open(options, clock=clock, ordered=self.lockstep)
+        bus = await Bus.open(options, ordered=self.lockstep)
         world: Any = None
         backend: Any = None
         component: Component | None = None
@@ -183,15 +183,10 @@ class Device:
         watch: refusals.RefusalWatch | None = None
         try:
             await wait_for_robot(bus, timeout_s=self.wait_for_robot_s)
+            clock = await self._robot_clock(bus, simulated=simulator is not None)
             if simulator is not None:
-                assert isinstance(clock, SimClock)
-                follow_sim_clock(bus, clock, {})
                 world = await simulator.attach(bus=bus, seed=self.seed,
                                                wait_s=self.wait_for_sim_s)
-            else:  # stamp on the robot's clock all the same: simulated time if it has one
-                clock = await clockdomain.follow_robot_clock(bus, mode=self.clock,
-                                                             wait_s=self.clock_wait_s,
-                                                             say=_say)
             context = DeviceContext(bus=bus, clock=clock, seed=self.seed, simulation=world)
             backend = make_backend(self.kind, self.backend, context=context,
                                    params=self.backend_params)
@@ -229,3 +224,21 @@ class Device:
             if watch is not None:
                 watch.close()
             await bus.aclose()
+
+    async def _robot_clock(self, bus: Bus, *, simulated: bool) -> Clock:
+        """The robot's clock, once this process has heard it — before anything is built
+        that stamps: a simulated clock that has heard no time yet stands at 0, and a first
+        sample stamped with it was taken by the robot for another clock (issue 35). A
+        backend on the simulator follows its time (waiting at most ``wait_for_sim_s``), any
+        other the clock ``--clock`` says."""
+        if not simulated:
+            return await clockdomain.follow_robot_clock(bus, mode=self.clock,
+                                                        wait_s=self.clock_wait_s, say=_say)
+        try:
+            return await asyncio.wait_for(
+                clockdomain.follow_robot_clock(bus, mode="sim", say=_say), self.wait_for_sim_s)
+        except TimeoutError:
+            raise ConnectionError(
+                f"no simulator is publishing {bus.keys.clock} (waited "
+                f"{self.wait_for_sim_s:g} s): start one with python -m ubf_async.launch and "
+                f"pass its endpoint with --connect") from None

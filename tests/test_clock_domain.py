@@ -141,6 +141,74 @@ async def test_aggregator_and_votes_report_into_the_controllers_status(robot_bus
     assert clockdomain.watch(robot_bus) is aggregator.clock_domain
 
 
+@pytest.mark.asyncio
+async def test_the_warning_names_the_process_that_sent_the_sample(
+    robot_bus: Bus, endpoint: str, robot: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 35: the robot said which source stamped on another clock, not which process —
+    and another process may publish under a source's name (another robot's device, a second
+    copy). The first warning names the process, by the heartbeat announcing the sample's
+    publisher: component, pid, host; so does the status."""
+    clock = SimClock()
+    robot_bus.clock = clock
+    clock.advance_to(5 * S)  # simulated time; the radio below stamps this host's monotonic
+    aggregator = StateAggregator(bus=robot_bus)
+    await aggregator.start()
+    radio = subprocess.Popen(
+        [sys.executable, "-m", "components.radio", "--connect", endpoint, "--robot", robot,
+         "--name", "ext", "--clock", "wall"], cwd=ROOT, text=True, stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert radio.stdout is not None and radio.stdin is not None
+        attached = await asyncio.to_thread(radio.stdout.readline)
+        assert "attached" in attached, attached
+        with caplog.at_level(logging.WARNING, logger="ubf_async.runtime.clockdomain"):
+            radio.stdin.write("hello robot\n")
+            radio.stdin.flush()
+            await eventually(lambda: "radio/ext: sample stamped" in caplog.text, timeout_s=15,
+                             what="the warning")
+        sender = f"radio-ext (pid {radio.pid} on {clockdomain.HOST})"
+        warning = next(r.getMessage() for r in caplog.records
+                       if r.getMessage().startswith("radio/ext: sample stamped"))
+        assert f", sent by {sender}, looks like the host monotonic clock" in warning, warning
+        status = aggregator.clock_domain.status()
+        assert [(f["source"], f.get("sender")) for f in status] == [("radio/ext", sender)]
+        assert "radio/ext  1 samples, like the host monotonic clock, last " in \
+            "\n".join(format_clock_domain(status))
+        assert format_clock_domain(status)[-1].endswith(f" off, from {sender}")
+    finally:
+        radio.kill()
+        radio.communicate(timeout=10)
+        await aggregator.aclose()
+
+
+def test_a_sample_without_a_publisher_or_unnamed_is_still_reported(
+    caplog: pytest.LogCaptureFixture
+) -> None:
+    """A plain client sends no ``pub``: warned at once, naming no one, as before."""
+    watch = ClockDomainWatch(robot="mini")
+    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
+    watch.check("range/plain", WALL_NS, now_ns=12 * S, simulated=True, pub=None)
+    (warning,) = (r.getMessage() for r in caplog.records)
+    assert warning.startswith("range/plain: sample stamped") and "sent by" not in warning
+
+
+@pytest.mark.asyncio
+async def test_a_publisher_no_heartbeat_names_is_reported_after_the_wait(
+    robot_bus: Bus, caplog: pytest.LogCaptureFixture
+) -> None:
+    watch = ClockDomainWatch(robot="mini", senders=clockdomain.SenderNames(robot_bus,
+                                                                           wait_s=0.05))
+    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
+    watch.check("range/anon", WALL_NS, now_ns=12 * S, simulated=True, pub=1234)
+    assert not caplog.records  # waiting for a heartbeat to name it
+    await eventually(lambda: bool(caplog.records), what="the warning after the wait")
+    (warning,) = (r.getMessage() for r in caplog.records)
+    assert "sent by publisher 1234 (which no heartbeat named within 0.05 s" in warning
+    assert watch.status()[0].get("sender") is None
+
+
 # -- the shipped senders against the default robot ---------------------------------------------
 
 WALL_SENDER = """

@@ -10,6 +10,7 @@ outsider publishing plain zenoh + msgpack.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
 import subprocess
@@ -21,13 +22,14 @@ import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.world_config import Arena, WorldConfig
-from tests.conftest import SimRobot, eventually
+from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop
 from ubf_async.runtime import clock as clock_module
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
 from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.runtime.timesource import ClockAction, ClockFollower
 from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import CLOCK, SIM_WORLD
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -101,8 +103,33 @@ def test_refusals_are_counted_and_logged_first_and_every_100th(
     assert len([r for r in caplog.records if "refused clock sample" in r.message]) == 3
 
 
+def test_the_robots_run_is_locked_onto_before_another_heard_first() -> None:
+    """Another simulator of this robot name reached through gossip speaks first: its run waits
+    while the robot connected to may still speak; the robot's run, once heard, is locked."""
+    f = ClockFollower(robot_sessions=frozenset({"robot"}), prefer_s=2.0)
+    verdict = f.offer(stamp_ns=100 * S, epoch="other", wall_ns=0, zid="elsewhere")
+    assert verdict.action is ClockAction.REFUSE and verdict.reason == "not the robot's"
+    assert f.offer(stamp_ns=100 * S, epoch="old", wall_ns=S, zid=None).reason == "not the robot's"
+    assert not f.locked
+    assert f.offer(stamp_ns=12 * S, epoch="mine", wall_ns=S, zid="robot").action \
+        is ClockAction.ADVANCE
+    assert (f.epoch, f.last_stamp_ns) == ("mine", 12 * S)
+    assert f.offer(stamp_ns=101 * S, epoch="other", wall_ns=S + S // 2,
+                   zid="elsewhere").reason == "other epoch"
+    # Reached through a router, or with the simulator in another process than the robot: the
+    # robot's session publishes no time, and the run heard is followed after prefer_s.
+    g = ClockFollower(robot_sessions=frozenset({"router"}), prefer_s=2.0)
+    assert g.offer(stamp_ns=S, epoch="e", wall_ns=0, zid="sim").reason == "not the robot's"
+    assert g.offer(stamp_ns=S, epoch="e", wall_ns=S, zid="sim").reason == "not the robot's"
+    assert g.offer(stamp_ns=2 * S, epoch="e", wall_ns=2 * S, zid="sim").action \
+        is ClockAction.ADVANCE
+    # Knowing no session of the robot (it connected to us): the first run heard, at once.
+    assert ClockFollower().offer(stamp_ns=S, epoch="e", wall_ns=0, zid="sim").action \
+        is ClockAction.ADVANCE
+
+
 def test_follower_rejects_nonsense_settings() -> None:
-    for bad in ({"takeover_s": 0}, {"max_speed": -1}, {"slack_s": -0.1}):
+    for bad in ({"takeover_s": 0}, {"max_speed": -1}, {"slack_s": -0.1}, {"prefer_s": -1}):
         with pytest.raises(ValueError):
             ClockFollower(**bad)  # type: ignore[arg-type]
 
@@ -418,6 +445,134 @@ async def test_a_restarted_simulator_is_followed_and_sensors_resume(
             assert samples[-1] <= second.clock.now_ns()
     finally:
         finish(sensor)
+
+
+class WithheldClock:
+    """A simulator as a sim-backed device in another process sees it, with its clock
+    withheld: the world snapshot goes out every 20 ms from the start, the clock only once
+    :meth:`release` is called (then every 5 ms, advancing from 12 s) — the order in which a
+    running robot answers a device that has just subscribed (the simulator publishes its
+    world whenever a process listens, its clock once it has noticed a follower, up to 20
+    steps later), made as long as the test needs."""
+
+    def __init__(self, bus: Bus, *, epoch: str, start_ns: int = 12 * S) -> None:
+        from components.sim.wire import snapshot_to_data
+        from components.sim.world import World
+
+        self.token = bus.declare_token(bus.keys.alive("sim"))  # the robot, to attach to
+        self.world = bus.publisher(SIM_WORLD, period_s=0.02)
+        self.clock = bus.publisher(CLOCK, period_s=0.005)
+        self.snapshot = snapshot_to_data(World(floor()).snapshot_for(0))
+        self.epoch = epoch
+        self.zid = bus.session_id  # named in its samples, as the simulator does
+        self.now_ns = start_ns
+        self.released = asyncio.Event()
+        self.task = asyncio.create_task(self._run())
+
+    def release(self) -> None:
+        self.released.set()
+
+    async def _run(self) -> None:
+        steps = 0
+        while True:  # the simulator's pace, not a wait for anything
+            if steps % 4 == 0:
+                self.world.publish(self.snapshot, stamp_ns=self.now_ns)
+            if self.released.is_set():
+                self.clock.publish({"epoch": self.epoch, "zid": self.zid},
+                                   stamp_ns=self.now_ns)
+                self.now_ns += 5_000_000
+            steps += 1
+            await asyncio.sleep(0.005)
+
+    async def aclose(self) -> None:
+        self.task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self.task
+        self.token.undeclare()
+
+
+@pytest.mark.asyncio
+async def test_an_attached_device_stamps_nothing_before_it_hears_the_robots_time(
+    robot_bus: Bus, endpoint: str, robot: str
+) -> None:
+    """Issue 35: a range finder attached to a robot that had run for 12 s stamped its first
+    sample 0 — its clock's start, before any of the robot's time had reached it — and the
+    robot took it for another clock. With the world there and the clock withheld, the
+    device waits, says so, and its first sample is stamped on the robot's time."""
+    stamps: list[int] = []
+    robot_bus.subscribe(robot_bus.keys.sensor("range", "left"),
+                        lambda k, p, t: stamps.append(decode(p).stamp_ns), latest=False)
+    sim = WithheldClock(robot_bus, epoch="robot")
+    device = await spawn("-m", "components.range", "--connect", endpoint, "--robot", robot,
+                         "--name", "left")
+    waiting = asyncio.create_task(read_until(device, "waiting for the simulation time"))
+    try:
+        await eventually(lambda: waiting.done() or bool(stamps), timeout_s=30,
+                         what="the device to wait for the clock, or to publish")
+        assert not stamps, f"published before hearing the robot's time: stamped {stamps}"
+        await waiting  # (its error, if it ended otherwise)
+        sim.release()
+        await read_until(device, "attached")
+        await eventually(lambda: bool(stamps), timeout_s=10, what="the first sample")
+        assert stamps[0] >= 12 * S, stamps[:3]
+    finally:
+        waiting.cancel()
+        await stop(device)
+        await sim.aclose()
+
+
+@pytest.mark.asyncio
+async def test_the_robots_time_is_followed_when_another_run_of_its_name_speaks_first(
+    robot_bus: Bus, endpoint: str, robot: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Another simulator of this robot name, connected to the robot, reaches a process that
+    attaches to the robot through zenoh's gossip, and its time arrives first. The process
+    follows the robot's run all the same (before: the first heard, 88 s ahead)."""
+    from ubf_async.net.options import ConnectionOptions
+    from ubf_async.runtime import clockdomain
+
+    other_endpoint = f"tcp/127.0.0.1:{free_port()}"
+    other = await Bus.open(ConnectionOptions(robot=robot, listen=[other_endpoint],
+                                             connect=[endpoint]))
+    follower = None
+    sims: list[WithheldClock] = []
+    try:
+        await eventually(lambda: other.session_id in map(str, robot_bus.session.info.peers_zid()),
+                         what="the other simulator to connect to the robot")
+        follower = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+        reached = {robot_bus.session_id, other.session_id}
+        await eventually(lambda: reached <= set(map(str, follower.session.info.peers_zid())),
+                         what="the follower to reach both (gossip)")
+        sims.append(WithheldClock(other, epoch="other", start_ns=100 * S))
+        sims[-1].release()
+        mine = WithheldClock(robot_bus, epoch="mine")
+        sims.append(mine)
+        with caplog.at_level(logging.WARNING, logger="ubf_async.runtime.timesource"):
+            choosing = asyncio.create_task(clockdomain.follow_robot_clock(follower, mode="sim"))
+            await eventually(lambda: choosing.done() or "(not the robot's)" in caplog.text,
+                             timeout_s=15, what="the other run to be heard")
+            if choosing.done():
+                raise AssertionError(f"followed the run heard first, at "
+                                     f"{choosing.result().now_ns() / S:g} s")
+            mine.release()
+            clock = await asyncio.wait_for(choosing, 15)
+        assert 12 * S <= clock.now_ns() < 50 * S, clock.now_ns() / S
+    finally:
+        for sim in sims:
+            await sim.aclose()
+        if follower is not None:
+            await follower.aclose()
+        await other.aclose()
+
+
+@pytest.mark.asyncio
+async def test_the_simulator_names_its_session_in_its_clock(robot_bus: Bus,
+                                                            peer_bus: Bus) -> None:
+    zids: list[str | None] = []
+    peer_bus.subscribe(peer_bus.keys.clock, lambda k, p, t: zids.append(decode(p).data.zid))
+    async with SimRobot(robot_bus, floor(), speed=1, devices=()):
+        await eventually(lambda: bool(zids), what="a clock sample")
+    assert zids[0] == robot_bus.session_id and zids[0]
 
 
 @pytest.mark.asyncio

@@ -87,6 +87,9 @@ class _Served:
     truth: Publisher
     world: Publisher
     clock_followed: bool = True
+    zid: str | None = None
+    """The bus's session id, which its clock samples carry (a follower connected to this
+    session prefers this run to any other it hears)."""
 
 
 @dataclass(slots=True, kw_only=True)
@@ -224,7 +227,8 @@ class SimulatorComponent(Component):
         (closed when the run attempt ends)."""
         served = _Served(robot=robot, bus=bus, clock=bus.publisher(CLOCK, period_s=self.step_s),
                          truth=bus.publisher(SIM_TRUTH, period_s=self.truth_period_s),
-                         world=bus.publisher(SIM_WORLD, period_s=self.world_period_s))
+                         world=bus.publisher(SIM_WORLD, period_s=self.world_period_s),
+                         zid=bus.session_id)
         for resource in (served.clock, served.truth, served.world,
                          bus.subscribe(SIM_PULSES.key(bus.keys), self._pulses_handler(robot))):
             self.keep(resource)
@@ -315,8 +319,8 @@ class SimulatorComponent(Component):
 
     def _publish_clock(self, robot: _Served) -> None:
         rtf = self.real_time_factor()
-        robot.clock.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch},
-                            stamp_ns=self.clock.now_ns())
+        robot.clock.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch,
+                             "zid": robot.zid}, stamp_ns=self.clock.now_ns())
 
     async def _barrier(self, served: list[_Served], next_ns: int) -> bool:
         """The lockstep barrier before the step to ``next_ns``; return whether a hold made it

@@ -29,7 +29,7 @@ import contextlib
 import functools
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple, Protocol
 
@@ -144,6 +144,14 @@ class Connection(Protocol):
 
     def reached_peers(self) -> bool:
         """Whether another node of the network is reachable now (``wait_for_robot``)."""
+
+    def session_id(self) -> str | None:
+        """This connection's id on the network (zenoh's session id, as zenoh prints it), or
+        ``None`` on a transport whose connections have none."""
+
+    def sessions_at(self, locators: Collection[str]) -> frozenset[str]:
+        """The ids of the sessions this one has a link to whose destination is one of
+        ``locators`` (``tcp/127.0.0.1:7447``): those at the endpoints it connected to."""
 
     async def close(self) -> None:
         """Undeclare everything still declared and leave the network; idempotent."""
@@ -338,6 +346,13 @@ class ZenohConnection:
     def reached_peers(self) -> bool:
         info = self.session.info
         return bool(list(info.peers_zid()) or list(info.routers_zid()))
+
+    def session_id(self) -> str | None:
+        return str(self.session.zid())
+
+    def sessions_at(self, locators: Collection[str]) -> frozenset[str]:
+        return frozenset(str(link.zid) for link in self.session.info.links()
+                         if str(link.dst) in locators)
 
     def link_destinations(self) -> list[str]:
         """The remote locator of each link the session has now (``tcp/127.0.0.1:7447``): a
@@ -578,6 +593,12 @@ class InProcessConnection:
 
     def reached_peers(self) -> bool:
         return any(c is not self for c in self.transport._connections)
+
+    def session_id(self) -> str | None:
+        return None
+
+    def sessions_at(self, locators: Collection[str]) -> frozenset[str]:
+        return frozenset()  # no endpoints, no links
 
     async def close(self) -> None:
         if self.closed:

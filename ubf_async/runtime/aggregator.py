@@ -327,7 +327,8 @@ class StateAggregator(Component):
         count = (self._recent.add(source, now)
                  if entry is None or source not in self.protected_sources else 0)
         if not -clockdomain.CLOSE_NS <= message.stamp_ns - now <= clockdomain.CLOSE_NS:
-            self.clock_domain.check_on(self.bus, source, message.stamp_ns, now)  # then judged
+            self.clock_domain.check_on(self.bus, source, message.stamp_ns, now,
+                                       pub=message.pub)  # then judged
         if ahead_of_clock(message.stamp_ns, now, self._future_tolerance_ns):
             self._refuse(Refusal.FUTURE, source,
                          f"stamped {(message.stamp_ns - now) / 1e9:.3g}s ahead of the robot "

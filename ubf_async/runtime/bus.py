@@ -769,6 +769,30 @@ class Bus:
         """Whether the transport reaches another node now (see :func:`wait_for_robot`)."""
         return self._connection.reached_peers()
 
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`aclose` has been called (nothing can be declared any more)."""
+        return self._closed
+
+    @property
+    def session_id(self) -> str | None:
+        """This bus's session id on the network (zenoh's, hex), ``None`` on a transport
+        without ids: what a simulator names itself by in its clock samples."""
+        return self._connection.session_id()
+
+    async def connected_sessions(self) -> frozenset[str]:
+        """The ids of the sessions at this bus's ``connect`` endpoints now — the robot it
+        attached to (empty when it connected to none, or on a transport without links). Other
+        sessions the bus reaches through them (zenoh's gossip) are not among them."""
+        if not self.options.connect:
+            return frozenset()
+        endpoints = self.options.connect
+
+        def locators() -> set[str]:  # (a host name is resolved: in a worker thread)
+            return {locator for endpoint in endpoints for locator in endpoint_locators(endpoint)}
+
+        return self._connection.sessions_at(await asyncio.to_thread(locators))
+
     async def aclose(self) -> None:
         """Undeclare everything and close the connection (the zenoh session); idempotent."""
         if self._closed:

@@ -26,7 +26,9 @@ What it does **not** change: how the sample is judged. A sample stamped ahead is
 refused (``future``), so a foreign stamp never pins a source; one stamped behind is still
 taken with its true, large age. Detection only adds the report: :class:`ClockDomainWatch`
 counts such samples per source (sensor sources ``"<kind>/<name>"``, remote votes
-``"vote/<composite>/<behaviour>"``), logs a warning with the fix the first time per source
+``"vote/<composite>/<behaviour>"``), logs a warning with the fix — and the process that sent
+the sample: the component, pid and host of the heartbeat announcing its publisher ``pub``
+(:class:`SenderNames`) — the first time per source
 (and every 100th sample after; past :data:`MAX_WARNED_SOURCES` sources one summary per 100
 samples, so a flood of names cannot flood the log), and its
 :meth:`~ClockDomainWatch.status` goes into the controller's status, which
@@ -44,6 +46,7 @@ to start — is :func:`follow_robot_clock` (``--clock auto`` of the remote behav
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import socket
 import time
@@ -57,7 +60,7 @@ from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import Clock, SimClock
 from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.wire.protocol import ProtocolError, clip, decode
-from ubf_async.wire.topics import CONTROLLER_STATUS, ROBOT_TIME
+from ubf_async.wire.topics import CONTROLLER_STATUS, HEARTBEAT, ROBOT_TIME, Heartbeat
 
 if TYPE_CHECKING:
     from ubf_async.runtime.hostclock import RobotTimeClock
@@ -81,6 +84,9 @@ MAX_WARNED_SOURCES = 32
 100 foreign samples."""
 MAX_REPORTED = 32
 """Sources listed in :meth:`ClockDomainWatch.status`."""
+NAME_WAIT_S = 3.0
+"""How long the first warning about a source waits for the heartbeat naming the process that
+sent the sample (a ubf_async component sends one every 0.5 s; a busy one may be late)."""
 
 ClockName = Literal["wall clock", "host monotonic clock", "another clock"]
 
@@ -126,6 +132,68 @@ class ForeignSource:
     clock: ClockName
     offset_s: float
     """The last such sample's ``stamp − now`` in seconds."""
+    sender: str | None = None
+    """The process that sent its first such sample, once a heartbeat has named it."""
+
+
+def sender_name(heartbeat: Heartbeat) -> str:
+    """The process a heartbeat describes, for a warning: ``range-left (pid 4242 on box)``."""
+    where = " ".join(part for part in (f"pid {heartbeat.pid}" if heartbeat.pid else "",
+                                       f"on {heartbeat.host}" if heartbeat.host else "") if part)
+    return f"{heartbeat.component} ({where})" if where else heartbeat.component
+
+
+class SenderNames:
+    """Names the process behind a publisher identity (an envelope's ``pub``) from the
+    heartbeat that announces it (``publishes``, with the component's ``pid`` and ``host``).
+
+    It listens to the robot's heartbeats only while a name is asked for: :meth:`ask` answers
+    each question once — with the name when a heartbeat announcing ``pub`` arrives (a ubf_async
+    component sends one every 0.5 s), with ``None`` after ``wait_s``."""
+
+    def __init__(self, bus: Bus, *, wait_s: float = NAME_WAIT_S) -> None:
+        self.bus = bus
+        self.wait_s = wait_s
+        self._asked: dict[int, list[Callable[[str | None], None]]] = {}
+        self._timers: dict[int, asyncio.TimerHandle] = {}
+        self._subscription: Subscription | None = None
+
+    def ask(self, pub: int, then: Callable[[str | None], None]) -> None:
+        """Call ``then(name)`` once the process publishing as ``pub`` is named, or
+        ``then(None)`` after ``wait_s``. On the event loop."""
+        loop = asyncio.get_running_loop()
+        if pub not in self._asked:
+            self._asked[pub] = []
+            self._timers[pub] = loop.call_later(self.wait_s, self._answer, pub, None)
+        self._asked[pub].append(then)
+        if self._subscription is None and len(self._asked) == 1:
+            # Declared from the loop's own turn: this may run on a transport thread the loop
+            # is lent to (a direct subscription's handler), which must not declare.
+            loop.call_soon(self._listen)
+
+    def _listen(self) -> None:
+        if self._asked and self._subscription is None and not self.bus.closed:
+            self._subscription = self.bus.subscribe(self.bus.keys.all_heartbeats,
+                                                    self._on_heartbeat)
+
+    def _on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
+        try:
+            heartbeat = decode(payload, topic=HEARTBEAT).data
+        except ProtocolError:
+            return  # the robot's health monitor counts it
+        for published in heartbeat.publishes:
+            if published.pub in self._asked:
+                self._answer(published.pub, sender_name(heartbeat))
+
+    def _answer(self, pub: int, name: str | None) -> None:
+        timer = self._timers.pop(pub, None)
+        if timer is not None:
+            timer.cancel()
+        for then in self._asked.pop(pub, []):
+            then(name)
+        if not self._asked and self._subscription is not None:
+            self._subscription.close()
+            self._subscription = None
 
 
 class ClockDomainWatch:
@@ -135,11 +203,14 @@ class ClockDomainWatch:
     is one subtraction); the rest is bookkeeping for the few that are foreign.
     """
 
-    def __init__(self, *, robot: str, max_sources: int = MAX_SOURCES) -> None:
+    def __init__(self, *, robot: str, max_sources: int = MAX_SOURCES,
+                 senders: SenderNames | None = None) -> None:
         if max_sources < 1:
             raise ValueError(f"max_sources must be ≥ 1, got {max_sources}")
         self.robot = robot
         self.max_sources = max_sources
+        self.senders = senders
+        """Who names the process behind a sample's ``pub`` (none: warnings name no one)."""
         self.sources: OrderedDict[str, ForeignSource] = OrderedDict()
         """Per source, least recently seen first (bounded by ``max_sources``)."""
         self.total = 0
@@ -147,10 +218,13 @@ class ClockDomainWatch:
         self.warned_sources = 0
         """Sources warned about one by one (at most :data:`MAX_WARNED_SOURCES`)."""
 
-    def check(self, source: str, stamp_ns: int, *, now_ns: int, simulated: bool) -> bool:
+    def check(self, source: str, stamp_ns: int, *, now_ns: int, simulated: bool,
+              pub: int | None = None) -> bool:
         """Whether the sample of ``source`` stamped ``stamp_ns`` is from another clock
         domain (robot clock ``now_ns``); if so count it, and warn the first time per source
-        and every 100th sample after."""
+        and every 100th sample after. The first warning names the process that sent it, by
+        the heartbeat announcing the sample's publisher ``pub`` (:class:`SenderNames`: it
+        then comes once that heartbeat has arrived, at most :data:`NAME_WAIT_S` later)."""
         offset = stamp_ns - now_ns
         if -CLOSE_NS <= offset <= CLOSE_NS:
             return False
@@ -171,10 +245,12 @@ class ClockDomainWatch:
         entry.offset_s = offset / 1e9
         if entry.samples == 1 and self.warned_sources < MAX_WARNED_SOURCES:
             self.warned_sources += 1
-            log.warning("%s: sample stamped %+.6g s from the robot clock looks like %s, "
-                        "not the robot's: its age means nothing (%s); %s", clip(source),
-                        offset / 1e9, the(clock), "refused as from the future" if offset > 0
-                        else "taken with that age", how_to_stamp(self.robot, simulated))
+            warn = functools.partial(self._warn_first, clip(source), entry, clock, offset,
+                                     simulated, pub)
+            if pub is None or self.senders is None:
+                warn(None)
+            else:
+                self.senders.ask(pub, warn)
         elif entry.samples % 100 == 0:
             log.warning("%s: %d samples stamped on %s so far", clip(source),
                         entry.samples, the(clock))
@@ -184,10 +260,26 @@ class ClockDomainWatch:
                         "controller's status", self.total, MAX_WARNED_SOURCES)
         return True
 
-    def check_on(self, bus: Bus, source: str, stamp_ns: int, now_ns: int) -> bool:
+    def _warn_first(self, source: str, entry: ForeignSource, clock: ClockName, offset: int,
+                    simulated: bool, pub: int | None, sender: str | None) -> None:
+        entry.sender = sender
+        if pub is None or self.senders is None:
+            by = ""  # a plain client without ``pub``: nothing names it
+        elif sender is None:
+            by = (f", sent by publisher {pub} (which no heartbeat named within "
+                  f"{self.senders.wait_s:g} s: not a ubf_async component?),")
+        else:
+            by = f", sent by {sender},"
+        log.warning("%s: sample stamped %+.6g s from the robot clock%s looks like %s, not the "
+                    "robot's: its age means nothing (%s); %s", source, offset / 1e9, by,
+                    the(clock), "refused as from the future" if offset > 0
+                    else "taken with that age", how_to_stamp(self.robot, simulated))
+
+    def check_on(self, bus: Bus, source: str, stamp_ns: int, now_ns: int, *,
+                 pub: int | None = None) -> bool:
         """:meth:`check` with ``bus.clock``'s kind (simulated or not)."""
         return self.check(source, stamp_ns, now_ns=now_ns,
-                          simulated=bus.clock.is_simulated)
+                          simulated=bus.clock.is_simulated, pub=pub)
 
     def count(self, source: str) -> int:
         entry = self.sources.get(source)
@@ -195,13 +287,15 @@ class ClockDomainWatch:
 
     def status(self) -> list[dict[str, Any]]:
         """The sources seen stamping on another clock, most recently seen first (at most
-        :data:`MAX_REPORTED`): ``{"source", "samples", "clock", "offset_s"}`` each."""
+        :data:`MAX_REPORTED`): ``{"source", "samples", "clock", "offset_s"}`` each, and
+        ``"sender"`` once the process that sent them is named."""
         out: list[dict[str, Any]] = []
         for source, entry in reversed(self.sources.items()):
             if len(out) >= MAX_REPORTED:
                 break
             out.append({"source": clip(source), "samples": entry.samples,
-                        "clock": entry.clock, "offset_s": entry.offset_s})
+                        "clock": entry.clock, "offset_s": entry.offset_s}
+                       | ({"sender": entry.sender} if entry.sender else {}))
         return out
 
 
@@ -217,7 +311,7 @@ def watch(bus: Bus) -> ClockDomainWatch:
     try:
         found = _WATCHES.get(bus)
         if found is None:
-            found = _WATCHES[bus] = ClockDomainWatch(robot=robot)
+            found = _WATCHES[bus] = ClockDomainWatch(robot=robot, senders=SenderNames(bus))
     except TypeError:  # not hashable or not weakly referenceable
         return ClockDomainWatch(robot=robot)
     return found
@@ -235,7 +329,8 @@ against a robot that publishes none of them."""
 HOST = socket.gethostname()[:253]
 """This host's name, as a robot's status and time samples name theirs."""
 WAITING_SAID_AFTER_S = 1.0
-"""``auto`` says it is waiting once this long has passed without an answer."""
+"""A wait for the robot's clock says what it waits for once this long has passed without an
+answer."""
 
 
 async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
@@ -246,7 +341,9 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
     * ``wall`` keeps ``bus.clock`` (this host's ``CLOCK_MONOTONIC``: right on the robot's
       host);
     * ``sim`` waits for ``ubf/<robot>/clock`` and follows it (under
-      :class:`~ubf_async.runtime.timesource.ClockFollower`'s rules);
+      :class:`~ubf_async.runtime.timesource.ClockFollower`'s rules: the run of the robot at
+      the ``connect`` endpoints first, whatever other run of this robot name reaches the
+      bus);
     * ``robot`` waits for ``ubf/<robot>/time`` and follows the robot host's clock through its
       offset (:class:`~ubf_async.runtime.hostclock.RobotTimeClock`: for a process on another host);
     * ``auto`` waits until the robot says which clock it runs on, however long it takes to
@@ -258,11 +355,15 @@ async def follow_robot_clock(bus: Bus, *, mode: ClockMode = "auto",
       the robot says nothing of the kind within ``wait_s`` (not a ubf_async robot, or an old
       one) does it keep ``bus.clock``, and says so.
 
-    ``say`` gets a line for the user when the wait is long or ends without an answer (it is
-    logged as well)."""
+    ``say`` gets a line for the user when the wait is long (after
+    :data:`WAITING_SAID_AFTER_S`, in every mode) or ends without an answer (it is logged as
+    well)."""
     if mode == "wall":
         return bus.clock
-    wait = _ClockWait.listen(bus, mode=mode, wait_s=wait_s, say=say)
+    # The robot's own run first, should another simulator of this robot name reach us too.
+    robot_sessions = await bus.connected_sessions()
+    wait = _ClockWait.listen(bus, mode=mode, wait_s=wait_s, say=say,
+                             robot_sessions=robot_sessions)
     chosen: Clock | None = None
     try:
         while chosen is None:
@@ -300,13 +401,17 @@ class _ClockWait:
 
     @classmethod
     def listen(cls, bus: Bus, *, mode: ClockMode, wait_s: float,
-               say: Callable[[str], None] | None) -> _ClockWait:
-        """Start listening for what ``mode`` waits for."""
+               say: Callable[[str], None] | None,
+               robot_sessions: frozenset[str] = frozenset()) -> _ClockWait:
+        """Start listening for what ``mode`` waits for (simulated time: the run published by
+        one of ``robot_sessions`` first, :class:`~ubf_async.runtime.timesource.ClockFollower`)."""
         from ubf_async.runtime.hostclock import RobotTimeClock  # its beacon is a component
 
         wait = cls(bus, mode=mode, wait_s=wait_s, say=say, robot_time=RobotTimeClock())
         if mode in ("auto", "sim"):
-            wait.subscriptions.append((follow_sim_clock(bus, wait.sim, {}), wait.sim))
+            wait.subscriptions.append((follow_sim_clock(bus, wait.sim, {},
+                                                        robot_sessions=robot_sessions),
+                                       wait.sim))
         if mode in ("auto", "robot"):
             wait.subscriptions.append((wait.robot_time.follow(bus), wait.robot_time))
         if mode == "auto":
@@ -356,13 +461,11 @@ class _ClockWait:
         """Say once that the wait is long, then wait until the next news, or until there is
         something to say."""
         now = self.loop.time()
-        # (``sim`` and ``robot`` wait for what they were told to: their callers say so.)
-        if self.mode == "auto" and not self.waiting_said \
-                and now - self.started >= WAITING_SAID_AFTER_S:
+        if not self.waiting_said and now - self.started >= WAITING_SAID_AFTER_S:
             self.waiting_said = True
             self.tell(self.waiting_for())
         timeouts = []
-        if self.mode == "auto" and not self.waiting_said:
+        if not self.waiting_said:
             timeouts.append(self.started + WAITING_SAID_AFTER_S - now)
         if self.mode == "auto" and not self.status:
             timeouts.append(self.deadline - now)
@@ -377,8 +480,14 @@ class _ClockWait:
                 waiting.cancel()
 
     def waiting_for(self) -> str:
-        """What ``auto`` is waiting for, as far as the robot has said."""
+        """What the wait is for: what ``sim`` and ``robot`` were told to follow, what ``auto``
+        expects as far as the robot has said."""
         robot, keys = self.bus.robot, self.bus.keys
+        if self.mode == "sim":
+            return f"waiting for the simulation time on {keys.clock} ..."
+        if self.mode == "robot":
+            return (f"waiting for the time of robot {robot!r}'s host on "
+                    f"{ROBOT_TIME.key(keys)} ...")
         if self.status.get("clock") == "simulated":
             return (f"robot {robot!r} runs on simulated time: waiting for its simulator's "
                     f"clock on {keys.clock} ...")

@@ -19,7 +19,9 @@ Lifecycle — when each hook runs:
 Liveness: the token ``ubf/<robot>/alive/<name>`` only proves that the zenoh session lives.
 The heartbeat (``ubf/<robot>/heartbeat/<name>``, every ``heartbeat_period_s``) proves the
 component's event loop is turning: it carries a sequence number, the number of restarts and
-the loop lag the heartbeat task itself observed. :class:`HealthMonitor` checks both.
+the loop lag the heartbeat task itself observed, what it publishes (each publisher's ``pub``)
+and its process (pid and host), so that a receiver can name the process behind a sample.
+:class:`HealthMonitor` checks both.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ import asyncio
 import contextlib
 import itertools
 import logging
+import os
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -46,6 +50,8 @@ from ubf_async.wire.topics import (
 
 log = logging.getLogger(__name__)
 
+HOST = socket.gethostname()[:253] or None
+"""This host's name, as heartbeats name it."""
 MAX_WATCHED_COMPONENTS = 1024
 """Components the :class:`HealthMonitor` keeps track of (the oldest departed one goes first)."""
 
@@ -244,6 +250,8 @@ class Component:
                     "loop_lag_s": lag,
                     "running": "yes" if self.running.is_set() else "no",
                     "publishes": self._announced(),
+                    "pid": os.getpid(),  # (asked each time: a forked child is another)
+                    "host": HOST,
                 })
                 expected = loop.time() + self.heartbeat_period_s
                 await asyncio.sleep(self.heartbeat_period_s)

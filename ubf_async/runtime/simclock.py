@@ -13,25 +13,27 @@ from ubf_async.wire.topics import CLOCK
 
 def follow_sim_clock(
     bus: Bus, clock: SimClock, malformed: dict[str, int], *,
-    follower: ClockFollower | None = None,
+    follower: ClockFollower | None = None, robot_sessions: frozenset[str] = frozenset(),
 ) -> Subscription:
     """Drive ``clock`` from the simulator's samples on ``ubf/<robot>/clock``.
 
     Malformed samples are counted in ``malformed``. What a valid sample may do is decided by
-    ``follower`` (a new :class:`~ubf_async.runtime.timesource.ClockFollower` if not given — pass one
-    to pin an epoch or to read its counters): advance the clock, reset it to a new run's time,
-    or nothing (refused, counted and logged by the follower). The first sample taken resets
-    the clock (``clock.resets``) if nothing had started it yet.
+    ``follower`` (a new :class:`~ubf_async.runtime.timesource.ClockFollower` if not given, which
+    prefers the run of ``robot_sessions`` — pass one to pin an epoch or to read its counters):
+    advance the clock, reset it to a new run's time, or nothing (refused, counted and logged
+    by the follower). The first sample taken resets the clock (``clock.resets``) if nothing
+    had started it yet.
     """
     key = CLOCK.key(bus.keys)
-    policy = follower if follower is not None else ClockFollower(name=f"{bus.robot} clock")
+    policy = follower if follower is not None else ClockFollower(
+        name=f"{bus.robot} clock", robot_sessions=robot_sessions)
 
     def on_sample(key: str, payload: bytes, received_ns: int) -> None:
         message = decode_or_count(payload, malformed, key, topic=CLOCK)
         if message is None:
             return
         verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.epoch,
-                               wall_ns=received_ns)
+                               wall_ns=received_ns, zid=message.data.zid)
         if verdict.action is ClockAction.ADVANCE and clock.started.is_set():
             clock.advance_to(message.stamp_ns)
         elif verdict.action is ClockAction.ADVANCE:

@@ -439,7 +439,7 @@ class RemoteBehaviors(Component):
         now_ns = self.bus.clock.now_ns()
         ahead_ns = vote.stamp_ns - now_ns
         self.clock_domain.check_on(self.bus, f"vote/{vote.composite}/{vote.behavior}",
-                                   vote.stamp_ns, now_ns)  # reported, then judged as below
+                                   vote.stamp_ns, now_ns, pub=vote.pub)  # reported, then judged
         if ahead_of_clock(vote.stamp_ns, now_ns, int(self.max_future_s * 1e9)):
             return self._reject(key, f"stamped {ahead_ns / 1e9:.3g} s ahead of the robot clock "
                                      f"(more than max_future_s {self.max_future_s:g})",

@@ -121,9 +121,6 @@ async def host_remote_behavior(
         if args.lockstep and args.clock == "wall":
             raise ConfigurationError("--lockstep takes part in a simulated run: not with "
                                      "--clock wall")
-        if args.clock == "sim":
-            print(f"waiting for the simulation time on {bus.keys.clock} ...", file=out)
-            out.flush()
         clock = await choose_clock(bus, args.clock, wait_s=args.clock_wait_s, say=say)
         host = RemoteBehaviorHost(
             bus=bus, behavior=behavior, composite=args.composite, rate_hz=args.rate_hz,

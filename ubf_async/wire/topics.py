@@ -275,13 +275,21 @@ class Heartbeat(Data, frozen=True, kw_only=True):
     running: Literal["yes", "no"] = "yes"
     publishes: Annotated[tuple[Published, ...], Meta(max_length=MAX_ANNOUNCED)] = ()
     """Optional: what the component publishes now (absent: it does not say)."""
+    pid: Annotated[int, Meta(ge=1, le=INT64_MAX)] | None = None
+    """Optional: the component's process id on its host (with ``host``: which process to look
+    at when the robot reports its samples)."""
+    host: Annotated[str, Meta(max_length=253)] | None = None
+    """Optional: the host the component runs on."""
 
 
 class Clock(Data, frozen=True, kw_only=True):
-    """The simulator's time is the envelope's ``stamp_ns``; ``epoch`` names the run."""
+    """The simulator's time is the envelope's ``stamp_ns``; ``epoch`` names the run, ``zid``
+    (optional) the zenoh session publishing it, so that a follower can tell the run of the
+    robot it connected to from others that reach it."""
 
     real_time_factor: Annotated[float, Meta(ge=0.0, le=1e6)] | None = None
     epoch: Annotated[str, Meta(max_length=64)] | None = None
+    zid: Annotated[str, Meta(max_length=64)] | None = None
 
 
 class LockstepAck(Data, frozen=True, kw_only=True):

@@ -102,8 +102,10 @@ def format_clock_domain(foreign: Any) -> list[str]:
         if isinstance(f, dict):
             offset = f.get("offset_s")
             off = f"{offset:+.3g} s" if isinstance(offset, int | float) else "?"
+            sender = f", from {f['sender']}" if f.get("sender") else ""
             lines.append(f"  {f.get('source', '?')}  {f.get('samples', '?')} samples, "
-                         f"like {clockdomain.the(str(f.get('clock', '?')))}, last {off} off")
+                         f"like {clockdomain.the(str(f.get('clock', '?')))}, last {off} off"
+                         f"{sender}")
     return lines
 
 
