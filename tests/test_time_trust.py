@@ -566,6 +566,36 @@ async def test_the_robots_time_is_followed_when_another_run_of_its_name_speaks_f
 
 
 @pytest.mark.asyncio
+async def test_a_router_at_the_endpoint_is_not_taken_for_the_robot(robot: str) -> None:
+    """Reached through a router (a fleet), the robot's session is behind the endpoint: the
+    follower knows no session of the robot and takes the run it hears — no 2 s wait, no
+    warning — while a peer connected straight to the robot knows it."""
+    from ubf_async.net.options import ConnectionOptions
+
+    router_endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = await Bus.open(ConnectionOptions(robot=robot, mode="router",
+                                              listen=[router_endpoint]))
+    client = None
+    try:
+        client = await Bus.open(ConnectionOptions(robot=robot, mode="client",
+                                                  connect=[router_endpoint]))
+        await eventually(lambda: bool(list(client.session.info.routers_zid())),
+                         what="the client to reach the router")
+        assert await client.connected_sessions() == frozenset()
+        peer = await Bus.open(ConnectionOptions(robot=robot, connect=[router_endpoint]))
+        try:
+            await eventually(lambda: bool(list(peer.session.info.routers_zid())),
+                             what="the peer to reach the router")
+            assert await peer.connected_sessions() == frozenset()
+        finally:
+            await peer.aclose()
+    finally:
+        if client is not None:
+            await client.aclose()
+        await router.aclose()
+
+
+@pytest.mark.asyncio
 async def test_the_simulator_names_its_session_in_its_clock(robot_bus: Bus,
                                                             peer_bus: Bus) -> None:
     zids: list[str | None] = []

@@ -151,7 +151,8 @@ class Connection(Protocol):
 
     def sessions_at(self, locators: Collection[str]) -> frozenset[str]:
         """The ids of the sessions this one has a link to whose destination is one of
-        ``locators`` (``tcp/127.0.0.1:7447``): those at the endpoints it connected to."""
+        ``locators`` (``tcp/127.0.0.1:7447``): those at the endpoints it connected to, routers
+        left out (the sessions behind a router are not at its endpoint)."""
 
     async def close(self) -> None:
         """Undeclare everything still declared and leave the network; idempotent."""
@@ -351,8 +352,10 @@ class ZenohConnection:
         return str(self.session.zid())
 
     def sessions_at(self, locators: Collection[str]) -> frozenset[str]:
+        # A router there only forwards: the robot's session is behind it, not at the endpoint.
+        routers = {str(zid) for zid in self.session.info.routers_zid()}
         return frozenset(str(link.zid) for link in self.session.info.links()
-                         if str(link.dst) in locators)
+                         if str(link.dst) in locators and str(link.zid) not in routers)
 
     def link_destinations(self) -> list[str]:
         """The remote locator of each link the session has now (``tcp/127.0.0.1:7447``): a

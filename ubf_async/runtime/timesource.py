@@ -18,7 +18,7 @@ The rules:
   locks first onto a run published by one of them (a simulator names its session in its
   samples, ``zid``). Another run heard first is refused (``not the robot's``) for
   ``prefer_s`` of wall time from its first sample; only if the robot's session has published
-  no time by then — the robot was reached through a router, or its simulator runs elsewhere —
+  no time by then — its simulator runs in another process than the one connected to —
   is the run heard first followed, with a warning.
 * Within the locked epoch time never runs backwards (an older time is refused) and never
   jumps forward more than plausible: at most ``max_speed`` × the wall time since the last
