@@ -43,6 +43,7 @@ from ubf_async.assembly import registry
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
+from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime import clockdomain, lockstep, refusals
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
 from ubf_async.runtime.clock import Clock
@@ -105,7 +106,8 @@ def run_device(
     """
     parser = argparse.ArgumentParser(prog=prog, description=description,
                                      formatter_class=HelpFormatter)
-    add_connection_arguments(parser)
+    # Like every tool that attaches: to the robot where launch listens, unless told otherwise.
+    add_connection_arguments(parser, default_connect=[DEFAULT_LISTEN])
     add_arguments(parser)
     run = parser.add_argument_group("run")
     run.add_argument("--duration", type=float, default=None, metavar="S",

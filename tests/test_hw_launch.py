@@ -272,6 +272,8 @@ def test_the_wiring_check_is_in_the_motor_drivers_help() -> None:
     assert result.returncode == 0, result.stderr
     assert "wiring check" in result.stdout
     assert "--check" in result.stdout.split("wiring check", 1)[1]
+    # A device attaches where launch listens unless told otherwise, as the tools do.
+    assert "default: tcp/127.0.0.1:7447, where launch listens" in " ".join(result.stdout.split())
 
 
 def test_an_inconsistent_motor_calibration_is_refused_naming_its_line(tmp_path: Path) -> None:
