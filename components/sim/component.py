@@ -24,6 +24,13 @@ acknowledged the instant (:mod:`ubf_async.runtime.lockstep`). Only then does tim
 gives the same result at any speed, on any machine, under any load; simulated time starts
 once the holds taken at the start are released (and, if asked, the participants joined).
 
+Flat out, the barrier of an instant at which nothing of this process is due — no sleeper of
+the clock wakes, no hold forbids the next step, no process elsewhere waits for the instant's
+clock sample (a lockstep participant, a follower) — would find the loop idle at once: the
+simulator steps on without the round of the event loop (:meth:`SimulatorComponent._step`
+says whether a step gave the loop work). The run is the same, only faster: about two steps in
+three of the Mini-WHEGS pass so.
+
 Pacing: ``speed`` K paces that lockstep to K× real time — each step is due at an absolute
 wall time (start + simulated time / K, time spent held not made up afterwards); ahead of
 schedule the simulator sleeps. ``speed`` ``math.inf`` runs it flat out. A machine that cannot
