@@ -28,8 +28,8 @@ Flat out, the barrier of an instant at which nothing of this process is due — 
 the clock wakes, no hold forbids the next step, no process elsewhere waits for the instant's
 clock sample (a lockstep participant, a follower) — would find the loop idle at once: the
 simulator steps on without the round of the event loop (:meth:`SimulatorComponent._step`
-says whether a step gave the loop work). The run is the same, only faster: about two steps in
-three of the Mini-WHEGS pass so.
+says whether a step gave the loop work). The run is the same, only faster: in the shipped
+robot's ball-in-sight run, 5 000 steps take 1 868 rounds of the loop.
 
 Pacing: ``speed`` K paces that lockstep to K× real time — each step is due at an absolute
 wall time (start + simulated time / K, time spent held not made up afterwards); ahead of
