@@ -10,9 +10,14 @@ import pytest
 
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.core.arbiters import UtilityFusion
-from ubf_async.errors import ConfigurationError, RobotFileError
+from ubf_async.errors import RobotFileError
 from ubf_async.runs import inprocess
-from ubf_async.runs.overrides import load_robot_text_with, load_robot_with, parse_path
+from ubf_async.runs.overrides import (
+    OverridePathError,
+    load_robot_text_with,
+    load_robot_with,
+    parse_path,
+)
 
 ROBOT = Path(__file__).resolve().parent.parent / "ubf_async" / "robots" / "mini-whegs.yaml"
 
@@ -85,14 +90,16 @@ def test_a_refusal_names_the_override_at_the_line_it_replaces(
         overrides: dict[str, object], line: str, message: str) -> None:
     with pytest.raises(RobotFileError) as refused:
         load_robot_with("mini-whegs", overrides)
+    # the path itself leads nowhere, whatever the value (a sweep tells it at the path's line)
+    assert isinstance(refused.value, OverridePathError) == message.startswith("override ")
     assert refused.value.path == "mini-whegs.yaml"
     assert refused.value.line == line_of(line), str(refused.value)
     assert refused.value.message.startswith(message), str(refused.value)
 
 
-def test_a_bad_path_is_a_configuration_error() -> None:
-    with pytest.raises(ConfigurationError, match=re.escape("override: not a path into a robot "
-                                                           "file: 'tree/arbiter'")):
+def test_a_bad_path_is_refused_as_a_path() -> None:
+    with pytest.raises(OverridePathError, match=re.escape("override: not a path into a robot "
+                                                          "file: 'tree/arbiter'")):
         load_robot_text_with(ROBOT.read_text(), {"tree/arbiter": "UtilityFusion"},
                              source="mini.yaml")
 

@@ -50,6 +50,11 @@ OPEN_MAPS = frozenset({"params", "backend_params"})
 """Maps whose keys a factory's signature checks: an override may add a key to them."""
 
 
+class OverridePathError(RobotFileError):
+    """An override's path that does not lead to a place of the robot file (whatever its
+    value)."""
+
+
 def parse_path(text: str) -> Path_:
     """``tree.children[1].params.period_s`` → ``("tree", "children", 1, "params",
     "period_s")``. Raises :class:`ValueError` for anything else (parse_error_path, which reads
@@ -91,11 +96,11 @@ def _missing(node: dict[str, Any], at: Path_, key: str) -> str:
 
 def apply_override(data: Any, text: str, value: Any, *, locator: Locator) -> None:
     """Replace the value at path ``text`` of ``data`` (a robot file's data) with ``value``,
-    in place. Raises :class:`RobotFileError` at the line of the deepest place found."""
+    in place. Raises :class:`OverridePathError` at the line of the deepest place found."""
     try:
         path = parse_path(text)
     except ValueError as exc:
-        raise RobotFileError(f"override: {exc}", path=locator.source) from None
+        raise OverridePathError(f"override: {exc}", path=locator.source) from None
     node = data
     for depth, part in enumerate(path):
         at, last = path[:depth], depth == len(path) - 1
@@ -110,7 +115,8 @@ def apply_override(data: Any, text: str, value: Any, *, locator: Locator) -> Non
         elif part not in node and not (last and _may_add(path)):
             problem = _missing(node, at, part)
         if problem is not None:
-            raise locator.error(f"override {text}: {problem}", at)
+            found = locator.error(f"override {text}: {problem}", at)
+            raise OverridePathError(found.message, path=found.path, line=found.line)
         if last:
             node[part] = copy.deepcopy(value)
         else:
@@ -121,7 +127,8 @@ def load_robot_text_with(text: str, overrides: Mapping[str, Any], *,
                          source: str = "<robot file>", seed: int | None = None) -> Robot:
     """A robot file's ``text`` with ``overrides`` (path → value, applied in order), decoded and
     resolved as :func:`~ubf_async.assembly.robotfile.load_robot_text` does. Raises
-    :class:`RobotFileError` (``SOURCE:LINE: …``)."""
+    :class:`RobotFileError` (``SOURCE:LINE: …``): :class:`OverridePathError` for a path that
+    leads nowhere in the file."""
     locator = Locator.parse(text, source=source)
     try:
         data = yaml.load(text, Loader=YAML_LOADER)
@@ -147,5 +154,5 @@ def load_robot_with(robot_file: str | Path, overrides: Mapping[str, Any], *,
     return load_robot_text_with(text, overrides, source=source, seed=seed)
 
 
-__all__ = ["apply_override", "describe", "load_robot_text_with", "load_robot_with",
-           "parse_path"]
+__all__ = ["OverridePathError", "apply_override", "describe", "load_robot_text_with",
+           "load_robot_with", "parse_path"]
