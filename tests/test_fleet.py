@@ -22,8 +22,8 @@ from components.sim.world_config import Arena, WorldConfig, WorldPose
 from tests.conftest import eventually, free_port, read_until, spawn, stop
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.runtime.bus import Bus
 from ubf_async.runs.fleet import load_fleet
+from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import DRIVE, MOTORS
 
