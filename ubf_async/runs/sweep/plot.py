@@ -2,8 +2,8 @@
 
 One panel per parameter the sweep varies (the robot file, each override with more than one
 value; the scenario when nothing else varies): its values along the x axis in the spec's order,
-every run as a dot (one colour per scenario), the mean over the dots at each value joined by a
-line. Drawn with matplotlib's Agg canvas on a figure of its own (no pyplot, no global state),
+every run as a dot (one colour per scenario), the mean over the dots at each value as a dash,
+the dashes joined by a line where the values are numbers. Drawn with matplotlib's Agg canvas on a figure of its own (no pyplot, no global state),
 once the runs are done.
 """
 
@@ -50,6 +50,7 @@ def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path) -> 
     for index, (column, values) in enumerate(panels):
         axes = figure.add_subplot(lines, columns, index + 1)
         spread = 0.5 / len(scenarios)
+        scale = all(number(value) is not None for value in values)
         for s, scenario in enumerate(scenarios):
             offset = (s - (len(scenarios) - 1) / 2) * spread
             means: list[tuple[float, float]] = []
@@ -62,9 +63,10 @@ def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path) -> 
                 axes.scatter([x + offset] * len(found), found, s=14, alpha=0.55,
                              color=colours[s], linewidths=0)
                 means.append((x + offset, sum(found) / len(found)))
-            if means:
+            if means:  # joined where the values lie on a scale (numbers), not for names
                 axes.plot([m[0] for m in means], [m[1] for m in means], marker="_",
-                          markersize=14, color=colours[s], label=scenario or None)
+                          markersize=16, color=colours[s], label=scenario or None,
+                          linestyle="-" if scale else "none")
         axes.set_xticks(range(len(values)), [_label(v) for v in values])
         axes.set_xlabel(column)
         axes.set_ylabel(name)
