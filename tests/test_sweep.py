@@ -19,6 +19,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import pytest
@@ -26,7 +27,7 @@ import pytest
 from tests.conftest import REPOSITORY, repository_env
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import sweep
-from ubf_async.runs.sweep import execution
+from ubf_async.runs.sweep import RunRecord, RunTask, execution
 from ubf_async.runs.sweep.journal import HEADER, JOURNAL, Journal, read_journal
 from ubf_async.tools.sweep import main
 
@@ -64,11 +65,22 @@ def spec(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+class InThisProcess:
+    """A pool of no process: each run in this process, one after another (``map``)."""
+
+    def imap_unordered(self, func: Callable[[RunTask], RunRecord], iterable: Iterable[RunTask],
+                       chunksize: int = 1) -> Iterator[RunRecord]:
+        return map(func, iterable)
+
+
 @pytest.fixture(scope="module")
-def one_worker(spec: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The sweep on one worker process, uninterrupted: its folder."""
-    out = tmp_path_factory.mktemp("one-worker")
-    outputs = sweep.run_sweep(spec, out, workers=1)
+def reference(spec: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sweep uninterrupted, each run in this process (no pool to start): its folder, the
+    tables every other way of running it must give byte for byte."""
+    out = tmp_path_factory.mktemp("reference")
+    state = sweep.open_sweep(sweep.load_sweep(spec), out)
+    sweep.execute(state, InThisProcess())  # execute uses only imap_unordered
+    outputs = sweep.finish(state)
     assert (outputs.runs, outputs.failed) == (RUNS, 4)
     return out
 
@@ -79,8 +91,8 @@ def rows(folder: Path, name: str = "runs.csv") -> list[dict[str, str]]:
 
 @pytest.mark.slow
 def test_a_failing_run_is_recorded_with_its_error_and_the_others_complete(
-        one_worker: Path) -> None:
-    table = rows(one_worker)
+        reference: Path) -> None:
+    table = rows(reference)
     assert [(r["robot"], r["tree.arbiter"], r["seed"]) for r in table] == [
         (robot, arbiter, seed) for robot in ("mini-whegs", "video-camera.yaml")
         for arbiter in ("PriorityMerge", "UtilityFusion") for seed in ("1", "2")]
@@ -91,7 +103,7 @@ def test_a_failing_run_is_recorded_with_its_error_and_the_others_complete(
     for row in table[4:]:
         assert row["status"] == "failed" and row["error"] == MISSING_VIDEO
         assert row["ball_distance_m"] == row["pass"] == ""
-    cells = rows(one_worker, "cells.csv")
+    cells = rows(reference, "cells.csv")
     assert [(c["robot"], c["tree.arbiter"], c["runs"], c["failed"], c["pass_rate"],
              c["worst_seed"]) for c in cells[2:]] == [
         ("video-camera.yaml", "PriorityMerge", "2", "2", "0.0", "1"),
@@ -99,17 +111,19 @@ def test_a_failing_run_is_recorded_with_its_error_and_the_others_complete(
     mean = float(cells[0]["ball_distance_m.mean"])
     assert float(cells[0]["ball_distance_m.min"]) <= mean <= float(
         cells[0]["ball_distance_m.max"])
-    log = (one_worker / "runs.log").read_text()
+    log = (reference / "runs.log").read_text()
     assert "robot=video-camera.yaml tree.arbiter=PriorityMerge scenario=ball-in-sight seed=1: " \
            "failed\n  Traceback" in log
-    assert (one_worker / "ball_distance_m.png").read_bytes().startswith(b"\x89PNG")
+    assert (reference / "ball_distance_m.png").read_bytes().startswith(b"\x89PNG")
 
 
 @pytest.mark.slow
 def test_the_table_is_the_same_bytes_for_one_worker_two_workers_and_ray(
-        spec: Path, one_worker: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        spec: Path, reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import ray
 
+    # One worker, through the library.
+    assert sweep.run_sweep(spec, tmp_path / "one", workers=1).runs == RUNS
     # Two workers, through the command line (not a terminal: plain progress lines).
     assert main([str(spec), "--out", str(tmp_path / "two"), "--workers", "2"]) == 1
     out = capsys.readouterr().out
@@ -126,13 +140,13 @@ def test_the_table_is_the_same_bytes_for_one_worker_two_workers_and_ray(
         ray.shutdown()
     assert outputs.runs == RUNS
     for name in ("runs.csv", "cells.csv"):
-        expected = (one_worker / name).read_bytes()
-        assert (tmp_path / "two" / name).read_bytes() == expected, name
-        assert (tmp_path / "ray" / name).read_bytes() == expected, name
+        expected = (reference / name).read_bytes()
+        for way in ("one", "two", "ray"):
+            assert (tmp_path / way / name).read_bytes() == expected, (way, name)
     import pyarrow.parquet as pq
 
     table = pq.read_table(tmp_path / "ray" / "runs.parquet")
-    assert table.column_names == next(csv.reader(io.StringIO((one_worker / "runs.csv")
+    assert table.column_names == next(csv.reader(io.StringIO((reference / "runs.csv")
                                                             .read_text())))
     assert table.column("seed").to_pylist() == [1, 2] * 4
 
@@ -163,7 +177,7 @@ def first_line(proc: subprocess.Popen[bytes], pattern: bytes, deadline: float) -
 
 @pytest.mark.slow
 def test_a_killed_sweep_resumes_to_the_table_of_an_uninterrupted_one(
-        spec: Path, one_worker: Path, tmp_path: Path,
+        spec: Path, reference: Path, tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "out"
     proc = subprocess.Popen(
@@ -191,8 +205,8 @@ def test_a_killed_sweep_resumes_to_the_table_of_an_uninterrupted_one(
     kept = sum(1 for record in done.values() if record.status == "ok")
     assert f"resuming {out}: {kept} runs done already" in said, said
     assert f"running {RUNS - kept} runs" in said
-    assert (out / "runs.csv").read_bytes() == (one_worker / "runs.csv").read_bytes()
-    assert (out / "cells.csv").read_bytes() == (one_worker / "cells.csv").read_bytes()
+    assert (out / "runs.csv").read_bytes() == (reference / "runs.csv").read_bytes()
+    assert (out / "cells.csv").read_bytes() == (reference / "cells.csv").read_bytes()
     assert len(read_journal(out / JOURNAL)) == RUNS
 
 

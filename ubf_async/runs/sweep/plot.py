@@ -3,8 +3,8 @@
 One panel per parameter the sweep varies (the robot file, each override with more than one
 value; the scenario when nothing else varies): its values along the x axis in the spec's order,
 every run as a dot (one colour per scenario), the mean over the dots at each value as a dash,
-the dashes joined by a line where the values are numbers. Drawn with matplotlib's Agg canvas on a figure of its own (no pyplot, no global state),
-once the runs are done.
+the dashes joined by a line where the values are numbers. Drawn with matplotlib's Agg canvas
+on a figure of its own (no pyplot, no global state), once the runs are done.
 """
 
 from __future__ import annotations
