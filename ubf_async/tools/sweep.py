@@ -205,6 +205,8 @@ def resume_command(args: argparse.Namespace) -> str:
         words += ["--executor", args.executor]
     if args.address is not None:
         words += ["--address", args.address]
+    if args.runtime_env is not None:
+        words += ["--runtime-env", json.dumps(args.runtime_env)]
     return shlex.join(words)
 
 
@@ -225,8 +227,8 @@ def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | 
         workers = min(workers or sweep.default_workers(), total)
     where = (f"{workers} local worker process{'es' if workers != 1 else ''}"
              if args.executor == "local" else
-             f"Ray ({args.address or 'a local cluster'}, "
-             f"{workers or 'every CPU of the cluster as'} worker processes)")
+             f"Ray ({args.address or 'a new cluster of this machine'}): "
+             + (f"{workers} worker processes" if workers else "a worker per CPU"))
     print(f"running {total} runs on {where}", file=out, flush=True)
     progress = (BarProgress if out.isatty() else PlainProgress)(total, out)
     guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"

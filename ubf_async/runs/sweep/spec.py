@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
@@ -205,8 +206,8 @@ def load_sweep(path: str | Path) -> SweepPlan:
     except RobotFileError as exc:
         raise SweepSpecError(exc.message, path=exc.path, line=exc.line) from None
     check = _Checker(locator)
-    seeds = (list(range(spec.seeds.first, spec.seeds.last + 1))
-             if isinstance(spec.seeds, SeedRange) else spec.seeds)
+    seeds: Sequence[int] = (range(spec.seeds.first, spec.seeds.last + 1)  # counted, not made
+                            if isinstance(spec.seeds, SeedRange) else spec.seeds)
     if isinstance(spec.seeds, SeedRange) and not seeds:
         raise check.error(f"seeds: first ({spec.seeds.first}) is past last "
                           f"({spec.seeds.last})", ("seeds",))
