@@ -197,6 +197,14 @@ NOT_RUN = {
     "python -m bench.ros2": "the bridge's latency, 300 samples each way: past the time budget",
     "python -m ubf_async.fleet fleet.yaml --world-only":
         "what the fleet launcher starts as its own process: every fleet run here runs it",
+    "pip install -e .[cluster]": "an installation (Ray): the test extra installs it",
+    "ray start --head": "a Ray cluster of several machines: tests/test_sweep.py runs the "
+                        "sweep on a Ray of this machine",
+    "ray start --address=HEAD_IP:6379": "a Ray cluster of several machines (see ray start)",
+    "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters --executor ray "
+    "--address auto": "a Ray cluster of several machines (see ray start)",
+    "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters --executor ray "
+    "--address ray://HEAD_IP:10001": "a Ray cluster of several machines (see ray start)",
 }
 
 
@@ -763,6 +771,41 @@ def test_fleets_run_in_one_world_and_write_their_summary_when_stopped(tmp_path: 
             assert sorted(written["robots"]) == names
             assert all(r["ticks"] > 0 for r in written["robots"].values()), written
             assert written["sim_time_s"] > 0
+
+
+# -- sweeps (README.md, experiments.md) -----------------------------------------------------
+
+SWEEP = "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters"
+SWEEP_CHECK = "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --check"
+SWEEP_RESUME = "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters --resume"
+ARBITERS = ROOT / "examples" / "sweeps" / "arbiters.yaml"
+
+
+@pytest.mark.slow
+@runs(SWEEP_CHECK, SWEEP, SWEEP_RESUME)
+def test_the_arbiters_sweep_checks_runs_shortened_and_resumes(tmp_path: Path) -> None:
+    # The sweep shown runs 40 runs, a minute on 2 cores: here one seed of 2 simulated s.
+    with page(tmp_path) as here:
+        checked = here.run(SWEEP_CHECK)
+        assert checked.splitlines()[0] == (
+            "examples/sweeps/arbiters.yaml: 40 runs: 2 values of tree.arbiter × 2 scenarios × "
+            "10 seeds — OK"), checked
+        spec = ARBITERS.read_text("utf-8")
+        assert "seeds: {first: 1, last: 10}\n" in spec
+        (here.cwd / "short.yaml").write_text(
+            spec.replace("seeds: {first: 1, last: 10}\n", "seeds: [1]\nduration_s: 2\n"))
+        short = {"examples/sweeps/arbiters.yaml": ["short.yaml"]}
+        ran = here.run(SWEEP, replace=short)
+        assert re.search(r"^running 4 runs on \d+ local worker process", ran, re.M), ran
+        assert "4 runs: 4 ok, 0 failed;" in ran, ran
+        out = here.cwd / "out" / "arbiters"
+        for name in ("runs.csv", "cells.csv", "ball_distance_m.png", "journal.jsonl"):
+            assert (out / name).is_file(), name
+        table = (out / "runs.csv").read_bytes()
+        resumed = here.run(SWEEP_RESUME, replace=short)
+        assert "resuming out/arbiters: 4 runs done already" in resumed, resumed
+        assert "running" not in resumed
+        assert (out / "runs.csv").read_bytes() == table
 
 
 # -- secure mode (security.md) --------------------------------------------------------------

@@ -16,7 +16,8 @@ import ubf_async
 ROOT = Path(__file__).resolve().parent.parent
 
 ENTRY_POINTS = [
-    "ubf_async.launch", "ubf_async.inspector", "ubf_async.robotfile", "components.camera",
+    "ubf_async.launch", "ubf_async.inspector", "ubf_async.robotfile", "ubf_async.sweep",
+    "components.camera",
     "components.motors", "components.encoders", "components.range", "components.radio",
 ]
 

@@ -468,6 +468,20 @@ def decode_robot_file(text: str, *, source: str = "<robot file>") -> tuple[Robot
     return spec, locator
 
 
+def decode_robot_data(data: Any, locator: Locator) -> RobotFile:
+    """Step 1 on a robot file's data already read and changed (values replaced at paths:
+    :mod:`ubf_async.runs.overrides`): typed and checked as :func:`decode_robot_file` does, a
+    mistake reported at the line of ``locator``'s text it came from. Raises
+    :class:`RobotFileError`."""
+    try:
+        # As msgspec.yaml.decode converts what it read: the same checks, the same messages.
+        spec = msgspec.convert(data, RobotFile, str_keys=True)
+    except msgspec.ValidationError as exc:
+        raise locator.from_validation(exc) from None
+    _check_depth(spec.tree, locator, ("tree",), 1)
+    return spec
+
+
 def _decode_error(exc: msgspec.DecodeError, text: str, source: str) -> RobotFileError:
     cause = exc.__cause__ or exc.__context__
     if isinstance(cause, yaml.MarkedYAMLError):
@@ -816,7 +830,7 @@ def shipped_schema_text() -> str:
 __all__ = [
     "ArbiterSpec", "ControllerSpec", "DeviceSpec", "Locator", "NodeSpec", "RemoteSlot",
     "RemotesSpec", "ResolvedDevice", "Robot", "RobotFile", "RobotFileError",
-    "build_arbiter", "decode_robot_file", "load_robot", "load_robot_text", "load_tree_fragment",
-    "resolve", "robot_file_schema",
+    "build_arbiter", "decode_robot_data", "decode_robot_file", "load_robot", "load_robot_text",
+    "load_tree_fragment", "resolve", "robot_file_schema",
 ]
 

@@ -1,0 +1,323 @@
+"""Sweeps (ubf_async.runs.sweep, python -m ubf_async.sweep): the table is the same bytes for one
+worker, two workers and Ray; a killed sweep resumes to the table of an uninterrupted one; a run
+that fails is recorded and the others complete; a bad spec is refused at its line before
+anything runs.
+
+The sweep here is small: the shipped robot and a variant whose camera reads a video file that
+is not there (a real failure: the device cannot be built, so the run raises), two arbiters,
+two seeds, 2 simulated seconds of ball-in-sight — 8 runs, 4 of them failing at once.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import REPOSITORY, repository_env
+from ubf_async.errors import ConfigurationError
+from ubf_async.runs import sweep
+from ubf_async.runs.sweep import RunRecord, RunTask, execution
+from ubf_async.runs.sweep.journal import HEADER, JOURNAL, Journal, read_journal
+from ubf_async.tools.sweep import main
+
+ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"
+SPEC = """\
+robots: [mini-whegs, video-camera.yaml]
+overrides:
+  tree.arbiter: [PriorityMerge, UtilityFusion]
+scenarios: [ball-in-sight]
+seeds: [1, 2]
+duration_s: 2
+figures: [ball_distance_m, contacts.time_s]
+"""
+RUNS = 8
+MISSING_VIDEO = "ConfigurationError: camera.video: cannot open video file 'no-such-video.mp4'"
+WAIT_S = 120.0  # for a sweep's first run, on a loaded machine
+
+
+def video_camera_robot() -> str:
+    """The shipped robot with its camera reading a video file that is not there."""
+    text = ROBOT.read_text()
+    camera = "    name: front\n    backend: sim\n    params: {latency_s: 0.11}"
+    assert camera in text
+    return text.replace(camera, "    name: front\n    backend: video\n"
+                                 "    backend_params: {source: no-such-video.mp4}\n"
+                                 "    params: {latency_s: 0.11}")
+
+
+@pytest.fixture(scope="module")
+def spec(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("spec")
+    (folder / "video-camera.yaml").write_text(video_camera_robot())
+    path = folder / "sweep.yaml"
+    path.write_text(SPEC)
+    return path
+
+
+class InThisProcess:
+    """A pool of no process: each run in this process, one after another (``map``)."""
+
+    def imap_unordered(self, func: Callable[[RunTask], RunRecord], iterable: Iterable[RunTask],
+                       chunksize: int = 1) -> Iterator[RunRecord]:
+        return map(func, iterable)
+
+
+@pytest.fixture(scope="module")
+def reference(spec: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sweep uninterrupted, each run in this process (no pool to start): its folder, the
+    tables every other way of running it must give byte for byte."""
+    out = tmp_path_factory.mktemp("reference")
+    state = sweep.open_sweep(sweep.load_sweep(spec), out)
+    sweep.execute(state, InThisProcess())  # execute uses only imap_unordered
+    outputs = sweep.finish(state)
+    assert (outputs.runs, outputs.failed) == (RUNS, 4)
+    return out
+
+
+def rows(folder: Path, name: str = "runs.csv") -> list[dict[str, str]]:
+    return list(csv.DictReader(io.StringIO((folder / name).read_text())))
+
+
+@pytest.mark.slow
+def test_a_failing_run_is_recorded_with_its_error_and_the_others_complete(
+        reference: Path) -> None:
+    table = rows(reference)
+    assert [(r["robot"], r["tree.arbiter"], r["seed"]) for r in table] == [
+        (robot, arbiter, seed) for robot in ("mini-whegs", "video-camera.yaml")
+        for arbiter in ("PriorityMerge", "UtilityFusion") for seed in ("1", "2")]
+    for row in table[:4]:
+        assert row["status"] == "ok" and row["error"] == ""
+        assert 0.2 < float(row["ball_distance_m"]) < 0.7
+        assert row["pass"] in ("true", "false") and row["pass:ball_distance_m"] == "true"
+    for row in table[4:]:
+        assert row["status"] == "failed" and row["error"] == MISSING_VIDEO
+        assert row["ball_distance_m"] == row["pass"] == ""
+    cells = rows(reference, "cells.csv")
+    assert [(c["robot"], c["tree.arbiter"], c["runs"], c["failed"], c["pass_rate"],
+             c["worst_seed"]) for c in cells[2:]] == [
+        ("video-camera.yaml", "PriorityMerge", "2", "2", "0.0", "1"),
+        ("video-camera.yaml", "UtilityFusion", "2", "2", "0.0", "1")]
+    mean = float(cells[0]["ball_distance_m.mean"])
+    assert float(cells[0]["ball_distance_m.min"]) <= mean <= float(
+        cells[0]["ball_distance_m.max"])
+    log = (reference / "runs.log").read_text()
+    assert "robot=video-camera.yaml tree.arbiter=PriorityMerge scenario=ball-in-sight seed=1: " \
+           "failed\n  Traceback" in log
+    assert (reference / "ball_distance_m.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.mark.slow
+def test_the_table_is_the_same_bytes_for_one_worker_two_workers_and_ray(
+        spec: Path, reference: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import ray
+
+    # One worker, through the library.
+    assert sweep.run_sweep(spec, tmp_path / "one", workers=1).runs == RUNS
+    # Two workers, through the command line (not a terminal: plain progress lines).
+    assert main([str(spec), "--out", str(tmp_path / "two"), "--workers", "2"]) == 1
+    out = capsys.readouterr().out
+    assert f"running {RUNS} runs on 2 local worker processes" in out
+    assert f"  {RUNS}/{RUNS} runs (100 %), 4 failed, " in out
+    assert "8 runs: 4 ok, 4 failed;" in out
+    # Ray on this machine, two CPUs. Its workers start in this process's folder, where this
+    # checkout's code is: shipping it (the command line's default, code_runtime_env) is for
+    # other machines, and would cost the workers Ray starts in advance (below).
+    ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.WARNING)
+    try:
+        outputs = sweep.run_sweep(spec, tmp_path / "ray", executor="ray", workers=2)
+    finally:
+        ray.shutdown()
+    assert outputs.runs == RUNS
+    for name in ("runs.csv", "cells.csv"):
+        expected = (reference / name).read_bytes()
+        for way in ("one", "two", "ray"):
+            assert (tmp_path / way / name).read_bytes() == expected, (way, name)
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(tmp_path / "ray" / "runs.parquet")
+    assert table.column_names == next(csv.reader(io.StringIO((reference / "runs.csv")
+                                                            .read_text())))
+    assert table.column("seed").to_pylist() == [1, 2] * 4
+
+
+def test_rays_workers_get_this_checkouts_packages() -> None:
+    env = execution.code_runtime_env()
+    assert env["py_modules"] == [str(REPOSITORY / "ubf_async"), str(REPOSITORY / "components")]
+
+
+def first_line(proc: subprocess.Popen[bytes], pattern: bytes, deadline: float) -> bytes:
+    """The first line of ``proc``'s output containing ``pattern``, waiting for it until
+    ``deadline`` (a monotonic time)."""
+    assert proc.stdout is not None
+    seen = b""
+    with selectors.DefaultSelector() as selector:
+        selector.register(proc.stdout, selectors.EVENT_READ)
+        while time.monotonic() < deadline:
+            if not selector.select(deadline - time.monotonic()):
+                continue
+            line = proc.stdout.readline()
+            seen += line
+            if pattern in line:
+                return line
+            if not line:
+                break
+    raise AssertionError(f"no line with {pattern!r} in time; output so far:\n{seen.decode()}")
+
+
+@pytest.mark.slow
+def test_a_killed_sweep_resumes_to_the_table_of_an_uninterrupted_one(
+        spec: Path, reference: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ubf_async.sweep", str(spec), "--out", str(out), "--workers",
+         "1"], cwd=REPOSITORY, env=repository_env(), stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        # The progress line of the first run comes once the run is journaled.
+        first_line(proc, f" 1/{RUNS} runs ".encode(), time.monotonic() + WAIT_S)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the sweep and its worker, outright
+        proc.wait()
+        assert proc.stdout is not None
+        proc.stdout.close()
+    done = read_journal(out / JOURNAL)
+    assert 1 <= len(done) < RUNS
+    assert not (out / "runs.csv").exists()
+    # A kill in the middle of a line leaves it without its newline: it is not a run.
+    with (out / JOURNAL).open("ab") as journal:
+        journal.write(b'{"id":"0123456789abcdef","status":"ok","key":{"ro')
+    assert main([str(spec), "--out", str(out)]) == 2  # a folder holding a sweep
+    assert "holds a sweep already" in capsys.readouterr().err
+    assert main([str(spec), "--out", str(out), "--resume", "--workers", "2"]) == 1
+    said = capsys.readouterr().out
+    kept = sum(1 for record in done.values() if record.status == "ok")
+    assert f"resuming {out}: {kept} runs done already" in said, said
+    assert f"running {RUNS - kept} runs" in said
+    assert (out / "runs.csv").read_bytes() == (reference / "runs.csv").read_bytes()
+    assert (out / "cells.csv").read_bytes() == (reference / "cells.csv").read_bytes()
+    assert len(read_journal(out / JOURNAL)) == RUNS
+
+
+def test_a_journal_is_read_up_to_its_last_complete_line(tmp_path: Path) -> None:
+    path = tmp_path / JOURNAL
+    with Journal(path) as journal:
+        journal.append(execution.RunRecord(id="a", status="failed", key={"seed": 1},
+                                           error="RuntimeError: x"))
+    path.write_bytes(path.read_bytes() + b'{"id":"b","sta')
+    assert list(read_journal(path)) == ["a"]
+    with Journal(path) as journal:  # appending cuts the broken line off first
+        journal.append(execution.RunRecord(id="a", status="ok", key={"seed": 1}, summary={}))
+    assert read_journal(path)["a"].status == "ok"  # a run's last line counts
+    assert path.read_text().splitlines()[0] == '{"journal": "ubf_async.sweep", "format": 1}'
+    assert HEADER == {"journal": "ubf_async.sweep", "format": 1}
+    path.write_text('{"journal": "ubf_async.sweep", "format": 1}\nnot json\n')
+    with pytest.raises(ConfigurationError, match=r"journal.jsonl:2: not a run's record"):
+        read_journal(path)
+
+
+def test_a_folder_of_another_specs_sweep_is_refused_even_to_resume(spec: Path,
+                                                                   tmp_path: Path) -> None:
+    plan = sweep.load_sweep(spec)
+    with Journal(tmp_path / JOURNAL) as journal:
+        journal.append(execution.RunRecord(id="0123456789abcdef", status="ok", key={}))
+    with pytest.raises(ConfigurationError, match="holds a sweep already"):
+        sweep.open_sweep(plan, tmp_path)
+    with pytest.raises(ConfigurationError, match=r"none of the 1 runs in .* is a run of"):
+        sweep.open_sweep(plan, tmp_path, resume=True)
+
+
+BAD_SPECS = {
+    "a typo'd key": (
+        "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseedz: [1, 2]\n", 3,
+        "Object contains unknown field `seedz`; a sweep spec takes: robots, scenarios, seeds, "),
+    "an unknown scenario": (
+        "robots: [mini-whegs]\nscenarios:\n  - ball-in-sight\n  - no-such-scenario\n"
+        "seeds: [1]\n", 4, "scenario 'no-such-scenario': unknown scenario 'no-such-scenario'"),
+    "a path that does not exist": (
+        "robots: [mini-whegs]\noverrides:\n  tree.arbiter: [PriorityMerge]\n"
+        "  tree.children[9].params.period_s:\n    - 2\n    - 4\n"
+        "scenarios: [ball-in-sight]\nseeds: [1]\n", 4,
+        "robot 'mini-whegs': mini-whegs.yaml:48: override tree.children[9].params.period_s: "
+        "tree.children has 5 item(s)"),
+    "a value outside the parameter's schema": (
+        "robots: [mini-whegs]\noverrides:\n  tree.children[0].params.period_s:\n    - 2\n"
+        "    - -1\nscenarios: [ball-in-sight]\nseeds: [1]\n", 5,
+        "robot 'mini-whegs': mini-whegs.yaml:50: with tree.children[0].params.period_s = -1: "
+        "behaviour 'search': Expected `float` > 0.0"),
+    "an unknown arbiter": (
+        "robots: [mini-whegs]\noverrides:\n  tree.arbiter: [PriorityMerge, Priority]\n"
+        "scenarios: [ball-in-sight]\nseeds: [1]\n", 3, "unknown arbiter 'Priority'"),
+    "a robot file that does not load": (
+        "robots:\n  - mini-whegs\n  - broken.yaml\nscenarios: [ball-in-sight]\nseeds: [1]\n", 3,
+        "robot 'broken.yaml': "),
+    "a robot file that is not there": (
+        "robots: [nowhere.yaml]\nscenarios: [ball-in-sight]\nseeds: [1]\n", 1,
+        "robot 'nowhere.yaml': nowhere.yaml: no such file"),
+    "a seed twice": (
+        "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseeds: [1, 2, 1]\n", 3,
+        "seed 1 twice (also seeds[0])"),
+    "an empty seed range": (
+        "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseeds: {first: 5, last: 2}\n", 3,
+        "seeds: first (5) is past last (2)"),
+    "a negative seed": (
+        "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseeds: [-1]\n", 3,
+        "Expected `int` >= 0"),
+    "a plot of no figure": (
+        "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseeds: [1]\n"
+        "figures: [ball_distance_m]\nplot: contacts.time_s\n", 5,
+        "plot: 'contacts.time_s' is not one of the figures (ball_distance_m)"),
+    "an override of the seed": (
+        "robots: [mini-whegs]\noverrides: {seed: [1, 2]}\nscenarios: [ball-in-sight]\n"
+        "seeds: [1]\n", 2, "overrides: the robot file's `seed` is replaced by each run's seed"),
+    "not YAML": (
+        "robots: [mini-whegs\nscenarios: [ball-in-sight]\nseeds: [1]\n", 1, "not valid YAML"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_SPECS))
+def test_a_bad_spec_is_refused_at_its_line_before_anything_runs(case: str,
+                                                                tmp_path: Path) -> None:
+    text, line, message = BAD_SPECS[case]
+    (tmp_path / "broken.yaml").write_text("format: 1\nname: x\ntre: {}\n")
+    path = tmp_path / "sweep.yaml"
+    path.write_text(text)
+    with pytest.raises(sweep.SweepSpecError) as refused:
+        sweep.load_sweep(path)
+    assert (refused.value.path, refused.value.line) == (str(path), line), str(refused.value)
+    assert message in refused.value.message, str(refused.value)
+
+
+def test_the_command_line_says_a_bad_spec_in_one_line_and_runs_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "sweep.yaml"
+    path.write_text("robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseedz: [1]\n")
+    assert main([str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"python -m ubf_async.sweep: error: {path}:3: Object contains "
+                          f"unknown field `seedz`"), err
+    assert err.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+    assert main([str(path)]) == 2
+    assert "--out DIR is required" in capsys.readouterr().err
+    assert main([str(tmp_path / "nowhere.yaml"), "--check"]) == 2
+    assert "nowhere.yaml: no such sweep spec" in capsys.readouterr().err
+
+
+def test_check_says_what_would_run(spec: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([str(spec), "--check"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == (f"{spec}: {RUNS} runs: 2 robot files × 2 values of tree.arbiter × "
+                      f"1 scenario × 2 seeds — OK")
+    assert "  tree.arbiter: PriorityMerge, UtilityFusion" in out

@@ -1,0 +1,342 @@
+"""A sweep's SPEC file, and the runs it asks for.
+
+A SPEC (YAML, ``docs/experiments.md``) names robot files, overrides of their values (each a
+list of values to try), scenarios and seeds; the runs are their product. :func:`load_sweep`
+checks the whole of it before anything runs — every robot variant is loaded, every scenario
+planned — and refuses a mistake as ``SPEC:LINE: message``.
+
+Each run is a :class:`RunTask` that carries what its worker needs: the robot file's text and the
+scenario file's (a worker on another machine needs neither file), the overrides, the seed. Its
+``run_id`` is a digest of all of it, so a journal's record (:mod:`.journal`) stands for the same
+run only while the robot file, the scenario file and the values are the same.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, ClassVar
+
+import msgspec
+from msgspec import Meta
+
+from ubf_async.assembly.robotfile import Locator, Path_, Robot, Spec, read_robot_file
+from ubf_async.errors import ConfigurationError, RobotFileError, ScenarioError, UbfError
+from ubf_async.runs import inprocess, overrides
+
+MAX_RUNS = 1_000_000
+DEFAULT_FIGURES = ("ball_distance_m", "ball_bearing_deg")
+FIGURE = r"^[A-Za-z0-9_-]+(\.[A-Za-z0-9_-]+)*$"
+"""A summary field, dotted: ``motion_last_2s.max_offset_m``, ``ticks.winner_share.chase``."""
+RESULT_COLUMNS = ("robot", "scenario", "seed", "status", "pass", "error")
+"""Columns of the table a figure or an override may not be named as."""
+
+Figure = Annotated[str, Meta(pattern=FIGURE, max_length=200)]
+Seed = Annotated[int, Meta(ge=0, le=2**63 - 1)]  # numpy's generators refuse negative seeds
+Name = Annotated[str, Meta(min_length=1, max_length=500)]
+
+
+class SweepSpecError(RobotFileError):
+    """A sweep spec that does not hold together; reads ``SPEC:LINE: message`` as a robot file's
+    errors do."""
+
+
+class SeedRange(Spec):
+    """``seeds: {first: 1, last: 10}``: every seed from ``first`` to ``last``, both included."""
+
+    what: ClassVar[str] = "`seeds` (a range)"
+
+    first: Seed
+    last: Seed
+
+
+class SweepFile(Spec):
+    """A sweep spec as written."""
+
+    what: ClassVar[str] = "a sweep spec"
+
+    robots: Annotated[list[Name], Meta(min_length=1)]
+    """Robot files (relative to the spec) or shipped robots' names."""
+    scenarios: Annotated[list[Name], Meta(min_length=1)]
+    """Built-in scenarios' names or scenario files (relative to the spec)."""
+    seeds: Annotated[list[Seed], Meta(min_length=1)] | SeedRange
+    overrides: dict[str, Annotated[list[Any], Meta(min_length=1)]] = msgspec.field(
+        default_factory=dict)
+    """Path into each robot file → the values to try (:mod:`ubf_async.runs.overrides`)."""
+    duration_s: Annotated[float, Meta(gt=0.0, le=1e6)] | None = None
+    """Simulated seconds of each run (default: each scenario's)."""
+    figures: Annotated[list[Figure], Meta(min_length=1)] = msgspec.field(
+        default_factory=lambda: list(DEFAULT_FIGURES))
+    """Summary fields to tabulate (dotted paths into the run's summary)."""
+    plot: Figure | None = None
+    """The figure plotted against each swept parameter (default: the first figure)."""
+
+
+def digest(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True, slots=True)
+class RunTask:
+    """One run of a sweep: everything its worker needs, in a picklable value."""
+
+    run_id: str
+    order: tuple[int, ...]
+    """Its place in the table: robot, each override's value, scenario and seed by their place
+    in the spec."""
+    robot: str
+    """The robot file as the spec names it."""
+    robot_source: str
+    robot_text: str
+    overrides: tuple[tuple[str, Any], ...]
+    scenario: str
+    """The scenario as the spec names it."""
+    scenario_text: str | None
+    """A scenario file's text (``None``: a built-in scenario)."""
+    seed: int
+    duration_s: float | None
+
+    @property
+    def key(self) -> dict[str, Any]:
+        """The run's key columns: robot, each override, scenario, seed."""
+        return {"robot": self.robot, **dict(self.overrides), "scenario": self.scenario,
+                "seed": self.seed}
+
+    @property
+    def scenario_file(self) -> str:
+        """The scenario file's name (its text is :attr:`scenario_text`)."""
+        return Path(self.scenario).name
+
+
+@dataclass(frozen=True, slots=True)
+class SweepPlan:
+    """A checked sweep spec and its runs in table order."""
+
+    source: Path
+    spec: SweepFile
+    robots: tuple[str, ...]
+    paths: tuple[str, ...]
+    """The override paths, in the spec's order."""
+    values: tuple[tuple[Any, ...], ...]
+    """Each override's values, in the spec's order."""
+    scenarios: tuple[str, ...]
+    seeds: tuple[int, ...]
+    tasks: tuple[RunTask, ...]
+
+    @property
+    def figures(self) -> tuple[str, ...]:
+        return tuple(self.spec.figures)
+
+    @property
+    def plot(self) -> str:
+        return self.spec.plot or self.spec.figures[0]
+
+    @property
+    def key_columns(self) -> tuple[str, ...]:
+        return ("robot", *self.paths, "scenario", "seed")
+
+    def dimensions(self) -> list[tuple[str, tuple[Any, ...]]]:
+        """Key columns with their values in the spec's order (the seed's last)."""
+        return [("robot", self.robots), *zip(self.paths, self.values, strict=True),
+                ("scenario", self.scenarios), ("seed", self.seeds)]
+
+    def describe(self) -> str:
+        """``40 runs: 2 values of tree.arbiter × 2 scenarios × 10 seeds``."""
+        parts = [f"{len(self.robots)} robot files"] if len(self.robots) > 1 else []
+        parts += [f"{len(v)} values of {p}" for p, v in zip(self.paths, self.values, strict=True)
+                  if len(v) > 1]
+        parts += [f"{len(self.scenarios)} scenario" + ("s" if len(self.scenarios) > 1 else ""),
+                  f"{len(self.seeds)} seed" + ("s" if len(self.seeds) > 1 else "")]
+        return f"{len(self.tasks)} runs: {' × '.join(parts)}"
+
+
+class _Checker:
+    """Refusals at the spec's lines."""
+
+    def __init__(self, locator: Locator) -> None:
+        self.locator = locator
+
+    def error(self, message: str, path: Path_, *, key: str | None = None) -> SweepSpecError:
+        found = self.locator.error(message, path, key=key)
+        return SweepSpecError(found.message, path=found.path, line=found.line)
+
+    def unique(self, values: list[Any], path: Path_, what: str) -> None:
+        seen: dict[str, int] = {}
+        for i, value in enumerate(values):
+            text = json.dumps(value, sort_keys=True, default=str)
+            if text in seen:
+                raise self.error(f"{what} {text} twice (also {format_place(path, seen[text])})",
+                                 (*path, i))
+            seen[text] = i
+
+
+def format_place(path: Path_, index: int) -> str:
+    return f"{'.'.join(str(p) for p in path)}[{index}]"
+
+
+def _beside(spec_dir: Path, name: str) -> Path | None:
+    """A file named ``name`` relative to the spec's folder (or absolute), if there is one."""
+    path = spec_dir / name
+    return path if path.is_file() else None
+
+
+def load_sweep(path: str | Path) -> SweepPlan:
+    """Read and check a sweep spec: its form, every robot file with every combination of its
+    overrides, every scenario. Raises :class:`SweepSpecError` (``SPEC:LINE: …``) or
+    :class:`~ubf_async.errors.ConfigurationError` for a spec that cannot be read."""
+    source = Path(path)
+    try:
+        text = source.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigurationError(f"{source}: no such sweep spec") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigurationError(f"{source}: cannot read it: {exc}") from None
+    try:
+        locator = Locator.parse(text, source=str(source))
+        try:
+            spec = msgspec.yaml.decode(text, type=SweepFile)
+        except msgspec.ValidationError as exc:
+            raise locator.from_validation(exc, root=SweepFile) from None
+        except msgspec.DecodeError as exc:
+            raise RobotFileError(f"not valid YAML: {exc}", path=str(source)) from None
+    except RobotFileError as exc:
+        raise SweepSpecError(exc.message, path=exc.path, line=exc.line) from None
+    check = _Checker(locator)
+    seeds: Sequence[int] = (range(spec.seeds.first, spec.seeds.last + 1)  # counted, not made
+                            if isinstance(spec.seeds, SeedRange) else spec.seeds)
+    if isinstance(spec.seeds, SeedRange) and not seeds:
+        raise check.error(f"seeds: first ({spec.seeds.first}) is past last "
+                          f"({spec.seeds.last})", ("seeds",))
+    _check_form(spec, check)
+    robots = [_robot_text(spec, i, source.parent, check) for i in range(len(spec.robots))]
+    paths = list(spec.overrides)
+    combinations = list(itertools.product(*(range(len(v)) for v in spec.overrides.values())))
+    count = len(robots) * len(combinations) * len(spec.scenarios) * len(seeds)
+    if count > MAX_RUNS:
+        raise check.error(f"{count} runs: more than {MAX_RUNS} in one sweep", ())
+    scenarios = [_scenario_text(name, source.parent, check, i)
+                 for i, name in enumerate(spec.scenarios)]
+    tasks: list[RunTask] = []
+    for r, (robot_source, robot_text) in enumerate(robots):
+        for combination in combinations:
+            chosen = tuple((p, spec.overrides[p][j]) for p, j in zip(paths, combination,
+                                                                       strict=True))
+            variant = _variant(spec, r, robot_source, robot_text, chosen, combination, check)
+            for s, (scenario, scenario_text) in enumerate(scenarios):
+                # Every scenario once, every variant once.
+                if (r == 0 and combination == combinations[0]) or s == 0:
+                    _check_run(spec, variant, scenario, seeds[0], check, r, s, bool(paths))
+                for k, seed in enumerate(seeds):
+                    tasks.append(_task(spec, (r, *combination, s, k), robot_source, robot_text,
+                                       chosen, scenario_text, s, seed))
+    return SweepPlan(source=source, spec=spec, robots=tuple(spec.robots), paths=tuple(paths),
+                     values=tuple(tuple(v) for v in spec.overrides.values()),
+                     scenarios=tuple(spec.scenarios), seeds=tuple(seeds), tasks=tuple(tasks))
+
+
+def _check_form(spec: SweepFile, check: _Checker) -> None:
+    """What decoding cannot say: names twice, override paths, values JSON cannot carry,
+    figures that would clash with the table's own columns."""
+    check.unique(spec.robots, ("robots",), "robot")
+    check.unique(spec.scenarios, ("scenarios",), "scenario")
+    if isinstance(spec.seeds, list):
+        check.unique(spec.seeds, ("seeds",), "seed")
+    for path, values in spec.overrides.items():
+        try:
+            overrides.parse_path(path)
+        except ValueError as exc:
+            raise check.error(f"overrides: {exc}", ("overrides",), key=path) from None
+        if path == "seed":
+            raise check.error("overrides: the robot file's `seed` is replaced by each run's "
+                              "seed: give the seeds as `seeds:`", ("overrides",), key=path)
+        for i, value in enumerate(values):
+            try:
+                json.dumps(value, allow_nan=False)
+            except (TypeError, ValueError):
+                raise check.error(f"overrides: {path}: {value!r} is not a value a robot file "
+                                  f"takes", ("overrides", path, i)) from None
+        check.unique(values, ("overrides", path), "value")
+    check.unique(spec.figures, ("figures",), "figure")
+    for i, name in enumerate(spec.figures):
+        if name in RESULT_COLUMNS:
+            raise check.error(f"figures: {name!r} is a column of the table already",
+                              ("figures", i))
+    if spec.plot is not None and spec.plot not in spec.figures:
+        raise check.error(f"plot: {spec.plot!r} is not one of the figures "
+                          f"({', '.join(spec.figures)})", ("plot",))
+
+
+def _robot_text(spec: SweepFile, index: int, spec_dir: Path,
+                check: _Checker) -> tuple[str, str]:
+    """``(source, text)`` of robot file ``index``."""
+    name = spec.robots[index]
+    try:
+        text, source = read_robot_file(_beside(spec_dir, name) or name)
+        return source, text
+    except RobotFileError as exc:
+        raise check.error(f"robot {name!r}: {exc}", ("robots", index)) from None
+
+
+def _scenario_text(name: str, spec_dir: Path, check: _Checker,
+                   index: int) -> tuple[str, str | None]:
+    """``(what to pass to the run, the file's text or None for a built-in name)``."""
+    path = _beside(spec_dir, name)
+    if path is None:
+        return name, None  # a built-in scenario (or no such file: planning the run says so)
+    try:
+        return str(path), path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise check.error(f"scenario {name!r}: cannot read it: {exc}",
+                          ("scenarios", index)) from None
+
+
+def _variant(spec: SweepFile, robot: int, source: str, text: str,
+             chosen: tuple[tuple[str, Any], ...], combination: tuple[int, ...],
+             check: _Checker) -> Robot:
+    """The robot file ``robot`` with the overrides ``chosen``, loaded. A refusal is told where
+    its cause is written: at the override's path when the path leads nowhere, at the value's
+    line when that value alone is refused, else at ``overrides:`` (the values together)."""
+    try:
+        return overrides.load_robot_text_with(text, dict(chosen), source=source)
+    except RobotFileError as whole:
+        name = spec.robots[robot]
+        for (path, value), j in zip(chosen, combination, strict=True):
+            try:
+                overrides.load_robot_text_with(text, {path: value}, source=source)
+            except overrides.OverridePathError as nowhere:
+                raise check.error(f"robot {name!r}: {nowhere}", ("overrides",),
+                                  key=path) from None
+            except RobotFileError as alone:
+                raise check.error(f"robot {name!r}: {alone}", ("overrides", path, j)) from None
+        at: Path_ = ("overrides",) if chosen else ("robots", robot)
+        raise check.error(f"robot {name!r}: {whole}", at) from None
+
+
+def _check_run(spec: SweepFile, robot: Robot, scenario: str, seed: int, check: _Checker,
+               r: int, s: int, overridden: bool) -> None:
+    """Plan a run of ``robot`` through ``scenario`` as the worker will: an unknown or broken
+    scenario, a robot no simulator can run."""
+    try:
+        inprocess.plan_run(robot, scenario, seed=seed, duration_s=spec.duration_s)
+    except ScenarioError as exc:
+        raise check.error(f"scenario {spec.scenarios[s]!r}: {exc}", ("scenarios", s)) from None
+    except UbfError as exc:
+        at: Path_ = ("overrides",) if overridden else ("robots", r)
+        raise check.error(f"robot {spec.robots[r]!r}: {exc}", at) from None
+
+
+def _task(spec: SweepFile, order: tuple[int, ...], robot_source: str, robot_text: str,
+          chosen: tuple[tuple[str, Any], ...], scenario_text: str | None, s: int,
+          seed: int) -> RunTask:
+    robot, scenario = spec.robots[order[0]], spec.scenarios[s]
+    identity = json.dumps([robot, digest(robot_text), [list(c) for c in chosen], scenario,
+                           None if scenario_text is None else digest(scenario_text), seed,
+                           spec.duration_s], sort_keys=True, separators=(",", ":"))
+    return RunTask(run_id=digest(identity), order=order, robot=robot, robot_source=robot_source,
+                   robot_text=robot_text, overrides=chosen, scenario=scenario,
+                   scenario_text=scenario_text, seed=seed, duration_s=spec.duration_s)
+
