@@ -83,9 +83,8 @@ class Run:
 
 
 def launch(folder: Path, scenario: str, duration_s: float, *, speed: str = "max",
-           seed: int | None = None, env: dict[str, str] | None = None,
-           more: tuple[str, ...] = ("--quiet",)) -> Run:
-    """One run through the real launch path."""
+           seed: int | None = None, more: tuple[str, ...] = ("--quiet",)) -> Run:
+    """One run through the real launch path (``more``: its further options)."""
     folder.mkdir(parents=True)
     proc = subprocess.run(
         [sys.executable, "-m", "ubf_async.launch", "--scenario", scenario, "--speed", speed,
@@ -93,8 +92,7 @@ def launch(folder: Path, scenario: str, duration_s: float, *, speed: str = "max"
          "--robot", "lockstep", *(() if seed is None else ("--seed", str(seed))),
          "--summary", str(folder / "summary.json"), "--record", str(folder),
          "--record-every-s", "5", *more],
-        cwd=REPOSITORY, env={**repository_env(), **(env or {})}, capture_output=True,
-        text=True, timeout=600)
+        cwd=REPOSITORY, env=repository_env(), capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return Run(folder, proc.stdout + proc.stderr)
 
