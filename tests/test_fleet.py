@@ -7,19 +7,22 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
+from bench.cpu_hog import hogs
 from components.range.backend import MountPose
 from components.sim.camera_render import render_camera
 from components.sim.ranging import beam_distance_m
 from components.sim.world import ROBOT_COLOR, World
 from components.sim.world_config import Arena, WorldConfig, WorldPose
-from tests.conftest import eventually, free_port, read_until, spawn, stop
+from tests.conftest import eventually, free_port, read_until, repository_env, spawn, stop
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runs.fleet import load_fleet
@@ -214,39 +217,65 @@ async def test_four_robots_each_controller_in_its_own_process(tmp_path: Path) ->
             await stop(proc)
 
 
-@pytest.mark.parametrize("per_process", [1, 2], ids=["a process each", "two in one"])
-def test_the_fleet_launcher_runs_a_fleet_and_summarises_it(tmp_path: Path,
-                                                          per_process: int) -> None:
-    import subprocess
-
-    router = f"tcp/127.0.0.1:{free_port()}"
-    fleet = write(tmp_path / "fleet.yaml", f"""
-world: {{scenario: ball-in-sight, speed: 2, duration_s: 4}}
+LAUNCHED = """
+world: {{scenario: ball-in-sight, speed: {speed}, duration_s: 4}}
 router: {router}
 robots:
   - {{name: f1, start: {{x_m: 0.0, y_m: 0.0, heading_deg: 0}}}}
   - {{name: f2, start: {{x_m: -0.4, y_m: 0.5, heading_deg: -45}}}}
-""")
-    summary = tmp_path / "summary.json"
+  - {{name: f3, start: {{x_m: -0.4, y_m: -0.5, heading_deg: 45}}}}
+  - {{name: f4, start: {{x_m: -0.8, y_m: 0.0, heading_deg: 180}}}}
+"""
+
+
+def launch_fleet(folder: Path, *, speed: str, per_process: int) -> tuple[dict[str, Any], str]:
+    """``python -m ubf_async.fleet`` on :data:`LAUNCHED` (router, world, the controllers
+    ``per_process`` to a process, in lockstep by default): its summary and its output."""
+    folder.mkdir()
+    fleet = write(folder / "fleet.yaml", LAUNCHED.format(
+        speed=speed, router=f"tcp/127.0.0.1:{free_port()}"))
+    summary = folder / "summary.json"
     done = subprocess.run(
         [sys.executable, "-m", "ubf_async.fleet", str(fleet), "--summary", str(summary),
-         "--log-dir", str(tmp_path / "logs"), "--status-period-s", "0.5",
+         "--log-dir", str(folder / "logs"), "--status-period-s", "0.2",
          "--controllers-per-process", str(per_process)],
-        cwd=ROOT, capture_output=True, text=True, timeout=120)
+        cwd=ROOT, env=repository_env(), capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "fleet t=" in done.stdout and "| f1 " in done.stdout and "| f2 " in done.stdout
-    result = json.loads(summary.read_text())
-    assert result["sim_time_s"] == pytest.approx(4.0, abs=0.01)
-    assert result["scenario"] == "ball-in-sight"
-    for name in ("f1", "f2"):
-        robot = result["robots"][name]
-        assert robot["ticks"] > 100 and 40 <= robot["periodic_rate_hz"] <= 60, robot
-        assert robot["travelled_m"] >= 0.0 and "end" in robot
-    assert "chase" in result["robots"]["f1"]["winner_share"]  # f1 faces the ball
-    assert "search" in result["robots"]["f2"]["winner_share"]
-    processes = ["f1", "f2"] if per_process == 1 else ["f1+f2"]
-    for log in ("router", "world", *processes):
-        assert (tmp_path / "logs" / f"{log}.log").is_file()
+    result: dict[str, Any] = json.loads(summary.read_text())
+    return result, done.stdout
+
+
+def test_the_fleet_launcher_runs_a_fleet_and_summarises_it(tmp_path: Path) -> None:
+    """Router, world and the four robots' controllers in processes of their own, in lockstep:
+    at --speed 2 with a process per controller, and flat out with two controllers to a process
+    beside a busy loop on every core — each prints the fleet's status lines, the ball found,
+    and a summary per robot (every periodic tick 20 ms apart in simulated time: jitter 0), and
+    it is the same run twice (the real-time factor aside). (The same fleet's run in one
+    process, twice: tests/test_lockstep.py.)"""
+    paced, paced_out = launch_fleet(tmp_path / "paced", speed="2", per_process=1)
+    with hogs():
+        flat_out, flat_out_out = launch_fleet(tmp_path / "flat-out", speed="max", per_process=2)
+    for result, out, processes in ((paced, paced_out, ["f1", "f2", "f3", "f4"]),
+                                   (flat_out, flat_out_out, ["f1+f2", "f3+f4"])):
+        assert "fleet t=" in out, out
+        assert all(f"| f{i} " in out for i in range(1, 5)), out
+        assert "the ball: first found at 0.1 s (simulated)" in out, out  # f1 faces it
+        assert result["lockstep"] is True
+        assert result["sim_time_s"] == pytest.approx(4.0, abs=0.01)
+        assert result["scenario"] == "ball-in-sight"
+        assert result.pop("real_time_factor") > 0
+        for name, robot in result["robots"].items():
+            assert robot["ticks"] > 100, (name, robot)
+            assert robot["periodic_rate_hz"] == pytest.approx(50.0), (name, robot)
+            assert robot["periodic_jitter_robot_ms_p99"] == 0.0, (name, robot)
+            assert robot["overruns"] == 0, (name, robot)
+            assert robot["travelled_m"] >= 0.0 and "end" in robot
+        assert "chase" in result["robots"]["f1"]["winner_share"]  # f1 faces the ball
+        assert "search" in result["robots"]["f2"]["winner_share"]
+        folder = Path(result.pop("fleet")).parent
+        for log in ("router", "world", *processes):
+            assert (folder / "logs" / f"{log}.log").is_file(), log
+    assert flat_out == paced
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "examples" / "fleets").glob("*.yaml")),

@@ -1,13 +1,10 @@
 """The cooperative search (issue 16, item 4): the fleet behaviours as pure logic, the radio the
-robots of one world share, odometry in the world's frame, and a search through the real
-launch path."""
+robots of one world share, odometry in the world's frame, and a search by two robots of one
+world run in this process."""
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -15,13 +12,13 @@ import pytest
 
 from components.sim.world import World
 from components.sim.world_config import Arena, WorldConfig, WorldPose
-from tests.conftest import free_port
 from ubf_async.assembly.devices import build_device
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.assembly.simulation import DeviceContext
 from ubf_async.behaviors.ball_reports import GoToReport, ReportBall, format_report, parse_report
 from ubf_async.core.state import State
 from ubf_async.net.transport import InProcessTransport
+from ubf_async.runs.fleet import run_fleet
 from ubf_async.runtime.bus import Bus
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -109,28 +106,24 @@ async def test_the_robots_of_one_world_share_the_air_and_one_frame() -> None:
     assert component.odometry.pose.x_m == -3.0  # type: ignore[attr-defined]
 
 
-def test_a_search_through_the_fleet_launcher(tmp_path: Path) -> None:
-    """Two robots of examples/robots/fleet-whegs.yaml in the fleet-search room: the one in the
-    middle sees the ball and says where; the one in the far corner, which cannot see it from
-    there, heads for it and finds it too."""
+def test_a_search_by_two_robots_of_one_world(tmp_path: Path) -> None:
+    """Two robots of examples/robots/fleet-whegs.yaml in the fleet-search room, world and
+    controllers in this process (ubf_async.runs.fleet, flat out): the one in the middle sees the
+    ball and says where; the one in the far corner, which cannot see it from there, heads for
+    it and finds it too. (The fleet launcher's processes, its status lines and its line on the
+    ball found: tests/test_fleet.py.)"""
     robot_file = ROOT / "examples" / "robots" / "fleet-whegs.yaml"
     fleet = tmp_path / "search.yaml"
     fleet.write_text(
-        f"world: {{scenario: fleet-search, speed: 2, duration_s: 60}}\n"
-        f"router: tcp/127.0.0.1:{free_port()}\nrobots:\n"
+        f"world: {{scenario: fleet-search, speed: 2, duration_s: 60}}\nrobots:\n"
         f"  - {{name: far, robot_file: {robot_file}, start: {{x_m: -2.5, y_m: -2.5, "
         f"heading_deg: 45}}}}\n"
         f"  - {{name: mid, robot_file: {robot_file}, start: {{x_m: 0.0, y_m: 0.0, "
         f"heading_deg: -90}}}}\n")
-    summary = tmp_path / "summary.json"
-    done = subprocess.run([sys.executable, "-m", "ubf_async.fleet", str(fleet), "--summary",
-                           str(summary), "--quiet", "--log-dir", str(tmp_path / "logs")],
-                          cwd=ROOT, capture_output=True, text=True, timeout=180)
-    assert done.returncode == 0, done.stdout + done.stderr
-    result = json.loads(summary.read_text())
+    result = run_fleet(fleet)
     far, mid = result["robots"]["far"], result["robots"]["mid"]
-    assert "report_ball" in mid["winner_share"]  # it told the other
-    assert far["winner_share"].get("go_to_report", 0) > 0.1, far  # which went
+    assert "report_ball" in mid["controller"]["winner_share"]  # it told the other
+    assert far["controller"]["winner_share"].get("go_to_report", 0) > 0.1, far  # which went
     assert mid["found_s"] is not None and far["found_s"] is not None, result
     assert mid["found_s"] < far["found_s"] == result["all_found_s"]
-    assert "the ball: first found at" in done.stdout
+    assert result["first_found_s"] == mid["found_s"]

@@ -177,7 +177,10 @@ async def _run_fleet(fleet: Fleet, robots: dict[str, Robot],
                                                     if d.requires_simulator],
                 simulator=None, sim_options=None,
                 controller=wiring.ControllerSettings.of(robot), connection=connection,
-                seed_given=True, follow_clock=False, status_on_robot_clock=True)
+                # Without a seed its behaviours draw from the robot file's, else 0, as a
+                # launched controller's do (never from an unseeded generator).
+                seed_given=options.seed is not None, follow_clock=False,
+                status_on_robot_clock=True)
             wiring.build_robot(plan, run, quiet)
             wiring.add_clock_components(plan, run)
             await wiring.start(run)
