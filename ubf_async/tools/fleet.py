@@ -119,6 +119,17 @@ async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: fl
         await asyncio.sleep(0.1)
 
 
+def controller_arguments(fleet: Fleet, name: str, *, router: str, lockstep: bool) -> list[str]:
+    """Launch's command line for robot ``name``'s controller: its robot file, following the
+    world's time through the router, its behaviours seeded with the world's seed when the
+    fleet file sets one (as :func:`ubf_async.runs.fleet.run_fleet` seeds them)."""
+    seed = fleet.spec.world.seed
+    return [fleet.robots[name].source, "--no-sim", "--sim-time", "--robot", name, "--mode",
+            "client", "--connect", router, "--quiet",
+            *(["--seed", str(seed)] if seed is not None else []),
+            *(["--lockstep"] if lockstep else [])]
+
+
 async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
                           out: TextIO, lockstep: bool = False) -> int:
     """Several robots' controllers in this one process, each exactly as
@@ -134,8 +145,7 @@ async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
     runs = []
     for name in names:
         args = launch.build_parser().parse_args(
-            [fleet.robots[name].source, "--no-sim", "--sim-time", "--robot", name, "--mode",
-             "client", "--connect", router, "--quiet", *(["--lockstep"] if lockstep else [])])
+            controller_arguments(fleet, name, router=router, lockstep=lockstep))
         runs.append(launch.run_robot(launch.plan_launch(args), args, out))
     tasks = [asyncio.ensure_future(run) for run in runs]
     try:
@@ -245,9 +255,9 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
         per = args.controllers_per_process
         for group in (spec.robots[i:i + per] for i in range(0, len(spec.robots), per)):
             names = [entry.name for entry in group]
-            command = (["-m", "ubf_async.launch", fleet.robots[names[0]].source, "--no-sim",
-                        "--sim-time", "--robot", names[0], "--mode", "client", "--connect",
-                        router, "--quiet", *(["--lockstep"] if args.lockstep else [])]
+            command = (["-m", "ubf_async.launch",
+                        *controller_arguments(fleet, names[0], router=router,
+                                              lockstep=args.lockstep)]
                        if per == 1 else
                        ["-m", "ubf_async.fleet", str(fleet.source), "--controllers-only",
                         ",".join(names), "--router", router,
