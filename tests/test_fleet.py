@@ -285,3 +285,17 @@ def test_the_shipped_fleet_files_load(path: Path) -> None:
     assert fleet.simulator == "mini-whegs" and len(fleet.robots) >= 2
     for robot in fleet.robots.values():
         assert Path(robot.source).is_file() or robot.source == "mini-whegs"
+
+
+def test_the_launcher_seeds_each_controller_with_the_world_seed(tmp_path: Path) -> None:
+    """The behaviours of a launched fleet draw from the fleet file's world seed, as those of
+    run_fleet do; without one, from their robot file's seed (launch's default)."""
+    from ubf_async.tools.fleet import controller_arguments
+
+    robots = "robots: [{name: r1, start: {x_m: 0.0, y_m: 0.0}}]\n"
+    seeded = load_fleet(write(tmp_path / "seeded.yaml", "world: {seed: 42}\n" + robots))
+    unseeded = load_fleet(write(tmp_path / "unseeded.yaml", robots))
+    words = controller_arguments(seeded, "r1", router="tcp/127.0.0.1:7447", lockstep=True)
+    assert words[words.index("--seed") + 1] == "42" and "--lockstep" in words
+    assert "--seed" not in controller_arguments(unseeded, "r1", router="tcp/127.0.0.1:7447",
+                                                lockstep=False)
