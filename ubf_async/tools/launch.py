@@ -1,13 +1,15 @@
 """``python -m ubf_async.launch [ROBOT_FILE]`` — run a robot; the one composition root.
 
-Launch is the only place that wires things together: it reads a robot file
-(:mod:`ubf_async.assembly.robotfile`; without one, the shipped ``mini-whegs`` file: the simulated
-Mini-WHEGS seeking the pink ball), opens the zenoh session (listening on a loopback endpoint
-by default, printed at start so other processes can attach with ``--connect``), builds the
-devices through the plug-in registries, starts a simulator only if some device's backend
-needs one, and runs the state aggregator, the UBF controller with the file's behaviour tree,
-the remote-behaviour slots and the live-tree service. It prints a one-line live status until
-Ctrl-C, SIGTERM or ``--duration`` elapses, then shuts everything down cleanly.
+Launch reads a robot file (:mod:`ubf_async.assembly.robotfile`; without one, the shipped
+``mini-whegs`` file: the simulated Mini-WHEGS seeking the pink ball), opens the zenoh session
+(listening on a loopback endpoint by default, printed at start so other processes can attach
+with ``--connect``) and runs the robot as :mod:`ubf_async.runs.wiring` wires it — the devices
+built through the plug-in registries, a simulator only if some device's backend needs one,
+the state aggregator, the UBF controller with the file's behaviour tree, the remote-behaviour
+slots and the live-tree service — with what a console run adds: a recording, the Foxglove
+view, the ROS 2 bridge, a one-line live status until Ctrl-C, SIGTERM or ``--duration``
+elapses; then it shuts everything down cleanly. The same wiring runs a simulated run as a
+library call (:mod:`ubf_async.experiment`), so the two are the same run.
 
 Everything a user can get wrong (the robot file, a scenario, options, the ``--config`` file,
 the folders ``--summary``/``--record`` write into) is checked before the robot starts; a port
