@@ -90,6 +90,14 @@ def run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | None = N
     cleanly. Called from a running event loop, it refuses (``RuntimeError``): use
     :func:`run_async`.
     """
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        pass  # none: the run starts its own
+    else:  # refused before anything is done (asyncio's own refusal would leak a coroutine)
+        raise RuntimeError("ubf_async.experiment.run() cannot be called from a running event "
+                           "loop (the run needs a loop of its own): await "
+                           "ubf_async.experiment.run_async(...) instead")
     plan = plan_run(robot, scenario, seed=seed, duration_s=duration_s, out_dir=out_dir,
                     pictures=pictures)
     with asyncio.Runner(loop_factory=lending.new_idle_event_loop) as runner:
