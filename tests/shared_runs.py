@@ -3,8 +3,9 @@
 * :func:`launched` — **the one launch of each built-in scenario**: ``python -m
   ubf_async.launch mini-whegs --scenario S --seed N --speed max --record DIR --summary F
   --quiet`` in a subprocess, with ``N`` from :data:`LAUNCH_SEEDS`. tests/test_experiment.py
-  compares it byte for byte with the in-process run; tests/test_scenarios.py,
-  tests/test_summary.py and tests/test_verdict.py check what it wrote and printed.
+  compares it byte for byte with the in-process run; tests/test_scenarios.py judges it and
+  checks what it wrote; tests/test_summary.py and tests/test_verdict.py what it printed.
+* :func:`launched_once` — any other launch whose outputs several tests check.
 * :func:`ran` — a simulated run in this process (:func:`ubf_async.experiment.run`, with
   ``out_dir``) of a robot, a scenario and a seed, for every test that asks for the same three.
 
@@ -113,16 +114,16 @@ def _shared(factory: pytest.TempPathFactory, key: str, make: Callable[[Path], No
 
 @dataclass(frozen=True)
 class Launch:
-    """What the one launch of a built-in scenario left: its exit status, what it printed,
-    its summary (``summary.json``) and its recording (``trajectory.csv``, ``trajectory.png``,
-    frames)."""
+    """What a shared launch left: its exit status, what it printed, its summary
+    (``summary.json``) and, with ``--record``, its recording (``trajectory.csv``,
+    ``trajectory.png``, frames)."""
 
-    scenario: str
-    seed: int
     folder: Path
     returncode: int
     output: str
     """stdout, then stderr."""
+    scenario: str | None = None
+    seed: int | None = None
 
     @property
     def summary_path(self) -> Path:
@@ -136,30 +137,44 @@ class Launch:
         return read_trajectory_csv(self.folder / "trajectory.csv")
 
 
-def launch_command(scenario: str, seed: int, folder: Path, listen: str, robot: str) -> list[str]:
-    return [sys.executable, "-m", "ubf_async.launch", "mini-whegs", "--scenario", scenario,
-            "--seed", str(seed), "--speed", "max", "--record", str(folder), "--record-every-s",
-            f"{RECORD_EVERY_S:g}", "--summary", str(folder / "summary.json"), "--quiet",
-            "--listen", listen, "--robot", robot]
-
-
-def launched(factory: pytest.TempPathFactory, scenario: str) -> Launch:
-    """The one launch of the built-in ``scenario`` (with its seed of :data:`LAUNCH_SEEDS`)."""
-    seed = LAUNCH_SEEDS[scenario]
+def launched_once(factory: pytest.TempPathFactory, key: str,
+                  arguments: Callable[[Path], list[str]]) -> Launch:
+    """``python -m ubf_async.launch ARGUMENTS --summary FOLDER/summary.json`` in a subprocess,
+    once for the session under ``key``: ``arguments(FOLDER)`` gives the arguments (FOLDER is
+    the launch's own, for ``--record``)."""
 
     def make(folder: Path) -> None:
-        robot = f"shared{os.getpid()}{builtin_names().index(scenario)}"
         proc = subprocess.run(
-            launch_command(scenario, seed, folder, f"tcp/127.0.0.1:{free_port()}", robot),
+            [sys.executable, "-m", "ubf_async.launch", *arguments(folder), "--summary",
+             str(folder / "summary.json")],
             cwd=REPOSITORY, env=repository_env(), capture_output=True, text=True,
             timeout=LAUNCH_TIMEOUT_S)
         (folder / "launch.json").write_text(json.dumps(
             {"returncode": proc.returncode, "output": proc.stdout + proc.stderr}), "utf-8")
 
-    folder = _shared(factory, f"launch-{scenario}-seed{seed}", make)
+    folder = _shared(factory, key, make)
     printed = json.loads((folder / "launch.json").read_text("utf-8"))
-    return Launch(scenario=scenario, seed=seed, folder=folder,
-                  returncode=printed["returncode"], output=printed["output"])
+    return Launch(folder=folder, returncode=printed["returncode"], output=printed["output"])
+
+
+def launch_arguments(scenario: str, seed: int, folder: Path) -> list[str]:
+    """A built-in scenario's shared launch (without ``--summary``, which
+    :func:`launched_once` adds)."""
+    robot = f"shared{os.getpid()}{builtin_names().index(scenario)}"
+    return ["mini-whegs", "--scenario", scenario, "--seed", str(seed), "--speed", "max",
+            "--record", str(folder), "--record-every-s", f"{RECORD_EVERY_S:g}", "--quiet",
+            "--listen", f"tcp/127.0.0.1:{free_port()}", "--robot", robot]
+
+
+def launched(factory: pytest.TempPathFactory, scenario: str) -> Launch:
+    """The one launch of the built-in ``scenario`` (with its seed of :data:`LAUNCH_SEEDS`):
+    ``python -m ubf_async.launch mini-whegs --scenario S --seed N --speed max --record DIR
+    --summary DIR/summary.json --quiet``."""
+    seed = LAUNCH_SEEDS[scenario]
+    launch = launched_once(factory, f"launch-{scenario}-seed{seed}",
+                           lambda folder: launch_arguments(scenario, seed, folder))
+    return Launch(folder=launch.folder, returncode=launch.returncode, output=launch.output,
+                  scenario=scenario, seed=seed)
 
 
 @dataclass(frozen=True)
