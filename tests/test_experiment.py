@@ -67,6 +67,9 @@ def without(summary: dict[str, Any], paths: dict[str, str]) -> dict[str, Any]:
 
 def test_every_built_in_scenario_has_its_launch() -> None:
     assert sorted(LAUNCH_SEEDS) == builtin_names()
+    [compared] = test_the_run_in_this_process_is_the_launch_byte_for_byte \
+        .pytestmark  # type: ignore[attr-defined]
+    assert compared.name == "parametrize" and compared.args[1] == builtin_names()
     assert len(builtin_names()) == 9
     assert sum(load_scenario(name).duration_s for name in builtin_names()) == 412.0
     # A seed given on the command line, other than the scenario's, for some of them.
