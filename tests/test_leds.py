@@ -1,12 +1,12 @@
 """The LED device: the bank's access functions, cmd/leds through the bus to the simulated
 backend and back as sensor/leds samples, a behaviour lighting LED 0 while the robot sees pink
-(through the real launch path), and the LEDs on the recorded camera frames."""
+(on the recorded camera frames of a run in this process, and from a launch to another
+process and on its status line), and the LEDs on the recorded camera frames."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
+import asyncio
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -19,14 +19,14 @@ from components.leds.bank import LedBank
 from components.leds.component import LedsComponent
 from components.sim.backends import SimLedBackend
 from components.sim.record import LED_DARK_BGR, LED_LIT_BGR, annotate_frame, read_trajectory_csv
-from tests.conftest import as_dict, eventually
+from tests.conftest import as_dict, eventually, free_port, spawn, stop
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.net.transport import InProcessTransport
+from ubf_async.runs.inprocess import plan_run, run_plan
+from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import ProtocolError, decode, encode
 from ubf_async.wire.topics import LED_STATE, LEDS, LedState
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_bank_access_functions() -> None:
@@ -101,23 +101,24 @@ def test_recorded_frames_draw_the_leds() -> None:
     assert tuple(plain[h - 17, w - 38]) != LED_LIT_BGR
 
 
-def test_chase_lights_led_0_while_the_robot_sees_pink(tmp_path: Path, endpoint: str) -> None:
+def test_chase_lights_led_0_while_the_robot_sees_pink(tmp_path: Path) -> None:
     """The shipped robot: chase lights LED 0, search turns it off. In ball-behind the robot
     searches (sits still, then turns) until it finds the ball, then chases it: the recorded
     frames show LED 0 dark while it searches and lit while it chases (where the renderer
-    draws it: bottom right, LED 0 left of LED 1), and the status line shows the LEDs too."""
-    result = subprocess.run(
-        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-behind",
-         "--speed", "4", "--duration", "12", "--listen", endpoint, "--record", str(tmp_path),
-         "--record-every-s", "0.5", "--status-period-s", "0.2"],
-        cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"}, capture_output=True,
-        text=True, timeout=120)
-    assert result.returncode == 0, result.stdout + result.stderr
-    status = [line for line in result.stdout.splitlines() if "leds/panel" in line]
-    assert status and "leds/panel ●○ " in status[-1]
+    draws it: bottom right, LED 0 left of LED 1). A run in this process, recorded as launch's
+    ``--record --record-every-s 0.5`` records it (the status line's LEDs: below)."""
+    plan = plan_run("mini-whegs", "ball-behind", duration_s=12.0, out_dir=tmp_path,
+                    pictures=True)
+    assert plan.sim_options is not None
+    plan.sim_options = dataclasses.replace(plan.sim_options, record_every_s=0.5)
+    with asyncio.Runner(loop_factory=lending.new_idle_event_loop) as runner:
+        result = runner.run(run_plan(plan))
     samples = read_trajectory_csv(tmp_path / "trajectory.csv")
+    assert len(samples) == len(result.trajectory) == 241
     shown: dict[str, list[float]] = {"search": [], "chase": []}
-    for path in sorted(tmp_path.glob("frame_*.png")):
+    frames = sorted(tmp_path.glob("frame_*.png"))
+    assert len(frames) == 12 / 0.5 + 1
+    for path in frames:
         t_s = float(path.stem.removeprefix("frame_").removesuffix("s"))
         # Judged only where one behaviour has acted alone for the last half second: the LED
         # state reaches the recorder over the bus a tick or two after the command.
@@ -139,22 +140,32 @@ def test_chase_lights_led_0_while_the_robot_sees_pink(tmp_path: Path, endpoint: 
 
 
 @pytest.mark.asyncio
-async def test_led_state_reaches_another_process(endpoint: str, robot: str) -> None:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-behind", "--speed", "2",
-         "--duration", "20", "--listen", endpoint, "--robot", robot, "--quiet"],
-        cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"}, stdout=subprocess.DEVNULL)
-    bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
+async def test_led_state_reaches_another_process_and_the_status_line(endpoint: str,
+                                                                      robot: str) -> None:
+    """One launch of ball-behind (12 simulated seconds at 4x real time, its status line every
+    0.2 s): a session of this process, which the launch connects to, sees LED 0 off while the
+    robot searches and lit once it sees pink; and launch's status line shows the LEDs, LED 0
+    lit at the end (●○)."""
+    bus = await Bus.open(ConnectionOptions(robot=robot, listen=[endpoint]))
     masks: list[int] = []
     try:
         bus.subscribe(LED_STATE.key(bus.keys, "panel"),
                       lambda k, p, t: masks.append(as_dict(decode(p).data)["mask"]),
                       latest=False)
+        proc = await spawn("-m", "ubf_async.launch", "--scenario", "ball-behind", "--speed",
+                           "4", "--duration", "12", "--connect", endpoint, "--listen",
+                           f"tcp/127.0.0.1:{free_port()}", "--robot", robot,
+                           "--status-period-s", "0.2")
+        try:
+            printed, _ = await asyncio.wait_for(proc.communicate(), 120)
+        finally:
+            await stop(proc)
+        assert proc.returncode == 0, printed.decode()
         # The ball starts behind the robot: LED off while it searches, lit once it sees pink.
-        await eventually(lambda: 0 in masks, timeout_s=30, what="the LED off while searching")
-        await eventually(lambda: 1 in masks[masks.index(0):], timeout_s=40,
+        await eventually(lambda: 0 in masks, what="the LED off while searching")
+        await eventually(lambda: 1 in masks[masks.index(0):],
                          what="LED 0 lit once the ball is in sight")
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
         await bus.aclose()
+    status = [line for line in printed.decode().splitlines() if "leds/panel" in line]
+    assert status and "leds/panel ●○ " in status[-1]

@@ -1,9 +1,14 @@
-"""The thesis's four experiments (§4.2), replayed through the real launch path.
+"""The thesis's four experiments (§4.2) and the other built-in scenarios, judged with numbers.
 
-Each test runs ``python -m ubf_async.launch --scenario NAME --speed 5 --summary ... --record
-...`` in a subprocess — bus, simulator, device components, aggregator, controller — and
-checks the thesis's outcome with numbers from the recorded trajectory and the summary.
-Distances and bearings are from the robot's camera to the ball's centre.
+What the robot and the simulator do is checked on runs in this process
+(:func:`ubf_async.experiment.run`: the robot file's devices, aggregator, controller and
+simulator, wired as launch wires them, on the in-process bus): each test reads the run's
+summary and every trajectory sample. Those runs are launch's byte for byte
+(tests/test_experiment.py), and each built-in scenario is also launched once for the suite
+(``python -m ubf_async.launch mini-whegs --scenario NAME --seed N --speed max --record DIR
+--summary F``, tests/shared_runs.py): what that launch wrote — its summary, trajectory, plot and
+frames — is checked here too, and judged like every run. One test runs a remote behaviour in a
+process of its own. Distances and bearings are from the robot's camera to the ball's centre.
 """
 
 from __future__ import annotations
@@ -13,8 +18,6 @@ import itertools
 import json
 import math
 import random
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +32,9 @@ from components.sim.record import (
 )
 from components.sim.scenarios import Expectation, builtin_names, load_scenario
 from tests.conftest import free_port, read_until, spawn, stop
+from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, launched, ran
 
 ROOT = Path(__file__).resolve().parent.parent
-SPEED = "max"
-"""Every run flat out: simulated time advances in lockstep, so the speed changes nothing but
-the wall time it takes."""
 COMFORT_M = next((c.low, c.high)
                  for c in load_scenario("ball-in-sight").expect.criteria  # type: ignore[union-attr]
                  if c.path == "ball_distance_m")
@@ -74,31 +75,22 @@ POSITION_NOT_BOUNDED = {
 (the heading is bounded in every one: over the undisturbed periods, docs/scenarios.md)."""
 
 
-def run_scenario(name: str, tmp_path: Path, endpoint: str, robot: str, *extra: str,
-                 robot_file: Path | None = None,
-                 expect_met: bool = True) -> Run:
-    """Launch ``name`` (a subprocess, as a user would) and read its summary and trajectory.
-    Every run is checked against the odometry rule (:func:`assert_odometry_tracks_the_heading`)
-    and, unless ``expect_met`` is false, against its scenario file's ``expect``."""
-    folder = tmp_path / "-".join([name, *extra]).replace("/", "_")
-    summary_path = folder / "summary.json"
-    proc = subprocess.run(
-        [sys.executable, "-m", "ubf_async.launch",
-         *([str(robot_file)] if robot_file is not None else []), "--scenario", name, "--speed",
-         SPEED,
-         "--listen", endpoint, "--robot", robot, "--quiet", "--summary", str(summary_path),
-         "--record", str(folder), "--record-every-s", "5", *extra],
-        cwd=ROOT, capture_output=True, text=True, timeout=240,
-    )
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    summary = json.loads(summary_path.read_text())
-    assert_odometry_tracks_the_heading(summary, label=name)
-    assert summary["expected"]["pass"] is expect_met, (name, summary["expected"])
-    samples = read_trajectory_csv(folder / "trajectory.csv")
-    print(f"{name}: sim {summary['sim_time_s']:.1f}s at x{summary['real_time_factor']:.2f}, "
-          f"final distance {summary['ball_distance_m']}, bearing {summary['ball_bearing_deg']}, "
+def judged(name: str, factory: pytest.TempPathFactory, *, seed: int | None = None,
+           robot_text: str | None = None, expect_met: bool = True) -> Run:
+    """The run of the built-in scenario ``name`` in this process (its seed unless ``seed``; the
+    shipped robot unless ``robot_text``), made once for the session (tests/shared_runs.py), with
+    its summary and every trajectory sample. Every run is checked against the odometry rule
+    (:func:`assert_odometry_tracks_the_heading`) and, unless ``expect_met`` is false, against its
+    scenario file's ``expect``."""
+    shared = ran(factory, name, seed=seed, robot_text=robot_text)
+    label = name if seed is None else f"{name} (seed {seed})"
+    summary = shared.summary
+    assert_odometry_tracks_the_heading(summary, label=label)
+    assert summary["expected"]["pass"] is expect_met, (label, summary["expected"])
+    print(f"{label}: sim {summary['sim_time_s']:.1f}s, final distance "
+          f"{summary['ball_distance_m']}, bearing {summary['ball_bearing_deg']}, "
           f"winners {summary['ticks']['winner_share']}")
-    return Run(summary, samples, folder)
+    return Run(summary, shared.samples, shared.folder)
 
 
 def assert_odometry_tracks_the_heading(summary: dict[str, Any], *, label: str) -> None:
@@ -124,22 +116,81 @@ def assert_odometry_tracks_the_heading(summary: dict[str, Any], *, label: str) -
 
 
 def test_every_built_in_scenario_is_run_and_judged() -> None:
-    """No built-in scenario goes unchecked: each is launched by a test of this module (those
-    below; fleet-search's fleet runs in tests/test_fleet_search.py too), and each file's
-    ``expect`` has criteria — a heading criterion of the odometry among them, and a position
-    criterion unless :data:`POSITION_NOT_BOUNDED` says why not."""
-    launched_here = {"ball-in-sight", "ball-in-sight-orange", "ball-behind", "keep-away", "dance",
-                     "ball-held-close", "obstacle-course", "busy-room", "fleet-search"}
-    assert set(builtin_names()) == launched_here
+    """No built-in scenario goes unchecked: each is run in this process and judged by a test of
+    this module (``judged("NAME"`` below; fleet-search's fleet runs in
+    tests/test_fleet_search.py too), and launched once, its launch judged
+    (:func:`test_the_launch_of_each_built_in_scenario_is_judged_and_its_files_agree`, over
+    :data:`~tests.shared_runs.LAUNCH_SEEDS`); and each file's ``expect`` has criteria — a
+    heading criterion of the odometry among them, and a position criterion unless
+    :data:`POSITION_NOT_BOUNDED` says why not."""
+    run_here = {"ball-in-sight", "ball-in-sight-orange", "ball-behind", "keep-away", "dance",
+                "ball-held-close", "obstacle-course", "busy-room", "fleet-search"}
+    assert set(builtin_names()) == run_here == set(LAUNCH_SEEDS)
+    [launches] = test_the_launch_of_each_built_in_scenario_is_judged_and_its_files_agree \
+        .pytestmark  # type: ignore[attr-defined]
+    assert launches.name == "parametrize" and sorted(launches.args[1]) == builtin_names()
     source = Path(__file__).read_text("utf-8")
     for name in builtin_names():
-        assert f'run_scenario("{name}"' in source, name
+        assert f'judged("{name}"' in source, name
         expect = load_scenario(name).expect
         assert expect is not None and expect.criteria, name
         paths = {c.path for c in expect.criteria}
         assert paths & {"odometry.heading_error_fraction",
                         "odometry.undisturbed.heading_error_fraction"}, name
         assert ("odometry.position_error_m" in paths) != (name in POSITION_NOT_BOUNDED), name
+
+
+LAUNCH_EXPECT_MET = {name: name != "obstacle-course" for name in LAUNCH_SEEDS}
+"""Whether each launch meets its scenario's ``expect``: all but the obstacle course, which the
+shipped robot (the thesis's tree, without avoid) does not pass."""
+
+
+# In the reverse order of tests/test_experiment.py's identity test, which needs the same
+# launches: when the two run side by side, they do not wait for the same launch at once.
+@pytest.mark.parametrize("scenario", builtin_names()[::-1])
+def test_the_launch_of_each_built_in_scenario_is_judged_and_its_files_agree(
+        scenario: str, tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The one launch of each built-in scenario (tests/shared_runs.py) ends normally, says its
+    verdict, and is judged as every run is (the odometry rule, the file's ``expect``); its
+    summary.json agrees with the trajectory.csv it recorded, and the plot and the camera frames
+    it drew are pictures."""
+    launch = launched(tmp_path_factory, scenario)
+    assert launch.returncode == 0, launch.output
+    summary = launch.summary()
+    label = f"{scenario} (launched, seed {launch.seed})"
+    assert_odometry_tracks_the_heading(summary, label=label)
+    met = LAUNCH_EXPECT_MET[scenario]
+    assert summary["expected"]["pass"] is met, (label, summary["expected"])
+    assert f"expected: {summary['expected']['outcome']} — {'met' if met else 'NOT met ('}" \
+        in launch.output, launch.output
+    assert f"summary written to {launch.summary_path}" in launch.output
+    run = Run(summary, launch.samples(), launch.folder)
+    assert_summary_matches_the_trajectory(run)
+    recording = summary["recording"]
+    assert recording["errors"] == [] and recording["trajectory_png"] == "trajectory.png"
+    assert len(recording["frames"]) >= 2 and recording["frames_written"] == len(
+        recording["frames"])
+    for name in ["trajectory.png", *recording["frames"]]:
+        image = cv2.imread(str(run.folder / name))
+        assert image is not None and image.size > 0, name
+
+
+def assert_summary_matches_the_trajectory(run: Run) -> None:
+    """The summary's figures are those of the recorded trajectory's last samples."""
+    last = run.samples[-1]
+    s = run.summary
+    six_digits = 1e-5  # the summary keeps six significant digits
+    assert s["sim_time_s"] == pytest.approx(last.t_s, rel=six_digits)
+    assert (s["robot"]["x_m"], s["robot"]["y_m"]) == pytest.approx((last.robot_x_m,
+                                                                     last.robot_y_m),
+                                                                    rel=six_digits, abs=1e-9)
+    if last.ball_x_m is None:  # lifted out of the world
+        assert s["ball_distance_m"] is None
+    else:
+        assert s["ball_distance_m"] == pytest.approx(run.ball_view(last)[0], rel=six_digits)
+    assert s["motion_last_2s"] == pytest.approx(motion_over(run.samples, 2.0), rel=six_digits,
+                                                abs=1e-9)
+    assert s["trajectory_samples"] == len(run.samples)
 
 
 SETTLED = Expectation(
@@ -157,8 +208,8 @@ def assert_settled(run: Run, *, label: str) -> None:
     assert verdict["pass"], (label, [c for c in verdict["criteria"] if not c["pass"]])
 
 
-def test_scenario_1_ball_in_sight(tmp_path: Path, endpoint: str, robot: str) -> None:
-    run = run_scenario("ball-in-sight", tmp_path, endpoint, robot)
+def test_scenario_1_ball_in_sight(tmp_path_factory: pytest.TempPathFactory) -> None:
+    run = judged("ball-in-sight", tmp_path_factory)
     d0, b0 = run.ball_view(run.samples[0])
     assert 0.55 <= d0 <= 0.65 and 5 <= abs(b0) <= 15  # ≈60 cm ahead, off-centre
     assert_settled(run, label="ball-in-sight")
@@ -166,25 +217,14 @@ def test_scenario_1_ball_in_sight(tmp_path: Path, endpoint: str, robot: str) -> 
     assert share.get("chase", 0) > 0.5 and share.get("search", 0) < 0.1
 
 
-def test_summary_matches_the_recorded_trajectory_and_pictures_exist(
-    tmp_path: Path, endpoint: str, robot: str
-) -> None:
-    run = run_scenario("ball-in-sight-orange", tmp_path, endpoint, robot)
+def test_the_orange_ball_beside_the_pink_one_does_not_capture_the_robot(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """(What the launch of this scenario wrote — its summary against its trajectory, its
+    pictures — is checked with every launch's, above; the summary of this run against its
+    trajectory here.)"""
+    run = judged("ball-in-sight-orange", tmp_path_factory)
+    assert_summary_matches_the_trajectory(run)
     last = run.samples[-1]
-    s = run.summary
-    six_digits = 1e-5  # the summary keeps six significant digits
-    assert s["sim_time_s"] == pytest.approx(last.t_s, rel=six_digits)
-    assert (s["robot"]["x_m"], s["robot"]["y_m"]) == pytest.approx((last.robot_x_m,
-                                                                     last.robot_y_m),
-                                                                    rel=six_digits)
-    assert s["ball_distance_m"] == pytest.approx(run.ball_view(last)[0], rel=six_digits)
-    assert s["motion_last_2s"] == pytest.approx(motion_over(run.samples, 2.0), rel=six_digits,
-                                                abs=1e-9)
-    assert s["trajectory_samples"] == len(run.samples)
-    for name in ["trajectory.png", *s["recording"]["frames"]]:
-        image = cv2.imread(str(run.folder / name))
-        assert image is not None and image.size > 0, name
-    # The orange distractor beside the ball does not capture the robot.
     assert_settled(run, label="ball-in-sight-orange")
     orange = load_scenario("ball-in-sight-orange").world.distractors[0]
     _, orange_bearing = camera_to_ball(last.robot_x_m, last.robot_y_m, last.robot_heading_rad,
@@ -192,8 +232,8 @@ def test_summary_matches_the_recorded_trajectory_and_pictures_exist(
     assert abs(orange_bearing) > 15
 
 
-def test_scenario_2_ball_behind(tmp_path: Path, endpoint: str, robot: str) -> None:
-    run = run_scenario("ball-behind", tmp_path, endpoint, robot)
+def test_scenario_2_ball_behind(tmp_path_factory: pytest.TempPathFactory) -> None:
+    run = judged("ball-behind", tmp_path_factory)
     period = SEARCH_PERIOD_S
     start = run.samples[0]
     still = run.between(0.0, period - 0.1)
@@ -233,10 +273,10 @@ def search_draws(run: Run, period_s: float) -> list[int]:
     return draws
 
 
-def test_scenario_3_keep_away(tmp_path: Path, endpoint: str, robot: str) -> None:
+def test_scenario_3_keep_away(tmp_path_factory: pytest.TempPathFactory) -> None:
     scenario = load_scenario("keep-away")
     period = SEARCH_PERIOD_S
-    run = run_scenario("keep-away", tmp_path, endpoint, robot)
+    run = judged("keep-away", tmp_path_factory)
     right_at, left_at, _hide_at, back_at = (step.at_s for step in scenario.ball_script)
     assert any("chase" in s.winners for s in run.between(0, right_at)), "finds the ball first"
 
@@ -265,9 +305,9 @@ def test_scenario_3_keep_away(tmp_path: Path, endpoint: str, robot: str) -> None
     assert any("chase" in s.winners for s in run.between(back_at, 1e9)), "finds it again"
 
 
-def test_scenario_4_dance(tmp_path: Path, endpoint: str, robot: str) -> None:
+def test_scenario_4_dance(tmp_path_factory: pytest.TempPathFactory) -> None:
     scenario = load_scenario("dance")
-    run = run_scenario("dance", tmp_path, endpoint, robot)
+    run = judged("dance", tmp_path_factory)
     d0, b0 = run.ball_view(run.samples[0])
     assert 0.27 <= d0 <= 0.33
     # It backs away at once while turning to centre the ball.
@@ -286,13 +326,14 @@ def test_scenario_4_dance(tmp_path: Path, endpoint: str, robot: str) -> None:
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
-def test_ball_held_close_makes_the_robot_back_away(seed: int, tmp_path: Path, endpoint: str,
-                                                   robot: str) -> None:
+def test_ball_held_close_makes_the_robot_back_away(
+        seed: int, tmp_path_factory: pytest.TempPathFactory) -> None:
     """The thesis: a ball kept close makes the robot keep backing away. Held 25 cm, then
     18 cm and 15 cm in front of the camera (it follows the robot), the ball is never driven
     into: every command backs away or stands (before the first frame), and the robot backs
-    more than a metre. (Simulated runs are exactly repeatable at any speed: flat out here.)"""
-    run = run_scenario("ball-held-close", tmp_path, endpoint, robot, "--seed", str(seed))
+    more than a metre. (Simulated runs are exactly repeatable at any speed, in a process of
+    their own or not.)"""
+    run = judged("ball-held-close", tmp_path_factory, seed=seed)
     commands = [s.speed_cmd for s in run.samples if s.speed_cmd is not None]
     assert commands and max(commands) <= 0, max(commands)
     later = [s.speed_cmd for s in run.samples if s.t_s >= 0.5]
@@ -301,15 +342,13 @@ def test_ball_held_close_makes_the_robot_back_away(seed: int, tmp_path: Path, en
     assert min(run.ball_view(s)[0] for s in run.samples) > 0.14
 
 
-def with_avoid_robot_file(tmp_path: Path) -> Path:
+def with_avoid_robot_file() -> str:
     """The shipped robot with the built-in avoid behaviour in the place
     examples/avoid_obstacles.py takes (priority 3), run inside the robot."""
-    text = (ROOT / "ubf_async" / "robots" / "mini-whegs.yaml").read_text("utf-8")
+    text = DEFAULT_ROBOT.read_text("utf-8")
     slot = "    - remote: avoid_obstacles\n      priority: 3\n"
     assert slot in text
-    path = tmp_path / "with-avoid.yaml"
-    path.write_text(text.replace(slot, "    - behavior: avoid\n      priority: 3\n"), "utf-8")
-    return path
+    return text.replace(slot, "    - behavior: avoid\n      priority: 3\n")
 
 
 def assert_pushes_against_the_box(run: Run) -> None:
@@ -339,39 +378,48 @@ def assert_gets_round_the_box(run: Run, *, avoid: str) -> None:
 
 
 def test_obstacle_course_the_thesis_tree_pushes_against_the_box(
-        tmp_path: Path, endpoint: str, robot: str) -> None:
+        tmp_path_factory: pytest.TempPathFactory) -> None:
     """A low box lies across the way to the ball; the default robot (search, chase, flee)
     drives into it and pushes against it to the end."""
-    run = run_scenario("obstacle-course", tmp_path, endpoint, robot,
-                       expect_met=False)
+    run = judged("obstacle-course", tmp_path_factory, expect_met=False)
     assert_pushes_against_the_box(run)
     assert run.summary["motion_last_2s"]["max_offset_m"] < 0.01
 
 
 @pytest.mark.parametrize("seed", [6, 1, 2])
 def test_obstacle_course_with_the_avoid_behaviour_gets_round(
-        seed: int, tmp_path: Path, endpoint: str, robot: str) -> None:
+        seed: int, tmp_path_factory: pytest.TempPathFactory) -> None:
     """The avoid behaviour run inside the robot (``behavior: avoid`` where the example takes
     its place) backs off whenever the IR beam meets the box within 25 cm and keeps backing
     and turning for its hold_s: in each seed tried (6 is the file's) it works its way round
     and settles at the ball, never staying against the box."""
-    run = run_scenario("obstacle-course", tmp_path, endpoint, robot, "--seed", str(seed),
-                       robot_file=with_avoid_robot_file(tmp_path))
+    run = judged("obstacle-course", tmp_path_factory, seed=seed,
+                 robot_text=with_avoid_robot_file())
     assert_gets_round_the_box(run, avoid="avoid")
 
 
 @pytest.mark.asyncio
 async def test_the_avoid_obstacles_example_in_its_own_process_matters(
-        tmp_path: Path, robot: str) -> None:
+        tmp_path: Path, robot: str, tmp_path_factory: pytest.TempPathFactory) -> None:
     """``python -m ubf_async.launch --scenario obstacle-course`` (the shipped robot) with
     ``python examples/avoid_obstacles.py`` attached over zenoh gets round the box and settles
-    at the ball; alone, the same robot on the same course pushes against the box
-    (:func:`test_obstacle_course_the_thesis_tree_pushes_against_the_box`, the same launch).
+    at the ball; alone, the same robot on the same course pushes against the box (the launch
+    of the course the suite makes, tests/shared_runs.py).
 
     The example listens and the robot connects to it, so the example is up and following the
     robot's clock before simulated time starts (its first vote comes within a few steps,
     seconds before the robot nears the box); across processes the run is not repeatable to
-    the bit, so only the outcome is compared."""
+    the bit, so only the outcome is compared. It runs the course's whole 60 s: with avoid the
+    robot settles at the ball after 27 to 46 s depending on the seed (seeds 1 to 12, in this
+    process), and the example's run is like one more seed.
+
+    The robot without the example is the course's shared launch; with it, one launch, at
+    ``--speed 4``: the example follows the robot's clock without lockstep (that mode is
+    tests/test_lockstep.py's), so its votes come a little later in simulated time the faster
+    the run goes."""
+    alone = launched(tmp_path_factory, "obstacle-course")
+    assert alone.returncode == 0, alone.output
+    assert_pushes_against_the_box(Run(alone.summary(), alone.samples(), alone.folder))
     example_endpoint = f"tcp/127.0.0.1:{free_port()}"
 
     async def launch(folder: Path, *connect: str) -> dict[str, Any]:
@@ -399,12 +447,12 @@ async def test_the_avoid_obstacles_example_in_its_own_process_matters(
     assert_gets_round_the_box(run, avoid="avoid_obstacles")
 
 
-def test_busy_room(tmp_path: Path, endpoint: str, robot: str) -> None:
-    """Every element of the format at once, launched end to end: the file's ``expect`` (the
-    second ball found and faced, nothing but the hand touching the robot, the odometry rule)
-    and what happens on the way."""
+def test_busy_room(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Every element of the format at once (and launched end to end, above): the file's
+    ``expect`` (the second ball found and faced, nothing but the hand touching the robot, the
+    odometry rule) and what happens on the way."""
     scenario = load_scenario("busy-room")
-    run = run_scenario("busy-room", tmp_path, endpoint, robot)
+    run = judged("busy-room", tmp_path_factory)
     # The orange ball carried across the view (2–8 s) is never taken for pink: the robot
     # stays settled on the ball, commanding no turn.
     crossing = run.between(2.0, 8.0)
@@ -424,12 +472,12 @@ def test_busy_room(tmp_path: Path, endpoint: str, robot: str) -> None:
     assert any("chase" in s.winners for s in run.between(24.0, 32.0))
 
 
-def test_fleet_search_alone(tmp_path: Path, endpoint: str, robot: str) -> None:
-    """The fleet's room with this scenario's one robot (python -m ubf_async.launch): from the
-    far corner it creeps up to the ball on glimpses of it and settles facing it; it never
-    turns, so its odometry's heading stays exact, while its position falls short (the
-    coasting wheels' edges after each stop, POSITION_NOT_BOUNDED)."""
-    run = run_scenario("fleet-search", tmp_path, endpoint, robot)
+def test_fleet_search_alone(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The fleet's room with this scenario's one robot (as python -m ubf_async.launch runs it;
+    launched above): from the far corner it creeps up to the ball on glimpses of it and
+    settles facing it; it never turns, so its odometry's heading stays exact, while its
+    position falls short (the coasting wheels' edges after each stop, POSITION_NOT_BOUNDED)."""
+    run = judged("fleet-search", tmp_path_factory)
     start, end = run.samples[0], run.samples[-1]
     assert math.hypot(end.robot_x_m - start.robot_x_m, end.robot_y_m - start.robot_y_m) > 5.5
     odo = run.summary["odometry"]

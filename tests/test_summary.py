@@ -1,29 +1,35 @@
 """The run summary: how the run was started and with which version, the scenario's expected
 outcome with a verdict per criterion, a warning when the run could not keep the speed asked
-for, and numbers rounded to sensible precision."""
+for, and numbers rounded to sensible precision.
+
+What a summary says of the run is checked on runs in this process
+(:func:`ubf_async.experiment.run`, the same summary as launch's, tests/test_experiment.py);
+what launch writes and prints, on one launch shared by those tests (and, for a run that
+settles, the suite's launch of ``ball-in-sight``, tests/shared_runs.py)."""
 
 from __future__ import annotations
 
-import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
+import pytest
 from matplotlib.text import Text
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.shared_runs import Launch, launched, launched_once
+from ubf_async import experiment
+
+ONE_SECOND_TOO_FAST = ["--scenario", "ball-in-sight", "--speed", "500", "--duration", "1",
+                       "--quiet", "--listen", "tcp/127.0.0.1:0"]
+"""One simulated second of ball-in-sight (too short to settle) asked for at 500x real time
+(more than any machine reaches)."""
 
 
-def launch(tmp_path: Path, *args: str) -> tuple[dict[str, Any], str]:
-    summary = tmp_path / "summary.json"
-    result = subprocess.run(
-        [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight", "--quiet",
-         "--listen", "tcp/127.0.0.1:0", "--summary", str(summary), *args],
-        cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stdout + result.stderr
-    return json.loads(summary.read_text()), result.stdout
+def one_second_too_fast(factory: pytest.TempPathFactory) -> Launch:
+    launch = launched_once(factory, "summary-one-second-at-500x",
+                           lambda folder: list(ONE_SECOND_TOO_FAST))
+    assert launch.returncode == 0, launch.output
+    return launch
 
 
 def floats(value: Any) -> list[float]:
@@ -36,29 +42,46 @@ def floats(value: Any) -> list[float]:
     return []
 
 
-def test_a_run_too_short_to_settle_fails_its_expected_outcome(tmp_path: Path) -> None:
-    summary, out = launch(tmp_path, "--speed", "5", "--duration", "1")
+def six_significant_digits_at_most(summary: dict[str, Any]) -> bool:
+    return all(len(f"{abs(f):.15g}".replace(".", "").lstrip("0").rstrip("0")) <= 6
+               for f in floats(summary))
+
+
+def test_a_run_too_short_to_settle_fails_its_expected_outcome() -> None:
+    summary = experiment.run("mini-whegs", "ball-in-sight", duration_s=1.0).summary
     expected = summary["expected"]
     assert expected["outcome"].startswith("turns to the ball")
     verdicts = {c["criterion"]: c for c in expected["criteria"]}
     moving = verdicts["motion_last_2s.max_offset_m"]  # still driving at the ball after 1 s
     assert moving["pass"] is False and moving["value"] > 0.02
     assert expected["pass"] is False
-    assert "expected: turns to the ball" in out and "NOT met (" in out
-    assert "motion_last_2s.max_offset_m" in out
+    assert summary["version"] == "0.1.0"
+    # Six significant digits at most, not seventeen.
+    assert floats(summary) and six_significant_digits_at_most(summary)
+
+
+def test_launch_prints_the_verdict_and_writes_how_it_was_started(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    launch = one_second_too_fast(tmp_path_factory)
+    summary = launch.summary()
+    assert summary["expected"]["pass"] is False
+    assert "expected: turns to the ball" in launch.output and "NOT met (" in launch.output
+    assert "motion_last_2s.max_offset_m" in launch.output
     assert summary["command_line"][:3] == ["python", "-m", "ubf_async.launch"]
     assert "--duration" in summary["command_line"]
     assert summary["version"] == "0.1.0"
-    # Six significant digits at most, not seventeen.
-    assert all(len(f"{abs(f):.15g}".replace(".", "").lstrip("0").rstrip("0")) <= 6
-               for f in floats(summary))
+    assert six_significant_digits_at_most(summary)
 
 
 def test_a_run_that_settles_meets_it_and_a_run_too_slow_is_warned_about(
-        tmp_path: Path) -> None:
-    summary, out = launch(tmp_path, "--speed", "500", "--duration", "25")
-    assert summary["expected"]["pass"] is True, summary["expected"]
-    assert "— met" in out
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    settles = launched(tmp_path_factory, "ball-in-sight")  # 25 s, flat out
+    assert settles.returncode == 0, settles.output
+    assert settles.summary()["expected"]["pass"] is True, settles.summary()["expected"]
+    assert "— met" in settles.output
+    assert settles.summary()["warnings"] == []  # flat out is never too slow
+    launch = one_second_too_fast(tmp_path_factory)
+    summary = launch.summary()
     rtf = summary["real_time_factor"]
     assert rtf < 500
     [warning] = summary["warnings"]
@@ -66,21 +89,18 @@ def test_a_run_that_settles_meets_it_and_a_run_too_slow_is_warned_about(
                         r"\(--speed\): the machine could not keep up", warning)
     assert said is not None, warning
     assert abs(float(said[1]) - rtf) <= 0.01  # two decimals of the unrounded factor
-    assert "warning: the run reached" in out
+    assert "warning: the run reached" in launch.output
 
 
 def test_the_trajectory_plot_is_in_metres_with_time_marks_events_and_winners(
         tmp_path: Path) -> None:
+    """The plot a recorded run draws (launch's --record, run()'s pictures: the same runner)."""
     from components.sim.plots import save_run_plot
     from components.sim.record import read_trajectory_csv
     from components.sim.scenarios import load_scenario
     from components.sim.world import World
 
-    result = subprocess.run(
-        [sys.executable, "-m", "ubf_async.launch", "--scenario", "keep-away", "--speed", "20",
-         "--duration", "25", "--quiet", "--listen", "tcp/127.0.0.1:0", "--record",
-         str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stdout + result.stderr
+    experiment.run("mini-whegs", "keep-away", duration_s=25.0, out_dir=tmp_path, pictures=True)
     assert (tmp_path / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     scenario = load_scenario("keep-away")
     samples = read_trajectory_csv(tmp_path / "trajectory.csv")

@@ -1,8 +1,11 @@
 """The end-of-run verdict says what ran (issue 28, item 6): a scenario's expectation is
 judged only on a robot that runs the behaviours it describes ("not applicable" otherwise), and
 a quarantined behaviour or a live change of the tree appears in the verdict and in the exit
-status (3); a run stopped before its duration is not judged. Every test runs the real launch
-in a subprocess."""
+status (3); a run stopped before its duration is not judged. The verdicts in the summary are
+checked on runs in this process (the same summary as launch's, tests/test_experiment.py); what
+launch prints and exits with, on launches in a subprocess: one for a robot that is not judged
+and not run as its file says, the suite's launch of ball-in-sight (tests/shared_runs.py) for
+one that is, and one changed live."""
 
 from __future__ import annotations
 
@@ -13,7 +16,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from tests.conftest import REPOSITORY, free_port, repository_env
+from tests.shared_runs import launched, launched_once
+from ubf_async import experiment
 from ubf_async.runs.wiring import EXIT_DEGRADED
 
 DEFAULT_ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"
@@ -29,11 +36,15 @@ RAISING = """    - behavior: tests.plugin_behaviors:Raising
 """
 
 
-def robot_file(tmp_path: Path, *, replace_search_with: str) -> Path:
+def robot_text(*, replace_search_with: str) -> str:
     text = DEFAULT_ROBOT.read_text()
     assert SEARCH in text
+    return text.replace(SEARCH, replace_search_with)
+
+
+def robot_file(tmp_path: Path, *, replace_search_with: str) -> Path:
     path = tmp_path / "robot.yaml"
-    path.write_text(text.replace(SEARCH, replace_search_with))
+    path.write_text(robot_text(replace_search_with=replace_search_with))
     return path
 
 
@@ -55,39 +66,57 @@ def test_an_expectation_about_a_behaviour_the_robot_has_not_is_not_applicable(
         tmp_path: Path) -> None:
     """ball-behind's outcome is search's: on a robot without search it is not judged."""
     no_search = robot_file(tmp_path, replace_search_with="")
-    proc, summary_path = launch(tmp_path, str(no_search), "--scenario", "ball-behind",
-                                "--speed", "max", "--duration", "3",
-                                "--listen", f"tcp/127.0.0.1:{free_port()}")
-    output, summary = finished(proc, summary_path)
-    assert proc.returncode == 0, output
-    expected = summary["expected"]
+    result = experiment.run(no_search, "ball-behind", duration_s=3.0)
+    expected = result.expected
+    assert expected is not None
     assert expected["applicable"] is False and expected["pass"] is None, expected
     assert "the robot has no search" in expected["why"]
-    assert "— not applicable (the robot has no search" in output, output
-    assert "— met" not in output and "NOT met" not in output
+    assert result.passed is None and result.summary["quarantined"] == []
 
 
-def test_the_same_scenario_on_the_robot_it_describes_is_judged(tmp_path: Path) -> None:
-    proc, summary_path = launch(tmp_path, "--scenario", "ball-in-sight", "--speed", "max",
-                                "--duration", "3", "--listen", f"tcp/127.0.0.1:{free_port()}")
-    output, summary = finished(proc, summary_path)
-    assert proc.returncode == 0, output
-    assert summary["expected"]["applicable"] is True
-    assert summary["quarantined"] == [] and summary["tree_changes"] == []
-    assert "not as the robot file describes" not in output
+def test_the_same_scenario_on_the_robot_it_describes_is_judged(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    result = experiment.run("mini-whegs", "ball-in-sight", duration_s=3.0)
+    assert result.summary["expected"]["applicable"] is True
+    assert result.summary["quarantined"] == [] and result.summary["tree_changes"] == []
+    # The launch of the scenario the suite makes (tests/shared_runs.py): exit status 0, and
+    # nothing said of a run other than the robot file's.
+    launch = launched(tmp_path_factory, "ball-in-sight")
+    assert launch.returncode == 0, launch.output
+    assert launch.summary()["expected"]["applicable"] is True
+    assert launch.summary()["quarantined"] == [] and launch.summary()["tree_changes"] == []
+    assert "ubf_async: stopped\n" in launch.output
+    assert "not as the robot file describes" not in launch.output
 
 
-def test_a_quarantined_behaviour_is_in_the_verdict_and_the_exit_status(
-        tmp_path: Path) -> None:
+def test_a_quarantined_behaviour_is_in_the_verdict(tmp_path: Path) -> None:
     raising = robot_file(tmp_path, replace_search_with=RAISING + SEARCH)
-    proc, summary_path = launch(tmp_path, str(raising), "--scenario", "ball-in-sight",
-                                "--speed", "max", "--duration", "3",
-                                "--listen", f"tcp/127.0.0.1:{free_port()}")
-    output, summary = finished(proc, summary_path)
-    assert proc.returncode == EXIT_DEGRADED, output
+    summary = experiment.run(raising, "ball-in-sight", duration_s=3.0).summary
     assert summary["quarantined"] == ["seek_pink_ball/raising"], summary["quarantined"]
     assert any("quarantined" in w and "seek_pink_ball/raising" in w
                for w in summary["warnings"]), summary["warnings"]
+    assert summary["expected"]["applicable"] is True
+
+
+def test_launch_says_what_was_not_judged_and_what_did_not_run_with_exit_status_3(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """One launch for what launch prints and exits with: a robot whose search is replaced by
+    a behaviour that always fails, on ball-behind (search's scenario): the verdict is not
+    applicable, the failing behaviour is quarantined, and the exit status is 3."""
+
+    def arguments(folder: Path) -> list[str]:
+        robot = folder / "robot.yaml"
+        robot.write_text(robot_text(replace_search_with=RAISING))
+        return [str(robot), "--scenario", "ball-behind", "--speed", "max", "--duration", "3",
+                "--quiet", "--listen", f"tcp/127.0.0.1:{free_port()}"]
+
+    launch = launched_once(tmp_path_factory, "verdict-no-search-and-raising", arguments)
+    output, summary = launch.output, launch.summary()
+    assert launch.returncode == EXIT_DEGRADED, output
+    assert summary["expected"]["applicable"] is False
+    assert "— not applicable (the robot has no search" in output, output
+    assert "— met" not in output and "NOT met" not in output
+    assert summary["quarantined"] == ["seek_pink_ball/raising"], summary["quarantined"]
     assert "warning: quarantined" in output
     assert "stopped, but not as the robot file describes (quarantined: seek_pink_ball/raising)" \
         in output, output

@@ -90,6 +90,14 @@ def run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | None = N
     cleanly. Called from a running event loop, it refuses (``RuntimeError``): use
     :func:`run_async`.
     """
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        pass  # none: the run starts its own
+    else:  # refused before anything is done (asyncio's own refusal would leak a coroutine)
+        raise RuntimeError("ubf_async.experiment.run() cannot be called from a running event "
+                           "loop (the run needs a loop of its own): await "
+                           "ubf_async.experiment.run_async(...) instead")
     plan = plan_run(robot, scenario, seed=seed, duration_s=duration_s, out_dir=out_dir,
                     pictures=pictures)
     with asyncio.Runner(loop_factory=lending.new_idle_event_loop) as runner:
@@ -121,10 +129,8 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
             + (f"its devices need several ({', '.join(simulators)})" if simulators
                else "none of its devices is simulated"))
     folder = Path(out_dir) if out_dir is not None else None
-    if folder is not None:
-        if folder.exists() and not folder.is_dir():
-            raise ConfigurationError(f"out_dir {folder}: exists and is not a directory")
-        folder.mkdir(parents=True, exist_ok=True)
+    if folder is not None and folder.exists() and not folder.is_dir():
+        raise ConfigurationError(f"out_dir {folder}: exists and is not a directory")
     options = SimulationOptions(
         scenario=str(scenario), speed=math.inf, seed=seed, duration_s=duration_s,
         summary_path=folder / SUMMARY_FILE if folder is not None else None,
@@ -135,6 +141,8 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
     plan = wiring.simulation_plan(resolved, options, simulator=SIMULATORS.get(simulators[0])(),
                                   connection=ConnectionOptions(robot=resolved.name))
     plan.helper_processes = False
+    if folder is not None:  # only once everything else is checked: a refusal leaves nothing
+        folder.mkdir(parents=True, exist_ok=True)
     return plan
 
 
