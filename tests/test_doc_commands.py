@@ -181,6 +181,8 @@ NOT_RUN = {
     "python -m components.camera":
         "the program's name in prose (a device in a process of its own): components.range, "
         "shown with arguments, runs above",
+    "python -m components.range":
+        "the program's name in prose (docs/protocol.md): shown with arguments, it runs above",
     "export RMW_IMPLEMENTATION=rmw_zenoh_cpp": ROS_MACHINE,
     'export ZENOH_CONFIG_OVERRIDE=connect/endpoints=["tcp/ROBOT_HOST:7447"]': ROS_MACHINE,
     "export ZENOH_ROUTER_CHECK_ATTEMPTS=-1": ROS_MACHINE,

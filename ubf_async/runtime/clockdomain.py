@@ -160,8 +160,13 @@ class SenderNames:
 
     def ask(self, pub: int, then: Callable[[str | None], None]) -> None:
         """Call ``then(name)`` once the process publishing as ``pub`` is named, or
-        ``then(None)`` after ``wait_s``. On the event loop."""
-        loop = asyncio.get_running_loop()
+        ``then(None)`` after ``wait_s``. On the event loop (called outside one — a unit test
+        ingesting by hand — no heartbeat can arrive: ``then(None)`` at once)."""
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:
+            then(None)
+            return
         if pub not in self._asked:
             self._asked[pub] = []
             self._timers[pub] = loop.call_later(self.wait_s, self._answer, pub, None)
