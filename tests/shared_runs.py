@@ -1,8 +1,9 @@
 """Simulated runs shared by the tests of several modules, each made once for the whole session.
 
 * :func:`launched` — **the one launch of each built-in scenario**: ``python -m
-  ubf_async.launch mini-whegs --scenario S --seed N --speed max --record DIR --summary F
-  --quiet`` in a subprocess, with ``N`` from :data:`LAUNCH_SEEDS`. tests/test_experiment.py
+  ubf_async.launch mini-whegs --scenario S --seed N --speed max --trajectory DIR/trajectory.csv
+  --summary F --quiet`` in a subprocess (``--record DIR`` for those of :data:`RECORDED`), with
+  ``N`` from :data:`LAUNCH_SEEDS`. tests/test_experiment.py
   compares it byte for byte with the in-process run; tests/test_scenarios.py judges it and
   checks what it wrote; tests/test_summary.py and tests/test_verdict.py what it printed.
 * :func:`launched_once` — any other launch whose outputs several tests check.
@@ -157,19 +158,29 @@ def launched_once(factory: pytest.TempPathFactory, key: str,
     return Launch(folder=folder, returncode=printed["returncode"], output=printed["output"])
 
 
+RECORDED = frozenset({"ball-in-sight"})
+"""The scenarios launched with ``--record`` (the bus recorded to MCAP, the plot, the camera
+frames): the recorder listens to every key, so the simulator publishes its clock, truth and
+world and the camera draws its view at every frame — the same run all the same, which the
+identity test shows on it. The others write their trajectory alone (``--trajectory``), at a
+quarter of the cost."""
+
+
 def launch_arguments(scenario: str, seed: int, folder: Path) -> list[str]:
     """A built-in scenario's shared launch (without ``--summary``, which
     :func:`launched_once` adds)."""
     robot = f"shared{os.getpid()}{builtin_names().index(scenario)}"
+    outputs = (["--record", str(folder), "--record-every-s", f"{RECORD_EVERY_S:g}"]
+               if scenario in RECORDED else ["--trajectory", str(folder / "trajectory.csv")])
     return ["mini-whegs", "--scenario", scenario, "--seed", str(seed), "--speed", "max",
-            "--record", str(folder), "--record-every-s", f"{RECORD_EVERY_S:g}", "--quiet",
-            "--listen", f"tcp/127.0.0.1:{free_port()}", "--robot", robot]
+            *outputs, "--quiet", "--listen", f"tcp/127.0.0.1:{free_port()}", "--robot", robot]
 
 
 def launched(factory: pytest.TempPathFactory, scenario: str) -> Launch:
     """The one launch of the built-in ``scenario`` (with its seed of :data:`LAUNCH_SEEDS`):
-    ``python -m ubf_async.launch mini-whegs --scenario S --seed N --speed max --record DIR
-    --summary DIR/summary.json --quiet``."""
+    ``python -m ubf_async.launch mini-whegs --scenario S --seed N --speed max --trajectory
+    DIR/trajectory.csv --summary DIR/summary.json --quiet`` (``--record DIR`` for those of
+    :data:`RECORDED`)."""
     seed = LAUNCH_SEEDS[scenario]
     launch = launched_once(factory, f"launch-{scenario}-seed{seed}",
                            lambda folder: launch_arguments(scenario, seed, folder))

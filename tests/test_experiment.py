@@ -30,7 +30,7 @@ import components.sim.backends
 import components.sim.render_process
 import ubf_async.runs.inprocess
 from components.sim.scenarios import builtin_names, load_scenario
-from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, launched, ran
+from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, RECORDED, launched, ran
 from ubf_async import experiment
 from ubf_async.assembly.robotfile import load_robot_text
 from ubf_async.errors import ConfigurationError, RobotFileError, ScenarioError, UbfError
@@ -43,9 +43,6 @@ NOT_COMPARED: dict[str, str] = {
     "ticks.tick_us_p50": "the wall time a tick took (the median)",
     "ticks.tick_us_max": "the wall time a tick took (the longest)",
     "command_line": "how the run was started: launch's argv, run()'s call",
-    "recording": "where the files went, and the pictures launch's --record draws (the plot and "
-                 "camera frames; the in-process run draws none unless asked: pictures=False); "
-                 "its trajectory_csv and errors are compared",
 }
 """The summary's fields that measure the machine, not the run — left out of the comparison,
 and why. Everything else is compared exactly, ``speed_requested`` (flat out both), ``version``
@@ -87,12 +84,15 @@ def test_the_run_in_this_process_is_the_launch_byte_for_byte(
     duration_s = load_scenario(scenario).duration_s
     assert len(inprocess.samples) == round(duration_s * 20) + 1  # 20 samples a second
     assert inprocess.samples[-1].t_s == pytest.approx(duration_s)
-    ours, theirs = inprocess.summary, launch.summary()
+    ours, theirs = inprocess.summary, dict(launch.summary())
     assert ours["seed"] == theirs["seed"] == launch.seed
+    # A launch with --record says where its recording went (the plot, the frames): the
+    # recorder listening to every key made it publish everything, and the run is the same.
+    recording = theirs.pop("recording", None)
+    assert "recording" not in ours and (recording is not None) == (scenario in RECORDED)
+    if recording is not None:
+        assert recording["errors"] == [] and recording["frames"], recording
     assert without(ours, NOT_COMPARED) == without(theirs, NOT_COMPARED)
-    for field in ("trajectory_csv", "errors"):
-        assert ours["recording"][field] == theirs["recording"][field]
-    assert ours["recording"]["frames"] == [] and theirs["recording"]["frames"]
     # The figures left out are the machine's: the run's own are there in both.
     assert ours["real_time_factor"] > 0 and theirs["real_time_factor"] > 0
     assert theirs["command_line"][:3] == ["python", "-m", "ubf_async.launch"]
@@ -120,9 +120,8 @@ def logging_state() -> dict[str, tuple[Any, ...]]:
 
 
 def figures(result: experiment.RunResult) -> dict[str, Any]:
-    """The run's figures: its summary but for :data:`NOT_COMPARED` (``recording`` is there only
-    with ``out_dir``)."""
-    return without({"recording": None, **result.summary}, NOT_COMPARED)
+    """The run's figures: its summary but for :data:`NOT_COMPARED`."""
+    return without(result.summary, NOT_COMPARED)
 
 
 REPEATED = ("keep-away", 47.0)
@@ -239,3 +238,34 @@ async def test_run_refuses_a_running_event_loop_and_run_async_runs_there(
     same = await asyncio.to_thread(experiment.run, "mini-whegs", "ball-in-sight",
                                    duration_s=2.0)
     assert same.trajectory == result.trajectory and figures(same) == figures(result)
+
+
+def test_instants_passed_without_a_round_of_the_loop_change_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Flat out, the simulator steps through the instants at which nothing of its process is
+    due without a round of the event loop (components/sim/component.py, Lockstep). The same
+    run with a barrier at every instant is the same, sample for sample: a launch recorded with
+    --record (its recorder makes the simulator publish at every step) shows it too."""
+    from components.sim.component import SimulatorComponent
+
+    rounds = {"barriers": 0, "steps": 0}
+    barrier, step = SimulatorComponent._barrier, SimulatorComponent._step
+
+    async def counted_barrier(self: SimulatorComponent, *args: Any) -> bool:
+        rounds["barriers"] += 1
+        return await barrier(self, *args)
+
+    def counted_step(self: SimulatorComponent, *args: Any) -> bool:
+        rounds["steps"] += 1
+        return step(self, *args)
+
+    monkeypatch.setattr(SimulatorComponent, "_barrier", counted_barrier)
+    monkeypatch.setattr(SimulatorComponent, "_step", counted_step)
+    skipping = experiment.run("mini-whegs", "keep-away", seed=5, duration_s=12)
+    assert rounds["barriers"] < 0.5 * rounds["steps"], rounds  # most instants skipped
+    monkeypatch.setattr(SimulatorComponent, "_barrier_is_idle", lambda self, *args: False)
+    rounds.update(barriers=0, steps=0)
+    every_instant = experiment.run("mini-whegs", "keep-away", seed=5, duration_s=12)
+    assert rounds["barriers"] >= rounds["steps"], rounds  # (and the start's)
+    assert skipping.trajectory == every_instant.trajectory
+    assert figures(skipping) == figures(every_instant)

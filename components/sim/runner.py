@@ -11,7 +11,8 @@ registry) and hands them over with :meth:`SimulationRun.add_devices`.
 Memory stays bounded however long a run lasts (docs/resources.md): the trajectory is sampled
 every ``SAMPLE_PERIOD_S`` into a :class:`~components.sim.record.TrajectoryBuffer` (a decimated
 history of the whole run plus the last minute at full rate: what the plot and the summary
-need), and with ``record_dir`` every sample is also streamed to ``trajectory.csv`` as the run
+need), and with ``trajectory_path`` or ``record_dir`` every sample is also streamed to a
+``trajectory.csv`` as the run
 goes, in batches written by a worker thread.
 """
 
@@ -233,7 +234,8 @@ class SimulationRun:
             self.clock.hold(round(self.duration_s * 1e9))
         if self.options.record_dir is not None:
             self.options.record_dir.mkdir(parents=True, exist_ok=True)
-            self._csv = TrajectoryCsvWriter(self.options.record_dir / "trajectory.csv")
+        if (csv_path := self.trajectory_path()) is not None:
+            self._csv = TrajectoryCsvWriter(csv_path)
         self._audited_encoders = self._encoders()
         if self._audited_encoders is not None:
             self._audit()  # where both headings start
@@ -245,6 +247,14 @@ class SimulationRun:
             self._led_sub = self.bus.subscribe(LED_STATE.key_expr(self.bus.keys),
                                                self._on_leds)
             self._tasks.append(asyncio.create_task(self._record_frames(), name="sim:frames"))
+
+    def trajectory_path(self) -> Path | None:
+        """Where every trajectory sample is streamed: ``options.trajectory_path``, else
+        ``trajectory.csv`` of the recording, else nowhere."""
+        if self.options.trajectory_path is not None:
+            return self.options.trajectory_path
+        folder = self.options.record_dir
+        return folder / "trajectory.csv" if folder is not None else None
 
     def _encoders(self) -> EncodersComponent | None:
         return next((d for d in self.devices if isinstance(d, EncodersComponent)), None)
@@ -370,14 +380,14 @@ class SimulationRun:
         self._take_sample(controller)
         summary = self.summary(controller)
         folder = self.options.record_dir
+        await self._csv_written()  # the batch in flight lands before the rest
         if folder is not None:
-            await self._csv_written()  # the batch in flight lands before the rest
             summary["recording"] = self._recording_summary(folder)
         summary = rounded(summary)
         await self._write_summary(summary)
         report = []
+        rest = self._csv.take() if self._csv is not None else []
         if folder is not None:
-            rest = self._csv.take() if self._csv is not None else []
             try:
                 await asyncio.to_thread(self._write_recording, folder, rest)
             except OSError as exc:  # the summary is written
@@ -387,6 +397,13 @@ class SimulationRun:
             await self._write_summary(summary)  # again: with the last frame, and what failed
             report.append(f"  recorded {self.trajectory_buffer.count} samples and "
                           f"{self.frames_written} frames in {folder}")
+        elif self._csv is not None:
+            try:
+                await asyncio.to_thread(self._finish_csv, rest)
+                report.append(f"  trajectory written to {self._csv.path}")
+            except OSError as exc:  # the summary is written
+                log.error("%s: %s", self._csv.path, exc)
+                report.append(f"  warning: the trajectory could not be written: {exc}")
         expected = summary.get("expected")
         if expected is not None:
             failed = [c["criterion"] for c in expected["criteria"] if not c["pass"]]
@@ -414,10 +431,13 @@ class SimulationRun:
             text = json.dumps(summary, indent=2, ensure_ascii=False)
             await asyncio.to_thread(self.options.summary_path.write_text, text, "utf-8")
 
-    def _write_recording(self, folder: Path, rest: list[TrajectorySample]) -> None:
+    def _finish_csv(self, rest: list[TrajectorySample]) -> None:
         if self._csv is not None:
             self._csv.write(rest)
             self._csv.close()
+
+    def _write_recording(self, folder: Path, rest: list[TrajectorySample]) -> None:
+        self._finish_csv(rest)
         if not self.options.pictures:
             return
         events = [(step.at_s, f"ball: {step.kind}") for step in self.scenario.ball_script]

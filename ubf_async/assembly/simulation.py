@@ -46,6 +46,9 @@ class SimulationOptions:
     duration_s: float | None = None
     """Simulated seconds to run; ``None``: the scenario's when one was named, else forever."""
     summary_path: Path | None = None
+    trajectory_path: Path | None = None
+    """Stream every trajectory sample (20 a simulated second) to this CSV as the run goes;
+    with ``record_dir`` it is ``record_dir/trajectory.csv``."""
     record_dir: Path | None = None
     record_every_s: float = 2.0
     pictures: bool = True

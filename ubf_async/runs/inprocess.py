@@ -129,12 +129,15 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
             + (f"its devices need several ({', '.join(simulators)})" if simulators
                else "none of its devices is simulated"))
     folder = Path(out_dir) if out_dir is not None else None
+    if pictures and folder is None:
+        raise ConfigurationError("pictures=True draws into out_dir: give one")
     if folder is not None and folder.exists() and not folder.is_dir():
         raise ConfigurationError(f"out_dir {folder}: exists and is not a directory")
     options = SimulationOptions(
         scenario=str(scenario), speed=math.inf, seed=seed, duration_s=duration_s,
         summary_path=folder / SUMMARY_FILE if folder is not None else None,
-        record_dir=folder, pictures=pictures, keep_trajectory=True,
+        trajectory_path=folder / TRAJECTORY_FILE if folder is not None else None,
+        record_dir=folder if pictures else None, keep_trajectory=True,
         command_line=("ubf_async.experiment.run", str(robot if not isinstance(robot, Robot)
                                                       else robot.source), str(scenario),
                       *(() if seed is None else (f"seed={seed}",))))

@@ -193,6 +193,10 @@ def add_simulation_arguments(parser: argparse.ArgumentParser) -> None:
                      help="record every message on the robot's keys to DIR/<robot>.mcap "
                           "(docs/recording.md; simulated or not) and, for a simulated run, "
                           "write trajectory.csv, trajectory.png and annotated camera frames")
+    sim.add_argument("--trajectory", type=Path, default=None, metavar="FILE.csv",
+                     help="write the trajectory (20 samples a simulated second: pose, ball, "
+                          "drive command, winners) to FILE.csv, without recording the bus "
+                          "(--record writes it too, as DIR/trajectory.csv)")
     sim.add_argument("--record-every-s", type=float, default=2.0, metavar="S",
                      help="simulated seconds between recorded camera frames")
 
@@ -262,18 +266,24 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
         options = SimulationOptions(
             scenario=args.scenario, speed=args.speed, seed=args.seed,
             duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
+            trajectory_path=args.trajectory,
             record_every_s=args.record_every_s,
             lockstep_participants=args.lockstep_participants,
             command_line=("python", "-m", "ubf_async.launch", *sys.argv[1:]))
         simulator.check(options)  # an unknown scenario is refused here, not after the bus opens
     if simulator is None:
         given = [flag for flag, value in (("--scenario", args.scenario),
-                                          ("--summary", args.summary)) if value is not None]
+                                          ("--summary", args.summary),
+                                          ("--trajectory", args.trajectory))
+                 if value is not None]
         if given:
             why = ("--no-sim is given" if args.no_sim
                    else f"no device of {robot.source} is simulated")
             raise ConfigurationError(f"{', '.join(given)}: there is no simulator ({why})")
-    check_outputs(args.summary, args.record)
+    if args.trajectory is not None and args.record is not None:
+        raise ConfigurationError(f"--trajectory: --record {args.record} writes the trajectory "
+                                 f"already ({args.record / 'trajectory.csv'}); give one of them")
+    check_outputs(args.summary, args.record, trajectory=args.trajectory)
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
     args.robot = args.robot or robot.name or DEFAULT_ROBOT
@@ -287,16 +297,20 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
                           lockstep=args.lockstep, status_on_robot_clock=args.lockstep)
 
 
-def check_outputs(summary: Path | None, record: Path | None) -> None:
-    """Make the folders ``--summary`` and ``--record`` write into, and check that a file can
-    be created there, so a run never ends with nowhere to put its results. Raises
-    :class:`ConfigurationError`."""
-    if summary is not None and summary.is_dir():
-        raise ConfigurationError(f"--summary {summary}: is a directory; give a file name, "
-                                 f"e.g. {summary / 'summary.json'}")
+def check_outputs(summary: Path | None, record: Path | None, *,
+                  trajectory: Path | None = None) -> None:
+    """Make the folders ``--summary``, ``--trajectory`` and ``--record`` write into, and check
+    that a file can be created there, so a run never ends with nowhere to put its results.
+    Raises :class:`ConfigurationError`."""
+    for flag, file, example in (("--summary", summary, "summary.json"),
+                                ("--trajectory", trajectory, "trajectory.csv")):
+        if file is not None and file.is_dir():
+            raise ConfigurationError(f"{flag} {file}: is a directory; give a file name, "
+                                     f"e.g. {file / example}")
     if record is not None and record.exists() and not record.is_dir():
         raise ConfigurationError(f"--record {record}: exists and is not a directory")
     for flag, folder in (("--summary", summary.parent if summary else None),
+                         ("--trajectory", trajectory.parent if trajectory else None),
                          ("--record", record)):
         if folder is None:
             continue
@@ -336,8 +350,8 @@ async def run_robot(plan: wiring.RunPlan, args: argparse.Namespace,
     except asyncio.CancelledError:
         pass  # a stop signal: the end below is the same as for any other end
     finally:
-        code = await wiring.end(run, out,
-                                saving=args.summary is not None or args.record is not None)
+        code = await wiring.end(run, out, saving=any(
+            output is not None for output in (args.summary, args.record, args.trajectory)))
     return code
 
 
