@@ -20,6 +20,8 @@ What a test changes in a command, and only that:
   that port explicitly (``--listen`` for a robot, ``--connect`` for a tool);
 * a command that runs until stopped is stopped with Ctrl-C (SIGINT) once the test has seen
   what it waits for, or is bounded with its own ``--duration`` (a scenario: 4 simulated s);
+  a ``--duration`` shown is shortened the same way, with one given after it (a scenario's to
+  4 simulated s, a recorder's to 2 s: the replays of their recordings are as short);
 * ``~`` is a temporary folder, a placeholder (``DIR``, ``...``) what the page says it stands
   for, and each page's commands run in a temporary folder of their own (``examples/`` linked
   in, a fleet file's router on a free port).
@@ -463,6 +465,9 @@ REPLAY_OUT = "python -m ubf_async.replay out/mini.mcap --speed 2"
 RECORD_ORIGINALS = "python -m ubf_async.record --no-live-channels"
 
 
+RECORDING = ("--duration", "2")  # the recorder's: wall-clock seconds
+
+
 def fresh_controller(here: Page) -> tuple[Proc, str]:
     """docs/recording.md's fresh controller (same tree, no simulator), on a free port."""
     endpoint = loopback()
@@ -590,20 +595,23 @@ class TestWhileTheQuickStartRobotRuns:
                 # only the original messages, none of the live view's channels
                 assert re.search(r": [1-9]\d* messages in recordings/mini\.mcap$",
                                  stopped(originals)), originals
-                out = robot.page.run(RECORD, endpoint=robot.endpoint)  # 10 s
+                out = robot.page.run(RECORD, endpoint=robot.endpoint, add=RECORDING)
                 assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove "
                                  r"channels in rec/mini\.mcap$", out), out
                 replayed(robot.page, REPLAY_REC, controllers[0])
 
             def recording() -> None:  # launch --record, then replay
                 endpoint = loopback()
-                run = recording_md.start(RECORD_RUN, add=("--listen", endpoint))
-                run.wait_for(r"^\[mini\] [\d.]+s \| drive ")
-                # launch --record's recorder is 'recorder' too: another needs another --name
+                run = recording_md.start(RECORD_RUN, add=(*SHORT_RUN, "--listen", endpoint))
+                # launch --record's recorder is 'recorder' too: another needs another --name.
+                # Its session is open: the second recorder waits for the robot, whose
+                # recorder is alive before it (and for the run's 4 simulated s after it).
+                run.wait_for(rf"^  attach with: --connect {endpoint} --robot mini$")
                 second = recording_md.run(RECORD_PROGRESS, endpoint=endpoint, status=2)
                 assert "a component named 'recorder' is already alive on robot 'mini'" in second
                 assert "give this recorder another --name" in second
                 out = ended(run)
+                assert re.search(r"^\[mini\] [\d.]+s \| drive ", out, re.M), out
                 assert "  expected: turns to the ball, approaches and stops" in out, out
                 assert re.search(r"^  recorded [1-9]\d* messages and \d+ in the live view's "
                                  r"Foxglove channels to out/mini\.mcap$", out, re.M), out
@@ -860,11 +868,6 @@ def test_the_latency_bench_explains_itself(tmp_path: Path) -> None:
 def test_tests_run_beside_a_busy_loop_per_core_and_the_calibration_table_is_current(
         tmp_path: Path) -> None:
     with page(tmp_path) as here:
-        # `...`: a test of its own (the suite's own tests would take the busy machine long)
-        (here.cwd / "test_under_load.py").write_text(
-            "import os\n\ndef test_the_cores_are_busy():\n    assert os.cpu_count()\n")
-        hogged = here.start(CPU_HOG, replace={
-            "...": ["test_under_load.py", "-q", "-p", "no:cacheprovider", "--rootdir", "."]})
         (here.cwd / "docs").mkdir()
         shutil.copy(ROOT / "docs" / "scenarios.md", here.cwd / "docs")
         out = here.run(CALIBRATE)
@@ -872,6 +875,15 @@ def test_tests_run_beside_a_busy_loop_per_core_and_the_calibration_table_is_curr
         # the table shown is the one the simulator renders now
         assert ((here.cwd / "docs" / "scenarios.md").read_text("utf-8")
                 == (ROOT / "docs" / "scenarios.md").read_text("utf-8"))
+        # `...`: a test of its own (the suite's own tests would take the busy machine long),
+        # its pytest without the plug-ins installed here (hypothesis alone imports for 1.4 s,
+        # many times that beside the hogs); after the calibration, which the hogs would only
+        # slow down, with every other test running beside this one
+        (here.cwd / "test_under_load.py").write_text(
+            "import os\n\ndef test_the_cores_are_busy():\n    assert os.cpu_count()\n")
+        hogged = here.start(CPU_HOG, replace={
+            "...": ["test_under_load.py", "-q", "-p", "no:cacheprovider", "--rootdir", "."]},
+            env={"PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1"})
         assert re.search(r"^1 passed", ended(hogged), re.M), hogged
 
 
