@@ -53,6 +53,7 @@ import pytest
 from tests.conftest import free_port, repository_env
 from tests.foxglove_client import FoxgloveClient
 from tests.test_docs import DOCS, ROOT, shell_texts, tokens
+from tests.test_late_join import readme_tools_join_late
 
 TUTORIAL = ROOT / "docs" / "your-robot.md"
 DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447")
@@ -419,6 +420,8 @@ class Robot:
     endpoint: str
     proc: Proc
     page: Page
+    started: float
+    """``time.monotonic()`` when it was launched."""
 
     def tool(self) -> tuple[str, str]:
         """What a tool shown without ``--connect`` (the documented default) is given."""
@@ -431,9 +434,10 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     shown "while a robot runs" attaches to. Stopped with Ctrl-C at the end."""
     endpoint = loopback()
     with page(tmp_path_factory.mktemp("readme")) as here:
+        started = time.monotonic()
         proc = here.start(QUICK_START, add=("--listen", endpoint))
         proc.wait_for(r"^\[mini\] [\d.]+s \| drive .* \| tick [\d.]+Hz")
-        yield Robot(endpoint, proc, here)
+        yield Robot(endpoint, proc, here, started)
         stopped(proc)
         assert proc.lines[-1] == "ubf_async: stopped", proc
 
@@ -618,6 +622,14 @@ class TestWhileTheQuickStartRobotRuns:
                 replayed(recording_md, REPLAY_OUT, controllers[1])
 
             together(readme, recording)
+
+    @pytest.mark.slow
+    @pytest.mark.asyncio
+    async def test_readme_tools_joining_late_work_within_3_s(self, robot: Robot) -> None:
+        """Issue 28, item 1 (tests/test_late_join.py): the README's teleop, obstacle avoidance
+        and range finder, and the radio, joining this robot 10 s and more after its launch,
+        each at work within 3 s."""
+        await readme_tools_join_late(robot.endpoint, launched=robot.started)
 
     @pytest.mark.slow
     @runs(ROS2_BRIDGE)
