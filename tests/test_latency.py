@@ -153,10 +153,12 @@ def test_tick_schedule_holds_in_sim_time_with_the_full_simulated_robot() -> None
 
 
 def test_obstacle_reaction_async_far_below_sync_and_camera_path_causal() -> None:
-    sync = measure_robot("sync", trials=10)
-    default = measure_robot("default", trials=12)
-    periodic = measure_robot("periodic", trials=12)
-    event = measure_robot("event", trials=12)
+    # Obstacles spread evenly over the camera's phase (bench.latency_sensor): few trials give
+    # the medians; the full figures come from `python -m bench.latency --only obstacle`.
+    sync = measure_robot("sync", trials=6)
+    default = measure_robot("default", trials=8)
+    periodic = measure_robot("periodic", trials=8)
+    event = measure_robot("event", trials=8)
     for o in (sync, default, periodic, event):
         assert o["missed"] == 0, f"{o['controller']}: {o['missed']} obstacles never reacted to"
         assert o["reaction_at_publish"]["min_us"] >= 0
