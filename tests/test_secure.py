@@ -13,6 +13,7 @@ connection was refused, not that nothing answered.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import stat
@@ -339,6 +340,21 @@ async def test_secure_mode_stops_outsiders_and_unauthorised_identities_and_says_
     (while a configured remote behaviour takes control), then asked for its state by
     processes it does not let in, which are told that it refused them."""
     setup, seen = await launched(secure=True)
+    other = tmp_path / "other"  # a set-up for a robot of the same name: other passwords
+    init(other, robot=load_robot(robot_file(tmp_path, robot)))
+
+    async def state(*flags: str, at: str = endpoint) -> tuple[int | None, str]:
+        proc = await spawn("-m", "ubf_async.inspector", "state", "--connect", at, "--robot",
+                           robot, "--timeout", "3", *flags)
+        text = await output(proc)
+        return proc.returncode, text
+
+    # Asked for its state, meanwhile, by those it does not let in (each waits its 3 s), and
+    # where nothing listens.
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    refusals = asyncio.gather(
+        state(), state("--mode", "peer"), state("--secure", str(other), "--identity", "inspector"),
+        state(at=nobody))
     clock_before = seen.clock_max_ns
     attackers = [await spawn(*attacker(endpoint, robot, "client")),
                  await spawn(*attacker(endpoint, robot, "peer")),
@@ -352,8 +368,13 @@ async def test_secure_mode_stops_outsiders_and_unauthorised_identities_and_says_
         await eventually(lambda: (-30.0, 50.0, ("teleop",)) in seen.drives, timeout_s=30,
                          what="the configured teleop to take control")
         texts = [await output(p) for p in attackers]
+        client, peer, wrong, absent = await refusals
     finally:
         await stop(teleop)
+        if not refusals.done():
+            refusals.cancel()
+            with contextlib.suppress(BaseException):
+                await refusals
     no_creds_client, no_creds_peer, inspector, operator = texts
     assert no_creds_client.startswith("refused"), no_creds_client
     assert no_creds_peer.startswith("alone") and "sent" in no_creds_peer, no_creds_peer
@@ -366,23 +387,9 @@ async def test_secure_mode_stops_outsiders_and_unauthorised_identities_and_says_
     assert "teleop" in seen.remotes
 
     # A refused connection is reported as refused, not as absence.
-    other = tmp_path / "other"  # a set-up for a robot of the same name: other passwords
-    init(other, robot=load_robot(robot_file(tmp_path, robot)))
-
-    async def state(*flags: str, at: str = endpoint) -> tuple[int | None, str]:
-        proc = await spawn("-m", "ubf_async.inspector", "state", "--connect", at, "--robot",
-                           robot, "--timeout", "3", *flags)
-        text = await output(proc)
-        return proc.returncode, text
-
     refused = f"error: the robot at {endpoint} refused the connection: something listens " \
               f"there but did not let this process's zenoh session in, as a robot in secure " \
               f"mode does without valid credentials (docs/security.md); "
-    nobody = f"tcp/127.0.0.1:{free_port()}"
-    # Those it does not let in, and where nothing listens, at once (each waits its 3 s).
-    client, peer, wrong, absent = await asyncio.gather(
-        state(), state("--mode", "peer"), state("--secure", str(other), "--identity", "inspector"),
-        state(at=nobody))
     # No credentials: as a client (the inspector's default), and as a peer, whose session
     # opens alone and never reaches the robot.
     for flags, (code, text) in ((), client), (("--mode", "peer"), peer):
