@@ -1,11 +1,12 @@
 """A command's ``main(argv)`` run in the test's process, for what the command decides before
 anything starts: a refusal (status 2, one line on stderr) or ``--check``'s plan.
 
-Every such test keeps one case through the real command in a subprocess (``python -m ...``:
-the entry point, the interpreter's exit status); the other cases of the same refusal run the
-same ``main`` here, without an interpreter's start-up each. Output is captured at the file
-descriptors (``capfd``), as a subprocess's would be: a trace a native library printed would
-show. ``main`` must not start the robot: :func:`launch_main` makes its start fail the test."""
+The command itself (``python -m ...``: its entry point, the interpreter's exit status) stays
+run in a subprocess for one case of each kind, where the test using this says; the other cases
+run the same ``main`` here, without an interpreter's start-up each. Output is captured at the
+file descriptors (``capfd``), as a subprocess's would be: a trace a native library printed
+would show. ``main`` must not start the robot: :func:`launch_main` makes its start fail the
+test."""
 
 from __future__ import annotations
 
