@@ -306,10 +306,14 @@ def scenario_robot(h: Harness, cfg: dict[str, Any]) -> dict[str, Any]:
     last_camera = cameras[-1][0] if cameras else None
     # Let the last frame's command arrive (when commands are based on frames): at once on an
     # idle machine; the bound only says when to stop waiting on a busy one (0.3 s was passed
-    # there, and a frame that was commanded counted as not).
+    # there, and a frame that was commanded counted as not). Commands are based on frames
+    # when the camera is the only source, or when one already was; a controller that bases
+    # every command on the IR's newer samples would never send that command.
     with h.cond:
-        h.cond.wait_for(lambda: any(c[3] == "camera/front" and c[2] == last_camera
-                                    for c in h.commands[-8:]), timeout=LAST_COMMAND_WAIT_S)
+        if not with_ir or any(c[3] == "camera/front" for c in h.commands):
+            h.cond.wait_for(lambda: any(c[3] == "camera/front" and c[2] == last_camera
+                                        for c in h.commands[-8:]),
+                            timeout=LAST_COMMAND_WAIT_S)
         commands = list(h.commands)
     camera_commands = [(c[0], c[1], c[2]) for c in commands if c[3] == "camera/front"]
     return {"reactions": reactions, "cameras": cameras[warm_frames:],

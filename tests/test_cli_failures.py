@@ -2,8 +2,9 @@
 and an exit status other than 0, before the robot starts; results are never lost at the end
 of a run; nothing hangs — a second Ctrl-C or SIGTERM always exits.
 
-The commands run for real in subprocesses, with a timeout; how an argument is refused is
-parsed in this process."""
+The commands run for real in subprocesses, with a timeout; of a refusal made before anything
+starts, one case does, and the other cases run the command's main in this process
+(tests/cli_inprocess.py); how an argument is refused is parsed in this process."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.cli_inprocess import launch_main
 from tests.conftest import free_port
 from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.errors import ConfigurationError
@@ -138,11 +140,16 @@ def started_robot(children: list[Child], *argv: str) -> Child:
     ("--record", "a-file", "is not a directory"),
 ])
 def test_an_output_that_cannot_be_written_is_refused_before_the_robot_starts(
-    tmp_path: Path, endpoint: str, flag: str, where: str, expected: str
+    tmp_path: Path, endpoint: str, flag: str, where: str, expected: str,
+    capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     (tmp_path / "a-file").write_text("in the way")
     (tmp_path / "a-folder").mkdir()
-    proc = run(*LAUNCH, "--listen", endpoint, "--duration", "1", flag, str(tmp_path / where))
+    argv = ("--listen", endpoint, "--duration", "1", flag, str(tmp_path / where))
+    # The first case through the real command; the others through its main, here (the
+    # robot's start fails the test: tests/cli_inprocess.py).
+    proc = (run(*LAUNCH, *argv) if (flag, where) == ("--summary", "a-file/s.json")
+            else launch_main(argv, capfd, monkeypatch))
     assert_clear_error(proc, flag, expected)
 
 
@@ -153,12 +160,17 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_robot_starts(
     (("--record-every-s", "0"), "record_every_s must be > 0"),
 ])
 def test_what_launch_refuses_is_refused_before_the_bus_opens_and_by_check(
-    endpoint: str, check: bool, flags: tuple[str, ...], expected: str
+    endpoint: str, check: bool, flags: tuple[str, ...], expected: str,
+    capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """``--check`` runs exactly the checks the run makes before it opens zenoh: what the run
     would refuse, ``--check`` refuses too (status 2, the same line), and the run refuses it
-    before printing anything (no ``attach with:`` for a robot that never starts)."""
-    proc = run(*LAUNCH, "--listen", endpoint, *flags, *(["--check"] if check else []))
+    before printing anything (no ``attach with:`` for a robot that never starts). The unknown
+    scenario through the real command; the others through its main, here (the robot's start
+    fails the test: tests/cli_inprocess.py)."""
+    argv = ("--listen", endpoint, *flags, *(["--check"] if check else []))
+    proc = (run(*LAUNCH, *argv) if flags == ("--scenario", "keepaway")
+            else launch_main(argv, capfd, monkeypatch))
     assert_clear_error(proc, expected)
 
 

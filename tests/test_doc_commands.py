@@ -21,6 +21,8 @@ What a test changes in a command, and only that:
   that port explicitly (``--listen`` for a robot, ``--connect`` for a tool);
 * a command that runs until stopped is stopped with Ctrl-C (SIGINT) once the test has seen
   what it waits for, or is bounded with its own ``--duration`` (a scenario: 4 simulated s);
+  a ``--duration`` shown is shortened the same way, with one given after it (a scenario's to
+  4 simulated s, a recorder's to 2 s: the replays of their recordings are as short);
 * ``~`` is a temporary folder, a placeholder (``DIR``, ``...``) what the page says it stands
   for, and each page's commands run in a temporary folder of their own (``examples/`` linked
   in, a fleet file's router on a free port).
@@ -52,6 +54,7 @@ import pytest
 from tests.conftest import free_port, repository_env
 from tests.foxglove_client import FoxgloveClient
 from tests.test_docs import DOCS, ROOT, shell_texts, tokens
+from tests.test_late_join import readme_tools_join_late
 
 TUTORIAL = ROOT / "docs" / "your-robot.md"
 DEVICE_GUIDE = ROOT / "docs" / "your-device.md"
@@ -432,6 +435,8 @@ class Robot:
     endpoint: str
     proc: Proc
     page: Page
+    started: float
+    """``time.monotonic()`` when it was launched."""
 
     def tool(self) -> tuple[str, str]:
         """What a tool shown without ``--connect`` (the documented default) is given."""
@@ -444,9 +449,10 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     shown "while a robot runs" attaches to. Stopped with Ctrl-C at the end."""
     endpoint = loopback()
     with page(tmp_path_factory.mktemp("readme")) as here:
+        started = time.monotonic()
         proc = here.start(QUICK_START, add=("--listen", endpoint))
         proc.wait_for(r"^\[mini\] [\d.]+s \| drive .* \| tick [\d.]+Hz")
-        yield Robot(endpoint, proc, here)
+        yield Robot(endpoint, proc, here, started)
         stopped(proc)
         assert proc.lines[-1] == "ubf_async: stopped", proc
         assert "saving the run's results" not in proc.output  # none asked for (issue 35)
@@ -477,6 +483,9 @@ RECORD_RUN = ("python -m ubf_async.launch --scenario ball-in-sight --speed 5 --d
 FRESH_CONTROLLER = "python -m ubf_async.launch --no-sim --sim-time"
 REPLAY_OUT = "python -m ubf_async.replay out/mini.mcap --speed 2"
 RECORD_ORIGINALS = "python -m ubf_async.record --no-live-channels"
+
+
+RECORDING = ("--duration", "2")  # the recorder's: wall-clock seconds
 
 
 def fresh_controller(here: Page) -> tuple[Proc, str]:
@@ -606,26 +615,37 @@ class TestWhileTheQuickStartRobotRuns:
                 # only the original messages, none of the live view's channels
                 assert re.search(r": [1-9]\d* messages in recordings/mini\.mcap$",
                                  stopped(originals)), originals
-                out = robot.page.run(RECORD, endpoint=robot.endpoint)  # 10 s
+                out = robot.page.run(RECORD, endpoint=robot.endpoint, add=RECORDING)
                 assert re.search(r": [1-9]\d* messages and \d+ in the live view's Foxglove "
                                  r"channels in rec/mini\.mcap$", out), out
                 replayed(robot.page, REPLAY_REC, controllers[0])
 
             def recording() -> None:  # launch --record, then replay
                 endpoint = loopback()
-                run = recording_md.start(RECORD_RUN, add=("--listen", endpoint))
-                run.wait_for(r"^\[mini\] [\d.]+s \| drive ")
-                # launch --record's recorder is 'recorder' too: another needs another --name
+                run = recording_md.start(RECORD_RUN, add=(*SHORT_RUN, "--listen", endpoint))
+                # launch --record's recorder is 'recorder' too: another needs another --name.
+                # Its session is open: the second recorder waits for the robot, whose
+                # recorder is alive before it (and for the run's 4 simulated s after it).
+                run.wait_for(rf"^  attach with: --connect {endpoint} --robot mini$")
                 second = recording_md.run(RECORD_PROGRESS, endpoint=endpoint, status=2)
                 assert "a component named 'recorder' is already alive on robot 'mini'" in second
                 assert "give this recorder another --name" in second
                 out = ended(run)
+                assert re.search(r"^\[mini\] [\d.]+s \| drive ", out, re.M), out
                 assert "  expected: turns to the ball, approaches and stops" in out, out
                 assert re.search(r"^  recorded [1-9]\d* messages and \d+ in the live view's "
                                  r"Foxglove channels to out/mini\.mcap$", out, re.M), out
                 replayed(recording_md, REPLAY_OUT, controllers[1])
 
             together(readme, recording)
+
+    @pytest.mark.slow
+    @pytest.mark.asyncio
+    async def test_readme_tools_joining_late_work_within_3_s(self, robot: Robot) -> None:
+        """Issue 28, item 1 (tests/test_late_join.py): the README's teleop, obstacle avoidance
+        and range finder, and the radio, joining this robot 10 s and more after its launch,
+        each at work within 3 s."""
+        await readme_tools_join_late(robot.endpoint, launched=robot.started)
 
     @pytest.mark.slow
     @runs(ROS2_BRIDGE)
@@ -914,11 +934,6 @@ def test_the_latency_bench_explains_itself(tmp_path: Path) -> None:
 def test_tests_run_beside_a_busy_loop_per_core_and_the_calibration_table_is_current(
         tmp_path: Path) -> None:
     with page(tmp_path) as here:
-        # `...`: a test of its own (the suite's own tests would take the busy machine long)
-        (here.cwd / "test_under_load.py").write_text(
-            "import os\n\ndef test_the_cores_are_busy():\n    assert os.cpu_count()\n")
-        hogged = here.start(CPU_HOG, replace={
-            "...": ["test_under_load.py", "-q", "-p", "no:cacheprovider", "--rootdir", "."]})
         (here.cwd / "docs").mkdir()
         shutil.copy(ROOT / "docs" / "scenarios.md", here.cwd / "docs")
         out = here.run(CALIBRATE)
@@ -926,6 +941,15 @@ def test_tests_run_beside_a_busy_loop_per_core_and_the_calibration_table_is_curr
         # the table shown is the one the simulator renders now
         assert ((here.cwd / "docs" / "scenarios.md").read_text("utf-8")
                 == (ROOT / "docs" / "scenarios.md").read_text("utf-8"))
+        # `...`: a test of its own (the suite's own tests would take the busy machine long),
+        # its pytest without the plug-ins installed here (hypothesis alone imports for 1.4 s,
+        # many times that beside the hogs); after the calibration, which the hogs would only
+        # slow down, with every other test running beside this one
+        (here.cwd / "test_under_load.py").write_text(
+            "import os\n\ndef test_the_cores_are_busy():\n    assert os.cpu_count()\n")
+        hogged = here.start(CPU_HOG, replace={
+            "...": ["test_under_load.py", "-q", "-p", "no:cacheprovider", "--rootdir", "."]},
+            env={"PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1"})
         assert re.search(r"^1 passed", ended(hogged), re.M), hogged
 
 

@@ -97,14 +97,14 @@ def _python_command(command: list[str]) -> Iterator[tuple[str, list[str]]]:
 
 # -- what an entry point takes: its argparse parser, as it builds it ----------------------------
 
-# Runs the entry point as `python -m` (or `python PATH`) does, with each command's arguments (an
-# entry point may pick its parser by them: `components.motors --check`), and dumps the first
+# Runs each entry point as `python -m` (or `python PATH`) does, with each command's arguments
+# (an entry point may pick its parser by them: `components.motors --check`), and dumps the first
 # parser it parses with — its options, whether each takes a value, its subcommands' — instead
 # of parsing: exact, and nothing past the parsing runs (every entry point parses its arguments
-# first). argparse keeps its actions in `_actions` only.
+# first). argparse keeps its actions in `_actions` only. Every entry point in one process.
 DUMP_PARSERS = r"""
 import argparse, contextlib, io, json, runpy, sys
-target, commands = sys.argv[1], json.loads(sys.argv[2])
+wanted = json.loads(sys.argv[1])
 
 class Dumped(BaseException):  # not caught by an entry point's `except Exception`
     pass
@@ -122,34 +122,50 @@ def dump(self, args=None, namespace=None):
     raise Dumped(describe(self))
 
 argparse.ArgumentParser.parse_known_args = dump
-out = []
-for args in commands:
-    sys.argv = [target, *args]
-    try:
-        with contextlib.redirect_stdout(io.StringIO()):
-            if target.endswith(".py"):
-                runpy.run_path(target, run_name="__main__")
-            else:
-                runpy.run_module(target, run_name="__main__", alter_sys=True)
-        out.append("it parsed no arguments with argparse")
-    except Dumped as parsed:
-        out.append(parsed.args[0])
-    except BaseException as exc:
-        out.append(f"it failed: {exc!r}")
+out = {}
+for target, commands in wanted.items():
+    out[target] = []
+    for args in commands:
+        sys.argv = [target, *args]
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                if target.endswith(".py"):
+                    runpy.run_path(target, run_name="__main__")
+                else:
+                    runpy.run_module(target, run_name="__main__", alter_sys=True)
+            out[target].append("it parsed no arguments with argparse")
+        except Dumped as parsed:
+            out[target].append(parsed.args[0])
+        except BaseException as exc:
+            out[target].append(f"it failed: {exc!r}")
 print(json.dumps(out))
 """
 
 Parser = dict[str, Any]
 
 
-def parsers_of(target: str, commands: list[list[str]]) -> list[Parser | str]:
-    """Per command (its arguments), the parser ``target`` parses them with, or what failed."""
-    proc = subprocess.run([sys.executable, "-c", DUMP_PARSERS, target, json.dumps(commands)],
+def parsers_for(wanted: dict[str, list[list[str]]]) -> dict[str, list[Parser | str]]:
+    """Per entry point and command (its arguments), the parser the entry point parses them
+    with, or what failed; every entry point run in one process."""
+    proc = subprocess.run([sys.executable, "-c", DUMP_PARSERS, json.dumps(wanted)],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     if proc.returncode != 0:
-        return [f"cannot run it: {proc.stderr.strip()[-300:]}"] * len(commands)
-    parsed: list[Parser | str] = json.loads(proc.stdout.splitlines()[-1])
+        return {target: [f"cannot run it: {proc.stderr.strip()[-300:]}"] * len(commands)
+                for target, commands in wanted.items()}
+    parsed: dict[str, list[Parser | str]] = json.loads(proc.stdout.splitlines()[-1])
     return parsed
+
+
+def parsers_of(target: str, commands: list[list[str]]) -> list[Parser | str]:
+    """Per command (its arguments), the parser ``target`` parses them with, or what failed."""
+    return parsers_for({target: commands})[target]
+
+
+@functools.cache
+def shown_parsers() -> dict[str, list[Parser | str]]:
+    """:func:`parsers_for` every command the docs show (:func:`shown_commands`)."""
+    return parsers_for({target: [args for _, args in shown]
+                        for target, shown in shown_commands().items()})
 
 
 def unknown_options(args: list[str], parser: Parser) -> list[str]:
@@ -189,8 +205,7 @@ def shown_commands() -> dict[str, list[tuple[str, list[str]]]]:
 def test_every_command_shown_exists_with_the_options_shown(target: str) -> None:
     shown = shown_commands()[target]
     problems = []
-    for (where, args), parser in zip(shown, parsers_of(target, [a for _, a in shown]),
-                                     strict=True):
+    for (where, args), parser in zip(shown, shown_parsers()[target], strict=True):
         if isinstance(parser, str):
             problems.append(f"{where}: python {target}: {parser}")
         else:
@@ -243,7 +258,7 @@ def test_a_run_that_cannot_keep_the_speed_shows_what_scenarios_md_says(tmp_path:
                  if line.strip().startswith("warning: the run reached")]
     proc = subprocess.run(
         [sys.executable, "-m", "ubf_async.launch", "--scenario", "ball-in-sight",
-         "--speed", "1000", "--duration", "10", "--status-period-s", "0.05",
+         "--speed", "1000", "--duration", "2", "--status-period-s", "0.05",
          "--listen", "tcp/127.0.0.1:0"],  # 1000x: no machine keeps up
         cwd=ROOT, capture_output=True, text=True, timeout=180)
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -12,6 +12,7 @@ from pathlib import Path
 import msgpack
 import pytest
 
+from tests.cli_inprocess import run_main
 from tests.conftest import free_port
 from tests.remote_robot import ROOT, Process, start_robot
 from ubf_async.tools.inspector import (
@@ -20,6 +21,9 @@ from ubf_async.tools.inspector import (
     format_sample,
     resolve_key,
     tree_request_data,
+)
+from ubf_async.tools.inspector import (
+    main as inspector_main,
 )
 from ubf_async.tools.inspector.common import key_or_report
 from ubf_async.wire.protocol import Keys, encode
@@ -46,8 +50,7 @@ def until(
     raise AssertionError(f"timed out after {timeout_s}s waiting for {what}; last: {last!r}")
 
 
-@pytest.fixture
-def running_robot(endpoint: str, robot: str) -> Iterator[list[Process]]:
+def robot_with_plain_sensor(endpoint: str, robot: str) -> Iterator[list[Process]]:
     """The robot helper plus a plain range sensor named "plain" (range 321 mm)."""
     procs = [start_robot(endpoint, robot)]
     try:
@@ -60,31 +63,50 @@ def running_robot(endpoint: str, robot: str) -> Iterator[list[Process]]:
             p.kill()
 
 
-def test_help_lists_commands_and_shared_flags() -> None:
-    top = inspect("--help")
+@pytest.fixture
+def running_robot(endpoint: str, robot: str) -> Iterator[list[Process]]:
+    """:func:`robot_with_plain_sensor`, for a test that adds components of its own."""
+    yield from robot_with_plain_sensor(endpoint, robot)
+
+
+@pytest.fixture(scope="module")
+def watched_robot() -> Iterator[tuple[str, str]]:
+    """:func:`robot_with_plain_sensor` that the tests only read (its endpoint, its name),
+    shared by them."""
+    endpoint, robot = f"tcp/127.0.0.1:{free_port()}", f"watched{free_port()}"
+    for _ in robot_with_plain_sensor(endpoint, robot):
+        yield endpoint, robot
+
+
+def test_help_lists_commands_and_shared_flags(capfd: pytest.CaptureFixture[str]) -> None:
+    top = inspect("--help")  # the real command; its commands' helps from its main, here
     assert top.returncode == 0
     for command in ("components", "keys", "echo", "state"):
         assert command in top.stdout
+
+    def inspect_here(*argv: str) -> subprocess.CompletedProcess[str]:
+        return run_main(inspector_main, argv, capfd, name="ubf_async.inspector")
+
     for command in ("components", "keys", "echo", "state"):
-        out = inspect(command, "--help").stdout
+        out = inspect_here(command, "--help").stdout
         for flag in ("--connect", "--listen", "--mode", "--config", "--robot", "--timeout"):
             assert flag in out, (command, flag)
-    assert "--count" in inspect("echo", "--help").stdout
+    assert "--count" in inspect_here("echo", "--help").stdout
     assert inspect().returncode == 2  # a command is required
     assert "tree" in top.stdout
-    verbs = inspect("tree", "--help").stdout
+    verbs = inspect_here("tree", "--help").stdout
     for verb in ("show", "set-arbiter", "set-child", "load"):
         assert verb in verbs
-        out = inspect("tree", verb, "--help").stdout
+        out = inspect_here("tree", verb, "--help").stdout
         for flag in ("--connect", "--robot", "--timeout", "--json"):
             assert flag in out, (verb, flag)
-    assert "--param" in inspect("tree", "set-arbiter", "--help").stdout
+    assert "--param" in inspect_here("tree", "set-arbiter", "--help").stdout
     # `tree` alone is `tree show` (issue 35: it was an error that named no verb), and the
     # usage lists the verbs.
     assert "{show,set-arbiter,set-child,load}" in verbs
     alone = build_parser().parse_args(["tree"])
     assert alone.tree_command == "show" and tree_request_data(alone) == {"op": "show"}
-    bad_param = inspect("tree", "set-arbiter", "c", "MonteCarlo", "--param", "nokey")
+    bad_param = inspect_here("tree", "set-arbiter", "c", "MonteCarlo", "--param", "nokey")
     assert bad_param.returncode == 2 and "expected KEY=VALUE" in bad_param.stderr
 
 
@@ -181,8 +203,10 @@ with zenoh.open(conf) as session:
 
 
 def test_state_shows_sources_with_ages_and_the_explanation(
-    running_robot: list[Process], endpoint: str, robot: str
+    watched_robot: tuple[str, str]
 ) -> None:
+    endpoint, robot = watched_robot
+
     def state() -> str | None:
         proc = inspect("state", "--connect", endpoint, "--robot", robot)
         assert proc.returncode == 0, proc.stderr
@@ -202,9 +226,8 @@ def test_state_shows_sources_with_ages_and_the_explanation(
     assert as_json["status"]["winners"] == ["chase"]
 
 
-def test_keys_lists_keys_with_rates(
-    running_robot: list[Process], endpoint: str, robot: str
-) -> None:
+def test_keys_lists_keys_with_rates(watched_robot: tuple[str, str]) -> None:
+    endpoint, robot = watched_robot
     proc = inspect("keys", "--seconds", "1", "--connect", endpoint, "--robot", robot)
     assert proc.returncode == 0, proc.stderr
     rows = {line.split()[0]: line.split()[1:] for line in proc.stdout.splitlines()[1:]}

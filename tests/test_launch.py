@@ -1,4 +1,5 @@
-"""`python -m ubf_async.launch` as users run it, in separate processes."""
+"""`python -m ubf_async.launch` as users run it, in separate processes (its help and a refusal
+made before anything starts: its main, in the test's process)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.cli_inprocess import launch_main
 from tests.conftest import eventually
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
@@ -27,9 +29,12 @@ def launch(*args: str) -> subprocess.Popen[str]:
     )
 
 
-def test_help_explains_every_option() -> None:
-    out = subprocess.run([sys.executable, "-m", "ubf_async.launch", "--help"], cwd=ROOT,
-                         capture_output=True, text=True, check=True).stdout
+def test_help_explains_every_option(capfd: pytest.CaptureFixture[str],
+                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    # launch's main, here (tests/test_doc_commands.py runs `python -m ubf_async.launch --help`)
+    helped = launch_main(["--help"], capfd, monkeypatch)
+    assert helped.returncode == 0, helped.stderr
+    out = helped.stdout
     for flag in ("--connect", "--listen", "--mode", "--config", "--robot", "--rate-hz",
                  "--tick", "--duration"):
         assert flag in out
@@ -47,11 +52,13 @@ def test_launch_without_sensors_runs_and_says_so(endpoint: str, robot: str) -> N
     assert "ubf_async: stopped" in out
 
 
-def test_bad_config_path_is_a_clear_error(tmp_path: Path) -> None:
-    proc = launch("--config", str(tmp_path / "missing.json5"), "--duration", "1")
-    out, _ = proc.communicate(timeout=30)
+def test_bad_config_path_is_a_clear_error(tmp_path: Path, capfd: pytest.CaptureFixture[str],
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    # launch's main, here: refused before the robot starts (tests/cli_inprocess.py)
+    proc = launch_main(["--config", str(tmp_path / "missing.json5"), "--duration", "1"], capfd,
+                       monkeypatch)
     assert proc.returncode != 0
-    assert "no such file" in out
+    assert "no such file" in proc.stdout + proc.stderr
 
 
 @pytest.mark.asyncio

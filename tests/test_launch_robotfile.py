@@ -15,7 +15,11 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.cli_inprocess import launch_main
 from tests.conftest import read_until
+from ubf_async import experiment
+from ubf_async.assembly.registry import BEHAVIORS
+from ubf_async.assembly.robotfile import DEFAULT_ROBOT_FILE
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -43,14 +47,10 @@ def run_launch(*args: str, env: dict[str, str] | None = None,
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", sorted(BEFORE_ROBOT_FILES))
-def test_default_robot_file_reproduces_the_built_in_tree(
-        scenario: str, endpoint: str, robot: str, tmp_path: Path) -> None:
-    summary = tmp_path / "summary.json"
-    proc = run_launch("--scenario", scenario, "--speed", "100", "--seed", "3", "--duration",
-                      "12", "--quiet", "--listen", endpoint, "--robot", robot,
-                      "--summary", str(summary))
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    data = json.loads(summary.read_text())
+def test_default_robot_file_reproduces_the_built_in_tree(scenario: str) -> None:
+    # The run launch makes with `--scenario S --speed 100 --seed 3 --duration 12` (the same at
+    # any speed: tests/test_experiment.py), here in this process.
+    data = experiment.run(DEFAULT_ROBOT_FILE, scenario, seed=3, duration_s=12).summary
     before = BEFORE_ROBOT_FILES[scenario]
     for key in ("x_m", "y_m", "heading_rad"):
         # The summary keeps six significant digits; the run itself is repeated exactly.
@@ -112,19 +112,22 @@ tree:
      "arbiter, children, remote, priority, weight, params"),
 ])
 def test_check_refuses_a_robot_file_mistake_at_its_line(
-        mistake: tuple[str, str], line: int, message: str, tmp_path: Path) -> None:
+        mistake: tuple[str, str], line: int, message: str, tmp_path: Path,
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(GOOD_ROBOT.replace(*mistake))
-    proc = run_launch(str(path), "--check")
+    proc = launch_main([str(path), "--check"], capfd, monkeypatch)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert f"{path}:{line}: " in proc.stderr and message in proc.stderr, proc.stderr
     assert "OK" not in proc.stdout
 
 
-def test_check_shows_a_behaviour_under_its_factorys_name(tmp_path: Path) -> None:
+def test_check_shows_a_behaviour_under_its_factorys_name(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / "mine.yaml"
     path.write_text(GOOD_ROBOT)
-    proc = run_launch(str(path), "--check")
+    proc = launch_main([str(path), "--check"], capfd, monkeypatch)
     assert proc.returncode == 0, proc.stderr
     assert "spin_when_close (SpinWhenClose) [p=2 w=1]" in proc.stdout, proc.stdout
 
@@ -138,8 +141,12 @@ def test_check_shows_a_behaviour_under_its_factorys_name(tmp_path: Path) -> None
     (["--devices", "motors,lidar"], "--devices: lidar not in"),
     (["--sim-time"], "--sim-time only makes sense with --no-sim"),
 ])
-def test_bad_options_are_refused_before_the_robot_starts(args: list[str], message: str) -> None:
-    proc = run_launch(*args, "--duration", "5")
+def test_bad_options_are_refused_before_the_robot_starts(
+        args: list[str], message: str, capfd: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # launch's main, here (the robot's start fails the test); the refusal of a bad robot
+    # file above goes through the real command.
+    proc = launch_main([*args, "--duration", "5"], capfd, monkeypatch)
     assert proc.returncode == 2, proc.stdout
     assert message in proc.stderr
     assert "listening" not in proc.stdout
@@ -147,18 +154,13 @@ def test_bad_options_are_refused_before_the_robot_starts(args: list[str], messag
 
 # -- a user's robot: module:factory behaviour + a behaviour from an installed plug-in ---------
 
-PLUGIN_PYPROJECT = """\
-[build-system]
-requires = ["setuptools>=61"]
-build-backend = "setuptools.build_meta"
-
-[project]
-name = "ubf-test-plugin"
-version = "0.1.0"
-
-[project.entry-points."ubf_async.behaviors"]
-forward = "ubf_test_plugin:Forward"
+PLUGIN_ENTRY_POINTS = """\
+[ubf_async.behaviors]
+forward = ubf_test_plugin:Forward
 """
+"""The plug-in's entry points as installed (its pyproject.toml's
+``[project.entry-points."ubf_async.behaviors"]``: docs/your-robot.md, whose
+``pip install -e .`` tests/test_tutorial.py runs)."""
 
 PLUGIN_MODULE = '''\
 """A behaviour package, as a third party would ship it."""
@@ -195,34 +197,42 @@ tree:
 
 @pytest.fixture(scope="module")
 def plugin_site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The test plug-in package, pip-installed into a folder of its own."""
-    base = tmp_path_factory.mktemp("plugin")
-    source = base / "src"
-    (source / "ubf_test_plugin").mkdir(parents=True)
-    (source / "pyproject.toml").write_text(PLUGIN_PYPROJECT)
-    (source / "ubf_test_plugin" / "__init__.py").write_text(PLUGIN_MODULE)
-    site = base / "site"
-    proc = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target", str(site),
-         str(source)],
-        capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert list(site.glob("ubf_test_plugin-*.dist-info/entry_points.txt"))
+    """The test plug-in package installed into a folder of its own, as ``pip install
+    --target`` leaves it: the package, and its distribution's metadata with the entry points
+    (written here: a pip install of a plug-in is tests/test_tutorial.py's)."""
+    site = tmp_path_factory.mktemp("plugin") / "site"
+    (site / "ubf_test_plugin").mkdir(parents=True)
+    (site / "ubf_test_plugin" / "__init__.py").write_text(PLUGIN_MODULE)
+    dist_info = site / "ubf_test_plugin-0.1.0.dist-info"
+    dist_info.mkdir()
+    (dist_info / "METADATA").write_text(
+        "Metadata-Version: 2.4\nName: ubf-test-plugin\nVersion: 0.1.0\n")
+    (dist_info / "entry_points.txt").write_text(PLUGIN_ENTRY_POINTS)
+    (dist_info / "top_level.txt").write_text("ubf_test_plugin\n")
+    (dist_info / "INSTALLER").write_text("pip\n")
+    (dist_info / "RECORD").write_text("".join(
+        f"{path.relative_to(site)},,\n" for path in sorted(site.rglob("*")) if path.is_file()))
     return site
 
 
 @pytest.mark.slow
 def test_user_and_plugin_behaviours_drive_the_simulated_robot(
-        plugin_site: Path, tmp_path: Path, endpoint: str, robot: str) -> None:
+        plugin_site: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The robot file's tree takes a behaviour from the installed plug-in (its folder on the
+    path, the behaviours' entry points read again) and one from the user's module; launch
+    shows both in its plan, and the simulated run (in this process: the run launch makes,
+    tests/test_experiment.py) is driven by both. That a launched process finds the plug-in:
+    test_plugin_behaviour_is_listed_only_when_installed."""
     path = tmp_path / "my_robot.yaml"
-    path.write_text(USER_ROBOT.format(robot=robot))
-    summary = tmp_path / "summary.json"
-    env = {"PYTHONPATH": os.pathsep.join([str(plugin_site), str(ROOT)])}
-    proc = run_launch(str(path), "--scenario", "ball-behind", "--speed", "10", "--duration",
-                      "3", "--quiet", "--listen", endpoint, "--summary", str(summary), env=env)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "forward (Forward) [p=0 w=1]" in proc.stdout and "spin (Spin)" in proc.stdout
-    data = json.loads(summary.read_text())
+    path.write_text(USER_ROBOT.format(robot="mine"))
+    monkeypatch.syspath_prepend(str(plugin_site))
+    monkeypatch.setattr(BEHAVIORS, "_entry_points", None)  # read again, the plug-in installed
+    monkeypatch.setattr(BEHAVIORS, "_loaded", dict(BEHAVIORS._loaded))  # forgotten after
+    checked = launch_main([str(path), "--check"], capfd, monkeypatch)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    assert "forward (Forward) [p=0 w=1]" in checked.stdout and "spin (Spin)" in checked.stdout
+    data = experiment.run(path, "ball-behind", duration_s=3).summary
     # PriorityMerge sums the two at the same priority: both win every tick...
     assert data["ticks"]["winner_share"] == {"forward": 1.0, "spin": 1.0}
     # ...and the robot both drove and turned (scenario start: origin, heading 0).
@@ -307,10 +317,12 @@ def test_summary_into_a_missing_folder_is_made(tmp_path: Path, endpoint: str) ->
 
 
 def test_summary_where_no_folder_can_be_made_is_refused_before_the_start(
-        tmp_path: Path) -> None:
+        tmp_path: Path, capfd: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("")
-    proc = run_launch("--duration", "5", "--summary", str(blocker / "summary.json"))
+    proc = launch_main(["--duration", "5", "--summary", str(blocker / "summary.json")], capfd,
+                       monkeypatch)
     assert proc.returncode == 2
     assert "--summary: cannot write in" in proc.stderr and "is not a directory" in proc.stderr
     assert "listening" not in proc.stdout

@@ -8,6 +8,8 @@ from the inspector in a subprocess, or from a launched robot's inspector.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import io
 import json
 import sys
 from collections.abc import AsyncIterator
@@ -37,6 +39,8 @@ from ubf_async.services.live import (
     request,
 )
 from ubf_async.services.remote import RemoteBehaviorHost, RemoteBehaviors
+from ubf_async.tools.inspector import build_parser
+from ubf_async.tools.inspector import program as inspector_program
 from ubf_async.wire.protocol import ProtocolError, decode, encode
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -421,7 +425,7 @@ async def test_a_failing_handler_is_an_error_reply_and_the_queryable_goes_on(
 
 
 # ---------------------------------------------------------------------------------------------
-# The inspector's `tree` verbs, in a subprocess
+# The inspector's `tree` verbs: in a subprocess, and its program on this loop
 
 
 async def inspector(*args: str, timeout_s: float = 30.0) -> tuple[int, str, str]:
@@ -434,9 +438,20 @@ async def inspector(*args: str, timeout_s: float = 30.0) -> tuple[int, str, str]
     return proc.returncode, out.decode(), err.decode()
 
 
+async def inspector_here(*args: str, timeout_s: float = 30.0) -> tuple[int, str, str]:
+    """What ``python -m ubf_async.inspector ARGS`` does, on this loop: the command line
+    parsed, the inspector's session opened, the verb run; its status, stdout and stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = await asyncio.wait_for(inspector_program.run(build_parser().parse_args(args),
+                                                            out), timeout_s)
+    return code, out.getvalue(), err.getvalue()
+
+
 async def test_inspector_tree_verbs(
     live: LiveRobot, endpoint: str, robot: str, tmp_path: Path
 ) -> None:
+    """The first verb through the real command; the others through its program here."""
     conn = ("--connect", endpoint, "--robot", robot)
     code, out, err = await inspector("tree", "show", *conn)
     assert code == 0, err
@@ -448,7 +463,7 @@ async def test_inspector_tree_verbs(
         "  idle (Idle) [p=0 w=1]",
     ]
 
-    code, out, err = await inspector("tree", "set-arbiter", "root", "MonteCarlo", "--param",
+    code, out, err = await inspector_here("tree", "set-arbiter", "root", "MonteCarlo", "--param",
                                      "hold_ticks=4", "-p", "seed=3", *conn)
     assert code == 0, err
     assert out.splitlines()[:2] == [f"robot {robot!r}: set-arbiter applied, tree version 1",
@@ -457,41 +472,41 @@ async def test_inspector_tree_verbs(
     assert live.controller.last_trace is not None
     assert live.controller.last_trace.arbiter == "MonteCarlo"
 
-    code, out, err = await inspector("tree", "set-arbiter", "root", "Conditional", "-p",
+    code, out, err = await inspector_here("tree", "set-arbiter", "root", "Conditional", "-p",
                                      "predicate=sees_color", *conn)
     assert code == 1 and out == ""
     assert err.startswith(f"error: robot {robot!r} refused set-arbiter: ")
     assert "Conditional needs exactly two children" in err and "Traceback" not in err
     assert "(tree unchanged, version 1)" in err
 
-    code, out, err = await inspector("tree", "set-child", "root", "back", "--priority", "7",
+    code, out, err = await inspector_here("tree", "set-child", "root", "back", "--priority", "7",
                                      *conn)
     assert code == 0, err
     assert "  back (Recording) [p=7 w=1]" in out.splitlines()
-    code, _, err = await inspector("tree", "set-child", "root", "back", *conn)
+    code, _, err = await inspector_here("tree", "set-child", "root", "back", *conn)
     assert code == 2 and "give --priority and/or --weight" in err
 
     fragment = tmp_path / "tree.yaml"
     fragment.write_text(FRAGMENT, encoding="utf-8")
-    code, out, err = await inspector("tree", "load", str(fragment), "--json", *conn)
+    code, out, err = await inspector_here("tree", "load", str(fragment), "--json", *conn)
     assert code == 0, err
     reply = json.loads(out)
     assert reply["ok"] and reply["version"] == 3 and reply["tree"]["name"] == "second"
     await live.next_tick()
     assert live.winners() == ["spin"]
 
-    code, _, err = await inspector("tree", "load", str(tmp_path / "missing.yaml"), *conn)
+    code, _, err = await inspector_here("tree", "load", str(tmp_path / "missing.yaml"), *conn)
     assert code == 2 and "missing.yaml: cannot read it" in err
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: x\narbiter: HighestPriority\nchildren:\n  - behavior: nope\n")
-    code, _, err = await inspector("tree", "load", str(bad), *conn)
+    code, _, err = await inspector_here("tree", "load", str(bad), *conn)
     assert code == 1 and "<fragment>:4: unknown behaviour 'nope'" in err
     await live.next_tick()
     assert live.winners() == ["spin"]  # refused: the loaded tree still runs
 
     # Another robot name on the same endpoint: nobody answers.
-    code, _, err = await inspector("tree", "show", "--connect", endpoint, "--robot",
+    code, _, err = await inspector_here("tree", "show", "--connect", endpoint, "--robot",
                                    robot + "x", "--timeout", "1")
     assert code == 2 and f"no robot {robot + 'x'!r} answered" in err
 

@@ -91,7 +91,7 @@ async def test_the_command_calibrates_a_running_robot(tmp_path: Path, endpoint: 
     a slot that outranks the tree is refused; afterwards the robot's own tree drives again."""
     floor = tmp_path / "open-floor.json"
     floor.write_text(json.dumps({"name": "open-floor", "duration_s": 3600}), "utf-8")
-    launch = await spawn("-m", "ubf_async.launch", "--scenario", str(floor), "--speed", "4",
+    launch = await spawn("-m", "ubf_async.launch", "--scenario", str(floor), "--speed", "10",
                          "--listen", endpoint, "--robot", robot, "--quiet")
     calibrate = ("-m", "components.encoders.calibrate", "--connect", endpoint, "--robot", robot)
     bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))

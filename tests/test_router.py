@@ -90,8 +90,19 @@ async def test_robots_meet_at_a_router_and_are_back_within_2_s_of_its_restart() 
             printed = await read_until(proc, "controller:")
             assert "a client of the router at " + endpoint in printed
         async with lines_of(router) as said:
-            # The inspector sees the whole fleet, each robot ticking at its 50 Hz — once its
+            # A tool joins the router too and hears every robot's drive commands — once its
             # simulation runs, which on a busy machine can take a while after "controller:".
+            tool = await Bus.open(ConnectionOptions(mode="client", connect=[endpoint]))
+            last_drive: dict[str, float] = {}
+
+            def on_drive(key: str, payload: bytes, received_ns: int) -> None:
+                last_drive[key.split("/")[1]] = time.monotonic()
+
+            tool.subscribe("ubf/*/cmd/drive", on_drive, latest=False)
+            await eventually(lambda: set(last_drive) == set(names), timeout_s=60,
+                             what="every robot's drive commands through the router")
+
+            # The inspector sees the whole fleet, each robot ticking at its 50 Hz.
             async def listing() -> dict[str, dict[str, Any]]:
                 inspector = await spawn("-m", "ubf_async.inspector", "robots", "--connect",
                                         endpoint, "--json")
@@ -108,17 +119,6 @@ async def test_robots_meet_at_a_router_and_are_back_within_2_s_of_its_restart() 
                 assert listed[name]["components"] >= 7, listed[name]
                 assert 40 <= listed[name]["periodic_hz"] <= 60, listed[name]
                 assert listed[name]["mode"] == "periodic"
-
-            # A tool joins the router too and hears every robot's drive commands.
-            tool = await Bus.open(ConnectionOptions(mode="client", connect=[endpoint]))
-            last_drive: dict[str, float] = {}
-
-            def on_drive(key: str, payload: bytes, received_ns: int) -> None:
-                last_drive[key.split("/")[1]] = time.monotonic()
-
-            tool.subscribe("ubf/*/cmd/drive", on_drive, latest=False)
-            await eventually(lambda: set(last_drive) == set(names), timeout_s=10,
-                             what="every robot's drive commands through the router")
 
             # One robot dies: the router says so; the others go on.
             await stop(robots[1])

@@ -13,6 +13,7 @@ connection was refused, not that nothing answered.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import stat
@@ -332,10 +333,28 @@ async def test_open_mode_lets_every_attack_land(launched: Any, endpoint: str, ro
 
 
 @pytest.mark.asyncio
-async def test_secure_mode_stops_outsiders_and_unauthorised_identities(
-    launched: Any, endpoint: str, robot: str
+async def test_secure_mode_stops_outsiders_and_unauthorised_identities_and_says_refused(
+    launched: Any, endpoint: str, robot: str, tmp_path: Path
 ) -> None:
+    """One robot in secure mode: attacked from outside and by identities without the right
+    (while a configured remote behaviour takes control), then asked for its state by
+    processes it does not let in, which are told that it refused them."""
     setup, seen = await launched(secure=True)
+    other = tmp_path / "other"  # a set-up for a robot of the same name: other passwords
+    init(other, robot=load_robot(robot_file(tmp_path, robot)))
+
+    async def state(*flags: str, at: str = endpoint) -> tuple[int | None, str]:
+        proc = await spawn("-m", "ubf_async.inspector", "state", "--connect", at, "--robot",
+                           robot, "--timeout", "3", *flags)
+        text = await output(proc)
+        return proc.returncode, text
+
+    # Asked for its state, meanwhile, by those it does not let in (each waits its 3 s), and
+    # where nothing listens.
+    nobody = f"tcp/127.0.0.1:{free_port()}"
+    refusals = asyncio.gather(
+        state(), state("--mode", "peer"), state("--secure", str(other), "--identity", "inspector"),
+        state(at=nobody))
     clock_before = seen.clock_max_ns
     attackers = [await spawn(*attacker(endpoint, robot, "client")),
                  await spawn(*attacker(endpoint, robot, "peer")),
@@ -349,8 +368,13 @@ async def test_secure_mode_stops_outsiders_and_unauthorised_identities(
         await eventually(lambda: (-30.0, 50.0, ("teleop",)) in seen.drives, timeout_s=30,
                          what="the configured teleop to take control")
         texts = [await output(p) for p in attackers]
+        client, peer, wrong, absent = await refusals
     finally:
         await stop(teleop)
+        if not refusals.done():
+            refusals.cancel()
+            with contextlib.suppress(BaseException):
+                await refusals
     no_creds_client, no_creds_peer, inspector, operator = texts
     assert no_creds_client.startswith("refused"), no_creds_client
     assert no_creds_peer.startswith("alone") and "sent" in no_creds_peer, no_creds_peer
@@ -362,28 +386,13 @@ async def test_secure_mode_stops_outsiders_and_unauthorised_identities(
     assert seen.applied and seen.drives[-1][2] != ("attacker",)
     assert "teleop" in seen.remotes
 
-
-@pytest.mark.asyncio
-async def test_a_refused_connection_is_reported_as_refused_not_as_absence(
-    launched: Any, endpoint: str, robot: str, tmp_path: Path
-) -> None:
-    setup, _ = await launched(secure=True)
-    other = tmp_path / "other"  # a set-up for a robot of the same name: other passwords
-    init(other, robot=load_robot(robot_file(tmp_path, robot)))
-
-    async def state(*flags: str, at: str = endpoint) -> tuple[int | None, str]:
-        proc = await spawn("-m", "ubf_async.inspector", "state", "--connect", at, "--robot",
-                           robot, "--timeout", "3", *flags)
-        text = await output(proc)
-        return proc.returncode, text
-
+    # A refused connection is reported as refused, not as absence.
     refused = f"error: the robot at {endpoint} refused the connection: something listens " \
               f"there but did not let this process's zenoh session in, as a robot in secure " \
               f"mode does without valid credentials (docs/security.md); "
     # No credentials: as a client (the inspector's default), and as a peer, whose session
     # opens alone and never reaches the robot.
-    for flags in ((), ("--mode", "peer")):
-        code, text = await state(*flags)
+    for flags, (code, text) in ((), client), (("--mode", "peer"), peer):
         *before, last = text.strip().splitlines()
         assert code == 2 and last == refused + (
             "this process gave none: pass the robot's set-up with --secure DIR --identity "
@@ -391,13 +400,13 @@ async def test_a_refused_connection_is_reported_as_refused_not_as_absence(
         # A peer may have said so while it waited (its connect watch): refused, not absent.
         assert all("does not let this session in" in line for line in before), text
     # Credentials the robot's set-up does not have.
-    code, text = await state("--secure", str(other), "--identity", "inspector")
+    code, text = wrong
     assert code == 2 and text.startswith(refused + f"this process gave identity 'inspector' "
                                          f"of {other}, which the robot's set-up does not "
                                          f"have"), text
-    # Its own: let in. And where nothing listens, absence is still reported as absence.
+    # Where nothing listens, absence is still reported as absence.
+    code, text = absent
+    assert code == 2 and f"no robot to connect to: nothing answered at {nobody}" in text, text
+    # Its own: let in.
     code, text = await state("--secure", str(setup), "--identity", "inspector")
     assert code == 0 and "drive:" in text, text
-    nobody = f"tcp/127.0.0.1:{free_port()}"
-    code, text = await state(at=nobody)
-    assert code == 2 and f"no robot to connect to: nothing answered at {nobody}" in text, text

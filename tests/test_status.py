@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.cli_inprocess import launch_main
 from tests.test_inprocess_units import RANGE_PERIOD_S, Rig, tree
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.controller import Controller, TickMode
@@ -142,13 +143,14 @@ def test_without_a_terminal_each_period_is_one_plain_line(tmp_path: Path) -> Non
     assert all(" | tick 50.0Hz +reflex " in line or "tick --" in line for line in status)
 
 
-def test_the_plan_and_the_inspector_use_the_status_lines_labels() -> None:
+def test_the_plan_and_the_inspector_use_the_status_lines_labels(
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     from ubf_async.services.status import planned_ticks
     from ubf_async.tools.inspector import format_state
 
-    # launch --check: a sync controller does not tick at the clock's rate, nor take reflexes.
-    check = subprocess.run([sys.executable, "-m", "ubf_async.launch", "--check", "--tick",
-                            "sync"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    # launch --check (its main, here): a sync controller does not tick at the clock's rate,
+    # nor take reflexes.
+    check = launch_main(["--check", "--tick", "sync"], capfd, monkeypatch)
     assert check.returncode == 0, check.stderr
     (line,) = [line for line in check.stdout.splitlines() if "controller:" in line]
     assert line.strip() == ("controller: sync on each camera/front sample (the thesis's loop; "
