@@ -13,9 +13,7 @@ process of its own. Distances and bearings are from the robot's camera to the ba
 
 from __future__ import annotations
 
-import asyncio
 import itertools
-import json
 import math
 import random
 from pathlib import Path
@@ -28,10 +26,8 @@ from components.sim.record import (
     TrajectorySample,
     camera_to_ball,
     motion_over,
-    read_trajectory_csv,
 )
 from components.sim.scenarios import Expectation, builtin_names, load_scenario
-from tests.conftest import free_port, read_until, spawn, stop
 from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, RECORDED, launched, ran
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -400,55 +396,6 @@ def test_obstacle_course_with_the_avoid_behaviour_gets_round(
     run = judged("obstacle-course", tmp_path_factory, seed=seed,
                  robot_text=with_avoid_robot_file())
     assert_gets_round_the_box(run, avoid="avoid")
-
-
-@pytest.mark.asyncio
-async def test_the_avoid_obstacles_example_in_its_own_process_matters(
-        tmp_path: Path, robot: str, tmp_path_factory: pytest.TempPathFactory) -> None:
-    """``python -m ubf_async.launch --scenario obstacle-course`` (the shipped robot) with
-    ``python examples/avoid_obstacles.py`` attached over zenoh gets round the box and settles
-    at the ball; alone, the same robot on the same course pushes against the box (the launch
-    of the course the suite makes, tests/shared_runs.py).
-
-    The example listens and the robot connects to it, so the example is up and following the
-    robot's clock before simulated time starts (its first vote comes within a few steps,
-    seconds before the robot nears the box); across processes the run is not repeatable to
-    the bit, so only the outcome is compared. It runs the course's whole 60 s: with avoid the
-    robot settles at the ball after 27 to 46 s depending on the seed (seeds 1 to 12, in this
-    process), and the example's run is like one more seed.
-
-    The robot without the example is the course's shared launch; with it, one launch, at
-    ``--speed 4``: the example follows the robot's clock without lockstep (that mode is
-    tests/test_lockstep.py's), so its votes come a little later in simulated time the faster
-    the run goes."""
-    alone = launched(tmp_path_factory, "obstacle-course")
-    assert alone.returncode == 0, alone.output
-    assert_pushes_against_the_box(Run(alone.summary(), alone.samples(), alone.folder))
-    example_endpoint = f"tcp/127.0.0.1:{free_port()}"
-
-    async def launch(folder: Path, *connect: str) -> dict[str, Any]:
-        listen = f"tcp/127.0.0.1:{free_port()}"
-        proc = await spawn("-m", "ubf_async.launch", "--scenario", "obstacle-course",
-                           "--speed", "4", "--listen", listen, *connect, "--robot", robot,
-                           "--quiet", "--summary", str(folder / "summary.json"),
-                           "--record", str(folder), "--record-every-s", "100")
-        printed, _ = await asyncio.wait_for(proc.communicate(), 120)
-        assert proc.returncode == 0, printed.decode()
-        return json.loads((folder / "summary.json").read_text("utf-8"))  # type: ignore[no-any-return]
-
-    example = await spawn(str(ROOT / "examples" / "avoid_obstacles.py"), "--listen",
-                          example_endpoint, "--robot", robot, "--clock", "sim", "--quiet")
-    try:
-        await read_until(example, "waiting for the simulation time")
-        with_example = await launch(tmp_path / "with", "--connect", example_endpoint)
-        printed = await read_until(example, "clock: simulated time")
-        assert "votes in 'seek_pink_ball'" in printed and "(priority 3" in printed
-    finally:
-        await stop(example)
-    assert_odometry_tracks_the_heading(with_example, label="obstacle-course (processes)")
-    run = Run(with_example, read_trajectory_csv(tmp_path / "with" / "trajectory.csv"),
-              tmp_path / "with")
-    assert_gets_round_the_box(run, avoid="avoid_obstacles")
 
 
 def test_busy_room(tmp_path_factory: pytest.TempPathFactory) -> None:
