@@ -14,9 +14,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-
 from ubf_async.runs.sweep.spec import SweepPlan
 from ubf_async.runs.sweep.table import Row, number, text
 
@@ -36,6 +33,10 @@ def swept(plan: SweepPlan) -> list[tuple[str, tuple[Any, ...]]]:
 def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path) -> Path | None:
     """Draw figure ``name`` of the runs ``rows`` against each swept parameter into ``path``;
     ``None`` (nothing written) when no run has a number for it."""
+    # Imported here: a sweep's workers import this package too, and draw nothing.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     ok = [row for row in rows if row["status"] == "ok" and number(row[name]) is not None]
     if not ok:
         return None
