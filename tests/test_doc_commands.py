@@ -977,15 +977,18 @@ def test_the_helps_shown_list_what_the_pages_say_and_the_schema_is_the_shipped_o
 CODEC = "python -m bench.codec"
 SEEKCOLOR = "python -m bench.seekcolor"
 SIM_CALIBRATE = "python -m components.sim.calibrate"
+SIMSECOND = "python -m bench.simsecond"
 TRACK_CALIBRATE = "python -m components.encoders.calibrate"
 
 
 @pytest.mark.slow
-@runs(CODEC, SEEKCOLOR, SIM_CALIBRATE, TRACK_CALIBRATE)
+@runs(CODEC, SEEKCOLOR, SIM_CALIBRATE, TRACK_CALIBRATE, SIMSECOND)
 def test_the_quick_benchmarks_and_the_calibrations_shown(tmp_path: Path) -> None:
     with page(tmp_path) as here:
         procs = [here.start(c) for c in (CODEC, SEEKCOLOR, SIM_CALIBRATE, TRACK_CALIBRATE)]
-        codec, seekcolor, sim, track = (ended(proc) for proc in procs)
+        # where a simulated second goes, on one short run (its default: 3 runs of 25 s)
+        procs.append(here.start(SIMSECOND, add=("--runs", "1", "--duration", "1")))
+        codec, seekcolor, sim, track, simsecond = (ended(proc) for proc in procs)
     # decode + validate and encode of each message type, beside plain msgpack
     assert re.search(r"^drive +\d+ +[\d.]+ µs .* [\d.]+×$", codec, re.M), codec
     # seekcolor per frame vs a per-pixel Python loop
@@ -998,6 +1001,10 @@ def test_the_quick_benchmarks_and_the_calibrations_shown(tmp_path: Path) -> None
     # the effective track the simulated Mini-WHEGS has: 0.420 m (hardware.md, scenarios.md)
     [fitted] = re.findall(r"^effective track: ([\d.]+) m", track, re.M)
     assert round(float(fitted), 3) == 0.420, track
+    parts = dict(re.findall(r"^(\S[^\n]*?) +([\d.]+)% +[\d.]+", simsecond, re.M))
+    assert {"physics (pymunk + wheel forces)", "camera: render", "the event loop and the rest",
+            "all (CPU time, every thread)"} <= set(parts), simsecond
+    assert float(parts["all (CPU time, every thread)"]) == 100, simsecond
 
 
 # -- ROS 2 (README.md, ros2.md) --------------------------------------------------------------
