@@ -31,6 +31,7 @@ import subprocess
 import sys
 import sysconfig
 import textwrap
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -154,6 +155,52 @@ def run(argv: list[str], *, cwd: Path, env: dict[str, str]) -> subprocess.Comple
     return subprocess.CompletedProcess(argv, proc.returncode, out)
 
 
+def run_blocks(blocks: list[Block], *, work: Path, env: dict[str, str], endpoint: str,
+               python: str, handled: Callable[[Block], bool] = lambda block: False
+               ) -> list[tuple[Block, str]]:
+    """Execute a page's ``blocks`` in order by the rules of this module's docstring, in the
+    folder ``work`` with the environment ``env``, the page's endpoint replaced by
+    ``endpoint`` and ``python`` running its python blocks; ``handled(block)`` may take a
+    block upon itself first (then it is not run). Returns each command block with its
+    output."""
+    outputs: list[tuple[Block, str]] = []
+    previous_output: str | None = None
+    for block in blocks:
+        text = block.text.replace(DEFAULT_ENDPOINT, endpoint)
+        if handled(block):
+            previous_output = None
+        elif "title" in block.attrs and block.lang in ("python", "yaml", "toml"):
+            assert not block.flags, f"{block.where()}: unknown flags"
+            path = work / block.attrs["title"]
+            assert path.resolve().is_relative_to(work.resolve()), block.where()
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(block.text, encoding="utf-8")
+            previous_output = None
+        elif block.lang == "sh" and block.flags <= {"expect-fail"} and not block.attrs:
+            proc = run(["bash", "-euo", "pipefail", "-c", text], cwd=work, env=env)
+            if "expect-fail" in block.flags:
+                assert proc.returncode != 0, f"{block.where()} should fail:\n{proc.stdout}"
+            else:
+                assert proc.returncode == 0, (
+                    f"{block.where()} exited {proc.returncode}:\n{proc.stdout}")
+            previous_output = proc.stdout
+            outputs.append((block, proc.stdout))
+        elif block.lang == "python" and not block.flags and not block.attrs:
+            proc = run([python, "-c", text], cwd=work, env=env)
+            assert proc.returncode == 0, f"{block.where()} exited {proc.returncode}:\n{proc.stdout}"
+            previous_output = proc.stdout
+            outputs.append((block, proc.stdout))
+        elif block.lang == "text" and block.flags <= {"varies"} and not block.attrs:
+            assert previous_output is not None, (
+                f"{block.where()}: expected output must follow the command it belongs to")
+            check_output(text, previous_output, block.where(),
+                         numbers_vary="varies" in block.flags)
+            previous_output = None
+        else:
+            raise AssertionError(f"{block.where()}: no rule to execute this block")
+    return outputs
+
+
 @pytest.mark.slow
 def test_every_code_block_of_the_tutorial_runs(tmp_path: Path) -> None:
     blocks = parse_blocks(TUTORIAL.read_text(encoding="utf-8"))
@@ -171,39 +218,7 @@ def test_every_code_block_of_the_tutorial_runs(tmp_path: Path) -> None:
     endpoint = f"127.0.0.1:{free_port()}"
     assert DEFAULT_ENDPOINT in TUTORIAL.read_text(encoding="utf-8")
 
-    outputs: list[tuple[Block, str]] = []
-    previous_output: str | None = None
-    for block in blocks:
-        text = block.text.replace(DEFAULT_ENDPOINT, endpoint)
-        if "title" in block.attrs and block.lang in ("python", "yaml", "toml"):
-            assert not block.flags, f"{block.where()}: unknown flags"
-            path = work / block.attrs["title"]
-            assert path.resolve().is_relative_to(work.resolve()), block.where()
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(block.text, encoding="utf-8")
-            previous_output = None
-        elif block.lang == "sh" and block.flags <= {"expect-fail"} and not block.attrs:
-            proc = run(["bash", "-euo", "pipefail", "-c", text], cwd=work, env=env)
-            if "expect-fail" in block.flags:
-                assert proc.returncode != 0, f"{block.where()} should fail:\n{proc.stdout}"
-            else:
-                assert proc.returncode == 0, (
-                    f"{block.where()} exited {proc.returncode}:\n{proc.stdout}")
-            previous_output = proc.stdout
-            outputs.append((block, proc.stdout))
-        elif block.lang == "python" and not block.flags and not block.attrs:
-            proc = run(["python", "-c", text], cwd=work, env=env)
-            assert proc.returncode == 0, f"{block.where()} exited {proc.returncode}:\n{proc.stdout}"
-            previous_output = proc.stdout
-            outputs.append((block, proc.stdout))
-        elif block.lang == "text" and block.flags <= {"varies"} and not block.attrs:
-            assert previous_output is not None, (
-                f"{block.where()}: expected output must follow the command it belongs to")
-            check_output(text, previous_output, block.where(),
-                         numbers_vary="varies" in block.flags)
-            previous_output = None
-        else:
-            raise AssertionError(f"{block.where()}: no rule to execute this block")
+    outputs = run_blocks(blocks, work=work, env=env, endpoint=endpoint, python="python")
 
     # What the page claims beyond its printed output.
     # The typo is reported at the line that holds it.

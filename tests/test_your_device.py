@@ -24,11 +24,11 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import free_port, repository_env
-from tests.test_tutorial import check_output, parse_blocks, run
+from tests.test_tutorial import DEFAULT_ENDPOINT, Block, parse_blocks, run_blocks
 
 ROOT = Path(__file__).resolve().parent.parent
 GUIDE = ROOT / "docs" / "your-device.md"
-DEFAULT_ENDPOINT = "127.0.0.1:7447"
+
 INSTALL = "python -m pip install -e .\n"
 
 
@@ -56,39 +56,16 @@ def test_every_code_block_of_the_device_guide_runs(tmp_path: Path) -> None:
     env = repository_env()
     env["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), env.get("PATH", "")])
     endpoint = f"127.0.0.1:{free_port()}"
-    installed = False
-    previous_output: str | None = None
-    for block in blocks:
-        code = block.text.replace(DEFAULT_ENDPOINT, endpoint)
-        if "title" in block.attrs and block.lang in ("python", "yaml", "toml"):
-            assert not block.flags, f"{block.where()}: unknown flags"
-            path = work / block.attrs["title"]
-            assert path.resolve().is_relative_to(work.resolve()), block.where()
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(block.text, encoding="utf-8")
-            previous_output = None
-        elif block.lang == "sh" and block.text == INSTALL and not block.flags | block.attrs.keys():
+    installed = []
+
+    def install(block: Block) -> bool:
+        """The one block not run as written (the module docstring)."""
+        if block.lang == "sh" and block.text == INSTALL and not block.flags | block.attrs.keys():
             install_metadata(work)
-            installed = True
-            previous_output = None
-        elif block.lang == "sh" and block.flags <= {"expect-fail"} and not block.attrs:
-            proc = run(["bash", "-euo", "pipefail", "-c", code], cwd=work, env=env)
-            if "expect-fail" in block.flags:
-                assert proc.returncode != 0, f"{block.where()} should fail:\n{proc.stdout}"
-            else:
-                assert proc.returncode == 0, (
-                    f"{block.where()} exited {proc.returncode}:\n{proc.stdout}")
-            previous_output = proc.stdout
-        elif block.lang == "python" and not block.flags and not block.attrs:
-            proc = run([sys.executable, "-c", code], cwd=work, env=env)
-            assert proc.returncode == 0, f"{block.where()} exited {proc.returncode}:\n{proc.stdout}"
-            previous_output = proc.stdout
-        elif block.lang == "text" and block.flags <= {"varies"} and not block.attrs:
-            assert previous_output is not None, (
-                f"{block.where()}: expected output must follow the command it belongs to")
-            check_output(code, previous_output, block.where(),
-                         numbers_vary="varies" in block.flags)
-            previous_output = None
-        else:
-            raise AssertionError(f"{block.where()}: no rule to execute this block")
+            installed.append(block)
+            return True
+        return False
+
+    run_blocks(blocks, work=work, env=env, endpoint=endpoint, python=sys.executable,
+               handled=install)
     assert installed, f"{GUIDE.name}: no `{INSTALL.strip()}` block"
