@@ -18,6 +18,7 @@ import math
 import multiprocessing
 import os
 import random
+import re
 import signal
 import threading
 from pathlib import Path
@@ -30,6 +31,7 @@ import components.sim.backends
 import components.sim.render_process
 import ubf_async.runs.inprocess
 from components.sim.scenarios import builtin_names, load_scenario
+from tests.conftest import REPOSITORY
 from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, RECORDED, launched, ran
 from ubf_async import experiment
 from ubf_async.assembly.robotfile import load_robot_text
@@ -269,3 +271,29 @@ def test_instants_passed_without_a_round_of_the_loop_change_nothing(
     assert rounds["barriers"] >= rounds["steps"], rounds  # (and the start's)
     assert skipping.trajectory == every_instant.trajectory
     assert figures(skipping) == figures(every_instant)
+
+
+def python_blocks(page: Path) -> list[str]:
+    """The ``python`` code blocks of a page that make runs in this process."""
+    blocks = re.findall(r"^```python\n(.*?)^```", page.read_text("utf-8"), re.M | re.S)
+    return [block for block in blocks if "experiment.run(" in block or "run_fleet(" in block]
+
+
+def test_the_library_calls_the_docs_show_run_as_they_say(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """README.md's and docs/experiments.md's blocks of Python, run (from the repository's
+    root, where their paths start); what their comments claim, checked."""
+    monkeypatch.chdir(REPOSITORY)
+    blocks = [*python_blocks(REPOSITORY / "README.md"),
+              *python_blocks(REPOSITORY / "docs" / "experiments.md")]
+    assert len(blocks) == 3, blocks
+    for block in blocks:
+        names: dict[str, Any] = {}
+        exec(compile(block, "<docs>", "exec"), names)
+        if "result" in names:  # "True: the scenario's expected outcome was met"
+            result = names["result"]
+            assert result.passed is True and result.verdicts, result.expected
+            assert result.trajectory[-1]["t_s"] == pytest.approx(40.0)  # ball-behind's 40 s
+        if "world" in names:  # the world's summary of a fleet in this process
+            assert set(names["world"]["robots"]) == {"r1", "r2"}
+            assert names["world"]["sim_time_s"] == pytest.approx(20.0)
