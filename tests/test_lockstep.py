@@ -421,13 +421,14 @@ robots:
 
 def test_a_four_robot_fleet_in_lockstep_is_the_same_run_twice(tmp_path: Path) -> None:
     """One world and four robots' controllers in this process (ubf_async.runs.fleet), flat
-    out: twice — the second beside a busy loop on every core — the same summary (the
-    real-time factor and the steps' wall-time lateness aside), and every robot's periodic
-    ticks 20 ms apart in simulated time: jitter 0."""
+    out: twice — the second with the whole process pinned to one core beside a busy loop on
+    it — the same summary (the real-time factor and the steps' wall-time lateness aside), and
+    every robot's periodic ticks 20 ms apart in simulated time: jitter 0."""
     fleet = tmp_path / "fleet.yaml"
     fleet.write_text(FLEET, "utf-8")
     first = run_fleet(fleet)
-    with hogs():
+    core = available_cpus()[:1]
+    with this_process_pinned_to(core), hogs(core):
         second = run_fleet(fleet)
     for run in (first, second):
         assert run.pop("real_time_factor") > 0
