@@ -135,9 +135,9 @@ def test_runs_repeat_in_one_process_and_leave_nothing_behind(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A run made again in the same process gives the same result, after a run of another
     robot, scenario and seed in between, and after this process's global random generators
-    were drawn from and reseeded. No run starts a thread that outlives it, a child process, or the render process
-    (the camera renders in a thread of the run), and none changes the loggers or the SIGINT
-    handler."""
+    were drawn from and reseeded. No run starts a thread that outlives it, a child process,
+    or the render process (the camera renders in a thread of the run), and none changes the
+    loggers or the SIGINT handler."""
     render_requests: list[object] = []
     shared = components.sim.backends.shared_render_process
 
