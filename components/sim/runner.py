@@ -12,8 +12,7 @@ Memory stays bounded however long a run lasts (docs/resources.md): the trajector
 every ``SAMPLE_PERIOD_S`` into a :class:`~components.sim.record.TrajectoryBuffer` (a decimated
 history of the whole run plus the last minute at full rate: what the plot and the summary
 need), and with ``trajectory_path`` or ``record_dir`` every sample is also streamed to a
-``trajectory.csv`` as the run
-goes, in batches written by a worker thread.
+``trajectory.csv`` as the run goes, in batches written by a worker thread.
 """
 
 from __future__ import annotations
@@ -253,7 +252,7 @@ class SimulationRun:
             self._audit()  # where both headings start
             self._audited_encoders.update_hooks.append(self._audit)
         self._tasks.append(asyncio.create_task(self._sample(controller), name="sim:record"))
-        if self.options.record_dir is not None and self.options.pictures:
+        if self.options.record_dir is not None:
             # The LEDs as their devices report them (in this process or another): drawn on
             # the recorded frames.
             self._led_sub = self.bus.subscribe(LED_STATE.key_expr(self.bus.keys),
@@ -434,7 +433,7 @@ class SimulationRun:
 
     def _recording_summary(self, folder: Path) -> dict[str, Any]:
         return {"dir": str(folder), "trajectory_csv": "trajectory.csv",
-                "trajectory_png": "trajectory.png" if self.options.pictures else None,
+                "trajectory_png": "trajectory.png",
                 "frames": [p.name for p in self.frames],
                 "frames_written": self.frames_written, "errors": list(self._recording_errors)}
 
@@ -450,8 +449,6 @@ class SimulationRun:
 
     def _write_recording(self, folder: Path, rest: list[TrajectorySample]) -> None:
         self._finish_csv(rest)
-        if not self.options.pictures:
-            return
         events = [(step.at_s, f"ball: {step.kind}") for step in self.scenario.ball_script]
         save_run_plot(folder / "trajectory.png", self.samples, self.world.snapshot(),
                       title=f"{self.scenario.title} (seed {self.seed})", events=events)

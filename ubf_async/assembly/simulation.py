@@ -51,9 +51,6 @@ class SimulationOptions:
     with ``record_dir`` it is ``record_dir/trajectory.csv``."""
     record_dir: Path | None = None
     record_every_s: float = 2.0
-    pictures: bool = True
-    """With ``record_dir``: besides ``trajectory.csv``, the trajectory's plot and annotated
-    camera frames (every ``record_every_s``). Without them a recording costs almost nothing."""
     keep_trajectory: bool = False
     """Keep every trajectory sample in memory, for :meth:`SimulationRun.trajectory` (a library
     run's result); otherwise only a bounded, decimated history is kept."""

@@ -13,7 +13,6 @@ load, and leaves no thread or process behind.
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import io
 import math
@@ -29,8 +28,7 @@ from ubf_async.assembly.simulation import FLAT_OUT, FleetMember, SimulationOptio
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.net.transport import InProcessTransport
-from ubf_async.runs import wiring
-from ubf_async.runtime import lending
+from ubf_async.runs import inprocess, wiring
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.wire.protocol import Keys, ProtocolError
@@ -150,11 +148,13 @@ def run_fleet(fleet: str | Path | Fleet, *, seed: int | None = None,
     if duration is None or not (math.isfinite(duration) and duration > 0):
         raise ConfigurationError(f"{loaded.source}: a fleet run in this process needs a "
                                  f"duration > 0 (world.duration_s, or duration_s=)")
-    robots = loaded.robots if seed is None else {
-        name: robot.reseeded(seed) for name, robot in loaded.robots.items()}
     options = dataclasses.replace(world_options(loaded), speed=math.inf, duration_s=duration,
                                   seed=world.seed if seed is None else seed)
-    with asyncio.Runner(loop_factory=lending.new_idle_event_loop) as runner:
+    # Each run builds the robots' trees afresh (a loaded fleet may be run again), their
+    # behaviours drawing from the run's seed.
+    robots = {name: robot.reseeded(options.seed) for name, robot in loaded.robots.items()}
+    with inprocess.own_loop("ubf_async.runs.fleet.run_fleet()",
+                            instead="run it in a worker thread (asyncio.to_thread)") as runner:
         return runner.run(_run_fleet(loaded, robots, options))
 
 

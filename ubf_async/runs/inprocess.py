@@ -90,18 +90,25 @@ def run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | None = N
     cleanly. Called from a running event loop, it refuses (``RuntimeError``): use
     :func:`run_async`.
     """
+    runner = own_loop("ubf_async.experiment.run()",
+                      instead="await ubf_async.experiment.run_async(...)")
+    plan = plan_run(robot, scenario, seed=seed, duration_s=duration_s, out_dir=out_dir,
+                    pictures=pictures)
+    with runner:
+        return runner.run(run_plan(plan))
+
+
+def own_loop(call: str, *, instead: str) -> asyncio.Runner:
+    """The event loop a run in this process gets (not yet started): one that tells the
+    lockstep when it is idle. Refused (``RuntimeError``, saying to do ``instead``) when called
+    from a running event loop — before anything is done: asyncio's own refusal would come
+    later, and leak the run's coroutine."""
     try:
         asyncio.get_running_loop()
     except RuntimeError:
-        pass  # none: the run starts its own
-    else:  # refused before anything is done (asyncio's own refusal would leak a coroutine)
-        raise RuntimeError("ubf_async.experiment.run() cannot be called from a running event "
-                           "loop (the run needs a loop of its own): await "
-                           "ubf_async.experiment.run_async(...) instead")
-    plan = plan_run(robot, scenario, seed=seed, duration_s=duration_s, out_dir=out_dir,
-                    pictures=pictures)
-    with asyncio.Runner(loop_factory=lending.new_idle_event_loop) as runner:
-        return runner.run(run_plan(plan))
+        return asyncio.Runner(loop_factory=lending.new_idle_event_loop)
+    raise RuntimeError(f"{call} cannot be called from a running event loop (the run needs a "
+                       f"loop of its own): {instead} instead")
 
 
 async def run_async(robot: str | Path | Robot, scenario: str | Path, *, seed: int | None = None,
@@ -122,12 +129,10 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
     if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
         raise ConfigurationError(f"duration_s must be > 0 simulated seconds, got {duration_s}")
     resolved = robot.reseeded(seed) if isinstance(robot, Robot) else load_robot(robot, seed=seed)
-    simulators = resolved.simulators()
-    if len(simulators) != 1:
-        raise ConfigurationError(
-            f"{resolved.source}: a run needs every simulated device on one simulator; "
-            + (f"its devices need several ({', '.join(simulators)})" if simulators
-               else "none of its devices is simulated"))
+    needed = wiring.simulator_needed(resolved, resolved.devices)
+    if needed is None:
+        raise ConfigurationError(f"{resolved.source}: none of its devices is simulated: "
+                                 f"there is nothing to run in this process")
     folder = Path(out_dir) if out_dir is not None else None
     if pictures and folder is None:
         raise ConfigurationError("pictures=True draws into out_dir: give one")
@@ -141,7 +146,7 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
         command_line=("ubf_async.experiment.run", str(robot if not isinstance(robot, Robot)
                                                       else robot.source), str(scenario),
                       *(() if seed is None else (f"seed={seed}",))))
-    plan = wiring.simulation_plan(resolved, options, simulator=SIMULATORS.get(simulators[0])(),
+    plan = wiring.simulation_plan(resolved, options, simulator=SIMULATORS.get(needed)(),
                                   connection=ConnectionOptions(robot=resolved.name))
     plan.helper_processes = False
     if folder is not None:  # only once everything else is checked: a refusal leaves nothing

@@ -18,7 +18,7 @@ from __future__ import annotations
 import io
 import json
 import logging
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
@@ -119,6 +119,16 @@ class RunPlan:
         """The robot file's sources (``kind/name``) this run has: its devices here and those
         left to other processes."""
         return [f"{d.kind}/{d.name}" for d in (*self.devices, *self.elsewhere)]
+
+
+def simulator_needed(robot: Robot, devices: Sequence[ResolvedDevice]) -> str | None:
+    """The simulator ``devices`` of ``robot`` need (their backends say), if any. Raises
+    :class:`ConfigurationError` when they need several: one robot runs in one."""
+    simulators = sorted({d.requires_simulator for d in devices if d.requires_simulator})
+    if len(simulators) > 1:
+        raise ConfigurationError(f"{robot.source}: devices need several simulators "
+                                 f"({', '.join(simulators)}); one robot runs in one")
+    return simulators[0] if simulators else None
 
 
 def simulation_plan(robot: Robot, options: SimulationOptions, *, simulator: Simulator,

@@ -245,10 +245,7 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
     """Load and check the robot file and options; nothing starts. Raises :class:`UbfError`."""
     robot = load_robot(args.robot_file, seed=args.seed)
     devices = selected_devices(robot, args.devices)
-    simulators = sorted({d.requires_simulator for d in devices if d.requires_simulator})
-    if len(simulators) > 1:
-        raise ConfigurationError(f"{robot.source}: devices need several simulators "
-                                 f"({', '.join(simulators)}); one robot runs in one")
+    needed = wiring.simulator_needed(robot, devices)
     elsewhere: list[ResolvedDevice] = []
     simulator: Simulator | None = None
     options: SimulationOptions | None = None
@@ -260,9 +257,9 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
     if args.no_sim:
         elsewhere = [d for d in devices if d.requires_simulator]
         devices = [d for d in devices if not d.requires_simulator]
-    elif simulators:
+    elif needed is not None:
         check_lockstep_loop()
-        simulator = SIMULATORS.get(simulators[0])()
+        simulator = SIMULATORS.get(needed)()
         options = SimulationOptions(
             scenario=args.scenario, speed=args.speed, seed=args.seed,
             duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
