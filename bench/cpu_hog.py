@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import ctypes
 import functools
 import os
 import signal
 import subprocess
 import sys
 from collections.abc import Iterable, Iterator
+
+from ubf_async.cli import ending
 
 BUSY_LOOP = "while True: pass"
 
@@ -37,15 +38,11 @@ def pin_to(cpus: Iterable[int]) -> None:
     os.sched_setaffinity(0, set(cpus))
 
 
-PR_SET_PDEATHSIG = 1
-
-
 def hog_preexec(cpu: int) -> None:
     """A busy loop's set-up: pinned to ``cpu``, and killed by the kernel when its parent dies
     (however it dies: a hog left spinning would load the machine for hours unnoticed)."""
     pin_to([cpu])
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    ending.die_with_parent()
 
 
 @contextlib.contextmanager

@@ -25,6 +25,7 @@ and simulator), measured in the same session. ``--runs 1 --duration 5`` is a qui
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import statistics
@@ -37,6 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bench import cpu_hog
 from components.sim.component import DEVICES
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -54,8 +56,9 @@ class Setup:
         return statistics.median(run[figure] for run in self.runs)
 
 
-def pinned(cpu: int) -> Callable[[], None]:
-    return lambda: os.sched_setaffinity(0, {cpu})
+def pinned(args: argparse.Namespace) -> Callable[[], None]:
+    """A child's set-up: pinned to ``--cpu``."""
+    return functools.partial(cpu_hog.pin_to, [args.cpu])
 
 
 def launch_run(args: argparse.Namespace, *, speed: str, devices: str, folder: Path
@@ -66,7 +69,7 @@ def launch_run(args: argparse.Namespace, *, speed: str, devices: str, folder: Pa
            "--summary", str(summary), "--listen", "tcp/127.0.0.1:0"]
     started = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
-                          timeout=args.duration * 20 + 120, preexec_fn=pinned(args.cpu))
+                          timeout=args.duration * 20 + 120, preexec_fn=pinned(args))
     wall = time.perf_counter() - started
     if proc.returncode != 0:
         raise SystemExit(f"run failed ({' '.join(cmd)}):\n{proc.stdout}\n{proc.stderr}")
@@ -79,7 +82,7 @@ def in_process_run(args: argparse.Namespace, folder: Path) -> dict[str, float]:
     cmd = [sys.executable, "-m", "bench.realtime", CHILD_FLAG, "--scenario", args.scenario,
            "--duration", f"{args.duration:g}"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
-                          timeout=args.duration * 20 + 120, preexec_fn=pinned(args.cpu))
+                          timeout=args.duration * 20 + 120, preexec_fn=pinned(args))
     if proc.returncode != 0:
         raise SystemExit(f"run failed ({' '.join(cmd)}):\n{proc.stdout}\n{proc.stderr}")
     figures: dict[str, float] = json.loads(proc.stdout.strip().splitlines()[-1])

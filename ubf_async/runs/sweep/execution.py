@@ -14,7 +14,6 @@ its error, and the sweep goes on.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import hashlib
 import importlib.util
 import logging
@@ -30,6 +29,7 @@ from typing import Any, Literal, Protocol
 
 import msgspec
 
+from ubf_async.cli import ending
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import inprocess, overrides
 from ubf_async.runs.sweep.spec import RunTask
@@ -40,7 +40,6 @@ MAX_LOG_LINES = 20
 MAX_TEXT = 4000
 CODE_PACKAGES = ("ubf_async", "components")
 """The packages a Ray worker needs, shipped by default (:func:`code_runtime_env`)."""
-PR_SET_PDEATHSIG = 1
 
 
 class RunRecord(msgspec.Struct, frozen=True, omit_defaults=True):
@@ -139,8 +138,7 @@ def init_local_worker() -> None:
     """A local worker: Ctrl-C is the parent's to handle (it ends the workers), and the worker
     dies with its parent — a sweep killed outright leaves no run going on unseen."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if sys.platform == "linux":
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    ending.die_with_parent()
     init_worker()
 
 
