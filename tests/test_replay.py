@@ -348,3 +348,19 @@ def test_a_replay_held_up_says_what_held_it_up(
                        r"recording: meanwhile this process ", last)
     assert behind is not None and int(behind[1]) >= 800, last
     assert "it was stopped" in last, last
+
+
+def test_a_stop_is_named_even_when_it_fell_inside_a_put() -> None:
+    """A SIGSTOP that lands while the replay is inside zenoh's put makes that put last the
+    whole stop: measured, it looks like a slow network. The SIGCONT that continued the
+    process says what it was (seen on a loaded machine: 1005 ms 'in zenoh's put')."""
+    from ubf_async.tools.replay import Lag
+
+    held = Lag(behind_s=1.0, at_s=0.2, elapsed_s=1.01, cpu_wait_s=0.0, computing_s=0.002,
+               reading_s=0.0, publishing_s=1.005, stopped=True)
+    cause = held.cause()
+    assert cause.startswith("meanwhile this process was stopped and continued"), cause
+    assert "it was stopped" in cause and "in zenoh's put" in cause
+    slow = Lag(behind_s=1.0, at_s=0.2, elapsed_s=1.01, cpu_wait_s=0.0, computing_s=0.002,
+               reading_s=0.0, publishing_s=1.005)
+    assert "stopped" not in slow.cause().split(";")[0], slow.cause()

@@ -45,6 +45,7 @@ import contextlib
 import logging
 import os
 import queue
+import signal
 import sys
 import threading
 import time
@@ -276,6 +277,8 @@ class _Since:
     publishing_s: float
     reader_cpu_s: float
     reader_cpu_wait_s: float | None
+    continued: int = 0
+    """SIGCONTs this process received (:data:`CONTINUED`): it had been stopped."""
 
     def __sub__(self, then: _Since) -> _Since:
         def minus(a: float | None, b: float | None) -> float | None:
@@ -286,7 +289,8 @@ class _Since:
                       self.waited_for_reader_s - then.waited_for_reader_s,
                       self.publishing_s - then.publishing_s,
                       self.reader_cpu_s - then.reader_cpu_s,
-                      minus(self.reader_cpu_wait_s, then.reader_cpu_wait_s))
+                      minus(self.reader_cpu_wait_s, then.reader_cpu_wait_s),
+                      self.continued - then.continued)
 
 
 @dataclass(frozen=True, slots=True)
@@ -307,6 +311,9 @@ class Lag:
     """Waiting for the reading thread while it read and decompressed the file."""
     publishing_s: float
     """Inside zenoh's ``put``: the network or the receivers did not take the messages."""
+    stopped: bool = False
+    """The process was stopped meanwhile (SIGSTOP, Ctrl-Z) and continued: whichever of the
+    times above it was stopped in holds the stop too."""
 
     @classmethod
     def of(cls, behind_s: float, at_s: float, spent: _Since) -> Lag:
@@ -323,7 +330,7 @@ class Lag:
                                          - spent.publishing_s))
         return cls(behind_s=behind_s, at_s=at_s, elapsed_s=spent.at_s, cpu_wait_s=cpu_wait,
                    computing_s=spent.computing_s, reading_s=reading,
-                   publishing_s=spent.publishing_s)
+                   publishing_s=spent.publishing_s, stopped=spent.continued > 0)
 
     def cause(self) -> str:
         """What held the replay up, largest first, each part that counts (≥ 10 % of the
@@ -351,9 +358,13 @@ class Lag:
                       f"did not run for {_ms(rest)} (a busy machine, or it was stopped)"))
         counted = sorted((p for p in parts if p[0] >= max(0.1 * self.elapsed_s, 0.005)),
                          key=lambda p: -p[0])
-        if not counted:
+        texts = [text for _, text in counted]
+        if self.stopped:  # known for sure, whichever measure the stop fell into
+            texts.insert(0, "was stopped and continued (SIGSTOP or Ctrl-Z, then SIGCONT): "
+                            "it was stopped in what follows")
+        if not texts:
             return "nothing measured stands out"
-        return "meanwhile this process " + "; it ".join(text for _, text in counted)
+        return "meanwhile this process " + "; it ".join(texts)
 
     def describe(self) -> str:
         return (f"{_ms(self.behind_s)} behind the recorded timing, {self.at_s:.1f} s into the "
@@ -397,7 +408,7 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
 
     def now_since(at_s: float) -> _Since:
         return _Since(at_s, cpu_wait.seconds(), time.thread_time(), waited_for_reader_s,
-                      publishing_s, reader.cpu_s, reader.cpu_wait_s)
+                      publishing_s, reader.cpu_s, reader.cpu_wait_s, CONTINUED.count)
 
     asked_s = monotonic()
     try:
@@ -444,6 +455,25 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
         for publisher in publishers.values():
             publisher.close()
     return stats
+
+
+class _Continued:
+    """SIGCONTs received: a stopped process (Ctrl-Z, SIGSTOP, a debugger) learns it was
+    stopped only from the SIGCONT that continues it — a measure of time cannot tell a stop
+    from a wait inside a call. :meth:`install` counts them (``python -m ubf_async.replay``
+    does; a replay in another program counts none)."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def install(self) -> None:
+        signal.signal(signal.SIGCONT, self._continued)
+
+    def _continued(self, signum: int, frame: object) -> None:
+        self.count += 1
+
+
+CONTINUED = _Continued()
 
 
 # -- python -m ubf_async.replay --------------------------------------------------------------
@@ -567,6 +597,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.fast and not args.speed > 0:
         parser.error(f"--speed must be > 0, got {args.speed:g}")
     logging.basicConfig(level="WARNING", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    CONTINUED.install()  # a stop (Ctrl-Z) is then named for what it was
     return run_main(lambda: _main(args), prog=PROG)
 
 
