@@ -95,6 +95,16 @@ elif mode == "flood":  # valid samples on one source at args[0] msg/s for args[1
             pub.put(sample("range", RANGE, seq=n))
         time.sleep(0.0005)
     print(f"flooded {n}", flush=True)
+elif mode == "garbage":  # args[0] rounds of: a valid camera sample, then args[1] of garbage
+    rounds, garbage = int(args[0]), int(args[1])
+    # Blocking, not dropping, under congestion: every sample reaches the robot, in order.
+    pub = session.declare_publisher(key("camera", "front"),
+                                    congestion_control=zenoh.CongestionControl.BLOCK)
+    for i in range(rounds):
+        pub.put(sample("camera.seekcolor", {"bins": [0, 0, 140, 0, 0], "total": 140},
+                       seq=i + 1))
+        for _ in range(garbage):
+            pub.put(b"\xc1 not msgpack")
 elif mode == "zero_range":  # a valid reading some behaviour cannot cope with
     for i in range(int(args[0])):
         session.put(key("range", "front"), sample("range", {"range_mm": 0, "status": "ok"},
@@ -325,6 +335,31 @@ async def test_junk_key_flood_does_not_lock_out_a_new_real_sensor(
     assert agg.refused[Refusal.FULL] + agg.evicted > 1000  # the flood was on all along
     assert ctl.restarts == 0 and agg.restarts == 0
     await ctl.aclose()
+    await agg.aclose()
+
+
+# ---------------------------------------------------------------------------------------------
+# (c') garbage on a real sensor's key
+
+
+@pytest.mark.asyncio
+async def test_garbage_on_the_cameras_key_never_displaces_its_valid_samples(
+    robot_bus: Bus, attacker: object
+) -> None:
+    """Each valid camera sample is followed at once by 500 that are not msgpack, on the same
+    key: the aggregator still holds the newest valid one, and counts every refusal."""
+    agg = StateAggregator(bus=robot_bus, protected_sources=("camera/front",))
+    await started(agg)
+    key = robot_bus.keys.sensor("camera", "front")
+    proc = await attacker("garbage", "20", "500")  # type: ignore[operator]
+    await read_until(proc, "sent", timeout_s=60)
+    await eventually(lambda: agg.malformed.get(key) == 20 * 500, timeout_s=30,
+                     what=f"20 × 500 refusals counted (counted: {agg.malformed.get(key)})")
+    entry = agg.entries["camera/front"]
+    assert entry.message.seq == 20  # the newest valid sample, not displaced by what followed
+    assert entry.message.data.total == 140
+    assert agg.subscription is not None and agg.subscription.stats.refused == 20 * 500
+    assert agg.restarts == 0
     await agg.aclose()
 
 

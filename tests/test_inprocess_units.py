@@ -29,8 +29,8 @@ from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal
 from ubf_async.services.remote import RemoteBehavior, RemoteBehaviorHost, RemoteBehaviors
-from ubf_async.wire.protocol import decode
-from ubf_async.wire.topics import TRACE, TickTrace
+from ubf_async.wire.protocol import Message, decode
+from ubf_async.wire.topics import DRIVE, TRACE, Drive, TickTrace
 
 START_NS = 10**9
 RANGE_PERIOD_S = 0.2
@@ -140,6 +140,50 @@ async def test_aggregator_refuses_future_stamps_and_counts_malformed_samples(rig
     assert "range/front" not in agg.snapshot() and "range/left" not in agg.snapshot()
     await rig.publish_range(200)  # it keeps going
     assert agg.snapshot().value("range/front", "range_mm") == 200
+
+
+@pytest.mark.asyncio
+async def test_garbage_on_a_sensors_key_never_displaces_its_newest_valid_sample(
+    rig: Rig,
+) -> None:
+    agg = StateAggregator(bus=rig.robot)
+    await rig.start(agg)
+    key = rig.device.keys.sensor("range", "front")
+    junk = rig.device.raw_publisher(key)
+    for mm in (300, 400):  # no drain in between: only the valid samples coalesce
+        rig.range.publish({"range_mm": mm, "status": "ok"})
+        for _ in range(1000):
+            junk.put(b"\xc1 not msgpack")
+    await rig.net.settle()
+    assert agg.entries["range/front"].message.data.range_mm == 400
+    assert agg.malformed == {key: 2000}  # every refusal counted, though reported once
+    assert agg.subscription is not None
+    assert (agg.subscription.stats.refused, agg.subscription.stats.coalesced) == (2000, 1)
+
+
+@pytest.mark.parametrize("latest", [True, False])
+@pytest.mark.asyncio
+async def test_a_topics_subscriber_gets_its_valid_samples_decoded_whatever_garbage_follows(
+    rig: Rig, latest: bool,
+) -> None:
+    """The drive key as the motors read it: in latest mode the newest valid command wins; in
+    every mode garbage takes no place in the queue (16 here), so no valid command is pushed
+    out of it."""
+    got: list[Message[Drive]] = []
+    malformed: dict[str, int] = {}
+    rig.robot.subscribe_topic(DRIVE.key(rig.robot.keys), DRIVE,
+                              lambda key, message, received_ns: got.append(message),
+                              malformed, latest=latest, max_queue=16)
+    drive = rig.device.publisher(DRIVE)
+    junk = rig.device.raw_publisher(DRIVE.key(rig.device.keys))
+    for speed in (10, 20, 30):
+        drive.publish({"speed": speed, "turn": 0})
+        for _ in range(100):
+            junk.put(msgpack.packb({"schema": "drive", "v": 1, "seq": 1, "stamp_ns": 1,
+                                    "data": {"speed": 1e9, "turn": 0}}))  # out of range
+    await rig.net.settle()
+    assert [m.data.speed for m in got] == ([30] if latest else [10, 20, 30])
+    assert malformed == {DRIVE.key(rig.robot.keys): 300}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,3 +7,9 @@ from __future__ import annotations
 def first_and_every(count: int, every: int = 100) -> bool:
     """Whether the ``count``-th occurrence (1 for the first) should be logged."""
     return count == 1 or count % every == 0
+
+
+def passes(before: int, after: int, every: int = 100) -> bool:
+    """Whether a count that jumped from ``before`` to ``after`` (several counted at once)
+    passed an occurrence :func:`first_and_every` logs."""
+    return after > before and (before == 0 or after // every > before // every)

@@ -38,8 +38,8 @@ from components.camera.view import DEFAULT_VIEW_SCALE, draw_view, encode_jpeg
 from ubf_async.cli import ending
 from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView, SeekColor
 
 OV9655_LATENCY_S = 0.11
 CAPTURE_DRAIN_S = 2.0
@@ -111,7 +111,7 @@ class CameraComponent(Component):
                              period_s=max(self.latency_s, 0.01))
         view_pub = self.publisher(CAMERA_VIEW, self.source_name,
                                   period_s=max(self.latency_s, 0.01))
-        self.subscribe(SEEK_COLOR.key(keys), self._on_seek_color)
+        self.subscribe_topic(SEEK_COLOR.key(keys), SEEK_COLOR, self._on_seek_color, self.malformed)
         clock = self.bus.clock
         # Simulated time waits while the backend gets ready, whatever the simulation's speed.
         hold = clock.hold(clock.now_ns())
@@ -181,13 +181,10 @@ class CameraComponent(Component):
                 capture.exception()  # retrieved: its failure does not matter any more
             raise
 
-    def _on_seek_color(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=SEEK_COLOR)
-        if message is None:
-            return
+    def _on_seek_color(self, key: str, message: Message[SeekColor], received_ns: int) -> None:
         lo, hi = message.data.lo, message.data.hi
         try:
-            self.color = ColorRange(lo=tuple(lo), hi=tuple(hi),
+            self.color = ColorRange(lo=lo, hi=hi,
                                     require_r_gt_b_gt_g=self.color.require_r_gt_b_gt_g)
         except ValueError as exc:  # lo > hi: well-formed but unusable
             self.malformed[key] = self.malformed.get(key, 0) + 1

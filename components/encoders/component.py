@@ -36,8 +36,8 @@ from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY, MotorsApplied
 
 
 def wheel_speed_rad_s(edges: int, timing: EdgeTiming,
@@ -92,7 +92,7 @@ class EncodersComponent(Component):
                                     period_s=self.period_s)
         odom_pub = self.publisher(ODOMETRY, self.source_name,
                                   period_s=self.period_s)
-        self.subscribe(MOTORS.key_expr(keys), self._on_motors)
+        self.subscribe_topic(MOTORS.key_expr(keys), MOTORS, self._on_motors, self.malformed)
         mode = "commanded" if self.mode is DirectionMode.COMMANDED else "phase"
         async for stamp in every(self.bus.clock, self.period_s):
             left_states, right_states = self.backend.read_phases()
@@ -123,10 +123,7 @@ class EncodersComponent(Component):
                 stamp_ns=stamp,
             )
 
-    def _on_motors(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=MOTORS)
-        if message is None:
-            return
+    def _on_motors(self, key: str, message: Message[MotorsApplied], received_ns: int) -> None:
         self.left.set_commanded_direction(message.data.left_dir)
         self.right.set_commanded_direction(message.data.right_dir)
 

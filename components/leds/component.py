@@ -20,8 +20,8 @@ from components.leds.bank import MAX_LEDS, LedBank
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import LED_STATE, LEDS
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import LED_STATE, LEDS, Leds
 
 
 class LedsComponent(Component):
@@ -41,7 +41,7 @@ class LedsComponent(Component):
     async def run(self) -> None:
         self._pub = self.publisher(LED_STATE, self.source_name, period_s=self.period_s)
         self._light(0)
-        self.subscribe(LEDS.key(self.bus.keys), self._on_leds)
+        self.subscribe_topic(LEDS.key(self.bus.keys), LEDS, self._on_leds, self.malformed)
         try:
             async for _ in every(self.bus.clock, self.period_s):
                 self._publish()  # repeated, so the source never goes stale
@@ -49,10 +49,7 @@ class LedsComponent(Component):
             self._light(0)
             self._publish()
 
-    def _on_leds(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=LEDS)
-        if message is None:
-            return
+    def _on_leds(self, key: str, message: Message[Leds], received_ns: int) -> None:
         mask, dropped = self.bank.fit(message.data.mask)
         if dropped:
             self.clamped += 1

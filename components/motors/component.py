@@ -51,8 +51,8 @@ from components.motors.pwm import (
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SilenceLimit, sleep_until
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import DRIVE, MOTORS
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import DRIVE, MOTORS, Drive
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +107,7 @@ class MotorsComponent(Component):
             await self._hold()
             self._apply(0.0, 0.0, reason="init")
             self.stopped_by_watchdog = True
-            self.subscribe(DRIVE.key(keys), self._on_drive)
+            self.subscribe_topic(DRIVE.key(keys), DRIVE, self._on_drive, self.malformed)
             await self._guard()
         finally:  # closed (SIGTERM, Ctrl-C, the run's end) or failed: the wheels stop
             self._stopping = True  # a command arriving during the hold must not move them
@@ -166,10 +166,7 @@ class MotorsComponent(Component):
         log.warning("%s: stopping", why)
         self._apply(0.0, 0.0, reason=reason)
 
-    def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=DRIVE)
-        if message is None:
-            return
+    def _on_drive(self, key: str, message: Message[Drive], received_ns: int) -> None:
         if self._stopping:
             self.ignored += 1
             return

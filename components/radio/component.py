@@ -14,8 +14,8 @@ import msgspec
 from components.radio.backend import RadioBackend
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import RADIO, RADIO_SEND
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import RADIO, RADIO_SEND, RadioSend
 
 
 class RadioComponent(Component):
@@ -38,18 +38,17 @@ class RadioComponent(Component):
     async def run(self) -> None:
         keys = self.bus.keys
         pub = self.publisher(RADIO, self.source_name)
-        self.subscribe(RADIO_SEND.key(keys), self._on_send, latest=False)
+        self.subscribe_topic(RADIO_SEND.key(keys), RADIO_SEND, self._on_send, self.malformed,
+                             latest=False)
         clock = self.bus.clock
         while True:
             for text in self.backend.receive():
                 pub.publish({"text": text[:256]})
             await clock.sleep(self.period_s)
 
-    def _on_send(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=RADIO_SEND)
-        if message is not None:
-            self.backend.send(message.data.text)
-            self.sent += 1
+    def _on_send(self, key: str, message: Message[RadioSend], received_ns: int) -> None:
+        self.backend.send(message.data.text)
+        self.sent += 1
 
 
 def build_device(

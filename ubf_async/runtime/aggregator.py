@@ -51,7 +51,14 @@ from ubf_async.runtime.clock import SilenceLimit
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
-from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, clip, decode_or_count
+from ubf_async.wire.protocol import (
+    MAX_NAME_CHARS,
+    Message,
+    ProtocolError,
+    clip,
+    count_malformed,
+    decode,
+)
 from ubf_async.wire.topics import sensor_topic
 
 log = logging.getLogger(__name__)
@@ -269,8 +276,8 @@ class StateAggregator(Component):
         return add_hook(self._ingest_hooks, callback)
 
     async def run(self) -> None:
-        self.subscription = self.subscribe(self.bus.keys.all_sensors, self._on_sample,
-                                           direct=True)
+        self.subscription = self.subscribe_screened(
+            self.bus.keys.all_sensors, _SensorScreen(self), direct=True)
         forget_after_s = self.forget_after_s
         if forget_after_s is None:
             await asyncio.Event().wait()  # samples arrive through the subscription
@@ -280,25 +287,20 @@ class StateAggregator(Component):
             self.forget_silent()
 
     # -- ingest (event loop) -----------------------------------------------------------------
-    def _on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
+    def _on_decoded(self, key: str, payload: bytes, received_ns: int,
+                    decoded: tuple[str, Message]) -> None:
         if self._receive_hooks:
             run_hooks(self._receive_hooks, "receive", key, payload, received_ns)
-        try:
-            source = self.bus.keys.source_of(key)
-        except ProtocolError as exc:  # cannot happen with our key expression; be safe
-            self.malformed[key] = self.malformed.get(key, 0) + 1
-            log.warning("ignored sample on %s: %s", key, exc)
-            return
-        # A declared kind (ubf_async.wire.topics) only takes its own schema: behaviours read its
-        # samples as that type. Other kinds take any schema, checked generically.
-        notices = self.notices
-        message = decode_or_count(
-            payload, self.malformed, key, topic=sensor_topic(source),
-            on_error=None if notices is None else
-            lambda exc: notices.report(key, "malformed", f"malformed sample: {exc}"))
-        if message is None:
-            return
+        source, message = decoded
         self.ingest(source, message, received_ns)
+
+    def _on_malformed(self, key: str, payload: bytes, received_ns: int, error: ProtocolError,
+                      count: int) -> None:
+        if self._receive_hooks:
+            run_hooks(self._receive_hooks, "receive", key, payload, received_ns)
+        count_malformed(self.malformed, key, error, count)
+        if self.notices is not None:
+            self.notices.report(key, "malformed", f"malformed sample: {error}")
 
     def _refuse(self, reason: Refusal, source: str, detail: str,
                 entry: SourceEntry | None = None) -> None:
@@ -513,3 +515,22 @@ class StateAggregator(Component):
         else:
             entry.waiters.append(future)
         return await future
+
+
+class _SensorScreen:
+    """The aggregator's :class:`~ubf_async.runtime.bus.Screen`: a sample is decoded and
+    validated as its kind's topic on the transport's thread, so garbage on a sensor's key is
+    refused before it can replace that sensor's newest valid sample (and counted, on the loop,
+    in :attr:`StateAggregator.malformed`)."""
+
+    def __init__(self, aggregator: StateAggregator) -> None:
+        self._keys = aggregator.bus.keys
+        self.accept = aggregator._on_decoded
+        self.refuse = aggregator._on_malformed
+
+    def check(self, key: str, payload: bytes) -> tuple[str, Message]:
+        # A declared kind (ubf_async.wire.topics) only takes its own schema: behaviours read its
+        # samples as that type. Other kinds take any schema, checked generically.
+        source = self._keys.source_of(key)
+        topic = sensor_topic(source)
+        return source, decode(payload) if topic is None else decode(payload, topic=topic)

@@ -17,7 +17,13 @@ here is deliberate about that hand-off:
 * the drain runs on the event loop and calls the handler for each stored sample;
 * in **latest** mode a burst on one key coalesces to the newest sample (what a state
   aggregator wants); in **every** mode samples queue up to a bound, and overflow drops the
-  oldest and is counted.
+  oldest and is counted;
+* a **screened** subscription (:meth:`Bus.subscribe_screened`, :meth:`Bus.subscribe_topic`:
+  every subscriber that decodes a topic) decodes each sample on the transport's thread
+  *before* it may replace or queue behind anything: a malformed one never displaces a valid
+  one, however fast garbage comes on the same key. Refusals are kept apart, one slot a key
+  with a count, and reported on the loop; the valid sample arrives decoded, so the loop
+  does not decode it again.
 
 A handler that raises is logged with its traceback and counted; the subscription keeps going
 (a handler bug must not take the robot down). Measure the hand-off with ``bench/handoff.py``
@@ -58,7 +64,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import Any, Generic, Protocol, Self, TypeVar
 
 import zenoh
 
@@ -87,7 +93,16 @@ from ubf_async.net.transport import (
 from ubf_async.runtime import lending
 from ubf_async.runtime.clock import Clock, WallClock
 from ubf_async.runtime.ratelimit import TokenBucket
-from ubf_async.wire.protocol import INT64_MAX, ROOT, Keys, ProtocolError, encode
+from ubf_async.wire.protocol import (
+    INT64_MAX,
+    ROOT,
+    Keys,
+    Message,
+    ProtocolError,
+    count_malformed,
+    decode,
+    encode,
+)
 from ubf_async.wire.topics import Data, Topic
 
 log = logging.getLogger(__name__)
@@ -107,6 +122,8 @@ before :data:`DIRECT_RATE_HZ` paces it."""
 
 SampleHandler = Callable[[str, bytes, int], None]
 """``handler(key, payload, received_ns)`` — runs on the event loop."""
+
+T = TypeVar("T")
 
 QueryHandler = Callable[[str, bytes], bytes]
 """``handler(key, payload) -> reply payload`` — runs on the event loop (see
@@ -229,6 +246,70 @@ class BridgeStats:
     handler_errors: int = 0
     direct: int = 0
     """Hand-offs run on the transport's thread while the loop was idle (``direct=True``)."""
+    refused: int = 0
+    """Samples a screen refused (screened subscriptions): they replaced nothing."""
+
+
+class Screen(Protocol):
+    """What a screened subscription does with each sample (:meth:`Bus.subscribe_screened`).
+
+    :meth:`check` runs first, on the thread the transport calls back on, before the sample may
+    replace a pending one (latest mode) or take a place in the queue (every mode): it must be
+    pure — no shared state. :meth:`accept` and :meth:`refuse` run later on the event loop."""
+
+    def check(self, key: str, payload: bytes) -> Any:
+        """The decoded sample, handed to :meth:`accept`; raises
+        :class:`~ubf_async.errors.ProtocolError` for a sample to refuse."""
+        ...
+
+    def accept(self, key: str, payload: bytes, received_ns: int, decoded: Any) -> None:
+        """Handle a sample :meth:`check` passed (the newest of its key, in latest mode)."""
+        ...
+
+    def refuse(self, key: str, payload: bytes, received_ns: int, error: ProtocolError,
+               count: int) -> None:
+        """Report ``count`` samples on ``key`` refused since the last drain; ``payload``,
+        ``received_ns`` and ``error`` are the newest of them."""
+        ...
+
+
+class TopicScreen(Generic[T]):
+    """The screen of a subscriber of one topic: each sample decoded as ``topic`` on the
+    transport's thread; a valid one handed to ``on_message(key, message, received_ns)`` on the
+    loop; malformed ones counted in ``malformed`` per key
+    (:func:`~ubf_async.wire.protocol.count_malformed`), and passed to ``on_error`` if given."""
+
+    def __init__(self, topic: Topic[T], on_message: Callable[[str, Message[T], int], None],
+                 malformed: dict[str, int], *,
+                 on_error: Callable[[str, ProtocolError], None] | None = None) -> None:
+        self.topic = topic
+        self.on_message = on_message
+        self.malformed = malformed
+        self.on_error = on_error
+
+    def check(self, key: str, payload: bytes) -> Message[T]:
+        return decode(payload, topic=self.topic)
+
+    def accept(self, key: str, payload: bytes, received_ns: int, decoded: Message[T]) -> None:
+        self.on_message(key, decoded, received_ns)
+
+    def refuse(self, key: str, payload: bytes, received_ns: int, error: ProtocolError,
+               count: int) -> None:
+        count_malformed(self.malformed, key, error, count)
+        if self.on_error is not None:
+            self.on_error(key, error)
+
+
+class _Refused:
+    """The refusals on one key since the last drain: how many, and the newest."""
+
+    __slots__ = ("count", "error", "payload", "received_ns")
+
+    def __init__(self, payload: bytes, received_ns: int, error: ProtocolError) -> None:
+        self.count = 1
+        self.payload = payload
+        self.received_ns = received_ns
+        self.error = error
 
 
 class _Declared:
@@ -255,21 +336,27 @@ class _Declared:
 
 
 class Subscription(_Declared):
-    """A subscriber whose samples are delivered on the event loop (the bridge)."""
+    """A subscriber whose samples are delivered on the event loop (the bridge): to
+    ``handler(key, payload, received_ns)``, or through ``screen`` (:class:`Screen`) for a
+    screened one."""
 
     def __init__(
         self,
         loop: asyncio.AbstractEventLoop,
-        handler: SampleHandler,
+        handler: SampleHandler | None,
         *,
         latest: bool,
         max_queue: int = 1024,
         name: str = "",
         direct: bool = False,
+        screen: Screen | None = None,
     ) -> None:
         super().__init__()
+        if (handler is None) == (screen is None):
+            raise TypeError("a subscription takes a handler or a screen, one of them")
         self._loop = loop
         self._handler = handler
+        self._screen = screen
         self._latest = latest
         self._run_if_idle = lending.run_if_idle(loop) if direct else None
         """Runs the drain on the transport's thread while the loop waits (:mod:`.lending`)."""
@@ -277,10 +364,13 @@ class Subscription(_Declared):
                                           now_ns=_monotonic_ns())
         """Samples handled on the transport's thread (:data:`DIRECT_RATE_HZ`); used with the
         lock held."""
-        self._pending_latest: dict[str, tuple[bytes, int]] = {}
-        self._pending_queue: deque[tuple[str, bytes, int]] = deque(maxlen=max_queue)
+        self._pending_latest: dict[str, tuple[bytes, int, Any]] = {}
+        self._pending_queue: deque[tuple[str, bytes, int, Any]] = deque(maxlen=max_queue)
+        self._pending_refused: dict[str, _Refused] = {}
+        """Refused samples by key (screened subscriptions), kept apart from the valid ones."""
         self._max_pending = max_queue
-        """Distinct keys waiting in latest mode (a new key beyond them is dropped)."""
+        """Distinct keys waiting in latest mode (a new key beyond them is dropped); also the
+        keys with refusals waiting."""
         self._scheduled = False
         self.name = name
         self.stats = BridgeStats()
@@ -301,12 +391,33 @@ class Subscription(_Declared):
         ``on_loop=True`` (only from the loop's own thread) schedules the drain with
         ``call_soon``, skipping the thread-safe wake-up."""
         received_ns = _monotonic_ns()
+        decoded: Any = None
+        error: ProtocolError | None = None
+        if self._screen is not None:
+            # Before the lock, and before anything pending is touched: garbage never
+            # replaces a valid sample, and the lock is never held while decoding.
+            try:
+                decoded = self._screen.check(key, payload)
+            except ProtocolError as exc:
+                error = exc
         stats = self.stats
         with self._lock:
             if self._closed:
                 return
             stats.received += 1
-            if self._latest:
+            if error is not None:
+                stats.refused += 1
+                refused = self._pending_refused.get(key)
+                if refused is not None:
+                    refused.count += 1
+                    refused.payload, refused.received_ns, refused.error = (payload, received_ns,
+                                                                           error)
+                elif len(self._pending_refused) >= self._max_pending:
+                    stats.dropped += 1  # junk keys must not grow memory either
+                    return
+                else:
+                    self._pending_refused[key] = _Refused(payload, received_ns, error)
+            elif self._latest:
                 pending = self._pending_latest
                 if key in pending:
                     stats.coalesced += 1
@@ -314,12 +425,12 @@ class Subscription(_Declared):
                     # A flood of distinct keys must not grow memory or the loop's next batch.
                     stats.dropped += 1
                     return
-                pending[key] = (payload, received_ns)
+                pending[key] = (payload, received_ns, decoded)
             else:
                 queue = self._pending_queue
                 if len(queue) == self._max_pending:  # full: append drops the oldest
                     stats.dropped += 1
-                queue.append((key, payload, received_ns))
+                queue.append((key, payload, received_ns, decoded))
             if self._scheduled:
                 return
             self._scheduled = True
@@ -340,42 +451,76 @@ class Subscription(_Declared):
     # event loop --------------------------------------------------------------------------
     def _drain(self) -> None:
         with self._lock:
+            refused = _take_batch(self._pending_refused) if self._pending_refused else None
             if self._latest:
                 pending = self._pending_latest
                 if len(pending) <= DRAIN_BATCH:  # the usual case: take the whole dict
                     self._pending_latest = {}
-                    batch = [(k, p, t) for k, (p, t) in pending.items()]
-                    more = False
+                    batch = [(k, p, t, d) for k, (p, t, d) in pending.items()]
                 else:
                     keys = list(itertools.islice(pending, DRAIN_BATCH))
                     batch = [(k, *pending.pop(k)) for k in keys]
-                    more = True
             else:
                 queue = self._pending_queue
                 if len(queue) <= DRAIN_BATCH:
                     batch = list(queue)
                     queue.clear()
-                    more = False
                 else:
                     batch = [queue.popleft() for _ in range(DRAIN_BATCH)]
-                    more = True
+            more = bool(self._pending_latest or self._pending_queue or self._pending_refused)
             # With more waiting the drain stays scheduled, but yields to the loop first:
             # a flood is handled in slices, never in one pass that starves other tasks.
             self._scheduled = more
         if more:
             self._loop.call_soon(self._drain)
-        handler = self._handler
+        if refused:
+            self._report_refused(refused)
         stats = self.stats
-        for key, payload, received_ns in batch:
+        if self._handler is not None:
+            handler = self._handler
+            for key, payload, received_ns, _ in batch:
+                if self._closed:
+                    return
+                try:
+                    handler(key, payload, received_ns)
+                except Exception:
+                    stats.handler_errors += 1
+                    log.exception("handler of subscription %s failed on %s", self.name, key)
+                else:
+                    stats.delivered += 1
+            return
+        screen = self._screen
+        assert screen is not None  # a handler or a screen: __init__ checks
+        accept = screen.accept
+        for key, payload, received_ns, decoded in batch:
             if self._closed:
                 return
             try:
-                handler(key, payload, received_ns)
+                accept(key, payload, received_ns, decoded)
             except Exception:
                 stats.handler_errors += 1
-                log.exception("handler of subscription %s failed on %s", self.name, key)
+                log.exception("subscription %s failed on a sample of %s", self.name, key)
             else:
                 stats.delivered += 1
+
+    def _report_refused(self, refused: list[tuple[str, _Refused]]) -> None:
+        screen = self._screen
+        assert screen is not None  # only a screen refuses
+        refuse = screen.refuse
+        for key, r in refused:
+            if self._closed:
+                return
+            try:
+                refuse(key, r.payload, r.received_ns, r.error, r.count)
+            except Exception:
+                self.stats.handler_errors += 1
+                log.exception("subscription %s failed on a refusal on %s", self.name, key)
+
+
+def _take_batch(pending: dict[str, _Refused]) -> list[tuple[str, _Refused]]:
+    """Up to :data:`DRAIN_BATCH` of ``pending``'s entries, oldest key first, removed from it."""
+    keys = list(itertools.islice(pending, DRAIN_BATCH))
+    return [(k, pending.pop(k)) for k in keys]
 
 
 class Publisher:
@@ -673,15 +818,42 @@ class Bus:
         self, key_expr: str, handler: SampleHandler, *, latest: bool = True,
         max_queue: int = 1024, direct: bool = False,
     ) -> Subscription:
-        """Deliver samples matching ``key_expr`` to ``handler`` on the event loop.
+        """Deliver samples matching ``key_expr`` to ``handler`` on the event loop, as they came
+        (a subscriber of a topic wants :meth:`subscribe_topic`: garbage cannot displace its
+        samples).
 
         ``direct=True``: on a :class:`~ubf_async.runtime.lending.LendingEventLoop` (the one every
         entry point runs on), a sample from another process that finds the loop idle is
         handled at once on the transport's thread, with the loop lent to it, instead of
         waking the loop thread (:mod:`ubf_async.runtime.lending`); for short handlers on a latency
         path."""
-        sub = Subscription(self._loop, handler, latest=latest, max_queue=max_queue,
-                           name=key_expr, direct=direct)
+        return self._subscribe(key_expr, Subscription(
+            self._loop, handler, latest=latest, max_queue=max_queue, name=key_expr,
+            direct=direct))
+
+    def subscribe_screened(
+        self, key_expr: str, screen: Screen, *, latest: bool = True, max_queue: int = 1024,
+        direct: bool = False,
+    ) -> Subscription:
+        """:meth:`subscribe`, with every sample passed through ``screen`` (:class:`Screen`)
+        before it may replace or queue behind anything: the newest *valid* sample per key is
+        what the loop gets, at any rate of garbage on the key."""
+        return self._subscribe(key_expr, Subscription(
+            self._loop, None, latest=latest, max_queue=max_queue, name=key_expr,
+            direct=direct, screen=screen))
+
+    def subscribe_topic(
+        self, key_expr: str, topic: Topic[T],
+        on_message: Callable[[str, Message[T], int], None], malformed: dict[str, int], *,
+        latest: bool = True, max_queue: int = 1024, direct: bool = False,
+    ) -> Subscription:
+        """Deliver ``topic``'s samples matching ``key_expr`` decoded, to
+        ``on_message(key, message, received_ns)`` on the loop; malformed ones are counted in
+        ``malformed`` per key and never displace a valid one (:class:`TopicScreen`)."""
+        return self.subscribe_screened(key_expr, TopicScreen(topic, on_message, malformed),
+                                       latest=latest, max_queue=max_queue, direct=direct)
+
+    def _subscribe(self, key_expr: str, sub: Subscription) -> Subscription:
         # Samples from this bus arrive through Publisher.publish instead (module docstring).
         sub._declaration = self._connection.declare_subscriber(key_expr,
                                                                self._bridge_callback(sub))

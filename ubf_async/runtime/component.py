@@ -35,18 +35,21 @@ import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Subscription
-from ubf_async.wire.protocol import decode_or_count
+from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Screen, Subscription
+from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import (
     HEARTBEAT,
     MAX_ANNOUNCED,
     MAX_ANNOUNCED_KEY_CHARS,
+    Heartbeat,
     Published,
     Topic,
 )
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +130,26 @@ class Component:
     ) -> Subscription:
         """A subscription closed automatically when this run attempt ends (``direct``: see
         :meth:`Bus.subscribe <ubf_async.runtime.bus.Bus.subscribe>`)."""
-        sub = self.bus.subscribe(key_expr, handler, latest=latest, direct=direct)
+        return self._keep_for_attempt(
+            self.bus.subscribe(key_expr, handler, latest=latest, direct=direct))
+
+    def subscribe_screened(self, key_expr: str, screen: Screen, *, latest: bool = True,
+                           direct: bool = False) -> Subscription:
+        """:meth:`Bus.subscribe_screened <ubf_async.runtime.bus.Bus.subscribe_screened>`,
+        closed automatically when this run attempt ends."""
+        return self._keep_for_attempt(
+            self.bus.subscribe_screened(key_expr, screen, latest=latest, direct=direct))
+
+    def subscribe_topic(self, key_expr: str, topic: Topic[T],
+                        on_message: Callable[[str, Message[T], int], None],
+                        malformed: dict[str, int], *, latest: bool = True) -> Subscription:
+        """:meth:`Bus.subscribe_topic <ubf_async.runtime.bus.Bus.subscribe_topic>` (decoded
+        samples; malformed ones counted in ``malformed`` and never displacing a valid one),
+        closed automatically when this run attempt ends."""
+        return self._keep_for_attempt(
+            self.bus.subscribe_topic(key_expr, topic, on_message, malformed, latest=latest))
+
+    def _keep_for_attempt(self, sub: Subscription) -> Subscription:
         self._attempt_resources.append(sub)
         return sub
 
@@ -308,7 +330,8 @@ class HealthMonitor:
     def start(self) -> None:
         keys = self.bus.keys
         self._subs.append(self.bus.watch_liveliness(keys.all_alive, self._on_liveliness))
-        self._subs.append(self.bus.subscribe(keys.all_heartbeats, self._on_heartbeat))
+        self._subs.append(self.bus.subscribe_topic(keys.all_heartbeats, HEARTBEAT,
+                                                   self._on_heartbeat, self.malformed))
 
     def close(self) -> None:
         for sub in self._subs:
@@ -330,10 +353,7 @@ class HealthMonitor:
         self._entry(self.bus.keys.component_of_alive(key)).alive = alive
         self.changed.set()
 
-    def _on_heartbeat(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=HEARTBEAT)
-        if message is None:
-            return
+    def _on_heartbeat(self, key: str, message: Message[Heartbeat], received_ns: int) -> None:
         data = message.data
         entry = self._entry(key.rsplit("/", 1)[-1])
         entry.last_heartbeat_s = received_ns / 1e9

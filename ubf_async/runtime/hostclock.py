@@ -35,8 +35,8 @@ from collections.abc import Callable
 from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import Hold
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import ROBOT_TIME
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import ROBOT_TIME, RobotTime
 
 log = logging.getLogger(__name__)
 
@@ -130,17 +130,15 @@ class RobotTimeClock:
     def follow(self, bus: Bus) -> Subscription:
         """Learn the offset from ``bus``'s robot's ``ubf/<robot>/time`` samples."""
 
-        def on_sample(key: str, payload: bytes, received_ns: int) -> None:
-            message = decode_or_count(payload, self.malformed, key, topic=ROBOT_TIME)
-            if message is None:
-                return
+        def on_sample(key: str, message: Message[RobotTime], received_ns: int) -> None:
             # The bridge stamped the arrival on CLOCK_MONOTONIC; carry it to the local clock.
             arrival = self.local_ns() - (time.monotonic_ns() - received_ns)
             self.estimator.offer(robot_stamp_ns=message.stamp_ns, local_arrival_ns=arrival)
             self.host = message.data.host
             self.ready.set()
 
-        return bus.subscribe(ROBOT_TIME.key(bus.keys), on_sample, latest=False)
+        return bus.subscribe_topic(ROBOT_TIME.key(bus.keys), ROBOT_TIME, on_sample, self.malformed,
+                                   latest=False)
 
 
 class RobotTimeBeacon(Component):

@@ -38,8 +38,8 @@ from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import LOCKSTEP_ACK
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import LOCKSTEP_ACK, LockstepAck
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,8 @@ class LockstepBarrier:
         for bus in self.buses:
             expr = LOCKSTEP_ACK.key_expr(bus.keys)
             subs.append(bus.watch_liveliness(expr, self._on_token(bus.robot)))
-            subs.append(bus.subscribe(expr, self._on_ack, latest=False))
+            subs.append(bus.subscribe_topic(expr, LOCKSTEP_ACK, self._on_ack, self.malformed,
+                                            latest=False))
         return subs
 
     def has_participants(self, robot: str | None = None) -> bool:
@@ -114,10 +115,7 @@ class LockstepBarrier:
 
         return on_change
 
-    def _on_ack(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=LOCKSTEP_ACK)
-        if message is None:
-            return
+    def _on_ack(self, key: str, message: Message[LockstepAck], received_ns: int) -> None:
         participant = self.participants.get(key)
         if participant is None:  # its token is not seen yet: kept for when it is
             self._acks[key] = max(self._acks.get(key, -1), message.stamp_ns)

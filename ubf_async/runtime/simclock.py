@@ -7,8 +7,9 @@ from __future__ import annotations
 from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.timesource import ClockAction, ClockFollower
-from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CLOCK
+from ubf_async.wire.topics import Clock as ClockData
 
 
 def follow_sim_clock(
@@ -28,10 +29,7 @@ def follow_sim_clock(
     policy = follower if follower is not None else ClockFollower(
         name=f"{bus.robot} clock", robot_sessions=robot_sessions)
 
-    def on_sample(key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, malformed, key, topic=CLOCK)
-        if message is None:
-            return
+    def on_sample(key: str, message: Message[ClockData], received_ns: int) -> None:
         verdict = policy.offer(stamp_ns=message.stamp_ns, epoch=message.data.epoch,
                                wall_ns=received_ns, zid=message.data.zid)
         if verdict.action is ClockAction.ADVANCE and clock.started.is_set():
@@ -45,4 +43,4 @@ def follow_sim_clock(
 
     # Direct, as the state aggregator's samples are: on an ordered bus the clock is then
     # handled in the order it was sent among them, not after samples sent later.
-    return bus.subscribe(key, on_sample, direct=True)
+    return bus.subscribe_topic(key, CLOCK, on_sample, malformed, direct=True)

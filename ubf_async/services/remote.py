@@ -56,6 +56,7 @@ from ubf_async.wire.topics import (
     DRIVE,
     REMOTES_STATUS,
     VOTE,
+    Drive,
     SeekColor,
 )
 from ubf_async.wire.topics import (
@@ -775,7 +776,7 @@ class RemoteBehaviorHost(Component):
         self.aggregator = aggregator
         publisher = self.publisher(self.key, VOTE.schema,
                                    period_s=None if self.trigger else 1.0 / self.rate_hz)
-        self.subscribe(DRIVE.key(keys), self._on_drive)
+        self.subscribe_topic(DRIVE.key(keys), DRIVE, self._on_drive, self.malformed)
         self.behavior.reset()
         try:
             async with asyncio.TaskGroup() as group:
@@ -821,8 +822,6 @@ class RemoteBehaviorHost(Component):
         self.voted.set()
         return action
 
-    def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=DRIVE)
-        if message is not None:
-            self.robot_action = Action(speed=message.data.speed, turn=message.data.turn)
-            self.robot_winners = list(message.data.winners)
+    def _on_drive(self, key: str, message: Message[Drive], received_ns: int) -> None:
+        self.robot_action = Action(speed=message.data.speed, turn=message.data.turn)
+        self.robot_winners = list(message.data.winners)

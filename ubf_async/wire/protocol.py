@@ -256,7 +256,7 @@ def _check_schema(schema: object) -> str:
 log = logging.getLogger(__name__)
 
 MAX_COUNTED_KEYS = 1024
-"""Keys whose malformed-sample counts :func:`decode_or_count` keeps (the oldest goes first)."""
+"""Keys whose malformed-sample counts :func:`count_malformed` keeps (the oldest goes first)."""
 
 
 def decode_or_count(
@@ -265,21 +265,27 @@ def decode_or_count(
     on_error: Callable[[ProtocolError], None] | None = None,
 ) -> Any | None:
     """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
-    :class:`ProtocolError` count it under ``key``, log it (the first and then every 100th
-    per key), pass it to ``on_error`` if given, and return ``None``. ``counter`` keeps at most
-    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
+    :class:`ProtocolError` count it under ``key`` (:func:`count_malformed`), pass it to
+    ``on_error`` if given, and return ``None``."""
     try:
         if decoder is not None:
             return decoder(payload)
         return decode(payload, topic=topic) if topic is not None else decode(payload,
                                                                              schema=schema)
     except ProtocolError as exc:
-        n = counter.get(key, 0) + 1
-        counter[key] = n
-        if len(counter) > MAX_COUNTED_KEYS:
-            del counter[next(iter(counter))]
-        if throttle.first_and_every(n):
-            log.warning("rejected malformed sample #%d on %s: %s", n, key, exc)
+        count_malformed(counter, key, exc)
         if on_error is not None:
             on_error(exc)
         return None
+
+
+def count_malformed(counter: dict[str, int], key: str, error: ProtocolError, n: int = 1) -> None:
+    """Count ``n`` malformed samples on ``key`` (the last of them refused for ``error``) and log
+    it, the first and then every 100th per key. ``counter`` keeps at most
+    :data:`MAX_COUNTED_KEYS` keys, so junk keys cannot grow it without bound."""
+    before = counter.get(key, 0)
+    counter[key] = after = before + n
+    if len(counter) > MAX_COUNTED_KEYS:
+        del counter[next(iter(counter))]
+    if throttle.passes(before, after):
+        log.warning("rejected malformed sample #%d on %s: %s", after, key, error)
