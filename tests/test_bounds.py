@@ -7,9 +7,10 @@ import itertools
 
 import pytest
 
-from ubf_async.runtime.bus import DRAIN_BATCH, Subscription
+from ubf_async.runtime.bus import DRAIN_BATCH, Subscription, TopicScreen
 from ubf_async.runtime.component import MAX_WATCHED_COMPONENTS, HealthMonitor
-from ubf_async.wire.protocol import MAX_COUNTED_KEYS, decode_or_count
+from ubf_async.wire.protocol import MAX_COUNTED_KEYS, ProtocolError, decode_or_count
+from ubf_async.wire.topics import DRIVE
 
 
 def test_malformed_counts_keep_at_most_max_counted_keys() -> None:
@@ -49,6 +50,31 @@ async def test_a_flood_of_distinct_keys_is_capped_and_drained_in_slices() -> Non
     # Several passes of the loop, none delivering more than one slice.
     steps = [b - a for a, b in itertools.pairwise(passes) if b > a]
     assert steps and max(steps) <= DRAIN_BATCH
+    sub.close()
+
+
+@pytest.mark.asyncio
+async def test_garbage_over_distinct_keys_keeps_at_most_max_queue_refusal_slots() -> None:
+    accepted: list[str] = []
+    malformed: dict[str, int] = {}
+    all_reported = asyncio.Event()
+
+    def on_error(key: str, error: ProtocolError) -> None:
+        if len(malformed) == 100:
+            all_reported.set()
+
+    screen = TopicScreen(DRIVE, lambda key, message, t: accepted.append(key), malformed,
+                         on_error=on_error)
+    sub = Subscription(asyncio.get_running_loop(), None, latest=True, max_queue=100,
+                       screen=screen)
+    for i in range(1000):
+        sub.push(f"junk/{i}", b"\xc1", on_loop=True)
+        sub.push("junk/0", b"\xc1", on_loop=True)  # one key's refusals share one slot
+    await asyncio.wait_for(all_reported.wait(), 5)
+    assert not sub.pending
+    assert len(malformed) == 100 and malformed["junk/0"] == 1001
+    assert sub.stats.refused == 1100 and sub.stats.dropped == 900
+    assert accepted == []
     sub.close()
 
 

@@ -171,6 +171,10 @@ NOT_RUN = {
     "python -m bench.handoff": "49 s measured here, past the doc tests' time budget",
     "python -m bench.margins": "37 s measured here, past the doc tests' time budget",
     "python -m bench.flood": "25 s measured here, past the doc tests' time budget",
+    "python -m bench.visitors": "a flood, four visits and 100 000 malformed messages against "
+                                "the default robot: minutes",
+    "python -m bench.shm_visits": "eight visiting processes: 15 s measured here, past the doc "
+                                  "tests' time budget",
     "python -m bench.realtime": "several runs of the simulated robot at --speed 5: minutes",
     "python -m bench.soak": "an hour of simulated time flat out (--sim-s 3600)",
     "python -m bench.fleet_scaling":

@@ -24,6 +24,31 @@ from ubf_async.errors import ConfigurationError, UbfError
 DEFAULT_ROBOT = "mini"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
+INGRESS_LIMIT_BYTES = 256 * 1024 + 1024
+"""The largest message on ``ubf/**`` a session takes in (zenoh's ``low_pass_filter``): the
+protocol's ``MAX_PAYLOAD_BYTES`` (256 KiB, :mod:`ubf_async.wire.protocol`) and 1 KiB for an
+attachment. The protocol refuses anything larger; zenoh drops it before it costs a copy."""
+MAX_MESSAGE_BYTES = 1 << 20
+"""The largest message a link reassembles, on any key (zenoh's default is 1 GiB a link)."""
+
+SESSION_LIMITS: dict[str, Any] = {
+    # zenoh's implicit shared-memory optimisation maps each same-host peer's 16 MiB pool into
+    # the receiver for messages of 3 KiB and more — and keeps it mapped after the peer
+    # leaves: ≈ 19 MiB of RSS kept per visiting session (docs/resources.md). It also lets a
+    # message past max_message_size. ubf_async's messages are small: the copy costs little.
+    "transport/shared_memory/enabled": False,
+    "transport/link/rx/max_message_size": MAX_MESSAGE_BYTES,
+    "low_pass_filter": [{
+        "id": "ubf-max-payload",
+        "flows": ["ingress"],
+        "messages": ["put", "delete", "query", "reply"],
+        "key_exprs": ["ubf/**"],
+        "size_limit": INGRESS_LIMIT_BYTES,
+    }],
+}
+"""What every session of ubf_async sets over zenoh's defaults, to bound what others can make
+it hold; a ``--config`` file that sets one of these keys keeps its own value."""
+
 RECONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 """How often a session retries a lost connection (zenoh's ``connect/retry``): from 250 ms,
 backing off to at most 1 s — zenoh's default backs off to 4 s — so a client whose router
@@ -58,11 +83,15 @@ class ConnectionOptions:
         return {"secure": secure, "identity": identity}
 
     def zenoh_config(self) -> zenoh.Config:
-        """The zenoh configuration: the ``config`` file, then these options over it; in secure
-        mode the identity's credentials (and for ``robot`` the password dictionary and the
-        ACL), and client mode for every identity but ``robot`` (see :mod:`ubf_async.net.secure`).
+        """The zenoh configuration: zenoh's defaults with :data:`SESSION_LIMITS`, the ``config``
+        file, then these options over it; in secure mode the identity's credentials (and for
+        ``robot`` the password dictionary and the ACL), and client mode for every identity
+        but ``robot`` (see :mod:`ubf_async.net.secure`).
         Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up."""
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
+        for key, value in SESSION_LIMITS.items():
+            if self.config is None or config_value(conf, key) is None:
+                conf.insert_json5(key, json.dumps(value))
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.connect:
             conf.insert_json5("connect/endpoints", json.dumps(self.connect))

@@ -247,7 +247,8 @@ class BridgeStats:
     direct: int = 0
     """Hand-offs run on the transport's thread while the loop was idle (``direct=True``)."""
     refused: int = 0
-    """Samples a screen refused (screened subscriptions): they replaced nothing."""
+    """Samples a screen refused and reported (screened subscriptions): they replaced nothing.
+    (Refusals on a new key beyond ``max_queue`` keys waiting are counted as dropped.)"""
 
 
 class Screen(Protocol):
@@ -406,7 +407,6 @@ class Subscription(_Declared):
                 return
             stats.received += 1
             if error is not None:
-                stats.refused += 1
                 refused = self._pending_refused.get(key)
                 if refused is not None:
                     refused.count += 1
@@ -417,6 +417,7 @@ class Subscription(_Declared):
                     return
                 else:
                     self._pending_refused[key] = _Refused(payload, received_ns, error)
+                stats.refused += 1
             elif self._latest:
                 pending = self._pending_latest
                 if key in pending:
