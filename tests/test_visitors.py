@@ -10,13 +10,16 @@ the full default robot, with a plain zenoh subscriber beside it.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import platform
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import free_port, read_until
+from tests.conftest import eventually, free_port, read_until
+from ubf_async.cli import trim
 from ubf_async.net.options import INGRESS_LIMIT_BYTES, ConnectionOptions
 from ubf_async.wire.protocol import MAX_PAYLOAD_BYTES
 
@@ -124,3 +127,28 @@ def test_a_config_files_own_limits_are_kept(tmp_path: Path) -> None:
     conf = ConnectionOptions(config=path).zenoh_config()
     assert json.loads(conf.get_json("transport/link/rx/max_message_size")) == 2 << 20
     assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False  # not set there
+
+
+def test_malloc_trim_is_found_where_the_c_library_is_glibc() -> None:
+    found = trim.malloc_trim()
+    if platform.libc_ver()[0] != "glibc":
+        assert found is None or found(0) in (0, 1)
+        return
+    assert found is not None
+    assert found(0) in (0, 1)  # 1: memory was handed back, 0: there was none to hand back
+
+
+@pytest.mark.asyncio
+async def test_every_long_running_program_trims_until_it_ends() -> None:
+    calls: list[int] = []
+
+    def counted(pad: int) -> int:
+        calls.append(pad)
+        return 0
+
+    task = asyncio.create_task(trim.every(0.01, trim=counted))
+    await eventually(lambda: len(calls) >= 3, what="three trims")
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
+    assert task.cancelled() and set(calls) == {0}

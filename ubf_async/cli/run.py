@@ -31,7 +31,7 @@ from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
 from typing import Any, TextIO, TypeVar, cast
 
-from ubf_async.cli import ending
+from ubf_async.cli import ending, trim
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runtime import lending
 
@@ -296,6 +296,7 @@ def _run_guarded(main: Callable[[], Awaitable[int]], guard: StopGuard, *, prog: 
                 loop.call_soon_threadsafe(task.cancel)
 
         guard.arm(cancel)
+        trimmer = asyncio.create_task(trim.every(), name="malloc_trim")
         try:
             return await main()
         except asyncio.CancelledError:
@@ -303,6 +304,10 @@ def _run_guarded(main: Callable[[], Awaitable[int]], guard: StopGuard, *, prog: 
         except (UbfError, ConnectionError, ValueError) as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
+        finally:
+            trimmer.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await trimmer
 
     try:
         factory = loop_factory()
