@@ -380,7 +380,8 @@ def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
             os.chmod(folder, 0o700)
         for old in (directory / IDENTITIES).iterdir():
             old.unlink()  # --force: nothing of the old set-up's identities stays
-        ca = pki.make_ca(f"ubf {robot.name} CA")
+        # A name of its own: two set-ups' CAs never pass for each other by name.
+        ca = pki.make_ca(f"ubf {robot.name} CA {secrets.token_hex(4)}")
         pki.write_key(directory / PRIVATE / CA_KEY, ca.key_pem)
         _write_secret(directory / CA_CERT, ca.cert_pem.decode())
         passwords = {i.name: _issue(setup, ca, i.name, days=days) for i in identities}
@@ -535,14 +536,14 @@ def _tls_only(endpoints: Sequence[str], flag: str) -> None:
             f"network): use {suggestion}")
 
 
-def apply(conf: Any, *, directory: Path, identity: str | None, robot: str,
-          listen: Sequence[str] = (), connect: Sequence[str] = ()) -> None:
-    """Add identity ``identity``'s TLS link (mutual TLS, the robot's name checked against
-    the endpoint dialled) and credentials from set-up ``directory`` to ``conf`` (a
-    ``zenoh.Config``); for ``robot`` also its listening certificate, the password dictionary
-    and the ACL. Any other identity is put in client mode (all its traffic then crosses the
-    robot's session, where the ACL is) and may not listen. Every endpoint must be ``tls/``.
-    Raises :class:`ConfigurationError`."""
+def settings(*, directory: Path, identity: str | None, robot: str,
+             listen: Sequence[str] = (), connect: Sequence[str] = ()) -> dict[str, Any]:
+    """The zenoh configuration keys (path → value) that put identity ``identity`` of set-up
+    ``directory`` in secure mode: its TLS link (mutual TLS, the robot's name checked against
+    the endpoint dialled), its credentials; for ``robot`` also its listening certificate, the
+    password dictionary and the ACL; client mode for any other identity, which may not listen.
+    Every endpoint must be ``tls/``. What :func:`apply` sets, and what a ROS 2 node's
+    ``ZENOH_CONFIG_OVERRIDE`` carries (:func:`override`). Raises :class:`ConfigurationError`."""
     if not identity:
         raise ConfigurationError(f"--secure {directory} needs --identity NAME (the file names "
                                  f"in {directory / IDENTITIES})")
@@ -566,22 +567,22 @@ def apply(conf: Any, *, directory: Path, identity: str | None, robot: str,
         raise ConfigurationError(f"{problem}: {REISSUE.format(name=identity)}")
     _tls_only(listen, "--listen")
     _tls_only(connect, "--connect")
-    tls = {"root_ca_certificate": directory / CA_CERT, "enable_mtls": True,
-           "verify_name_on_connect": True, "close_link_on_expiration": True,
-           "connect_certificate": cert, "connect_private_key": key}
-    if identity in LISTENERS:
-        tls |= {"listen_certificate": cert, "listen_private_key": key}
-    for name, value in tls.items():
-        conf.insert_json5(f"transport/link/tls/{name}",
-                          json.dumps(str(value) if isinstance(value, Path) else value))
-    conf.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
-    conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
+    tls = "transport/link/tls"
+    out: dict[str, Any] = {
+        f"{tls}/root_ca_certificate": str(directory.resolve() / CA_CERT),
+        f"{tls}/enable_mtls": True, f"{tls}/verify_name_on_connect": True,
+        f"{tls}/close_link_on_expiration": True,
+        f"{tls}/connect_certificate": str(cert.resolve()),
+        f"{tls}/connect_private_key": str(key.resolve()),
+        "transport/auth/usrpwd/user": user, "transport/auth/usrpwd/password": password,
+    }
     if identity != ROBOT:
         if listen:
             raise ConfigurationError(f"identity {identity!r} may not --listen in secure mode: "
                                      "only the robot listens, the others connect to it")
-        conf.insert_json5("mode", json.dumps("client"))
-        return
+        return out | {"mode": "client"}
+    out |= {f"{tls}/listen_certificate": str(cert.resolve()),
+            f"{tls}/listen_private_key": str(key.resolve())}
     dictionary = directory / PASSWORDS
     if not dictionary.is_file():
         raise ConfigurationError(f"{dictionary}: no such file: the robot's password dictionary")
@@ -590,8 +591,28 @@ def apply(conf: Any, *, directory: Path, identity: str | None, robot: str,
     if acl.get("robot") != robot or not isinstance(acl.get("access_control"), dict):
         raise ConfigurationError(f"{directory / ACL}: not the access control of robot "
                                  f"{robot!r}")
-    conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(dictionary)))
-    conf.insert_json5("access_control", json.dumps(acl["access_control"]))
+    return out | {"transport/auth/usrpwd/dictionary_file": str(dictionary.resolve()),
+                  "access_control": acl["access_control"]}
+
+
+def apply(conf: Any, *, directory: Path, identity: str | None, robot: str,
+          listen: Sequence[str] = (), connect: Sequence[str] = ()) -> None:
+    """Put ``conf`` (a ``zenoh.Config``) in secure mode: the :func:`settings` of identity
+    ``identity`` of set-up ``directory``. Raises :class:`ConfigurationError`."""
+    for path, value in settings(directory=directory, identity=identity, robot=robot,
+                                listen=listen, connect=connect).items():
+        conf.insert_json5(path, json.dumps(value))
+
+
+def override(directory: Path, identity: str, *, connect: Sequence[str]) -> str:
+    """A ``ZENOH_CONFIG_OVERRIDE`` value (``path=value;…``, as rmw_zenoh reads it) that
+    joins a client-mode zenoh node — a ROS 2 node with identity ``identity`` — to the robot at
+    ``connect``, in secure mode. Raises :class:`ConfigurationError`."""
+    setup = SecureSetup.load(directory)
+    pairs = settings(directory=directory, identity=identity, robot=setup.robot,
+                     connect=connect) | {"connect/endpoints": list(connect),
+                                         "listen/endpoints": []}
+    return ";".join(f"{path}={json.dumps(value)}" for path, value in pairs.items())
 
 
 REISSUE = ("on the set-up's host run `python -m ubf_async.secure rotate DIR {name}` and bring "

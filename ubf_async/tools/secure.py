@@ -16,7 +16,15 @@ from pathlib import Path
 
 from ubf_async.errors import ConfigurationError
 from ubf_async.net import pki
-from ubf_async.net.secure import LISTENERS, SecureSetup, export, init, revoke, rotate
+from ubf_async.net.secure import (
+    LISTENERS,
+    SecureSetup,
+    export,
+    init,
+    override,
+    revoke,
+    rotate,
+)
 
 __all__ = ["build_parser", "describe", "main"]
 
@@ -70,6 +78,13 @@ def build_parser() -> argparse.ArgumentParser:
                                          "dictionary and the set-up")
     drop.add_argument("directory", type=Path, metavar="DIR")
     drop.add_argument("identity", metavar="IDENTITY")
+    ros = sub.add_parser("zenoh-override",
+                         help="print the ZENOH_CONFIG_OVERRIDE that joins another zenoh node "
+                              "(a ROS 2 node on rmw_zenoh) to the robot as IDENTITY")
+    ros.add_argument("directory", type=Path, metavar="DIR")
+    ros.add_argument("identity", metavar="IDENTITY")
+    ros.add_argument("--connect", "-e", action="append", required=True, metavar="ENDPOINT",
+                     help="the robot's tls/ endpoint (repeatable)")
     return parser
 
 
@@ -110,6 +125,8 @@ def run(args: argparse.Namespace) -> str:
         return (f"rotated {args.identity!r}: a new key, certificate and password; bring its "
                 f"host `python -m ubf_async.secure export {setup.directory} {args.identity}`"
                 f" and {RESTART}")
+    if args.command == "zenoh-override":
+        return override(args.directory, args.identity, connect=args.connect)
     revoke(args.directory, args.identity)
     return f"revoked {args.identity!r}: its files are gone; {RESTART}"
 
