@@ -27,13 +27,12 @@ import subprocess
 import sys
 import tarfile
 import threading
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pytest
-import pytest_asyncio
 import zenoh
 
 from tests.conftest import as_dict, eventually, free_port, read_until, repository_env
@@ -153,6 +152,31 @@ def test_export_packs_one_hosts_files_rotate_and_revoke_touch_one_identity(tmp_p
         revoke(d, "robot")
     with pytest.raises(ConfigurationError, match="only on the host where the set-up was made"):
         rotate(tmp_path / "laptop", "teleop")
+
+
+def test_secure_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m ubf_async.secure``'s commands, through its ``main`` (in this process)."""
+    from ubf_async.tools.secure import main
+
+    d, path = tmp_path / "s", robot_file(tmp_path, "sec")
+    assert main(["init", str(d), "--robot-file", str(path), "--host", "10.0.0.7"]) == 0
+    made = capsys.readouterr().out
+    assert "carries: 10.0.0.7" in made and f"--secure {d} --identity teleop" in made
+    assert main(["show", str(d)]) == 0 and capsys.readouterr().out == made
+    out = tmp_path / "t.tar.gz"
+    assert main(["export", str(d), "teleop", "--output", str(out)]) == 0
+    assert "identities/teleop.key" in capsys.readouterr().out and out.is_file()
+    assert main(["rotate", str(d), "robot", "--host", "robot.lan"]) == 0
+    assert "rotated 'robot'" in capsys.readouterr().out
+    assert main(["revoke", str(d), "teleop"]) == 0
+    assert main(["show", str(d)]) == 0 and "revoked: teleop" in capsys.readouterr().out
+    assert main(["zenoh-override", str(d), "inspector", "-e", "tls/10.0.0.7:7447"]) == 0
+    line = capsys.readouterr().out.strip()
+    assert 'connect/endpoints=["tls/10.0.0.7:7447"]' in line and 'mode="client"' in line
+    assert main(["show", str(tmp_path / "nope")]) == 2
+    assert "no secure set-up there" in capsys.readouterr().err
+    assert main(["zenoh-override", str(d), "inspector", "-e", "tcp/10.0.0.7:7447"]) == 2
+    assert "use tls/10.0.0.7:7447" in capsys.readouterr().err
 
 
 def test_the_acl_gives_each_identity_only_its_own_keys(tmp_path: Path) -> None:
