@@ -21,6 +21,7 @@ import contextlib
 import datetime
 import json
 import os
+import re
 import shutil
 import stat
 import subprocess
@@ -39,7 +40,7 @@ from tests.conftest import as_dict, eventually, free_port, read_until, repositor
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.errors import ConfigurationError
 from ubf_async.net import pki, tlsprobe
-from ubf_async.net.options import ConnectionOptions, RefusedError
+from ubf_async.net.options import ConnectionOptions, RefusedError, listening
 from ubf_async.net.secure import (
     NotAllowedError,
     access_control,
@@ -723,3 +724,61 @@ async def test_nothing_crosses_the_network_in_clear(tls_robot: TlsRobot) -> None
     assert len(captured) > 2000
     assert marker not in captured and password.encode() not in captured
     assert b"MARKER" not in captured
+
+
+# ---------------------------------------------------------------------------------------------
+# A fleet over a TLS router
+
+FLEET = """world: {scenario: ball-in-sight, speed: 4, duration_s: 2}
+router: tcp/127.0.0.1:PORT
+robots:
+  - {name: r1, robot_file: mini-whegs, start: {x_m: 0.0, y_m: 0.0, heading_deg: 0}}
+"""
+
+
+@pytest.mark.asyncio
+async def test_a_fleet_runs_over_a_tls_router_that_holds_its_access_control(tmp_path: Path
+                                                                           ) -> None:
+    """``fleet --secure DIR``: the router listens on tls/ with the fleet's ACL; the world,
+    the controller and the launcher each join it with their own certificate. Meanwhile a
+    process without one, or over plain tcp/, is told why it is refused, and a fleet's robot
+    may not publish under another robot's keys."""
+    port = free_port()
+    fleet_file = tmp_path / "fleet.yaml"
+    fleet_file.write_text(FLEET.replace("PORT", str(port)))
+    setup = tmp_path / "fs"
+    from ubf_async.tools.secure import main as secure_main
+
+    assert secure_main(["init", str(setup), "--fleet-file", str(fleet_file), "--host",
+                        "127.0.0.1"]) == 0
+    proc = await spawn("-m", "ubf_async.fleet", str(fleet_file), "--secure", str(setup),
+                       "--quiet", "--log-dir", str(tmp_path / "logs"), "--summary",
+                       str(tmp_path / "summary.json"))
+    try:
+        await read_until(proc, "fleet: 1 robots on the router at "
+                               f"tls/127.0.0.1:{port}", timeout_s=60)
+        await eventually(lambda: listening(f"tls/127.0.0.1:{port}", timeout_s=0.5),
+                         timeout_s=30, what="the router to listen")
+        for options, expected in (
+            (ConnectionOptions(robot="r1", mode="client", connect=[f"tls/127.0.0.1:{port}"]),
+             "is in secure mode and asks for a certificate"),
+            (ConnectionOptions(robot="r1", mode="client", connect=[f"tcp/127.0.0.1:{port}"]),
+             "speaks TLS (secure mode), not plain tcp/"),
+        ):
+            with pytest.raises(RefusedError, match=re.escape(expected)):
+                await Bus.open(options)
+        text = await output(proc, timeout_s=120)
+    finally:
+        await stop(proc)
+    assert proc.returncode == 0, text
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["robots"]["r1"]["ticks"] > 50, summary
+    acl = json.loads((setup / "acl.json").read_text())["access_control"]
+    assert {"id": "user-r1", "cert_common_names": ["r1"], "usernames": ["r1"]} in acl["subjects"]
+    r1 = ConnectionOptions(robot="r1", secure=setup, identity="r1").rights()
+    r1.check("put", "ubf/r1/cmd/drive")
+    with pytest.raises(NotAllowedError, match="identity 'r1' may not publish on "
+                                              "ubf/r2/cmd/drive"):
+        r1.check("put", "ubf/r2/cmd/drive")
+    with pytest.raises(ConfigurationError, match="is for the fleet's robot 'r1', not 'r2'"):
+        settings(directory=setup, identity="r1", robot="r2")

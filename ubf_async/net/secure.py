@@ -61,6 +61,10 @@ ROBOT = "robot"
 INSPECTOR = "inspector"
 OPERATOR = "operator"
 BUILTIN = (ROBOT, INSPECTOR, OPERATOR)
+ROUTER, WORLD, FLEET = "router", "world", "fleet"
+FLEET_BUILTIN = (ROUTER, WORLD, FLEET, INSPECTOR, OPERATOR)
+"""A fleet's set-up (``init --fleet-file``): its router, its world, the launcher's own
+session, and one identity per robot, named as the robot (role ``member``)."""
 ROS2_BRIDGE, ROS2_READER, ROS2_DRIVER = "ros2-bridge", "ros2-reader", "ros2-driver"
 ROS2_IDENTITIES = (ROS2_BRIDGE, ROS2_READER, ROS2_DRIVER)
 """With a robot file's ``ros2:`` section (docs/ros2.md)."""
@@ -126,7 +130,12 @@ class Identity:
                     }[self.role]
         return {ROBOT: "the robot: every key of the robot",
                 INSPECTOR: "read-only: subscribe and liveliness",
-                OPERATOR: "read, and the tree service (show and change the tree)"}[self.role]
+                OPERATOR: "read, and the tree service (show and change the tree)",
+                ROUTER: "the fleet's router: holds the access control, relays every key",
+                WORLD: "the fleet's world: every robot's simulator and devices",
+                FLEET: "the fleet's launcher: reads every robot",
+                "member": f"robot {self.name} of the fleet: every key of ubf/{self.name}/",
+                }[self.role]
 
 
 def identities_for(robot: Any, *, devices: Iterable[str] = ()) -> list[Identity]:
@@ -219,6 +228,47 @@ def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]
     }
 
 
+def fleet_identities(robots: Sequence[str]) -> list[Identity]:
+    """The identities of a fleet of ``robots``: :data:`FLEET_BUILTIN` and one per robot.
+    Raises :class:`ConfigurationError` for a robot named as a built-in identity."""
+    clash = sorted(set(robots) & {*FLEET_BUILTIN, ROBOT})
+    if clash:
+        raise ConfigurationError(f"fleet robot {clash[0]!r}: the name is taken by a built-in "
+                                 f"identity ({', '.join((*FLEET_BUILTIN, ROBOT))})")
+    return [Identity(name=name, role=name) for name in FLEET_BUILTIN] + [
+        Identity(name=robot, role="member") for robot in robots]
+
+
+def fleet_access_control(robots: Sequence[str], identities: Sequence[Identity]
+                         ) -> dict[str, Any]:
+    """A fleet router's zenoh ``access_control`` (default deny): ``router`` and ``world``
+    everything under ``ubf/``, each robot everything under its own keys, ``operator`` also
+    the tree queries; everyone reads under ``ubf/`` (the fleet's tools look at every robot at
+    once: ``ubf/*/alive/controller``). Egress: everything under ``ubf/``, to everyone."""
+    every = ["ubf/**"]
+    rules = [_rule("egress", ALL_MESSAGES, every, flow="egress"),
+             _rule("read", READ_MESSAGES, every),
+             _rule("all", ALL_MESSAGES, every),
+             _rule("tree", ("query",), [f"ubf/{robot}/tree" for robot in robots])]
+    subject = {i.name: _subject_id(i) for i in identities}
+    policies = [{"id": "egress", "rules": ["egress"], "subjects": list(subject.values())},
+                {"id": "read", "rules": ["read"], "subjects": list(subject.values())},
+                {"id": "all", "rules": ["all"], "subjects": [subject[ROUTER], subject[WORLD]]},
+                {"id": "tree", "rules": ["tree"], "subjects": [subject[OPERATOR]]}]
+    for identity in identities:
+        if identity.role == "member":
+            rules.append(_rule(f"{identity.name}-all", ALL_MESSAGES,
+                               [f"ubf/{identity.name}/**"]))
+            policies.append({"id": f"own-{identity.name}", "rules": [f"{identity.name}-all"],
+                             "subjects": [subject[identity.name]]})
+    return {
+        "enabled": True, "default_permission": "deny", "rules": rules,
+        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name],
+                      "usernames": [i.name]} for i in identities],
+        "policies": policies,
+    }
+
+
 def _rule(rule_id: str, messages: Sequence[str], key_exprs: Sequence[str], *,
           flow: str = "ingress") -> dict[str, Any]:
     return {"id": rule_id, "messages": list(messages), "flows": [flow], "permission": "allow",
@@ -282,8 +332,9 @@ def _own_rules(prefix: str, identity: Identity) -> list[dict[str, Any]]:
 CA_CERT = "ca.pem"
 PRIVATE = "private"
 CA_KEY = "ca.key"
-LISTENERS = (ROBOT,)
-"""Identities that listen (their certificates carry the ``--host`` names)."""
+LISTENERS = (ROBOT, ROUTER)
+"""Identities that listen (their certificates carry the ``--host`` names) and hold the
+access control: the robot, a fleet's router."""
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 """The robot's names when ``init`` is given no ``--host``: this host only."""
 INIT_HINT = "python -m ubf_async.secure init {dir} --robot-file FILE --host NAME_OR_IP"
@@ -298,8 +349,10 @@ class SecureSetup:
     identities: dict[str, Identity] = field(default_factory=dict)
     source: str = ""
     hosts: tuple[str, ...] = DEFAULT_HOSTS
-    """The names and addresses the robot's certificate carries."""
+    """The names and addresses the robot's (or the router's) certificate carries."""
     revoked: tuple[str, ...] = ()
+    fleet: tuple[str, ...] = ()
+    """A fleet's set-up: its robots (``robot`` is then the fleet file's name)."""
 
     @classmethod
     def load(cls, directory: Path) -> SecureSetup:
@@ -321,7 +374,8 @@ class SecureSetup:
                        identities={i.name: i for i in identities},
                        source=str(data.get("source", "")),
                        hosts=tuple(str(h) for h in data.get("hosts", DEFAULT_HOSTS)),
-                       revoked=tuple(str(r) for r in data.get("revoked", ())))
+                       revoked=tuple(str(r) for r in data.get("revoked", ())),
+                       fleet=tuple(str(r) for r in data.get("fleet", ())))
         except (KeyError, TypeError, IndexError, ValueError) as exc:
             raise ConfigurationError(f"{directory / MANIFEST}: malformed ({exc})") from None
 
@@ -329,7 +383,23 @@ class SecureSetup:
         return identity_file(self.directory, name, suffix)
 
     def acl(self) -> dict[str, Any]:
+        if self.fleet:
+            return fleet_access_control(self.fleet, list(self.identities.values()))
         return access_control(self.robot, list(self.identities.values()))
+
+    def check_robot(self, identity: Identity, robot: str) -> None:
+        """:class:`ConfigurationError` unless ``identity`` may run as robot ``robot``
+        (``--robot``)."""
+        if self.fleet:
+            ok = robot == identity.name if identity.role == "member" else (
+                identity.role == ROUTER or robot in self.fleet)
+            where = (f"the fleet's robot {identity.name!r}" if identity.role == "member"
+                     else f"the fleet of {', '.join(self.fleet)}")
+        else:
+            ok, where = robot == self.robot, f"robot {self.robot!r}"
+        if not ok:
+            raise ConfigurationError(f"identity {identity.name!r} of {self.directory} is for "
+                                     f"{where}, not {robot!r} (--robot)")
 
     def identity(self, name: str) -> Identity:
         """Identity ``name``; :class:`ConfigurationError` saying what to do if it has none."""
@@ -347,7 +417,7 @@ class SecureSetup:
     def save(self) -> None:
         _write_secret(self.directory / MANIFEST, json.dumps({
             "format": FORMAT, "robot": self.robot, "source": self.source,
-            "hosts": list(self.hosts), "revoked": list(self.revoked),
+            "hosts": list(self.hosts), "revoked": list(self.revoked), "fleet": list(self.fleet),
             "identities": [i.as_data() for i in self.identities.values()],
         }, indent=2) + "\n")
         _write_secret(self.directory / ACL, json.dumps(
@@ -368,12 +438,30 @@ def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
     :data:`DEFAULT_HOSTS`). An existing set-up is kept unless ``force`` (a new CA: every
     process then needs its new files). Raises :class:`ConfigurationError`."""
     identities = identities_for(robot, devices=devices)
+    return _make(SecureSetup(directory=directory, robot=robot.name,
+                             identities={i.name: i for i in identities},
+                             source=str(robot.source),
+                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS),
+                 force=force, days=days)
+
+
+def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str,
+               hosts: Sequence[str] = (), force: bool = False,
+               days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+    """Generate a fleet's set-up (:func:`fleet_identities`, :func:`fleet_access_control`):
+    one CA for its router, world, launcher and ``robots``; ``hosts``: the router's names."""
+    identities = fleet_identities(robots)
+    return _make(SecureSetup(directory=directory, robot=name,
+                             identities={i.name: i for i in identities}, source=source,
+                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
+                             fleet=tuple(robots)), force=force, days=days)
+
+
+def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
+    directory = setup.directory
     if (directory / MANIFEST).exists() and not force:
         raise ConfigurationError(f"{directory} already holds a secure set-up (--force makes "
                                  "a new CA and new credentials for every identity)")
-    setup = SecureSetup(directory=directory, robot=robot.name,
-                        identities={i.name: i for i in identities}, source=str(robot.source),
-                        hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS)
     try:
         for folder in (directory, directory / IDENTITIES, directory / PRIVATE):
             folder.mkdir(parents=True, exist_ok=True)
@@ -381,10 +469,10 @@ def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
         for old in (directory / IDENTITIES).iterdir():
             old.unlink()  # --force: nothing of the old set-up's identities stays
         # A name of its own: two set-ups' CAs never pass for each other by name.
-        ca = pki.make_ca(f"ubf {robot.name} CA {secrets.token_hex(4)}")
+        ca = pki.make_ca(f"ubf {setup.robot} CA {secrets.token_hex(4)}")
         pki.write_key(directory / PRIVATE / CA_KEY, ca.key_pem)
         _write_secret(directory / CA_CERT, ca.cert_pem.decode())
-        passwords = {i.name: _issue(setup, ca, i.name, days=days) for i in identities}
+        passwords = {name: _issue(setup, ca, name, days=days) for name in setup.identities}
         _write_secret(directory / PASSWORDS,
                       "".join(f"{name}:{pw}\n" for name, pw in passwords.items()))
         setup.save()
@@ -478,7 +566,7 @@ def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:
     for name in names:
         setup.identity(name)
         members += [f"{IDENTITIES}/{name}{suffix}" for suffix in (".json", ".pem", ".key")]
-        if name == ROBOT:
+        if name in LISTENERS:
             members += [PASSWORDS, ACL]
     try:
         with tarfile.open(output, "w:gz") as tar:
@@ -548,10 +636,7 @@ def settings(*, directory: Path, identity: str | None, robot: str,
         raise ConfigurationError(f"--secure {directory} needs --identity NAME (the file names "
                                  f"in {directory / IDENTITIES})")
     setup = SecureSetup.load(directory)
-    if setup.robot != robot:
-        raise ConfigurationError(f"the set-up in {directory} is for robot {setup.robot!r}, "
-                                 f"not {robot!r} (--robot)")
-    setup.identity(identity)
+    setup.check_robot(setup.identity(identity), robot)
     creds = _read_json(identity_file(directory, identity), secret=True,
                        what=f"the credentials of identity {identity!r}")
     user, password = creds.get("user"), creds.get("password")
@@ -576,10 +661,11 @@ def settings(*, directory: Path, identity: str | None, robot: str,
         f"{tls}/connect_private_key": str(key.resolve()),
         "transport/auth/usrpwd/user": user, "transport/auth/usrpwd/password": password,
     }
-    if identity != ROBOT:
+    if identity not in LISTENERS:
         if listen:
             raise ConfigurationError(f"identity {identity!r} may not --listen in secure mode: "
-                                     "only the robot listens, the others connect to it")
+                                     "only the robot (a fleet's router) listens, the others "
+                                     "connect to it")
         return out | {"mode": "client"}
     out |= {f"{tls}/listen_certificate": str(cert.resolve()),
             f"{tls}/listen_private_key": str(key.resolve())}
@@ -588,9 +674,9 @@ def settings(*, directory: Path, identity: str | None, robot: str,
         raise ConfigurationError(f"{dictionary}: no such file: the robot's password dictionary")
     _private(dictionary)
     acl = _read_json(directory / ACL, what="the robot's access control", secret=True)
-    if acl.get("robot") != robot or not isinstance(acl.get("access_control"), dict):
-        raise ConfigurationError(f"{directory / ACL}: not the access control of robot "
-                                 f"{robot!r}")
+    if acl.get("robot") != setup.robot or not isinstance(acl.get("access_control"), dict):
+        raise ConfigurationError(f"{directory / ACL}: not the access control of "
+                                 f"{setup.robot!r}")
     return out | {"transport/auth/usrpwd/dictionary_file": str(dictionary.resolve()),
                   "access_control": acl["access_control"]}
 
@@ -689,9 +775,9 @@ class IdentityRights(Rights):
 
 
 def rights(directory: Path, identity: str) -> Rights:
-    """The rights of ``identity`` in the set-up at ``directory``: everything for the robot
-    (its own session holds the rules), its ACL rules for anyone else."""
-    if identity == ROBOT:
+    """The rights of ``identity`` in the set-up at ``directory``: everything for the robot or
+    a fleet's router (its own session holds the rules), its ACL rules for anyone else."""
+    if identity in LISTENERS:
         return OPEN
     return IdentityRights(SecureSetup.load(directory), identity)
 

@@ -21,6 +21,7 @@ from ubf_async.net.secure import (
     SecureSetup,
     export,
     init,
+    init_fleet,
     override,
     revoke,
     rotate,
@@ -43,12 +44,16 @@ def build_parser() -> argparse.ArgumentParser:
     make = sub.add_parser("init", help="generate the CA, identities and the ACL for a robot "
                                        "file")
     make.add_argument("directory", type=Path, metavar="DIR")
-    make.add_argument("--robot-file", required=True, metavar="FILE",
-                      help="the robot file (its name, devices and `remote:` slots)")
+    which = make.add_mutually_exclusive_group(required=True)
+    which.add_argument("--robot-file", metavar="FILE",
+                       help="the robot file (its name, devices and `remote:` slots)")
+    which.add_argument("--fleet-file", metavar="FLEET.yaml",
+                       help="a fleet file instead (docs/fleet.md): identities for its router, "
+                            "world, launcher and each robot; the router holds the ACL")
     make.add_argument("--host", action="append", default=[], metavar="NAME_OR_IP",
-                      help="a name or address clients dial the robot at: its certificate "
-                           "carries it, and a client checks it (repeatable; default: "
-                           "localhost and 127.0.0.1)")
+                      help="a name or address clients dial the robot (a fleet's router) at: "
+                           "its certificate carries it, and a client checks it (repeatable; "
+                           "default: localhost and 127.0.0.1)")
     make.add_argument("--device", action="append", default=[], metavar="KIND/NAME",
                       help="also an identity for this device, run as its own process "
                            "(repeatable)")
@@ -89,8 +94,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def describe(setup: SecureSetup) -> str:
-    lines = [f"secure set-up for robot {setup.robot!r} ({setup.source}) in {setup.directory}",
-             f"  the robot's certificate carries: {', '.join(setup.hosts)} (clients dial "
+    what = (f"fleet {setup.robot!r} of {', '.join(setup.fleet)}" if setup.fleet
+            else f"robot {setup.robot!r}")
+    listener = "the router's" if setup.fleet else "the robot's"
+    lines = [f"secure set-up for {what} ({setup.source}) in {setup.directory}",
+             f"  {listener} certificate carries: {', '.join(setup.hosts)} (clients dial "
              f"tls/<one of these>:PORT)"]
     for identity in setup.identities.values():
         lines.append(f"  {identity.name:<24} {identity.describe()}")
@@ -106,6 +114,16 @@ RESTART = ("restart the robot with the set-up's new files (it reads its password
 
 def run(args: argparse.Namespace) -> str:
     """Do ``args.command``; what to print. Raises :class:`ConfigurationError`."""
+    if args.command == "init" and args.fleet_file:
+        from ubf_async.runs.fleet import load_fleet
+
+        fleet = load_fleet(Path(args.fleet_file))
+        if args.device:
+            raise ConfigurationError("--device: a fleet's set-up has no device identities")
+        return describe(init_fleet(args.directory, name=Path(args.fleet_file).stem,
+                                   robots=[r.name for r in fleet.spec.robots],
+                                   source=str(fleet.source), hosts=args.host,
+                                   force=args.force, days=args.days))
     if args.command == "init":
         from ubf_async.assembly.robotfile import load_robot
 
