@@ -497,7 +497,7 @@ def tls_robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TlsRobot]:
     old = pki.issue(ca, "inspector", days=1, not_before=datetime.datetime.now(datetime.UTC)
                     - datetime.timedelta(days=30))
     (expired / "identities" / "inspector.pem").write_bytes(old.cert_pem)
-    pki.write_key(expired / "identities" / "inspector.key", old.key_pem)
+    pki.write_private(expired / "identities" / "inspector.key", old.key_pem)
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     proc = subprocess.Popen([sys.executable, "-m", "ubf_async.launch", str(path), "--listen",

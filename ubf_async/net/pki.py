@@ -126,11 +126,11 @@ def check_host(host: str) -> str:
     return host
 
 
-def write_key(path: Path, pem: bytes) -> None:
-    """Write a private key, readable by its owner only (0600)."""
+def write_private(path: Path, data: bytes) -> None:
+    """Write a private key (or any secret), readable by its owner only (0600)."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "wb") as out:
-        out.write(pem)
+        out.write(data)
     os.chmod(path, 0o600)  # O_CREAT's mode does not apply to a file that already existed
 
 

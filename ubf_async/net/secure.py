@@ -470,7 +470,7 @@ def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
             old.unlink()  # --force: nothing of the old set-up's identities stays
         # A name of its own: two set-ups' CAs never pass for each other by name.
         ca = pki.make_ca(f"ubf {setup.robot} CA {secrets.token_hex(4)}")
-        pki.write_key(directory / PRIVATE / CA_KEY, ca.key_pem)
+        pki.write_private(directory / PRIVATE / CA_KEY, ca.key_pem)
         _write_secret(directory / CA_CERT, ca.cert_pem.decode())
         passwords = {name: _issue(setup, ca, name, days=days) for name in setup.identities}
         _write_secret(directory / PASSWORDS,
@@ -488,7 +488,7 @@ def _issue(setup: SecureSetup, ca: pki.Issued, name: str, *, days: int) -> str:
     password = secrets.token_urlsafe(24)
     issued = pki.issue(ca, name, hosts=setup.hosts if name in LISTENERS else (), days=days)
     _write_secret(setup.identity_file(name, ".pem"), issued.cert_pem.decode())
-    pki.write_key(setup.identity_file(name, ".key"), issued.key_pem)
+    pki.write_private(setup.identity_file(name, ".key"), issued.key_pem)
     _write_secret(setup.identity_file(name), json.dumps({
         "format": FORMAT, "robot": setup.robot, "identity": name, "user": name,
         "password": password}, indent=2) + "\n")
@@ -586,10 +586,7 @@ def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:
 
 
 def _write_secret(path: Path, text: str) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as out:
-        out.write(text)
-    os.chmod(path, 0o600)  # O_CREAT's mode does not apply to a file that already existed
+    pki.write_private(path, text.encode())
 
 
 def _private(path: Path) -> None:
