@@ -58,7 +58,8 @@ from tests.test_late_join import readme_tools_join_late
 
 TUTORIAL = ROOT / "docs" / "your-robot.md"
 DEVICE_GUIDE = ROOT / "docs" / "your-device.md"
-DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447")
+DOCUMENTED_ENDPOINTS = ("tcp/127.0.0.1:7447", "tcp/192.168.1.10:7447", "tcp/0.0.0.0:7447",
+                        "tls/192.168.1.10:7447")
 ROBOT_FILE = ROOT / "ubf_async" / "robots" / "mini-whegs.yaml"
 WAIT_S = 90.0  # for a line of output: generous, for a loaded machine
 STOP_S = 30.0  # for a process to end once stopped (the bound is 5 s; a loaded machine is slow)
@@ -836,48 +837,56 @@ def test_the_arbiters_sweep_checks_runs_shortened_and_resumes(tmp_path: Path) ->
 
 # -- secure mode (security.md) --------------------------------------------------------------
 
-SECURE_INIT = "python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file my-robot.yaml"
+SECURE_INIT = ("python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file my-robot.yaml "
+               "--host 192.168.1.10 --host mini.local")
 SECURE_SHOW = "python -m ubf_async.secure show ~/.ubf/mini-secure"
-SECURE_ROBOT = ("python -m ubf_async.launch my-robot.yaml --listen tcp/192.168.1.10:7447 "
+SECURE_EXPORT = ("python -m ubf_async.secure export ~/.ubf/mini-secure teleop inspector "
+                 "--output laptop.tar.gz")
+SECURE_ROBOT = ("python -m ubf_async.launch my-robot.yaml --listen tls/192.168.1.10:7447 "
                 "--secure ~/.ubf/mini-secure")
-SECURE_TELEOP = ("python examples/teleop_override.py --connect tcp/192.168.1.10:7447 --robot mini "
-                 "--secure DIR")
-SECURE_INSPECTOR = ("python -m ubf_async.inspector components --connect tcp/192.168.1.10:7447 "
-                    "--robot mini --secure DIR --identity inspector")
-
-
-def handed_over(secure: Path, identity: str, to: Path) -> Path:
-    """What security.md's step 4 gives another machine: ``DIR/identities/NAME.json`` only."""
-    (to / "identities").mkdir(parents=True, mode=0o700)
-    shutil.copy(secure / "identities" / f"{identity}.json", to / "identities")
-    (to / "identities" / f"{identity}.json").chmod(0o600)
-    return to
+SECURE_MKDIR = "mkdir -m 700 -p ~/.ubf/mini"
+SECURE_UNPACK = "tar xzf laptop.tar.gz -C ~/.ubf/mini"
+SECURE_TELEOP = ("python examples/teleop_override.py --connect tls/192.168.1.10:7447 --robot mini "
+                 "--secure ~/.ubf/mini")
+SECURE_INSPECTOR = ("python -m ubf_async.inspector components --connect tls/192.168.1.10:7447 "
+                    "--robot mini --secure ~/.ubf/mini --identity inspector")
 
 
 @pytest.mark.slow
-@runs(SECURE_INIT, SECURE_SHOW, SECURE_ROBOT, SECURE_TELEOP, SECURE_INSPECTOR)
+@runs(SECURE_INIT, SECURE_SHOW, SECURE_EXPORT, SECURE_ROBOT, SECURE_MKDIR, SECURE_UNPACK,
+      SECURE_TELEOP, SECURE_INSPECTOR)
 def test_the_secure_set_up_step_by_step(tmp_path: Path) -> None:
-    # The robot's address (192.168.1.10) is a free loopback port here.
-    endpoint = loopback()
+    # The robot's address (192.168.1.10) is a free loopback port here, over TLS; its
+    # certificate carries 127.0.0.1 instead.
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    host = {"192.168.1.10": ["127.0.0.1"]}
     with page(tmp_path) as here:
         shutil.copy(ROBOT_FILE, here.cwd / "my-robot.yaml")  # it has the remote slot teleop
-        made = here.run(SECURE_INIT)
+        made = here.run(SECURE_INIT, replace=host)
         shown_ = here.run(SECURE_SHOW)
         secure = here.home / ".ubf" / "mini-secure"
+        assert "the robot's certificate carries: 127.0.0.1, mini.local" in made, made
         for identity in ("robot", "inspector", "operator", "teleop"):
             assert f"--secure {secure} --identity {identity}" in made
             assert f"--secure {secure} --identity {identity}" in shown_
-            assert (secure / "identities" / f"{identity}.json").stat().st_mode & 0o077 == 0
-        assert {"acl.json", "passwords.txt", "secure.json"} <= {p.name for p in secure.iterdir()}
+            assert (secure / "identities" / f"{identity}.key").stat().st_mode & 0o077 == 0
+        assert {"acl.json", "passwords.txt", "secure.json", "ca.pem", "private"} <= {
+            p.name for p in secure.iterdir()}
+        here.run(SECURE_EXPORT)
         robot = here.start(SECURE_ROBOT, endpoint=endpoint)
         robot.wait_for(r"^\[mini\] [\d.]+s \| drive ")
-        teleop_dir = handed_over(secure, "teleop", here.home / "teleop")
-        inspector_dir = handed_over(secure, "inspector", here.home / "inspector")
+        assert any(f"attach with: --connect {endpoint} --robot mini --secure {secure} "
+                   f"--identity NAME" in line for line in robot.lines), robot.output
+        here.run(SECURE_MKDIR)
+        here.run(SECURE_UNPACK)
+        laptop = here.home / ".ubf" / "mini"
+        assert {p.name for p in (laptop / "identities").iterdir()} == {
+            f"{n}.{x}" for n in ("teleop", "inspector") for x in ("json", "pem", "key")}
+        assert not (laptop / "private").exists() and not (laptop / "passwords.txt").exists()
         since = len(robot.lines)
-        teleop = here.start(SECURE_TELEOP, endpoint=endpoint, replace={"DIR": [str(teleop_dir)]})
+        teleop = here.start(SECURE_TELEOP, endpoint=endpoint)
         robot.wait_for(r"\| drive \+\d+/\+0 \(teleop\) \|", after=since)
-        listed = here.run(SECURE_INSPECTOR, endpoint=endpoint,
-                          replace={"DIR": [str(inspector_dir)]}).splitlines()
+        listed = here.run(SECURE_INSPECTOR, endpoint=endpoint).splitlines()
         assert {"controller", "motors-main", "teleop"} <= set(listed), listed
         stopped(teleop)
         stopped(robot)

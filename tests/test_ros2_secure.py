@@ -1,7 +1,9 @@
 """Secure mode and the ROS 2 bridge: the robot file's ``ros2:`` section adds three identities
 (``ros2-bridge``, ``ros2-reader``, ``ros2-driver``) and their rules; a ROS 2 node
-(zenoh-ros2-sdk, its own process, with the identity's credentials) reads with either and drives
-only as ``ros2-driver``."""
+(zenoh-ros2-sdk, its own process) joins the robot over mutual TLS with the identity's
+certificate and credentials — the ``ZENOH_CONFIG_OVERRIDE`` that ``python -m ubf_async.secure
+zenoh-override`` prints, as rmw_zenoh reads it — reads with either and drives only as
+``ros2-driver``."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from tests.conftest import free_port
 from tests.ros2_side import RosSide
 from tests.test_ros2 import wait_until
 from ubf_async.assembly.robotfile import load_robot
-from ubf_async.net.secure import init
+from ubf_async.net.secure import init, override
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT = "rsec"
@@ -84,7 +86,7 @@ def secure_robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int
     init(folder / "secure", robot=load_robot(path))
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "ubf_async.launch", str(path), "--listen",
-                             f"tcp/127.0.0.1:{port}", "--quiet", "--secure",
+                             f"tls/127.0.0.1:{port}", "--quiet", "--secure",
                              str(folder / "secure")], cwd=ROOT, stdout=subprocess.PIPE,
                             text=True)
     assert proc.stdout is not None
@@ -103,10 +105,12 @@ def secure_robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int
 
 
 def ros_side(port: int, setup: Path, identity: str) -> RosSide:
-    creds = json.loads((setup / "identities" / f"{identity}.json").read_text())
-    override = (f'mode="client";listen/endpoints=[];transport/auth/usrpwd/user="{creds["user"]}";'
-                f'transport/auth/usrpwd/password="{creds["password"]}"')
-    return RosSide(port, domain_id=3, env={**os.environ, "ZENOH_CONFIG_OVERRIDE": override})
+    """A ROS 2 node joining as ``identity``, configured as the secure docs say: with the
+    override ``python -m ubf_async.secure zenoh-override DIR IDENTITY --connect tls/…``
+    prints (:func:`ubf_async.net.secure.override`)."""
+    made = override(setup, identity, connect=[f"tls/127.0.0.1:{port}"])
+    assert "transport/link/tls/enable_mtls=true" in made and 'mode="client"' in made
+    return RosSide(port, domain_id=3, env={**os.environ, "ZENOH_CONFIG_OVERRIDE": made})
 
 
 TURNING = (0.0, 1.0)

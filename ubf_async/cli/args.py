@@ -96,8 +96,10 @@ def add_connection_arguments(
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover peers by UDP multicast (off by default)")
     group.add_argument("--secure", type=Path, default=None, metavar="DIR",
-                       help="secure mode: authenticate with the credentials in DIR (made by "
-                            "`python -m ubf_async.secure init`); see docs/security.md")
+                       help="secure mode: mutual TLS (tls/ endpoints only) with the "
+                            "certificates and credentials in DIR (made by `python -m "
+                            "ubf_async.secure init`, or a host's `secure export`); see "
+                            "docs/security.md")
     identity_help = ("with --secure: who this process is (robot, inspector, operator, a "
                      "remote behaviour's slot name, device-KIND-NAME); all but robot connect "
                      "as clients")
@@ -108,6 +110,13 @@ def add_connection_arguments(
                         _default_identity=default_identity,
                         _default_connect=default_connect or [])
     add_event_loop_help(parser)
+
+
+def _over_tls(endpoints: Iterable[str], args: argparse.Namespace) -> list[str]:
+    """An entry point's default endpoints; in secure mode (``--secure``) the same over TLS."""
+    if getattr(args, "secure", None) is None:
+        return list(endpoints)
+    return [f"tls/{e.removeprefix('tcp/')}" if e.startswith("tcp/") else e for e in endpoints]
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:
@@ -130,10 +139,10 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     if listen is None:
         from_file = config_endpoints(file_conf, "listen", mode)
         default = [] if mode == "client" else getattr(args, "_default_listen", [])
-        listen = from_file if from_file is not None else list(default)  # clients: the router
+        listen = from_file if from_file is not None else _over_tls(default, args)
     connect = list(args.connect) or config_endpoints(file_conf, "connect", mode) or []
     if not connect and not listen:  # a tool's default: the robot's endpoint
-        connect = list(getattr(args, "_default_connect", []))
+        connect = _over_tls(getattr(args, "_default_connect", []), args)
     try:
         Keys(args.robot)
     except ProtocolError as exc:

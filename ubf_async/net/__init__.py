@@ -1,8 +1,12 @@
 """The network below the bus: how a process reaches zenoh.
 
 * :mod:`~ubf_async.net.transport` — the transport seam: zenoh, or in-process for tests;
-* :mod:`~ubf_async.net.secure` — secure mode: identities, the ACL, and applying them to a zenoh
-  configuration (its command line is :mod:`ubf_async.tools.secure`).
+* :mod:`~ubf_async.net.secure` — secure mode: identities, the ACL, applying them to a zenoh
+  configuration over mutual TLS, an identity's rights, and why a robot refused this process
+  (its command line is :mod:`ubf_async.tools.secure`);
+* :mod:`~ubf_async.net.pki` — the set-up's certificate authority and certificates;
+* :mod:`~ubf_async.net.tlsprobe` — a TLS handshake of this process's own, to tell why a TLS
+  endpoint refused it.
 
 May import: :mod:`ubf_async.errors`, :mod:`ubf_async.throttle`. Not the wire, the core or the
 runtime: a transport moves bytes under key expressions it is given.

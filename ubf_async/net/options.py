@@ -15,11 +15,14 @@ import re
 import socket
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from ubf_async.errors import ConfigurationError, UbfError
+
+if TYPE_CHECKING:
+    from ubf_async.net.secure import Rights
 
 DEFAULT_ROBOT = "mini"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -105,10 +108,20 @@ class ConnectionOptions:
             from ubf_async.net import secure  # only secure mode needs it
 
             secure.apply(conf, directory=self.secure, identity=self.identity, robot=self.robot,
-                         listen=self.listen)
+                         listen=self.listen, connect=self.connect)
         elif self.identity is not None:
             raise ConfigurationError(f"--identity {self.identity} needs --secure DIR")
         return conf
+
+    def rights(self) -> Rights:
+        """What this process may send (:class:`~ubf_async.net.secure.Rights`): everything in
+        open mode; in secure mode its identity's rights from the set-up's ACL, checked before
+        it acts. Raises :class:`~ubf_async.errors.ConfigurationError` for a bad set-up."""
+        from ubf_async.net import secure
+
+        if self.secure is None or self.identity is None:
+            return secure.OPEN
+        return secure.rights(self.secure, self.identity)
 
 
 def load_zenoh_config(path: Path) -> zenoh.Config:
@@ -230,12 +243,19 @@ def listening(endpoint: str, *, timeout_s: float = 1.0) -> bool:
 
 
 def refused_error(options: ConnectionOptions, *, timeout_s: float = 1.0) -> RefusedError | None:
-    """For a session that reached nothing: a :class:`RefusedError` saying so if something
-    listens at one of its ``connect`` endpoints (:func:`listening`), else ``None``. Blocking:
-    run it in a thread."""
+    """For a session that reached nothing: a :class:`RefusedError` saying why if something
+    listens at one of its ``connect`` endpoints (:func:`listening`) — over TLS, which
+    certificate or name was refused and what to run (:func:`ubf_async.net.secure.diagnose`)
+    — else ``None``. Blocking: run it in a thread."""
+    from ubf_async.net.secure import diagnose
+
     open_at = [e for e in options.connect if listening(e, timeout_s=timeout_s)]
     if not open_at:
         return None
+    for endpoint in open_at:
+        reason = diagnose(endpoint, directory=options.secure, identity=options.identity)
+        if reason is not None:
+            return RefusedError(reason)
     if options.secure is None:
         credentials = ("this process gave none: pass the robot's set-up with --secure DIR "
                        "--identity NAME")
@@ -244,12 +264,10 @@ def refused_error(options: ConnectionOptions, *, timeout_s: float = 1.0) -> Refu
                        f"which the robot's set-up does not have with that password (another "
                        f"set-up, or one made again with `python -m ubf_async.secure init "
                        f"--force`)")
-    tls = ("; over tls/, a certificate the robot does not trust looks the same"
-           if any(e.startswith("tls/") for e in open_at) else "")
     return RefusedError(
         f"the robot at {' '.join(open_at)} refused the connection: something listens there but "
         f"did not let this process's zenoh session in, as a robot in secure mode does without "
-        f"valid credentials (docs/security.md); {credentials}{tls}")
+        f"valid credentials (docs/security.md); {credentials}")
 
 
 def session_error(options: ConnectionOptions, exc: zenoh.ZError) -> SessionError:

@@ -1,51 +1,70 @@
-"""Secure mode: who may say what on a robot's zenoh network, with zenoh's own mechanisms.
+"""Secure mode: who may say what on a robot's zenoh network, over mutual TLS, with zenoh's own
+mechanisms.
 
-The library (set-up and :func:`apply`); its command line is :mod:`ubf_async.tools.secure`, which
-re-exports these names. Split so the connection options (:mod:`ubf_async.runtime.bus`) can apply a
-set-up without importing the command line, which reads robot files (a module far above).
+The library (set-up, :func:`apply`, :class:`Rights`, :func:`diagnose`); its command line is
+:mod:`ubf_async.tools.secure`. Split so the connection options (:mod:`ubf_async.runtime.bus`)
+can apply a set-up without importing the command line, which reads robot files (a module far
+above).
 
-``python -m ubf_async.secure init DIR --robot-file FILE`` generates, for the robot the file
-describes:
+``python -m ubf_async.secure init DIR --robot-file FILE [--host NAME_OR_IP ...]`` generates,
+for the robot the file describes:
 
+* a **certificate authority** (``DIR/ca.pem``; its key ``DIR/private/ca.key`` never leaves
+  the set-up's host);
 * one **identity** per process that may join — ``robot`` (the launch process: controller,
   simulator and devices in one session), one per configured remote behaviour (the name of
-  each ``remote:`` slot), ``inspector`` (read-only), ``operator`` (read, and the tree service)
-  and, with ``--device KIND/NAME``, ``device-KIND-NAME`` for a device process attached from
-  outside — each with a random password (zenoh ``transport/auth/usrpwd``);
-* the robot's **access control** (zenoh ``access_control``, default deny): what each identity
-  may put, declare and query under ``ubf/<robot>/`` (see :func:`access_control`).
+  each ``remote:`` slot), ``inspector`` (read-only), ``operator`` (read, and the tree service),
+  with a ``ros2:`` section the ROS 2 identities and, with ``--device KIND/NAME``,
+  ``device-KIND-NAME`` — each with a **certificate** whose common name is the identity
+  (the robot's also carries the ``--host`` names its clients dial) and a random
+  **password** (zenoh ``transport/auth/usrpwd``: a second factor);
+* the robot's **access control** (zenoh ``access_control``, default deny; subjects matched on
+  the certificate's common name *and* the username): what each identity may put, declare and
+  query under ``ubf/<robot>/`` (see :func:`access_control`).
 
-Every process then passes ``--secure DIR --identity NAME`` (the shared connection flags):
-:func:`apply` adds that identity's credentials to the zenoh configuration; the ``robot``
-identity also gets the password dictionary its listener checks and the ACL its session
-enforces. Other identities connect in **client** mode, so all their traffic crosses the
-robot's session — zenoh applies ACL rules only on the node that holds them, and a denied
-message is dropped there without any error to the sender. ``docs/security.md`` has the
-threat model, the set-up and the limits.
+Every process then passes ``--secure DIR --identity NAME`` (the shared connection flags) and
+``tls/`` endpoints: :func:`apply` sets zenoh's TLS link (mutual TLS, the robot's name checked
+against the name dialled) and the identity's credentials; the ``robot`` identity also gets the
+password dictionary its listener checks and the ACL its session enforces. Other identities
+connect in **client** mode, so all their traffic crosses the robot's session — zenoh applies
+ACL rules only on the node that holds them, and a denied message is dropped there without any
+error to the sender; so :class:`Rights` refuses, in this process and before anything is sent,
+what the identity's rules do not allow. ``docs/security.md`` has the threat model, the set-up
+and the limits.
 
-Files: ``DIR/secure.json`` (what was generated, for whom), ``DIR/passwords.txt`` and
-``DIR/acl.json`` (the robot's side), ``DIR/identities/NAME.json`` (one per identity: copy
-just that file to the machine that runs it). Secret files are 0600, folders 0700.
+Files: ``DIR/secure.json`` (what was generated, for whom), ``DIR/ca.pem``,
+``DIR/private/ca.key``, ``DIR/passwords.txt`` and ``DIR/acl.json`` (the robot's side),
+``DIR/identities/NAME.{json,pem,key}`` (one set per identity). ``secure export NAME`` packs
+what one host needs. Secret files are 0600, folders 0700.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import secrets
 import stat
+import tarfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ubf_async.errors import ConfigurationError
+import zenoh
 
-FORMAT = 1
+from ubf_async.errors import ConfigurationError
+from ubf_async.net import pki, tlsprobe
+
+FORMAT = 2
 ROBOT = "robot"
 INSPECTOR = "inspector"
 OPERATOR = "operator"
 BUILTIN = (ROBOT, INSPECTOR, OPERATOR)
+ROUTER, WORLD, FLEET = "router", "world", "fleet"
+FLEET_BUILTIN = (ROUTER, WORLD, FLEET, INSPECTOR, OPERATOR)
+"""A fleet's set-up (``init --fleet-file``): its router, its world, the launcher's own
+session, and one identity per robot, named as the robot (role ``member``)."""
 ROS2_BRIDGE, ROS2_READER, ROS2_DRIVER = "ros2-bridge", "ros2-reader", "ros2-driver"
 ROS2_IDENTITIES = (ROS2_BRIDGE, ROS2_READER, ROS2_DRIVER)
 """With a robot file's ``ros2:`` section (docs/ros2.md)."""
@@ -111,7 +130,12 @@ class Identity:
                     }[self.role]
         return {ROBOT: "the robot: every key of the robot",
                 INSPECTOR: "read-only: subscribe and liveliness",
-                OPERATOR: "read, and the tree service (show and change the tree)"}[self.role]
+                OPERATOR: "read, and the tree service (show and change the tree)",
+                ROUTER: "the fleet's router: holds the access control, relays every key",
+                WORLD: "the fleet's world: every robot's simulator and devices",
+                FLEET: "the fleet's launcher: reads every robot",
+                "member": f"robot {self.name} of the fleet: every key of ubf/{self.name}/",
+                }[self.role]
 
 
 def identities_for(robot: Any, *, devices: Iterable[str] = ()) -> list[Identity]:
@@ -196,7 +220,51 @@ def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]
         "enabled": True,
         "default_permission": "deny",
         "rules": rules,
-        "subjects": [{"id": _subject_id(i), "usernames": [i.name]} for i in identities],
+        # Both must match: the certificate's common name (mTLS) and the username (the
+        # identity's password, a second factor).
+        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name], "usernames": [i.name]}
+                     for i in identities],
+        "policies": policies,
+    }
+
+
+def fleet_identities(robots: Sequence[str]) -> list[Identity]:
+    """The identities of a fleet of ``robots``: :data:`FLEET_BUILTIN` and one per robot.
+    Raises :class:`ConfigurationError` for a robot named as a built-in identity."""
+    clash = sorted(set(robots) & {*FLEET_BUILTIN, ROBOT})
+    if clash:
+        raise ConfigurationError(f"fleet robot {clash[0]!r}: the name is taken by a built-in "
+                                 f"identity ({', '.join((*FLEET_BUILTIN, ROBOT))})")
+    return [Identity(name=name, role=name) for name in FLEET_BUILTIN] + [
+        Identity(name=robot, role="member") for robot in robots]
+
+
+def fleet_access_control(robots: Sequence[str], identities: Sequence[Identity]
+                         ) -> dict[str, Any]:
+    """A fleet router's zenoh ``access_control`` (default deny): ``router`` and ``world``
+    everything under ``ubf/``, each robot everything under its own keys, ``operator`` also
+    the tree queries; everyone reads under ``ubf/`` (the fleet's tools look at every robot at
+    once: ``ubf/*/alive/controller``). Egress: everything under ``ubf/``, to everyone."""
+    every = ["ubf/**"]
+    rules = [_rule("egress", ALL_MESSAGES, every, flow="egress"),
+             _rule("read", READ_MESSAGES, every),
+             _rule("all", ALL_MESSAGES, every),
+             _rule("tree", ("query",), [f"ubf/{robot}/tree" for robot in robots])]
+    subject = {i.name: _subject_id(i) for i in identities}
+    policies = [{"id": "egress", "rules": ["egress"], "subjects": list(subject.values())},
+                {"id": "read", "rules": ["read"], "subjects": list(subject.values())},
+                {"id": "all", "rules": ["all"], "subjects": [subject[ROUTER], subject[WORLD]]},
+                {"id": "tree", "rules": ["tree"], "subjects": [subject[OPERATOR]]}]
+    for identity in identities:
+        if identity.role == "member":
+            rules.append(_rule(f"{identity.name}-all", ALL_MESSAGES,
+                               [f"ubf/{identity.name}/**"]))
+            policies.append({"id": f"own-{identity.name}", "rules": [f"{identity.name}-all"],
+                             "subjects": [subject[identity.name]]})
+    return {
+        "enabled": True, "default_permission": "deny", "rules": rules,
+        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name],
+                      "usernames": [i.name]} for i in identities],
         "policies": policies,
     }
 
@@ -261,87 +329,275 @@ def _own_rules(prefix: str, identity: Identity) -> list[dict[str, Any]]:
 # ---------------------------------------------------------------------------------------------
 # Generating and loading a secure set-up
 
+CA_CERT = "ca.pem"
+PRIVATE = "private"
+CA_KEY = "ca.key"
+LISTENERS = (ROBOT, ROUTER)
+"""Identities that listen (their certificates carry the ``--host`` names) and hold the
+access control: the robot, a fleet's router."""
+DEFAULT_HOSTS = ("localhost", "127.0.0.1")
+"""The robot's names when ``init`` is given no ``--host``: this host only."""
+INIT_HINT = "python -m ubf_async.secure init {dir} --robot-file FILE --host NAME_OR_IP"
+
 
 @dataclass(slots=True, kw_only=True)
 class SecureSetup:
-    """A generated set-up directory (see the module docstring)."""
+    """A generated set-up directory (see the module docstring), or a host's export of it."""
 
     directory: Path
     robot: str
     identities: dict[str, Identity] = field(default_factory=dict)
     source: str = ""
+    hosts: tuple[str, ...] = DEFAULT_HOSTS
+    """The names and addresses the robot's (or the router's) certificate carries."""
+    revoked: tuple[str, ...] = ()
+    fleet: tuple[str, ...] = ()
+    """A fleet's set-up: its robots (``robot`` is then the fleet file's name)."""
 
     @classmethod
     def load(cls, directory: Path) -> SecureSetup:
         """Read ``DIR/secure.json``. Raises :class:`ConfigurationError`."""
-        data = _read_json(directory / MANIFEST, what="the secure set-up (run `python -m "
-                          f"ubf_async.tools.secure init {directory} --robot-file FILE` first)")
+        if not (directory / MANIFEST).is_file():
+            raise ConfigurationError(
+                f"--secure {directory}: no secure set-up there (no {MANIFEST}): make one with "
+                f"`{INIT_HINT.format(dir=directory)}`, or unpack this host's "
+                f"`python -m ubf_async.secure export NAME` into it")
+        data = _read_json(directory / MANIFEST, what="the secure set-up")
         if data.get("format") != FORMAT:
-            raise ConfigurationError(f"{directory / MANIFEST}: unknown format "
-                                     f"{data.get('format')!r} (expected {FORMAT})")
+            raise ConfigurationError(
+                f"{directory / MANIFEST}: a set-up of format {data.get('format')!r}, this "
+                f"version needs {FORMAT} (certificates for TLS): make it again with "
+                f"`{INIT_HINT.format(dir=directory)} --force`")
         try:
             identities = [Identity.of_data(i) for i in data["identities"]]
             return cls(directory=directory, robot=str(data["robot"]),
                        identities={i.name: i for i in identities},
-                       source=str(data.get("source", "")))
-        except (KeyError, TypeError, IndexError) as exc:
+                       source=str(data.get("source", "")),
+                       hosts=tuple(str(h) for h in data.get("hosts", DEFAULT_HOSTS)),
+                       revoked=tuple(str(r) for r in data.get("revoked", ())),
+                       fleet=tuple(str(r) for r in data.get("fleet", ())))
+        except (KeyError, TypeError, IndexError, ValueError) as exc:
             raise ConfigurationError(f"{directory / MANIFEST}: malformed ({exc})") from None
 
-    def identity_file(self, name: str) -> Path:
-        return identity_file(self.directory, name)
+    def identity_file(self, name: str, suffix: str = ".json") -> Path:
+        return identity_file(self.directory, name, suffix)
+
+    def acl(self) -> dict[str, Any]:
+        if self.fleet:
+            return fleet_access_control(self.fleet, list(self.identities.values()))
+        return access_control(self.robot, list(self.identities.values()))
+
+    def check_robot(self, identity: Identity, robot: str) -> None:
+        """:class:`ConfigurationError` unless ``identity`` may run as robot ``robot``
+        (``--robot``)."""
+        if self.fleet:
+            ok = robot == identity.name if identity.role == "member" else (
+                identity.role == ROUTER or robot in self.fleet)
+            where = (f"the fleet's robot {identity.name!r}" if identity.role == "member"
+                     else f"the fleet of {', '.join(self.fleet)}")
+        else:
+            ok, where = robot == self.robot, f"robot {self.robot!r}"
+        if not ok:
+            raise ConfigurationError(f"identity {identity.name!r} of {self.directory} is for "
+                                     f"{where}, not {robot!r} (--robot)")
+
+    def identity(self, name: str) -> Identity:
+        """Identity ``name``; :class:`ConfigurationError` saying what to do if it has none."""
+        if name in self.revoked:
+            raise ConfigurationError(
+                f"identity {name!r} was revoked from the set-up in {self.directory}: the robot "
+                f"lets it in no more (`python -m ubf_async.secure show {self.directory}` lists "
+                f"the others)")
+        if name not in self.identities:
+            raise ConfigurationError(
+                f"--identity {name}: the set-up in {self.directory} has no such identity (its "
+                f"identities: {', '.join(self.identities)})")
+        return self.identities[name]
+
+    def save(self) -> None:
+        _write_secret(self.directory / MANIFEST, json.dumps({
+            "format": FORMAT, "robot": self.robot, "source": self.source,
+            "hosts": list(self.hosts), "revoked": list(self.revoked), "fleet": list(self.fleet),
+            "identities": [i.as_data() for i in self.identities.values()],
+        }, indent=2) + "\n")
+        _write_secret(self.directory / ACL, json.dumps(
+            {"robot": self.robot, "access_control": self.acl()}, indent=2) + "\n")
 
 
-def identity_file(directory: Path, name: str) -> Path:
-    """Where identity ``name``'s credentials live in a set-up directory."""
-    return directory / IDENTITIES / f"{name}.json"
+def identity_file(directory: Path, name: str, suffix: str = ".json") -> Path:
+    """Where identity ``name``'s credentials (``.json``), certificate (``.pem``) and private
+    key (``.key``) live in a set-up directory."""
+    return directory / IDENTITIES / f"{name}{suffix}"
 
 
 def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
-         force: bool = False) -> SecureSetup:
-    """Generate the identities and ACL of ``robot`` (a resolved robot file) into
-    ``directory``. An existing set-up is kept unless ``force`` (new passwords: every process
-    then needs its new identity file). Raises :class:`ConfigurationError`."""
+         hosts: Sequence[str] = (), force: bool = False,
+         days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+    """Generate the certificate authority, identities and ACL of ``robot`` (a resolved robot
+    file) into ``directory``; ``hosts``: the robot's host names and addresses (default
+    :data:`DEFAULT_HOSTS`). An existing set-up is kept unless ``force`` (a new CA: every
+    process then needs its new files). Raises :class:`ConfigurationError`."""
     identities = identities_for(robot, devices=devices)
+    return _make(SecureSetup(directory=directory, robot=robot.name,
+                             identities={i.name: i for i in identities},
+                             source=str(robot.source),
+                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS),
+                 force=force, days=days)
+
+
+def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str,
+               hosts: Sequence[str] = (), force: bool = False,
+               days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+    """Generate a fleet's set-up (:func:`fleet_identities`, :func:`fleet_access_control`):
+    one CA for its router, world, launcher and ``robots``; ``hosts``: the router's names."""
+    identities = fleet_identities(robots)
+    return _make(SecureSetup(directory=directory, robot=name,
+                             identities={i.name: i for i in identities}, source=source,
+                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
+                             fleet=tuple(robots)), force=force, days=days)
+
+
+def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
+    directory = setup.directory
     if (directory / MANIFEST).exists() and not force:
         raise ConfigurationError(f"{directory} already holds a secure set-up (--force makes "
-                                 "new passwords for every identity)")
+                                 "a new CA and new credentials for every identity)")
     try:
-        (directory / IDENTITIES).mkdir(parents=True, exist_ok=True)
-        os.chmod(directory, 0o700)
-        os.chmod(directory / IDENTITIES, 0o700)
-        passwords = {i.name: secrets.token_urlsafe(24) for i in identities}
-        for identity in identities:
-            _write_secret(identity_file(directory, identity.name), json.dumps({
-                "format": FORMAT, "robot": robot.name, "identity": identity.name,
-                "user": identity.name, "password": passwords[identity.name],
-            }, indent=2) + "\n")
+        for folder in (directory, directory / IDENTITIES, directory / PRIVATE):
+            folder.mkdir(parents=True, exist_ok=True)
+            os.chmod(folder, 0o700)
+        for old in (directory / IDENTITIES).iterdir():
+            old.unlink()  # --force: nothing of the old set-up's identities stays
+        # A name of its own: two set-ups' CAs never pass for each other by name.
+        ca = pki.make_ca(f"ubf {setup.robot} CA {secrets.token_hex(4)}")
+        pki.write_private(directory / PRIVATE / CA_KEY, ca.key_pem)
+        _write_secret(directory / CA_CERT, ca.cert_pem.decode())
+        passwords = {name: _issue(setup, ca, name, days=days) for name in setup.identities}
         _write_secret(directory / PASSWORDS,
                       "".join(f"{name}:{pw}\n" for name, pw in passwords.items()))
-        _write_secret(directory / ACL, json.dumps(
-            {"robot": robot.name, "access_control": access_control(robot.name, identities)},
-            indent=2) + "\n")
-        _write_secret(directory / MANIFEST, json.dumps({
-            "format": FORMAT, "robot": robot.name, "source": str(robot.source),
-            "identities": [i.as_data() for i in identities],
-        }, indent=2) + "\n")
+        setup.save()
     except OSError as exc:
         raise ConfigurationError(f"cannot write the secure set-up into {directory}: {exc}") \
             from None
-    return SecureSetup(directory=directory, robot=robot.name,
-                       identities={i.name: i for i in identities}, source=str(robot.source))
+    return setup
+
+
+def _issue(setup: SecureSetup, ca: pki.Issued, name: str, *, days: int) -> str:
+    """Write identity ``name``'s certificate, key and credentials (a new password); return
+    the password."""
+    password = secrets.token_urlsafe(24)
+    issued = pki.issue(ca, name, hosts=setup.hosts if name in LISTENERS else (), days=days)
+    _write_secret(setup.identity_file(name, ".pem"), issued.cert_pem.decode())
+    pki.write_private(setup.identity_file(name, ".key"), issued.key_pem)
+    _write_secret(setup.identity_file(name), json.dumps({
+        "format": FORMAT, "robot": setup.robot, "identity": name, "user": name,
+        "password": password}, indent=2) + "\n")
+    return password
+
+
+def _the_ca(setup: SecureSetup) -> pki.Issued:
+    key = setup.directory / PRIVATE / CA_KEY
+    if not key.is_file():
+        raise ConfigurationError(
+            f"{key}: no such file: the CA's private key is only on the host where the set-up "
+            f"was made (`secure init`); rotate and revoke there")
+    return pki.Issued(key.read_bytes(), (setup.directory / CA_CERT).read_bytes())
+
+
+def _passwords(setup: SecureSetup) -> dict[str, str]:
+    lines = (setup.directory / PASSWORDS).read_text().splitlines()
+    return dict(line.split(":", 1) for line in lines if ":" in line)
+
+
+def _write_passwords(setup: SecureSetup, passwords: Mapping[str, str]) -> None:
+    _write_secret(setup.directory / PASSWORDS,
+                  "".join(f"{name}:{pw}\n" for name, pw in passwords.items()))
+
+
+def rotate(directory: Path, name: str, *, hosts: Sequence[str] = (),
+           days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+    """Issue identity ``name`` a new key, certificate and password, leaving every other
+    identity as it is; for a listener ``hosts`` replace the names its certificate carries.
+    The robot reads its password dictionary when it starts: restart it. Raises
+    :class:`ConfigurationError`."""
+    setup = SecureSetup.load(directory)
+    setup.identity(name)
+    ca = _the_ca(setup)
+    if hosts:
+        if name not in LISTENERS:
+            raise ConfigurationError(f"--host: identity {name!r} does not listen; only "
+                                     f"{', '.join(LISTENERS)} carries host names")
+        setup.hosts = tuple(pki.check_host(h) for h in hosts)
+    passwords = _passwords(setup)
+    passwords[name] = _issue(setup, ca, name, days=days)
+    _write_passwords(setup, passwords)
+    setup.save()
+    return setup
+
+
+def revoke(directory: Path, name: str) -> SecureSetup:
+    """Remove identity ``name``: from the ACL's subjects and policies, from the password
+    dictionary (so the robot refuses its session even with its still-valid certificate), and
+    its files. The robot reads both when it starts: restart it. Raises
+    :class:`ConfigurationError`."""
+    setup = SecureSetup.load(directory)
+    setup.identity(name)
+    if name == ROBOT:
+        raise ConfigurationError("the robot's own identity cannot be revoked: rotate it "
+                                 "(`secure rotate robot`), or make a new set-up")
+    del setup.identities[name]
+    setup.revoked = (*setup.revoked, name)
+    passwords = _passwords(setup)
+    passwords.pop(name, None)
+    _write_passwords(setup, passwords)
+    setup.save()
+    for suffix in (".json", ".pem", ".key"):
+        setup.identity_file(name, suffix).unlink(missing_ok=True)
+    return setup
+
+
+def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:
+    """Pack into ``output`` (a ``.tar.gz``) exactly what a host running ``names`` needs: the
+    set-up's description and CA certificate, those identities' certificates, keys and
+    credentials, and for the robot its password dictionary and ACL — never the CA's key.
+    Returns the packed paths. Raises :class:`ConfigurationError`."""
+    setup = SecureSetup.load(directory)
+    members = [MANIFEST, CA_CERT]
+    for name in names:
+        setup.identity(name)
+        members += [f"{IDENTITIES}/{name}{suffix}" for suffix in (".json", ".pem", ".key")]
+        if name in LISTENERS:
+            members += [PASSWORDS, ACL]
+    try:
+        with tarfile.open(output, "w:gz") as tar:
+            for folder in (IDENTITIES,):
+                info = tarfile.TarInfo(folder)
+                info.type, info.mode = tarfile.DIRTYPE, 0o700
+                tar.addfile(info)
+            for member in dict.fromkeys(members):
+                data = (directory / member).read_bytes()
+                info = tarfile.TarInfo(member)
+                info.size, info.mode = len(data), 0o600
+                tar.addfile(info, io.BytesIO(data))
+        os.chmod(output, 0o600)
+    except OSError as exc:
+        raise ConfigurationError(f"cannot write {output}: {exc}") from None
+    return members
 
 
 def _write_secret(path: Path, text: str) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as out:
-        out.write(text)
-    os.chmod(path, 0o600)  # O_CREAT's mode does not apply to a file that already existed
+    pki.write_private(path, text.encode())
+
+
+def _private(path: Path) -> None:
+    if path.stat().st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise ConfigurationError(f"{path}: readable by others (chmod 600 {path})")
 
 
 def _read_json(path: Path, *, what: str, secret: bool = False) -> dict[str, Any]:
     try:
-        if secret and path.stat().st_mode & (stat.S_IRWXG | stat.S_IRWXO):
-            raise ConfigurationError(f"{path}: readable by others (chmod 600 {path})")
+        if secret:
+            _private(path)
         data = json.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigurationError(f"{path}: no such file: {what}") from None
@@ -352,39 +608,234 @@ def _read_json(path: Path, *, what: str, secret: bool = False) -> dict[str, Any]
     return data
 
 
-def apply(conf: Any, *, directory: Path, identity: str | None, robot: str,
-          listen: Sequence[str] = ()) -> None:
-    """Add identity ``identity``'s credentials from set-up ``directory`` to ``conf`` (a
-    ``zenoh.Config``); for ``robot`` also the password dictionary and the ACL. Any other
-    identity is put in client mode (all its traffic then crosses the robot's session, where
-    the ACL is) and may not listen. Raises :class:`ConfigurationError`."""
+# ---------------------------------------------------------------------------------------------
+# Applying a set-up to a zenoh configuration
+
+
+def _tls_only(endpoints: Sequence[str], flag: str) -> None:
+    plain = [e for e in endpoints if not e.startswith("tls/")]
+    if plain:
+        suggestion = " ".join("tls/" + e.split("/", 1)[-1] for e in plain)
+        raise ConfigurationError(
+            f"{flag} {' '.join(plain)}: secure mode speaks TLS only (nothing in clear on the "
+            f"network): use {suggestion}")
+
+
+def settings(*, directory: Path, identity: str | None, robot: str,
+             listen: Sequence[str] = (), connect: Sequence[str] = ()) -> dict[str, Any]:
+    """The zenoh configuration keys (path → value) that put identity ``identity`` of set-up
+    ``directory`` in secure mode: its TLS link (mutual TLS, the robot's name checked against
+    the endpoint dialled), its credentials; for ``robot`` also its listening certificate, the
+    password dictionary and the ACL; client mode for any other identity, which may not listen.
+    Every endpoint must be ``tls/``. What :func:`apply` sets, and what a ROS 2 node's
+    ``ZENOH_CONFIG_OVERRIDE`` carries (:func:`override`). Raises :class:`ConfigurationError`."""
     if not identity:
         raise ConfigurationError(f"--secure {directory} needs --identity NAME (the file names "
                                  f"in {directory / IDENTITIES})")
+    setup = SecureSetup.load(directory)
+    setup.check_robot(setup.identity(identity), robot)
     creds = _read_json(identity_file(directory, identity), secret=True,
                        what=f"the credentials of identity {identity!r}")
-    if creds.get("robot") != robot:
-        raise ConfigurationError(f"identity {identity!r} of {directory} is for robot "
-                                 f"{creds.get('robot')!r}, not {robot!r} (--robot)")
     user, password = creds.get("user"), creds.get("password")
     if not isinstance(user, str) or not isinstance(password, str):
         raise ConfigurationError(f"{identity_file(directory, identity)}: no user/password")
-    conf.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
-    conf.insert_json5("transport/auth/usrpwd/password", json.dumps(password))
-    if identity != ROBOT:
+    cert, key = identity_file(directory, identity, ".pem"), identity_file(directory, identity,
+                                                                          ".key")
+    if key.exists():
+        _private(key)
+    problem = pki.own_certificate_problem(cert_path=cert, key_path=key,
+                                          ca_path=directory / CA_CERT, identity=identity)
+    if problem is not None:
+        raise ConfigurationError(f"{problem}: {REISSUE.format(name=identity)}")
+    _tls_only(listen, "--listen")
+    _tls_only(connect, "--connect")
+    tls = "transport/link/tls"
+    out: dict[str, Any] = {
+        f"{tls}/root_ca_certificate": str(directory.resolve() / CA_CERT),
+        f"{tls}/enable_mtls": True, f"{tls}/verify_name_on_connect": True,
+        f"{tls}/close_link_on_expiration": True,
+        f"{tls}/connect_certificate": str(cert.resolve()),
+        f"{tls}/connect_private_key": str(key.resolve()),
+        "transport/auth/usrpwd/user": user, "transport/auth/usrpwd/password": password,
+    }
+    if identity not in LISTENERS:
         if listen:
             raise ConfigurationError(f"identity {identity!r} may not --listen in secure mode: "
-                                     "only the robot listens, the others connect to it")
-        conf.insert_json5("mode", json.dumps("client"))
-        return
+                                     "only the robot (a fleet's router) listens, the others "
+                                     "connect to it")
+        return out | {"mode": "client"}
+    out |= {f"{tls}/listen_certificate": str(cert.resolve()),
+            f"{tls}/listen_private_key": str(key.resolve())}
     dictionary = directory / PASSWORDS
     if not dictionary.is_file():
         raise ConfigurationError(f"{dictionary}: no such file: the robot's password dictionary")
-    if dictionary.stat().st_mode & (stat.S_IRWXG | stat.S_IRWXO):
-        raise ConfigurationError(f"{dictionary}: readable by others (chmod 600 {dictionary})")
+    _private(dictionary)
     acl = _read_json(directory / ACL, what="the robot's access control", secret=True)
-    if acl.get("robot") != robot or not isinstance(acl.get("access_control"), dict):
-        raise ConfigurationError(f"{directory / ACL}: not the access control of robot "
-                                 f"{robot!r}")
-    conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(dictionary)))
-    conf.insert_json5("access_control", json.dumps(acl["access_control"]))
+    if acl.get("robot") != setup.robot or not isinstance(acl.get("access_control"), dict):
+        raise ConfigurationError(f"{directory / ACL}: not the access control of "
+                                 f"{setup.robot!r}")
+    return out | {"transport/auth/usrpwd/dictionary_file": str(dictionary.resolve()),
+                  "access_control": acl["access_control"]}
+
+
+def apply(conf: Any, *, directory: Path, identity: str | None, robot: str,
+          listen: Sequence[str] = (), connect: Sequence[str] = ()) -> None:
+    """Put ``conf`` (a ``zenoh.Config``) in secure mode: the :func:`settings` of identity
+    ``identity`` of set-up ``directory``. Raises :class:`ConfigurationError`."""
+    for path, value in settings(directory=directory, identity=identity, robot=robot,
+                                listen=listen, connect=connect).items():
+        conf.insert_json5(path, json.dumps(value))
+
+
+def override(directory: Path, identity: str, *, connect: Sequence[str]) -> str:
+    """A ``ZENOH_CONFIG_OVERRIDE`` value (``path=value;…``, as rmw_zenoh reads it) that
+    joins a client-mode zenoh node — a ROS 2 node with identity ``identity`` — to the robot at
+    ``connect``, in secure mode. Raises :class:`ConfigurationError`."""
+    setup = SecureSetup.load(directory)
+    pairs = settings(directory=directory, identity=identity, robot=setup.robot,
+                     connect=connect) | {"connect/endpoints": list(connect),
+                                         "listen/endpoints": []}
+    return ";".join(f"{path}={json.dumps(value)}" for path, value in pairs.items())
+
+
+REISSUE = ("on the set-up's host run `python -m ubf_async.secure rotate DIR {name}` and bring "
+           "this host the new `python -m ubf_async.secure export DIR {name}`")
+
+
+# ---------------------------------------------------------------------------------------------
+# What an identity may do, told before it acts
+
+_VERBS = {"put": "publish on", "delete": "delete", "query": "query",
+          "declare_queryable": "answer queries on", "liveliness_token": "announce itself on",
+          "reply": "reply on"}
+
+
+class Rights:
+    """What this process may send into the robot's session. Open mode (and the robot itself,
+    whose own session holds the rules): everything. :meth:`check` before acting."""
+
+    def allows(self, message: str, key: str) -> bool:
+        return True
+
+    def check(self, message: str, key: str) -> None:
+        """:class:`NotAllowedError` (one line: who may, and the flag to use) unless
+        :meth:`allows`."""
+
+
+OPEN = Rights()
+
+
+class NotAllowedError(ConfigurationError):
+    """An identity about to send what the robot's ACL would drop without a word."""
+
+
+class IdentityRights(Rights):
+    """An identity's ingress rights, read from the set-up's ACL (what the robot enforces)."""
+
+    def __init__(self, setup: SecureSetup, name: str) -> None:
+        self.setup, self.name = setup, name
+        acl = setup.acl()
+        rules = {r["id"]: r for r in acl["rules"] if "ingress" in r["flows"]}
+        self._granted: dict[str, list[tuple[str, zenoh.KeyExpr]]] = {}
+        for policy in acl["policies"]:
+            for subject in policy["subjects"]:
+                who = subject.removeprefix("user-")
+                for rule_id in policy["rules"]:
+                    rule = rules.get(rule_id)
+                    if rule is None:
+                        continue
+                    self._granted.setdefault(who, []).extend(
+                        (m, zenoh.KeyExpr(k)) for m in rule["messages"] for k in rule["key_exprs"])
+
+    def _may(self, who: str, message: str, key: str) -> bool:
+        target = zenoh.KeyExpr(key)
+        return any(m == message and k.includes(target) for m, k in self._granted.get(who, ()))
+
+    def allows(self, message: str, key: str) -> bool:
+        return self._may(self.name, message, key)
+
+    def check(self, message: str, key: str) -> None:
+        if self.allows(message, key):
+            return
+        who = [name for name in self.setup.identities if self._may(name, message, key)]
+        others = [name for name in who if name != ROBOT]
+        if others:
+            hint = (f"{', '.join(others)} may{' (and the robot)' * (ROBOT in who)}: run it with "
+                    f"--identity {others[0]}")
+        elif who:
+            hint = "only the robot itself may (its launch process)"
+        else:
+            hint = "no identity of this set-up may"
+        raise NotAllowedError(
+            f"identity {self.name!r} may not {_VERBS.get(message, message)} {key}: the "
+            f"robot's access control would drop it without a word; {hint} (docs/security.md)")
+
+
+def rights(directory: Path, identity: str) -> Rights:
+    """The rights of ``identity`` in the set-up at ``directory``: everything for the robot or
+    a fleet's router (its own session holds the rules), its ACL rules for anyone else."""
+    if identity in LISTENERS:
+        return OPEN
+    return IdentityRights(SecureSetup.load(directory), identity)
+
+
+# ---------------------------------------------------------------------------------------------
+# Why the robot did not let this process in
+
+
+def diagnose(endpoint: str, *, directory: Path | None, identity: str | None) -> str | None:
+    """For a session that could not reach ``endpoint`` although something accepts TCP there:
+    why, in one line that says what to do, from a TLS handshake of this process's own
+    (:func:`~ubf_async.net.tlsprobe.probe`); ``None`` when TLS is not the reason as far as
+    can be told. Blocking: run it in a worker thread."""
+    parts = tlsprobe.split_endpoint(endpoint)
+    if parts is None:
+        return None
+    proto, host, port = parts
+    export = "`python -m ubf_async.secure export DIR NAME` on the set-up's host"
+    if directory is None or identity is None:
+        found = tlsprobe.probe(host, port, ca=None)
+        if found is None or found.kind != "tls-speaks":
+            return None
+        if proto == "tcp":
+            return (f"the robot at {endpoint} speaks TLS (secure mode), not plain tcp/: "
+                    f"connect to tls/{host}:{port} with --secure DIR --identity NAME ({export})")
+        return (f"the robot at {endpoint} is in secure mode and asks for a certificate: this "
+                f"process gave none: pass --secure DIR --identity NAME ({export})")
+    cert, key = identity_file(directory, identity, ".pem"), identity_file(directory, identity,
+                                                                          ".key")
+    found = tlsprobe.probe(host, port, ca=directory / CA_CERT, cert=cert, key=key)
+    if found is None:
+        return None
+    rotate_robot = ("on the set-up's host run `python -m ubf_async.secure rotate DIR robot{hosts}` "
+                    "and restart the robot with the new `secure export DIR robot`")
+    reissue = REISSUE.format(name=identity)
+    if found.kind == "no-tls":
+        return (f"the robot at {endpoint} does not speak TLS: it is not in secure mode (launch "
+                f"it with --secure DIR --listen tls/HOST:PORT), or this is not its endpoint")
+    if found.kind == "server-name":
+        carried = tlsprobe.peer_names(host, port)
+        return (f"the robot's certificate at {endpoint} does not carry the name dialled, "
+                f"{host!r} (it carries: {', '.join(carried) or 'no names'}): dial one of those, "
+                f"or {rotate_robot.format(hosts=f' --host {host} …')}")
+    if found.kind == "server-unknown-ca":
+        return (f"the robot at {endpoint} has a certificate not signed by this set-up's CA "
+                f"({directory / CA_CERT}): this host's files come from another set-up (or one "
+                f"made again with `secure init --force`): bring this host the robot set-up's "
+                f"`python -m ubf_async.secure export DIR {identity}`")
+    if found.kind == "server-expired":
+        return (f"the robot's certificate at {endpoint} has expired, or is not valid yet (is "
+                f"this host's clock right? {found.detail}): "
+                f"{rotate_robot.format(hosts='')}")
+    if found.kind == "server-other":
+        return f"this process does not trust the robot's certificate at {endpoint}: {found.detail}"
+    if found.kind in ("client-unknown-ca", "client-required", "client-bad"):
+        return (f"the robot at {endpoint} refused this process's certificate ({cert}: "
+                f"{found.detail}): it is not of the robot's set-up; {reissue}")
+    if found.kind == "client-expired":
+        return (f"the robot at {endpoint} refused this process's certificate as expired "
+                f"({cert}; is this host's clock right?): {reissue}")
+    return (f"the robot at {endpoint} accepted this process's certificate but not identity "
+            f"{identity!r}'s password: it was rotated or revoked since this host's files were "
+            f"made, or the robot runs on an older copy of the set-up (restart it with the "
+            f"latest); {reissue}")

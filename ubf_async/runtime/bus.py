@@ -539,6 +539,7 @@ class Publisher:
         self.seq = 0
         self.pub = secrets.randbelow(INT64_MAX) + 1
         self._bus = bus
+        bus.rights.check("put", key)
         self._out = bus._connection.declare_publisher(key)
         self._closed = False
 
@@ -679,6 +680,7 @@ class RawPublisher:
     def __init__(self, bus: Bus, key: str) -> None:
         self._bus = bus
         self.key = key
+        bus.rights.check("put", key)
         self._out = bus._connection.declare_publisher(key)
 
     def put(self, payload: bytes) -> None:
@@ -725,6 +727,9 @@ class Bus:
         except ProtocolError as exc:
             raise ConfigurationError(f"robot name: {exc}") from None
         self.options = options
+        self.rights = options.rights()
+        """What this process may send (secure mode: its identity's ACL rules), checked
+        before each publisher, token, queryable and query."""
         self.clock: Clock = clock or WallClock()
         self.transport = transport
         self._loop = asyncio.get_running_loop()
@@ -883,6 +888,7 @@ class Bus:
 
     def declare_token(self, key: str) -> Declaration:
         """A liveliness token on ``key``; ``token.undeclare()`` (or closing the bus) ends it."""
+        self.rights.check("liveliness_token", key)
         return self._connection.declare_token(key)
 
     def watch_liveliness(
@@ -915,6 +921,7 @@ class Bus:
     ) -> Queryable:
         """Answer queries on ``key`` (a concrete key) with ``handler(key, payload) -> reply``,
         called on the event loop; queries from this bus are answered too."""
+        self.rights.check("declare_queryable", key)
         queryable = Queryable(self._loop, key, handler, max_pending=max_pending,
                               callbacks_on_loop=self._connection.callbacks_on_loop)
         queryable._declaration = self._connection.declare_queryable(key, queryable.on_query)
@@ -931,6 +938,7 @@ class Bus:
         no queryable matching ``key`` is known), :class:`QueryError` when the queryable
         answered with an error. The loop is never blocked (zenoh's query runs in a worker
         thread), so a queryable on this same loop can answer it."""
+        self.rights.check("query", key)
         answer, errors = await self._connection.get(key, payload, timeout_s=timeout_s)
         if answer is not None:
             return answer

@@ -177,11 +177,15 @@ class Component:
         if self._started:
             return
         self._started = True
-        self._token = self.bus.declare_token(self.bus.keys.alive(self.name))
-        self._tasks = [
-            asyncio.create_task(self._supervise(), name=f"{self.name}:run"),
-            asyncio.create_task(self._heartbeat(), name=f"{self.name}:heartbeat"),
-        ]
+        self._tasks = [asyncio.create_task(self._supervise(), name=f"{self.name}:run")]
+        alive = self.bus.keys.alive(self.name)
+        if self.bus.rights.allows("liveliness_token", alive):
+            self._token = self.bus.declare_token(alive)
+            self._tasks.append(asyncio.create_task(self._heartbeat(),
+                                                   name=f"{self.name}:heartbeat"))
+        else:  # a read-only identity (the inspector's, recording): it observes unannounced
+            log.info("component %s runs unannounced: its identity may not announce itself "
+                     "on %s (secure mode)", self.name, alive)
 
     async def aclose(self) -> None:
         """Stop and release everything. Idempotent; safe even if never started."""

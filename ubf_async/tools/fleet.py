@@ -50,6 +50,7 @@ from ubf_async.cli.args import HelpFormatter, add_event_loop_help
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.secure import FLEET, WORLD
 from ubf_async.runs.fleet import (
     Fleet,
     load_fleet,
@@ -71,7 +72,8 @@ CONTROLLERS_WAIT_S = 60.0
 
 
 async def run_world(fleet: Fleet, *, router: str, out: TextIO,
-                    summary_path: Path | None, lockstep: bool = False) -> int:
+                    summary_path: Path | None, lockstep: bool = False,
+                    secure: Path | None = None) -> int:
     """The world process. With ``lockstep`` simulated time starts once every robot's
     controller has joined its lockstep, and waits for each of them at every step."""
     spec = fleet.spec
@@ -79,9 +81,8 @@ async def run_world(fleet: Fleet, *, router: str, out: TextIO,
     buses: list[Bus] = []
     try:
         for entry in spec.robots:
-            buses.append(await Bus.open(ConnectionOptions(robot=entry.name, mode="client",
-                                                          connect=[router]), clock=clock,
-                                        ordered=lockstep))
+            buses.append(await Bus.open(fleet_options(entry.name, router, secure, WORLD),
+                                        clock=clock, ordered=lockstep))
         await wait_for_controllers(buses[0], [r.name for r in spec.robots],
                                    timeout_s=CONTROLLERS_WAIT_S, lockstep=lockstep)
         members = members_of(fleet)
@@ -119,19 +120,35 @@ async def wait_for_controllers(bus: Bus, robots: Sequence[str], *, timeout_s: fl
         await asyncio.sleep(0.1)
 
 
-def controller_arguments(fleet: Fleet, name: str, *, router: str, lockstep: bool) -> list[str]:
+def controller_arguments(fleet: Fleet, name: str, *, router: str, lockstep: bool,
+                         secure: Path | None = None) -> list[str]:
     """Launch's command line for robot ``name``'s controller: its robot file, following the
     world's time through the router, its behaviours seeded with the world's seed when the
-    fleet file sets one (as :func:`ubf_async.runs.fleet.run_fleet` seeds them)."""
+    fleet file sets one (as :func:`ubf_async.runs.fleet.run_fleet` seeds them); with
+    ``secure`` (a fleet's set-up), as the fleet's identity of that robot."""
     seed = fleet.spec.world.seed
     return [fleet.robots[name].source, "--no-sim", "--sim-time", "--robot", name, "--mode",
             "client", "--connect", router, "--quiet",
             *(["--seed", str(seed)] if seed is not None else []),
-            *(["--lockstep"] if lockstep else [])]
+            *(["--lockstep"] if lockstep else []),
+            *(["--secure", str(secure), "--identity", name] if secure is not None else [])]
+
+
+def secure_flags(secure: Path | None) -> list[str]:
+    return ["--secure", str(secure)] if secure is not None else []
+
+
+def fleet_options(robot: str, router: str, secure: Path | None, identity: str
+                  ) -> ConnectionOptions:
+    """A client of the fleet's router on robot ``robot``'s keys; in secure mode as
+    ``identity`` of the fleet's set-up ``secure``."""
+    return ConnectionOptions(robot=robot, mode="client", connect=[router], secure=secure,
+                             identity=identity if secure is not None else None)
 
 
 async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
-                          out: TextIO, lockstep: bool = False) -> int:
+                          out: TextIO, lockstep: bool = False,
+                          secure: Path | None = None) -> int:
     """Several robots' controllers in this one process, each exactly as
     ``python -m ubf_async.launch ROBOT_FILE --no-sim --sim-time --robot NAME --mode client``
     runs it (its own session, aggregator, controller, remote behaviours, tree service), all
@@ -145,7 +162,7 @@ async def run_controllers(fleet: Fleet, names: Sequence[str], *, router: str,
     runs = []
     for name in names:
         args = launch.build_parser().parse_args(
-            controller_arguments(fleet, name, router=router, lockstep=lockstep))
+            controller_arguments(fleet, name, router=router, lockstep=lockstep, secure=secure))
         runs.append(launch.run_robot(launch.plan_launch(args), args, out))
     tasks = [asyncio.ensure_future(run) for run in runs]
     try:
@@ -237,7 +254,7 @@ async def stop_all(procs: dict[str, asyncio.subprocess.Process], *,
 
 async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
     spec = fleet.spec
-    router = args.router or spec.router
+    router = fleet_router(args, spec.router)
     logs = Path(args.log_dir) if args.log_dir else Path(tempfile.mkdtemp(prefix="ubf-fleet-"))
     logs.mkdir(parents=True, exist_ok=True)
     world_summary = logs / "world-summary.json"
@@ -246,26 +263,30 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
     try:
         if args.router is None:
             procs["router"] = await spawn(["-m", "ubf_async.router", "--listen", router,
-                                           "--quiet"], logs / "router.log")
+                                           "--quiet", *secure_flags(args.secure)],
+                                          logs / "router.log")
         print(f"fleet: {len(spec.robots)} robots on the router at {router}; logs in {logs}",
               file=out, flush=True)
         # The launcher's own session (on the first robot's keys, for the world's clock): it
         # retries until the router listens.
-        tool = await open_when_up(router, robot=spec.robots[0].name, timeout_s=20.0)
+        tool = await open_when_up(fleet_options(spec.robots[0].name, router, args.secure,
+                                                FLEET), timeout_s=20.0)
         per = args.controllers_per_process
         for group in (spec.robots[i:i + per] for i in range(0, len(spec.robots), per)):
             names = [entry.name for entry in group]
             command = (["-m", "ubf_async.launch",
                         *controller_arguments(fleet, names[0], router=router,
-                                              lockstep=args.lockstep)]
+                                              lockstep=args.lockstep, secure=args.secure)]
                        if per == 1 else
                        ["-m", "ubf_async.fleet", str(fleet.source), "--controllers-only",
                         ",".join(names), "--router", router,
-                        "--lockstep" if args.lockstep else "--no-lockstep"])
+                        "--lockstep" if args.lockstep else "--no-lockstep",
+                        *secure_flags(args.secure)])
             procs["+".join(names)] = await spawn(command, logs / f"{'+'.join(names)}.log")
         world_args = ["-m", "ubf_async.fleet", str(fleet.source), "--world-only", "--router",
                       router, "--summary", str(world_summary),
-                      "--lockstep" if args.lockstep else "--no-lockstep"]
+                      "--lockstep" if args.lockstep else "--no-lockstep",
+                      *secure_flags(args.secure)]
         procs["world"] = world = await spawn(world_args, logs / "world.log")
         status = FleetStatus([r.name for r in spec.robots])
         tool.subscribe(f"{ROOT}/*/status/controller", status.on_status, latest=False)
@@ -304,12 +325,19 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
             await stop_all({"router": router_proc}, grace_s=1.0)
 
 
-async def open_when_up(router: str, *, robot: str, timeout_s: float) -> Bus:
+def fleet_router(args: argparse.Namespace, default: str) -> str:
+    """The router's endpoint: ``--router``, else the fleet file's; over TLS in secure mode."""
+    router: str = args.router or default
+    if args.secure is not None and router.startswith("tcp/"):
+        router = "tls/" + router.removeprefix("tcp/")
+    return router
+
+
+async def open_when_up(options: ConnectionOptions, *, timeout_s: float) -> Bus:
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return await Bus.open(ConnectionOptions(robot=robot, mode="client",
-                                                    connect=[router]))
+            return await Bus.open(options)
         except ConnectionError:
             if time.monotonic() > deadline:
                 raise
@@ -390,6 +418,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--controllers-per-process", type=int, default=1, metavar="K",
                         help="run the robots' controllers K to a process (fewer processes for "
                              "a small machine; 1: each its own, as launch runs one)")
+    parser.add_argument("--secure", type=Path, default=None, metavar="DIR",
+                        help="secure mode: the router, the world, the controllers and this "
+                             "launcher over mutual TLS, each with its identity of the fleet's "
+                             "set-up in DIR (`python -m ubf_async.secure init DIR "
+                             "--fleet-file FLEET.yaml`; docs/security.md)")
     parser.add_argument("--controllers-only", default=None, metavar="NAME,...",
                         help="run only these robots' controllers, in this one process (what the "
                              "launcher starts with --controllers-per-process above 1)")
@@ -405,12 +438,13 @@ async def main_async(args: argparse.Namespace, out: TextIO) -> int:
                   f"{entry.start.y_m:g}) m, heading {entry.start.heading_deg:g}°", file=out)
         return 0
     if args.world_only:
-        return await run_world(fleet, router=args.router or fleet.spec.router, out=out,
-                               summary_path=args.summary, lockstep=args.lockstep)
+        return await run_world(fleet, router=fleet_router(args, fleet.spec.router), out=out,
+                               summary_path=args.summary, lockstep=args.lockstep,
+                               secure=args.secure)
     if args.controllers_only is not None:
         return await run_controllers(fleet, args.controllers_only.split(","),
-                                     router=args.router or fleet.spec.router, out=out,
-                                     lockstep=args.lockstep)
+                                     router=fleet_router(args, fleet.spec.router), out=out,
+                                     lockstep=args.lockstep, secure=args.secure)
     if args.controllers_per_process < 1:
         raise ConfigurationError(f"--controllers-per-process must be ≥ 1, got "
                                  f"{args.controllers_per_process}")

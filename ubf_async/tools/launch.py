@@ -29,6 +29,7 @@ import argparse
 import asyncio
 import logging
 import math
+import re
 import sys
 import tempfile
 import time
@@ -51,6 +52,7 @@ from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connecti
 from ubf_async.cli.run import check_lockstep_loop, run_main
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
+from ubf_async.net.secure import SecureSetup
 from ubf_async.runs import wiring
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
@@ -368,18 +370,29 @@ async def _open_session(plan: wiring.RunPlan, args: argparse.Namespace) -> wirin
 
 def _print_session(robot: Robot, options: ConnectionOptions, out: TextIO) -> None:
     """Where the robot is on zenoh, and how other processes attach to it."""
+    secure = ""
+    if options.secure is not None:
+        setup = SecureSetup.load(options.secure)
+        secure = f" --secure {options.secure} --identity NAME"
+        print(f"ubf_async: secure mode: mutual TLS with the set-up in {options.secure} "
+              f"(identity {options.identity!r}; the certificate names {', '.join(setup.hosts)})"
+              f": only its identities get in, each with its own rights (`python -m "
+              f"ubf_async.secure show {options.secure}`)", file=out)
     if options.mode == "client":
         routers = " ".join(options.connect) or "(the --config file's router)"
         print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, a client of "
               f"the router at {routers}", file=out)
         print(f"  attach with: --mode client --connect {routers.split()[0]} --robot "
-              f"{options.robot}", file=out)
+              f"{options.robot}{secure}", file=out)
     else:
         endpoints = " ".join(options.listen) or "(not listening)"
         print(f"ubf_async: robot {options.robot!r} ({robot.source}) on zenoh, listening on "
               f"{endpoints}", file=out)
         if options.listen:
-            print(f"  attach with: --connect {options.listen[0]} --robot {options.robot}",
+            where = options.listen[0]
+            if options.secure is not None:  # dial a name the certificate carries
+                where = re.sub(r"/(0\.0\.0\.0|\[::\]):", f"/{setup.hosts[0]}:", where)
+            print(f"  attach with: --connect {where} --robot {options.robot}{secure}",
                   file=out)
 
 

@@ -24,7 +24,8 @@ from ubf_async.runtime import clockdomain, lockstep, refusals
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
 from ubf_async.runtime.clock import Clock, WallClock
 from ubf_async.runtime.component import ensure_name_free
-from ubf_async.services.remote import DEFAULT_TTL_S, RemoteBehaviorHost
+from ubf_async.services.remote import DEFAULT_TTL_S, RemoteBehaviorHost, vote_key
+from ubf_async.wire.keys import Keys
 
 
 def remote_parser(
@@ -108,6 +109,11 @@ async def host_remote_behavior(
     if getattr(args, "secure", None) is not None and getattr(args, "identity", None) is None:
         args.identity = behavior.name  # a remote slot's identity is the slot's name
     options = connection_options(args)
+    # Before anything connects: what the robot's access control would drop without a word.
+    keys, rights = Keys(options.robot), options.rights()
+    rights.check("put", vote_key(keys, args.composite, behavior.name))
+    rights.check("put", keys.heartbeat(behavior.name))
+    rights.check("liveliness_token", keys.alive(behavior.name))
     bus = await Bus.open(options, clock=WallClock(), ordered=args.lockstep)
     host: RemoteBehaviorHost | None = None
     participant: lockstep.LockstepParticipant | None = None
