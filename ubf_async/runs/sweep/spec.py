@@ -228,7 +228,7 @@ def load_sweep(path: str | Path) -> SweepPlan:
     count = len(robots) * len(combinations) * len(spec.scenarios) * len(seeds)
     if count > MAX_RUNS:
         raise check.error(f"{count} runs: more than {MAX_RUNS} in one sweep", ())
-    scenarios = [_scenario_text(name, source.parent, check, i)
+    scenarios = [scenario_text(name, source.parent, check, ("scenarios", i))
                  for i, name in enumerate(spec.scenarios)]
     tasks: list[RunTask] = []
     for r, (robot_source, robot_text) in enumerate(robots):
@@ -291,17 +291,17 @@ def _robot_text(spec: SweepFile, index: int, spec_dir: Path,
         raise check.error(f"robot {name!r}: {exc}", ("robots", index)) from None
 
 
-def _scenario_text(name: str, spec_dir: Path, check: Checker,
-                   index: int) -> tuple[str, str | None]:
-    """``(what to pass to the run, the file's text or None for a built-in name)``."""
+def scenario_text(name: str, spec_dir: Path, check: Checker,
+                  at: Path_) -> tuple[str, str | None]:
+    """``(what to pass to the run, the file's text or None for a built-in name)`` of the
+    scenario ``name`` a spec gives at ``at``."""
     path = _beside(spec_dir, name)
     if path is None:
         return name, None  # a built-in scenario (or no such file: planning the run says so)
     try:
         return str(path), path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise check.error(f"scenario {name!r}: cannot read it: {exc}",
-                          ("scenarios", index)) from None
+        raise check.error(f"scenario {name!r}: cannot read it: {exc}", at) from None
 
 
 def _variant(spec: SweepFile, robot: int, source: str, text: str,
