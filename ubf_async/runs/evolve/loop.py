@@ -57,7 +57,8 @@ class Individual:
 
     @classmethod
     def of(cls, plan: EvolvePlan, tree: genome.Node) -> Individual:
-        tree = genome.normalize(tree)
+        """``tree`` as an individual of ``plan``: canonical, its root named as the seed's."""
+        tree = genome.normalize({**tree, "name": plan.seed_tree["name"]})
         text = plan.text_of(tree)
         return cls(tree, text, genome.identity(text), genome.size(tree))
 
@@ -202,7 +203,6 @@ class Evolution:
         to ``taken``, and a robot file the loader takes."""
         if tree is None or not genome.is_composite(tree) or not self.plan.space.fits(tree):
             return None
-        tree["name"] = self.plan.seed_tree["name"]
         individual = Individual.of(self.plan, tree)
         if individual.hash in taken:
             return None
