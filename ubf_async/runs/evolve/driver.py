@@ -34,7 +34,8 @@ class EvolveOutputs:
     @property
     def files(self) -> list[str]:
         return [report.BEST, report.HALL_OF_FAME, report.PARETO, LOG, report.FITNESS_PNG,
-                report.HELD_OUT_CSV, report.REPORT, CHECKPOINT, JOURNAL, report.SCENARIOS]
+                report.TREES_PNG, report.HELD_OUT_CSV, report.REPORT, CHECKPOINT, JOURNAL,
+                report.SCENARIOS]
 
 
 def compared_robots(paths: Sequence[str | Path]) -> list[report.Compared]:
@@ -98,6 +99,10 @@ def run_evolution(plan: EvolvePlan, out_dir: str | Path, *, workers: int | None 
             report.plot_fitness(out / report.FITNESS_PNG, state.log)
             seed = Individual.of(plan, plan.seed_tree)
             evolution.evaluate([seed])
+            report.draw_trees(out / report.TREES_PNG, [
+                (f"the seed robot ({plan.seed_source}): fitness {seed.fitness:g}", seed.tree),
+                (f"evolved ({report.BEST}): fitness {state.hall_of_fame[0].fitness:g}",
+                 state.hall_of_fame[0].tree)])
             robots = [report.Compared("shipped" if plan.seed_source == "mini-whegs.yaml"
                                       else "seed", plan.seed_source, seed.text),
                       report.Compared("evolved", report.BEST, state.hall_of_fame[0].text),

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ubf_async.runs.evolve import genome
 from ubf_async.runs.evolve.fitness import Evaluation, Evaluator, Fitness
 from ubf_async.runs.evolve.loop import Individual, State
 from ubf_async.runs.evolve.spec import EvolvePlan, ScenarioSet
@@ -23,6 +24,7 @@ HALL_OF_FAME = "hall-of-fame"
 PARETO = "pareto"
 SCENARIOS = "scenarios"
 FITNESS_PNG = "fitness.png"
+TREES_PNG = "trees.png"
 HELD_OUT_CSV = "heldout.csv"
 REPORT = "report.md"
 
@@ -87,6 +89,79 @@ def plot_fitness(path: Path, log: Sequence[dict[str, Any]]) -> Path:
     handles = left.get_legend_handles_labels()[0] + right.get_legend_handles_labels()[0]
     left.legend(handles=handles, loc="lower right", fontsize=8)
     left.grid(alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path)
+    plt.close(figure)
+    return path
+
+
+def node_label(node: genome.Node) -> str:
+    """What a drawn node says: an arbiter's kind (a ``Conditional``'s predicate), a
+    behaviour's name and the parameters the file gives it."""
+    def values(params: dict[str, Any]) -> str:
+        shown = [f"{k} {v:g}" if isinstance(v, int | float) and not isinstance(v, bool)
+                 else f"{k} {v}" for k, v in params.items() if k != "source"]
+        return "\n".join(shown)
+
+    if genome.is_composite(node):
+        kind = genome.arbiter_kind(node)
+        params = genome.arbiter_params(node) if isinstance(node["arbiter"], dict) else {}
+        if kind == genome.CONDITIONAL:
+            predicate = params.get("predicate", "?")
+            return f"Conditional\nif {predicate}\n" + values(params.get("predicate_params")
+                                                              or {})
+        return f"{kind}\n{values(params)}".strip()
+    return f"{node['behavior']}\n{values(node.get('params') or {})}".strip()
+
+
+def layout(tree: genome.Node) -> dict[genome.Path_, tuple[float, float]]:
+    """Each node's place in a drawing: leaves one apart left to right, a composite above the
+    middle of its children, a level a row down."""
+    places: dict[genome.Path_, tuple[float, float]] = {}
+    leaves = 0
+    for at, node in genome.walk(tree):
+        if not node.get("children"):
+            places[at] = (float(leaves), -float(len(at)))
+            leaves += 1
+    for at, node in sorted(genome.walk(tree), key=lambda pair: -len(pair[0])):
+        children = node.get("children") or []
+        if children:
+            places[at] = (statistics.fmean(places[(*at, i)][0] for i in range(len(children))),
+                          -float(len(at)))
+    return places
+
+
+def draw_trees(path: Path, trees: Sequence[tuple[str, genome.Node]]) -> Path:
+    """The trees side by side, each node a box (composites blue, behaviours green), each
+    edge marked with the child's priority."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    widths = [max(1, sum(1 for _, n in genome.walk(tree) if not genome.is_composite(n)))
+              for _, tree in trees]
+    depth = max(genome.depth(tree) for _, tree in trees)
+    figure, axes = plt.subplots(1, len(trees), figsize=(2.2 * sum(widths) + 1, 1.9 * depth),
+                                dpi=100, gridspec_kw={"width_ratios": widths}, squeeze=False)
+    for ax, (title, tree) in zip(axes[0], trees, strict=True):
+        places = layout(tree)
+        for at, node in genome.walk(tree):
+            x, y = places[at]
+            for i, child in enumerate(node.get("children") or []):
+                cx, cy = places[(*at, i)]
+                ax.plot([x, cx], [y, cy], color="0.6", zorder=1)
+                ax.text((x + cx) / 2, (y + cy) / 2, f"p{child.get('priority', 0)}",
+                        fontsize=7, color="0.3", ha="center", va="center",
+                        bbox={"boxstyle": "round", "fc": "white", "ec": "none"}, zorder=2)
+            ax.text(x, y, node_label(node), ha="center", va="center", fontsize=7, zorder=3,
+                    bbox={"boxstyle": "round", "ec": "0.4",
+                          "fc": "#cfe2ff" if genome.is_composite(node) else "#d8f5d0"})
+        xs = [x for x, _ in places.values()]
+        ax.set_xlim(min(xs) - 0.7, max(xs) + 0.7)
+        ax.set_ylim(-depth + 0.4, 0.6)
+        ax.set_title(title, fontsize=9)
+        ax.axis("off")
     figure.tight_layout()
     figure.savefig(path)
     plt.close(figure)

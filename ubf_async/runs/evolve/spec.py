@@ -13,6 +13,7 @@ robot file and its ranges load. A mistake is refused as ``SPEC:LINE: message`` (
 from __future__ import annotations
 
 import hashlib
+import json
 import random
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -232,8 +233,9 @@ class EvolvePlan:
     fitness: Fitness
     tune: TunePlan | None
     identity: str
-    """A digest of what makes an evolution: the SPEC's text, the seed robot's, and the budget
-    but the generations (a resumed evolution may go on further)."""
+    """A digest of what makes an evolution: the seed robot's text, the training set's
+    scenarios and everything of the SPEC but the held-out set, the ``tune`` section and the
+    generations (a resumed evolution may go on further)."""
 
     @property
     def seed(self) -> int:
@@ -294,9 +296,13 @@ def load_evolve(path: str | Path, *, seed: int | None = None, population: int | 
     if probe:
         plan_check.figures(spec.fitness, seed_robot_text, training)
     tune = _tune(spec, seed_source, seed_text, source.parent, check)
-    identity = hashlib.sha256(
-        "\0".join([source.read_text(encoding="utf-8"), seed_text, str(spec.seed),
-                   str(spec.population)]).encode()).hexdigest()[:16]
+    # What makes the evolution (not the held-out set, the tune section, the generations):
+    # changing it makes a checkpoint another evolution's; the generated scenarios' texts stand
+    # for the generators' code.
+    made = {k: v for k, v in msgspec.to_builtins(spec).items()
+            if k not in ("held_out", "tune", "generations", "seed_robot")}
+    identity = hashlib.sha256(json.dumps(
+        [made, seed_text, training.scenarios], sort_keys=True).encode()).hexdigest()[:16]
     return EvolvePlan(source=source, spec=spec, seed_source=seed_source, base=base,
                       seed_tree=seed_tree, space=space, training=training, held_out=held_out,
                       fitness=fitness, tune=tune, identity=identity)
