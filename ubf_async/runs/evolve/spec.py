@@ -376,11 +376,12 @@ def _gene(factory: Any, name: str, value: Any, *, injected: frozenset[str], what
     """The gene the SPEC gives parameter ``name`` of ``factory``: ``[low, high]`` a range,
     ``{choices: [...]}`` a choice, anything else a fixed value — each value it can take
     checked against the parameter's schema."""
-    def accepted(v: Any, told: str) -> None:
+    def accepted(v: Any, told: str, written: Any = None) -> None:
         try:
             checked_params(factory, {name: v}, injected=injected, what=what)
         except ParameterError as refusal:
-            raise check.error(f"{what}: {told} {v!r}: {refusal.problem}"
+            shown = v if written is None else written
+            raise check.error(f"{what}: {told} {shown!r}: {refusal.problem}"
                               + (f"; it takes: {', '.join(refusal.takes)}"
                                  if refusal.takes else ""), at) from None
         except PluginError as exc:
@@ -400,7 +401,7 @@ def _gene(factory: Any, name: str, value: Any, *, injected: frozenset[str], what
         if kind == "int" and not all(float(v).is_integer() for v in value):
             raise check.error(f"{what}: {name} is an int: give its range as ints", at)
         for end, told in ((low, "the range's low end"), (high, "the range's high end")):
-            accepted(int(end) if kind == "int" else float(end), told)
+            accepted(int(end) if kind == "int" else float(end), told, end)
         return genome.Range(low, high, integer=kind == "int")
     if isinstance(value, dict) and set(value) == {"choices"}:
         choices = value["choices"]
