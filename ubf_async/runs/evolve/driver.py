@@ -45,7 +45,7 @@ def compared_robots(paths: Sequence[str | Path]) -> list[report.Compared]:
     for path in paths:
         text, source = read_robot_file(path)
         load_robot_text(text, source=source)
-        out.append(report.Compared(Path(source).stem, source, text))
+        out.append(report.Compared(str(path), source, text))
     return out
 
 

@@ -21,7 +21,6 @@ the same whichever worker ran what, in whatever order.
 from __future__ import annotations
 
 import json
-import math
 import statistics
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -169,8 +168,3 @@ class Evaluator:
 
     def close(self) -> None:
         self.journal.close()
-
-
-def finite(value: float | None) -> float | None:
-    """``value`` for JSON: ``None`` for a value JSON cannot carry."""
-    return value if value is not None and math.isfinite(value) else None

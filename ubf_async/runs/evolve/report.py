@@ -142,7 +142,7 @@ def draw_trees(path: Path, trees: Sequence[tuple[str, genome.Node]]) -> Path:
     widths = [max(1, sum(1 for _, n in genome.walk(tree) if not genome.is_composite(n)))
               for _, tree in trees]
     depth = max(genome.depth(tree) for _, tree in trees)
-    figure, axes = plt.subplots(1, len(trees), figsize=(2.2 * sum(widths) + 1, 1.9 * depth),
+    figure, axes = plt.subplots(1, len(trees), figsize=(1.25 * sum(widths) + 0.5, 1.5 * depth),
                                 dpi=100, gridspec_kw={"width_ratios": widths}, squeeze=False)
     for ax, (title, tree) in zip(axes[0], trees, strict=True):
         places = layout(tree)
@@ -154,11 +154,11 @@ def draw_trees(path: Path, trees: Sequence[tuple[str, genome.Node]]) -> Path:
                 ax.text((x + cx) / 2, (y + cy) / 2, f"p{child.get('priority', 0)}",
                         fontsize=7, color="0.3", ha="center", va="center",
                         bbox={"boxstyle": "round", "fc": "white", "ec": "none"}, zorder=2)
-            ax.text(x, y, node_label(node), ha="center", va="center", fontsize=7, zorder=3,
+            ax.text(x, y, node_label(node), ha="center", va="center", fontsize=8, zorder=3,
                     bbox={"boxstyle": "round", "ec": "0.4",
                           "fc": "#cfe2ff" if genome.is_composite(node) else "#d8f5d0"})
         xs = [x for x, _ in places.values()]
-        ax.set_xlim(min(xs) - 0.7, max(xs) + 0.7)
+        ax.set_xlim(min(xs) - 0.6, max(xs) + 0.6)
         ax.set_ylim(-depth + 0.4, 0.6)
         ax.set_title(title, fontsize=9)
         ax.axis("off")
