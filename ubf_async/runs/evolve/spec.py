@@ -48,7 +48,7 @@ from ubf_async.runs.evolve import genome, scenarios
 from ubf_async.runs.evolve.fitness import Fitness, Term, task
 from ubf_async.runs.evolve.scenarios import Generated
 from ubf_async.runs.sweep import execution
-from ubf_async.runs.sweep.spec import FIGURE, Checker, RunTask, decode_spec, scenario_text
+from ubf_async.runs.sweep.spec import FIGURE, Checker, RunTask, decode_spec, read_scenario
 
 DEFAULT_SEED_ROBOT = "mini-whegs"
 DEFAULT_DURATION_S = 20.0
@@ -504,7 +504,7 @@ class _PlanCheck:
         for i, item in enumerate(spec.scenarios):
             at: Path_ = (section, "scenarios", i)
             if isinstance(item, str):
-                named.append(scenario_text(item, self.spec_dir, self.check, at))
+                named.append(read_scenario(item, self.spec_dir, self.check, at))
                 continue
             ranges: dict[str, tuple[float, float]] = {}
             for key in ("distance_m", "bearing_deg", "speed_m_s", "at_s"):

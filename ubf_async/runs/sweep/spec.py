@@ -228,7 +228,7 @@ def load_sweep(path: str | Path) -> SweepPlan:
     count = len(robots) * len(combinations) * len(spec.scenarios) * len(seeds)
     if count > MAX_RUNS:
         raise check.error(f"{count} runs: more than {MAX_RUNS} in one sweep", ())
-    scenarios = [scenario_text(name, source.parent, check, ("scenarios", i))
+    scenarios = [read_scenario(name, source.parent, check, ("scenarios", i))
                  for i, name in enumerate(spec.scenarios)]
     tasks: list[RunTask] = []
     for r, (robot_source, robot_text) in enumerate(robots):
@@ -291,7 +291,7 @@ def _robot_text(spec: SweepFile, index: int, spec_dir: Path,
         raise check.error(f"robot {name!r}: {exc}", ("robots", index)) from None
 
 
-def scenario_text(name: str, spec_dir: Path, check: Checker,
+def read_scenario(name: str, spec_dir: Path, check: Checker,
                   at: Path_) -> tuple[str, str | None]:
     """``(what to pass to the run, the file's text or None for a built-in name)`` of the
     scenario ``name`` a spec gives at ``at``."""
