@@ -126,6 +126,13 @@ ROS_MACHINE = ("a ROS 2 installation with rmw_zenoh (none here): test_ros2_sees_
                "through_a_router does what it does with tests/ros2_side.py, an rmw_zenoh "
                "implementation independent of ubf_async.services.ros2")
 
+EVOLVE = "python -m ubf_async.evolve examples/evolve/mini-whegs.yaml --out out/evolve --workers 2"
+EVOLVE_WHY = ("the worked evolution, 16 × 10 generations: about 12 minutes on 2 cores, past the "
+              "doc tests' budget; tests/test_evolve.py runs the same command (its main) on a "
+              "tiny SPEC: its outputs, --resume after a kill, 1 against 2 workers")
+TUNE_WHY = ("the worked study, 30 trials: minutes on 2 cores; tests/test_evolve.py runs the same "
+            "command (its main) on a tiny SPEC, resuming a study kept in SQLite")
+
 NOT_RUN = {
     "python3 -m venv .venv":
         "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
@@ -215,6 +222,17 @@ NOT_RUN = {
     "--address auto": "a Ray cluster of several machines (see ray start)",
     "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters --executor ray "
     "--address ray://HEAD_IP:10001": "a Ray cluster of several machines (see ray start)",
+    EVOLVE: EVOLVE_WHY,
+    EVOLVE + " --resume": EVOLVE_WHY,
+    "python -m ubf_async.evolve examples/evolve/mini-whegs.yaml --out out/evolve --resume "
+    "--compare out/tune/best.yaml": EVOLVE_WHY,
+    "python -m ubf_async.launch out/evolve/best.yaml --scenario ball-behind --speed 5":
+        "the evolution's robot file (see python -m ubf_async.evolve): tests/test_evolve.py "
+        "loads the best.yaml of its tiny evolution as launch does",
+    "python -m ubf_async.tune examples/evolve/mini-whegs.yaml --out out/tune --workers 2":
+        TUNE_WHY,
+    "python -m ubf_async.tune examples/evolve/mini-whegs.yaml --out out/tune --storage "
+    "sqlite:///out/tune.db --workers 2": TUNE_WHY,
 }
 
 
@@ -833,6 +851,22 @@ def test_the_arbiters_sweep_checks_runs_shortened_and_resumes(tmp_path: Path) ->
         assert "resuming out/arbiters: 4 runs done already" in resumed, resumed
         assert "running" not in resumed
         assert (out / "runs.csv").read_bytes() == table
+
+
+# -- evolution (evolve.md) ----------------------------------------------------------------
+
+EVOLVE_CHECK = "python -m ubf_async.evolve examples/evolve/mini-whegs.yaml --check"
+
+
+@runs(EVOLVE_CHECK)
+def test_the_worked_evolution_spec_checks(tmp_path: Path) -> None:
+    with page(tmp_path) as here:
+        checked = here.run(EVOLVE_CHECK).splitlines()
+    assert checked[0] == ("examples/evolve/mini-whegs.yaml: population 16 × 10 generations "
+                          "from mini-whegs.yaml (seed 1)"), checked
+    assert checked[1] == ("  training: 6 scenarios × 2 seeds, 12 s each = 12 runs per "
+                          "individual; held out: 10 scenarios × 2 seeds, 20 s each"), checked
+    assert checked[-1] == "  — OK", checked
 
 
 # -- secure mode (security.md) --------------------------------------------------------------

@@ -31,7 +31,8 @@ def test_every_entry_point_has_version(module: str) -> None:
 
 
 @pytest.mark.parametrize(("script", "target"), [("ubf-launch", "ubf_async.tools.launch:main"),
-                                                 ("ubf-inspect", "ubf_async.tools.inspector:main")])
+                                                 ("ubf-inspect", "ubf_async.tools.inspector:main"),
+                                                 ("ubf-evolve", "ubf_async.tools.evolve:main")])
 def test_console_scripts(script: str, target: str) -> None:
     scripts = {ep.name: ep.value for ep in metadata.entry_points(group="console_scripts")}
     assert scripts.get(script) == target

@@ -23,6 +23,7 @@ import numpy as np
 
 from components.camera.seekcolor import SeekResult
 from components.camera.view import draw_view
+from components.sim.camera_render import CameraParams
 from components.sim.scenarios import CAMERA_OFFSET_M
 from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.wire.topics import LedState
@@ -82,6 +83,50 @@ def motion_over(samples: Sequence[TrajectorySample], seconds: float) -> dict[str
                  for p in window)
     return {"distance_m": distance, "max_offset_m": offset,
             "heading_change_deg": math.degrees(turn), "window_s": end.t_s - window[0].t_s}
+
+
+CAMERA_HALF_FOV_DEG = CameraParams().hfov_deg / 2
+"""Half the simulated camera's horizontal field of view."""
+FACING_DEG = 10.0
+"""Facing the ball: its bearing within this (the scenarios' ``|ball_bearing_deg|`` bound)."""
+CLOSE_M = 0.35
+"""Too close: nearer than the comfortable distance's lower bound (the scenarios' 0.35 m)."""
+
+
+class BallView:
+    """How the ball stood to the robot over a whole run, tallied sample by sample (so a run
+    of any length keeps four numbers): when it first came into the camera's field of view,
+    the share of samples it was in view, the robot faced it, it was too close, and of those
+    too close the share the robot was backing away (the summary's ``ball_view``)."""
+
+    def __init__(self) -> None:
+        self.samples = self.in_view = self.facing = self.close = self.backing = 0
+        self.first_in_view_s: float | None = None
+
+    def add(self, sample: TrajectorySample) -> None:
+        self.samples += 1
+        if sample.ball_x_m is None or sample.ball_y_m is None:  # hidden: out of view
+            return
+        distance, bearing = camera_to_ball(sample.robot_x_m, sample.robot_y_m,
+                                           sample.robot_heading_rad, sample.ball_x_m,
+                                           sample.ball_y_m)
+        if abs(bearing) <= CAMERA_HALF_FOV_DEG:
+            self.in_view += 1
+            if self.first_in_view_s is None:
+                self.first_in_view_s = sample.t_s
+        self.facing += abs(bearing) <= FACING_DEG
+        if distance < CLOSE_M:
+            self.close += 1
+            self.backing += sample.speed_cmd is not None and sample.speed_cmd < 0
+
+    def summary(self) -> dict[str, float | None]:
+        def share(count: int, of: int) -> float | None:
+            return count / of if of else None
+        return {"first_in_view_s": self.first_in_view_s,
+                "in_view_share": share(self.in_view, self.samples),
+                "facing_share": share(self.facing, self.samples),
+                "close_share": share(self.close, self.samples),
+                "backing_when_close_share": share(self.backing, self.close)}
 
 
 HISTORY_CAPACITY = 4096

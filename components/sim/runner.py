@@ -39,6 +39,7 @@ from components.sim.backends import SimCameraBackend
 from components.sim.component import RTF_WINDOW_S, SimulatorComponent
 from components.sim.disturbances import HeadingAudit
 from components.sim.record import (
+    BallView,
     TrajectoryBuffer,
     TrajectoryCsvWriter,
     TrajectorySample,
@@ -160,6 +161,7 @@ class SimulationRun:
             lockstep_participants=options.lockstep_participants)
         self.devices: list[Component] = []
         self.trajectory_buffer = TrajectoryBuffer()
+        self.ball_view = BallView()
         self._every_sample: list[TrajectorySample] | None = (
             [] if options.keep_trajectory else None)
         self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
@@ -300,6 +302,7 @@ class SimulationRun:
             snap, speed_cmd=last.speed if last else None, turn_cmd=last.turn if last else None,
             winners="+".join(trace.winning_leaves()) if trace else "")
         self.trajectory_buffer.append(sample)
+        self.ball_view.add(sample)
         if self._every_sample is not None:
             self._every_sample.append(sample)
         if self._csv is not None:
@@ -517,6 +520,7 @@ class SimulationRun:
             "ball_distance_m": None,
             "ball_bearing_deg": None,
             "motion_last_2s": motion_over(samples, 2.0),
+            "ball_view": self.ball_view.summary(),
             "ticks": controller.stats.summary(),
             "camera_frames": sum(d.frames for d in self.devices
                                  if isinstance(d, CameraComponent)),

@@ -81,7 +81,7 @@ examples:
 docs/experiments.md says more."""
 
 
-class _Formatter(HelpFormatter, argparse.RawDescriptionHelpFormatter):
+class ExampleFormatter(HelpFormatter, argparse.RawDescriptionHelpFormatter):
     """The tools' formatter, the spec's example kept as written."""
 
 
@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
         description=("Run the product of robot files (or overrides of their values), scenarios\n"
                      "and seeds — each run simulated in-process, flat out, the same whatever\n"
                      "the machine — on every core or on a Ray cluster, into one table."),
-        epilog=EXAMPLE, formatter_class=_Formatter)
+        epilog=EXAMPLE, formatter_class=ExampleFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("spec", type=Path, metavar="SPEC.yaml", help="the sweep's spec")
     parser.add_argument("--out", type=Path, default=None, metavar="DIR",
@@ -103,6 +103,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--check", action="store_true",
                         help="check the spec (every robot variant, every scenario), say what "
                              "would run, and exit")
+    add_pool_arguments(parser)
+    return parser
+
+
+def add_pool_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--workers``, ``--executor``, ``--address``, ``--runtime-env``: where the runs run
+    (:func:`ubf_async.runs.sweep.open_pool`); :func:`check_pool_arguments` checks them."""
     run = parser.add_argument_group("where the runs run")
     run.add_argument("--workers", type=int, default=None, metavar="N",
                      help="worker processes, each running many runs (default: every core "
@@ -113,14 +120,42 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--address", default=None, metavar="auto|ray://HOST:10001",
                      help="with --executor ray: the cluster to join (auto: the one this "
                           "machine belongs to; default: a new one on this machine)")
-    run.add_argument("--runtime-env", type=_json_object, default=None, metavar="JSON",
+    run.add_argument("--runtime-env", type=json_object, default=None, metavar="JSON",
                      help="with --executor ray: Ray's runtime_env for the workers (default: "
                           "this process's ubf_async and components packages as py_modules; "
                           "'{}' when every node has ubf-async installed)")
-    return parser
 
 
-def _json_object(text: str) -> dict[str, Any]:
+def check_pool_arguments(args: argparse.Namespace) -> None:
+    if args.executor != "ray" and (args.address is not None or args.runtime_env is not None):
+        raise ConfigurationError("--address and --runtime-env are for --executor ray")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigurationError(f"--workers must be at least 1, got {args.workers}")
+
+
+def pool_words(args: argparse.Namespace) -> list[str]:
+    """The pool's arguments as given, to repeat in a command (the resume command)."""
+    words = []
+    if args.workers is not None:
+        words += ["--workers", str(args.workers)]
+    if args.executor != "local":
+        words += ["--executor", args.executor]
+    if args.address is not None:
+        words += ["--address", args.address]
+    if args.runtime_env is not None:
+        words += ["--runtime-env", json.dumps(args.runtime_env)]
+    return words
+
+
+def pool_description(args: argparse.Namespace, workers: int | None) -> str:
+    """``2 local worker processes``, ``Ray (auto): a worker per CPU``."""
+    if args.executor == "local":
+        return f"{workers} local worker process{'es' if workers != 1 else ''}"
+    return (f"Ray ({args.address or 'a new cluster of this machine'}): "
+            + (f"{workers} worker processes" if workers else "a worker per CPU"))
+
+
+def json_object(text: str) -> dict[str, Any]:
     try:
         value = json.loads(text)
     except ValueError as exc:
@@ -153,8 +188,8 @@ class PlainProgress:
         elapsed = time.monotonic() - self.start
         left = elapsed / self.done * (self.total - self.done)
         print(f"  {self.done}/{self.total} runs ({100 * self.done // self.total} %), "
-              f"{self.failed} failed, {_clock(elapsed)} elapsed"
-              + (f", about {_clock(left)} left" if self.done < self.total else ""),
+              f"{self.failed} failed, {clock_text(elapsed)} elapsed"
+              + (f", about {clock_text(left)} left" if self.done < self.total else ""),
               file=self.out, flush=True)
 
 
@@ -182,7 +217,7 @@ class BarProgress:
         self.bar.update(self.task, advance=1, failed=self.failed)
 
 
-def _clock(seconds: float) -> str:
+def clock_text(seconds: float) -> str:
     minutes, secs = divmod(int(seconds + 0.5), 60)
     return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}" if minutes >= 60 \
         else f"{minutes}:{secs:02d}"
@@ -198,25 +233,14 @@ def print_plan(plan: sweep.SweepPlan, out: TextIO) -> None:
 
 
 def resume_command(args: argparse.Namespace) -> str:
-    words = [*PROG.split(), str(args.spec), "--out", str(args.out), "--resume"]
-    if args.workers is not None:
-        words += ["--workers", str(args.workers)]
-    if args.executor != "local":
-        words += ["--executor", args.executor]
-    if args.address is not None:
-        words += ["--address", args.address]
-    if args.runtime_env is not None:
-        words += ["--runtime-env", json.dumps(args.runtime_env)]
-    return shlex.join(words)
+    return shlex.join([*PROG.split(), str(args.spec), "--out", str(args.out), "--resume",
+                       *pool_words(args)])
 
 
 def check_arguments(args: argparse.Namespace) -> None:
     if args.out is None and not args.check:
         raise ConfigurationError("--out DIR is required (the folder of the tables)")
-    if args.executor != "ray" and (args.address is not None or args.runtime_env is not None):
-        raise ConfigurationError("--address and --runtime-env are for --executor ray")
-    if args.workers is not None and args.workers < 1:
-        raise ConfigurationError(f"--workers must be at least 1, got {args.workers}")
+    check_pool_arguments(args)
 
 
 def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | None:
@@ -225,11 +249,7 @@ def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | 
     workers = args.workers
     if args.executor == "local":
         workers = min(workers or sweep.default_workers(), total)
-    where = (f"{workers} local worker process{'es' if workers != 1 else ''}"
-             if args.executor == "local" else
-             f"Ray ({args.address or 'a new cluster of this machine'}): "
-             + (f"{workers} worker processes" if workers else "a worker per CPU"))
-    print(f"running {total} runs on {where}", file=out, flush=True)
+    print(f"running {total} runs on {pool_description(args, workers)}", file=out, flush=True)
     progress = (BarProgress if out.isatty() else PlainProgress)(total, out)
     guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
                       else STOP_BOUND_S)

@@ -94,13 +94,18 @@ def _scenario(task: RunTask) -> str:
     this machine (a worker of a cluster may not have the spec's files), one file per text."""
     if task.scenario_text is None:
         return task.scenario
-    text = task.scenario_text
+    return scenario_file(task.scenario_file, task.scenario_text)
+
+
+def scenario_file(name: str, text: str) -> str:
+    """A scenario file named ``name`` holding ``text``, in a folder of this machine's temporary
+    files kept for that text (written once, whole)."""
     folder = Path(tempfile.gettempdir()) / "ubf_async-sweep" / hashlib.sha256(
         text.encode()).hexdigest()[:16]
-    path = folder / task.scenario_file
+    path = folder / name
     if not path.is_file():
         folder.mkdir(parents=True, exist_ok=True)
-        part = folder / f".{task.scenario_file}.{os.getpid()}"
+        part = folder / f".{name}.{os.getpid()}"
         part.write_text(text, encoding="utf-8")
         part.replace(path)  # whole, even with another worker writing the same file
     return str(path)

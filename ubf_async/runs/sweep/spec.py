@@ -19,7 +19,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, TypeVar
 
 import msgspec
 from msgspec import Meta
@@ -38,6 +38,7 @@ RESULT_COLUMNS = ("robot", "scenario", "seed", "status", "pass", "error")
 Figure = Annotated[str, Meta(pattern=FIGURE, max_length=200)]
 Seed = Annotated[int, Meta(ge=0, le=2**63 - 1)]  # numpy's generators refuse negative seeds
 Name = Annotated[str, Meta(min_length=1, max_length=500)]
+S = TypeVar("S", bound=Spec)
 
 
 class SweepSpecError(RobotFileError):
@@ -154,15 +155,16 @@ class SweepPlan:
         return f"{len(self.tasks)} runs: {' × '.join(parts)}"
 
 
-class _Checker:
-    """Refusals at the spec's lines."""
+class Checker:
+    """Refusals at a spec's lines, as ``error`` (a :class:`RobotFileError` type)."""
 
-    def __init__(self, locator: Locator) -> None:
+    def __init__(self, locator: Locator, error: type[RobotFileError] = SweepSpecError) -> None:
         self.locator = locator
+        self._error = error
 
-    def error(self, message: str, path: Path_, *, key: str | None = None) -> SweepSpecError:
+    def error(self, message: str, path: Path_, *, key: str | None = None) -> RobotFileError:
         found = self.locator.error(message, path, key=key)
-        return SweepSpecError(found.message, path=found.path, line=found.line)
+        return self._error(found.message, path=found.path, line=found.line)
 
     def unique(self, values: list[Any], path: Path_, what: str) -> None:
         seen: dict[str, int] = {}
@@ -184,28 +186,36 @@ def _beside(spec_dir: Path, name: str) -> Path | None:
     return path if path.is_file() else None
 
 
-def load_sweep(path: str | Path) -> SweepPlan:
-    """Read and check a sweep spec: its form, every robot file with every combination of its
-    overrides, every scenario. Raises :class:`SweepSpecError` (``SPEC:LINE: …``) or
-    :class:`~ubf_async.errors.ConfigurationError` for a spec that cannot be read."""
-    source = Path(path)
+def decode_spec(source: Path, root: type[S], error: type[RobotFileError], *,
+                what: str) -> tuple[S, Locator]:
+    """A spec file read and decoded into ``root``, with the :class:`Locator` of its lines.
+    Raises ``error`` (``SPEC:LINE: …``: the robot file's messages) or
+    :class:`~ubf_async.errors.ConfigurationError` for a file that cannot be read."""
     try:
         text = source.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigurationError(f"{source}: no such sweep spec") from None
+        raise ConfigurationError(f"{source}: no such {what}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigurationError(f"{source}: cannot read it: {exc}") from None
     try:
         locator = Locator.parse(text, source=str(source))
         try:
-            spec = msgspec.yaml.decode(text, type=SweepFile)
+            return msgspec.yaml.decode(text, type=root), locator
         except msgspec.ValidationError as exc:
-            raise locator.from_validation(exc, root=SweepFile) from None
+            raise locator.from_validation(exc, root=root) from None
         except msgspec.DecodeError as exc:
             raise RobotFileError(f"not valid YAML: {exc}", path=str(source)) from None
     except RobotFileError as exc:
-        raise SweepSpecError(exc.message, path=exc.path, line=exc.line) from None
-    check = _Checker(locator)
+        raise error(exc.message, path=exc.path, line=exc.line) from None
+
+
+def load_sweep(path: str | Path) -> SweepPlan:
+    """Read and check a sweep spec: its form, every robot file with every combination of its
+    overrides, every scenario. Raises :class:`SweepSpecError` (``SPEC:LINE: …``) or
+    :class:`~ubf_async.errors.ConfigurationError` for a spec that cannot be read."""
+    source = Path(path)
+    spec, locator = decode_spec(source, SweepFile, SweepSpecError, what="sweep spec")
+    check = Checker(locator)
     seeds: Sequence[int] = (range(spec.seeds.first, spec.seeds.last + 1)  # counted, not made
                             if isinstance(spec.seeds, SeedRange) else spec.seeds)
     if isinstance(spec.seeds, SeedRange) and not seeds:
@@ -218,7 +228,7 @@ def load_sweep(path: str | Path) -> SweepPlan:
     count = len(robots) * len(combinations) * len(spec.scenarios) * len(seeds)
     if count > MAX_RUNS:
         raise check.error(f"{count} runs: more than {MAX_RUNS} in one sweep", ())
-    scenarios = [_scenario_text(name, source.parent, check, i)
+    scenarios = [read_scenario(name, source.parent, check, ("scenarios", i))
                  for i, name in enumerate(spec.scenarios)]
     tasks: list[RunTask] = []
     for r, (robot_source, robot_text) in enumerate(robots):
@@ -238,7 +248,7 @@ def load_sweep(path: str | Path) -> SweepPlan:
                      scenarios=tuple(spec.scenarios), seeds=tuple(seeds), tasks=tuple(tasks))
 
 
-def _check_form(spec: SweepFile, check: _Checker) -> None:
+def _check_form(spec: SweepFile, check: Checker) -> None:
     """What decoding cannot say: names twice, override paths, values JSON cannot carry,
     figures that would clash with the table's own columns."""
     check.unique(spec.robots, ("robots",), "robot")
@@ -271,7 +281,7 @@ def _check_form(spec: SweepFile, check: _Checker) -> None:
 
 
 def _robot_text(spec: SweepFile, index: int, spec_dir: Path,
-                check: _Checker) -> tuple[str, str]:
+                check: Checker) -> tuple[str, str]:
     """``(source, text)`` of robot file ``index``."""
     name = spec.robots[index]
     try:
@@ -281,22 +291,22 @@ def _robot_text(spec: SweepFile, index: int, spec_dir: Path,
         raise check.error(f"robot {name!r}: {exc}", ("robots", index)) from None
 
 
-def _scenario_text(name: str, spec_dir: Path, check: _Checker,
-                   index: int) -> tuple[str, str | None]:
-    """``(what to pass to the run, the file's text or None for a built-in name)``."""
+def read_scenario(name: str, spec_dir: Path, check: Checker,
+                  at: Path_) -> tuple[str, str | None]:
+    """``(what to pass to the run, the file's text or None for a built-in name)`` of the
+    scenario ``name`` a spec gives at ``at``."""
     path = _beside(spec_dir, name)
     if path is None:
         return name, None  # a built-in scenario (or no such file: planning the run says so)
     try:
         return str(path), path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise check.error(f"scenario {name!r}: cannot read it: {exc}",
-                          ("scenarios", index)) from None
+        raise check.error(f"scenario {name!r}: cannot read it: {exc}", at) from None
 
 
 def _variant(spec: SweepFile, robot: int, source: str, text: str,
              chosen: tuple[tuple[str, Any], ...], combination: tuple[int, ...],
-             check: _Checker) -> Robot:
+             check: Checker) -> Robot:
     """The robot file ``robot`` with the overrides ``chosen``, loaded. A refusal is told where
     its cause is written: at the override's path when the path leads nowhere, at the value's
     line when that value alone is refused, else at ``overrides:`` (the values together)."""
@@ -316,7 +326,7 @@ def _variant(spec: SweepFile, robot: int, source: str, text: str,
         raise check.error(f"robot {name!r}: {whole}", at) from None
 
 
-def _check_run(spec: SweepFile, robot: Robot, scenario: str, seed: int, check: _Checker,
+def _check_run(spec: SweepFile, robot: Robot, scenario: str, seed: int, check: Checker,
                r: int, s: int, overridden: bool) -> None:
     """Plan a run of ``robot`` through ``scenario`` as the worker will: an unknown or broken
     scenario, a robot no simulator can run."""

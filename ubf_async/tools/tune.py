@@ -1,0 +1,136 @@
+"""``python -m ubf_async.tune SPEC.yaml --out DIR``: a robot file's parameters tuned with
+Optuna on an evolution SPEC's training runs (its ``tune`` section; docs/evolve.md).
+
+The library is :mod:`ubf_async.runs.tune`. A bad SPEC is one line, ``SPEC:LINE: …``, exit
+status 2, before anything runs. ``--storage sqlite:///FILE`` keeps the study: the same
+command resumes it after Ctrl-C or a kill (the trial in flight is lost; its finished runs are
+in ``DIR/journal.jsonl``), and several machines given the same storage share the study.
+
+Exit status: 0 when the study holds its trials, 2 for a mistake in the command or the SPEC,
+130 when stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from ubf_async import __version__
+from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard
+from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.runs import tune
+from ubf_async.runs.evolve import load_evolve
+from ubf_async.tools.sweep import (
+    RAY_STOP_BOUND_S,
+    ExampleFormatter,
+    add_pool_arguments,
+    check_pool_arguments,
+    pool_words,
+)
+
+PROG = "python -m ubf_async.tune"
+
+EXAMPLE = """\
+examples:
+  python -m ubf_async.tune examples/evolve/mini-whegs.yaml --out out/tune
+  python -m ubf_async.tune SPEC.yaml --out DIR --storage sqlite:///study.db   # resumable
+  python -m ubf_async.tune SPEC.yaml --out DIR --sampler cmaes --trials 60
+
+Out, in DIR: best.yaml (the robot file with the best values), trials.csv, history.png and
+importance.png (Optuna's plots), report.md and heldout.csv (the tuned robot against the file
+it started from, on the held-out set). docs/evolve.md says more."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description=("Tune a robot file's parameters with Optuna (a seeded TPE or CMA-ES\n"
+                     "sampler), each trial scored by simulated runs on an evolution SPEC's\n"
+                     "training scenarios; the SPEC's `tune` section says what to tune."),
+        epilog=EXAMPLE, formatter_class=ExampleFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("spec", type=Path, metavar="SPEC.yaml", help="the SPEC (its `tune`)")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR",
+                        help="the folder of the outputs")
+    parser.add_argument("--storage", default=None, metavar="URL",
+                        help="Optuna's storage (sqlite:///FILE): the study is kept there, "
+                             "resumed by the same command, shared by machines given the same "
+                             "URL (default: in memory, for this run only)")
+    parser.add_argument("--study", default=None, metavar="NAME",
+                        help="the study's name in the storage (default: SPEC's name-tune)")
+    parser.add_argument("--trials", type=int, default=None, metavar="N",
+                        help="complete trials the study should hold (default: the SPEC's)")
+    parser.add_argument("--sampler", choices=tune.SAMPLERS, default=None,
+                        help="default: the SPEC's (tpe)")
+    parser.add_argument("--seed", type=int, default=None, metavar="N",
+                        help="the sampler's seed (default: the SPEC's)")
+    add_pool_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    out = sys.stdout
+    try:
+        check_pool_arguments(args)
+        if args.trials is not None and args.trials < 1:
+            raise ConfigurationError(f"--trials must be at least 1, got {args.trials}")
+        plan = load_evolve(args.spec, seed=args.seed)
+    except UbfError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    if plan.tune is None:
+        print(f"{PROG}: error: {args.spec}: no `tune` section: nothing to tune",
+              file=sys.stderr)
+        return EXIT_ERROR
+    try:  # a line per trial is said below, not Optuna's own
+        import optuna
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+    except ImportError:  # said by run_study
+        pass
+    print(f"{args.spec}: {len(plan.tune.parameters)} parameters of {plan.tune.robot_source}; "
+          f"training: {plan.training.describe()} = {plan.training.runs} runs per trial",
+          file=out, flush=True)
+
+    def said(number: int, value: float, best: float) -> None:
+        print(f"  trial {number}: {value:g} (best {best:g})", file=out, flush=True)
+
+    guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
+                      else STOP_BOUND_S)
+    try:
+        with guard.installed():
+            outputs = tune.run_study(
+                plan, args.out, storage=args.storage, study_name=args.study,
+                trials=args.trials, sampler=args.sampler, workers=args.workers,
+                executor=args.executor, address=args.address, runtime_env=args.runtime_env,
+                on_trial=said)
+    except KeyboardInterrupt:
+        again = shlex.join([*PROG.split(), str(args.spec), "--out", str(args.out),
+                            *(["--storage", args.storage] if args.storage else []),
+                            *pool_words(args)])
+        print(f"{PROG}: stopped" + (f"; the study is kept in {args.storage}. Resume with:\n"
+                                    f"  {again}" if args.storage else
+                                    " (no --storage: the study is lost)"),
+              file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+    except UbfError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    print(f"study {outputs.study!r}: {outputs.trials} trials; best {outputs.best_value:g}: "
+          + ", ".join(f"{k} = {v:g}" for k, v in outputs.best_params.items()), file=out)
+    print("held out:", file=out)
+    for robot in outputs.held_out:
+        e = robot.evaluation
+        assert e is not None
+        print(f"  {robot.label}: fitness {e.fitness:g} (mean {e.mean}, worst {e.worst})",
+              file=out)
+    print(f"written in {outputs.out_dir}: best.yaml, {tune.TRIALS_CSV}, "
+          + ", ".join(p.name for p in outputs.plots) + ", report.md, heldout.csv", file=out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
