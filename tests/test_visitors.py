@@ -92,12 +92,16 @@ async def test_visiting_sessions_leave_no_memory_behind() -> None:
             # Every message taken in (refused as malformed), so the visit is over for the
             # robot too — not a sleep standing in for it.
             expected = len(rss) * MESSAGES + MESSAGES
+            deadline = asyncio.get_running_loop().time() + 30
             while True:
                 stdin.write(b"\n")
                 line = (await asyncio.wait_for(stdout.readline(), 30)).split()
-                if int(line[3]) >= expected:
-                    return float(line[1]), int(line[3])
-                await asyncio.sleep(0.05)
+                mib, counted = float(line[1]), int(line[3])
+                if counted >= expected:
+                    return mib, counted
+                assert asyncio.get_running_loop().time() < deadline, (
+                    f"{counted} of {expected} messages taken in")
+                await asyncio.sleep(0.05)  # then the robot's count is asked for again
 
         rss: list[float] = []
         for _ in range(VISITS):
