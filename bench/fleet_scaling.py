@@ -59,6 +59,7 @@ from typing import Any
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
 from ubf_async.tools.fleet import FleetStatus
+from ubf_async.wire.topics import CONTROLLER_STATUS
 
 ROOT = Path(__file__).resolve().parent.parent
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -221,7 +222,8 @@ async def run_fleet(n: int, *, duration_s: float, folder: Path,
                                 times=len(group))
         tool = await Bus.open(ConnectionOptions(mode="client", connect=[router]))
         status = FleetStatus(names)
-        tool.subscribe("ubf/*/status/controller", status.on_status, latest=False)
+        tool.subscribe_topic("ubf/*/status/controller", CONTROLLER_STATUS, status.on_status,
+                             status.malformed, latest=False)
         summary = folder / f"world-{n}.json"
         world_log = folder / f"world-{n}.log"
         procs["world"] = world = await spawn(

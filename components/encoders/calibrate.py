@@ -60,8 +60,8 @@ from ubf_async.core.action import Action
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus
 from ubf_async.services.remote import RemoteBehaviorHost
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import ENCODERS, SIM_TRUTH
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import ENCODERS, SIM_TRUTH, Encoders, SimTruth
 
 DEFAULT_TURNS: tuple[tuple[float, float], ...] = (
     (40.0, 30.0), (40.0, -30.0), (40.0, 60.0), (40.0, -60.0), (10.0, 80.0), (10.0, -80.0),
@@ -235,23 +235,19 @@ class RobotTurnRig:
         self.malformed: dict[str, int] = {}
         self._encoders_key = ENCODERS.key(bus.keys, encoders)
         self._subs = [
-            bus.subscribe(self._encoders_key, self._on_encoders),
-            bus.subscribe(SIM_TRUTH.key(bus.keys), self._on_truth),
+            bus.subscribe_topic(self._encoders_key, ENCODERS, self._on_encoders, self.malformed),
+            bus.subscribe_topic(SIM_TRUTH.key(bus.keys), SIM_TRUTH, self._on_truth,
+                                self.malformed),
         ]
 
-    def _on_encoders(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=ENCODERS)
-        if message is not None:
-            self.wheels = WheelReading(stamp_ns=message.stamp_ns,
-                                       left_edges=message.data.left_edges,
-                                       right_edges=message.data.right_edges)
-            self.encoder_mode = message.data.mode
-            self._wheels.arrived(message.stamp_ns)
+    def _on_encoders(self, key: str, message: Message[Encoders], received_ns: int) -> None:
+        self.wheels = WheelReading(stamp_ns=message.stamp_ns,
+                                   left_edges=message.data.left_edges,
+                                   right_edges=message.data.right_edges)
+        self.encoder_mode = message.data.mode
+        self._wheels.arrived(message.stamp_ns)
 
-    def _on_truth(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=SIM_TRUTH)
-        if message is None:
-            return
+    def _on_truth(self, key: str, message: Message[SimTruth], received_ns: int) -> None:
         heading = message.data.robot.heading_rad
         if self.heading_rad is None:
             self.heading_rad = heading

@@ -67,8 +67,8 @@ from ubf_async.runtime import lending, lockstep
 from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD, SimPulses
 
 log = logging.getLogger(__name__)
 
@@ -177,13 +177,11 @@ class SimulatorComponent(Component):
         wall = end - self.wall_started_s
         return (self.world.time_s - self.sim_started_s) / wall if wall > 0 else None
 
-    def _pulses_handler(self, robot: int) -> Callable[[str, bytes, int], None]:
-        def on_pulses(key: str, payload: bytes, received_ns: int) -> None:
+    def _pulses_handler(self, robot: int) -> Callable[[str, Message[SimPulses], int], None]:
+        def on_pulses(key: str, message: Message[SimPulses], received_ns: int) -> None:
             """Motor pulses from a motors component in another process."""
-            message = decode_or_count(payload, self.malformed, key, topic=SIM_PULSES)
-            if message is not None:
-                self.world.set_motor_pulses(message.data.left_ms, message.data.right_ms,
-                                            robot=robot)
+            self.world.set_motor_pulses(message.data.left_ms, message.data.right_ms,
+                                        robot=robot)
 
         return on_pulses
 
@@ -237,7 +235,8 @@ class SimulatorComponent(Component):
                          world=bus.publisher(SIM_WORLD, period_s=self.world_period_s),
                          zid=bus.session_id)
         for resource in (served.clock, served.truth, served.world,
-                         bus.subscribe(SIM_PULSES.key(bus.keys), self._pulses_handler(robot))):
+                         bus.subscribe_topic(SIM_PULSES.key(bus.keys), SIM_PULSES,
+                                             self._pulses_handler(robot), self.malformed)):
             self.keep(resource)
         return served
 

@@ -19,8 +19,8 @@ from components.sim.wire import snapshot_from_data
 from components.sim.world_config import RobotConfig, WorldConfig
 from components.sim.world_snapshot import WorldSnapshot
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import SIM_PULSES, SIM_WORLD
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import SIM_PULSES, SIM_WORLD, PlainData
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,8 @@ class RemoteWorld:
 
     def start(self) -> None:
         keys = self.bus.keys
-        self._sub = self.bus.subscribe(SIM_WORLD.key(keys), self._on_world)
+        self._sub = self.bus.subscribe_topic(SIM_WORLD.key(keys), SIM_WORLD, self._on_world,
+                                             self.malformed)
         self._pulses = self.bus.publisher(SIM_PULSES)
 
     def close(self) -> None:
@@ -57,10 +58,7 @@ class RemoteWorld:
                 " start one with python -m ubf_async.launch and pass its endpoint with --connect"
             ) from None
 
-    def _on_world(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self.malformed, key, topic=SIM_WORLD)
-        if message is None:
-            return
+    def _on_world(self, key: str, message: Message[PlainData], received_ns: int) -> None:
         try:
             self._snapshot = snapshot_from_data(message.data)
         except ValueError as exc:

@@ -58,7 +58,7 @@ from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.clock import SimClock, every
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
-from ubf_async.wire.protocol import decode_or_count
+from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LED_STATE, LedState
 
 
@@ -257,8 +257,9 @@ class SimulationRun:
         if self.options.record_dir is not None:
             # The LEDs as their devices report them (in this process or another): drawn on
             # the recorded frames.
-            self._led_sub = self.bus.subscribe(LED_STATE.key_expr(self.bus.keys),
-                                               self._on_leds)
+            self._led_sub = self.bus.subscribe_topic(LED_STATE.key_expr(self.bus.keys),
+                                                     LED_STATE, self._on_leds,
+                                                     self._leds_malformed)
             self._tasks.append(asyncio.create_task(self._record_frames(), name="sim:frames"))
 
     def trajectory_path(self) -> Path | None:
@@ -357,10 +358,8 @@ class SimulationRun:
             finally:
                 hold.release()
 
-    def _on_leds(self, key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, self._leds_malformed, key, topic=LED_STATE)
-        if message is not None:
-            self.leds[key.rsplit("/", 1)[-1]] = message.data
+    def _on_leds(self, key: str, message: Message[LedState], received_ns: int) -> None:
+        self.leds[key.rsplit("/", 1)[-1]] = message.data
 
     def _write_frame(self, camera: SimCameraBackend, folder: Path, t_s: float,
                      leds: dict[str, LedState]) -> None:

@@ -38,8 +38,8 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.heap import freeze_startup_objects
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import CONTROLLER_STATUS
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 
 FOUND_DISTANCE_M = 1.0
 FOUND_BEARING_DEG = 30.0
@@ -87,12 +87,10 @@ def found(snapshot: WorldSnapshot) -> bool:
     return math.hypot(dx, dy) <= FOUND_DISTANCE_M and abs(bearing) <= FOUND_BEARING_DEG
 
 
-def _keep_status(statuses: list[dict[str, Any]], index: int, malformed: dict[str, int]
-                 ) -> Callable[[str, bytes, int], None]:
-    def on_status(key: str, payload: bytes, received_ns: int) -> None:
-        message = decode_or_count(payload, malformed, key, topic=CONTROLLER_STATUS)
-        if message is not None:
-            statuses[index] = dict(message.data)
+def _keep_status(statuses: list[dict[str, Any]], index: int
+                 ) -> Callable[[str, Message[PlainData], int], None]:
+    def on_status(key: str, message: Message[PlainData], received_ns: int) -> None:
+        statuses[index] = dict(message.data)
 
     return on_status
 
@@ -119,8 +117,9 @@ async def host_fleet(*, buses: Sequence[Bus], clock: SimClock, members: Sequence
     # however fast the machine.
     statuses: list[dict[str, Any]] = [{} for _ in members]
     malformed: dict[str, int] = {}
-    subscriptions = [bus.subscribe(CONTROLLER_STATUS.key(bus.keys, "controller"),
-                                   _keep_status(statuses, index, malformed))
+    subscriptions = [bus.subscribe_topic(CONTROLLER_STATUS.key(bus.keys, "controller"),
+                                         CONTROLLER_STATUS, _keep_status(statuses, index),
+                                         malformed)
                      for index, bus in enumerate(buses)]
     paths = _Paths(world)
     print(f"world: {scenario.name!r} with {len(members)} robots "

@@ -353,10 +353,17 @@ class Subscription(_Declared):
         screen: Screen | None = None,
     ) -> None:
         super().__init__()
-        if (handler is None) == (screen is None):
-            raise TypeError("a subscription takes a handler or a screen, one of them")
         self._loop = loop
-        self._handler = handler
+        self._check: Callable[[str, bytes], Any] | None = None
+        """Runs on the transport's thread before anything pending is touched (screened)."""
+        self._deliver: Callable[[str, bytes, int, Any], None]
+        if screen is not None and handler is None:
+            self._check, self._deliver = screen.check, screen.accept
+        elif handler is not None and screen is None:
+            raw = handler
+            self._deliver = lambda key, payload, received_ns, _: raw(key, payload, received_ns)
+        else:
+            raise TypeError("a subscription takes a handler or a screen, one of them")
         self._screen = screen
         self._latest = latest
         self._run_if_idle = lending.run_if_idle(loop) if direct else None
@@ -394,11 +401,11 @@ class Subscription(_Declared):
         received_ns = _monotonic_ns()
         decoded: Any = None
         error: ProtocolError | None = None
-        if self._screen is not None:
+        if self._check is not None:
             # Before the lock, and before anything pending is touched: garbage never
             # replaces a valid sample, and the lock is never held while decoding.
             try:
-                decoded = self._screen.check(key, payload)
+                decoded = self._check(key, payload)
             except ProtocolError as exc:
                 error = exc
         stats = self.stats
@@ -476,31 +483,16 @@ class Subscription(_Declared):
             self._loop.call_soon(self._drain)
         if refused:
             self._report_refused(refused)
+        deliver = self._deliver
         stats = self.stats
-        if self._handler is not None:
-            handler = self._handler
-            for key, payload, received_ns, _ in batch:
-                if self._closed:
-                    return
-                try:
-                    handler(key, payload, received_ns)
-                except Exception:
-                    stats.handler_errors += 1
-                    log.exception("handler of subscription %s failed on %s", self.name, key)
-                else:
-                    stats.delivered += 1
-            return
-        screen = self._screen
-        assert screen is not None  # a handler or a screen: __init__ checks
-        accept = screen.accept
         for key, payload, received_ns, decoded in batch:
             if self._closed:
                 return
             try:
-                accept(key, payload, received_ns, decoded)
+                deliver(key, payload, received_ns, decoded)
             except Exception:
                 stats.handler_errors += 1
-                log.exception("subscription %s failed on a sample of %s", self.name, key)
+                log.exception("handler of subscription %s failed on %s", self.name, key)
             else:
                 stats.delivered += 1
 

@@ -48,8 +48,8 @@ from ubf_async.wire.protocol import (
     Message,
     ProtocolError,
     check_segment,
+    count_malformed,
     decode,
-    decode_or_count,
     encode_data,
 )
 from ubf_async.wire.topics import (
@@ -406,7 +406,7 @@ class RemoteBehaviors(Component):
     # -- component ---------------------------------------------------------------------------
     async def run(self) -> None:
         keys = self.bus.keys
-        self.subscribe(all_votes(keys), self.on_vote)
+        self.subscribe_screened(all_votes(keys), _VoteScreen(self))
         watch = self.bus.watch_liveliness(keys.all_alive, self.on_liveliness)
         status = self.publisher(REMOTES_STATUS, self.name,
                                 period_s=self.status_period_s)
@@ -422,15 +422,20 @@ class RemoteBehaviors(Component):
 
     # -- ingest (event loop) -----------------------------------------------------------------
     def on_vote(self, key: str, payload: bytes, received_ns: int = 0) -> None:
-        """Handle one sample on ``ubf/<robot>/vote/**``."""
-        notices = self.notices
-        vote = decode_or_count(
-            payload, self.malformed, key,
-            decoder=lambda p: ReceivedVote.decode(self.bus.keys, key, p),
-            on_error=None if notices is None else
-            lambda exc: notices.report(key, "malformed", f"malformed vote: {exc}"))
-        if vote is not None:
+        """Handle one sample on ``ubf/<robot>/vote/**`` as the subscription does (which
+        decodes on the transport's thread first: :class:`_VoteScreen`)."""
+        try:
+            vote = ReceivedVote.decode(self.bus.keys, key, payload)
+        except ProtocolError as exc:
+            self._malformed_vote(key, payload, received_ns, exc, 1)
+        else:
             self.accept(vote, key=key)
+
+    def _malformed_vote(self, key: str, payload: bytes, received_ns: int, error: ProtocolError,
+                        count: int) -> None:
+        count_malformed(self.malformed, key, error, count)
+        if self.notices is not None:
+            self.notices.report(key, "malformed", f"malformed vote: {error}")
 
     def accept(self, vote: ReceivedVote, *, key: str = "") -> bool:
         """Take a validated vote (arrived on ``key``, by default its own vote key): create or
@@ -825,3 +830,20 @@ class RemoteBehaviorHost(Component):
     def _on_drive(self, key: str, message: Message[Drive], received_ns: int) -> None:
         self.robot_action = Action(speed=message.data.speed, turn=message.data.turn)
         self.robot_winners = list(message.data.winners)
+
+
+class _VoteScreen:
+    """:class:`RemoteBehaviors`' :class:`~ubf_async.runtime.bus.Screen`: a vote is decoded and
+    checked against its key on the transport's thread, so garbage on a vote key never displaces
+    the valid vote waiting there."""
+
+    def __init__(self, remotes: RemoteBehaviors) -> None:
+        self._keys = remotes.bus.keys
+        self._remotes = remotes
+        self.refuse = remotes._malformed_vote
+
+    def check(self, key: str, payload: bytes) -> ReceivedVote:
+        return ReceivedVote.decode(self._keys, key, payload)
+
+    def accept(self, key: str, payload: bytes, received_ns: int, vote: ReceivedVote) -> None:
+        self._remotes.accept(vote, key=key)

@@ -60,8 +60,8 @@ from ubf_async.runs.fleet import (
 from ubf_async.runtime.bus import ROOT, Bus
 from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.simclock import follow_sim_clock
-from ubf_async.wire.protocol import decode_or_count
-from ubf_async.wire.topics import CONTROLLER_STATUS
+from ubf_async.wire.protocol import Message
+from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 
 PROG = "python -m ubf_async.fleet"
 CONTROLLERS_WAIT_S = 60.0
@@ -192,11 +192,9 @@ class FleetStatus:
         self.robots = {name: RobotView() for name in names}
         self.malformed: dict[str, int] = {}
 
-    def on_status(self, key: str, payload: bytes, received_ns: int) -> None:
-        robot = key.split("/")[1]
-        view = self.robots.get(robot)
-        message = decode_or_count(payload, self.malformed, key, topic=CONTROLLER_STATUS)
-        if view is None or message is None:
+    def on_status(self, key: str, message: Message[PlainData], received_ns: int) -> None:
+        view = self.robots.get(key.split("/")[1])
+        if view is None:
             return
         view.status = dict(message.data)
         view.heard_s = time.monotonic()
@@ -289,7 +287,8 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
                       *secure_flags(args.secure)]
         procs["world"] = world = await spawn(world_args, logs / "world.log")
         status = FleetStatus([r.name for r in spec.robots])
-        tool.subscribe(f"{ROOT}/*/status/controller", status.on_status, latest=False)
+        tool.subscribe_topic(f"{ROOT}/*/status/controller", CONTROLLER_STATUS, status.on_status,
+                             status.malformed, latest=False)
         clock = SimClock()
         follow_sim_clock(tool, clock, {})
         try:

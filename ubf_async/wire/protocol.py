@@ -22,7 +22,7 @@ new kind of sensor) is checked generically (:func:`plain`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Annotated, Any, Generic, TypeVar, overload
 
 import msgspec
@@ -261,21 +261,17 @@ MAX_COUNTED_KEYS = 1024
 
 def decode_or_count(
     payload: bytes, counter: dict[str, int], key: str, *, schema: str | None = None,
-    topic: Topic[Any] | None = None, decoder: Callable[[bytes], Any] | None = None,
-    on_error: Callable[[ProtocolError], None] | None = None,
+    topic: Topic[Any] | None = None,
 ) -> Any | None:
-    """Decode ``payload`` (requiring ``schema`` if given, or with a custom ``decoder``); on
-    :class:`ProtocolError` count it under ``key`` (:func:`count_malformed`), pass it to
-    ``on_error`` if given, and return ``None``."""
+    """Decode ``payload`` (requiring ``topic``'s schema, or ``schema``, if given); on
+    :class:`ProtocolError` count it under ``key`` (:func:`count_malformed`) and return
+    ``None``. (A subscriber of a topic wants ``Bus.subscribe_topic``, which decodes before
+    anything can displace a valid sample.)"""
     try:
-        if decoder is not None:
-            return decoder(payload)
         return decode(payload, topic=topic) if topic is not None else decode(payload,
                                                                              schema=schema)
     except ProtocolError as exc:
         count_malformed(counter, key, exc)
-        if on_error is not None:
-            on_error(exc)
         return None
 
 
