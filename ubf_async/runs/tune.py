@@ -126,8 +126,7 @@ def run_study(plan: EvolvePlan, out_dir: str | Path, *, storage: str | None = No
     out.mkdir(parents=True, exist_ok=True)
     report.write_scenarios(out, (plan.training, plan.held_out))
     space = distributions(optuna, tune)
-    if executor == "local":
-        workers = min(workers or execution.default_workers(), plan.training.runs)
+    workers = execution.pool_workers(executor, workers, plan.training.runs)
     complete = optuna.trial.TrialState.COMPLETE
     with execution.open_pool(executor, workers=workers, address=address,
                              runtime_env=runtime_env) as pool:

@@ -210,10 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
     print("\n".join(describe(plan)), file=out)
-    workers = args.workers
-    if args.executor == "local":
-        workers = min(workers or execution.default_workers(),
-                      plan.population * plan.training.runs)
+    workers = execution.pool_workers(args.executor, args.workers,
+                                     plan.population * plan.training.runs)
     print(f"running on {pool_description(args, workers)}", file=out, flush=True)
     progress = (BarProgress if out.isatty() else PlainProgress)(plan.generations, out)
     guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"

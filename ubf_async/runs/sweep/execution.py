@@ -156,6 +156,14 @@ def default_workers() -> int:
     return os.cpu_count() or 1
 
 
+def pool_workers(executor: str, workers: int | None, runs: int) -> int | None:
+    """The pool's size for ``runs`` runs: on this machine, ``workers`` (default: every core)
+    but no more processes than runs; Ray's as given (default: every CPU of the cluster)."""
+    if executor != "local":
+        return workers
+    return min(workers or default_workers(), runs)
+
+
 def code_runtime_env() -> dict[str, Any]:
     """Ray's ``runtime_env`` shipping this process's ``ubf_async`` and ``components`` packages
     to every worker (Ray uploads them once per content), so the workers run the same code as
