@@ -147,6 +147,12 @@ def pool_words(args: argparse.Namespace) -> list[str]:
     return words
 
 
+def pool_stop_guard(prog: str, args: argparse.Namespace) -> StopGuard:
+    """The tool's :class:`StopGuard`, given as long to stop as the pool needs."""
+    return StopGuard(prog=prog, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
+                     else STOP_BOUND_S)
+
+
 def pool_description(args: argparse.Namespace, workers: int | None) -> str:
     """``2 local worker processes``, ``Ray (auto): a worker per CPU``."""
     if args.executor == "local":
@@ -249,8 +255,7 @@ def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | 
     workers = execution.pool_workers(args.executor, args.workers, total)
     print(f"running {total} runs on {pool_description(args, workers)}", file=out, flush=True)
     progress = (BarProgress if out.isatty() else PlainProgress)(total, out)
-    guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
-                      else STOP_BOUND_S)
+    guard = pool_stop_guard(PROG, args)
     before = len(state.records)
     try:
         with guard.installed(), progress, sweep.open_pool(
