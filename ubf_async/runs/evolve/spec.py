@@ -536,9 +536,9 @@ class _PlanCheck:
                                spec.duration_s)
         robot = load_robot_text(robot_text, source="the seed robot")
         for i, (name, text) in enumerate(named):
-            where = name if text is None else execution.scenario_file(Path(name).name, text)
             try:
-                inprocess.plan_run(robot, where, seed=spec.seeds[0], duration_s=spec.duration_s)
+                inprocess.plan_run(robot, execution.scenario_path(name, text),
+                                   seed=spec.seeds[0], duration_s=spec.duration_s)
             except UbfError as exc:
                 at = (section, "scenarios", _item_of(spec, i))
                 raise self.check.error(f"scenario {name!r}: {exc}", at) from None
@@ -548,9 +548,8 @@ class _PlanCheck:
         """Each term's figure is a number field of a run's summary: a run of
         :data:`PROBE_S` simulated seconds says which fields there are."""
         name, text = training.scenarios[0]
-        where = name if text is None else execution.scenario_file(Path(name).name, text)
         robot = load_robot_text(robot_text, source="the seed robot")
-        summary = inprocess.run(robot, where, seed=training.seeds[0],
+        summary = inprocess.run(robot, execution.scenario_path(name, text), seed=training.seeds[0],
                                 duration_s=PROBE_S).summary
         for i, term in enumerate(spec.terms):
             problem = _figure_problem(summary, term.figure)
