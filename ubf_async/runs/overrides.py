@@ -123,12 +123,11 @@ def apply_override(data: Any, text: str, value: Any, *, locator: Locator) -> Non
             node = node[part]
 
 
-def load_robot_text_with(text: str, overrides: Mapping[str, Any], *,
-                         source: str = "<robot file>", seed: int | None = None) -> Robot:
-    """A robot file's ``text`` with ``overrides`` (path → value, applied in order), decoded and
-    resolved as :func:`~ubf_async.assembly.robotfile.load_robot_text` does. Raises
-    :class:`RobotFileError` (``SOURCE:LINE: …``): :class:`OverridePathError` for a path that
-    leads nowhere in the file."""
+def robot_data_with(text: str, overrides: Mapping[str, Any], *,
+                    source: str = "<robot file>") -> tuple[Any, Locator]:
+    """A robot file's ``text`` as data with ``overrides`` (path → value, applied in order),
+    not decoded yet, and the :class:`Locator` of its lines. Raises :class:`RobotFileError`:
+    :class:`OverridePathError` for a path that leads nowhere in the file."""
     locator = Locator.parse(text, source=source)
     try:
         data = yaml.load(text, Loader=YAML_LOADER)
@@ -136,6 +135,16 @@ def load_robot_text_with(text: str, overrides: Mapping[str, Any], *,
         raise RobotFileError(f"not valid YAML: {exc}", path=source) from None
     for path, value in overrides.items():
         apply_override(data, path, value, locator=locator)
+    return data, locator
+
+
+def load_robot_text_with(text: str, overrides: Mapping[str, Any], *,
+                         source: str = "<robot file>", seed: int | None = None) -> Robot:
+    """A robot file's ``text`` with ``overrides`` (path → value, applied in order), decoded and
+    resolved as :func:`~ubf_async.assembly.robotfile.load_robot_text` does. Raises
+    :class:`RobotFileError` (``SOURCE:LINE: …``): :class:`OverridePathError` for a path that
+    leads nowhere in the file."""
+    data, locator = robot_data_with(text, overrides, source=source)
     try:
         return resolve(decode_robot_data(data, locator), locator, seed=seed)
     except RobotFileError as exc:
@@ -155,4 +164,4 @@ def load_robot_with(robot_file: str | Path, overrides: Mapping[str, Any], *,
 
 
 __all__ = ["OverridePathError", "apply_override", "describe", "load_robot_text_with",
-           "load_robot_with", "parse_path"]
+           "load_robot_with", "parse_path", "robot_data_with"]

@@ -22,7 +22,6 @@ Out, in the folder: ``best.yaml`` (the robot file with the best values), ``trial
 
 from __future__ import annotations
 
-import copy
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,7 +30,6 @@ from typing import Any
 
 import yaml
 
-from ubf_async.assembly.robotfile import YAML_LOADER, Locator
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import overrides
 from ubf_async.runs.evolve import report
@@ -84,11 +82,7 @@ def distributions(optuna: Any, tune: TunePlan) -> dict[str, Any]:
 def tuned_text(tune: TunePlan, params: dict[str, Any], header_lines: list[str]) -> str:
     """The tuned robot file: its data with ``params`` at their paths, as YAML (the comments
     of the file are not kept), after ``header_lines``."""
-    data = yaml.load(tune.robot_text, Loader=YAML_LOADER)
-    locator = Locator.parse(tune.robot_text, source=tune.robot_source)
-    data = copy.deepcopy(data)
-    for path, value in params.items():
-        overrides.apply_override(data, path, value, locator=locator)
+    data, _ = overrides.robot_data_with(tune.robot_text, params, source=tune.robot_source)
     return report.header(header_lines) + yaml.safe_dump(data, sort_keys=False,
                                                         allow_unicode=True, width=100)
 
@@ -126,8 +120,7 @@ def run_study(plan: EvolvePlan, out_dir: str | Path, *, storage: str | None = No
     out.mkdir(parents=True, exist_ok=True)
     report.write_scenarios(out, (plan.training, plan.held_out))
     space = distributions(optuna, tune)
-    if executor == "local":
-        workers = min(workers or execution.default_workers(), plan.training.runs)
+    workers = execution.pool_workers(executor, workers, plan.training.runs)
     complete = optuna.trial.TrialState.COMPLETE
     with execution.open_pool(executor, workers=workers, address=address,
                              runtime_env=runtime_env) as pool:

@@ -31,18 +31,18 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from ubf_async import __version__
-from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard
+from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runs import evolve
 from ubf_async.runs.sweep import execution
 from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.tools.sweep import (
-    RAY_STOP_BOUND_S,
     ExampleFormatter,
     add_pool_arguments,
     check_pool_arguments,
     clock_text,
     pool_description,
+    pool_stop_guard,
     pool_words,
 )
 
@@ -210,14 +210,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
     print("\n".join(describe(plan)), file=out)
-    workers = args.workers
-    if args.executor == "local":
-        workers = min(workers or execution.default_workers(),
-                      plan.population * plan.training.runs)
+    workers = execution.pool_workers(args.executor, args.workers,
+                                     plan.population * plan.training.runs)
     print(f"running on {pool_description(args, workers)}", file=out, flush=True)
     progress = (BarProgress if out.isatty() else PlainProgress)(plan.generations, out)
-    guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
-                      else STOP_BOUND_S)
+    guard = pool_stop_guard(PROG, args)
     try:
         with guard.installed(), progress:
             outputs = evolve.run_evolution(

@@ -45,7 +45,7 @@ from ubf_async.cli.args import HelpFormatter
 from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runs import sweep
-from ubf_async.runs.sweep import table
+from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import EXECUTORS, RunRecord
 
 PROG = "python -m ubf_async.sweep"
@@ -147,6 +147,12 @@ def pool_words(args: argparse.Namespace) -> list[str]:
     return words
 
 
+def pool_stop_guard(prog: str, args: argparse.Namespace) -> StopGuard:
+    """The tool's :class:`StopGuard`, given as long to stop as the pool needs."""
+    return StopGuard(prog=prog, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
+                     else STOP_BOUND_S)
+
+
 def pool_description(args: argparse.Namespace, workers: int | None) -> str:
     """``2 local worker processes``, ``Ray (auto): a worker per CPU``."""
     if args.executor == "local":
@@ -246,13 +252,10 @@ def check_arguments(args: argparse.Namespace) -> None:
 def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | None:
     """Run the pending runs with progress; the exit status if stopped, else ``None``."""
     total = len(state.pending)
-    workers = args.workers
-    if args.executor == "local":
-        workers = min(workers or sweep.default_workers(), total)
+    workers = execution.pool_workers(args.executor, args.workers, total)
     print(f"running {total} runs on {pool_description(args, workers)}", file=out, flush=True)
     progress = (BarProgress if out.isatty() else PlainProgress)(total, out)
-    guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
-                      else STOP_BOUND_S)
+    guard = pool_stop_guard(PROG, args)
     before = len(state.records)
     try:
         with guard.installed(), progress, sweep.open_pool(

@@ -19,15 +19,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ubf_async import __version__
-from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard
+from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runs import tune
 from ubf_async.runs.evolve import load_evolve
 from ubf_async.tools.sweep import (
-    RAY_STOP_BOUND_S,
     ExampleFormatter,
     add_pool_arguments,
     check_pool_arguments,
+    pool_stop_guard,
     pool_words,
 )
 
@@ -98,8 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def said(number: int, value: float, best: float) -> None:
         print(f"  trial {number}: {value:g} (best {best:g})", file=out, flush=True)
 
-    guard = StopGuard(prog=PROG, stop_bound_s=RAY_STOP_BOUND_S if args.executor == "ray"
-                      else STOP_BOUND_S)
+    guard = pool_stop_guard(PROG, args)
     try:
         with guard.installed():
             outputs = tune.run_study(

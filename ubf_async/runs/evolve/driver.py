@@ -78,9 +78,7 @@ def run_evolution(plan: EvolvePlan, out_dir: str | Path, *, workers: int | None 
     others = compared_robots(compare)
     out.mkdir(parents=True, exist_ok=True)
     report.write_scenarios(out, (plan.training, plan.held_out))
-    if executor == "local":
-        workers = min(workers or execution.default_workers(),
-                      plan.population * plan.training.runs)
+    workers = execution.pool_workers(executor, workers, plan.population * plan.training.runs)
     with execution.open_pool(executor, workers=workers, address=address,
                              runtime_env=runtime_env) as pool:
         evaluator = Evaluator(plan.fitness, pool, out / JOURNAL, on_run=on_run,

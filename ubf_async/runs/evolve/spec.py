@@ -37,6 +37,7 @@ from ubf_async.assembly.robotfile import (
     MAX_DEPTH,
     YAML_LOADER,
     Path_,
+    Robot,
     Spec,
     format_path,
     load_robot_text,
@@ -286,15 +287,14 @@ def load_evolve(path: str | Path, *, seed: int | None = None, population: int | 
     seed_tree = genome.normalize(genome.without_remotes(data["tree"]))
     space = _space(spec.genome, check)
     plan_check = _PlanCheck(check, base, source.parent)
-    plan_check.individual(seed_tree, ("seed_robot",), "the seed robot")
+    first = plan_check.individual(seed_tree, ("seed_robot",), "the seed robot")
     plan_check.leaves(space, spec.genome)
-    seed_robot_text = genome.robot_text(base, seed_tree)
-    training = plan_check.scenario_set(spec.training, "training", seed_robot_text)
-    held_out = plan_check.scenario_set(spec.held_out, "held-out", seed_robot_text)
+    training = plan_check.scenario_set(spec.training, "training", first)
+    held_out = plan_check.scenario_set(spec.held_out, "held-out", first)
     fitness = Fitness(tuple(Term(t.figure, t.weight, t.target, t.missing)
                             for t in spec.fitness.terms), spec.fitness.mean, spec.fitness.worst)
     if probe:
-        plan_check.figures(spec.fitness, seed_robot_text, training)
+        plan_check.figures(spec.fitness, first, training)
     tune = _tune(spec, seed_source, seed_text, source.parent, check)
     # What makes the evolution (not the held-out set, the tune section, the generations):
     # changing it makes a checkpoint another evolution's; the generated scenarios' texts stand
@@ -461,10 +461,10 @@ class _PlanCheck:
         self.base = base
         self.spec_dir = spec_dir
 
-    def individual(self, tree: genome.Node, at: Path_, what: str) -> None:
+    def individual(self, tree: genome.Node, at: Path_, what: str) -> Robot:
         text = genome.robot_text(self.base, tree)
         try:
-            load_robot_text(text, source=what)
+            return load_robot_text(text, source=what)
         except RobotFileError as exc:
             raise self.check.error(f"{what} does not load as a robot file: {exc.message}",
                                    at) from None
@@ -495,7 +495,7 @@ class _PlanCheck:
             self.individual({"name": "root", "arbiter": arbiter, "children": [any_leaf, twin]},
                             ("genome", "predicates", name), f"predicate {name!r}")
 
-    def scenario_set(self, spec: ScenarioSetSpec, label: str, robot_text: str) -> ScenarioSet:
+    def scenario_set(self, spec: ScenarioSetSpec, label: str, robot: Robot) -> ScenarioSet:
         section = "training" if label == "training" else "held_out"
         rng = random.Random(spec.seed)
         named: list[tuple[str, str | None]] = []
@@ -534,23 +534,20 @@ class _PlanCheck:
             raise self.check.error("a seed twice in the set", (section, "seeds"))
         made_set = ScenarioSet(label, tuple(named), tuple(generated), tuple(spec.seeds),
                                spec.duration_s)
-        robot = load_robot_text(robot_text, source="the seed robot")
         for i, (name, text) in enumerate(named):
-            where = name if text is None else execution.scenario_file(Path(name).name, text)
             try:
-                inprocess.plan_run(robot, where, seed=spec.seeds[0], duration_s=spec.duration_s)
+                inprocess.plan_run(robot, execution.scenario_path(name, text),
+                                   seed=spec.seeds[0], duration_s=spec.duration_s)
             except UbfError as exc:
                 at = (section, "scenarios", _item_of(spec, i))
                 raise self.check.error(f"scenario {name!r}: {exc}", at) from None
         return made_set
 
-    def figures(self, spec: FitnessSpec, robot_text: str, training: ScenarioSet) -> None:
+    def figures(self, spec: FitnessSpec, robot: Robot, training: ScenarioSet) -> None:
         """Each term's figure is a number field of a run's summary: a run of
         :data:`PROBE_S` simulated seconds says which fields there are."""
         name, text = training.scenarios[0]
-        where = name if text is None else execution.scenario_file(Path(name).name, text)
-        robot = load_robot_text(robot_text, source="the seed robot")
-        summary = inprocess.run(robot, where, seed=training.seeds[0],
+        summary = inprocess.run(robot, execution.scenario_path(name, text), seed=training.seeds[0],
                                 duration_s=PROBE_S).summary
         for i, term in enumerate(spec.terms):
             problem = _figure_problem(summary, term.figure)

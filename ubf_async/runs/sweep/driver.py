@@ -142,8 +142,7 @@ def run_sweep(spec: str | Path | SweepPlan, out_dir: str | Path, *, workers: int
     plan = spec if isinstance(spec, SweepPlan) else load_sweep(spec)
     sweep = open_sweep(plan, out_dir, resume=resume)
     if sweep.pending:
-        if executor == "local":  # no more processes than runs
-            workers = min(workers or execution.default_workers(), len(sweep.pending))
+        workers = execution.pool_workers(executor, workers, len(sweep.pending))
         with execution.open_pool(executor, workers=workers, address=address,
                                  runtime_env=runtime_env) as pool:
             execute(sweep, pool, on_record)

@@ -89,12 +89,13 @@ class _Kept(logging.Handler):
         return self.lines + ([f"... and {more} more"] if more else [])
 
 
-def _scenario(task: RunTask) -> str:
-    """What to run the task's scenario from: a built-in's name, or its file written anew on
-    this machine (a worker of a cluster may not have the spec's files), one file per text."""
-    if task.scenario_text is None:
-        return task.scenario
-    return scenario_file(task.scenario_file, task.scenario_text)
+def scenario_path(scenario: str, text: str | None) -> str:
+    """What to run a scenario from: a built-in's name (``text`` is ``None``), or its file
+    written anew on this machine (a worker of a cluster may not have the spec's files), one
+    file per text."""
+    if text is None:
+        return scenario
+    return scenario_file(Path(scenario).name, text)
 
 
 def scenario_file(name: str, text: str) -> str:
@@ -120,8 +121,8 @@ def run_task(task: RunTask) -> RunRecord:
     try:
         robot = overrides.load_robot_text_with(task.robot_text, dict(task.overrides),
                                                source=task.robot_source)
-        result = inprocess.run(robot, _scenario(task), seed=task.seed,
-                               duration_s=task.duration_s)
+        result = inprocess.run(robot, scenario_path(task.scenario, task.scenario_text),
+                               seed=task.seed, duration_s=task.duration_s)
     # SystemExit too: a plug-in calling sys.exit() would end the worker, and a pool waits for
     # a lost task forever.
     except (Exception, SystemExit) as exc:
@@ -154,6 +155,14 @@ def default_workers() -> int:
     if sys.platform == "linux":
         return len(os.sched_getaffinity(0)) or 1
     return os.cpu_count() or 1
+
+
+def pool_workers(executor: str, workers: int | None, runs: int) -> int | None:
+    """The pool's size for ``runs`` runs: on this machine, ``workers`` (default: every core)
+    but no more processes than runs; Ray's as given (default: every CPU of the cluster)."""
+    if executor != "local":
+        return workers
+    return min(workers or default_workers(), runs)
 
 
 def code_runtime_env() -> dict[str, Any]:

@@ -107,11 +107,6 @@ class RunTask:
         return {"robot": self.robot, **dict(self.overrides), "scenario": self.scenario,
                 "seed": self.seed}
 
-    @property
-    def scenario_file(self) -> str:
-        """The scenario file's name (its text is :attr:`scenario_text`)."""
-        return Path(self.scenario).name
-
 
 @dataclass(frozen=True, slots=True)
 class SweepPlan:
