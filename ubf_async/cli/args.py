@@ -17,6 +17,7 @@ from ubf_async.net.options import (
     config_endpoints,
     config_value,
     load_zenoh_config,
+    over_tls,
     zenoh_message,
 )
 from ubf_async.runtime import lending
@@ -116,7 +117,7 @@ def _over_tls(endpoints: Iterable[str], args: argparse.Namespace) -> list[str]:
     """An entry point's default endpoints; in secure mode (``--secure``) the same over TLS."""
     if getattr(args, "secure", None) is None:
         return list(endpoints)
-    return [f"tls/{e.removeprefix('tcp/')}" if e.startswith("tcp/") else e for e in endpoints]
+    return [over_tls(e) for e in endpoints]
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:

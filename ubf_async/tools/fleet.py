@@ -49,7 +49,7 @@ from ubf_async.assembly.simulation import (
 from ubf_async.cli.args import HelpFormatter, add_event_loop_help
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
-from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.options import ConnectionOptions, over_tls
 from ubf_async.net.secure import FLEET, WORLD
 from ubf_async.runs.fleet import (
     Fleet,
@@ -328,9 +328,7 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
 def fleet_router(args: argparse.Namespace, default: str) -> str:
     """The router's endpoint: ``--router``, else the fleet file's; over TLS in secure mode."""
     router: str = args.router or default
-    if args.secure is not None and router.startswith("tcp/"):
-        router = "tls/" + router.removeprefix("tcp/")
-    return router
+    return over_tls(router) if args.secure is not None else router
 
 
 async def open_when_up(options: ConnectionOptions, *, timeout_s: float) -> Bus:

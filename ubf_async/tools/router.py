@@ -33,7 +33,7 @@ from typing import TextIO
 
 from ubf_async.cli.args import HelpFormatter, add_event_loop_help
 from ubf_async.cli.run import run_main
-from ubf_async.net.options import ConnectionOptions, load_zenoh_config
+from ubf_async.net.options import ConnectionOptions, load_zenoh_config, over_tls
 from ubf_async.net.secure import ROUTER
 from ubf_async.runtime.bus import ROOT, Bus
 
@@ -122,7 +122,7 @@ def router_options(args: argparse.Namespace) -> ConnectionOptions:
         if conf.get_json("listen/endpoints") != type(conf)().get_json("listen/endpoints"):
             listen = []  # the file's own
     if listen is None:
-        listen = [DEFAULT_LISTEN.replace("tcp/", "tls/") if args.secure else DEFAULT_LISTEN]
+        listen = [over_tls(DEFAULT_LISTEN) if args.secure else DEFAULT_LISTEN]
     return ConnectionOptions(mode="router", listen=list(listen), connect=list(args.connect),
                              config=args.config, multicast_scouting=args.multicast_scouting,
                              secure=args.secure,
