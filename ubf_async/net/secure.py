@@ -217,16 +217,7 @@ def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]
         if own:
             policies.append({"id": f"own-{identity.name}", "rules": [r["id"] for r in own],
                              "subjects": [_subject_id(identity)]})
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": rules,
-        # Both must match: the certificate's common name (mTLS) and the username (the
-        # identity's password, a second factor).
-        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name], "usernames": [i.name]}
-                     for i in identities],
-        "policies": policies,
-    }
+    return _acl(rules, policies, identities)
 
 
 def fleet_identities(robots: Sequence[str]) -> list[Identity]:
@@ -262,10 +253,20 @@ def fleet_access_control(robots: Sequence[str], identities: Sequence[Identity]
                                [f"ubf/{identity.name}/**"]))
             policies.append({"id": f"own-{identity.name}", "rules": [f"{identity.name}-all"],
                              "subjects": [subject[identity.name]]})
+    return _acl(rules, policies, identities)
+
+
+def _acl(rules: list[dict[str, Any]], policies: list[dict[str, Any]],
+         identities: Sequence[Identity]) -> dict[str, Any]:
+    """A default-deny ``access_control`` section with one subject per identity."""
     return {
-        "enabled": True, "default_permission": "deny", "rules": rules,
-        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name],
-                      "usernames": [i.name]} for i in identities],
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        # Both must match: the certificate's common name (mTLS) and the username (the
+        # identity's password, a second factor).
+        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name], "usernames": [i.name]}
+                     for i in identities],
         "policies": policies,
     }
 
@@ -473,9 +474,8 @@ def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
         ca = pki.make_ca(f"ubf {setup.robot} CA {secrets.token_hex(4)}")
         pki.write_private(directory / PRIVATE / CA_KEY, ca.key_pem)
         _write_secret(directory / CA_CERT, ca.cert_pem.decode())
-        passwords = {name: _issue(setup, ca, name, days=days) for name in setup.identities}
-        _write_secret(directory / PASSWORDS,
-                      "".join(f"{name}:{pw}\n" for name, pw in passwords.items()))
+        _write_passwords(setup, {name: _issue(setup, ca, name, days=days)
+                                 for name in setup.identities})
         setup.save()
     except OSError as exc:
         raise ConfigurationError(f"cannot write the secure set-up into {directory}: {exc}") \
@@ -571,10 +571,9 @@ def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:
             members += [PASSWORDS, ACL]
     try:
         with tarfile.open(output, "w:gz") as tar:
-            for folder in (IDENTITIES,):
-                info = tarfile.TarInfo(folder)
-                info.type, info.mode = tarfile.DIRTYPE, 0o700
-                tar.addfile(info)
+            folder = tarfile.TarInfo(IDENTITIES)
+            folder.type, folder.mode = tarfile.DIRTYPE, 0o700
+            tar.addfile(folder)
             for member in dict.fromkeys(members):
                 data = (directory / member).read_bytes()
                 info = tarfile.TarInfo(member)
