@@ -439,12 +439,8 @@ def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
     file) into ``directory``; ``hosts``: the robot's host names and addresses (default
     :data:`DEFAULT_HOSTS`). An existing set-up is kept unless ``force`` (a new CA: every
     process then needs its new files). Raises :class:`ConfigurationError`."""
-    identities = identities_for(robot, devices=devices)
-    return _make(SecureSetup(directory=directory, robot=robot.name,
-                             identities={i.name: i for i in identities},
-                             source=str(robot.source),
-                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS),
-                 force=force, days=days)
+    return _make(directory, robot.name, identities_for(robot, devices=devices),
+                 source=str(robot.source), hosts=hosts, force=force, days=days)
 
 
 def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str,
@@ -452,15 +448,17 @@ def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str
                days: int = pki.IDENTITY_DAYS) -> SecureSetup:
     """Generate a fleet's set-up (:func:`fleet_identities`, :func:`fleet_access_control`):
     one CA for its router, world, launcher and ``robots``; ``hosts``: the router's names."""
-    identities = fleet_identities(robots)
-    return _make(SecureSetup(directory=directory, robot=name,
-                             identities={i.name: i for i in identities}, source=source,
-                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
-                             fleet=tuple(robots)), force=force, days=days)
+    return _make(directory, name, fleet_identities(robots), source=source, hosts=hosts,
+                 fleet=tuple(robots), force=force, days=days)
 
 
-def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
-    directory = setup.directory
+def _make(directory: Path, robot: str, identities: Sequence[Identity], *, source: str,
+          hosts: Sequence[str], fleet: tuple[str, ...] = (), force: bool,
+          days: int) -> SecureSetup:
+    setup = SecureSetup(directory=directory, robot=robot,
+                        identities={i.name: i for i in identities}, source=source,
+                        hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
+                        fleet=fleet)
     if (directory / MANIFEST).exists() and not force:
         raise ConfigurationError(f"{directory} already holds a secure set-up (--force makes "
                                  "a new CA and new credentials for every identity)")
