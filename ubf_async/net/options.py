@@ -298,25 +298,16 @@ _IP_ENDPOINT = re.compile(r"^(?P<proto>tcp|udp|tls|quic|ws)/(?P<host>\[[^\]]*\]|
                           r":(?P<port>\d+)")
 
 
-def ip_endpoint(endpoint: str) -> tuple[str, str, int] | None:
-    """``(protocol, host, port)`` of an IP endpoint (``tcp``, ``udp``, ``tls``, ``quic``,
-    ``ws``; the host without brackets, the ``?``/``#`` options cut), else ``None``."""
-    match = _IP_ENDPOINT.match(endpoint)
-    if match is None:
-        return None
-    return match["proto"], match["host"].strip("[]"), int(match["port"])
-
-
 def endpoint_locators(endpoint: str) -> set[str]:
     """The locators a link to ``endpoint`` may have as its destination: the endpoint without
     its ``?``/``#`` options and, for an IP endpoint given by host name, one per address the
     name resolves to (``tcp/localhost:7447`` → ``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``)."""
     plain = re.split(r"[?#]", endpoint, maxsplit=1)[0]
     found = {plain}
-    parts = ip_endpoint(plain)
-    if parts is None:
+    match = _IP_ENDPOINT.match(plain)
+    if match is None:
         return found
-    proto, host, port = parts
+    proto, host, port = match["proto"], match["host"].strip("[]"), int(match["port"])
     try:
         addresses = {info[4][0] for info in socket.getaddrinfo(host, port)}
     except OSError:  # a name that does not resolve now: zenoh will keep trying it too

@@ -55,7 +55,6 @@ import zenoh
 
 from ubf_async.errors import ConfigurationError
 from ubf_async.net import pki, tlsprobe
-from ubf_async.net.options import ip_endpoint
 
 FORMAT = 2
 ROBOT = "robot"
@@ -786,8 +785,8 @@ def diagnose(endpoint: str, *, directory: Path | None, identity: str | None) -> 
     why, in one line that says what to do, from a TLS handshake of this process's own
     (:func:`~ubf_async.net.tlsprobe.probe`); ``None`` when TLS is not the reason as far as
     can be told. Blocking: run it in a worker thread."""
-    parts = ip_endpoint(endpoint)
-    if parts is None or parts[0] not in ("tcp", "tls"):
+    parts = tlsprobe.split_endpoint(endpoint)
+    if parts is None:
         return None
     proto, host, port = parts
     export = "`python -m ubf_async.secure export DIR NAME` on the set-up's host"

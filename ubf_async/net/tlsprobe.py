@@ -39,6 +39,16 @@ class Finding:
     detail: str = ""
 
 
+def split_endpoint(endpoint: str) -> tuple[str, str, int] | None:
+    """``(protocol, host, port)`` of ``tcp/HOST:PORT`` or ``tls/HOST:PORT`` (options cut)."""
+    plain = endpoint.split("?", 1)[0].split("#", 1)[0]
+    proto, _, rest = plain.partition("/")
+    host, _, port = rest.rpartition(":")
+    if proto not in ("tcp", "tls") or not host or not port.isdigit():
+        return None
+    return proto, host.strip("[]"), int(port)
+
+
 def probe(host: str, port: int, *, ca: Path | None, cert: Path | None = None,
           key: Path | None = None, timeout_s: float = PROBE_TIMEOUT_S) -> Finding | None:
     """Shake hands with ``host:port`` as a TLS client verifying the server against ``ca``
