@@ -17,6 +17,7 @@ from ubf_async.net.options import (
     config_endpoints,
     config_value,
     load_zenoh_config,
+    over_tls,
     zenoh_message,
 )
 from ubf_async.runtime import lending
@@ -95,28 +96,35 @@ def add_connection_arguments(
                            f" (default: {robot_elsewhere})" if robot_elsewhere else ""))
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover peers by UDP multicast (off by default)")
-    group.add_argument("--secure", type=Path, default=None, metavar="DIR",
-                       help="secure mode: mutual TLS (tls/ endpoints only) with the "
-                            "certificates and credentials in DIR (made by `python -m "
-                            "ubf_async.secure init`, or a host's `secure export`); see "
-                            "docs/security.md")
     identity_help = ("with --secure: who this process is (robot, inspector, operator, a "
                      "remote behaviour's slot name, device-KIND-NAME); all but robot connect "
                      "as clients")
     if default_identity:
         identity_help += f"; default: {default_identity}"
-    group.add_argument("--identity", default=None, metavar="NAME", help=identity_help)
+    add_secure_arguments(group, secure_help="secure mode: mutual TLS (tls/ endpoints only) with "
+                         "the certificates and credentials in DIR (made by `python -m "
+                         "ubf_async.secure init`, or a host's `secure export`); see "
+                         "docs/security.md", identity_help=identity_help)
     parser.set_defaults(_default_listen=default_listen or [],
                         _default_identity=default_identity,
                         _default_connect=default_connect or [])
     add_event_loop_help(parser)
 
 
+def add_secure_arguments(group: argparse._ActionsContainer, *, secure_help: str,
+                         identity_help: str | None = None) -> None:
+    """Secure mode's flags, the same in every entry point: ``--secure DIR`` and, given its
+    help, ``--identity NAME`` (both default ``None``)."""
+    group.add_argument("--secure", type=Path, default=None, metavar="DIR", help=secure_help)
+    if identity_help is not None:
+        group.add_argument("--identity", default=None, metavar="NAME", help=identity_help)
+
+
 def _over_tls(endpoints: Iterable[str], args: argparse.Namespace) -> list[str]:
     """An entry point's default endpoints; in secure mode (``--secure``) the same over TLS."""
     if getattr(args, "secure", None) is None:
         return list(endpoints)
-    return [f"tls/{e.removeprefix('tcp/')}" if e.startswith("tcp/") else e for e in endpoints]
+    return [over_tls(e) for e in endpoints]
 
 
 def connection_options(args: argparse.Namespace) -> ConnectionOptions:

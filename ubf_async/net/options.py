@@ -52,6 +52,13 @@ SESSION_LIMITS: dict[str, Any] = {
 """What every session of ubf_async sets over zenoh's defaults, to bound what others can make
 it hold; a ``--config`` file that sets one of these keys keeps its own value."""
 
+
+def over_tls(endpoint: str) -> str:
+    """``endpoint`` over TLS, as a default endpoint is in secure mode: ``tcp/X`` as ``tls/X``,
+    any other as it is."""
+    return f"tls/{endpoint.removeprefix('tcp/')}" if endpoint.startswith("tcp/") else endpoint
+
+
 RECONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 """How often a session retries a lost connection (zenoh's ``connect/retry``): from 250 ms,
 backing off to at most 1 s — zenoh's default backs off to 4 s — so a client whose router

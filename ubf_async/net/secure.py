@@ -216,16 +216,7 @@ def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]
         if own:
             policies.append({"id": f"own-{identity.name}", "rules": [r["id"] for r in own],
                              "subjects": [_subject_id(identity)]})
-    return {
-        "enabled": True,
-        "default_permission": "deny",
-        "rules": rules,
-        # Both must match: the certificate's common name (mTLS) and the username (the
-        # identity's password, a second factor).
-        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name], "usernames": [i.name]}
-                     for i in identities],
-        "policies": policies,
-    }
+    return _acl(rules, policies, identities)
 
 
 def fleet_identities(robots: Sequence[str]) -> list[Identity]:
@@ -261,10 +252,20 @@ def fleet_access_control(robots: Sequence[str], identities: Sequence[Identity]
                                [f"ubf/{identity.name}/**"]))
             policies.append({"id": f"own-{identity.name}", "rules": [f"{identity.name}-all"],
                              "subjects": [subject[identity.name]]})
+    return _acl(rules, policies, identities)
+
+
+def _acl(rules: list[dict[str, Any]], policies: list[dict[str, Any]],
+         identities: Sequence[Identity]) -> dict[str, Any]:
+    """A default-deny ``access_control`` section with one subject per identity."""
     return {
-        "enabled": True, "default_permission": "deny", "rules": rules,
-        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name],
-                      "usernames": [i.name]} for i in identities],
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        # Both must match: the certificate's common name (mTLS) and the username (the
+        # identity's password, a second factor).
+        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name], "usernames": [i.name]}
+                     for i in identities],
         "policies": policies,
     }
 
@@ -437,12 +438,8 @@ def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
     file) into ``directory``; ``hosts``: the robot's host names and addresses (default
     :data:`DEFAULT_HOSTS`). An existing set-up is kept unless ``force`` (a new CA: every
     process then needs its new files). Raises :class:`ConfigurationError`."""
-    identities = identities_for(robot, devices=devices)
-    return _make(SecureSetup(directory=directory, robot=robot.name,
-                             identities={i.name: i for i in identities},
-                             source=str(robot.source),
-                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS),
-                 force=force, days=days)
+    return _make(directory, robot.name, identities_for(robot, devices=devices),
+                 source=str(robot.source), hosts=hosts, force=force, days=days)
 
 
 def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str,
@@ -450,15 +447,17 @@ def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str
                days: int = pki.IDENTITY_DAYS) -> SecureSetup:
     """Generate a fleet's set-up (:func:`fleet_identities`, :func:`fleet_access_control`):
     one CA for its router, world, launcher and ``robots``; ``hosts``: the router's names."""
-    identities = fleet_identities(robots)
-    return _make(SecureSetup(directory=directory, robot=name,
-                             identities={i.name: i for i in identities}, source=source,
-                             hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
-                             fleet=tuple(robots)), force=force, days=days)
+    return _make(directory, name, fleet_identities(robots), source=source, hosts=hosts,
+                 fleet=tuple(robots), force=force, days=days)
 
 
-def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
-    directory = setup.directory
+def _make(directory: Path, robot: str, identities: Sequence[Identity], *, source: str,
+          hosts: Sequence[str], fleet: tuple[str, ...] = (), force: bool,
+          days: int) -> SecureSetup:
+    setup = SecureSetup(directory=directory, robot=robot,
+                        identities={i.name: i for i in identities}, source=source,
+                        hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
+                        fleet=fleet)
     if (directory / MANIFEST).exists() and not force:
         raise ConfigurationError(f"{directory} already holds a secure set-up (--force makes "
                                  "a new CA and new credentials for every identity)")
@@ -472,9 +471,8 @@ def _make(setup: SecureSetup, *, force: bool, days: int) -> SecureSetup:
         ca = pki.make_ca(f"ubf {setup.robot} CA {secrets.token_hex(4)}")
         pki.write_private(directory / PRIVATE / CA_KEY, ca.key_pem)
         _write_secret(directory / CA_CERT, ca.cert_pem.decode())
-        passwords = {name: _issue(setup, ca, name, days=days) for name in setup.identities}
-        _write_secret(directory / PASSWORDS,
-                      "".join(f"{name}:{pw}\n" for name, pw in passwords.items()))
+        _write_passwords(setup, {name: _issue(setup, ca, name, days=days)
+                                 for name in setup.identities})
         setup.save()
     except OSError as exc:
         raise ConfigurationError(f"cannot write the secure set-up into {directory}: {exc}") \
@@ -570,10 +568,9 @@ def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:
             members += [PASSWORDS, ACL]
     try:
         with tarfile.open(output, "w:gz") as tar:
-            for folder in (IDENTITIES,):
-                info = tarfile.TarInfo(folder)
-                info.type, info.mode = tarfile.DIRTYPE, 0o700
-                tar.addfile(info)
+            folder = tarfile.TarInfo(IDENTITIES)
+            folder.type, folder.mode = tarfile.DIRTYPE, 0o700
+            tar.addfile(folder)
             for member in dict.fromkeys(members):
                 data = (directory / member).read_bytes()
                 info = tarfile.TarInfo(member)

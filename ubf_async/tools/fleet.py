@@ -46,10 +46,10 @@ from ubf_async.assembly.registry import SIMULATORS
 from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
 )
-from ubf_async.cli.args import HelpFormatter, add_event_loop_help
+from ubf_async.cli.args import HelpFormatter, add_event_loop_help, add_secure_arguments
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
-from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.options import ConnectionOptions, over_tls
 from ubf_async.net.secure import FLEET, WORLD
 from ubf_async.runs.fleet import (
     Fleet,
@@ -327,9 +327,7 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
 def fleet_router(args: argparse.Namespace, default: str) -> str:
     """The router's endpoint: ``--router``, else the fleet file's; over TLS in secure mode."""
     router: str = args.router or default
-    if args.secure is not None and router.startswith("tcp/"):
-        router = "tls/" + router.removeprefix("tcp/")
-    return router
+    return over_tls(router) if args.secure is not None else router
 
 
 async def open_when_up(options: ConnectionOptions, *, timeout_s: float) -> Bus:
@@ -417,11 +415,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--controllers-per-process", type=int, default=1, metavar="K",
                         help="run the robots' controllers K to a process (fewer processes for "
                              "a small machine; 1: each its own, as launch runs one)")
-    parser.add_argument("--secure", type=Path, default=None, metavar="DIR",
-                        help="secure mode: the router, the world, the controllers and this "
-                             "launcher over mutual TLS, each with its identity of the fleet's "
-                             "set-up in DIR (`python -m ubf_async.secure init DIR "
-                             "--fleet-file FLEET.yaml`; docs/security.md)")
+    add_secure_arguments(
+        parser, secure_help="secure mode: the router, the world, the controllers and this "
+                            "launcher over mutual TLS, each with its identity of the fleet's "
+                            "set-up in DIR (`python -m ubf_async.secure init DIR --fleet-file "
+                            "FLEET.yaml`; docs/security.md)")
     parser.add_argument("--controllers-only", default=None, metavar="NAME,...",
                         help="run only these robots' controllers, in this one process (what the "
                              "launcher starts with --controllers-per-process above 1)")

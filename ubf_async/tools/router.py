@@ -31,9 +31,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from ubf_async.cli.args import HelpFormatter, add_event_loop_help
+from ubf_async.cli.args import HelpFormatter, add_event_loop_help, add_secure_arguments
 from ubf_async.cli.run import run_main
-from ubf_async.net.options import ConnectionOptions, load_zenoh_config
+from ubf_async.net.options import ConnectionOptions, load_zenoh_config, over_tls
 from ubf_async.net.secure import ROUTER
 from ubf_async.runtime.bus import ROOT, Bus
 
@@ -98,13 +98,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="zenoh JSON5 configuration file (the flags given override it)")
     group.add_argument("--multicast-scouting", action="store_true",
                        help="also discover routers and peers by UDP multicast (off by default)")
-    group.add_argument("--secure", type=Path, default=None, metavar="DIR",
-                       help="secure mode: mutual TLS (tls/ endpoints only) with a fleet's "
-                            "set-up (`python -m ubf_async.secure init DIR --fleet-file "
-                            "FLEET.yaml`); the router holds its access control "
-                            "(docs/security.md)")
-    group.add_argument("--identity", default=None, metavar="NAME",
-                       help="with --secure: the router's identity (default: router)")
+    add_secure_arguments(
+        group, secure_help="secure mode: mutual TLS (tls/ endpoints only) with a fleet's set-up "
+                           "(`python -m ubf_async.secure init DIR --fleet-file FLEET.yaml`); "
+                           "the router holds its access control (docs/security.md)",
+        identity_help="with --secure: the router's identity (default: router)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--quiet", action="store_true",
@@ -122,7 +120,7 @@ def router_options(args: argparse.Namespace) -> ConnectionOptions:
         if conf.get_json("listen/endpoints") != type(conf)().get_json("listen/endpoints"):
             listen = []  # the file's own
     if listen is None:
-        listen = [DEFAULT_LISTEN.replace("tcp/", "tls/") if args.secure else DEFAULT_LISTEN]
+        listen = [over_tls(DEFAULT_LISTEN) if args.secure else DEFAULT_LISTEN]
     return ConnectionOptions(mode="router", listen=list(listen), connect=list(args.connect),
                              config=args.config, multicast_scouting=args.multicast_scouting,
                              secure=args.secure,
