@@ -33,11 +33,11 @@ from typing import Any
 from ubf_async import experiment
 
 PARTS: dict[str, list[tuple[str, str, str]]] = {
-    "physics (pymunk + wheel forces)": [("components.sim.world", "World", "advance")],
-    "camera: render": [("components.sim.backends", "SimCameraBackend", "capture")],
+    "physics (pymunk + wheel forces)": [("components.sim.world.physics", "World", "advance")],
+    "camera: render": [("components.sim.backends.devices", "SimCameraBackend", "capture")],
     "camera: seekcolor": [("components.camera.component", "", "seekcolor")],
     "controller tick (tree, arbiter)": [("ubf_async.runtime.controller", "Controller", "tick")],
-    "encoders (quadrature, odometry)": [("components.sim.backends", "SimEncoderBackend",
+    "encoders (quadrature, odometry)": [("components.sim.backends.devices", "SimEncoderBackend",
                                          "read_phases"),
                                         ("components.encoders.quadrature", "QuadratureDecoder",
                                          "feed"),
@@ -45,15 +45,15 @@ PARTS: dict[str, list[tuple[str, str, str]]] = {
                                          "update")],
     "motors (PWM, watchdog)": [("components.motors.component", "MotorsComponent",
                                 "_on_drive")],
-    "range finder (IR model)": [("components.sim.backends", "SimRangeBackend",
+    "range finder (IR model)": [("components.sim.backends.devices", "SimRangeBackend",
                                  "distance_m")],
     "aggregator ingest (decode, order)": [("ubf_async.runtime.aggregator", "_SensorScreen",
                                            "check"),
                                           ("ubf_async.runtime.aggregator", "StateAggregator",
                                            "_on_decoded")],
     "publish (encode, deliver)": [("ubf_async.runtime.bus", "Publisher", "publish")],
-    "trajectory samples": [("components.sim.runner", "SimulationRun", "_take_sample")],
-    "simulator step bookkeeping": [("components.sim.component", "SimulatorComponent",
+    "trajectory samples": [("components.sim.runner.run", "SimulationRun", "_take_sample")],
+    "simulator step bookkeeping": [("components.sim.runner.stepper", "SimulatorComponent",
                                     "_step")],
 }
 

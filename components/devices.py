@@ -6,7 +6,7 @@ for a robot file; their keyword parameters are checked before anything is built,
 robot file's go through (:func:`ubf_async.assembly.registry.checked_params`): the same mistake,
 the same :class:`~ubf_async.errors.ParameterError`. A device started on its own
 (:mod:`components.standalone`) and the simulator's in-process helper
-(:func:`components.sim.component.simulated_devices`) both build through :func:`make_device`.
+(:func:`components.sim.runner.stepper.simulated_devices`) both build through :func:`make_device`.
 """
 
 from __future__ import annotations

@@ -19,9 +19,9 @@ from components.devices import (
     requires_simulator,
 )
 from components.range.ir import IR_MODELS
-from components.sim.scenarios import load_scenario
-from components.sim.world import World
-from components.sim.world_config import WorldConfig
+from components.sim.scenarios.scenario import load_scenario
+from components.sim.world.config import WorldConfig
+from components.sim.world.physics import World
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot_text
 from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
@@ -286,6 +286,6 @@ def test_shipped_scenarios_load_without_warnings() -> None:
 
 
 def test_scenario_error_is_the_framework_one() -> None:
-    from components.sim import scenarios
+    from components.sim.scenarios import scenario as scenarios
 
     assert scenarios.ScenarioError is ScenarioError

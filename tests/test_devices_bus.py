@@ -13,8 +13,8 @@ import pytest
 from components.camera.component import CameraComponent
 from components.camera.videocapture import VideoCaptureBackend
 from components.radio.component import RadioComponent
-from components.sim.backends import SimRadioBackend
-from components.sim.world_config import Arena, BallConfig, WorldConfig
+from components.sim.backends.devices import SimRadioBackend
+from components.sim.world.config import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually
 from ubf_async import Action, FunctionBehavior
 from ubf_async.runtime.aggregator import StateAggregator

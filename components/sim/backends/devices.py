@@ -1,4 +1,4 @@
-"""Device backends on top of a simulated :class:`~components.sim.world.World`.
+"""Device backends on top of a simulated :class:`~components.sim.world.physics.World`.
 
 Each class implements one of the device backend protocols (``components/<device>/backend.py``)
 so a device component can run against the simulator exactly as it would against hardware. They
@@ -8,8 +8,8 @@ the world steps in another. Nothing here touches the message bus or asyncio.
 The factories at the end (``camera_backend`` …) are what the ``ubf_async.backends`` entry
 points ``<kind>.sim`` name: ``(*, context, **params) -> backend``. Each says it requires the
 ``mini-whegs`` simulator (its ``requires_simulator`` attribute), whose world it finds in
-``context.simulation``: a :class:`~components.sim.world.World` in the simulator's process, a
-:class:`~components.sim.remote.RemoteWorld` in a device's own process.
+``context.simulation``: a :class:`~components.sim.world.physics.World` in the simulator's process, a
+:class:`~components.sim.mirror.remote_world.RemoteWorld` in a device's own process.
 """
 
 from __future__ import annotations
@@ -26,23 +26,23 @@ import numpy as np
 
 from components.camera.seekcolor import SUBSAMPLE_STEP
 from components.range.backend import MountPose
-from components.sim.air import RadioAir
-from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
-from components.sim.ranging import beam_distance_m
-from components.sim.render_process import (
+from components.sim.render.camera import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
+from components.sim.render.process import (
     RenderProcess,
     render_process_wanted,
     shared_render_process,
 )
-from components.sim.world_config import WorldConfig
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.world.air import RadioAir
+from components.sim.world.config import WorldConfig
+from components.sim.world.ranging import beam_distance_m
+from components.sim.world.snapshot import WorldSnapshot
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
 
 class WorldView(Protocol):
-    """What the backends use of a world: a :class:`~components.sim.world.World` in this
-    process, or a :class:`~components.sim.remote.RemoteWorld` fed over the bus."""
+    """What the backends use of a world: a :class:`~components.sim.world.physics.World` in this
+    process, or a :class:`~components.sim.mirror.remote_world.RemoteWorld` fed over the bus."""
 
     @property
     def config(self) -> WorldConfig: ...
@@ -195,10 +195,10 @@ class SimCameraBackend:
     backend uses) renders only the pixels seekcolor's subsampler reads, ``(8·i, 8·j)``, and
     returns them in a frame of the full size whose other pixels are black (a *sparse* frame:
     the camera component and its published width/height are unchanged, and its seekcolor
-    counts are those of the full frame, see :func:`~components.sim.camera_render.render_camera`),
+    counts are those of the full frame, see :func:`~components.sim.render.camera.render_camera`),
     several times faster.
 
-    ``renderer``: a :class:`~components.sim.render_process.RenderProcess` to render in (the
+    ``renderer``: a :class:`~components.sim.render.process.RenderProcess` to render in (the
     ``camera.sim`` device backend gives it the process's shared one), so the rendering holds
     another process's GIL, not this one's: :meth:`capture` only waits on it. Without one, or
     whenever it has no worker running, the frame is rendered in the calling thread — the same
@@ -287,7 +287,7 @@ class SimCameraBackend:
 
 
 class SimRangeBackend:
-    """True beam distance from :func:`components.sim.ranging.beam_distance_m`."""
+    """True beam distance from :func:`components.sim.world.ranging.beam_distance_m`."""
 
     def __init__(self, world: WorldView) -> None:
         self._world = world
@@ -366,7 +366,7 @@ def camera_backend(*, context: DeviceContext, full_frames: bool = False,
     """``camera.sim``: renders the simulated OV9655's view of the world. By default only the
     pixels seekcolor reads (sparse frames, see :class:`SimCameraBackend`); ``full_frames``
     renders every pixel (slower, the same counts). ``render_process``: render in the
-    process's render process (:mod:`components.sim.render_process`, shared by its simulated
+    process's render process (:mod:`components.sim.render.process`, shared by its simulated
     cameras), so rendering does not hold this process's GIL; ``false``, or
     ``UBF_RENDER_PROCESS=0`` in the environment, or a run that starts no helper processes
     (:attr:`~ubf_async.assembly.context.DeviceContext.helper_processes`), renders in the
@@ -411,8 +411,8 @@ radio_backend.requires_simulator = None  # type: ignore[attr-defined]
 
 
 class SimAirRadioBackend:
-    """A radio on the air of a simulated world (:class:`~components.sim.air.RadioAir`): what it
-    sends, every other robot of the world receives."""
+    """A radio on the air of a simulated world (:class:`~components.sim.world.air.RadioAir`):
+    what it sends, every other robot of the world receives."""
 
     def __init__(self, air: RadioAir, robot: int) -> None:
         self.air = air
