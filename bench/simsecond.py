@@ -39,7 +39,7 @@ PARTS: dict[str, list[tuple[str, str, str]]] = {
     "controller tick (tree, arbiter)": [("ubf_async.runtime.controller", "Controller", "tick")],
     "encoders (quadrature, odometry)": [("components.sim.backends.devices", "SimEncoderBackend",
                                          "read_phases"),
-                                        ("components.encoders.quadrature", "QuadratureDecoder",
+                                        ("components.quadrature", "QuadratureDecoder",
                                          "feed"),
                                         ("components.encoders.odometry", "WheelOdometry",
                                          "update")],

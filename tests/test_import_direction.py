@@ -12,7 +12,9 @@
 The same directions, the rooms of the framework (``ubf_async``'s subpackages, high to low:
 tools, runs, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle), the
 simulator's rooms (``components.sim``'s subpackages: plugin, runner, backends|outputs|mirror,
-render|scenarios, world; every module placed) and no import circles are contracts of
+render|scenarios, world; every module placed), device packages independent of each other (what
+two share lives beside them: ``components/quadrature.py``, ``miniwhegs.py``, ``hardware.py``)
+and no import circles are contracts of
 ``lint-imports`` (``[tool.importlinter]`` in pyproject.toml, run by .ci/run); the last tests
 here show that it refuses a deliberately upward import on a scratch copy of the packages.
 
@@ -271,6 +273,14 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
      ["The simulator's rooms"]),
     # A new simulator module nobody placed in the rooms.
     ({"components/sim/helpers.py": "import math  # noqa"}, ["The simulator's rooms"]),
+    # A device package taking another's module: the motors' check the encoders' component
+    # (the circle motors <-> encoders that was excused once).
+    ({"components/motors/check.py": "import components.encoders.component  # noqa"},
+     ["The device packages import none of each other"]),
+    # ... and even through a third module: the LEDs reaching the camera by way of the
+    # simulator's backends is refused twice (devices never import the simulator either).
+    ({"components/leds/bank.py": "import components.sim.backends.devices  # noqa"},
+     ["The device packages import none of each other", "Devices stand on the framework"]),
 ])
 def test_lint_imports_refuses_an_upward_import(tmp_path: Path, edits: dict[str, str],
                                                broken: list[str]) -> None:

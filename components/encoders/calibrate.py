@@ -49,9 +49,8 @@ from dataclasses import dataclass
 from typing import Protocol, TextIO
 
 from components.encoders.odometry import EFFECTIVE_TRACK_M, wrap_angle
-from components.encoders.quadrature import edges_to_radians
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
-from components.motors.pwm import pulse_widths
+from components.quadrature import edges_to_radians
 from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.cli.args import add_connection_arguments
 from ubf_async.cli.attach import attached_bus
@@ -83,12 +82,13 @@ class Turn:
 
 
 class TurnRig(Protocol):
-    """Drives a robot with fixed motor pulses and reports what happened."""
+    """Drives a robot with a fixed drive command and reports what happened."""
 
-    def drive(self, *, left_ms: float, right_ms: float, settle_s: float,
+    def drive(self, *, speed: float, turn: float, settle_s: float,
               measure_s: float) -> tuple[float, float, float]:
-        """ConstantDrive with these pulses for ``settle_s`` (not measured), then ``measure_s`` more;
-        return ``(Δθ_left, Δθ_right, true yaw)`` in radians over the measured part."""
+        """Drive ``speed``/``turn`` (through the motors' pulse calibration, the rig's business)
+        for ``settle_s`` (not measured), then ``measure_s`` more; return ``(Δθ_left, Δθ_right,
+        true yaw)`` in radians over the measured part."""
         ...
 
 
@@ -125,12 +125,11 @@ def fit_effective_track(turns: Sequence[Turn],
 
 def measure_turns(rig: TurnRig, commands: Sequence[tuple[float, float]] = DEFAULT_TURNS, *,
                   settle_s: float = 1.0, measure_s: float = 3.0) -> list[Turn]:
-    """ConstantDrive each speed/turn command (through the HAL's pulse calibration) on ``rig``."""
+    """Drive each speed/turn command on ``rig``."""
     turns = []
     for speed, turn in commands:
-        pulses = pulse_widths(speed, turn)
-        d_left, d_right, yaw = rig.drive(left_ms=pulses.left_ms, right_ms=pulses.right_ms,
-                                         settle_s=settle_s, measure_s=measure_s)
+        d_left, d_right, yaw = rig.drive(speed=speed, turn=turn, settle_s=settle_s,
+                                         measure_s=measure_s)
         turns.append(Turn(speed=speed, turn=turn, d_left_rad=d_left, d_right_rad=d_right,
                           true_yaw_rad=yaw))
     return turns

@@ -26,13 +26,13 @@ import msgspec
 
 from components.encoders.backend import EdgeTiming, EncoderBackend
 from components.encoders.odometry import EFFECTIVE_TRACK_M, OdometryPose, WheelOdometry
-from components.encoders.quadrature import (
+from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
+from components.quadrature import (
     DirectionMode,
     QuadratureDecoder,
     edges_to_counts,
     edges_to_radians,
 )
-from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component

@@ -6,7 +6,7 @@ edge in the kernel; its ``ticks`` travel with it): the callback only records the
 2-bit state ``(A << 1) | B`` and the edge's time in a bounded buffer under a lock, so edges are
 never handled on the event loop. The encoders component takes the batch every ``period_s``
 (:meth:`GpioEncoderBackend.read_phases`) and decodes it with the existing
-:class:`~components.encoders.quadrature.QuadratureDecoder`, in either direction mode.
+:class:`~components.quadrature.QuadratureDecoder`, in either direction mode.
 
 A buffer that fills between two reads (more than ``max_pending`` edges: a component stalled
 for a long time) drops the oldest edges and counts them in ``overflowed`` (the encoders

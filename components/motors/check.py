@@ -29,10 +29,10 @@ from dataclasses import dataclass
 from types import FrameType
 from typing import Any, TextIO
 
-from components.encoders.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
 from components.miniwhegs import MINI_WHEGS
 from components.motors.backend import MotorBackend
 from components.motors.pwm import DEFAULT_PWM, MotorCalibration
+from components.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
 from ubf_async.errors import ConfigurationError, UbfError
 
 WHEELS = ("left", "right")

@@ -30,18 +30,21 @@ if TYPE_CHECKING:
 
 
 class SimTurnRig:
-    """Drives the simulated Mini-WHEGS in an empty world with fixed pulses; the true yaw is
-    the body's. Each drive starts afresh from rest."""
+    """Drives the simulated Mini-WHEGS in an empty world with the pulses the motors' default
+    calibration gives a drive command; the true yaw is the body's. Each drive starts afresh
+    from rest."""
 
     def __init__(self, *, step_s: float = 0.005) -> None:
         self.step_s = step_s
 
-    def drive(self, *, left_ms: float, right_ms: float, settle_s: float,
+    def drive(self, *, speed: float, turn: float, settle_s: float,
               measure_s: float) -> tuple[float, float, float]:
+        from components.motors.pwm import pulse_widths
         from components.sim.world.physics import World
 
+        pulses = pulse_widths(speed, turn)
         world = World()
-        world.set_motor_pulses(left_ms, right_ms)
+        world.set_motor_pulses(pulses.left_ms, pulses.right_ms)
         for _ in range(round(settle_s / self.step_s)):
             world.advance(self.step_s)
         start = world.snapshot().robot
