@@ -88,7 +88,7 @@ def motors_component(bus: Bus, backend: GpioMotorBackend, *, timeout_s: float
     """The motors component with the trims above, closing ``backend`` when it closes."""
     motors = MotorsComponent(bus=bus, backend=backend, timeout_s=timeout_s,
                              left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
-    motors.close_on_exit(backend.close)
+    motors.close_on_exit(backend.aclose)
     return motors
 
 

@@ -82,7 +82,7 @@ class CameraComponent(Component):
             raise ValueError(f"latency_s must be ≥ 0, got {latency_s}")
         self.source_name = name
         self.backend = backend
-        self._renders = _RENDERS if getattr(backend, "renders_in_python", False) else None
+        self._renders = _RENDERS if backend.renders_in_python else None
         self.latency_s = latency_s
         self.color = color
         self.hfov_deg = hfov_deg

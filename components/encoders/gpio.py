@@ -32,7 +32,7 @@ import msgspec
 import numpy as np
 
 from components import hardware
-from components.encoders.backend import EdgeTiming
+from components.encoders.backend import EdgeTiming, EncoderBackend
 from ubf_async.assembly.context import DeviceContext
 
 log = logging.getLogger(__name__)
@@ -133,7 +133,7 @@ class _Wheel:
             pin.close()
 
 
-class GpioEncoderBackend:
+class GpioEncoderBackend(EncoderBackend):
     """Both wheel encoders on GPIO; see the module docstring."""
 
     def __init__(self, *, factory: Any, left_a: str, left_b: str, right_a: str, right_b: str,

@@ -24,8 +24,13 @@ from typing import Annotated, Any, Protocol, TypeVar
 import msgspec
 import numpy as np
 
+from components.camera.backend import CameraBackend
 from components.camera.seekcolor import SUBSAMPLE_STEP
-from components.range.backend import MountPose
+from components.encoders.backend import EncoderBackend
+from components.leds.backend import LedBackend
+from components.motors.backend import MotorBackend
+from components.radio.backend import RadioBackend
+from components.range.backend import MountPose, RangeBackend
 from components.sim.render.camera import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
 from components.sim.render.process import (
     RenderProcess,
@@ -53,6 +58,16 @@ class WorldView(Protocol):
 
     def make_rng(self, stream: int) -> np.random.Generator: ...
 
+    @property
+    def air(self) -> RadioAir | None:
+        """The air between the world's radios; None for a world seen over the bus."""
+        ...
+
+    @property
+    def index(self) -> int:
+        """Which robot of the world the backends sense and drive (0: the first)."""
+        ...
+
 
 CAMERA_RNG_STREAM = 1
 ENCODER_RNG_STREAM = 2
@@ -61,7 +76,7 @@ QUADRATURE_SEQUENCE = np.array([0, 1, 3, 2], dtype=np.uint8)
 """2-bit states ``(A << 1) | B`` in the order a forward-turning wheel steps through them."""
 
 
-class SimMotorBackend:
+class SimMotorBackend(MotorBackend):
     """Hands the pulse widths to the simulated motors."""
 
     hold_s = 0.0  # the simulated motors see a pulse at once
@@ -115,7 +130,7 @@ def insert_glitches(
     return out
 
 
-class SimEncoderBackend:
+class SimEncoderBackend(EncoderBackend):
     """Quadrature A/B phases from the simulated wheel angles.
 
     Each wheel has ``MINI_WHEGS.edges_per_rev`` (4096) edges per revolution; ``read_phases``
@@ -185,7 +200,7 @@ def render_delay_s() -> float:
     return delay
 
 
-class SimCameraBackend:
+class SimCameraBackend(CameraBackend):
     """Renders the world's latest snapshot (call ``capture`` from a worker thread).
 
     ``capture`` renders without holding any world lock: the snapshot it reads is immutable.
@@ -205,6 +220,12 @@ class SimCameraBackend:
     pixels, from the same per-frame seed.
     """
 
+    renders_in_python = True
+    """Captures are CPU work under the GIL (in-thread), or wait on the render process: the
+    camera component runs them on the process's one render thread
+    (:data:`components.camera.component._RENDERS`), one at a time, as the render process
+    renders one at a time."""
+
     def __init__(
         self,
         world: WorldView,
@@ -220,11 +241,6 @@ class SimCameraBackend:
         self._params = params
         self._grid = grid
         self._renderer = renderer
-        self.renders_in_python = True
-        """Captures are CPU work under the GIL (in-thread), or wait on the render process:
-        the camera component runs them on the process's one render thread
-        (:data:`components.camera.component._RENDERS`), one at a time, as the render process
-        renders one at a time."""
         self._rng = rng if rng is not None else world.make_rng(CAMERA_RNG_STREAM)
         self._lock = threading.Lock()
         self._closed = False
@@ -286,7 +302,7 @@ class SimCameraBackend:
             self._closed = True
 
 
-class SimRangeBackend:
+class SimRangeBackend(RangeBackend):
     """True beam distance from :func:`components.sim.world.ranging.beam_distance_m`."""
 
     def __init__(self, world: WorldView) -> None:
@@ -296,7 +312,7 @@ class SimRangeBackend:
         return beam_distance_m(self._world.snapshot(), mount, max_range_m)
 
 
-class SimRadioBackend:
+class SimRadioBackend(RadioBackend):
     """An in-memory text link: ``send`` appends to ``outbox``; ``inject`` makes a message arrive.
 
     Thread-safe.
@@ -410,7 +426,7 @@ def radio_backend(*, context: DeviceContext) -> SimRadioBackend:
 radio_backend.requires_simulator = None  # type: ignore[attr-defined]
 
 
-class SimAirRadioBackend:
+class SimAirRadioBackend(RadioBackend):
     """A radio on the air of a simulated world (:class:`~components.sim.world.air.RadioAir`):
     what it sends, every other robot of the world receives."""
 
@@ -432,15 +448,15 @@ def radio_air_backend(*, context: DeviceContext) -> SimAirRadioBackend:
     """``radio.air``: a radio the other robots of the same simulated world hear (a fleet,
     ``python -m ubf_async.fleet``); alone in its world it hears nothing."""
     world = _world(context, "radio.air")
-    air = getattr(world, "air", None)
-    if not isinstance(air, RadioAir):
+    air = world.air
+    if air is None:
         raise ConfigurationError("backend 'radio.air' needs the simulated world in its own "
                                  "process (launch, or a fleet's world), not one seen over "
                                  "the bus")
-    return SimAirRadioBackend(air, getattr(world, "index", 0))
+    return SimAirRadioBackend(air, world.index)
 
 
-class SimLedBackend:
+class SimLedBackend(LedBackend):
     """LEDs in memory: ``mask`` is what is lit. The simulator draws them on its recorded
     camera frames from the LED device's ``sensor/leds/<name>`` samples, so a ``leds.sim``
     device in another process shows there too. Thread-safe."""

@@ -15,6 +15,7 @@ import logging
 
 import numpy as np
 
+from components.sim.world.air import RadioAir
 from components.sim.world.config import RobotConfig, WorldConfig
 from components.sim.world.snapshot import WorldSnapshot
 from components.sim.world.snapshot_data import snapshot_from_data
@@ -26,6 +27,11 @@ log = logging.getLogger(__name__)
 
 
 class RemoteWorld:
+    air: RadioAir | None = None
+    """No radio air: the robots' ``radio.air`` is the world process's own."""
+    index = 0
+    """The one robot whose world this process mirrors."""
+
     def __init__(self, bus: Bus, *, seed: int = 0) -> None:
         self.bus = bus
         self.config = WorldConfig(robot=RobotConfig(), seed=seed)

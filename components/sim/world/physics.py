@@ -152,6 +152,10 @@ class World:
     thread; the ball/robot placement helpers take the world's lock, so they are safe too.
     """
 
+    index = 0
+    """The robot :meth:`snapshot` and :meth:`set_motor_pulses` are about by default (a
+    :class:`RobotView` is another robot's)."""
+
     def __init__(self, config: WorldConfig | None = None) -> None:
         self._config = cfg = config if config is not None else WorldConfig()
         self._lock = threading.RLock()
