@@ -46,11 +46,12 @@ import math
 import sys
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol, TextIO
+from typing import TextIO
 
 from components.encoders.odometry import EFFECTIVE_TRACK_M, wrap_angle
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from components.quadrature import edges_to_radians
+from ubf_async.assembly.simulation import Simulator, TurnRig
 from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.cli.args import add_connection_arguments
 from ubf_async.cli.attach import attached_bus
@@ -79,17 +80,6 @@ class Turn:
     d_left_rad: float
     d_right_rad: float
     true_yaw_rad: float
-
-
-class TurnRig(Protocol):
-    """Drives a robot with a fixed drive command and reports what happened."""
-
-    def drive(self, *, speed: float, turn: float, settle_s: float,
-              measure_s: float) -> tuple[float, float, float]:
-        """Drive ``speed``/``turn`` (through the motors' pulse calibration, the rig's business)
-        for ``settle_s`` (not measured), then ``measure_s`` more; return ``(Δθ_left, Δθ_right,
-        true yaw)`` in radians over the measured part."""
-        ...
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -139,12 +129,8 @@ def simulated_rig(simulator: str = "mini-whegs") -> TurnRig:
     """The turn rig of a simulator plug-in (registry ``ubf_async.simulators``)."""
     from ubf_async.assembly.registry import SIMULATORS
 
-    plugin = SIMULATORS.get(simulator)()
-    make_rig = getattr(plugin, "turn_rig", None)
-    if make_rig is None:
-        raise ConfigurationError(f"simulator {simulator!r} offers no turn rig")
-    rig: TurnRig = make_rig()
-    return rig
+    plugin: Simulator = SIMULATORS.get(simulator)()
+    return plugin.turn_rig()
 
 
 def format_fit(fit: TrackFit) -> str:

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
-from ubf_async.assembly.simulation import FleetMember, SimulationOptions
+from ubf_async.assembly.simulation import FleetMember, SimulationOptions, Simulator, TurnRig
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from components.sim.runner.run import SimulationRun
 
 
-class SimTurnRig:
+class SimTurnRig(TurnRig):
     """Drives the simulated Mini-WHEGS in an empty world with the pulses the motors' default
     calibration gives a drive command; the true yaw is the body's. Each drive starts afresh
     from rest."""
@@ -56,7 +56,7 @@ class SimTurnRig:
                 end.heading_unwrapped_rad - start.heading_unwrapped_rad)
 
 
-class MiniWhegsSimulator:
+class MiniWhegsSimulator(Simulator):
     """The simulated Mini-WHEGS: a pymunk world, an OpenCV-rendered camera, scenarios."""
 
     name = "mini-whegs"
@@ -96,7 +96,7 @@ class MiniWhegsSimulator:
         return world
 
     def turn_rig(self) -> SimTurnRig:
-        """A :class:`~components.encoders.calibrate.TurnRig` on an empty simulated world, for
+        """A :class:`~ubf_async.assembly.simulation.TurnRig` on an empty simulated world, for
         ``python -m components.encoders.calibrate``."""
         return SimTurnRig()
 
