@@ -37,7 +37,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-DEVICE_PACKAGES = ("camera", "motors", "encoders", "range", "radio")
+DEVICE_PACKAGES = ("camera", "motors", "encoders", "range", "radio", "leds")
 HARDWARE_LIBRARIES = ("gpiozero", "smbus2")
 HARDWARE_BACKENDS = ("components/hardware.py", "components/motors/gpio.py",
                      "components/encoders/gpio.py", "components/range/i2c.py")
