@@ -237,9 +237,9 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
 async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
     from components.camera.component import CameraComponent
-    from components.sim.component import SimulatorComponent, simulated_devices
-    from components.sim.scenes import ball_in_view
-    from components.sim.world import World
+    from components.sim.runner.stepper import SimulatorComponent, simulated_devices
+    from components.sim.scenarios.scenes import ball_in_view
+    from components.sim.world.physics import World
     from ubf_async.runtime.clock import SimClock
 
     clock = SimClock()

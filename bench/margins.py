@@ -32,6 +32,7 @@ from typing import Any
 
 from bench.latency_stats import percentile
 from bench.processes import terminate
+from components.motors.backend import MotorBackend
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
@@ -60,7 +61,7 @@ def stats_ms(values_s: list[float]) -> str:
 # Child processes
 
 
-class RecordingBackend:
+class RecordingBackend(MotorBackend):
     """Accepts pulses and remembers the last (no hardware on a bench machine)."""
 
     hold_s = 0.0

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from bench import cpu_hog
-from components.sim.component import DEVICES
+from components.sim.runner.stepper import DEVICES
 
 ROOT = Path(__file__).resolve().parent.parent
 CHILD_FLAG = "--in-process-child"

@@ -6,7 +6,7 @@ for a robot file; their keyword parameters are checked before anything is built,
 robot file's go through (:func:`ubf_async.assembly.registry.checked_params`): the same mistake,
 the same :class:`~ubf_async.errors.ParameterError`. A device started on its own
 (:mod:`components.standalone`) and the simulator's in-process helper
-(:func:`components.sim.component.simulated_devices`) both build through :func:`make_device`.
+(:func:`components.sim.runner.stepper.simulated_devices`) both build through :func:`make_device`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,14 @@ from collections.abc import Mapping
 from typing import Any
 
 from ubf_async.assembly import registry
+from ubf_async.assembly.backend import Backend
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.devices import (
     BACKEND_INJECTED,
     DEVICE_INJECTED,
     backend_label,
     build_device,
+    checked_backend,
     device_label,
     requires_simulator,
 )
@@ -37,12 +39,13 @@ DEFAULT_NAMES: dict[str, str] = {"camera": "front", "motors": "main", "encoders"
 
 
 def make_backend(kind: str, backend: str, *, context: DeviceContext,
-                 params: Mapping[str, Any] | None = None) -> Any:
+                 params: Mapping[str, Any] | None = None) -> Backend:
     """The backend ``backend`` of device ``kind``, built with ``params`` in ``context``."""
     factory = registry.get_backend(kind, backend)
+    what = backend_label(kind, backend)
     values = registry.checked_params(factory, params or {}, injected=BACKEND_INJECTED,
-                                     what=backend_label(kind, backend))
-    return factory(context=context, **values)
+                                     what=what)
+    return checked_backend(factory(context=context, **values), what=what)
 
 
 def make_device(

@@ -40,6 +40,7 @@ import yaml
 
 from components.devices import make_backend, make_device, requires_simulator
 from ubf_async.assembly import registry
+from ubf_async.assembly.backend import Backend
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
@@ -179,7 +180,7 @@ class Device:
         options = connection_options(args)
         bus = await Bus.open(options, ordered=self.lockstep)
         world: Any = None
-        backend: Any = None
+        backend: Backend | None = None
         component: Component | None = None
         participant: Component | None = None
         watch: refusals.RefusalWatch | None = None
@@ -219,8 +220,8 @@ class Device:
                 await participant.aclose()
             if component is not None:
                 await component.aclose()  # closes its backend too
-            elif callable(close := getattr(backend, "close", None)):
-                close()  # built, but its device was not
+            elif backend is not None:
+                await backend.aclose()  # built, but its device was not
             if world is not None:
                 world.close()
             if watch is not None:

@@ -199,8 +199,8 @@ class SimRobot:
 
     def __init__(self, bus: Bus, world_config: object, *, speed: float, devices: tuple[str, ...],
                  **device_options: object) -> None:
-        from components.sim.component import SimulatorComponent, simulated_devices
-        from components.sim.world import World
+        from components.sim.runner.stepper import SimulatorComponent, simulated_devices
+        from components.sim.world.physics import World
         from ubf_async.runtime.clock import SimClock
 
         self.clock = SimClock()
@@ -231,7 +231,7 @@ async def start_seeking_robot(bus: Bus, run: object) -> tuple[object, list[objec
     """The default tree (seek_pink_ball) on a simulation run's devices: devices, aggregator,
     controller and the run's own components, started in that order. Returns (controller,
     components); close the components in reverse order."""
-    from components.sim.component import simulated_devices
+    from components.sim.runner.stepper import simulated_devices
     from ubf_async.behaviors import seek_pink_ball
     from ubf_async.runtime.aggregator import StateAggregator
     from ubf_async.runtime.controller import Controller

@@ -35,8 +35,8 @@ from typing import Any
 
 import pytest
 
-from components.sim.record import TrajectorySample, read_trajectory_csv
-from components.sim.scenarios import builtin_names, load_scenario
+from components.sim.outputs.trajectory import TrajectorySample, read_trajectory_csv
+from components.sim.scenarios.scenario import builtin_names, load_scenario
 from tests.conftest import REPOSITORY, free_port, repository_env
 
 DEFAULT_ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"

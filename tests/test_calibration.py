@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 
-from components.sim.calibrate import (
+from components.sim.render.calibrate import (
     CONTACT_M,
     DOC_BEGIN,
     DOC_END,

@@ -18,10 +18,11 @@ from components.devices import (
     make_device,
     requires_simulator,
 )
+from components.range.backend import RangeBackend
 from components.range.ir import IR_MODELS
-from components.sim.scenarios import load_scenario
-from components.sim.world import World
-from components.sim.world_config import WorldConfig
+from components.sim.scenarios.scenario import load_scenario
+from components.sim.world.config import WorldConfig
+from components.sim.world.physics import World
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot_text
 from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
@@ -177,6 +178,39 @@ async def test_devices_build_through_the_registry_on_a_world(robot_bus: Bus) -> 
         make_backend("encoders", "sim", context=context, params={"glitch": 0.1})
 
 
+class DuckRanger:
+    """Reads like a range finder, but is no Backend: nothing says how it closes."""
+
+    def distance_m(self, mount: object, *, max_range_m: float) -> float | None:
+        return None
+
+
+@pytest.mark.asyncio
+async def test_a_backend_that_is_not_a_backend_is_refused_when_built(robot_bus: Bus) -> None:
+    context = DeviceContext(bus=robot_bus, clock=robot_bus.clock)
+    with pytest.raises(ConfigurationError, match=r"^range 'front': its backend is a "
+                       r"DuckRanger, not a ubf_async\.assembly\.backend\.Backend"):
+        make_device("range", context=context, backend=DuckRanger(), name="front")
+
+
+@pytest.mark.asyncio
+async def test_a_device_awaits_its_backends_aclose_once(robot_bus: Bus) -> None:
+    closed: list[str] = []
+
+    class Ranger(RangeBackend):
+        def distance_m(self, mount: object, *, max_range_m: float) -> float | None:
+            return None
+
+        async def aclose(self) -> None:
+            closed.append("aclose")  # not close(): the device awaits the one contract
+
+    context = DeviceContext(bus=robot_bus, clock=robot_bus.clock)
+    device = make_device("range", context=context, backend=Ranger(), name="front")
+    await device.aclose()
+    await device.aclose()
+    assert closed == ["aclose"]
+
+
 # The same bad parameter, given in a robot file and to a device started on its own (the
 # parameters are checked before anything is built: no bus is needed): the device kind, its
 # params, its backend's, and where in the robot file the mistake is.
@@ -286,6 +320,6 @@ def test_shipped_scenarios_load_without_warnings() -> None:
 
 
 def test_scenario_error_is_the_framework_one() -> None:
-    from components.sim import scenarios
+    from components.sim.scenarios import scenario as scenarios
 
     assert scenarios.ScenarioError is ScenarioError

@@ -10,11 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
+from components.camera.backend import CameraBackend
 from components.camera.component import CameraComponent
 from components.camera.videocapture import VideoCaptureBackend
 from components.radio.component import RadioComponent
-from components.sim.backends import SimRadioBackend
-from components.sim.world_config import Arena, BallConfig, WorldConfig
+from components.sim.backends.devices import SimRadioBackend
+from components.sim.world.config import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually
 from ubf_async import Action, FunctionBehavior
 from ubf_async.runtime.aggregator import StateAggregator
@@ -83,7 +84,7 @@ async def test_camera_component_on_real_footage_through_videocapture(
         assert camera.last_frame_shape == (1024, 1280, 3)  # resized to the OV9655's frame
 
 
-class BlockingCamera:
+class BlockingCamera(CameraBackend):
     """A camera backend whose capture waits until released, and which notes whether it was
     closed while a capture was inside it (what crashes a real OpenCV capture)."""
 
@@ -115,7 +116,7 @@ async def test_a_closing_camera_lets_its_capture_finish_before_closing_the_backe
         robot_bus: Bus) -> None:
     backend = BlockingCamera()
     camera = CameraComponent(bus=robot_bus, backend=backend, latency_s=0.0)
-    camera.close_on_exit(backend.close)  # as the device factory does
+    camera.close_on_exit(backend.aclose)  # as the device factory does
     await camera.start()
     await asyncio.to_thread(backend.capturing.wait, 30.0)
     run_task = camera._tasks[0]

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from components.sim.disturbances import HeadingAudit
+from components.sim.runner.disturbances import HeadingAudit
 
 
 def feed(audit: HeadingAudit, steps: list[tuple[float, float, tuple[str, ...]]],

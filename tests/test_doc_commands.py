@@ -964,7 +964,7 @@ def test_the_pi_robot_file_checks(tmp_path: Path) -> None:
 
 LATENCY_HELP = "python -m bench.latency --help"
 CPU_HOG = "python -m bench.cpu_hog -- python -m pytest ..."
-CALIBRATE = "python -m components.sim.calibrate --update-doc docs/scenarios.md"
+CALIBRATE = "python -m components.sim.render.calibrate --update-doc docs/scenarios.md"
 
 
 @runs(LATENCY_HELP)
@@ -1023,7 +1023,7 @@ def test_the_helps_shown_list_what_the_pages_say_and_the_schema_is_the_shipped_o
 
 CODEC = "python -m bench.codec"
 SEEKCOLOR = "python -m bench.seekcolor"
-SIM_CALIBRATE = "python -m components.sim.calibrate"
+SIM_CALIBRATE = "python -m components.sim.render.calibrate"
 SIMSECOND = "python -m bench.simsecond"
 TRACK_CALIBRATE = "python -m components.encoders.calibrate"
 

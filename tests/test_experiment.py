@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-import components.sim.backends
-import components.sim.render_process
+import components.sim.backends.devices
+import components.sim.render.process
 import ubf_async.runs.inprocess
-from components.sim.scenarios import builtin_names, load_scenario
+from components.sim.scenarios.scenario import builtin_names, load_scenario
 from tests.conftest import REPOSITORY
 from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, RECORDED, launched, ran
 from ubf_async import experiment
@@ -139,14 +139,14 @@ def test_runs_repeat_in_one_process_and_leave_nothing_behind(
     or the render process (the camera renders in a thread of the run), and none changes the
     loggers or the SIGINT handler."""
     render_requests: list[object] = []
-    shared = components.sim.backends.shared_render_process
+    shared = components.sim.backends.devices.shared_render_process
 
-    def spy() -> components.sim.render_process.RenderProcess:
+    def spy() -> components.sim.render.process.RenderProcess:
         render_requests.append(object())
         return shared()
 
-    monkeypatch.setattr(components.sim.backends, "shared_render_process", spy)
-    render_process_before = components.sim.render_process._SHARED
+    monkeypatch.setattr(components.sim.backends.devices, "shared_render_process", spy)
+    render_process_before = components.sim.render.process._SHARED
     threads, children = set(threading.enumerate()), child_processes()
     sigint = signal.getsignal(signal.SIGINT)
     scenario, duration_s = REPEATED
@@ -168,7 +168,7 @@ def test_runs_repeat_in_one_process_and_leave_nothing_behind(
 
     assert set(threading.enumerate()) <= threads
     assert child_processes() <= children and multiprocessing.active_children() == []
-    assert render_requests == [] and components.sim.render_process._SHARED is render_process_before
+    assert render_requests == [] and components.sim.render.process._SHARED is render_process_before
     assert logging_state() == loggers
     assert signal.getsignal(signal.SIGINT) == sigint
 
@@ -244,10 +244,10 @@ async def test_run_refuses_a_running_event_loop_and_run_async_runs_there(
 def test_instants_passed_without_a_round_of_the_loop_change_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Flat out, the simulator steps through the instants at which nothing of its process is
-    due without a round of the event loop (components/sim/component.py, Lockstep). The same
+    due without a round of the event loop (components/sim/runner/stepper.py, Lockstep). The same
     run with a barrier at every instant is the same, sample for sample: a launch recorded with
     --record (its recorder makes the simulator publish at every step) shows it too."""
-    from components.sim.component import SimulatorComponent
+    from components.sim.runner.stepper import SimulatorComponent
 
     rounds = {"barriers": 0, "steps": 0}
     barrier, step = SimulatorComponent._barrier, SimulatorComponent._step

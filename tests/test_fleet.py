@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from components.range.backend import MountPose
-from components.sim.camera_render import render_camera
-from components.sim.ranging import beam_distance_m
-from components.sim.world import ROBOT_COLOR, World
-from components.sim.world_config import Arena, WorldConfig, WorldPose
+from components.sim.render.camera import render_camera
+from components.sim.world.config import Arena, WorldConfig, WorldPose
+from components.sim.world.physics import ROBOT_COLOR, World
+from components.sim.world.ranging import beam_distance_m
 from tests.conftest import eventually, free_port, read_until, repository_env, spawn, stop
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
@@ -96,8 +96,8 @@ def test_fleet_files_with_mistakes_are_refused_clearly(tmp_path: Path, text: str
 async def test_robots_placed_on_each_other_or_outside_the_arena_are_refused(
     tmp_path: Path,
 ) -> None:
-    from components.sim.scenarios import load_scenario
-    from components.sim.shared_world import fleet_world_config
+    from components.sim.runner.fleet_world import fleet_world_config
+    from components.sim.scenarios.scenario import load_scenario
     from ubf_async.assembly.simulation import FleetMember
     from ubf_async.errors import ScenarioError
 

@@ -10,8 +10,8 @@ from typing import Any
 
 import pytest
 
-from components.sim.world import World
-from components.sim.world_config import Arena, WorldConfig, WorldPose
+from components.sim.world.config import Arena, WorldConfig, WorldPose
+from components.sim.world.physics import World
 from ubf_async.assembly.devices import build_device
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.assembly.simulation import DeviceContext

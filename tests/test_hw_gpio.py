@@ -24,11 +24,11 @@ from components import hardware
 from components.encoders.backend import EdgeTiming
 from components.encoders.component import EncodersComponent, wheel_speed_rad_s
 from components.encoders.gpio import MAX_EDGE_GAP_S, GpioEncoderBackend
-from components.encoders.quadrature import FORWARD_SEQUENCE, DirectionMode, QuadratureDecoder
 from components.motors.check import Interrupted, run_check
 from components.motors.component import MotorsComponent, MotorTrim
 from components.motors.gpio import GpioMotorBackend, gpio_backend
 from components.motors.pwm import DEFAULT_PWM, pulse_widths
+from components.quadrature import FORWARD_SEQUENCE, DirectionMode, QuadratureDecoder
 from tests.conftest import LoopClock, eventually
 from tests.pinlog import holds
 from ubf_async.errors import ConfigurationError
@@ -88,7 +88,7 @@ def motors_component(bus: Bus, backend: GpioMotorBackend, *, timeout_s: float
     """The motors component with the trims above, closing ``backend`` when it closes."""
     motors = MotorsComponent(bus=bus, backend=backend, timeout_s=timeout_s,
                              left=LEFT_TRIM.calibration(), right=RIGHT_TRIM.calibration())
-    motors.close_on_exit(backend.close)
+    motors.close_on_exit(backend.aclose)
     return motors
 
 

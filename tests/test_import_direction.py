@@ -10,10 +10,13 @@
   them (the simulated one) runs — checked by running it with both made unimportable.
 
 The same directions, the rooms of the framework (``ubf_async``'s subpackages, high to low:
-tools, runs, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle) and no
-import circles are contracts of ``lint-imports`` (``[tool.importlinter]`` in pyproject.toml, run by
-.ci/run); the last tests here show that it refuses a deliberately upward import on a scratch
-copy of the packages.
+tools, runs, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle), the
+simulator's rooms (``components.sim``'s subpackages: plugin, runner, backends|outputs|mirror,
+render|scenarios, world; every module placed), device packages independent of each other (what
+two share lives beside them: ``components/quadrature.py``, ``miniwhegs.py``, ``hardware.py``)
+and no import circles are contracts of
+``lint-imports`` (``[tool.importlinter]`` in pyproject.toml, run by .ci/run); the last tests
+here show that it refuses a deliberately upward import on a scratch copy of the packages.
 
 Static imports only (``import``/``from … import`` anywhere in a module, including inside
 functions and ``if TYPE_CHECKING:``), and imports by a literal name
@@ -34,7 +37,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-DEVICE_PACKAGES = ("camera", "motors", "encoders", "range", "radio")
+DEVICE_PACKAGES = ("camera", "motors", "encoders", "range", "radio", "leds")
 HARDWARE_LIBRARIES = ("gpiozero", "smbus2")
 HARDWARE_BACKENDS = ("components/hardware.py", "components/motors/gpio.py",
                      "components/encoders/gpio.py", "components/range/i2c.py")
@@ -257,11 +260,27 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
     ({"ubf_async/wire/topics.py": "from ubf_async.wire.protocol import decode  # noqa"},
      ["No import circles"]),
     # The framework reaching for a component.
-    ({"ubf_async/runtime/bus.py": "import components.sim.world  # noqa"},
+    ({"ubf_async/runtime/bus.py": "import components.sim.world.physics  # noqa"},
      ["The framework imports no component"]),
     # A component reaching for a tool.
-    ({"components/sim/liveview.py": "import ubf_async.tools.liveview  # noqa"},
+    ({"components/sim/mirror/arena.py": "import ubf_async.tools.liveview  # noqa"},
      ["Nothing below the tools imports a tool"]),
+    # The simulator's world reaching up for the renderer.
+    ({"components/sim/world/physics.py": "import components.sim.render.camera  # noqa"},
+     ["The simulator's rooms"]),
+    # Two simulator rooms of one layer: the backends taking a run's outputs.
+    ({"components/sim/backends/devices.py": "import components.sim.outputs.trajectory  # noqa"},
+     ["The simulator's rooms"]),
+    # A new simulator module nobody placed in the rooms.
+    ({"components/sim/helpers.py": "import math  # noqa"}, ["The simulator's rooms"]),
+    # A device package taking another's module: the motors' check the encoders' component
+    # (the circle motors <-> encoders that was excused once).
+    ({"components/motors/check.py": "import components.encoders.component  # noqa"},
+     ["The device packages import none of each other"]),
+    # ... and even through a third module: the LEDs reaching the camera by way of the
+    # simulator's backends is refused twice (devices never import the simulator either).
+    ({"components/leds/bank.py": "import components.sim.backends.devices  # noqa"},
+     ["The device packages import none of each other", "Devices stand on the framework"]),
 ])
 def test_lint_imports_refuses_an_upward_import(tmp_path: Path, edits: dict[str, str],
                                                broken: list[str]) -> None:

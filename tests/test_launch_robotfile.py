@@ -296,7 +296,7 @@ def test_a_robot_of_real_devices_runs_without_the_simulator(
 
 def test_an_old_scenario_with_a_behaviour_parameter_warns_the_user(
         tmp_path: Path, endpoint: str) -> None:
-    scenario = json.loads((ROOT / "components/sim/scenario_files/ball-behind.json").read_text())
+    scenario = json.loads((ROOT / "components/sim/scenarios/files/ball-behind.json").read_text())
     scenario["search_period_s"] = 2
     path = tmp_path / "old.json"
     path.write_text(json.dumps(scenario))

@@ -17,8 +17,13 @@ import pytest
 from components.camera.seekcolor import seekcolor
 from components.leds.bank import LedBank
 from components.leds.component import LedsComponent
-from components.sim.backends import SimLedBackend
-from components.sim.record import LED_DARK_BGR, LED_LIT_BGR, annotate_frame, read_trajectory_csv
+from components.sim.backends.devices import SimLedBackend
+from components.sim.outputs.trajectory import (
+    LED_DARK_BGR,
+    LED_LIT_BGR,
+    annotate_frame,
+    read_trajectory_csv,
+)
 from tests.conftest import as_dict, eventually, free_port, spawn, stop
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.net.transport import InProcessTransport

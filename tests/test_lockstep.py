@@ -33,11 +33,11 @@ from unittest import mock
 import pytest
 
 from bench.cpu_hog import available_cpus, hogs, pin_to
-from components.sim import backends
-from components.sim.backends import RENDER_DELAY_ENV
-from components.sim.record import read_trajectory_csv
-from components.sim.render_process import RenderProcess
-from components.sim.scenarios import load_scenario
+from components.sim.backends import devices as backends
+from components.sim.backends.devices import RENDER_DELAY_ENV
+from components.sim.outputs.trajectory import read_trajectory_csv
+from components.sim.render.process import RenderProcess
+from components.sim.scenarios.scenario import load_scenario
 from tests.conftest import REPOSITORY, free_port, repository_env
 from ubf_async.runs.fleet import run_fleet
 from ubf_async.runs.inprocess import plan_run, run_plan

@@ -22,10 +22,20 @@ from components.encoders.calibrate import (
 )
 from components.encoders.odometry import EFFECTIVE_TRACK_M
 from tests.conftest import eventually, read_until, spawn, stop
+from ubf_async.assembly.simulation import Simulator
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
+
+
+def test_a_simulator_without_a_turn_rig_says_so() -> None:
+    # The rig is an optional member of the simulator seam, its default a refusal by name.
+    class Bare(Simulator):
+        name = "bare"
+
+    with pytest.raises(ConfigurationError, match=r"^simulator 'bare' offers no turn rig$"):
+        Bare().turn_rig()
 
 
 def test_fit_on_the_simulated_robot_matches_the_default() -> None:

@@ -1,4 +1,4 @@
-"""Quadrature decoding in components.encoders.quadrature."""
+"""Quadrature decoding in components.quadrature."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import math
 import numpy as np
 import pytest
 
-from components.encoders.quadrature import (
+from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
+from components.quadrature import (
     FORWARD_SEQUENCE,
     DirectionMode,
     QuadratureDecoder,
     edges_to_counts,
     edges_to_radians,
 )
-from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 
 FWD = list(FORWARD_SEQUENCE)  # 0, 1, 3, 2
 BWD = FWD[::-1]  # 2, 3, 1, 0

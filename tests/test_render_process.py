@@ -1,4 +1,4 @@
-"""Simulated cameras rendering in a worker process (components/sim/render_process.py): the same
+"""Simulated cameras rendering in a worker process (components/sim/render/process.py): the same
 frames as in-thread, a worker replaced when it dies or hangs, in-thread rendering when it
 cannot start or is not wanted, and no process left behind however the launch ends."""
 
@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 
 from components.camera.seekcolor import SUBSAMPLE_STEP
-from components.sim import render_process
-from components.sim.backends import SimCameraBackend, WorldView, camera_backend
-from components.sim.calibrate import ball_ahead_world
-from components.sim.camera_render import DEFAULT_CAMERA
-from components.sim.render_process import ENV_VAR, RenderProcess, shared_render_process
-from components.sim.world import RobotView, World
-from components.sim.world_config import Arena, BallConfig, WorldConfig, WorldPose
+from components.sim.backends.devices import SimCameraBackend, WorldView, camera_backend
+from components.sim.render import process as render_process
+from components.sim.render.calibrate import ball_ahead_world
+from components.sim.render.camera import DEFAULT_CAMERA
+from components.sim.render.process import ENV_VAR, RenderProcess, shared_render_process
+from components.sim.world.config import Arena, BallConfig, WorldConfig, WorldPose
+from components.sim.world.physics import RobotView, World
 from tests.test_sim_camera import busy_arena
 from ubf_async.assembly.simulation import DeviceContext
 
@@ -142,7 +142,7 @@ def test_a_frame_that_fails_in_the_worker_is_left_to_the_thread(
 
 
 def test_the_caches_are_built_in_the_worker_not_here() -> None:
-    from components.sim.camera_render import _background, _noise_planes
+    from components.sim.render.camera import _background, _noise_planes
 
     def misses() -> tuple[int, int]:
         return _background.cache_info().misses, _noise_planes.cache_info().misses
@@ -260,7 +260,7 @@ def _children(pid: int) -> set[int]:
 def _worker_of(pid: int) -> int | None:
     for child in _children(pid):
         with contextlib.suppress(FileNotFoundError):
-            if b"render_process import worker_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+            if b"render.process import worker_main" in Path(f"/proc/{child}/cmdline").read_bytes():
                 return child
     return None
 
@@ -360,8 +360,8 @@ def test_a_launch_leaves_no_process_behind(endpoint: str, end: str) -> None:
 
 _PROGRAM = """
 import os, sys
-from components.sim.camera_render import DEFAULT_CAMERA
-from components.sim.render_process import shared_render_process
+from components.sim.render.camera import DEFAULT_CAMERA
+from components.sim.render.process import shared_render_process
 renderer = shared_render_process()
 assert renderer.prepare(DEFAULT_CAMERA, grid=8)
 print(renderer.pid, flush=True)

@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 
-from components.sim.scenarios import Expectation, load_scenario, parse_scenario
-from components.sim.world import World
+from components.sim.scenarios.scenario import Expectation, load_scenario, parse_scenario
+from components.sim.world.physics import World
 from ubf_async.errors import ScenarioError
 
 ARENA = {"x_min_m": -1.5, "y_min_m": -1.5, "x_max_m": 1.5, "y_max_m": 1.5}
@@ -187,7 +187,7 @@ def test_touching_is_not_overlapping() -> None:
 
 
 def test_expected_outcomes_are_checked_when_the_scenario_loads() -> None:
-    from components.sim.scenarios import parse_scenario
+    from components.sim.scenarios.scenario import parse_scenario
 
     base = {"name": "x", "ball": {"x_m": 0.6, "y_m": 0.0}}
     scenario = parse_scenario({**base, "expect": {

@@ -22,12 +22,12 @@ from typing import Any
 import cv2
 import pytest
 
-from components.sim.record import (
+from components.sim.outputs.trajectory import (
     TrajectorySample,
     camera_to_ball,
     motion_over,
 )
-from components.sim.scenarios import Expectation, builtin_names, load_scenario
+from components.sim.scenarios.scenario import Expectation, builtin_names, load_scenario
 from tests.shared_runs import DEFAULT_ROBOT, LAUNCH_SEEDS, RECORDED, launched, ran
 
 ROOT = Path(__file__).resolve().parent.parent

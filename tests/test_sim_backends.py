@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from components.motors.pwm import LEFT_MOTOR, RIGHT_MOTOR, wheel_speed_rad_s
-from components.sim.backends import (
+from components.sim.backends.devices import (
     SimCameraBackend,
     SimEncoderBackend,
     SimMotorBackend,
@@ -20,8 +20,8 @@ from components.sim.backends import (
     insert_glitches,
     quadrature_states,
 )
-from components.sim.world import World
-from components.sim.world_config import BallConfig, WorldConfig
+from components.sim.world.config import BallConfig, WorldConfig
+from components.sim.world.physics import World
 
 EDGES_PER_REV = 4096
 FORWARD_NEXT = {0: 1, 1: 3, 3: 2, 2: 0}
@@ -172,7 +172,7 @@ def test_radio_backend_is_an_in_memory_link() -> None:
 
 def test_sim_imports_no_bus_or_asyncio() -> None:
     code = (
-        "import sys, components.sim.backends, components.sim.calibrate;"
+        "import sys, components.sim.backends.devices, components.sim.render.calibrate;"
         "print(sorted(m for m in ('zenoh', 'asyncio') if m in sys.modules))"
     )
     out = subprocess.run(

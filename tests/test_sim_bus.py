@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
-from components.sim.component import DEVICES
-from components.sim.world_config import Arena, BallConfig, WorldConfig, WorldPose
+from components.sim.runner.stepper import DEVICES
+from components.sim.world.config import Arena, BallConfig, WorldConfig, WorldPose
 from tests.conftest import SimRobot, as_dict, eventually
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.runtime.aggregator import StateAggregator

@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 
 from components.camera.seekcolor import seekcolor
-from components.sim.calibrate import ball_ahead_world, main, pink_counts
-from components.sim.camera_render import DEFAULT_CAMERA, render_camera
-from components.sim.world import World
-from components.sim.world_config import (
+from components.sim.render.calibrate import ball_ahead_world, main, pink_counts
+from components.sim.render.camera import DEFAULT_CAMERA, render_camera
+from components.sim.world.config import (
     ORANGE,
     Arena,
     BallConfig,
@@ -24,6 +23,7 @@ from components.sim.world_config import (
     WorldConfig,
     WorldPose,
 )
+from components.sim.world.physics import World
 
 SEEDS = range(8)
 DISTANCES = (0.035, 0.08, 0.12, 0.15, 0.20, 0.22, 0.25, 0.30, 0.35, 0.40, 0.45, 0.50, 0.60,
@@ -73,7 +73,7 @@ def test_count_keeps_growing_as_the_ball_leaves_the_view(peak: dict[float, float
 def test_auto_exposure_only_up_close() -> None:
     """The gain is 1 while the ball is 40 cm or farther (the calibrated far counts are
     untouched) and falls as the ball fills the view."""
-    from components.sim.camera_render import _make_cam, _sphere_disk, auto_exposure_gain
+    from components.sim.render.camera import _make_cam, _sphere_disk, auto_exposure_gain
 
     def gain(distance_m: float) -> float:
         snap = ball_ahead_world(distance_m).snapshot()
@@ -197,7 +197,7 @@ def test_wall_chunks_take_the_shortcut_only_when_clipping_would_change_nothing()
     From poses that see corners, walls up close and walls behind, the chunks kept must be
     exactly those that clipping polygon by polygon leaves visible, and a chunk projected
     without clipping must be one that clipping leaves as it is."""
-    from components.sim.camera_render import _clip_polygon, _make_cam, _project, _wall_items
+    from components.sim.render.camera import _clip_polygon, _make_cam, _project, _wall_items
 
     world = World(WorldConfig(arena=Arena(x_min_m=-1.5, x_max_m=1.5, y_min_m=-1.5, y_max_m=1.5)))
     rng = np.random.default_rng(7)
@@ -265,7 +265,7 @@ def test_grid_render_counts_as_the_full_frame(name: str, world: World) -> None:
     shades a ball closer than ≈35 cm on a coarser grid, ``max_sphere_samples``) — far less
     than the counts vary from frame to frame (docs/scenarios.md's calibration table)."""
     from components.camera.seekcolor import SUBSAMPLE_STEP
-    from components.sim.backends import SimCameraBackend
+    from components.sim.backends.devices import SimCameraBackend
 
     full = SimCameraBackend(world, rng=np.random.default_rng(11))
     sparse = SimCameraBackend(world, rng=np.random.default_rng(11), grid=SUBSAMPLE_STEP)

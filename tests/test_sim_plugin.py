@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from components.sim.remote import RemoteWorld
-from components.sim.world_config import Arena, BallConfig, WorldConfig
+from components.sim.mirror.remote_world import RemoteWorld
+from components.sim.world.config import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually, start_seeking_robot
 from ubf_async.assembly import registry
 from ubf_async.assembly.simulation import SimulationOptions, Simulator

@@ -7,10 +7,8 @@ import math
 import pytest
 
 from components.range.backend import MountPose
-from components.sim.backends import SimRangeBackend
-from components.sim.ranging import beam_distance_m, ray_box, ray_circle, ray_segment
-from components.sim.world import World
-from components.sim.world_config import (
+from components.sim.backends.devices import SimRangeBackend
+from components.sim.world.config import (
     BallConfig,
     BoxObstacle,
     Distractor,
@@ -18,6 +16,8 @@ from components.sim.world_config import (
     WorldConfig,
     WorldPose,
 )
+from components.sim.world.physics import World
+from components.sim.world.ranging import beam_distance_m, ray_box, ray_circle, ray_segment
 
 FRONT = MountPose(x_m=0.05, y_m=0.0, yaw_rad=0.0)
 LEFT_SIDE = MountPose(x_m=0.0, y_m=0.035, yaw_rad=math.pi / 2)

@@ -12,9 +12,9 @@ from typing import Any
 import cv2
 import pytest
 
-import components.sim.runner as runner
+import components.sim.runner.run as runner
 from components.motors.pwm import pulse_widths
-from components.sim.record import (
+from components.sim.outputs.trajectory import (
     TrajectoryBuffer,
     TrajectoryCsvWriter,
     TrajectorySample,
@@ -22,8 +22,8 @@ from components.sim.record import (
     read_trajectory_csv,
     trajectory_sample,
 )
-from components.sim.world import World
-from components.sim.world_config import Arena, BallConfig, WorldConfig
+from components.sim.world.config import Arena, BallConfig, WorldConfig
+from components.sim.world.physics import World
 from tests.conftest import start_seeking_robot
 from ubf_async import experiment
 from ubf_async.assembly import registry

@@ -16,15 +16,15 @@ from components.motors.pwm import (
     pulse_widths,
     wheel_speed_rad_s,
 )
-from components.sim.steady_drive import (
+from components.sim.world.config import Arena, BallConfig, RobotConfig, WorldConfig, WorldPose
+from components.sim.world.physics import World, wrap_angle
+from components.sim.world.steady_drive import (
     THESIS_DRIVE_COMMANDS,
     SteadyDrive,
     drive_table,
     format_drive_table,
     steady_drive,
 )
-from components.sim.world import World, wrap_angle
-from components.sim.world_config import Arena, BallConfig, RobotConfig, WorldConfig, WorldPose
 
 RADIUS = MINI_WHEGS.wheel_radius_m
 
@@ -264,7 +264,7 @@ def test_contacts_name_what_touched_the_robot_and_when() -> None:
     """Nothing touches a robot driving in the open; the box it drives into, the arena's wall
     it is then reversed into, the ball and a hand's push are each named, with the end of the
     last step they touched it in (what the run's summary reports as disturbed periods)."""
-    from components.sim.world_config import BoxObstacle, Distractor
+    from components.sim.world.config import BoxObstacle, Distractor
 
     world = World(WorldConfig(
         arena=Arena(x_min_m=-0.3, x_max_m=1.0, y_min_m=-0.5, y_max_m=0.5),

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from components.sim.world_config import Arena, WorldConfig, WorldPose
+from components.sim.world.config import Arena, WorldConfig, WorldPose
 from tests.conftest import SimRobot, as_dict, eventually
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus

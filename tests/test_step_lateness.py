@@ -7,10 +7,10 @@ import time
 
 import pytest
 
-from components.sim.component import SimulatorComponent
-from components.sim.runner import lateness_summary
-from components.sim.world import World
-from components.sim.world_config import WorldConfig
+from components.sim.runner.run import lateness_summary
+from components.sim.runner.stepper import SimulatorComponent
+from components.sim.world.config import WorldConfig
+from components.sim.world.physics import World
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock

@@ -95,10 +95,10 @@ def test_a_run_that_settles_meets_it_and_a_run_too_slow_is_warned_about(
 def test_the_trajectory_plot_is_in_metres_with_time_marks_events_and_winners(
         tmp_path: Path) -> None:
     """The plot a recorded run draws (launch's --record, run()'s pictures: the same runner)."""
-    from components.sim.plots import save_run_plot
-    from components.sim.record import read_trajectory_csv
-    from components.sim.scenarios import load_scenario
-    from components.sim.world import World
+    from components.sim.outputs.plots import save_run_plot
+    from components.sim.outputs.trajectory import read_trajectory_csv
+    from components.sim.scenarios.scenario import load_scenario
+    from components.sim.world.physics import World
 
     experiment.run("mini-whegs", "keep-away", duration_s=25.0, out_dir=tmp_path, pictures=True)
     assert (tmp_path / "trajectory.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
-from components.sim.world_config import Arena, WorldConfig
+from components.sim.world.config import Arena, WorldConfig
 from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop
 from ubf_async.runtime import clock as clock_module
 from ubf_async.runtime.bus import Bus
@@ -456,8 +456,8 @@ class WithheldClock:
     steps later), made as long as the test needs."""
 
     def __init__(self, bus: Bus, *, epoch: str, start_ns: int = 12 * S) -> None:
-        from components.sim.wire import snapshot_to_data
-        from components.sim.world import World
+        from components.sim.world.physics import World
+        from components.sim.world.snapshot_data import snapshot_to_data
 
         self.token = bus.declare_token(bus.keys.alive("sim"))  # the robot, to attach to
         self.world = bus.publisher(SIM_WORLD, period_s=0.02)

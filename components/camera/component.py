@@ -58,7 +58,7 @@ camera and ended with the last, on which their captures take turns. Several rend
 parallel threads only contend for the GIL, and the event loop waits for it too: a fleet's
 world with 8 cameras stalled its steps by up to 30 ms (tick jitter p99 30 ms), with one render
 thread 5 ms (docs/fleet.md); and a thread per frame costs more than the frame's seekcolor. A
-simulated camera may render in a render process (:mod:`components.sim.render_process`) and its
+simulated camera may render in a render process (:mod:`components.sim.render.process`) and its
 capture here then mostly waits on it; one at a time still suits it: the render process
 renders one frame at a time too. A real camera's capture waits on its device and keeps a
 thread of its own."""
@@ -82,7 +82,7 @@ class CameraComponent(Component):
             raise ValueError(f"latency_s must be ≥ 0, got {latency_s}")
         self.source_name = name
         self.backend = backend
-        self._renders = _RENDERS if getattr(backend, "renders_in_python", False) else None
+        self._renders = _RENDERS if backend.renders_in_python else None
         self.latency_s = latency_s
         self.color = color
         self.hfov_deg = hfov_deg

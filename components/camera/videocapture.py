@@ -15,6 +15,7 @@ import cv2
 import msgspec
 import numpy as np
 
+from components.camera.backend import CameraBackend
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
@@ -23,7 +24,7 @@ class CameraError(RuntimeError):
     """The source cannot be opened, is closed, or yields no frame."""
 
 
-class VideoCaptureBackend:
+class VideoCaptureBackend(CameraBackend):
     """Frames from a camera index or a video file, converted to RGB and resized to ``size``.
 
     ``size`` is ``(width, height)`` in pixels (OpenCV order). ``capture()`` blocks until a

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
+
+from ubf_async.assembly.backend import Backend
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -29,7 +30,7 @@ class EdgeTiming:
     the batch's first edge."""
 
 
-class EncoderBackend(Protocol):
+class EncoderBackend(Backend):
     """Source of quadrature A/B levels for the left and right encoders.
 
     ``read_phases()`` returns, for each wheel, a ``uint8`` array of the 2-bit states
@@ -37,12 +38,23 @@ class EncoderBackend(Protocol):
     level change (a real line may glitch: false edges appear as a state and its immediate
     reversal). The decoder remembers the last state of the previous batch, so an empty array
     simply means "no edges".
-
-    Optional, for a backend that stamps edges: ``edge_timing``, one :class:`EdgeTiming` per
-    wheel (left, right) for the batch the last ``read_phases()`` returned — the encoders
-    component turns it into each wheel's speed; and ``overflowed``, the edges dropped so far
-    because they came faster than they were read.
     """
 
+    edge_timing: tuple[EdgeTiming, EdgeTiming] | None = None
+    """For a backend that stamps its edges: one :class:`EdgeTiming` per wheel (left, right) for
+    the batch the last :meth:`read_phases` returned — the encoders component turns it into each
+    wheel's speed. None (the default): no stamps."""
+
+    @property
+    def overflowed(self) -> int | None:
+        """The edges dropped so far because they came faster than they were read; None (the
+        default) for a backend that cannot drop any."""
+        return None
+
+    def current_states(self) -> tuple[int, int] | None:
+        """The lines' present 2-bit states (left, right), the decoders' start states; None
+        (the default) when the backend cannot tell before its first batch."""
+        return None
+
     def read_phases(self) -> tuple[np.ndarray, np.ndarray]:
-        ...
+        raise NotImplementedError

@@ -46,12 +46,12 @@ import math
 import sys
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol, TextIO
+from typing import TextIO
 
 from components.encoders.odometry import EFFECTIVE_TRACK_M, wrap_angle
-from components.encoders.quadrature import edges_to_radians
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
-from components.motors.pwm import pulse_widths
+from components.quadrature import edges_to_radians
+from ubf_async.assembly.simulation import Simulator, TurnRig
 from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.cli.args import add_connection_arguments
 from ubf_async.cli.attach import attached_bus
@@ -80,16 +80,6 @@ class Turn:
     d_left_rad: float
     d_right_rad: float
     true_yaw_rad: float
-
-
-class TurnRig(Protocol):
-    """Drives a robot with fixed motor pulses and reports what happened."""
-
-    def drive(self, *, left_ms: float, right_ms: float, settle_s: float,
-              measure_s: float) -> tuple[float, float, float]:
-        """ConstantDrive with these pulses for ``settle_s`` (not measured), then ``measure_s`` more;
-        return ``(Δθ_left, Δθ_right, true yaw)`` in radians over the measured part."""
-        ...
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -125,12 +115,11 @@ def fit_effective_track(turns: Sequence[Turn],
 
 def measure_turns(rig: TurnRig, commands: Sequence[tuple[float, float]] = DEFAULT_TURNS, *,
                   settle_s: float = 1.0, measure_s: float = 3.0) -> list[Turn]:
-    """ConstantDrive each speed/turn command (through the HAL's pulse calibration) on ``rig``."""
+    """Drive each speed/turn command on ``rig``."""
     turns = []
     for speed, turn in commands:
-        pulses = pulse_widths(speed, turn)
-        d_left, d_right, yaw = rig.drive(left_ms=pulses.left_ms, right_ms=pulses.right_ms,
-                                         settle_s=settle_s, measure_s=measure_s)
+        d_left, d_right, yaw = rig.drive(speed=speed, turn=turn, settle_s=settle_s,
+                                         measure_s=measure_s)
         turns.append(Turn(speed=speed, turn=turn, d_left_rad=d_left, d_right_rad=d_right,
                           true_yaw_rad=yaw))
     return turns
@@ -140,12 +129,8 @@ def simulated_rig(simulator: str = "mini-whegs") -> TurnRig:
     """The turn rig of a simulator plug-in (registry ``ubf_async.simulators``)."""
     from ubf_async.assembly.registry import SIMULATORS
 
-    plugin = SIMULATORS.get(simulator)()
-    make_rig = getattr(plugin, "turn_rig", None)
-    if make_rig is None:
-        raise ConfigurationError(f"simulator {simulator!r} offers no turn rig")
-    rig: TurnRig = make_rig()
-    return rig
+    plugin: Simulator = SIMULATORS.get(simulator)()
+    return plugin.turn_rig()
 
 
 def format_fit(fit: TrackFit) -> str:

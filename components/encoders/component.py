@@ -26,13 +26,13 @@ import msgspec
 
 from components.encoders.backend import EdgeTiming, EncoderBackend
 from components.encoders.odometry import EFFECTIVE_TRACK_M, OdometryPose, WheelOdometry
-from components.encoders.quadrature import (
+from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
+from components.quadrature import (
     DirectionMode,
     QuadratureDecoder,
     edges_to_counts,
     edges_to_radians,
 )
-from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
@@ -109,12 +109,12 @@ class EncodersComponent(Component):
                 "right_counts": edges_to_counts(self.right.edges, self.geometry),
                 "errors": self.left.errors + self.right.errors, "mode": mode,
             }
-            timing = getattr(self.backend, "edge_timing", None)
+            timing = self.backend.edge_timing
             if timing is not None:  # a backend that stamps its edges
                 left_timing, right_timing = timing
                 counts["left_rad_s"] = wheel_speed_rad_s(d_left, left_timing, self.geometry)
                 counts["right_rad_s"] = wheel_speed_rad_s(d_right, right_timing, self.geometry)
-            dropped = getattr(self.backend, "overflowed", None)
+            dropped = self.backend.overflowed
             if dropped is not None:
                 counts["dropped"] = int(dropped)
             counts_pub.publish(counts, stamp_ns=stamp)
@@ -154,8 +154,7 @@ def build_device(
     start frame); a fleet's world sets each robot's start pose in the world where the robot
     file leaves them unset, so the fleet's odometry shares one frame.
     """
-    current_states = getattr(backend, "current_states", None)
-    initial = current_states() if callable(current_states) else None
+    initial = backend.current_states()
     mode = DirectionMode.COMMANDED if direction == "commanded" else DirectionMode.PHASE
     return EncodersComponent(bus=bus, backend=backend, name=name, period_s=period_s, mode=mode,
                              initial_states=initial, effective_track_m=effective_track_m,

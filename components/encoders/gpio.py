@@ -6,7 +6,7 @@ edge in the kernel; its ``ticks`` travel with it): the callback only records the
 2-bit state ``(A << 1) | B`` and the edge's time in a bounded buffer under a lock, so edges are
 never handled on the event loop. The encoders component takes the batch every ``period_s``
 (:meth:`GpioEncoderBackend.read_phases`) and decodes it with the existing
-:class:`~components.encoders.quadrature.QuadratureDecoder`, in either direction mode.
+:class:`~components.quadrature.QuadratureDecoder`, in either direction mode.
 
 A buffer that fills between two reads (more than ``max_pending`` edges: a component stalled
 for a long time) drops the oldest edges and counts them in ``overflowed`` (the encoders
@@ -32,7 +32,7 @@ import msgspec
 import numpy as np
 
 from components import hardware
-from components.encoders.backend import EdgeTiming
+from components.encoders.backend import EdgeTiming, EncoderBackend
 from ubf_async.assembly.context import DeviceContext
 
 log = logging.getLogger(__name__)
@@ -133,7 +133,7 @@ class _Wheel:
             pin.close()
 
 
-class GpioEncoderBackend:
+class GpioEncoderBackend(EncoderBackend):
     """Both wheel encoders on GPIO; see the module docstring."""
 
     def __init__(self, *, factory: Any, left_a: str, left_b: str, right_a: str, right_b: str,

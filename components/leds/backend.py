@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from ubf_async.assembly.backend import Backend
 
 
-class LedBackend(Protocol):
+class LedBackend(Backend):
     def set_leds(self, mask: int) -> None:
         """Light exactly the LEDs whose bits are set (bit ``i`` = LED ``i``); non-blocking."""
-        ...
+        raise NotImplementedError

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from ubf_async.assembly.backend import Backend
 
 
-class MotorBackend(Protocol):
+class MotorBackend(Backend):
     """Hardware (or simulated) motor driver.
 
     The HAL has already mapped speed/turn to pulse widths and compensated each motor with its
@@ -22,4 +22,4 @@ class MotorBackend(Protocol):
 
     def apply_pulses(self, *, left_ms: float, right_ms: float) -> None:
         """Set the high time of the 20 ms PWM period for each motor, in milliseconds."""
-        ...
+        raise NotImplementedError

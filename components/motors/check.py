@@ -27,12 +27,14 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from types import FrameType
-from typing import Any, TextIO
+from typing import Protocol, TextIO
 
-from components.encoders.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
+import numpy as np
+
 from components.miniwhegs import MINI_WHEGS
 from components.motors.backend import MotorBackend
 from components.motors.pwm import DEFAULT_PWM, MotorCalibration
+from components.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
 from ubf_async.errors import ConfigurationError, UbfError
 
 WHEELS = ("left", "right")
@@ -108,7 +110,18 @@ class Step:
         return {w: edges_to_counts(e, MINI_WHEGS) for w, e in self.edges.items()}
 
 
-def run_check(*, motors: MotorBackend, encoders: Any, left: MotorCalibration,
+class EncoderLines(Protocol):
+    """What the check reads of the robot file's encoders backend (an encoders backend: the
+    motors package does not import that package's interface, devices being independent)."""
+
+    def current_states(self) -> tuple[int, int] | None: ...
+
+    def read_phases(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def close(self) -> None: ...
+
+
+def run_check(*, motors: MotorBackend, encoders: EncoderLines, left: MotorCalibration,
               right: MotorCalibration,
               u: float = 30.0, spin_s: float = 1.0, settle_s: float = 0.3,
               min_edges: int = 40, out: TextIO = sys.stdout,
@@ -123,8 +136,9 @@ def run_check(*, motors: MotorBackend, encoders: Any, left: MotorCalibration,
     calibrations = {"left": left, "right": right}
     stop = {"left_ms": left.zero_ms, "right_ms": right.zero_ms}
     held = motors.hold_s
+    states = encoders.current_states() or (None, None)
     decoders = {w: QuadratureDecoder(mode=DirectionMode.PHASE, initial_state=s)
-                for w, s in zip(WHEELS, encoders.current_states(), strict=True)}
+                for w, s in zip(WHEELS, states, strict=True)}
     steps: list[Step] = []
     try:
         motors.apply_pulses(left_ms=DEFAULT_PWM.init_ms, right_ms=DEFAULT_PWM.init_ms)
@@ -236,7 +250,8 @@ def release(*closers: Callable[[], object]) -> None:
         raise interrupted
 
 
-def _backends(robot_file: str) -> tuple[Any, Any, MotorCalibration, MotorCalibration]:
+def _backends(robot_file: str) -> tuple[MotorBackend, EncoderLines, MotorCalibration,
+                                        MotorCalibration]:
     from components.motors.component import DEFAULT_LEFT_CALIBRATION, DEFAULT_RIGHT_CALIBRATION
     from ubf_async.assembly.robotfile import load_robot
 

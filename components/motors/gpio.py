@@ -31,6 +31,7 @@ from typing import Annotated, Any
 import msgspec
 
 from components import hardware
+from components.motors.backend import MotorBackend
 from components.motors.pwm import DEFAULT_PWM, hold_s
 from ubf_async.assembly.context import DeviceContext
 
@@ -40,7 +41,7 @@ Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
 """A pin as gpiozero names it: ``"GPIO12"``, ``"12"``, ``"BOARD32"``."""
 
 
-class GpioMotorBackend:
+class GpioMotorBackend(MotorBackend):
     """Two PWM outputs (left, right) carrying servo-style pulses."""
 
     def __init__(self, *, left_pin: str, right_pin: str, factory: Any,

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from ubf_async.assembly.backend import Backend
 
 
-class RadioBackend(Protocol):
+class RadioBackend(Backend):
     def send(self, text: str) -> None:
         """Send one text message out (non-blocking)."""
-        ...
+        raise NotImplementedError
 
     def receive(self) -> list[str]:
         """Messages that arrived since the previous call, oldest first (non-blocking)."""
-        ...
+        raise NotImplementedError

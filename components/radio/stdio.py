@@ -11,10 +11,11 @@ import sys
 import threading
 from typing import TextIO
 
+from components.radio.backend import RadioBackend
 from ubf_async.assembly.context import DeviceContext
 
 
-class StdioRadioBackend:
+class StdioRadioBackend(RadioBackend):
     def __init__(self, *, stdin: TextIO | None = None, stdout: TextIO | None = None) -> None:
         self._in = stdin or sys.stdin
         self._out = stdout or sys.stdout

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import ClassVar
+
+from ubf_async.assembly.backend import Backend
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -20,16 +22,24 @@ class RangeReadError(OSError):
     finished): the range component counts it and publishes nothing for that period."""
 
 
-class RangeBackend(Protocol):
+class RangeBackend(Backend):
     """Returns the distance from the sensor along its beam to the first surface.
 
     ``None`` when nothing lies within ``max_range_m``. A simulated backend reports the true
-    geometry and the HAL adds the device's 5–10 % error; a real sensor's backend sets
-    ``measured = True`` (its distance is already a measurement, with the sensor's own error:
-    the HAL only applies the model's limits) and ``blocking = True`` when a read waits on a bus
-    (the HAL then reads it in a worker thread, never on the event loop). A failed read raises
+    geometry and the HAL adds the device's 5–10 % error. A failed read raises
     :class:`RangeReadError`.
     """
 
+    measured: ClassVar[bool] = False
+    """True for a real sensor's backend: its distance is already a measurement, with the
+    sensor's own error, and the HAL only applies the model's limits. False (the default): the
+    true geometry, to which the HAL adds the model's error."""
+    blocking: ClassVar[bool] = False
+    """True when a read waits on a bus: the HAL then reads in a worker thread, never on the
+    event loop. False (the default): a read returns at once."""
+    model: str | None = None
+    """The thesis model (``ir-10-80``…) whose curve the backend reads, which the device's
+    model must then be; None (the default): any."""
+
     def distance_m(self, mount: MountPose, *, max_range_m: float) -> float | None:
-        ...
+        raise NotImplementedError

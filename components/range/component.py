@@ -62,8 +62,7 @@ class RangeComponent(Component):
                              period_s=self.period_s)
         limits = {"model": self.model.name, "min_mm": round(self.model.min_range_m * 1000),
                   "max_mm": round(self.model.max_range_m * 1000)}
-        measured = bool(getattr(self.backend, "measured", False))
-        blocking = bool(getattr(self.backend, "blocking", False))
+        measured, blocking = self.backend.measured, self.backend.blocking
         async for stamp in every(self.bus.clock, self.period_s):
             try:
                 if blocking:  # a bus transaction: off the loop
@@ -108,7 +107,7 @@ def build_device(
     the beam's direction, + to the left of straight ahead. ``period_s``: time between
     readings (robot clock). ``seed`` (the run's, injected) seeds the model's 5–10 % error.
     """
-    measures = getattr(backend, "model", None)
+    measures = backend.model
     if measures is not None and measures != model:
         # The backend reads one model's curve, the device applies this model's limits: a
         # reading of the one judged by the other's range would be wrong without a sign.

@@ -28,7 +28,7 @@ from typing import Annotated, Any, ClassVar, Literal, Protocol
 import msgspec
 
 from components import hardware
-from components.range.backend import MountPose, RangeReadError
+from components.range.backend import MountPose, RangeBackend, RangeReadError
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
@@ -45,7 +45,7 @@ class SMBusLike(Protocol):
     def close(self) -> None: ...
 
 
-class _I2cDevice:
+class _I2cDevice(RangeBackend):
     """One device at ``address`` on ``bus``: bus errors counted and raised as
     :class:`RangeReadError`; one transaction at a time."""
 

@@ -1,12 +1,20 @@
-"""The Mini-WHEGS simulator: a pymunk world plus device backends (no bus, no asyncio).
+"""The Mini-WHEGS simulator, in rooms (high to low; a room imports only rooms below it, and
+rooms of one line import none of each other — the ``sim-rooms`` contract in pyproject.toml):
 
-* :mod:`components.sim.world` — the 2-D world.
-* :mod:`components.sim.world_config` — the scene description a world is built from.
-* :mod:`components.sim.world_snapshot` — the immutable snapshots a world's readers see.
-* :mod:`components.sim.camera_render` — the OpenCV-rendered OV9655 camera view.
-* :mod:`components.sim.render_process` — the process the simulated cameras render in (off
-  the GIL of the process that steps the world).
-* :mod:`components.sim.ranging` — ray casting for the IR range finders.
-* :mod:`components.sim.backends` — device backend implementations on top of a world.
-* :mod:`components.sim.calibrate` — ``python -m components.sim.calibrate``: distance → pink table.
+* :mod:`components.sim.plugin` — the ``mini-whegs`` simulator plug-in (entry point
+  ``ubf_async.simulators``); it reaches the rooms below lazily.
+* :mod:`components.sim.runner` — runs: one simulated run as launch drives it, the simulator
+  on the bus that steps the world and owns simulated time, a fleet's shared world.
+* :mod:`components.sim.backends` | :mod:`components.sim.outputs` | :mod:`components.sim.mirror`
+  — the ``<kind>.sim`` device backends; a run's outputs (trajectory, plot, annotated frames);
+  the world mirrored from the bus in another process (a fleet member's world, the live view's
+  arena).
+* :mod:`components.sim.render` | :mod:`components.sim.scenarios` — the OpenCV-rendered camera
+  (and its render process); scenarios and their file format.
+* :mod:`components.sim.world` — the pymunk world, its configuration and snapshots, the radio
+  air, ray casting.
+
+Every room's ``__init__`` says what it holds and what it may import. Nothing outside the
+simulator imports it but through the registry (the devices-without-simulator and
+framework-alone contracts).
 """

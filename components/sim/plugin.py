@@ -2,15 +2,15 @@
 
 :class:`MiniWhegsSimulator` implements :class:`ubf_async.assembly.simulation.Simulator`:
 
-* :meth:`~MiniWhegsSimulator.open` builds a :class:`~components.sim.runner.SimulationRun` —
+* :meth:`~MiniWhegsSimulator.open` builds a :class:`~components.sim.runner.run.SimulationRun` —
   the pymunk world of a scenario, the simulator component, simulated time, summary and
-  recording — whose ``world`` the ``<kind>.sim`` backends (:mod:`components.sim.backends`)
+  recording — whose ``world`` the ``<kind>.sim`` backends (:mod:`components.sim.backends.devices`)
   are given;
 * :meth:`~MiniWhegsSimulator.attach` gives a device started in its own process
   (``python -m components.<device>``) the world of a simulator running elsewhere, seen through
-  the bus (:class:`~components.sim.remote.RemoteWorld`);
+  the bus (:class:`~components.sim.mirror.remote_world.RemoteWorld`);
 * :meth:`~MiniWhegsSimulator.host_fleet` runs one world holding a fleet of robots
-  (:mod:`components.sim.shared_world`, for ``python -m ubf_async.fleet``).
+  (:mod:`components.sim.runner.fleet_world`, for ``python -m ubf_async.fleet``).
 
 Importing this module is cheap: the simulator's modules (pymunk, OpenCV) load on first use.
 """
@@ -20,28 +20,31 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
-from ubf_async.assembly.simulation import FleetMember, SimulationOptions
+from ubf_async.assembly.simulation import FleetMember, SimulationOptions, Simulator, TurnRig
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.clock import SimClock
 
 if TYPE_CHECKING:
-    from components.sim.remote import RemoteWorld
-    from components.sim.runner import SimulationRun
+    from components.sim.mirror.remote_world import RemoteWorld
+    from components.sim.runner.run import SimulationRun
 
 
-class SimTurnRig:
-    """Drives the simulated Mini-WHEGS in an empty world with fixed pulses; the true yaw is
-    the body's. Each drive starts afresh from rest."""
+class SimTurnRig(TurnRig):
+    """Drives the simulated Mini-WHEGS in an empty world with the pulses the motors' default
+    calibration gives a drive command; the true yaw is the body's. Each drive starts afresh
+    from rest."""
 
     def __init__(self, *, step_s: float = 0.005) -> None:
         self.step_s = step_s
 
-    def drive(self, *, left_ms: float, right_ms: float, settle_s: float,
+    def drive(self, *, speed: float, turn: float, settle_s: float,
               measure_s: float) -> tuple[float, float, float]:
-        from components.sim.world import World
+        from components.motors.pwm import pulse_widths
+        from components.sim.world.physics import World
 
+        pulses = pulse_widths(speed, turn)
         world = World()
-        world.set_motor_pulses(left_ms, right_ms)
+        world.set_motor_pulses(pulses.left_ms, pulses.right_ms)
         for _ in range(round(settle_s / self.step_s)):
             world.advance(self.step_s)
         start = world.snapshot().robot
@@ -53,7 +56,7 @@ class SimTurnRig:
                 end.heading_unwrapped_rad - start.heading_unwrapped_rad)
 
 
-class MiniWhegsSimulator:
+class MiniWhegsSimulator(Simulator):
     """The simulated Mini-WHEGS: a pymunk world, an OpenCV-rendered camera, scenarios."""
 
     name = "mini-whegs"
@@ -61,7 +64,7 @@ class MiniWhegsSimulator:
     def check(self, options: SimulationOptions) -> None:
         """What :meth:`open` refuses, refused without building anything: the options, and
         the scenario loaded and validated."""
-        from components.sim.runner import check_options
+        from components.sim.runner.run import check_options
 
         check_options(options)
 
@@ -72,7 +75,7 @@ class MiniWhegsSimulator:
         duration or recording period) and :class:`~ubf_async.errors.ScenarioError` for an
         unknown or invalid scenario.
         """
-        from components.sim.runner import SimulationRun
+        from components.sim.runner.run import SimulationRun
 
         return SimulationRun(bus=bus, clock=clock, options=options)
 
@@ -81,7 +84,7 @@ class MiniWhegsSimulator:
         first snapshot. ``seed`` seeds the backends' noise in this process. Raises
         ``ConnectionError`` if no simulator publishes within ``wait_s`` seconds; the caller
         closes the world (``close()``) when done."""
-        from components.sim.remote import RemoteWorld
+        from components.sim.mirror.remote_world import RemoteWorld
 
         world = RemoteWorld(bus, seed=seed)
         world.start()
@@ -93,21 +96,21 @@ class MiniWhegsSimulator:
         return world
 
     def turn_rig(self) -> SimTurnRig:
-        """A :class:`~components.encoders.calibrate.TurnRig` on an empty simulated world, for
+        """A :class:`~ubf_async.assembly.simulation.TurnRig` on an empty simulated world, for
         ``python -m components.encoders.calibrate``."""
         return SimTurnRig()
 
     async def host_fleet(self, *, buses: Sequence[Bus], clock: SimClock,
                          members: Sequence[FleetMember], options: SimulationOptions,
                          out: TextIO) -> dict[str, Any]:
-        """One world holding every robot of a fleet (:mod:`components.sim.shared_world`)."""
-        from components.sim.shared_world import host_fleet
+        """One world holding every robot of a fleet (:mod:`components.sim.runner.fleet_world`)."""
+        from components.sim.runner.fleet_world import host_fleet
 
         return await host_fleet(buses=buses, clock=clock, members=members, options=options,
                                 out=out)
 
     def scenario_names(self) -> list[str]:
-        """The built-in scenarios (``components/sim/scenario_files``)."""
-        from components.sim.scenarios import builtin_names
+        """The built-in scenarios (``components/sim/scenarios/files``)."""
+        from components.sim.scenarios.scenario import builtin_names
 
         return builtin_names()

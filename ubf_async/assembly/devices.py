@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from ubf_async.assembly.backend import Backend
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.registry import accepts
 from ubf_async.errors import ConfigurationError
@@ -33,6 +34,18 @@ def requires_simulator(factory: Callable[..., Any]) -> str | None:
     return name
 
 
+def checked_backend(backend: object, *, what: str) -> Backend:
+    """``backend``, refused (a :class:`~ubf_async.errors.ConfigurationError` naming ``what``)
+    unless it is a :class:`~ubf_async.assembly.backend.Backend` — when it is built, not when
+    it is to be closed."""
+    if not isinstance(backend, Backend):
+        raise ConfigurationError(
+            f"{what}: its backend is a {type(backend).__name__}, not a "
+            f"ubf_async.assembly.backend.Backend: derive the backend's class from the kind's "
+            f"backend interface or from Backend (docs/your-device.md)")
+    return backend
+
+
 def device_label(kind: str, name: str) -> str:
     """How a refusal names a device (``range 'front'``), wherever it is built."""
     return f"{kind} {name!r}"
@@ -49,7 +62,9 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
     ``backend``, with already checked ``params``; the run's seed and clock go to a factory
     that takes them, and so does each of ``context.extras`` the robot file does not set (a
     fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …). The device
-    owns ``backend``: it is closed with the component, or at once if no component is made."""
+    owns ``backend`` (a :class:`~ubf_async.assembly.backend.Backend`): its ``aclose()`` is
+    awaited when the component closes, or at once if no component is made."""
+    backend = checked_backend(backend, what=device_label(kind, name))
     # What the run knows fills the parameters the robot file left unset (None).
     extra: dict[str, Any] = {
         key: value for key, value in context.extras.items()
@@ -59,16 +74,14 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
         extra["seed"] = context.seed
     if accepts(factory, "clock"):
         extra["clock"] = context.clock
-    close = getattr(backend, "close", None)
     try:
         component = factory(bus=context.bus, name=name, backend=backend, **extra, **params)
         if not isinstance(component, Component):
             raise ConfigurationError(f"device kind {kind!r} returned "
                                      f"{type(component).__name__}, not a Component")
     except BaseException:
-        if callable(close):  # refused: its pins and buses are not left held
-            close()
+        backend.close()  # refused: its pins and buses are not left held (no loop to await on)
         raise
-    if callable(close):  # the device owns its backend: closed with it, after its last command
-        component.close_on_exit(close)
+    # The device owns its backend: closed with it, after its last command.
+    component.close_on_exit(backend.aclose)
     return component

@@ -131,8 +131,21 @@ class FleetMember:
     heading_deg: float = 0.0
 
 
+class TurnRig(Protocol):
+    """Drives a simulated robot with a fixed drive command and reports what happened
+    (``python -m components.encoders.calibrate`` fits the effective track from it)."""
+
+    def drive(self, *, speed: float, turn: float, settle_s: float,
+              measure_s: float) -> tuple[float, float, float]:
+        """Drive ``speed``/``turn`` (through the motors' pulse calibration, the rig's business)
+        for ``settle_s`` (not measured), then ``measure_s`` more; return ``(Δθ_left, Δθ_right,
+        true yaw)`` in radians over the measured part."""
+        ...
+
+
 class Simulator(Protocol):
-    """A simulator plug-in (what a ``ubf_async.simulators`` entry point names)."""
+    """A simulator plug-in (what a ``ubf_async.simulators`` entry point names). A plug-in
+    deriving from it gets the defaults of its optional members (:meth:`turn_rig`)."""
 
     name: str
 
@@ -163,6 +176,13 @@ class Simulator(Protocol):
         ``clock``), their simulated devices and simulated time, until ``options.duration_s``
         (or cancelled); return a summary per robot (``python -m ubf_async.fleet``)."""
         ...
+
+    def turn_rig(self) -> TurnRig:
+        """A :class:`TurnRig` on this simulator's robot. By default none: a
+        :class:`~ubf_async.errors.ConfigurationError` saying so."""
+        from ubf_async.errors import ConfigurationError
+
+        raise ConfigurationError(f"simulator {self.name!r} offers no turn rig")
 
 
 CONTROLLER_SUMMARY_FIELDS = ("ticks", "periodic_rate_hz", "periodic_jitter_robot_ms_p99",

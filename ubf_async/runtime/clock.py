@@ -12,7 +12,7 @@ Every stamp and every periodic wait in the runtime goes through a :class:`Clock`
   Which samples may move it is decided by :class:`ubf_async.runtime.timesource.ClockFollower`; a new
   simulation run *resets* it (:meth:`SimClock.reset_to`), and periodic loops re-anchor.
 
-Simulated time is a lockstep barrier (:mod:`components.sim.component`): it waits for the work
+Simulated time is a lockstep barrier (:mod:`components.sim.runner.stepper`): it waits for the work
 of each instant, so it may stand still for as long as that takes. Safety deadlines (the motor
 watchdog, staleness) are therefore judged in robot time, and in wall time only when the time
 source itself has gone silent — a simulator that died, not one that waits on purpose:

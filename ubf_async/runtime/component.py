@@ -33,7 +33,7 @@ import logging
 import os
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -109,7 +109,7 @@ class Component:
         self._attempt_resources: list[Publisher | Subscription] = []
         self._started = False
         self._closed = False
-        self._on_close: list[Callable[[], object]] = []
+        self._on_close: list[Callable[[], Awaitable[object]]] = []
 
     # -- for subclasses ----------------------------------------------------------------------
     async def run(self) -> None:
@@ -164,8 +164,8 @@ class Component:
         attempt ends, as :meth:`publisher` and :meth:`subscribe` do for theirs."""
         self._attempt_resources.append(resource)
 
-    def close_on_exit(self, close: Callable[[], object]) -> None:
-        """Call ``close`` when this component closes, after its run has stopped (a device's
+    def close_on_exit(self, close: Callable[[], Awaitable[object]]) -> None:
+        """Await ``close()`` when this component closes, after its run has stopped (a device's
         backend is closed with its device: releasing pins only once nothing drives them).
         One that raises is logged; the others still run."""
         self._on_close.append(close)
@@ -205,7 +205,7 @@ class Component:
         closers, self._on_close = self._on_close, []
         for close in closers:
             try:
-                close()
+                await close()
             except Exception:
                 log.exception("component %s: closing %r failed", self.name, close)
 

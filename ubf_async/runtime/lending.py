@@ -36,7 +36,7 @@ the mechanism every maintainer of async code must understand first.
 The same moment — the loop about to wait — is what :meth:`LendingEventLoop.idle` reports:
 every task is blocked and no callback is ready, so whatever the caller's last step set off
 has run to its end. The simulator's lockstep barrier is built on it
-(:mod:`components.sim.component`); asyncio's loop decides it (it asks its selector to wait
+(:mod:`components.sim.runner.stepper`); asyncio's loop decides it (it asks its selector to wait
 only when nothing is ready), so no loop iterations are counted and no private attribute read.
 
 Only subscriptions that ask for it are handled this way (``Bus.subscribe(..., direct=True)``):
@@ -143,7 +143,7 @@ class LendingEventLoop(asyncio.SelectorEventLoop):
 
         What the caller's last step woke has then run to its end — every chain of callbacks,
         however long and however slow the machine — which is what makes a simulator's
-        step barrier exact (:mod:`components.sim.component`). A timer or I/O still to come
+        step barrier exact (:mod:`components.sim.runner.stepper`). A timer or I/O still to come
         does not count: it belongs to a later time. Only the loop's thread may await it."""
         waiter: asyncio.Future[None] = self.create_future()
         self._idle_waiters.append(waiter)

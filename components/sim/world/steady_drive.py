@@ -1,9 +1,9 @@
 """The robot's steady motion for fixed pulses, measured in an empty world.
 
-Run ``python -m components.sim.steady_drive`` to print the steady yaw rates and speeds of the
+Run ``python -m components.sim.world.steady_drive`` to print the steady yaw rates and speeds of the
 thesis's commands (:data:`THESIS_DRIVE_COMMANDS`) through the default HAL calibration, and the
-yaw fraction κ the linearised contact model predicts; :mod:`components.sim.world` explains the
-contact model and tabulates the result for the defaults.
+yaw fraction κ the linearised contact model predicts; :mod:`components.sim.world.physics`
+explains the contact model and tabulates the result for the defaults.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass
 
 from components.motors.pwm import pulse_widths
-from components.sim.world import World
-from components.sim.world_config import RobotConfig, WorldConfig
+from components.sim.world.config import RobotConfig, WorldConfig
+from components.sim.world.physics import World
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -1,6 +1,6 @@
 """The simulator on the bus: steps the pymunk world, owns simulation time, wires devices.
 
-:class:`SimulatorComponent` steps the :class:`~components.sim.world.World` in fixed steps,
+:class:`SimulatorComponent` steps the :class:`~components.sim.world.physics.World` in fixed steps,
 paced to ``speed`` × real time (``--speed K``), advances the shared
 :class:`~ubf_async.runtime.clock.SimClock` of its process and publishes the time on
 ``ubf/<robot>/clock`` so components in other processes follow it, with this run's random
@@ -59,8 +59,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from components.devices import KINDS, make_backend, make_device
-from components.sim.wire import snapshot_to_data
-from components.sim.world import World
+from components.sim.world.physics import World
+from components.sim.world.snapshot_data import snapshot_to_data
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime import lending, lockstep

@@ -2,7 +2,7 @@
 in a JSON file.
 
 The format is documented in ``docs/scenarios.md``. The thesis's four experiments (§4.2) and a
-few more situations ship as built-ins in ``scenario_files/``; :func:`load_scenario` takes a
+few more situations ship as built-ins in ``files/``; :func:`load_scenario` takes a
 built-in name or a path.
 
 Scripts move objects like the experimenter's hand did: the ball (``ball_script``) and any
@@ -25,7 +25,7 @@ a walking step ends when the object arrives (or when the next step starts).
 
 ``lighting_script`` changes the lighting over time (a dimmer room, a lamp switched on), and
 ``pushes`` shove the robot by hand (its wheels do not turn, so its encoders see nothing).
-The file's format is the msgspec types of :mod:`components.sim.scenario_format`;
+The file's format is the msgspec types of :mod:`components.sim.scenarios.format`;
 :func:`parse_scenario` also refuses objects placed outside the arena or overlapping the robot at
 its start, naming them. Every mistake reads ``FILE:LINE: message (at PATH)``, as the robot
 file's do.
@@ -45,7 +45,7 @@ from typing import Any, TypeVar
 import msgspec
 import yaml
 
-from components.sim.scenario_format import (
+from components.sim.scenarios.format import (
     ExpectSpec,
     FromCameraSpec,
     LightingChange,
@@ -56,8 +56,7 @@ from components.sim.scenario_format import (
     StepSpec,
     WaveSpec,
 )
-from components.sim.world import World
-from components.sim.world_config import (
+from components.sim.world.config import (
     Arena,
     BallConfig,
     BoxObstacle,
@@ -67,6 +66,7 @@ from components.sim.world_config import (
     WorldConfig,
     WorldPose,
 )
+from components.sim.world.physics import World
 from ubf_async.assembly.robotfile import (
     YAML_LOADER,
     Locator,
@@ -85,7 +85,7 @@ CAMERA_OFFSET_M = 0.05
 """The camera sits this far ahead of the robot's centre (see camera_render.CameraParams)."""
 HIDDEN_AT = (50.0, 50.0)
 """Where a hidden ball waits: far outside any arena, behind its walls."""
-BUILTIN_DIR = "scenario_files"
+BUILTIN_DIR = "files"
 
 _S = TypeVar("_S", bound=Spec)
 
@@ -739,7 +739,7 @@ def placement_problem(world: WorldConfig, *, ball_script: tuple[BallStep, ...] =
 
 
 def builtin_names() -> list[str]:
-    folder = resources.files("components.sim") / BUILTIN_DIR
+    folder = resources.files("components.sim.scenarios") / BUILTIN_DIR
     return sorted(p.name.removesuffix(".json") for p in folder.iterdir()
                   if p.name.endswith(".json"))
 
@@ -748,7 +748,7 @@ def load_scenario(name_or_path: str) -> Scenario:
     """A built-in scenario by name, or a scenario file by path."""
     path = Path(name_or_path)
     if name_or_path in builtin_names():
-        folder = resources.files("components.sim") / BUILTIN_DIR
+        folder = resources.files("components.sim.scenarios") / BUILTIN_DIR
         text = (folder / f"{name_or_path}.json").read_text(encoding="utf-8")
         source = f"built-in {name_or_path}"
     elif path.suffix == ".json" or path.exists():

@@ -23,9 +23,9 @@ import numpy as np
 
 from components.camera.seekcolor import SeekResult
 from components.camera.view import draw_view
-from components.sim.camera_render import CameraParams
-from components.sim.scenarios import CAMERA_OFFSET_M
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.render.camera import CameraParams
+from components.sim.scenarios.scenario import CAMERA_OFFSET_M
+from components.sim.world.snapshot import WorldSnapshot
 from ubf_async.wire.topics import LedState
 
 

@@ -3,8 +3,8 @@
 ``python -m ubf_async.fleet FLEET.yaml`` starts a router, this world, and one controller process
 per robot (``launch ROBOT_FILE --no-sim --sim-time --robot NAME``). The world holds every robot
 of the fleet in one pymunk space — they collide, and each sees the others in its camera and IR
-(:meth:`~components.sim.world.World.snapshot_for`: the other robots are dark boxes) — with the
-scenario's arena, ball and scripts; the robots' start poses come from the fleet file. Each
+(:meth:`~components.sim.world.physics.World.snapshot_for`: the other robots are dark boxes) —
+with the scenario's arena, ball and scripts; the robots' start poses come from the fleet file. Each
 robot's simulated devices run here, each on its robot's own bus (``ubf/<robot>/…``), all on one
 simulated clock, which the simulator publishes on every robot's ``ubf/<robot>/clock``: the
 controllers, in their own processes, follow it.
@@ -19,12 +19,12 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any, TextIO
 
-from components.sim.component import SimulatorComponent
-from components.sim.runner import DEFAULT_SCENARIO, lateness_summary, rounded
-from components.sim.scenarios import check_placement, load_scenario
-from components.sim.world import World
-from components.sim.world_config import WorldConfig, WorldPose
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.runner.run import DEFAULT_SCENARIO, lateness_summary, rounded
+from components.sim.runner.stepper import SimulatorComponent
+from components.sim.scenarios.scenario import check_placement, load_scenario
+from components.sim.world.config import WorldConfig, WorldPose
+from components.sim.world.physics import World
+from components.sim.world.snapshot import WorldSnapshot
 from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
     DeviceContext,

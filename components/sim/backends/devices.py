@@ -1,4 +1,4 @@
-"""Device backends on top of a simulated :class:`~components.sim.world.World`.
+"""Device backends on top of a simulated :class:`~components.sim.world.physics.World`.
 
 Each class implements one of the device backend protocols (``components/<device>/backend.py``)
 so a device component can run against the simulator exactly as it would against hardware. They
@@ -8,8 +8,8 @@ the world steps in another. Nothing here touches the message bus or asyncio.
 The factories at the end (``camera_backend`` …) are what the ``ubf_async.backends`` entry
 points ``<kind>.sim`` name: ``(*, context, **params) -> backend``. Each says it requires the
 ``mini-whegs`` simulator (its ``requires_simulator`` attribute), whose world it finds in
-``context.simulation``: a :class:`~components.sim.world.World` in the simulator's process, a
-:class:`~components.sim.remote.RemoteWorld` in a device's own process.
+``context.simulation``: a :class:`~components.sim.world.physics.World` in the simulator's process, a
+:class:`~components.sim.mirror.remote_world.RemoteWorld` in a device's own process.
 """
 
 from __future__ import annotations
@@ -24,25 +24,30 @@ from typing import Annotated, Any, Protocol, TypeVar
 import msgspec
 import numpy as np
 
+from components.camera.backend import CameraBackend
 from components.camera.seekcolor import SUBSAMPLE_STEP
-from components.range.backend import MountPose
-from components.sim.air import RadioAir
-from components.sim.camera_render import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
-from components.sim.ranging import beam_distance_m
-from components.sim.render_process import (
+from components.encoders.backend import EncoderBackend
+from components.leds.backend import LedBackend
+from components.motors.backend import MotorBackend
+from components.radio.backend import RadioBackend
+from components.range.backend import MountPose, RangeBackend
+from components.sim.render.camera import DEFAULT_CAMERA, CameraParams, render_camera, warm_up
+from components.sim.render.process import (
     RenderProcess,
     render_process_wanted,
     shared_render_process,
 )
-from components.sim.world_config import WorldConfig
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.world.air import RadioAir
+from components.sim.world.config import WorldConfig
+from components.sim.world.ranging import beam_distance_m
+from components.sim.world.snapshot import WorldSnapshot
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
 
 class WorldView(Protocol):
-    """What the backends use of a world: a :class:`~components.sim.world.World` in this
-    process, or a :class:`~components.sim.remote.RemoteWorld` fed over the bus."""
+    """What the backends use of a world: a :class:`~components.sim.world.physics.World` in this
+    process, or a :class:`~components.sim.mirror.remote_world.RemoteWorld` fed over the bus."""
 
     @property
     def config(self) -> WorldConfig: ...
@@ -53,6 +58,16 @@ class WorldView(Protocol):
 
     def make_rng(self, stream: int) -> np.random.Generator: ...
 
+    @property
+    def air(self) -> RadioAir | None:
+        """The air between the world's radios; None for a world seen over the bus."""
+        ...
+
+    @property
+    def index(self) -> int:
+        """Which robot of the world the backends sense and drive (0: the first)."""
+        ...
+
 
 CAMERA_RNG_STREAM = 1
 ENCODER_RNG_STREAM = 2
@@ -61,7 +76,7 @@ QUADRATURE_SEQUENCE = np.array([0, 1, 3, 2], dtype=np.uint8)
 """2-bit states ``(A << 1) | B`` in the order a forward-turning wheel steps through them."""
 
 
-class SimMotorBackend:
+class SimMotorBackend(MotorBackend):
     """Hands the pulse widths to the simulated motors."""
 
     hold_s = 0.0  # the simulated motors see a pulse at once
@@ -115,7 +130,7 @@ def insert_glitches(
     return out
 
 
-class SimEncoderBackend:
+class SimEncoderBackend(EncoderBackend):
     """Quadrature A/B phases from the simulated wheel angles.
 
     Each wheel has ``MINI_WHEGS.edges_per_rev`` (4096) edges per revolution; ``read_phases``
@@ -185,7 +200,7 @@ def render_delay_s() -> float:
     return delay
 
 
-class SimCameraBackend:
+class SimCameraBackend(CameraBackend):
     """Renders the world's latest snapshot (call ``capture`` from a worker thread).
 
     ``capture`` renders without holding any world lock: the snapshot it reads is immutable.
@@ -195,15 +210,21 @@ class SimCameraBackend:
     backend uses) renders only the pixels seekcolor's subsampler reads, ``(8·i, 8·j)``, and
     returns them in a frame of the full size whose other pixels are black (a *sparse* frame:
     the camera component and its published width/height are unchanged, and its seekcolor
-    counts are those of the full frame, see :func:`~components.sim.camera_render.render_camera`),
+    counts are those of the full frame, see :func:`~components.sim.render.camera.render_camera`),
     several times faster.
 
-    ``renderer``: a :class:`~components.sim.render_process.RenderProcess` to render in (the
+    ``renderer``: a :class:`~components.sim.render.process.RenderProcess` to render in (the
     ``camera.sim`` device backend gives it the process's shared one), so the rendering holds
     another process's GIL, not this one's: :meth:`capture` only waits on it. Without one, or
     whenever it has no worker running, the frame is rendered in the calling thread — the same
     pixels, from the same per-frame seed.
     """
+
+    renders_in_python = True
+    """Captures are CPU work under the GIL (in-thread), or wait on the render process: the
+    camera component runs them on the process's one render thread
+    (:data:`components.camera.component._RENDERS`), one at a time, as the render process
+    renders one at a time."""
 
     def __init__(
         self,
@@ -220,11 +241,6 @@ class SimCameraBackend:
         self._params = params
         self._grid = grid
         self._renderer = renderer
-        self.renders_in_python = True
-        """Captures are CPU work under the GIL (in-thread), or wait on the render process:
-        the camera component runs them on the process's one render thread
-        (:data:`components.camera.component._RENDERS`), one at a time, as the render process
-        renders one at a time."""
         self._rng = rng if rng is not None else world.make_rng(CAMERA_RNG_STREAM)
         self._lock = threading.Lock()
         self._closed = False
@@ -286,8 +302,8 @@ class SimCameraBackend:
             self._closed = True
 
 
-class SimRangeBackend:
-    """True beam distance from :func:`components.sim.ranging.beam_distance_m`."""
+class SimRangeBackend(RangeBackend):
+    """True beam distance from :func:`components.sim.world.ranging.beam_distance_m`."""
 
     def __init__(self, world: WorldView) -> None:
         self._world = world
@@ -296,7 +312,7 @@ class SimRangeBackend:
         return beam_distance_m(self._world.snapshot(), mount, max_range_m)
 
 
-class SimRadioBackend:
+class SimRadioBackend(RadioBackend):
     """An in-memory text link: ``send`` appends to ``outbox``; ``inject`` makes a message arrive.
 
     Thread-safe.
@@ -366,7 +382,7 @@ def camera_backend(*, context: DeviceContext, full_frames: bool = False,
     """``camera.sim``: renders the simulated OV9655's view of the world. By default only the
     pixels seekcolor reads (sparse frames, see :class:`SimCameraBackend`); ``full_frames``
     renders every pixel (slower, the same counts). ``render_process``: render in the
-    process's render process (:mod:`components.sim.render_process`, shared by its simulated
+    process's render process (:mod:`components.sim.render.process`, shared by its simulated
     cameras), so rendering does not hold this process's GIL; ``false``, or
     ``UBF_RENDER_PROCESS=0`` in the environment, or a run that starts no helper processes
     (:attr:`~ubf_async.assembly.context.DeviceContext.helper_processes`), renders in the
@@ -410,9 +426,9 @@ def radio_backend(*, context: DeviceContext) -> SimRadioBackend:
 radio_backend.requires_simulator = None  # type: ignore[attr-defined]
 
 
-class SimAirRadioBackend:
-    """A radio on the air of a simulated world (:class:`~components.sim.air.RadioAir`): what it
-    sends, every other robot of the world receives."""
+class SimAirRadioBackend(RadioBackend):
+    """A radio on the air of a simulated world (:class:`~components.sim.world.air.RadioAir`):
+    what it sends, every other robot of the world receives."""
 
     def __init__(self, air: RadioAir, robot: int) -> None:
         self.air = air
@@ -432,15 +448,15 @@ def radio_air_backend(*, context: DeviceContext) -> SimAirRadioBackend:
     """``radio.air``: a radio the other robots of the same simulated world hear (a fleet,
     ``python -m ubf_async.fleet``); alone in its world it hears nothing."""
     world = _world(context, "radio.air")
-    air = getattr(world, "air", None)
-    if not isinstance(air, RadioAir):
+    air = world.air
+    if air is None:
         raise ConfigurationError("backend 'radio.air' needs the simulated world in its own "
                                  "process (launch, or a fleet's world), not one seen over "
                                  "the bus")
-    return SimAirRadioBackend(air, getattr(world, "index", 0))
+    return SimAirRadioBackend(air, world.index)
 
 
-class SimLedBackend:
+class SimLedBackend(LedBackend):
     """LEDs in memory: ``mask`` is what is lit. The simulator draws them on its recorded
     camera frames from the LED device's ``sensor/leds/<name>`` samples, so a ``leds.sim``
     device in another process shows there too. Thread-safe."""

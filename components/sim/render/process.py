@@ -1,16 +1,16 @@
 """Simulated cameras render in a worker process: :class:`RenderProcess`.
 
-Rendering a frame (:func:`~components.sim.camera_render.render_camera`) is CPU work in
+Rendering a frame (:func:`~components.sim.render.camera.render_camera`) is CPU work in
 Python and numpy that holds the GIL for a millisecond or more at a time. In a process whose
 event loop also steps the physics and publishes the clock (a launch, a fleet's world with a
 camera per robot) the loop waits for the GIL behind it, and the clock's ticks jitter
 (docs/fleet.md, *How a fleet scales*). So the frames are rendered in another process: one
 worker per process that has simulated cameras, shared by all of them
 (:func:`shared_render_process`), started by the first camera's
-:meth:`~components.sim.backends.SimCameraBackend.prepare` (which runs in a thread, never on
+:meth:`~components.sim.backends.devices.SimCameraBackend.prepare` (which runs in a thread, never on
 the event loop). For each frame the camera sends the worker the frame's immutable
-:class:`~components.sim.world_snapshot.WorldSnapshot` (pickled: ≈1.2 KB for a robot of a fleet
-of 8, ≈80 µs), its :class:`~components.sim.camera_render.CameraParams`, the frame's seed and the
+:class:`~components.sim.world.snapshot.WorldSnapshot` (pickled: ≈1.2 KB for a robot of a fleet
+of 8, ≈80 µs), its :class:`~components.sim.render.camera.CameraParams`, the frame's seed and the
 grid; the worker renders with ``np.random.default_rng(seed)`` exactly as the camera would
 have in its own thread and sends back the pixels (160×128×3 bytes on the camera device's
 grid of 8). Meanwhile the camera's thread waits on the pipe with the GIL released. The frames
@@ -23,7 +23,7 @@ multiprocessing's resource-tracker process (one more child, which outlives its p
 moment) and re-imports the parent's main module in the worker (zenoh and all, for a launch).
 The worker ignores SIGINT (a Ctrl-C at the terminal reaches the whole process group; the
 parent handles it and ends the worker), and builds the renderer's caches
-(:func:`~components.sim.camera_render.warm_up`) for the cameras known when it starts, and
+(:func:`~components.sim.render.camera.warm_up`) for the cameras known when it starts, and
 for each camera after. It ends when the parent closes its end of the pipe: at exit (an
 ``atexit`` handler, so a normal end, a handled Ctrl-C or SIGTERM, or an exception; the
 parent then reaps it), or when the parent dies however it dies (SIGKILL, ``os._exit``),
@@ -68,8 +68,8 @@ from typing import Any
 
 import numpy as np
 
-from components.sim.camera_render import CameraParams, render_camera, warm_up
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.render.camera import CameraParams, render_camera, warm_up
+from components.sim.world.snapshot import WorldSnapshot
 
 log = logging.getLogger(__name__)
 
@@ -77,7 +77,7 @@ ENV_VAR = "UBF_RENDER_PROCESS"
 """``0``, ``off``, ``no`` or ``false``: simulated cameras render in their own thread."""
 _OFF = frozenset({"0", "off", "no", "false"})
 
-_ROOT = Path(__file__).resolve().parents[2]
+_ROOT = Path(__file__).resolve().parents[3]
 """Where the ``components`` package this module belongs to lives."""
 
 _PARENT_CHECK_S = 1.0
@@ -91,7 +91,7 @@ def render_process_wanted() -> bool:
 
 
 def frame_shape(params: CameraParams, grid: int) -> tuple[int, int, int]:
-    """The shape of what :func:`~components.sim.camera_render.render_camera` returns."""
+    """The shape of what :func:`~components.sim.render.camera.render_camera` returns."""
     return (math.ceil(params.height_px / grid), math.ceil(params.width_px / grid), 3)
 
 
@@ -103,7 +103,7 @@ class RenderProcessError(RuntimeError):
 
 _BOOT = ("import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); "
          "import sys; sys.argv[3] in sys.path or sys.path.insert(0, sys.argv[3]); "
-         "from components.sim.render_process import worker_main; worker_main()")
+         "from components.sim.render.process import worker_main; worker_main()")
 """The worker's command (``python -c``). It ignores SIGINT before anything else: a Ctrl-C at
 the terminal reaches the whole process group, and the parent handles it (then ends the
 worker); here it would only kill a frame in flight and print a traceback. Then it imports

@@ -15,7 +15,7 @@ import math
 from collections.abc import Iterable
 
 from components.range.backend import MountPose
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.world.snapshot import WorldSnapshot
 
 Point = tuple[float, float]
 

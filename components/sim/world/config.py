@@ -1,4 +1,5 @@
-"""A simulated world before it runs: what a :class:`~components.sim.world.World` is built from.
+"""A simulated world before it runs: what a :class:`~components.sim.world.physics.World` is
+built from.
 
 Frozen, validated value types only — no physics, no pymunk: the robot's start pose
 (:class:`WorldPose`) and its mechanical and ground-contact model (:class:`RobotConfig`), the ball
@@ -6,7 +7,7 @@ Frozen, validated value types only — no physics, no pymunk: the robot's start 
 (:class:`BoxObstacle`), distractors (:class:`Distractor`), the lighting (:class:`Lighting`), and
 :class:`WorldConfig`, which gathers them with the seed and the substep. Also the default
 colours and the small checks the types validate their fields with. Walls, boxes and lighting
-also travel in every :class:`~components.sim.world_snapshot.WorldSnapshot`.
+also travel in every :class:`~components.sim.world.snapshot.WorldSnapshot`.
 """
 
 from __future__ import annotations
@@ -234,7 +235,7 @@ class RobotConfig:
     """Slip between the wheel-legs' surface speed and the ground at which the traction reaches
     its limit (linear below). Soft: the spoke tips scuff and dig in before they push fully. The
     larger it is relative to ``lateral_slip_m_s`` the more of a wheel speed difference is lost to
-    slip instead of yaw (see :mod:`components.sim.world` for the yaw fraction κ)."""
+    slip instead of yaw (see :mod:`components.sim.world.physics` for the yaw fraction κ)."""
     lateral_slip_m_s: float = 0.01
     """Sideways sliding speed of a contact at which its lateral friction reaches the limit
     (linear below). Stiff: a spoke dragged sideways bites at once. This grip along the robot's
@@ -255,7 +256,7 @@ class RobotConfig:
     @property
     def yaw_fraction(self) -> float:
         """κ: the steady yaw rate as a fraction of the kinematic ``(v_R − v_L)/track`` that the
-        linearised contact model predicts (see :mod:`components.sim.world`)."""
+        linearised contact model predicts (see :mod:`components.sim.world.physics`)."""
         a2 = (self.wheelbase_m / 2) ** 2
         b2 = (self.geometry.track_width_m / 2) ** 2
         c_long = self.mu_longitudinal / self.longitudinal_slip_m_s
@@ -265,15 +266,15 @@ class RobotConfig:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class WorldConfig:
-    """Everything needed to build a :class:`~components.sim.world.World`; ``seed`` drives all
-    randomness."""
+    """Everything needed to build a :class:`~components.sim.world.physics.World`; ``seed``
+    drives all randomness."""
 
     robot_start: WorldPose = field(default_factory=WorldPose)
     robot: RobotConfig = field(default_factory=RobotConfig)
     more_robots: tuple[WorldPose, ...] = ()
     """Start poses of further robots of the same make in this world (a fleet): robot ``i``
     (1, 2, …) starts at ``more_robots[i - 1]``; robot 0 at ``robot_start``. Each sees the
-    others in its camera and IR (:meth:`~components.sim.world.World.snapshot_for`)."""
+    others in its camera and IR (:meth:`~components.sim.world.physics.World.snapshot_for`)."""
     ball: BallConfig | None = None
     arena: Arena | None = None
     walls: tuple[Wall, ...] = ()

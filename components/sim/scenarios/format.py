@@ -1,11 +1,11 @@
 """The scenario file's format as msgspec types (docs/scenarios.md, "File format").
 
-Decoding a scenario document into :class:`ScenarioFile` checks every field's type and range
-and refuses unknown fields, listing the valid ones — the robot file's mechanism: these types
-derive from :class:`ubf_async.assembly.robotfile.Spec`, and :mod:`components.sim.scenarios` reports
-msgspec's errors at ``FILE:LINE`` through :class:`ubf_async.assembly.robotfile.Locator`. What needs
-more than one field — a script naming a distractor, placement in the arena — is checked there,
-when the runtime :class:`~components.sim.scenarios.Scenario` is built.
+Decoding a scenario document into :class:`ScenarioFile` checks every field's type and range and
+refuses unknown fields, listing the valid ones — the robot file's mechanism: these types derive
+from :class:`ubf_async.assembly.robotfile.Spec`, and :mod:`components.sim.scenarios.scenario`
+reports msgspec's errors at ``FILE:LINE`` through :class:`ubf_async.assembly.robotfile.Locator`.
+What needs more than one field — a script naming a distractor, placement in the arena — is
+checked there, when the runtime :class:`~components.sim.scenarios.scenario.Scenario` is built.
 
 Every number has a range, which also refuses infinities and NaN.
 """
@@ -16,7 +16,7 @@ from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 
-from components.sim.world_config import BALL_DIAMETER_M, ORANGE
+from components.sim.world.config import BALL_DIAMETER_M, ORANGE
 from ubf_async.assembly.robotfile import Spec
 
 __all__ = ["STEP_KINDS", "ArenaSpec", "DistractorSpec", "ExpectSpec", "FromCameraSpec",

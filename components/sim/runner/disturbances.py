@@ -6,7 +6,7 @@ HAL): a body pressed against a box while its wheels spin, or shoved by a hand, m
 the wheels saying so, and no odometry from the wheels can follow it. :class:`HeadingAudit`
 takes the run's samples (every ``SAMPLE_PERIOD_S`` of simulated time): the true heading and the
 odometry's, both unwrapped (full turns count, so an error past 180° stays visible), and what
-touched the robot since the previous sample (:meth:`components.sim.world.World.contacts`). A
+touched the robot since the previous sample (:meth:`components.sim.world.physics.World.contacts`). A
 sample interval in which anything touched or pushed the robot is *disturbed*; the heading
 error gained over the other intervals is the odometry's own error, which the built-in
 scenarios bound at 10 % of the angle turned over them (docs/scenarios.md, Outputs).

@@ -1,4 +1,4 @@
-"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world_snapshot.WorldSnapshot`.
+"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world.snapshot.WorldSnapshot`.
 
 A pinhole camera sits at the robot's front (``mount_x_m`` ahead of the body centre), 4 cm above
 the floor, looking forward and pitched up slightly, with the OV9655's 1280×1024 frame, ≈35°
@@ -8,18 +8,19 @@ algorithm): a cached floor/backdrop, then walls (cut into short chunks), boxes a
 by distance, and finally a little sensor noise from a pre-generated noise field shifted by a
 random offset per frame.
 
-Calibration (regenerate the table with ``python -m components.sim.calibrate``): the ball is lit
-mostly from above (a hemispherical "sky" term that is full on its top and falls to nothing at its
-bottom, plus an optional Lambert key light) and the camera is exposed for the room, so the top of
-the ball rolls off to a washed-out pale pink and carries a white glare patch, the bottom rim sits
-in the ball's own shadow, and only a band just above that shadow passes the thesis's pink rule.
-With the defaults the largest seekcolor bin reads ≈140 with the ball ≈45 cm in front of the
-camera, falls steadily with distance and still averages a couple of pixels at 3.6 m (the body's
-bob, ``pitch_jitter_deg``, moves the thin far band across the subsampling grid). The band is at
-the bottom of the ball, the first part to leave the view (at ≈31 cm); but by then the ball
-covers enough of the view for the auto exposure (``auto_exposure_coverage``, from ≈40 cm) to
-turn the gain of the whole picture down, and the glare with it, so the band moves up the ball
-and the count keeps growing down to contact (the whole view pink).
+Calibration (regenerate the table with ``python -m components.sim.render.calibrate``): the ball
+is lit mostly from above (a hemispherical "sky" term that is full on its top and falls to
+nothing at its bottom, plus an optional Lambert key light) and the camera is exposed for the
+room, so the top of the ball rolls off to a washed-out pale pink and carries a white glare
+patch, the bottom rim sits in the ball's own shadow, and only a band just above that shadow
+passes the thesis's pink rule. With the defaults the largest seekcolor bin reads ≈140 with the
+ball ≈45 cm in front of the camera, falls steadily with distance and still averages a couple of
+pixels at 3.6 m (the body's bob, ``pitch_jitter_deg``, moves the thin far band across the
+subsampling grid). The band is at the bottom of the ball, the first part to leave the view (at
+≈31 cm); but by then the ball covers enough of the view for the auto exposure
+(``auto_exposure_coverage``, from ≈40 cm) to turn the gain of the whole picture down, and the
+glare with it, so the band moves up the ball and the count keeps growing down to contact (the
+whole view pink).
 
 ``render_camera(..., grid=8)`` renders only the pixels seekcolor's subsampler reads (every 8th
 in x and y) into a 160×128 image — the camera device's sparse frames — with the same colours
@@ -42,8 +43,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from components.sim.world_config import Color, Lighting, Wall
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.world.config import Color, Lighting, Wall
+from components.sim.world.snapshot import WorldSnapshot
 
 FRAME_WIDTH_PX = 1280
 FRAME_HEIGHT_PX = 1024

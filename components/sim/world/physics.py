@@ -34,8 +34,8 @@ forces this module computes itself every substep:
   ≈ 0.14 with the defaults (a real skid-steer robot's "effective track width" is the track
   divided by κ). Driving straight needs no slip once the robot is up to speed, so the encoders
   agree with the true distance; an in-place turn slips a lot but still turns. Run
-  ``python -m components.sim.steady_drive`` to print the steady yaw rates of the thesis's
-  commands (:func:`~components.sim.steady_drive.steady_drive`); for the defaults:
+  ``python -m components.sim.world.steady_drive`` to print the steady yaw rates of the thesis's
+  commands (:func:`~components.sim.world.steady_drive.steady_drive`); for the defaults:
 
   ===============  =========  ==========  ==========  ===========
   speed / turn     u (L / R)  yaw °/s     kinematic   forward m/s
@@ -54,12 +54,12 @@ forces this module computes itself every substep:
 * Walls are infinitely thin vertical surfaces (pymunk segments of radius 0); box obstacles and
   static distractors are static pymunk shapes.
 
-The world is built from a :class:`~components.sim.world_config.WorldConfig`
-(:mod:`components.sim.world_config` holds the scene description and the robot's model,
-:class:`~components.sim.world_config.RobotConfig`, whose parameters are named above).
+The world is built from a :class:`~components.sim.world.config.WorldConfig`
+(:mod:`components.sim.world.config` holds the scene description and the robot's model,
+:class:`~components.sim.world.config.RobotConfig`, whose parameters are named above).
 
 ``World.step`` advances the physics in fixed-size substeps; after every step the world replaces
-its immutable :class:`~components.sim.world_snapshot.WorldSnapshot`, which renderers and range
+its immutable :class:`~components.sim.world.snapshot.WorldSnapshot`, which renderers and range
 queries may read from other threads (reading the ``snapshot()`` reference is atomic; the
 snapshot itself never changes).
 """
@@ -75,8 +75,8 @@ import numpy as np
 import pymunk
 
 from components.motors.pwm import wheel_speed_rad_s
-from components.sim.air import RadioAir
-from components.sim.world_config import (
+from components.sim.world.air import RadioAir
+from components.sim.world.config import (
     BallConfig,
     Color,
     Distractor,
@@ -86,7 +86,7 @@ from components.sim.world_config import (
     box_corners,
     require_finite,
 )
-from components.sim.world_snapshot import BallState, DistractorState, RobotState, WorldSnapshot
+from components.sim.world.snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
 ROBOT_COLOR: Color = (70, 72, 86)
 """The Mini-WHEGS's dark shell, as other robots' cameras see it."""
@@ -151,6 +151,10 @@ class World:
     Step it from one thread. ``snapshot()`` and ``set_motor_pulses()`` may be called from any
     thread; the ball/robot placement helpers take the world's lock, so they are safe too.
     """
+
+    index = 0
+    """The robot :meth:`snapshot` and :meth:`set_motor_pulses` are about by default (a
+    :class:`RobotView` is another robot's)."""
 
     def __init__(self, config: WorldConfig | None = None) -> None:
         self._config = cfg = config if config is not None else WorldConfig()

@@ -1,7 +1,7 @@
 """A simulator in another process, seen through the bus.
 
-:class:`RemoteWorld` offers what the simulator backends (:mod:`components.sim.backends`) use
-of a :class:`~components.sim.world.World` — ``snapshot()``, ``set_motor_pulses()``,
+:class:`RemoteWorld` offers what the simulator backends (:mod:`components.sim.backends.devices`) use
+of a :class:`~components.sim.world.physics.World` — ``snapshot()``, ``set_motor_pulses()``,
 ``config`` and ``make_rng()`` — from the snapshots the simulator publishes on
 ``ubf/<robot>/sim/world``, and sends motor pulses back on ``ubf/<robot>/sim/pulses``. So the
 very same backends serve a device started with ``python -m components.<device>`` while
@@ -15,9 +15,10 @@ import logging
 
 import numpy as np
 
-from components.sim.wire import snapshot_from_data
-from components.sim.world_config import RobotConfig, WorldConfig
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.world.air import RadioAir
+from components.sim.world.config import RobotConfig, WorldConfig
+from components.sim.world.snapshot import WorldSnapshot
+from components.sim.world.snapshot_data import snapshot_from_data
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import SIM_PULSES, SIM_WORLD, PlainData
@@ -26,6 +27,11 @@ log = logging.getLogger(__name__)
 
 
 class RemoteWorld:
+    air: RadioAir | None = None
+    """No radio air: the robots' ``radio.air`` is the world process's own."""
+    index = 0
+    """The one robot whose world this process mirrors."""
+
     def __init__(self, bus: Bus, *, seed: int = 0) -> None:
         self.bus = bus
         self.config = WorldConfig(robot=RobotConfig(), seed=seed)

@@ -14,8 +14,8 @@ from collections.abc import Iterator
 from typing import Any
 
 from components.miniwhegs import MINI_WHEGS
-from components.sim.wire import snapshot_from_data
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.world.snapshot import WorldSnapshot
+from components.sim.world.snapshot_data import snapshot_from_data
 from ubf_async.services.liveview import LiveMessage, foxglove_message, pose, rgba, timestamp
 from ubf_async.wire.protocol import Message
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from components.sim.scenarios import load_scenario
-from components.sim.world_config import WorldConfig
+from components.sim.scenarios.scenario import load_scenario
+from components.sim.world.config import WorldConfig
 
 
 def ball_in_view(*, seed: int = 0) -> WorldConfig:

@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any
 
-from components.sim.world_config import BoxObstacle, Lighting, Wall
-from components.sim.world_snapshot import BallState, DistractorState, RobotState, WorldSnapshot
+from components.sim.world.config import BoxObstacle, Lighting, Wall
+from components.sim.world.snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
 # The world snapshot's topic (ubf_async.wire.topics.SIM_WORLD) is checked generically on the wire
 # and then by snapshot_from_data.

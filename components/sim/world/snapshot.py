@@ -1,11 +1,13 @@
-"""What a running :class:`~components.sim.world.World` shows its readers: immutable snapshots.
+"""What a running :class:`~components.sim.world.physics.World` shows its readers: immutable
+snapshots.
 
 :class:`WorldSnapshot` is the world as one robot senses it after a step — the robot's own state
 (:class:`RobotState`), the ball (:class:`BallState`), the walls, boxes and lighting of its
-:class:`~components.sim.world_config.WorldConfig`, and the distractors where they are now
+:class:`~components.sim.world.config.WorldConfig`, and the distractors where they are now
 (:class:`DistractorState`; the other robots of a fleet among them). Plain frozen values, safe to
-share between threads and to rebuild in other processes (:mod:`components.sim.wire`): the
-camera renderer, the range finders, recordings and live views read them without the physics.
+share between threads and to rebuild in other processes
+(:mod:`components.sim.world.snapshot_data`): the camera renderer, the range finders, recordings
+and live views read them without the physics.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from components.sim.world_config import BoxObstacle, Color, DistractorKind, Lighting, Wall
+from components.sim.world.config import BoxObstacle, Color, DistractorKind, Lighting, Wall
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -27,8 +27,8 @@ from matplotlib.patches import Circle, Polygon
 from matplotlib.text import Annotation, Text
 from matplotlib.transforms import Bbox
 
-from components.sim.record import TrajectorySample, ball_on_stage
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.outputs.trajectory import TrajectorySample, ball_on_stage
+from components.sim.world.snapshot import WorldSnapshot
 
 WINNER_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
                   "tab:brown", "tab:olive", "tab:cyan")

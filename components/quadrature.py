@@ -21,6 +21,10 @@ Two ways to sign the edges (:class:`DirectionMode`):
   reversal, being pushed, slipping back) its edges are counted with the wrong sign. While the
   commanded direction is 0 edges are not attributed at all; they go to
   :attr:`QuadratureDecoder.unattributed_edges` so the loss stays visible.
+
+Beside the device packages (like :mod:`components.miniwhegs`), not in ``components.encoders``:
+the encoders decode with it, and so does the motors' wiring check (``python -m components.motors
+--check``, which reads the encoder lines itself); device packages import none of each other.
 """
 
 from __future__ import annotations

@@ -9,9 +9,9 @@ annotated camera frames). Launch builds the devices (from the robot file, throug
 registry) and hands them over with :meth:`SimulationRun.add_devices`.
 
 Memory stays bounded however long a run lasts (docs/resources.md): the trajectory is sampled
-every ``SAMPLE_PERIOD_S`` into a :class:`~components.sim.record.TrajectoryBuffer` (a decimated
-history of the whole run plus the last minute at full rate: what the plot and the summary
-need), and with ``trajectory_path`` or ``record_dir`` every sample is also streamed to a
+every ``SAMPLE_PERIOD_S`` into a :class:`~components.sim.outputs.trajectory.TrajectoryBuffer` (a
+decimated history of the whole run plus the last minute at full rate: what the plot and the
+summary need), and with ``trajectory_path`` or ``record_dir`` every sample is also streamed to a
 ``trajectory.csv`` as the run goes, in batches written by a worker thread.
 """
 
@@ -35,10 +35,8 @@ import cv2
 from components.camera.component import CameraComponent
 from components.camera.seekcolor import seekcolor
 from components.encoders.component import EncodersComponent
-from components.sim.backends import SimCameraBackend
-from components.sim.component import RTF_WINDOW_S, SimulatorComponent
-from components.sim.disturbances import HeadingAudit
-from components.sim.record import (
+from components.sim.backends.devices import SimCameraBackend
+from components.sim.outputs.trajectory import (
     BallView,
     TrajectoryBuffer,
     TrajectoryCsvWriter,
@@ -48,9 +46,11 @@ from components.sim.record import (
     motion_over,
     trajectory_sample,
 )
-from components.sim.scenarios import Scenario, load_scenario
-from components.sim.world import World, wrap_angle
-from components.sim.world_snapshot import WorldSnapshot
+from components.sim.runner.disturbances import HeadingAudit
+from components.sim.runner.stepper import RTF_WINDOW_S, SimulatorComponent
+from components.sim.scenarios.scenario import Scenario, load_scenario
+from components.sim.world.physics import World, wrap_angle
+from components.sim.world.snapshot import WorldSnapshot
 from ubf_async import __version__
 from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, describe_speed
 from ubf_async.errors import ConfigurationError
@@ -64,11 +64,11 @@ from ubf_async.wire.topics import LED_STATE, LedState
 
 def save_run_plot(path: Path, samples: Sequence[TrajectorySample], world: WorldSnapshot, *,
                   title: str, events: Sequence[tuple[float, str]] = ()) -> Any:
-    """:func:`components.sim.plots.save_run_plot`, matplotlib imported when a plot is first
+    """:func:`components.sim.outputs.plots.save_run_plot`, matplotlib imported when a plot is first
     drawn: a run that draws none (no ``--record``, a library run) does not pay for its import
     (a third of a second, half of what launching the simulator imports). Returns the
     :class:`~matplotlib.figure.Figure`."""
-    from components.sim import plots
+    from components.sim.outputs import plots
 
     return plots.save_run_plot(path, samples, world, title=title, events=events)
 
@@ -129,7 +129,7 @@ def window_summary(windows: Sequence[float]) -> dict[str, Any] | None:
 
 def lateness_summary(lateness_s: Sequence[float]) -> dict[str, Any] | None:
     """Median, 99th percentile and worst of the steps' lateness (wall time after their due
-    time, :attr:`~components.sim.component.SimulatorComponent.step_lateness_s`), in ms."""
+    time, :attr:`~components.sim.runner.stepper.SimulatorComponent.step_lateness_s`), in ms."""
     if not lateness_s:
         return None
     ordered = sorted(lateness_s)
@@ -190,7 +190,8 @@ class SimulationRun:
     @property
     def samples(self) -> list[TrajectorySample]:
         """The trajectory kept in memory: the whole run decimated, the last minute at full
-        rate (:class:`~components.sim.record.TrajectoryBuffer`). A copy: build it sparingly."""
+        rate (:class:`~components.sim.outputs.trajectory.TrajectoryBuffer`). A copy: build it
+        sparingly."""
         return self.trajectory_buffer.samples()
 
     def trajectory(self) -> list[dict[str, Any]]:
