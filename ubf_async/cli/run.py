@@ -14,8 +14,9 @@
   their reader goes away the output is dropped, the run goes on, its end writes its results,
   and the exit status is 2.
 * A connection or configuration problem (any :class:`~ubf_async.errors.UbfError`) is one
-  clear line on stderr with exit status 2. This is the only place an error becomes an exit
-  status.
+  clear line on stderr with exit status 2 (:func:`said_error`). This module is the only place an
+  error becomes an exit status: :func:`run_main` for asyncio programs, :func:`run_sync` for the
+  synchronous ones (robotfile, secure, sweep, evolve, tune).
 """
 
 from __future__ import annotations
@@ -247,6 +248,21 @@ def run_loop(main: Coroutine[Any, Any, T]) -> T:
         return runner.run(main)
 
 
+def said_error(prog: str, exc: BaseException) -> int:
+    """Say ``exc`` as the one line ``PROG: error: …`` on stderr; return :data:`EXIT_ERROR`."""
+    print(f"{prog}: error: {exc}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+def run_sync(main: Callable[[], int], *, prog: str) -> int:
+    """Run a synchronous program's ``main()``; return its status, or :data:`EXIT_ERROR` after
+    one line for a :class:`UbfError` it raises (the rule :func:`run_main` applies)."""
+    try:
+        return main()
+    except UbfError as exc:
+        return said_error(prog, exc)
+
+
 def run_main(main: Callable[[], Awaitable[int]], *, prog: str,
              stop_bound_s: float = STOP_BOUND_S) -> int:
     """Run ``main()`` in a new event loop under a :class:`StopGuard`, with stdout and stderr
@@ -302,8 +318,7 @@ def _run_guarded(main: Callable[[], Awaitable[int]], guard: StopGuard, *, prog: 
         except asyncio.CancelledError:
             return 0
         except (UbfError, ConnectionError, ValueError) as exc:
-            print(f"{prog}: error: {exc}", file=sys.stderr)
-            return EXIT_ERROR
+            return said_error(prog, exc)
         finally:
             trimmer.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -312,8 +327,7 @@ def _run_guarded(main: Callable[[], Awaitable[int]], guard: StopGuard, *, prog: 
     try:
         factory = loop_factory()
     except ConfigurationError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+        return said_error(prog, exc)
     with guard.installed():
         try:
             with asyncio.Runner(loop_factory=factory) as loop_runner:

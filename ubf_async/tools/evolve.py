@@ -31,8 +31,8 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from ubf_async import __version__
-from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.cli.run import EXIT_INTERRUPTED, run_sync
+from ubf_async.errors import ConfigurationError
 from ubf_async.runs import evolve
 from ubf_async.runs.sweep import execution
 from ubf_async.runs.sweep.execution import RunRecord
@@ -194,21 +194,20 @@ def report(outputs: evolve.EvolveOutputs, out: TextIO) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    out = sys.stdout
-    try:
-        if args.out is None and not args.check:
-            raise ConfigurationError("--out DIR is required (the folder of the outputs)")
-        check_pool_arguments(args)
-        plan = evolve.load_evolve(args.spec, seed=args.seed, population=args.population,
-                                  generations=args.generations, seed_robot=args.seed_robot)
-        if args.check:
-            print("\n".join(describe(plan)) + "\n  — OK", file=out)
-            return 0
-        evolve.check_folder(plan, args.out, resume=args.resume)
-        evolve.compared_robots(args.compare)
-    except UbfError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+    return run_sync(lambda: run(args, sys.stdout), prog=PROG)
+
+
+def run(args: argparse.Namespace, out: TextIO) -> int:
+    if args.out is None and not args.check:
+        raise ConfigurationError("--out DIR is required (the folder of the outputs)")
+    check_pool_arguments(args)
+    plan = evolve.load_evolve(args.spec, seed=args.seed, population=args.population,
+                              generations=args.generations, seed_robot=args.seed_robot)
+    if args.check:
+        print("\n".join(describe(plan)) + "\n  — OK", file=out)
+        return 0
+    evolve.check_folder(plan, args.out, resume=args.resume)
+    evolve.compared_robots(args.compare)
     print("\n".join(describe(plan)), file=out)
     workers = execution.pool_workers(args.executor, args.workers,
                                      plan.population * plan.training.runs)
@@ -228,9 +227,6 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{args.out / 'journal.jsonl'}; the runs in flight were lost. Resume with:\n"
               f"  {resume_command(args)}", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
-    except UbfError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
     report(outputs, out)
     return 0
 

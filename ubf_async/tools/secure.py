@@ -10,10 +10,10 @@ connection code that applies a set-up.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from ubf_async.cli.run import run_sync
 from ubf_async.errors import ConfigurationError
 from ubf_async.net import pki
 from ubf_async.net.secure import (
@@ -151,12 +151,12 @@ def run(args: argparse.Namespace) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
+
+    def said() -> int:
         print(run(args))
-    except ConfigurationError as exc:
-        print(f"python -m ubf_async.secure: error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+        return 0
+
+    return run_sync(said, prog="python -m ubf_async.secure")
 
 
 if __name__ == "__main__":

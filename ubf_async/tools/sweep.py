@@ -42,8 +42,8 @@ from rich.progress import (
 
 from ubf_async import __version__
 from ubf_async.cli.args import HelpFormatter
-from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.cli.run import EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard, run_sync
+from ubf_async.errors import ConfigurationError
 from ubf_async.runs import sweep
 from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import EXECUTORS, RunRecord
@@ -287,28 +287,23 @@ def report(outputs: sweep.SweepOutputs, out_dir: Path, out: TextIO) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    out = sys.stdout
-    try:
-        check_arguments(args)
-        plan = sweep.load_sweep(args.spec)
-        if args.check:
-            print_plan(plan, out)
-            return 0
-        state = sweep.open_sweep(plan, args.out, resume=args.resume)
-    except UbfError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+    return run_sync(lambda: run(args, sys.stdout), prog=PROG)
+
+
+def run(args: argparse.Namespace, out: TextIO) -> int:
+    check_arguments(args)
+    plan = sweep.load_sweep(args.spec)
+    if args.check:
+        print_plan(plan, out)
+        return 0
+    state = sweep.open_sweep(plan, args.out, resume=args.resume)
     print(f"{plan.source}: {plan.describe()}", file=out)
     if args.resume:
         print(f"resuming {args.out}: {len(state.records)} runs done already"
               + (f" ({state.others} other runs of the journal are not this spec's: kept, "
                  f"not tabulated)" if state.others else ""), file=out)
     if state.pending:
-        try:
-            stopped = execute(args, state, out)
-        except UbfError as exc:
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
-            return EXIT_ERROR
+        stopped = execute(args, state, out)
         if stopped is not None:
             return stopped
     outputs = sweep.finish(state)

@@ -17,10 +17,11 @@ import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TextIO
 
 from ubf_async import __version__
-from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.cli.run import EXIT_INTERRUPTED, run_sync
+from ubf_async.errors import ConfigurationError
 from ubf_async.runs import tune
 from ubf_async.runs.evolve import load_evolve
 from ubf_async.tools.sweep import (
@@ -73,19 +74,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    out = sys.stdout
-    try:
-        check_pool_arguments(args)
-        if args.trials is not None and args.trials < 1:
-            raise ConfigurationError(f"--trials must be at least 1, got {args.trials}")
-        plan = load_evolve(args.spec, seed=args.seed)
-    except UbfError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+    return run_sync(lambda: run(args, sys.stdout), prog=PROG)
+
+
+def run(args: argparse.Namespace, out: TextIO) -> int:
+    check_pool_arguments(args)
+    if args.trials is not None and args.trials < 1:
+        raise ConfigurationError(f"--trials must be at least 1, got {args.trials}")
+    plan = load_evolve(args.spec, seed=args.seed)
     if plan.tune is None:
-        print(f"{PROG}: error: {args.spec}: no `tune` section: nothing to tune",
-              file=sys.stderr)
-        return EXIT_ERROR
+        raise ConfigurationError(f"{args.spec}: no `tune` section: nothing to tune")
     try:  # a line per trial is said below, not Optuna's own
         import optuna
         optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -115,9 +113,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     " (no --storage: the study is lost)"),
               file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
-    except UbfError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
     print(f"study {outputs.study!r}: {outputs.trials} trials; best {outputs.best_value:g}: "
           + ", ".join(f"{k} = {v:g}" for k, v in outputs.best_params.items()), file=out)
     print("held out:", file=out)
