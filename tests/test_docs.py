@@ -329,7 +329,7 @@ def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_insta
         return [words[i + 3] for i in range(len(words) - 3)
                 if words[i:i + 3] == ["pip", "install", "-e"]]
 
-    assert installs(quick_start) == ["."]
+    assert installs(quick_start) == [".[all]"]  # every feature the README shows (issue 39)
     assert installs(test) == [".[test]"]
     ci = [tokens(line) for line in (ROOT / ".ci" / "run").read_text("utf-8").splitlines()
           if "pip install" in line and " -e " in line]

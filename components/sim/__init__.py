@@ -10,3 +10,10 @@
 * :mod:`components.sim.backends` — device backend implementations on top of a world.
 * :mod:`components.sim.calibrate` — ``python -m components.sim.calibrate``: distance → pink table.
 """
+
+from ubf_async import extras
+
+# The simulator is the sim extra (ubf_async/extras.py): without it, whatever reaches this
+# package — a simulated launch, a `sim` backend, experiment.run — says so in one line.
+extras.require("sim", "pymunk", who="the simulator")
+extras.require("sim", "matplotlib", who="the simulator")

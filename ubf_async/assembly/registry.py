@@ -41,7 +41,8 @@ from typing import Any
 import msgspec
 import msgspec.inspect
 
-from ubf_async.errors import ParameterError, PluginError
+from ubf_async import extras
+from ubf_async.errors import MissingExtraError, ParameterError, PluginError
 
 REFERENCE_SEPARATOR = ":"
 
@@ -132,7 +133,12 @@ class Registry:
             )
         try:
             obj = point.load()
+        except MissingExtraError:
+            raise  # the plug-in's own words: the extra its feature needs
         except Exception as exc:  # a plug-in's import may fail in any way
+            missing = extras.missing_extra(exc, who=f"{self.what} {name!r}")
+            if missing is not None:
+                raise missing from None
             raise PluginError(f"{self.what} {name!r} ({point.value}) failed to load: "
                               f"{type(exc).__name__}: {exc}") from exc
         self._loaded[name] = obj

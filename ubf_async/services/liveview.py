@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import msgspec
 
+from ubf_async import extras
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import EveryMessageComponent
@@ -456,6 +457,8 @@ class FoxgloveServer(EveryMessageComponent):
 
     def __init__(self, *, bus: Bus, port: int = DEFAULT_PORT, host: str = DEFAULT_HOST,
                  name: str = "foxglove", view: LiveView | None = None) -> None:
+        # The feature's entry: a missing extra is one line before anything starts.
+        extras.require("view", "foxglove", who="the live view")
         super().__init__(bus=bus, name=name)
         if not 0 <= port <= 65535:
             raise ConfigurationError(f"--foxglove port must be 0..65535, got {port}")

@@ -38,7 +38,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from ubf_async import __version__
+from ubf_async import __version__, extras
 from ubf_async.assembly.registry import SIMULATORS
 from ubf_async.assembly.robotfile import (
     DEFAULT_ROBOT_FILE,
@@ -283,6 +283,11 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
         raise ConfigurationError(f"--trajectory: --record {args.record} writes the trajectory "
                                  f"already ({args.record / 'trajectory.csv'}); give one of them")
     check_outputs(args.summary, args.record, trajectory=args.trajectory)
+    if args.record is not None:
+        extras.require("record", "mcap", who="launch --record")
+        extras.require("record", "foxglove", who="launch --record")
+    if args.foxglove is not None:
+        extras.require("view", "foxglove", who="launch --foxglove")
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
     args.robot = args.robot or robot.name or DEFAULT_ROBOT

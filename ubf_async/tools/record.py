@@ -44,9 +44,8 @@ from pathlib import Path
 from typing import IO, Any
 
 import msgspec
-from mcap.writer import CompressionType, Writer
 
-from ubf_async import __version__, throttle
+from ubf_async import __version__, extras, throttle
 from ubf_async.cli import ending
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
@@ -153,6 +152,10 @@ class McapRecorder(EveryMessageComponent):
                  max_queue: int = DEFAULT_MAX_QUEUE, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  on_flush: Any = None, live_channels: bool = True,
                  drain_s: float = DEFAULT_DRAIN_S) -> None:
+        # The feature's entry: a missing extra is one line before anything starts.
+        extras.require("record", "mcap", who="recording")
+        if live_channels:
+            extras.require("record", "foxglove", who="recording")
         super().__init__(bus=bus, name=name)
         self.drain_s = drain_s
         if not flush_s > 0:
@@ -278,6 +281,8 @@ class _File:
         self.path = base if index == 0 else base.with_name(f"{base.stem}_{index}{base.suffix}")
         self.stream: IO[bytes] = self.path.open("wb")
         recorder.stats.files.append(self.path)
+        from mcap.writer import CompressionType, Writer  # the record extra: McapRecorder
+
         self.writer = Writer(self.stream, chunk_size=recorder.chunk_bytes,
                              compression=CompressionType.ZSTD)
         self.writer.start(profile="", library=f"ubf_async {__version__}")
