@@ -65,7 +65,7 @@ from ubf_async.services.liveview import FoxgloveServer
 from ubf_async.services.remote import remote_spec
 from ubf_async.services.status import StatusWriter, status_fields
 from ubf_async.tools.liveview import add_host_argument
-from ubf_async.tools.record import McapRecorder
+from ubf_async.tools.record import McapRecorder, require_recording
 
 log = logging.getLogger("ubf_async.tools.launch")
 
@@ -284,8 +284,7 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
                                  f"already ({args.record / 'trajectory.csv'}); give one of them")
     check_outputs(args.summary, args.record, trajectory=args.trajectory)
     if args.record is not None:
-        extras.require("record", "mcap", who="launch --record")
-        extras.require("record", "foxglove", who="launch --record")
+        require_recording(who="launch --record")
     if args.foxglove is not None:
         extras.require("view", "foxglove", who="launch --foxglove")
     if args.duration is not None and not args.duration > 0:

@@ -139,6 +139,14 @@ class RecorderStats:
     """Why writing stopped, if it did (a full disk)."""
 
 
+def require_recording(*, live_channels: bool = True, who: str) -> None:
+    """The record extra (mcap, and foxglove-sdk for the live view's channels), or one line
+    saying how to install it: called where a recording is asked for, before anything starts."""
+    extras.require("record", "mcap", who=who)
+    if live_channels:
+        extras.require("record", "foxglove", who=who)
+
+
 class McapRecorder(EveryMessageComponent):
     """Records every message on the robot's keys to MCAP (module docstring).
 
@@ -152,10 +160,7 @@ class McapRecorder(EveryMessageComponent):
                  max_queue: int = DEFAULT_MAX_QUEUE, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  on_flush: Any = None, live_channels: bool = True,
                  drain_s: float = DEFAULT_DRAIN_S) -> None:
-        # The feature's entry: a missing extra is one line before anything starts.
-        extras.require("record", "mcap", who="recording")
-        if live_channels:
-            extras.require("record", "foxglove", who="recording")
+        require_recording(live_channels=live_channels, who="recording")
         super().__init__(bus=bus, name=name)
         self.drain_s = drain_s
         if not flush_s > 0:
@@ -419,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 async def record(args: argparse.Namespace) -> int:
+    require_recording(live_channels=args.live_channels, who=PROG)
     async with attached_bus(args) as bus:
         await ensure_name_free(bus, args.name, hint="give this recorder another --name")
 
