@@ -15,9 +15,9 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
-from lean_install import ROOT, base_requirements, blocked_modules, lean_environment
 from packaging.requirements import Requirement
 
+from tests.lean_install import ROOT, base_requirements, blocked_modules, lean_environment
 from ubf_async import extras
 from ubf_async.errors import MissingExtraError, PluginError
 
