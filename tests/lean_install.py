@@ -9,6 +9,7 @@ without downloading or installing anything.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import sys
@@ -42,7 +43,8 @@ sys.meta_path.insert(0, Blocker())
 """
 
 
-def _canonical(name: str) -> str:
+def canonical(name: str) -> str:
+    """A distribution's name as pip compares them (PEP 503)."""
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
@@ -59,7 +61,7 @@ def lean_closure() -> set[str]:
     todo = [req for req in base_requirements() if req.marker is None or req.marker.evaluate()]
     while todo:
         req = todo.pop()
-        name = _canonical(req.name)
+        name = canonical(req.name)
         if name in closure:
             continue
         closure.add(name)
@@ -70,12 +72,14 @@ def lean_closure() -> set[str]:
     return closure
 
 
-def blocked_modules() -> set[str]:
-    """Top-level modules of the installed distributions outside :func:`lean_closure`."""
+@functools.cache
+def blocked_modules() -> frozenset[str]:
+    """Top-level modules of the installed distributions outside :func:`lean_closure` (read
+    once: it scans every installed distribution's files)."""
     closure = lean_closure()
-    return {module for module, dists in metadata.packages_distributions().items()
-            if not any(_canonical(d) in closure for d in dists)
-            and module not in sys.stdlib_module_names}
+    return frozenset(module for module, dists in metadata.packages_distributions().items()
+            if not any(canonical(d) in closure for d in dists)
+            and module not in sys.stdlib_module_names)
 
 
 def lean_environment(tmp_path: Path) -> tuple[dict[str, str], Path]:

@@ -8,6 +8,7 @@ install; the true fresh-venv install is .ci/run's last step.
 
 from __future__ import annotations
 
+import functools
 import subprocess
 import sys
 import tomllib
@@ -17,7 +18,13 @@ from pathlib import Path
 import pytest
 from packaging.requirements import Requirement
 
-from tests.lean_install import ROOT, base_requirements, blocked_modules, lean_environment
+from tests.lean_install import (
+    ROOT,
+    base_requirements,
+    blocked_modules,
+    canonical,
+    lean_environment,
+)
 from ubf_async import extras
 from ubf_async.errors import MissingExtraError, PluginError
 
@@ -30,14 +37,20 @@ def _extras_of_pyproject() -> dict[str, list[Requirement]]:
             for name, texts in project["optional-dependencies"].items()}
 
 
+@functools.cache
+def _modules_of() -> dict[str, set[str]]:
+    """Top-level modules of each installed distribution (canonical name); read once: it
+    scans every distribution's files."""
+    found: dict[str, set[str]] = {}
+    for module, dists in metadata.packages_distributions().items():
+        for dist in dists:
+            found.setdefault(canonical(dist), set()).add(module)
+    return found
+
+
 def _provided_by(requirement: Requirement) -> set[str]:
     """Top-level modules of the (installed) distribution ``requirement`` names."""
-    files = metadata.distribution(requirement.name).read_text("top_level.txt")
-    if files:
-        return set(files.split())
-    return {module for module, dists in metadata.packages_distributions().items()
-            if requirement.name.lower().replace("_", "-") in
-            {d.lower().replace("_", "-") for d in dists}}
+    return _modules_of().get(canonical(requirement.name), set())
 
 
 def _with_included(name: str, table: dict[str, list[Requirement]]) -> list[Requirement]:
