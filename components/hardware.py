@@ -1,7 +1,7 @@
 """What the real-hardware backends share: the optional libraries and the GPIO pin factory.
 
 The hardware libraries (gpiozero, smbus2) are the ``hardware`` extra
-(``pip install -e ".[hardware]"``): only the backends that drive real pins or buses import
+(``pip install 'ubf-async[hardware]'``): only the backends that drive real pins or buses import
 them, through :func:`require`, so a robot without them still installs and runs.
 
 GPIO goes through gpiozero's pin factories, chosen as gpiozero chooses them: the
@@ -15,28 +15,22 @@ outputs), as gpiozero does.
 
 from __future__ import annotations
 
-import importlib
 import sys
 import threading
 from types import ModuleType
 from typing import Any
 
+from ubf_async import extras
 from ubf_async.errors import ConfigurationError
-
-EXTRA = 'pip install -e ".[hardware]"'
-"""How to install the hardware libraries (said in every error about them)."""
 
 _FACTORIES: dict[str, Any] = {}
 _LOCK = threading.Lock()
 
 
 def require(module: str, *, who: str) -> ModuleType:
-    """Import ``module`` for backend ``who``, or say how to install it."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as exc:
-        raise ConfigurationError(f"{who} needs {module.partition('.')[0]} ({exc}); install "
-                                 f"the hardware extra: {EXTRA}") from None
+    """Import ``module`` for backend ``who``, or say how to install it
+    (:func:`ubf_async.extras.require`)."""
+    return extras.require("hardware", module, who=who)
 
 
 def gpio_errors() -> tuple[type[BaseException], ...]:

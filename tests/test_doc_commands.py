@@ -138,7 +138,7 @@ NOT_RUN = {
         "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
         "install the project's build dependencies without the network)",
     ". .venv/bin/activate": "the quick start's installation (see python3 -m venv)",
-    "pip install -e .": "the quick start's installation (see python3 -m venv)",
+    "pip install -e .[all]": "the quick start's installation (see python3 -m venv)",
     "pip install -e .[test]":
         "the test command's installation of the test extra: .ci/run does it from a clean "
         "clone (tests/test_docs.py checks that it installs the same)",

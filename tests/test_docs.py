@@ -12,6 +12,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -308,12 +309,14 @@ def test_robot_file_md_quotes_the_errors_the_loader_gives() -> None:
 
 
 def test_the_plug_in_groups_the_docs_name_are_the_registrys() -> None:
+    """Issue 39: the table named modules (``ubf_async.core.arbiters``) for groups."""
     from ubf_async.assembly import registry
 
-    groups = {r.group for r in (registry.BEHAVIORS, registry.ARBITERS, registry.PREDICATES,
-                                registry.DEVICES, registry.BACKENDS, registry.SIMULATORS)}
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text("utf-8"))["project"]
+    registered = {group for group in project["entry-points"] if group.startswith("ubf_async.")}
     section = ROBOT_FILE_MD.read_text("utf-8").split("## Plug-ins", 1)[1].split("\n## ", 1)[0]
-    assert set(re.findall(r"^\| `(ubf_async\.[\w.]+)` \|", section, re.M)) == groups
+    named = set(re.findall(r"^\| `(ubf_async\.[\w.]+)` \|", section, re.M))
+    assert named == set(registry.READ) == registered
 
 
 def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_installs() -> None:
@@ -329,7 +332,7 @@ def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_insta
         return [words[i + 3] for i in range(len(words) - 3)
                 if words[i:i + 3] == ["pip", "install", "-e"]]
 
-    assert installs(quick_start) == ["."]
+    assert installs(quick_start) == [".[all]"]  # every feature the README shows (issue 39)
     assert installs(test) == [".[test]"]
     ci = [tokens(line) for line in (ROOT / ".ci" / "run").read_text("utf-8").splitlines()
           if "pip install" in line and " -e " in line]

@@ -14,6 +14,7 @@ ValueError`` code keeps working.
         ├── ParameterError   parameters a plug-in's factory refuses (its signature says why)
         ├── ScenarioError    a scenario file (docs/scenarios.md)
         ├── PluginError      an unknown or broken behaviour/arbiter/device/backend name
+        │   └── MissingExtraError  a feature whose extra is not installed (ubf_async.extras)
         └── TreeChangeError  a live change of the running tree that was refused
 """
 
@@ -85,6 +86,19 @@ class ScenarioError(ConfigurationError):
 
 class PluginError(ConfigurationError, LookupError):
     """A name that no registered plug-in provides, or a plug-in that fails to load."""
+
+
+class MissingExtraError(PluginError, ImportError):
+    """A feature needs an optional part of the install (an *extra*) that is not installed:
+    ``str()`` names the feature, the extra and the command that installs it
+    (:func:`ubf_async.extras.require`)."""
+
+    def __init__(self, who: str, extra: str, missing: str) -> None:
+        self.who = who
+        self.extra = extra
+        self.missing = missing
+        super().__init__(f"{who} needs the '{extra}' extra ({missing} is not installed): "
+                         f"pip install 'ubf-async[{extra}]'")
 
 
 class TreeChangeError(ConfigurationError):

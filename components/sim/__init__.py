@@ -18,3 +18,10 @@ Every room's ``__init__`` says what it holds and what it may import. Nothing out
 simulator imports it but through the registry (the devices-without-simulator and
 framework-alone contracts).
 """
+
+from ubf_async import extras
+
+# The simulator is the sim extra (ubf_async/extras.py): without it, whatever reaches this
+# package — a simulated launch, a `sim` backend, experiment.run — says so in one line.
+extras.require("sim", "pymunk", who="the simulator")
+extras.require("sim", "matplotlib", who="the simulator")

@@ -13,7 +13,13 @@ ubf_async.predicates  ``(**params) -> (State -> bool)``, for ``Conditional``    
 ubf_async.devices     a device kind: ``(*, bus, name, backend, **params)``      ``camera``
 ubf_async.backends    ``KIND.NAME``: ``(*, context, **params) -> backend``      ``camera.sim``
 ubf_async.simulators  a :class:`.Simulator` factory                             ``mini-whegs``
+ubf_async.live_views  ``() -> LiveConverter``, for the live view and recordings ``sim.world``
 ====================  ========================================================  ==========
+
+Only these groups are read. Entry points a package registers under another ``ubf_async.*``
+group (``ubf_async.core.arbiters``, a module's path rather than the group's name) are found by
+:func:`unread_groups`: ``python -m ubf_async.robotfile plugins`` lists them, and an unknown name
+that such a group holds is refused with the group it was likely meant for.
 
 Where a name is expected, a ``module:attribute`` reference to the user's own code works too
 (``my_robot.behaviors:Wander``). An unknown name raises :class:`~ubf_async.errors.PluginError`
@@ -29,6 +35,7 @@ for the same mistake.
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import inspect
 import re
@@ -41,9 +48,12 @@ from typing import Any
 import msgspec
 import msgspec.inspect
 
-from ubf_async.errors import ParameterError, PluginError
+from ubf_async import extras
+from ubf_async.errors import MissingExtraError, ParameterError, PluginError
 
 REFERENCE_SEPARATOR = ":"
+GROUP_PREFIX = "ubf_async."
+"""Every entry-point group of ubf_async starts so."""
 
 
 def resolve_reference(reference: str) -> Any:
@@ -78,6 +88,7 @@ class Registry:
     def __init__(self, group: str, *, what: str) -> None:
         self.group = group
         self.what = what
+        READ[group] = self
         self._entry_points: dict[str, EntryPoint] | None = None
         self._loaded: dict[str, Any] = {}
         self._lock = threading.Lock()
@@ -128,15 +139,53 @@ class Registry:
             choices = list(known) if known is not None else self.names()
             raise PluginError(
                 f"unknown {self.what} {name!r}; known: {', '.join(choices) or '(none)'}"
-                f" (or a 'module:factory' reference)"
+                f" (or a 'module:factory' reference){self._unread_hint(name)}"
             )
         try:
             obj = point.load()
+        except MissingExtraError:
+            raise  # the plug-in's own words: the extra its feature needs
         except Exception as exc:  # a plug-in's import may fail in any way
+            missing = extras.missing_extra(exc, who=f"{self.what} {name!r}")
+            if missing is not None:
+                raise missing from None
             raise PluginError(f"{self.what} {name!r} ({point.value}) failed to load: "
                               f"{type(exc).__name__}: {exc}") from exc
         self._loaded[name] = obj
         return obj
+
+    def _unread_hint(self, name: str) -> str:
+        """What the unread groups say about an unknown ``name``: where it is registered in
+        vain, and the group meant."""
+        said = [f"{name!r} is registered under {group}, which nothing reads"
+                for group, points in unread_groups().items()
+                if any(point.name == name for point in points)]
+        if not said:
+            return ""
+        return f"; {'; '.join(said)}: did you mean group {self.group}?"
+
+
+READ: dict[str, Registry] = {}
+"""Every group ubf_async reads, and its registry."""
+
+
+def unread_groups() -> dict[str, list[EntryPoint]]:
+    """Entry points registered under a ``ubf_async.*`` group that no registry reads, by group
+    (a package following a wrong name of a group: its plug-ins would be silently left out)."""
+    unread = sorted(group for group in entry_points().groups
+                    if group.startswith(GROUP_PREFIX) and group not in READ)
+    return {group: list(entry_points(group=group)) for group in unread}
+
+
+def meant_group(group: str) -> str | None:
+    """The group read that an unread ``group`` was likely meant to be: the one named by its
+    last part (``ubf_async.core.arbiters`` → ``ubf_async.arbiters``), else the closest name."""
+    by_last = {read.rpartition(".")[2]: read for read in READ}
+    last = group.rpartition(".")[2]
+    if last in by_last:
+        return by_last[last]
+    close = difflib.get_close_matches(last, list(by_last), n=1, cutoff=0.6)
+    return by_last[close[0]] if close else None
 
 
 BEHAVIORS = Registry("ubf_async.behaviors", what="behaviour")
@@ -145,6 +194,7 @@ PREDICATES = Registry("ubf_async.predicates", what="predicate")
 DEVICES = Registry("ubf_async.devices", what="device kind")
 BACKENDS = Registry("ubf_async.backends", what="backend")
 SIMULATORS = Registry("ubf_async.simulators", what="simulator")
+LIVE_VIEWS = Registry("ubf_async.live_views", what="live view")
 
 
 def backends_for(kind: str) -> list[str]:

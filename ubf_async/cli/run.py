@@ -32,6 +32,7 @@ from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
 from typing import Any, TextIO, TypeVar, cast
 
+from ubf_async import extras
 from ubf_async.cli import ending, trim
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runtime import lending
@@ -221,11 +222,7 @@ def loop_factory() -> Callable[[], asyncio.AbstractEventLoop]:
         return lending.new_idle_event_loop
     if choice == "lending":
         return lending.new_event_loop
-    try:
-        import uvloop
-    except ImportError:
-        raise ConfigurationError(f"{LOOP_ENV}=uvloop but uvloop is not installed "
-                                 f"(pip install 'ubf-async[fast]')") from None
+    uvloop = extras.require("fast", "uvloop", who=f"{LOOP_ENV}=uvloop")
     factory: Callable[[], asyncio.AbstractEventLoop] = uvloop.new_event_loop
     return factory
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import yaml
 
+from ubf_async import extras
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import overrides
 from ubf_async.runs.evolve import report
@@ -60,11 +61,7 @@ class TuneOutputs:
 
 
 def _optuna() -> Any:
-    try:
-        import optuna
-    except ImportError:
-        raise ConfigurationError("tuning needs Optuna: pip install 'ubf-async[tune]'") from None
-    return optuna
+    return extras.require("tune", "optuna", who="tuning")
 
 
 def _sampler(optuna: Any, name: str, seed: int) -> Any:

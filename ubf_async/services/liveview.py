@@ -46,11 +46,12 @@ import threading
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Protocol
 
 import msgspec
 
+from ubf_async import extras
+from ubf_async.assembly.registry import LIVE_VIEWS
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import EveryMessageComponent
@@ -62,7 +63,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-ENTRY_POINT_GROUP = "ubf_async.live_views"
 DEFAULT_PORT = 8765
 DEFAULT_HOST = "127.0.0.1"
 WORLD_FRAME = "world"
@@ -332,12 +332,12 @@ def registered_converters() -> list[LiveConverter]:
     """Converters packages register under the ``ubf_async.live_views`` entry points (each a
     callable taking no argument and returning a :class:`LiveConverter`)."""
     found: list[LiveConverter] = []
-    for point in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda p: p.name):
+    for name in LIVE_VIEWS.names():
         try:
-            found.append(point.load()())
+            found.append(LIVE_VIEWS.get(name)())
         except Exception as exc:  # a broken plug-in must not take the view down
-            log.error("live view %r (%s) could not be loaded: %s", point.name, point.value,
-                      exc)
+            log.error("live view %r (%s) could not be loaded: %s", name,
+                      LIVE_VIEWS.origin(name), exc)
     return found
 
 
@@ -456,6 +456,8 @@ class FoxgloveServer(EveryMessageComponent):
 
     def __init__(self, *, bus: Bus, port: int = DEFAULT_PORT, host: str = DEFAULT_HOST,
                  name: str = "foxglove", view: LiveView | None = None) -> None:
+        # The feature's entry: a missing extra is one line before anything starts.
+        extras.require("view", "foxglove", who="the live view")
         super().__init__(bus=bus, name=name)
         if not 0 <= port <= 65535:
             raise ConfigurationError(f"--foxglove port must be 0..65535, got {port}")

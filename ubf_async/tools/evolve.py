@@ -27,10 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-from ubf_async import __version__
+from ubf_async import __version__, extras
 from ubf_async.cli.run import EXIT_INTERRUPTED, run_sync
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import evolve
@@ -128,6 +125,16 @@ class BarProgress:
     fitness, the time spent and left."""
 
     def __init__(self, generations: int, out: TextIO) -> None:
+        extras.require("sim", "rich", who="python -m ubf_async.evolve")
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
         self.generations = generations
         self.bar = Progress(TextColumn("generation {task.fields[generation]}"), BarColumn(),
                             TextColumn("best {task.fields[best]}"), TimeElapsedColumn(),

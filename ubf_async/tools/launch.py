@@ -38,7 +38,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
 
-from ubf_async import __version__
+from ubf_async import __version__, extras
 from ubf_async.assembly.registry import SIMULATORS
 from ubf_async.assembly.robotfile import (
     DEFAULT_ROBOT_FILE,
@@ -65,7 +65,7 @@ from ubf_async.services.liveview import FoxgloveServer
 from ubf_async.services.remote import remote_spec
 from ubf_async.services.status import StatusWriter, status_fields
 from ubf_async.tools.liveview import add_host_argument
-from ubf_async.tools.record import McapRecorder
+from ubf_async.tools.record import McapRecorder, require_recording
 
 log = logging.getLogger("ubf_async.tools.launch")
 
@@ -283,6 +283,10 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
         raise ConfigurationError(f"--trajectory: --record {args.record} writes the trajectory "
                                  f"already ({args.record / 'trajectory.csv'}); give one of them")
     check_outputs(args.summary, args.record, trajectory=args.trajectory)
+    if args.record is not None:
+        require_recording(who="launch --record")
+    if args.foxglove is not None:
+        extras.require("view", "foxglove", who="launch --foxglove")
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
     args.robot = args.robot or robot.name or DEFAULT_ROBOT

@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from ubf_async import extras
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
 from ubf_async.cli.run import run_main
@@ -48,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 async def serve(args: argparse.Namespace, *,
                 ready: Callable[[FoxgloveServer], None] | None = None) -> int:
+    extras.require("view", "foxglove", who=PROG)  # before waiting for a robot
     async with attached_bus(args) as bus:
         server = FoxgloveServer(bus=bus, port=args.port, host=args.foxglove_host,
                                 name=args.name)

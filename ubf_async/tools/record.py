@@ -44,9 +44,8 @@ from pathlib import Path
 from typing import IO, Any
 
 import msgspec
-from mcap.writer import CompressionType, Writer
 
-from ubf_async import __version__, throttle
+from ubf_async import __version__, extras, throttle
 from ubf_async.cli import ending
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
@@ -140,6 +139,14 @@ class RecorderStats:
     """Why writing stopped, if it did (a full disk)."""
 
 
+def require_recording(*, live_channels: bool = True, who: str) -> None:
+    """The record extra (mcap, and foxglove-sdk for the live view's channels), or one line
+    saying how to install it: called where a recording is asked for, before anything starts."""
+    extras.require("record", "mcap", who=who)
+    if live_channels:
+        extras.require("record", "foxglove", who=who)
+
+
 class McapRecorder(EveryMessageComponent):
     """Records every message on the robot's keys to MCAP (module docstring).
 
@@ -153,6 +160,7 @@ class McapRecorder(EveryMessageComponent):
                  max_queue: int = DEFAULT_MAX_QUEUE, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  on_flush: Any = None, live_channels: bool = True,
                  drain_s: float = DEFAULT_DRAIN_S) -> None:
+        require_recording(live_channels=live_channels, who="recording")
         super().__init__(bus=bus, name=name)
         self.drain_s = drain_s
         if not flush_s > 0:
@@ -278,6 +286,8 @@ class _File:
         self.path = base if index == 0 else base.with_name(f"{base.stem}_{index}{base.suffix}")
         self.stream: IO[bytes] = self.path.open("wb")
         recorder.stats.files.append(self.path)
+        from mcap.writer import CompressionType, Writer  # the record extra: McapRecorder
+
         self.writer = Writer(self.stream, chunk_size=recorder.chunk_bytes,
                              compression=CompressionType.ZSTD)
         self.writer.start(profile="", library=f"ubf_async {__version__}")
@@ -414,6 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 async def record(args: argparse.Namespace) -> int:
+    require_recording(live_channels=args.live_channels, who=PROG)
     async with attached_bus(args) as bus:
         await ensure_name_free(bus, args.name, hint="give this recorder another --name")
 

@@ -52,11 +52,9 @@ import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO, TYPE_CHECKING
 
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Channel
-
+from ubf_async import extras
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
 from ubf_async.errors import ConfigurationError
@@ -64,6 +62,10 @@ from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
 from ubf_async.net.transport import intersects
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, RawPublisher, wait_for_robot
 from ubf_async.runtime.clock import SimClock
+
+if TYPE_CHECKING:
+    from mcap.reader import McapReader
+    from mcap.records import Channel
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +75,12 @@ CLOCK_LOOKAHEAD = 1000
 CLOCK_LOOKAHEAD_NS = 100_000_000
 """How far into a recording (messages, recorded time) its first clock sample is looked for,
 to be sent first (:meth:`Recording.__iter__`); a simulator sends one every step."""
+
+
+def _reader(stream: IO[bytes]) -> McapReader:
+    from mcap.reader import make_reader  # the record extra, which Recording requires
+
+    return make_reader(stream)
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,9 +97,13 @@ class Recording:
     def __init__(self, path: Path, *, only: Sequence[str] = CONTROLLER_INPUTS,
                  robot: str | None = None) -> None:
         self.path = path
+        # The feature's entry: a missing extra is one line before anything starts.
+        extras.require("record", "mcap", who="replaying a recording")
+        from mcap.exceptions import McapError
+
         try:
             with path.open("rb") as f:
-                reader = make_reader(f)
+                reader = _reader(f)
                 metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         except (OSError, ValueError, McapError) as exc:
             raise ConfigurationError(f"{path}: not a readable MCAP recording ({exc})") from None
@@ -147,7 +159,7 @@ class Recording:
     def _messages(self) -> Iterator[Recorded]:
         replayed_on: dict[int, str | None] = {}  # by channel id: decided once per channel
         with self.path.open("rb") as f:
-            for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            for _, channel, message in _reader(f).iter_messages(log_time_order=True):
                 if channel.id not in replayed_on:
                     replayed_on[channel.id] = self._replayed_on(channel)
                 key = replayed_on[channel.id]
@@ -158,7 +170,7 @@ class Recording:
         """The keys (under ``ubf/<robot>/``) this recording publishes on, sorted. Reads the
         file's summary; a file without one (a killed recorder's) is read through."""
         with self.path.open("rb") as f:
-            summary = make_reader(f).get_summary()
+            summary = _reader(f).get_summary()
         if summary is None:
             return sorted({m.key for m in self})
         replayed = (self._replayed_on(c) for c in summary.channels.values())

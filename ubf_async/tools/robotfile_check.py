@@ -33,11 +33,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.write.write_text(schema_text(), encoding="utf-8")
         return 0
     if args.command == "plugins":
-        for reg in (registry.BEHAVIORS, registry.ARBITERS, registry.PREDICATES,
-                    registry.DEVICES, registry.BACKENDS, registry.SIMULATORS):
-            print(f"{reg.group}:")
-            for name in reg.names():
-                print(f"  {name:<20} {reg.origin(name)}")
+        list_plugins()
         return 0
     status = 0
     for file in args.files:
@@ -54,6 +50,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         for slot in robot.remotes:
             print(f"  remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]")
     return status
+
+
+def list_plugins() -> None:
+    """Every name of every group read, where each comes from; then the entry points under
+    ``ubf_async.*`` groups that nothing reads, with the group each was likely meant for."""
+    for reg in registry.READ.values():
+        print(f"{reg.group}:")
+        for name in reg.names():
+            print(f"  {name:<20} {reg.origin(name)}")
+    for group, points in registry.unread_groups().items():
+        meant = registry.meant_group(group)
+        print(f"{group}: read by nothing, so left out"
+              + (f" (did you mean group {meant}?)" if meant else "")
+              + f"; the groups read: {', '.join(registry.READ)}")
+        for point in sorted(points, key=lambda p: p.name):
+            print(f"  {point.name:<20} {point.value}")
 
 
 if __name__ == "__main__":

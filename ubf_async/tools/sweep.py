@@ -30,17 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
-
-from ubf_async import __version__
+from ubf_async import __version__, extras
 from ubf_async.cli.args import HelpFormatter
 from ubf_async.cli.run import EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard, run_sync
 from ubf_async.errors import ConfigurationError
@@ -203,6 +193,17 @@ class BarProgress:
     """Progress as rich's bar, with the count, failures, elapsed time and time left."""
 
     def __init__(self, total: int, out: TextIO) -> None:
+        extras.require("sim", "rich", who="python -m ubf_async.sweep")
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
         self.done = self.failed = 0
         self.bar = Progress(TextColumn("runs"), BarColumn(), MofNCompleteColumn(),
                             TextColumn("{task.fields[failed]} failed"), TimeElapsedColumn(),

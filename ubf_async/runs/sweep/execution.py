@@ -29,6 +29,7 @@ from typing import Any, Literal, Protocol
 
 import msgspec
 
+from ubf_async import extras
 from ubf_async.cli import ending
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import inprocess, overrides
@@ -219,12 +220,8 @@ def _ended(pool: Any) -> Iterator[Pool]:
 @contextlib.contextmanager
 def _ray_pool(workers: int | None, address: str | None,
               runtime_env: dict[str, Any] | None) -> Iterator[Pool]:
-    try:
-        import ray
-        from ray.util.multiprocessing import Pool as RayPool
-    except ImportError:
-        raise ConfigurationError("the ray executor needs Ray: pip install 'ubf-async[cluster]' "
-                                 "(docs/experiments.md, On a Ray cluster)") from None
+    ray = extras.require("cluster", "ray", who="the ray executor (docs/experiments.md)")
+    from ray.util.multiprocessing import Pool as RayPool
     joined = not ray.is_initialized()
     if joined:
         try:

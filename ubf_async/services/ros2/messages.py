@@ -19,20 +19,23 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-from rosbags.serde import SerdeError
-from rosbags.typesys import Stores, get_typestore
-from rosbags.typesys.store import Typestore
 
+from ubf_async import extras
 from ubf_async.wire.protocol import ProtocolError
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
 
 Distro = Literal["humble", "jazzy", "kilted"]
 DISTROS: tuple[Distro, ...] = ("humble", "jazzy", "kilted")
 DEFAULT_DISTRO: Distro = "jazzy"
-_STORES: dict[str, Stores] = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY,
-                              "kilted": Stores.ROS2_KILTED}
+_STORES: dict[str, str] = {"humble": "ROS2_HUMBLE", "jazzy": "ROS2_JAZZY",
+                           "kilted": "ROS2_KILTED"}
+"""Each distro's member of rosbags' ``Stores`` (rosbags is the ros2 extra: imported by
+:func:`typestore`, which every payload goes through)."""
 NO_TYPE_HASH = "TypeHashNotSupported"
 CDR_HEADER = b"\x00\x01\x00\x00"
 """XCDR1 (plain CDR), little-endian, no options: what rmw_zenoh writes and reads."""
@@ -52,8 +55,9 @@ is planar here), large enough that a filter ignores it, finite so every tool rea
 
 @cache
 def typestore(distro: str) -> Typestore:
+    typesys = extras.require("ros2", "rosbags.typesys", who="the ROS 2 bridge")
     try:
-        return get_typestore(_STORES[distro])
+        return typesys.get_typestore(getattr(typesys.Stores, _STORES[distro]))
     except KeyError:
         raise ValueError(f"unknown ROS 2 distro {distro!r}: one of {', '.join(DISTROS)}") from None
 
@@ -180,6 +184,8 @@ class Codec:
         if payload[:4] != CDR_HEADER:
             raise ProtocolError(f"not little-endian XCDR1: header {payload[:4].hex(' ')!r}, "
                                 f"expected {CDR_HEADER.hex(' ')}")
+        from rosbags.serde import SerdeError  # installed: self.store came from it
+
         try:
             msg: Any = self.store.deserialize_cdr(payload, TWIST)
         except (SerdeError, ValueError, TypeError, IndexError, KeyError) as exc:
