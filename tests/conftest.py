@@ -16,10 +16,10 @@ import msgspec
 import pytest
 import pytest_asyncio
 
+from ubf_async.clocks.clock import Hold, WallClock
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Hold, WallClock
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -107,7 +107,7 @@ async def eventually(
 class LoopClock:
     """The robot's clock as the event loop's own time: wall time on a normal loop, virtual
     time in a test marked ``@pytest.mark.looptime`` (which fast-forwards the loop's time
-    whenever every task waits on a timer). :class:`~ubf_async.runtime.clock.WallClock` reads
+    whenever every task waits on a timer). :class:`~ubf_async.clocks.clock.WallClock` reads
     ``time.monotonic_ns()``, which looptime cannot move: a component stamped and scheduled by
     this clock runs on one virtual time with the loop's own timers (restart backoffs,
     heartbeats, ``asyncio.wait_for``). Only for buses without zenoh threads (the in-process
@@ -201,7 +201,7 @@ class SimRobot:
                  **device_options: object) -> None:
         from components.sim.component import SimulatorComponent, simulated_devices
         from components.sim.world import World
-        from ubf_async.runtime.clock import SimClock
+        from ubf_async.clocks.clock import SimClock
 
         self.clock = SimClock()
         bus.clock = self.clock

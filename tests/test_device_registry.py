@@ -25,6 +25,7 @@ from components.sim.world_config import WorldConfig
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot_text
 from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import (
     ConfigurationError,
     ParameterError,
@@ -33,7 +34,6 @@ from ubf_async.errors import (
     ScenarioError,
 )
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
 
 EXPECTED_PARAMETERS = {

@@ -14,10 +14,10 @@ import pytest
 
 from tests.conftest import as_dict, eventually
 from ubf_async import Action, FunctionBehavior, State
+from ubf_async.clocks.clock import WallClock
 from ubf_async.core.behavior import Trace
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import WallClock
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.wire.protocol import Keys, Message, ProtocolError, decode

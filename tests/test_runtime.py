@@ -23,13 +23,13 @@ from tests.conftest import LoopClock, as_dict, eventually
 from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.behaviors import seek_pink_ball
+from ubf_async.clocks.clock import SimClock
+from ubf_async.clocks.simclock import follow_sim_clock
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus, Publisher
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component, HealthMonitor
 from ubf_async.runtime.controller import Controller
-from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.wire.protocol import decode
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

@@ -11,9 +11,9 @@ from components.sim.component import SimulatorComponent
 from components.sim.runner import lateness_summary
 from components.sim.world import World
 from components.sim.world_config import WorldConfig
+from ubf_async.clocks.clock import SimClock
 from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 
 def test_the_summary_gives_median_p99_and_worst_in_ms() -> None:

@@ -21,8 +21,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
 from ubf_async.assembly.simulation import FleetMember, SimulationOptions
+from ubf_async.clocks.clock import SimClock
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 if TYPE_CHECKING:
     from components.sim.remote import RemoteWorld

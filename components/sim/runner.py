@@ -53,9 +53,9 @@ from components.sim.world import World, wrap_angle
 from components.sim.world_snapshot import WorldSnapshot
 from ubf_async import __version__
 from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, describe_speed
+from ubf_async.clocks.clock import SimClock, every
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.bus import Bus, Subscription
-from ubf_async.runtime.clock import SimClock, every
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.wire.protocol import Message

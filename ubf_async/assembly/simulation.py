@@ -27,8 +27,8 @@ from ubf_async.assembly.context import DeviceContext as DeviceContext
 
 if TYPE_CHECKING:
     from ubf_async.assembly.robotfile import ResolvedDevice
+    from ubf_async.clocks.clock import SimClock
     from ubf_async.runtime.bus import Bus
-    from ubf_async.runtime.clock import SimClock
     from ubf_async.runtime.component import Component
     from ubf_async.runtime.controller import Controller
 
@@ -56,7 +56,7 @@ class SimulationOptions:
     run's result); otherwise only a bounded, decimated history is kept."""
     lockstep_participants: int = 0
     """Hold simulated time at its start until this many lockstep participants of other
-    processes have joined (:mod:`ubf_async.runtime.lockstep`)."""
+    processes have joined (:mod:`ubf_async.clocks.lockstep`)."""
     command_line: tuple[str, ...] = ()
     """How the run was started (for its summary)."""
 

@@ -11,7 +11,7 @@ import contextlib
 from collections.abc import AsyncIterator
 
 from ubf_async.cli.args import connection_options
-from ubf_async.runtime import clockdomain
+from ubf_async.clocks import follow
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
 
 
@@ -28,12 +28,12 @@ def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str
 @contextlib.asynccontextmanager
 async def attached_bus(args: argparse.Namespace) -> AsyncIterator[Bus]:
     """A bus on the connection flags that has reached the robot (:func:`wait_for_robot`) and
-    stamps on its clock (:func:`~ubf_async.runtime.clockdomain.follow_robot_clock`); closed on
+    stamps on its clock (:func:`~ubf_async.clocks.follow.follow_robot_clock`); closed on
     exit."""
     bus = await Bus.open(connection_options(args))
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
-        await clockdomain.follow_robot_clock(bus, mode="auto")
+        await follow.follow_robot_clock(bus, mode="auto")
         yield bus
     finally:
         await bus.aclose()

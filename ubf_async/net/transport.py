@@ -271,7 +271,7 @@ class ZenohConnection:
     ``ordered``: run the callbacks on the zenoh thread that received the samples instead
     (``Callback(..., indirect=False)``), in the order a session sent them — what lockstep
     needs (an acknowledgement must not overtake the vote sent before it,
-    :mod:`ubf_async.runtime.lockstep`). The callbacks only copy and hand over, so zenoh's thread
+    :mod:`ubf_async.clocks.lockstep`). The callbacks only copy and hand over, so zenoh's thread
     is held briefly.
 
     Either way a callback can still be running, or about to run, when ``session.close()``

@@ -30,16 +30,16 @@ from ubf_async.assembly.simulation import (
     Simulator,
 )
 from ubf_async.cli import ending
+from ubf_async.clocks.clock import Clock, SimClock
+from ubf_async.clocks.simclock import follow_sim_clock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.runtime import lockstep
+from ubf_async.runtime import timekeepers
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Clock, SimClock
 from ubf_async.runtime.component import Component, HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
-from ubf_async.runtime.hostclock import RobotTimeBeacon
-from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.runtime.timekeepers import RobotTimeBeacon
 from ubf_async.services.live import TreeService
 from ubf_async.services.remote import RemoteBehaviors
 from ubf_async.services.status import planned_ticks
@@ -271,7 +271,7 @@ def add_clock_components(plan: RunPlan, run: RobotRun) -> None:
         run.components.append(RobotTimeBeacon(bus=run.bus))
     if plan.lockstep:  # last started: the simulator waits for it once all else runs
         assert run.controller is not None
-        run.components.append(lockstep.LockstepParticipant(bus=run.bus,
+        run.components.append(timekeepers.LockstepParticipant(bus=run.bus,
                                                            participant=run.controller.name))
     if run.sim_run is not None:
         run.sim_run.add_devices(run.devices)

@@ -1,8 +1,8 @@
 """The runtime: one robot process's bus, clocks, components and controller.
 
-Clocks (:mod:`~ubf_async.runtime.clock`, :mod:`~ubf_async.runtime.timesource`,
-:mod:`~ubf_async.runtime.hostclock`, :mod:`~ubf_async.runtime.clockdomain`,
-:mod:`~ubf_async.runtime.lockstep`), the event loop (:mod:`~ubf_async.runtime.lending`), the
+Clocks (:mod:`~ubf_async.clocks.clock`, :mod:`~ubf_async.clocks.timesource`,
+:mod:`~ubf_async.clocks.hostclock`, :mod:`~ubf_async.clocks.clockdomain`,
+:mod:`~ubf_async.clocks.lockstep`), the event loop (:mod:`~ubf_async.runtime.lending`), the
 zenoh-thread → asyncio bridge (:mod:`~ubf_async.runtime.bus`), supervised components
 (:mod:`~ubf_async.runtime.component`), the latest sample per source
 (:mod:`~ubf_async.runtime.aggregator`), the controller that ticks the tree

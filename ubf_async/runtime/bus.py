@@ -68,6 +68,7 @@ from typing import Any, Generic, Protocol, Self, TypeVar
 
 import zenoh
 
+from ubf_async.clocks.clock import Clock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import (
     DEFAULT_ROBOT,
@@ -91,7 +92,6 @@ from ubf_async.net.transport import (
     intersects,
 )
 from ubf_async.runtime import lending
-from ubf_async.runtime.clock import Clock, WallClock
 from ubf_async.runtime.ratelimit import TokenBucket
 from ubf_async.wire.protocol import (
     INT64_MAX,

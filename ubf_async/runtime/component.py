@@ -37,6 +37,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from ubf_async.clocks.port import Closing
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Screen, Subscription
 from ubf_async.wire.protocol import Message
@@ -106,7 +107,7 @@ class Component:
         """Set while :meth:`run` is executing (cleared between restarts)."""
         self._tasks: list[asyncio.Task[None]] = []
         self._token: Any = None
-        self._attempt_resources: list[Publisher | Subscription] = []
+        self._attempt_resources: list[Publisher | Closing] = []
         self._started = False
         self._closed = False
         self._on_close: list[Callable[[], object]] = []
@@ -159,7 +160,7 @@ class Component:
         (:class:`~ubf_async.runtime.refusals.RefusalWatch`)."""
         return any(isinstance(r, Publisher) and r.key == key for r in self._attempt_resources)
 
-    def keep(self, resource: Publisher | Subscription) -> None:
+    def keep(self, resource: Publisher | Closing) -> None:
         """Close ``resource`` (made on another bus than the component's, say) when this run
         attempt ends, as :meth:`publisher` and :meth:`subscribe` do for theirs."""
         self._attempt_resources.append(resource)

@@ -50,13 +50,13 @@ from ubf_async.assembly.robotfile import (
 from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, SimulationRun, Simulator
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import check_lockstep_loop, run_main
+from ubf_async.clocks.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
 from ubf_async.net.secure import SecureSetup
 from ubf_async.runs import wiring
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Clock, SimClock, WallClock
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.runtime.heap import freeze_startup_objects

@@ -31,7 +31,7 @@ subscribers known when it is put, so a replay into nobody would publish into the
 report success. Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
 
 In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
-the re-run's :class:`~ubf_async.runtime.clock.SimClock` and a ``settle`` (the in-process
+the re-run's :class:`~ubf_async.clocks.clock.SimClock` and a ``settle`` (the in-process
 transport's), :func:`replay` advances the clock to each message's time itself and waits until
 everything
 delivered has been handled — a deterministic re-run, tick for tick.
@@ -59,11 +59,11 @@ from mcap.records import Channel
 
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import run_main
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
 from ubf_async.net.transport import intersects
 from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, RawPublisher, wait_for_robot
-from ubf_async.runtime.clock import SimClock
 
 log = logging.getLogger(__name__)
 
