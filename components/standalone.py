@@ -42,12 +42,13 @@ from components.devices import make_backend, make_device, requires_simulator
 from ubf_async.assembly import registry
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.clocks import follow
 from ubf_async.clocks.clock import Clock
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime import refusals, timekeepers
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component, ensure_name_free
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]

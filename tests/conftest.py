@@ -15,9 +15,11 @@ from typing import Any
 import msgspec
 import pytest
 import pytest_asyncio
+import zenoh
 
 from ubf_async.clocks.clock import Hold, WallClock
 from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.transport import ZenohTransport
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
 
@@ -184,11 +186,19 @@ async def robot_bus(endpoint: str, robot: str) -> AsyncIterator[Bus]:
     await bus.aclose()
 
 
+def zenoh_session(bus: Bus) -> zenoh.Session:
+    """The zenoh session under a bus made by ``Bus.open`` (its transport owns it): tests reach
+    around the bus with it, as another program on the network would."""
+    transport = bus.transport
+    assert isinstance(transport, ZenohTransport), transport
+    return transport.session
+
+
 @pytest_asyncio.fixture
 async def peer_bus(robot_bus: Bus, endpoint: str, robot: str) -> AsyncIterator[Bus]:
     """Another session (think: another process) connected to the robot's."""
     bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
-    await eventually(lambda: len(list(robot_bus.session.info.peers_zid())) > 0,
+    await eventually(lambda: len(list(zenoh_session(robot_bus).info.peers_zid())) > 0,
                      what="peer session to connect")
     yield bus
     await bus.aclose()

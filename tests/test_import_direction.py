@@ -262,6 +262,28 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
     # A component reaching for a tool.
     ({"components/sim/liveview.py": "import ubf_async.tools.liveview  # noqa"},
      ["Nothing below the tools imports a tool"]),
+    # The clocks reaching up for the bus that stamps with them (they go through clocks.port).
+    ({"ubf_async/clocks/clockdomain.py": "from ubf_async.runtime.bus import Bus  # noqa"},
+     ["ubf_async's rooms"]),
+    # zenoh anywhere but the network: the bus, the ROS 2 bridge, the command line, a device.
+    ({"ubf_async/runtime/bus.py": "import zenoh  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    ({"ubf_async/services/ros2/bridge.py": "import zenoh  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    ({"ubf_async/cli/args.py": "from zenoh import Config  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    ({"components/standalone.py": "import zenoh  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    # The network reaching for the wire, below it but not its business.
+    ({"ubf_async/net/transport.py": "from ubf_async.wire.keys import ROOT  # noqa"},
+     ["The network does not import the wire"]),
+    # I/O in the wire: an event loop, a socket, a thread.
+    ({"ubf_async/wire/protocol.py": "import asyncio  # noqa"},
+     ["The wire does no I/O"]),
+    ({"ubf_async/wire/keys.py": "import socket  # noqa"},
+     ["The wire does no I/O"]),
+    ({"ubf_async/wire/topics.py": "import threading  # noqa"},
+     ["The wire does no I/O"]),
 ])
 def test_lint_imports_refuses_an_upward_import(tmp_path: Path, edits: dict[str, str],
                                                broken: list[str]) -> None:

@@ -22,7 +22,7 @@ from ubf_async.core.action import Action
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component

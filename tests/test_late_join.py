@@ -27,8 +27,8 @@ from tests.conftest import eventually
 from tests.remote_robot import Process
 from ubf_async.clocks import follow
 from ubf_async.clocks.clock import SimClock, WallClock
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
 from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.refusals import RefusalNotices, RefusalWatch
 from ubf_async.wire.protocol import decode

@@ -20,8 +20,8 @@ from components.leds.component import LedsComponent
 from components.sim.backends import SimLedBackend
 from components.sim.record import LED_DARK_BGR, LED_LIT_BGR, annotate_frame, read_trajectory_csv
 from tests.conftest import as_dict, eventually, free_port, spawn, stop
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
 from ubf_async.runs.inprocess import plan_run, run_plan
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus

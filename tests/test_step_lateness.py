@@ -12,7 +12,7 @@ from components.sim.runner import lateness_summary
 from components.sim.world import World
 from components.sim.world_config import WorldConfig
 from ubf_async.clocks.clock import SimClock
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.bus import Bus
 
 

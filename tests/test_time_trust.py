@@ -22,7 +22,7 @@ import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.world_config import Arena, WorldConfig
-from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop
+from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop, zenoh_session
 from ubf_async.clocks import clock as clock_module
 from ubf_async.clocks import follow
 from ubf_async.clocks.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
@@ -537,11 +537,13 @@ async def test_the_robots_time_is_followed_when_another_run_of_its_name_speaks_f
     follower = None
     sims: list[WithheldClock] = []
     try:
-        await eventually(lambda: other.session_id in map(str, robot_bus.session.info.peers_zid()),
+        robot_session = zenoh_session(robot_bus)
+        await eventually(lambda: other.session_id in map(str, robot_session.info.peers_zid()),
                          what="the other simulator to connect to the robot")
         follower = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
         reached = {robot_bus.session_id, other.session_id}
-        await eventually(lambda: reached <= set(map(str, follower.session.info.peers_zid())),
+        follower_session = zenoh_session(follower)
+        await eventually(lambda: reached <= set(map(str, follower_session.info.peers_zid())),
                          what="the follower to reach both (gossip)")
         sims.append(WithheldClock(other, epoch="other", start_ns=100 * S))
         sims[-1].release()
@@ -579,12 +581,12 @@ async def test_a_router_at_the_endpoint_is_not_taken_for_the_robot(robot: str) -
     try:
         client = await Bus.open(ConnectionOptions(robot=robot, mode="client",
                                                   connect=[router_endpoint]))
-        await eventually(lambda: bool(list(client.session.info.routers_zid())),
+        await eventually(lambda: bool(list(zenoh_session(client).info.routers_zid())),
                          what="the client to reach the router")
         assert await client.connected_sessions() == frozenset()
         peer = await Bus.open(ConnectionOptions(robot=robot, connect=[router_endpoint]))
         try:
-            await eventually(lambda: bool(list(peer.session.info.routers_zid())),
+            await eventually(lambda: bool(list(zenoh_session(peer).info.routers_zid())),
                              what="the peer to reach the router")
             assert await peer.connected_sessions() == frozenset()
         finally:

@@ -89,3 +89,17 @@ class PluginError(ConfigurationError, LookupError):
 
 class TreeChangeError(ConfigurationError):
     """A live change of the running behaviour tree that was refused; the tree is untouched."""
+
+
+class KeyExprError(UbfError, ValueError):
+    """A key expression the in-process transport cannot route (zenoh refuses it too)."""
+
+
+class SettleError(UbfError, RuntimeError):
+    """:meth:`InProcessTransport.settle <ubf_async.net.inprocess.InProcessTransport.settle>`
+    found work still pending after its limit."""
+
+
+class QueryError(UbfError, RuntimeError):
+    """A queryable answered with an error instead of a reply (see
+    :meth:`Bus.query <ubf_async.runtime.bus.Bus.query>`)."""

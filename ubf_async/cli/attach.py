@@ -1,7 +1,7 @@
 """What a tool attaching to a running robot from another process does around its own work
 (``python -m ubf_async.record``, ``python -m ubf_async.liveview``): its flags (``--duration``,
-``--name``, ``--wait-for-robot-s``), a session that has reached the robot and stamps on the
-robot's clock, and running until stopped."""
+``--name``, ``--wait-for-robot-s``), waiting for the robot (:func:`wait_for_robot`), a session
+that has reached the robot and stamps on the robot's clock, and running until stopped."""
 
 from __future__ import annotations
 
@@ -12,7 +12,11 @@ from collections.abc import AsyncIterator
 
 from ubf_async.cli.args import connection_options
 from ubf_async.clocks import follow
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
+from ubf_async.net.options import START_ROBOT_HINT, NoRobotError, refused_error
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.keys import ROOT
+
+DEFAULT_ATTACH_TIMEOUT_S = 10.0
 
 
 def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str) -> None:
@@ -23,6 +27,53 @@ def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str
     parser.add_argument("--name", default=name, help=f"{who}'s component name on the robot")
     parser.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
                         metavar="S", help="with --connect: how long to wait for the robot")
+
+
+async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
+                         any_robot: bool = False) -> None:
+    """For a process attaching to a running robot: wait until one of the robot's components is
+    alive on another zenoh node (its liveliness token ``ubf/<robot>/alive/*``: a liveliness
+    subscriber tells when one appears, nothing is polled). Raises :class:`NoRobotError` after
+    ``timeout_s``, saying whether nothing answered at the endpoints or the robot there has
+    another name, or :class:`RefusedError` when something listens there but never let the
+    session in.
+
+    Returns at once for a session that only listens (in ``peer`` mode without ``connect``
+    endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
+    anything (a token of this process would count). ``any_robot``: any robot's component will
+    do (a tool looking at a fleet)."""
+    options = bus.options
+    if not options.connect and options.mode != "client":
+        return
+    alive = asyncio.Event()
+
+    def on_change(key: str, appeared: bool) -> None:
+        if appeared:
+            alive.set()
+
+    watch = bus.watch_liveliness(f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive,
+                                 on_change)
+    try:
+        async with asyncio.timeout(timeout_s):
+            await alive.wait()
+        return
+    except TimeoutError:
+        pass
+    finally:
+        watch.close()
+    where = " ".join(options.connect) or "(the configured router)"
+    if not bus.reached_peers():
+        refused = await asyncio.to_thread(refused_error, options)
+        if refused is not None:
+            raise refused
+        raise NoRobotError(f"no robot to connect to: nothing answered at {where} within "
+                           f"{timeout_s:g}s ({START_ROBOT_HINT})")
+    seen = sorted({key.split("/")[1] for key in await bus.alive_tokens(
+        f"{ROOT}/*/alive/*", timeout_s=1.0)} - {bus.robot})
+    other = f"; robots there: {', '.join(seen)} (check --robot)" if seen else ""
+    raise NoRobotError(f"no robot {bus.robot!r} answered at {where} within {timeout_s:g}s: "
+                       f"a zenoh node is there, but none of the robot's components is alive"
+                       f"{other}")
 
 
 @contextlib.asynccontextmanager

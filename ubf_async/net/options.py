@@ -97,7 +97,14 @@ class ConnectionOptions:
         file, then these options over it; in secure mode the identity's credentials (and for
         ``robot`` the password dictionary and the ACL), and client mode for every identity
         but ``robot`` (see :mod:`ubf_async.net.secure`).
-        Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up."""
+        Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up, and for
+        an endpoint or value zenoh refuses (``zenoh configuration: ...``)."""
+        try:
+            return self._zenoh_config()
+        except zenoh.ZError as exc:
+            raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
+
+    def _zenoh_config(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
         for key, value in SESSION_LIMITS.items():
             if self.config is None or config_value(conf, key) is None:

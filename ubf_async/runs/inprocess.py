@@ -33,8 +33,8 @@ from ubf_async.assembly.robotfile import Robot, load_robot
 from ubf_async.assembly.simulation import SimulationOptions
 from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
 from ubf_async.runs import wiring
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus

@@ -59,7 +59,8 @@ from ubf_async.runs.fleet import (
     members_of,
     world_options,
 )
-from ubf_async.runtime.bus import ROOT, Bus
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.keys import ROOT
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 

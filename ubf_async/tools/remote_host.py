@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import TextIO
 
 from ubf_async.cli.args import add_connection_arguments, connection_options
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.clocks import follow
 from ubf_async.clocks.clock import Clock, WallClock
@@ -23,7 +24,7 @@ from ubf_async.core.behavior import Behavior
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime import refusals, timekeepers
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import ensure_name_free
 from ubf_async.services.remote import DEFAULT_TTL_S, RemoteBehaviorHost, vote_key
 from ubf_async.wire.keys import Keys

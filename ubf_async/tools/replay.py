@@ -58,12 +58,13 @@ from mcap.reader import make_reader
 from mcap.records import Channel
 
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.keyexpr import intersects
 from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
-from ubf_async.net.transport import intersects
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, RawPublisher, wait_for_robot
+from ubf_async.runtime.bus import Bus, RawPublisher
 
 log = logging.getLogger(__name__)
 

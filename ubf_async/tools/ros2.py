@@ -14,11 +14,12 @@ from collections.abc import Sequence
 
 from ubf_async.cli import attach
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.attach import wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.clocks import follow
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.net.secure import ROS2_BRIDGE
-from ubf_async.runtime.bus import Bus, wait_for_robot
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import ensure_name_free
 from ubf_async.services.ros2 import messages as rm
 from ubf_async.services.ros2.bridge import DEFAULT_UNITS, Ros2Bridge, Ros2Settings
