@@ -12,7 +12,8 @@ from collections.abc import AsyncIterator
 
 from ubf_async.cli.args import connection_options
 from ubf_async.clocks import follow
-from ubf_async.net.options import START_ROBOT_HINT, NoRobotError, refused_error
+from ubf_async.errors import NoRobotError
+from ubf_async.net.options import START_ROBOT_HINT, refused_error
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.keys import ROOT
 

@@ -19,7 +19,13 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.errors import (
+    ConfigurationError,
+    NoRobotError,
+    PortInUseError,
+    RefusedError,
+    SessionError,
+)
 
 if TYPE_CHECKING:
     from ubf_async.net.secure import Rights
@@ -214,24 +220,6 @@ def bind_free_ports(endpoints: list[str]) -> list[str]:
             continue
         resolved.append(f"{match['proto']}/{match['host']}:{port}{match['rest'] or ''}")
     return resolved
-
-
-class SessionError(UbfError, ConnectionError):
-    """A zenoh session that cannot be opened, or does not reach the robot (one line that
-    says what to do)."""
-
-
-class PortInUseError(SessionError):
-    """A listen endpoint whose port another process already holds."""
-
-
-class NoRobotError(SessionError):
-    """Nothing to connect to: no robot answers at the endpoints given."""
-
-
-class RefusedError(SessionError):
-    """Something listens at the robot's endpoint but did not accept this process's zenoh
-    session: a robot in secure mode refusing its credentials, as far as can be told."""
 
 
 START_ROBOT_HINT = ("is the robot running? `python -m ubf_async.launch` prints the endpoint "

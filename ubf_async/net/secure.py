@@ -53,7 +53,7 @@ from typing import Any
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, NotAllowedError
 from ubf_async.net import pki, tlsprobe
 
 FORMAT = 2
@@ -720,10 +720,6 @@ class Rights:
 
 
 OPEN = Rights()
-
-
-class NotAllowedError(ConfigurationError):
-    """An identity about to send what the robot's ACL would drop without a word."""
 
 
 class IdentityRights(Rights):

@@ -33,15 +33,9 @@ from typing import Any, NamedTuple, Protocol
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, NoRobotError
 from ubf_async.net.connectwatch import watch_connect_endpoints
-from ubf_async.net.options import (
-    ConnectionOptions,
-    NoRobotError,
-    bind_free_ports,
-    refused_error,
-    session_error,
-)
+from ubf_async.net.options import ConnectionOptions, bind_free_ports, refused_error, session_error
 
 SampleCallback = Callable[[str, bytes], None]
 """``callback(key, payload)`` — a transport's subscriber callback (see :class:`Connection`)."""

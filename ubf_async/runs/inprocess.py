@@ -86,7 +86,7 @@ def run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | None = N
     with ``pictures``, ``trajectory.png`` and camera frames).
 
     Raises :class:`~ubf_async.errors.UbfError` (a bad robot file, scenario or option) before
-    anything runs, and :class:`~ubf_async.runs.wiring.ShutdownError` if the run could not end
+    anything runs, and :class:`~ubf_async.errors.ShutdownError` if the run could not end
     cleanly. Called from a running event loop, it refuses (``RuntimeError``): use
     :func:`run_async`.
     """

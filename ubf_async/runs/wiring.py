@@ -32,7 +32,7 @@ from ubf_async.assembly.simulation import (
 from ubf_async.cli import ending
 from ubf_async.clocks.clock import Clock, SimClock
 from ubf_async.clocks.simclock import follow_sim_clock
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.errors import ConfigurationError, ResultsNotSavedError, ShutdownError
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime import timekeepers
 from ubf_async.runtime.aggregator import StateAggregator
@@ -140,15 +140,6 @@ def simulation_plan(robot: Robot, options: SimulationOptions, *, simulator: Simu
     return RunPlan(robot=robot, devices=list(robot.devices), elsewhere=[], simulator=simulator,
                    sim_options=options, controller=ControllerSettings.of(robot),
                    connection=connection, seed_given=options.seed is not None)
-
-
-class ResultsNotSavedError(UbfError, OSError):
-    """The run's summary or recording could not be written at the end of the run; the summary
-    was printed instead (the message says where writing failed)."""
-
-
-class ShutdownError(UbfError):
-    """A step of the end failed (logged as it happened); everything else was still done."""
 
 
 @dataclass(slots=True, kw_only=True)

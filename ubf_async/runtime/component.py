@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from ubf_async.clocks.port import Closing
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import NameTakenError
 from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Screen, Subscription
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import (
@@ -58,10 +58,6 @@ HOST = socket.gethostname()[:253] or None
 """This host's name, as heartbeats name it."""
 MAX_WATCHED_COMPONENTS = 1024
 """Components the :class:`HealthMonitor` keeps track of (the oldest departed one goes first)."""
-
-
-class NameTakenError(ConfigurationError):
-    """A component name already alive on the robot (see :func:`ensure_name_free`)."""
 
 
 async def ensure_name_free(bus: Bus, name: str, *, hint: str = "", timeout_s: float = 2.0

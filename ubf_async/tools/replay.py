@@ -61,9 +61,9 @@ from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connecti
 from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.clocks.clock import SimClock
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, NoRobotError
 from ubf_async.net.keyexpr import intersects
-from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
+from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime.bus import Bus, RawPublisher
 
 log = logging.getLogger(__name__)
@@ -519,7 +519,7 @@ async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
                              settle_s: float = SETTLE_S, poll_s: float = 0.01) -> list[str]:
     """Wait until something subscribes to ``keys``: return as soon as every key has a
     subscriber, or ``settle_s`` after the first one had (the keys still without one are
-    returned). :class:`~ubf_async.net.options.NoRobotError` when none has after ``timeout_s``.
+    returned). :class:`~ubf_async.errors.NoRobotError` when none has after ``timeout_s``.
 
     zenoh delivers a sample only to the subscribers its publisher knows when it is put
     (declarations travel asynchronously), so a replay that started before the robot's
