@@ -15,7 +15,7 @@ on ``ubf/<robot>/sim/pulses``.
 Lockstep: simulated time is a barrier, not a race. Before each 5 ms step the simulator waits
 (:meth:`SimulatorComponent._barrier`) until everything of the current instant is done: its
 process's event loop had nothing left to run
-(:meth:`~ubf_async.runtime.lending.LendingEventLoop.idle` — a periodic wake-up, the samples it
+(:meth:`~ubf_async.runtime.lending.IdleEventLoop.idle` — a periodic wake-up, the samples it
 publishes, a reflex tick and the drive command it sends have all run, however many loop
 iterations that took on however slow a machine), no component of the process
 :meth:`holds <ubf_async.clocks.clock.SimClock.hold>` the clock (the camera while it renders a
@@ -334,7 +334,7 @@ class SimulatorComponent(Component):
         wait. In order:
 
         1. everything of the current instant in this process is done: the event loop had
-           nothing left to run (:meth:`~ubf_async.runtime.lending.LendingEventLoop.idle`) and no
+           nothing left to run (:meth:`~ubf_async.runtime.lending.IdleEventLoop.idle`) and no
            hold forbids ``next_ns`` (a camera render, a frame being written, a device
            getting ready) — while a hold keeps it waiting, the clock sample is sent again
            every :data:`~ubf_async.clocks.lockstep.RESEND_S` of wall time, so followers in other

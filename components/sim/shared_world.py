@@ -37,7 +37,7 @@ from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError, ScenarioError
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
-from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.runtime.gcfreeze import freeze_startup_objects
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 

@@ -1,7 +1,7 @@
 """Lockstep simulated time across processes: participants the simulator waits for.
 
 Within its own process the simulator steps only once everything of the current instant is
-done (:meth:`ubf_async.runtime.lending.LendingEventLoop.idle`). A process that follows its clock
+done (:meth:`ubf_async.runtime.lending.IdleEventLoop.idle`). A process that follows its clock
 from elsewhere — a remote behaviour, a standalone device, a fleet's controller — is outside that
 barrier unless it *takes part* (``--lockstep``). The protocol (``docs/protocol.md``,
 "Lockstep"), per robot ``R``:

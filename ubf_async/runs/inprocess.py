@@ -156,7 +156,7 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
 
 async def run_plan(plan: wiring.RunPlan) -> RunResult:
     """A planned run (:func:`plan_run`) on the running loop, which must be a
-    :class:`~ubf_async.runtime.lending.LendingEventLoop`: the in-process transport, the
+    :class:`~ubf_async.runtime.lending.IdleEventLoop`: the in-process transport, the
     robot's wiring, until the run's duration; then its end, which saves the results."""
     clock = SimClock()
     robot_run = wiring.RobotRun.on(Bus(transport=InProcessTransport(), options=plan.connection,

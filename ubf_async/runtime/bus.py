@@ -558,11 +558,11 @@ class Bus:
         (a subscriber of a topic wants :meth:`subscribe_topic`: garbage cannot displace its
         samples).
 
-        ``direct=True``: on a :class:`~ubf_async.runtime.lending.LendingEventLoop` (the one every
-        entry point runs on), a sample from another process that finds the loop idle is
-        handled at once on the transport's thread, with the loop lent to it, instead of
-        waking the loop thread (:mod:`ubf_async.runtime.lending`); for short handlers on a latency
-        path."""
+        ``direct=True``: on a :class:`~ubf_async.runtime.lending.LendingEventLoop` (opt-in,
+        ``UBF_LOOP=lending``; the default loop lends nothing), a sample from another process
+        that finds the loop idle is handled at once on the transport's thread, with the loop
+        lent to it, instead of waking the loop thread (:mod:`ubf_async.runtime.lending`); for
+        short handlers on a latency path."""
         return self._subscribe(key_expr, Subscription(
             self._loop, handler, latest=latest, max_queue=max_queue, name=key_expr,
             direct=direct))

@@ -59,7 +59,7 @@ from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
-from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.runtime.gcfreeze import freeze_startup_objects
 from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.services.liveview import FoxgloveServer
 from ubf_async.services.remote import remote_spec
