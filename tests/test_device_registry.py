@@ -24,7 +24,7 @@ from components.sim.world import World
 from components.sim.world_config import WorldConfig
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot_text
-from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
+from ubf_async.assembly.simulation import DeviceContext, OpenSimulation, SimulationOptions
 from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import (
     ConfigurationError,
@@ -254,7 +254,7 @@ async def test_an_opened_run_follows_the_seam(robot_bus: Bus) -> None:
     simulator = registry.SIMULATORS.get("mini-whegs")()
     run = simulator.open(bus=robot_bus, clock=SimClock(),
                          options=SimulationOptions(scenario="dance", seed=9))
-    assert isinstance(run, SimulationRun)
+    assert isinstance(run, OpenSimulation)
     assert run.seed == 9
     assert run.duration_s == load_scenario("dance").duration_s
     assert isinstance(run.world, World)

@@ -1,6 +1,6 @@
 """One simulated run of the Mini-WHEGS, as launch drives it through the simulator seam.
 
-:class:`SimulationRun` implements :class:`ubf_async.assembly.simulation.SimulationRun` (the
+:class:`SimulationRun` implements :class:`ubf_async.assembly.simulation.OpenSimulation` (the
 :class:`~components.sim.plugin.MiniWhegsSimulator` plug-in's ``open()`` builds it from
 :class:`~ubf_async.assembly.simulation.SimulationOptions`): the world the simulated device backends
 are given, the simulator component, simulated time, the status-line suffix and, at the end, the

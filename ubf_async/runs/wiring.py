@@ -25,8 +25,8 @@ from typing import Any, TextIO
 from ubf_async.assembly.robotfile import ResolvedDevice, Robot
 from ubf_async.assembly.simulation import (
     DeviceContext,
+    OpenSimulation,
     SimulationOptions,
-    SimulationRun,
     Simulator,
 )
 from ubf_async.cli import ending
@@ -151,7 +151,7 @@ class RobotRun:
     health: HealthMonitor
     components: list[Component] = field(default_factory=list)
     """In the order they start; closed in the reverse order."""
-    sim_run: SimulationRun | None = None
+    sim_run: OpenSimulation | None = None
     controller: Controller | None = None
     aggregator: StateAggregator | None = None
     remotes: RemoteBehaviors | None = None
@@ -342,7 +342,7 @@ async def end(run: RobotRun, out: TextIO, *, saving: bool = False) -> int:
     return EXIT_DEGRADED if degraded else 0
 
 
-def print_unsaved_summary(sim_run: SimulationRun, controller: Controller,
+def print_unsaved_summary(sim_run: OpenSimulation, controller: Controller,
                           done: ending.Ending, out: TextIO) -> None:
     """The results were not written (a full disk, a folder removed during the run, a write
     stuck past its bound): print the summary as JSON so they are not lost."""

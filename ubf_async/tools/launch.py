@@ -47,7 +47,7 @@ from ubf_async.assembly.robotfile import (
     builtin_robot_files,
     load_robot,
 )
-from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, SimulationRun, Simulator
+from ubf_async.assembly.simulation import FLAT_OUT, OpenSimulation, SimulationOptions, Simulator
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import check_lockstep_loop, run_main
 from ubf_async.clocks.clock import Clock, SimClock, WallClock
@@ -449,7 +449,7 @@ def _print_started(plan: wiring.RunPlan, robot: Robot, out: TextIO) -> None:
 
 async def _run_until_done(
     args: argparse.Namespace, out: TextIO, robot: str, controller: Controller,
-    aggregator: StateAggregator, health: HealthMonitor, sim_run: SimulationRun | None,
+    aggregator: StateAggregator, health: HealthMonitor, sim_run: OpenSimulation | None,
 ) -> None:
     """Print the status line until the run's duration has passed (forever without one)."""
     wall_start = time.monotonic()

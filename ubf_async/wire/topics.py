@@ -363,7 +363,10 @@ class SimTruth(Data, frozen=True, kw_only=True):
     ball: TruthBall | None = None
 
 
-class ArbiterSpec(Data, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class TreeArbiter(Data, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """An arbiter with parameters in a :class:`TreeRequest` (``set_arbiter``); a robot file's
+    is :class:`ubf_async.assembly.robotfile.ArbiterSpec`."""
+
     type: Annotated[str, Meta(max_length=200)]
     params: dict[Annotated[str, Meta(max_length=MAX_NAME_CHARS)], Any] = {}
     """Plain values (checked by :func:`plain`); the arbiter's factory types them."""
@@ -389,7 +392,7 @@ class TreeRequest(Data, frozen=True, kw_only=True, forbid_unknown_fields=True):
     op: Literal["show", "set_arbiter", "set_child", "load"]
     composite: Name | None = None
     child: Name | None = None
-    arbiter: Annotated[str, Meta(max_length=200)] | ArbiterSpec | None = None
+    arbiter: Annotated[str, Meta(max_length=200)] | TreeArbiter | None = None
     priority: Priority | None = None
     weight: Weight | None = None
     tree: Any = None
