@@ -1,10 +1,11 @@
 """How a process joins the zenoh network: connection options, the zenoh configuration they
-make, and the session errors that say in one line what went wrong.
+make, and what tells in one line why a session did not open (the session errors themselves
+are in :mod:`ubf_async.errors`).
 
 :class:`ConnectionOptions` is what every entry point's connection flags
 (:mod:`ubf_async.cli.args`) come to; :meth:`ConnectionOptions.zenoh_config` is the zenoh
-configuration a session opens with (:meth:`ubf_async.runtime.bus.Bus.open`), secure mode
-applied (:mod:`ubf_async.net.secure`).
+configuration a session opens with (:meth:`ubf_async.net.transport.ZenohTransport.open`),
+secure mode applied (:mod:`ubf_async.net.secure`).
 """
 
 from __future__ import annotations
