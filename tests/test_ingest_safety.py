@@ -27,6 +27,7 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.runtime.ratelimit import TokenBucket
+from ubf_async.wire.keys import Keys
 from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, decode, encode
 
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
@@ -501,6 +502,7 @@ class FakeBus:
 
     def __init__(self, clock: SimClock) -> None:
         self.clock = clock
+        self.keys = Keys("unit")
 
 
 def message(stamp_ns: int, seq: int = 1, *, pub: int | None = None,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import time
 from collections.abc import AsyncIterator
 
 from ubf_async.cli.args import connection_options
@@ -18,6 +19,8 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.wire.keys import ROOT
 
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
+ATTACH_RETRY_S = 0.05
+"""How often :func:`wait_for_robot` asks whether the robot is there."""
 
 
 def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str) -> None:
@@ -32,38 +35,35 @@ def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str
 
 async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
                          any_robot: bool = False) -> None:
-    """For a process attaching to a running robot: wait until one of the robot's components is
-    alive on another zenoh node (its liveliness token ``ubf/<robot>/alive/*``: a liveliness
-    subscriber tells when one appears, nothing is polled). Raises :class:`NoRobotError` after
-    ``timeout_s``, saying whether nothing answered at the endpoints or the robot there has
-    another name, or :class:`RefusedError` when something listens there but never let the
-    session in.
+    """For a process attaching to a running robot: wait until the session reaches another
+    zenoh node and one of the robot's components is alive there (its liveliness token
+    ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
+    nothing answered at the endpoints or the robot there has another name, or
+    :class:`RefusedError` when something listens there but never let the session in.
 
     Returns at once for a session that only listens (in ``peer`` mode without ``connect``
     endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
-    anything (a token of this process would count). ``any_robot``: any robot's component will
-    do (a tool looking at a fleet)."""
+    anything. ``any_robot``: any robot's component will do (a tool looking at a fleet).
+
+    It asks (a liveliness query) every :data:`ATTACH_RETRY_S` rather than waiting on a
+    liveliness subscriber: with zenoh 1.10 a client's liveliness queries made while such a
+    subscriber is declared, or just after, sometimes find nothing (measured: an inspector
+    listing no component in 2-3 runs of 30), and a tool's next step is such a query."""
     options = bus.options
     if not options.connect and options.mode != "client":
         return
-    alive = asyncio.Event()
-
-    def on_change(key: str, appeared: bool) -> None:
-        if appeared:
-            alive.set()
-
-    watch = bus.watch_liveliness(f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive,
-                                 on_change)
-    try:
-        async with asyncio.timeout(timeout_s):
-            await alive.wait()
-        return
-    except TimeoutError:
-        pass
-    finally:
-        watch.close()
     where = " ".join(options.connect) or "(the configured router)"
-    if not bus.reached_peers():
+    deadline = time.monotonic() + timeout_s
+    reached = False
+    while True:
+        reached = reached or bus.reached_peers()
+        alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
+        if reached and await bus.alive_tokens(alive, timeout_s=1.0):
+            return
+        if time.monotonic() >= deadline:
+            break
+        await asyncio.sleep(ATTACH_RETRY_S)
+    if not reached:
         refused = await asyncio.to_thread(refused_error, options)
         if refused is not None:
             raise refused
