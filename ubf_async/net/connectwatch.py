@@ -9,6 +9,7 @@ for the session it opened, until its connection closes.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from collections.abc import Callable
 
@@ -18,21 +19,20 @@ log = logging.getLogger(__name__)
 
 CONNECT_GRACE_S = 2.0
 """How long a peer's ``connect`` endpoint may stay unanswered before it is reported."""
-CONNECT_CHECK_S = 0.5
-"""How often the links to the ``connect`` endpoints are looked at (zenoh-python tells no
-link event: its links are read)."""
 CONNECT_REMIND_S = 60.0
 """While an endpoint stays unanswered, the warning is repeated this often."""
 
 
-async def watch_connect_endpoints(links: Callable[[], list[str]], endpoints: list[str], *,
+async def watch_connect_endpoints(links: Callable[[], list[str]], changed: asyncio.Event,
+                                  endpoints: list[str], *,
                                   grace_s: float = CONNECT_GRACE_S,
-                                  check_s: float = CONNECT_CHECK_S,
                                   remind_s: float = CONNECT_REMIND_S) -> None:
     """Report, as warnings, the ``connect`` endpoints of a peer session that nothing answers
     at (after ``grace_s``, then every ``remind_s``), and when one answers after all or its link
     is lost; zenoh retries them meanwhile. ``links()`` gives the remote locator of each link the
-    session has now. Runs until cancelled (the connection closes)."""
+    session has now; ``changed`` is set whenever a link comes or goes (zenoh's link events), and
+    the watch looks again then, or when a warning is due. Runs until cancelled (the connection
+    closes)."""
     locators = {e: await asyncio.to_thread(endpoint_locators, e) for e in endpoints}
     loop = asyncio.get_running_loop()
     opened = loop.time()
@@ -40,6 +40,7 @@ async def watch_connect_endpoints(links: Callable[[], list[str]], endpoints: lis
     warned_at: dict[str, float] = {}  # endpoints reported unanswered, and when last
     ever_up: set[str] = set()
     while True:
+        changed.clear()
         try:
             destinations = set(links())
         except Exception:  # a closing session: nothing left to watch
@@ -72,4 +73,8 @@ async def watch_connect_endpoints(links: Callable[[], list[str]], endpoints: lis
                                 START_ROBOT_HINT)
                 warned_at[endpoint] = now
             up[endpoint] = reached
-        await asyncio.sleep(check_s)
+        due = [(warned_at[e] + remind_s) if e in warned_at else opened + grace_s
+               for e in endpoints if not up[e]]
+        wait_s = max(0.0, min(due) - loop.time()) if due else None
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(changed.wait(), wait_s)

@@ -345,6 +345,7 @@ class ZenohConnection:
         self.ordered = ordered
         self._callback_ends: list[CallbackEnd] = []
         self.connect_watch: asyncio.Task[None] | None = None
+        self._link_listener: Any = None
         """The watch of a peer's ``connect`` endpoints (:class:`ZenohTransport`), cancelled
         on :meth:`aclose`."""
 
@@ -423,6 +424,19 @@ class ZenohConnection:
         link to a ``connect`` endpoint has that endpoint as its destination."""
         return [str(link.dst) for link in self.session.info.links()]
 
+    def link_changes(self, loop: asyncio.AbstractEventLoop) -> asyncio.Event:
+        """An event set (on ``loop``) whenever a link of the session comes or goes (zenoh's
+        link events; the listener goes with the session)."""
+        changed = asyncio.Event()
+
+        def on_link(event: zenoh.LinkEvent) -> None:  # on a zenoh thread
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(changed.set)
+
+        self._link_listener = self.session.info.declare_link_events_listener(
+            self._handler(on_link))
+        return changed
+
     def declare_attachment_publisher(self, key: str, *,
                                      encoding: str | None = None) -> AttachmentPublisher:
         return _ZenohAttachmentPublisher(self.session.declare_publisher(
@@ -500,7 +514,8 @@ class ZenohTransport:
         if options is not None and options.mode == "peer" and options.connect:
             # A client fails to open when nothing answers; a peer opens all the same and
             # zenoh keeps trying in the background: say so, as a robot should.
+            changed = connection.link_changes(loop)
             connection.connect_watch = loop.create_task(
-                watch_connect_endpoints(connection.link_destinations, options.connect),
-                name="ubf-connect-watch")
+                watch_connect_endpoints(connection.link_destinations, changed,
+                                        options.connect), name="ubf-connect-watch")
         return connection
