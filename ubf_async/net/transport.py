@@ -461,6 +461,9 @@ class ZenohConnection:
         await asyncio.to_thread(self._close)
 
     def _close(self) -> None:
+        if self._link_listener is not None:  # first, as the bus undeclares its own first
+            with contextlib.suppress(zenoh.ZError):
+                self._link_listener.undeclare()
         self.session.close()
         deadline = time.monotonic() + CALLBACK_END_WAIT_S
         for end in self._callback_ends:
