@@ -110,7 +110,7 @@ def in_process_tick_cost(sources: int) -> dict[str, float]:
     """Tick cost with ``sources`` sources in the table, without zenoh (for comparison)."""
 
     class FakeBus:
-        from ubf_async.runtime.clock import WallClock
+        from ubf_async.clocks.clock import WallClock
         clock = WallClock()
 
     agg = StateAggregator(bus=FakeBus(), max_sources=max(sources, 1))  # type: ignore[arg-type]

@@ -533,10 +533,10 @@ def measure_breakdown(n: int = 2000) -> dict[str, Any]:
     import zenoh
 
     from bench.latency_robot import reflex_tree
+    from ubf_async.clocks.clock import WallClock
     from ubf_async.net.options import ConnectionOptions
     from ubf_async.runtime.aggregator import StateAggregator
     from ubf_async.runtime.bus import Subscription
-    from ubf_async.runtime.clock import WallClock
     from ubf_async.wire.protocol import Keys, decode, encode
 
     out: dict[str, Any] = {}

@@ -240,7 +240,7 @@ async def simrobot_role(cfg: dict[str, Any]) -> dict[str, Any]:
     from components.sim.runner.stepper import SimulatorComponent, simulated_devices
     from components.sim.scenarios.scenes import ball_in_view
     from components.sim.world.physics import World
-    from ubf_async.runtime.clock import SimClock
+    from ubf_async.clocks.clock import SimClock
 
     clock = SimClock()
     bus = await Bus.open(ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]]),
@@ -322,7 +322,7 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
 
 def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
-    from ubf_async.runtime.clock import WallClock
+    from ubf_async.clocks.clock import WallClock
     from ubf_async.wire.protocol import Keys, decode, encode
     from ubf_async.wire.topics import RANGE, BasedOn, Drive
 

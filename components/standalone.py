@@ -19,7 +19,7 @@ with ``--clock auto`` (the default) it waits until the robot says which clock it
 however long the robot takes to start — simulated time (``ubf/<robot>/clock``: followed), or
 its host's ``CLOCK_MONOTONIC`` (followed through ``ubf/<robot>/time`` from another host) —
 and takes this host's clock only when the robot says nothing of it within ``--clock-wait-s``;
-its start-up line says which (:func:`ubf_async.runtime.clockdomain.follow_robot_clock`).
+its start-up line says which (:func:`ubf_async.clocks.follow.follow_robot_clock`).
 
 Whatever the backend, the process says on its stderr, at once, when the robot refuses its
 samples, and why (:class:`ubf_async.runtime.refusals.RefusalWatch`).
@@ -43,11 +43,13 @@ from ubf_async.assembly import registry
 from ubf_async.assembly.backend import Backend
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
+from ubf_async.clocks import follow
+from ubf_async.clocks.clock import Clock
 from ubf_async.net.options import DEFAULT_LISTEN
-from ubf_async.runtime import clockdomain, lockstep, refusals
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
-from ubf_async.runtime.clock import Clock
+from ubf_async.runtime import refusals, timekeepers
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component, ensure_name_free
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
@@ -126,7 +128,7 @@ def run_device(
                           "ubf/<robot>/clock), robot (the robot host's clock through "
                           "ubf/<robot>/time: on another host), auto (the one the robot "
                           "says it runs on)")
-    run.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
+    run.add_argument("--clock-wait-s", type=float, default=follow.DEFAULT_CLOCK_WAIT_S,
                      metavar="S", help="with --clock auto: how long to wait for the robot to "
                                        "say which clock it runs on (a running robot does "
                                        "within a second) before stamping with this host's")
@@ -161,9 +163,9 @@ class Device:
     seed: int = 0
     wait_for_sim_s: float = 10.0
     wait_for_robot_s: float = DEFAULT_ATTACH_TIMEOUT_S
-    clock: clockdomain.ClockMode = "auto"
+    clock: follow.ClockMode = "auto"
     """The robot clock for a backend that needs no simulator (``--clock``)."""
-    clock_wait_s: float = clockdomain.DEFAULT_CLOCK_WAIT_S
+    clock_wait_s: float = follow.DEFAULT_CLOCK_WAIT_S
     lockstep: bool = False
     """Take part in the simulator's lockstep (``--lockstep``)."""
 
@@ -202,11 +204,11 @@ class Device:
             watch.start()
             await component.start()
             if self.lockstep:
-                participant = lockstep.LockstepParticipant(bus=bus, participant=component.name)
+                participant = timekeepers.LockstepParticipant(bus=bus, participant=component.name)
                 await participant.start()
             print(f"{component.name}: attached to robot {options.robot!r}"
                   + (" (simulated)" if simulator is not None else "")
-                  + f", stamping with {clockdomain.describe(clock, robot=options.robot)}",
+                  + f", stamping with {follow.describe(clock, robot=options.robot)}",
                   flush=True)
             forever = asyncio.Event()  # never set: we run until cancelled (SIGTERM/Ctrl-C)
             if duration_s is None:
@@ -235,11 +237,11 @@ class Device:
         backend on the simulator follows its time (waiting at most ``wait_for_sim_s``), any
         other the clock ``--clock`` says."""
         if not simulated:
-            return await clockdomain.follow_robot_clock(bus, mode=self.clock,
+            return await follow.follow_robot_clock(bus, mode=self.clock,
                                                         wait_s=self.clock_wait_s, say=_say)
         try:
             return await asyncio.wait_for(
-                clockdomain.follow_robot_clock(bus, mode="sim", say=_say), self.wait_for_sim_s)
+                follow.follow_robot_clock(bus, mode="sim", say=_say), self.wait_for_sim_s)
         except TimeoutError:
             raise ConnectionError(
                 f"no simulator is publishing {bus.keys.clock} (waited "

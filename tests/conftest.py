@@ -15,11 +15,13 @@ from typing import Any
 import msgspec
 import pytest
 import pytest_asyncio
+import zenoh
 
+from ubf_async.clocks.clock import Hold, WallClock
 from ubf_async.net.options import ConnectionOptions
+from ubf_async.net.transport import ZenohTransport
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Hold, WallClock
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -107,7 +109,7 @@ async def eventually(
 class LoopClock:
     """The robot's clock as the event loop's own time: wall time on a normal loop, virtual
     time in a test marked ``@pytest.mark.looptime`` (which fast-forwards the loop's time
-    whenever every task waits on a timer). :class:`~ubf_async.runtime.clock.WallClock` reads
+    whenever every task waits on a timer). :class:`~ubf_async.clocks.clock.WallClock` reads
     ``time.monotonic_ns()``, which looptime cannot move: a component stamped and scheduled by
     this clock runs on one virtual time with the loop's own timers (restart backoffs,
     heartbeats, ``asyncio.wait_for``). Only for buses without zenoh threads (the in-process
@@ -184,11 +186,19 @@ async def robot_bus(endpoint: str, robot: str) -> AsyncIterator[Bus]:
     await bus.aclose()
 
 
+def zenoh_session(bus: Bus) -> zenoh.Session:
+    """The zenoh session under a bus made by ``Bus.open`` (its transport owns it): tests reach
+    around the bus with it, as another program on the network would."""
+    transport = bus.transport
+    assert isinstance(transport, ZenohTransport), transport
+    return transport.session
+
+
 @pytest_asyncio.fixture
 async def peer_bus(robot_bus: Bus, endpoint: str, robot: str) -> AsyncIterator[Bus]:
     """Another session (think: another process) connected to the robot's."""
     bus = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
-    await eventually(lambda: len(list(robot_bus.session.info.peers_zid())) > 0,
+    await eventually(lambda: len(list(zenoh_session(robot_bus).info.peers_zid())) > 0,
                      what="peer session to connect")
     yield bus
     await bus.aclose()
@@ -201,7 +211,7 @@ class SimRobot:
                  **device_options: object) -> None:
         from components.sim.runner.stepper import SimulatorComponent, simulated_devices
         from components.sim.world.physics import World
-        from ubf_async.runtime.clock import SimClock
+        from ubf_async.clocks.clock import SimClock
 
         self.clock = SimClock()
         bus.clock = self.clock

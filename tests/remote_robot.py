@@ -33,7 +33,7 @@ from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
-from ubf_async.runtime.hostclock import RobotTimeBeacon
+from ubf_async.runtime.timekeepers import RobotTimeBeacon
 from ubf_async.services.remote import RemoteBehaviors, remote_spec
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -28,9 +28,10 @@ import pytest
 from tests.cli_inprocess import launch_main
 from tests.conftest import free_port
 from ubf_async.cli.args import add_connection_arguments, connection_options
+from ubf_async.cli.attach import wait_for_robot
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.runtime.bus import Bus, wait_for_robot
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.launch import build_parser as launch_parser
 from ubf_async.tools.replay import build_parser as replay_parser
 

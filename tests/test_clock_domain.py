@@ -18,13 +18,13 @@ import pytest
 from tests.conftest import eventually
 from tests.remote_robot import Process
 from ubf_async.behaviors import seek_pink_ball
+from ubf_async.clocks import clockdomain, follow
+from ubf_async.clocks.clock import SimClock
+from ubf_async.clocks.clockdomain import ClockDomainWatch, foreign_clock
 from ubf_async.core.action import Action
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.runtime import clockdomain
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
-from ubf_async.runtime.clockdomain import ClockDomainWatch, foreign_clock
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal
 from ubf_async.services.remote import ReceivedVote, RemoteBehaviors
@@ -66,7 +66,7 @@ def test_the_watch_counts_per_source_warns_once_and_every_100th(
     caplog: pytest.LogCaptureFixture
 ) -> None:
     watch = ClockDomainWatch(robot="mini", max_sources=2)
-    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
+    caplog.set_level(logging.WARNING, logger="ubf_async.clocks.clockdomain")
     assert not watch.check("range/ok", 12 * S + 1000, now_ns=12 * S, simulated=True)
     for _ in range(150):
         assert watch.check("range/wall", WALL_NS, now_ns=12 * S, simulated=True)
@@ -97,7 +97,7 @@ def test_the_watch_counts_per_source_warns_once_and_every_100th(
 def test_each_clock_reads_right_in_a_sentence(caplog: pytest.LogCaptureFixture) -> None:
     """Issue 28: a warning read "looks like the another clock"."""
     watch = ClockDomainWatch(robot="mini")
-    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
+    caplog.set_level(logging.WARNING, logger="ubf_async.clocks.clockdomain")
     for _ in range(100):
         watch.check("range/far", 2 * S, now_ns=5000 * S, simulated=False)
     watch.check("range/wall", WALL_NS, now_ns=12 * S, simulated=True)
@@ -163,12 +163,12 @@ async def test_the_warning_names_the_process_that_sent_the_sample(
         assert radio.stdout is not None and radio.stdin is not None
         attached = await asyncio.to_thread(radio.stdout.readline)
         assert "attached" in attached, attached
-        with caplog.at_level(logging.WARNING, logger="ubf_async.runtime.clockdomain"):
+        with caplog.at_level(logging.WARNING, logger="ubf_async.clocks.clockdomain"):
             radio.stdin.write("hello robot\n")
             radio.stdin.flush()
             await eventually(lambda: "radio/ext: sample stamped" in caplog.text, timeout_s=15,
                              what="the warning")
-        sender = f"radio-ext (pid {radio.pid} on {clockdomain.HOST})"
+        sender = f"radio-ext (pid {radio.pid} on {follow.HOST})"
         warning = next(r.getMessage() for r in caplog.records
                        if r.getMessage().startswith("radio/ext: sample stamped"))
         assert f", sent by {sender}, looks like the host monotonic clock" in warning, warning
@@ -188,7 +188,7 @@ def test_a_sample_without_a_publisher_or_unnamed_is_still_reported(
 ) -> None:
     """A plain client sends no ``pub``: warned at once, naming no one, as before."""
     watch = ClockDomainWatch(robot="mini")
-    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
+    caplog.set_level(logging.WARNING, logger="ubf_async.clocks.clockdomain")
     watch.check("range/plain", WALL_NS, now_ns=12 * S, simulated=True, pub=None)
     (warning,) = (r.getMessage() for r in caplog.records)
     assert warning.startswith("range/plain: sample stamped") and "sent by" not in warning
@@ -200,7 +200,7 @@ async def test_a_publisher_no_heartbeat_names_is_reported_after_the_wait(
 ) -> None:
     watch = ClockDomainWatch(robot="mini", senders=clockdomain.SenderNames(robot_bus,
                                                                            wait_s=0.05))
-    caplog.set_level(logging.WARNING, logger="ubf_async.runtime.clockdomain")
+    caplog.set_level(logging.WARNING, logger="ubf_async.clocks.clockdomain")
     watch.check("range/anon", WALL_NS, now_ns=12 * S, simulated=True, pub=1234)
     assert not caplog.records  # waiting for a heartbeat to name it
     await eventually(lambda: bool(caplog.records), what="the warning after the wait")

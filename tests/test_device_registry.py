@@ -25,7 +25,8 @@ from components.sim.world.config import WorldConfig
 from components.sim.world.physics import World
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot_text
-from ubf_async.assembly.simulation import DeviceContext, SimulationOptions, SimulationRun
+from ubf_async.assembly.simulation import DeviceContext, OpenSimulation, SimulationOptions
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import (
     ConfigurationError,
     ParameterError,
@@ -34,7 +35,6 @@ from ubf_async.errors import (
     ScenarioError,
 )
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
 
 EXPECTED_PARAMETERS = {
@@ -288,7 +288,7 @@ async def test_an_opened_run_follows_the_seam(robot_bus: Bus) -> None:
     simulator = registry.SIMULATORS.get("mini-whegs")()
     run = simulator.open(bus=robot_bus, clock=SimClock(),
                          options=SimulationOptions(scenario="dance", seed=9))
-    assert isinstance(run, SimulationRun)
+    assert isinstance(run, OpenSimulation)
     assert run.seed == 9
     assert run.duration_s == load_scenario("dance").duration_s
     assert isinstance(run.world, World)

@@ -17,7 +17,7 @@ from ubf_async.assembly.robotfile import load_robot
 from ubf_async.assembly.simulation import DeviceContext
 from ubf_async.behaviors.ball_reports import GoToReport, ReportBall, format_report, parse_report
 from ubf_async.core.state import State
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runs.fleet import run_fleet
 from ubf_async.runtime.bus import Bus
 

@@ -12,12 +12,12 @@ from typing import Any
 
 import pytest
 
-from tests.conftest import as_dict, eventually
+from tests.conftest import as_dict, eventually, zenoh_session
 from ubf_async import Action, FunctionBehavior, State
+from ubf_async.clocks.clock import WallClock
 from ubf_async.core.behavior import Trace
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import WallClock
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.wire.protocol import Keys, Message, ProtocolError, decode
@@ -121,7 +121,7 @@ async def test_on_receive_sees_raw_samples_malformed_ones_too(
         key, bad_key = (peer_bus.keys.sensor("range", side) for side in ("front", "left"))
         pub = peer_bus.publisher(key, "range")
         await pub.wait_for_subscribers()
-        peer_bus.session.put(bad_key, b"\xc1 not msgpack")  # another key: never coalesced
+        zenoh_session(peer_bus).put(bad_key, b"\xc1 not msgpack")  # another key: never coalesced
         await eventually(lambda: agg.malformed == {bad_key: 1}, what="the malformed sample")
         seq, _ = pub.publish({"range_mm": 300, "status": "ok"})
         await eventually(lambda: "range/front" in agg.entries, what="the good sample")

@@ -13,12 +13,13 @@ from collections.abc import Callable
 import pytest
 
 from tests.conftest import eventually, read_until
+from ubf_async.clocks import follow
+from ubf_async.clocks.clock import WallClock
+from ubf_async.clocks.hostclock import OffsetEstimator, RobotTimeClock
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.runtime import clockdomain
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import WallClock
-from ubf_async.runtime.hostclock import OffsetEstimator, RobotTimeBeacon, RobotTimeClock
+from ubf_async.runtime.timekeepers import RobotTimeBeacon
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import RANGE, ROBOT_TIME
 
@@ -116,14 +117,14 @@ async def test_auto_follows_the_robot_time_only_from_another_host(
     async with RobotTimeBeacon(bus=robot_bus) as beacon:
         peer = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
         try:
-            own = await clockdomain.follow_robot_clock(peer, mode="auto", wait_s=2.0)
+            own = await follow.follow_robot_clock(peer, mode="auto", wait_s=2.0)
             assert own is peer.clock and not hasattr(own, "estimator")
             beacon.host = "robot-host-elsewhere"
-            other = await clockdomain.follow_robot_clock(peer, mode="auto", wait_s=2.0)
+            other = await follow.follow_robot_clock(peer, mode="auto", wait_s=2.0)
             assert isinstance(other, RobotTimeClock) and peer.clock is other
             assert other.host == "robot-host-elsewhere"
             assert abs(other.now_ns() - time.monotonic_ns()) < 50 * MS  # same host, in truth
-            assert "robot host" in clockdomain.describe(other, robot=robot)
+            assert "robot host" in follow.describe(other, robot=robot)
         finally:
             await peer.aclose()
 

@@ -32,7 +32,7 @@ from components.quadrature import FORWARD_SEQUENCE, DirectionMode, QuadratureDec
 from tests.conftest import LoopClock, eventually
 from tests.pinlog import holds
 from ubf_async.errors import ConfigurationError
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import DRIVE, ENCODERS, MOTORS, Encoders

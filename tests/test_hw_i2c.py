@@ -14,7 +14,7 @@ from components.range.i2c import SHARP_CURVES, Ads1115Ranger, DigitalRanger
 from components.range.ir import GP2Y0A21, GP2Y0A41
 from tests.conftest import eventually
 from tests.i2c_testbus import TestBus, ads1115, gp2y0e
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import RANGE

@@ -10,7 +10,8 @@
   them (the simulated one) runs — checked by running it with both made unimportable.
 
 The same directions, the rooms of the framework (``ubf_async``'s subpackages, high to low:
-tools, runs, services, assembly|cli, runtime|behaviors, core|net, wire, errors|throttle), the
+tools, runs, services, assembly|cli, runtime|behaviors, core|net|clocks, wire, extras,
+errors|throttle), the
 simulator's rooms (``components.sim``'s subpackages: plugin, runner, backends|outputs|mirror,
 render|scenarios, world; every module placed), device packages independent of each other (what
 two share lives beside them: ``components/quadrature.py``, ``miniwhegs.py``, ``hardware.py``)
@@ -246,7 +247,7 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
 
 @pytest.mark.parametrize(("edits", "broken"), [
     # Upward without a circle: errors (the floor) takes the clock.
-    ({"ubf_async/errors.py": "import ubf_async.runtime.clock  # noqa"},
+    ({"ubf_async/errors.py": "import ubf_async.clocks.clock  # noqa"},
      ["ubf_async's rooms"]),
     # The runtime reaching up for the plug-in registry (the assembly's).
     ({"ubf_async/runtime/controller.py": "from ubf_async.assembly import registry  # noqa"},
@@ -280,6 +281,28 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
     # simulator's backends is refused twice (devices never import the simulator either).
     ({"components/leds/bank.py": "import components.sim.backends.devices  # noqa"},
      ["The device packages import none of each other", "Devices stand on the framework"]),
+    # The clocks reaching up for the bus that stamps with them (they go through clocks.port).
+    ({"ubf_async/clocks/clockdomain.py": "from ubf_async.runtime.bus import Bus  # noqa"},
+     ["ubf_async's rooms"]),
+    # zenoh anywhere but the network: the bus, the ROS 2 bridge, the command line, a device.
+    ({"ubf_async/runtime/bus.py": "import zenoh  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    ({"ubf_async/services/ros2/bridge.py": "import zenoh  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    ({"ubf_async/cli/args.py": "from zenoh import Config  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    ({"components/standalone.py": "import zenoh  # noqa"},
+     ["Only the network (ubf_async.net) imports zenoh"]),
+    # The network reaching for the wire, below it but not its business.
+    ({"ubf_async/net/transport.py": "from ubf_async.wire.keys import ROOT  # noqa"},
+     ["The network does not import the wire"]),
+    # I/O in the wire: an event loop, a socket, a thread.
+    ({"ubf_async/wire/protocol.py": "import asyncio  # noqa"},
+     ["The wire does no I/O"]),
+    ({"ubf_async/wire/keys.py": "import socket  # noqa"},
+     ["The wire does no I/O"]),
+    ({"ubf_async/wire/topics.py": "import threading  # noqa"},
+     ["The wire does no I/O"]),
 ])
 def test_lint_imports_refuses_an_upward_import(tmp_path: Path, edits: dict[str, str],
                                                broken: list[str]) -> None:

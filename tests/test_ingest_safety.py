@@ -19,14 +19,15 @@ import pytest_asyncio
 from tests.conftest import as_dict, eventually, read_until
 from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
+from ubf_async.clocks.clock import SimClock
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Child, Composite
 from ubf_async.runtime.aggregator import MAX_SOURCES, StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.runtime.ratelimit import TokenBucket
+from ubf_async.wire.keys import Keys
 from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, decode, encode
 
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
@@ -501,6 +502,7 @@ class FakeBus:
 
     def __init__(self, clock: SimClock) -> None:
         self.clock = clock
+        self.keys = Keys("unit")
 
 
 def message(stamp_ns: int, seq: int = 1, *, pub: int | None = None,

@@ -17,14 +17,14 @@ import pytest_asyncio
 
 from tests.conftest import as_dict
 from ubf_async.behaviors.basic import ConstantDrive
+from ubf_async.clocks.clock import SimClock
 from ubf_async.core.action import Action
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal

@@ -25,11 +25,11 @@ import pytest
 
 from tests.conftest import eventually
 from tests.remote_robot import Process
+from ubf_async.clocks import follow
+from ubf_async.clocks.clock import SimClock, WallClock
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
-from ubf_async.runtime import clockdomain
 from ubf_async.runtime.bus import Bus, Publisher
-from ubf_async.runtime.clock import SimClock, WallClock
 from ubf_async.runtime.refusals import RefusalNotices, RefusalWatch
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import CLOCK, CONTROLLER_STATUS, REFUSED, REMOTES_STATUS
@@ -244,7 +244,7 @@ async def test_a_tool_waits_for_a_robot_whose_simulator_starts_late(
                                           timeout_s=60)
         assert f"robot {robot!r} runs on simulated time" in waiting
         # Longer than the old 1 s, and longer than --clock-wait-s would allow a silent robot.
-        await asyncio.sleep(clockdomain.WAITING_SAID_AFTER_S + 1.0)
+        await asyncio.sleep(follow.WAITING_SAID_AFTER_S + 1.0)
         assert "clock:" not in teleop.output()  # still waiting: it has not guessed
         simulator.start()
         started = time.monotonic()
@@ -378,12 +378,12 @@ async def test_auto_follows_what_the_robot_says_however_long_it_takes() -> None:
     robot, tool = Bus(transport=net), Bus(transport=net, clock=WallClock())
     status = robot.publisher(CONTROLLER_STATUS, "controller")
     said: list[str] = []
-    choosing = asyncio.create_task(clockdomain.follow_robot_clock(
+    choosing = asyncio.create_task(follow.follow_robot_clock(
         tool, mode="auto", wait_s=0.1, say=said.append))
 
     async def say_status(clock: str) -> None:
         while True:
-            status.publish({"clock": clock, "host": clockdomain.HOST})
+            status.publish({"clock": clock, "host": follow.HOST})
             await asyncio.sleep(0.05)
 
     saying = asyncio.create_task(say_status("simulated"))
@@ -401,14 +401,14 @@ async def test_auto_follows_what_the_robot_says_however_long_it_takes() -> None:
     tool.clock = WallClock()
     saying = asyncio.create_task(say_status("monotonic"))
     try:
-        assert await asyncio.wait_for(clockdomain.follow_robot_clock(tool, wait_s=30), 10) \
+        assert await asyncio.wait_for(follow.follow_robot_clock(tool, wait_s=30), 10) \
             is tool.clock
     finally:
         saying.cancel()
 
     said.clear()
     silent = Bus(transport=InProcessTransport(), clock=WallClock())
-    assert await clockdomain.follow_robot_clock(silent, wait_s=0.2, say=said.append) \
+    assert await follow.follow_robot_clock(silent, wait_s=0.2, say=said.append) \
         is silent.clock
     assert len(said) == 1 and "said nothing of its clock within 0.2 s" in said[0]
     for bus in (robot, tool, silent):

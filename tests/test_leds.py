@@ -25,8 +25,8 @@ from components.sim.outputs.trajectory import (
     read_trajectory_csv,
 )
 from tests.conftest import as_dict, eventually, free_port, spawn, stop
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
 from ubf_async.runs.inprocess import plan_run, run_plan
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus

@@ -27,8 +27,9 @@ from ubf_async.core.action import Action
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
+from ubf_async.errors import QueryError
 from ubf_async.runtime.aggregator import StateAggregator
-from ubf_async.runtime.bus import Bus, QueryError
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
 from ubf_async.services.live import (
     REQUEST_SCHEMA,

@@ -32,7 +32,7 @@ async def test_tests_run_on_the_default_loop_as_the_entry_points_do(
         monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(cli.LOOP_ENV, raising=False)
     loop = asyncio.get_running_loop()
-    assert isinstance(loop, lending.LendingEventLoop) and not loop.lends
+    assert isinstance(loop, lending.IdleEventLoop) and not loop.lends
     assert cli.loop_factory() is lending.new_idle_event_loop
 
 

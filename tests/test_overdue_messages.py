@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from ubf_async.runtime.clock import SilenceLimit, SimClock, WallClock
+from ubf_async.clocks.clock import SilenceLimit, SimClock, WallClock
 
 MS = 1_000_000
 

@@ -24,10 +24,11 @@ import pytest
 
 from tests.conftest import eventually
 from ubf_async.cli.args import connection_options
-from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions, NoRobotError
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.clocks.clock import SimClock
+from ubf_async.errors import NoRobotError
+from ubf_async.net.inprocess import InProcessTransport
+from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.tools import liveview
 from ubf_async.tools.record import McapRecorder, build_parser, record
 

@@ -27,10 +27,10 @@ from tests.conftest import eventually
 from tests.remote_robot import ROOT, Process, start_robot
 from ubf_async import Action, Composite, Conditional, FunctionBehavior, PriorityMerge, State
 from ubf_async.behaviors import seek_pink_ball
+from ubf_async.clocks.clock import SimClock, WallClock
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock, WallClock
 from ubf_async.runtime.controller import Controller
 from ubf_async.services.remote import (
     DEFAULT_TTL_S,

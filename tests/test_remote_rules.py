@@ -14,8 +14,8 @@ import pytest
 
 from ubf_async import Composite, PriorityMerge, State
 from ubf_async.behaviors import seek_pink_ball
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.clock import SimClock
 from ubf_async.services.remote import MAX_NAME_LEN, RemoteBehaviors
 from ubf_async.wire.protocol import Keys, encode
 

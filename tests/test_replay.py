@@ -26,12 +26,12 @@ from mcap.writer import Writer
 
 from tests.remote_robot import Process
 from ubf_async.assembly.robotfile import load_robot
-from ubf_async.errors import ConfigurationError
-from ubf_async.net.options import ConnectionOptions, NoRobotError
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.clocks.clock import SimClock
+from ubf_async.errors import ConfigurationError, NoRobotError
+from ubf_async.net.inprocess import InProcessTransport
+from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.tools.replay import Recording, replay, wait_for_listeners
 

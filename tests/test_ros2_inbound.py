@@ -15,7 +15,7 @@ from rosbags.typesys import Stores, get_typestore
 from zenoh_ros2_sdk.entity import EndpointEntity, EntityKind, NodeEntity
 from zenoh_ros2_sdk.keyexpr import endpoint_liveliness_keyexpr
 
-from tests.conftest import eventually
+from tests.conftest import eventually, zenoh_session
 from ubf_async.runtime.bus import Bus
 from ubf_async.services.ros2 import keys as rk
 from ubf_async.services.ros2.bridge import Ros2Bridge, Ros2Settings
@@ -105,7 +105,7 @@ async def test_samples_from_another_session_are_refused_or_voted(
     robot_bus.subscribe(f"{robot_bus.keys.prefix}/vote/root/teleop",
                         lambda key, payload, received_ns: votes.append(decode(payload)))
     try:
-        session = peer_bus.session
+        session = zenoh_session(peer_bus)
         hashless = bridge.in_key.rsplit("/", 1)[0] + "/TypeHashNotSupported"
         publishers = {key: session.declare_publisher(key) for key in (bridge.in_key, hashless)}
         # Declarations travel asynchronously: put only once the bridge's subscriber is known.
@@ -153,10 +153,11 @@ async def test_the_camera_goes_out_only_while_a_ros_subscriber_exists(
             images.append((store.deserialize_cdr(sample.payload.to_bytes(), ros_type),
                            b"" if attachment is None else attachment.to_bytes()))
 
-        sub = peer_bus.session.declare_subscriber(data_key, on_image)
-        node = NodeEntity(domain_id=0, session_id=str(peer_bus.session.info.zid()), node_id=7,
+        session = zenoh_session(peer_bus)
+        sub = session.declare_subscriber(data_key, on_image)
+        node = NodeEntity(domain_id=0, session_id=str(session.info.zid()), node_id=7,
                           node_name="viewer", namespace="/")
-        token = peer_bus.session.liveliness().declare_token(endpoint_liveliness_keyexpr(
+        token = session.liveliness().declare_token(endpoint_liveliness_keyexpr(
             EndpointEntity(node=node, entity_id=8, kind=EntityKind.SUBSCRIPTION, name=topic,
                            dds_type_name="sensor_msgs::msg::dds_::CompressedImage_",
                            type_hash=store.hash_rihs01(ros_type), qos="::,10:,:,:,,")))

@@ -128,7 +128,7 @@ def test_a_robot_file_s_ros2_section_is_checked_when_it_loads() -> None:
 @pytest.mark.asyncio
 async def test_the_bridge_needs_a_zenoh_session() -> None:
     from ubf_async.errors import ConfigurationError
-    from ubf_async.net.transport import InProcessTransport
+    from ubf_async.net.inprocess import InProcessTransport
     from ubf_async.runtime.bus import Bus
     from ubf_async.services.ros2.bridge import Ros2Bridge
 

@@ -19,17 +19,17 @@ import msgpack
 import pytest
 import pytest_asyncio
 
-from tests.conftest import LoopClock, as_dict, eventually
+from tests.conftest import LoopClock, as_dict, eventually, zenoh_session
 from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.behaviors import seek_pink_ball
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.clocks.clock import SimClock
+from ubf_async.clocks.simclock import follow_sim_clock
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus, Publisher
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component, HealthMonitor
 from ubf_async.runtime.controller import Controller
-from ubf_async.runtime.simclock import follow_sim_clock
 from ubf_async.wire.protocol import decode
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -145,9 +145,9 @@ async def test_malformed_samples_rejected_counted_and_good_ones_flow(
     sensor_key = keys.sensor("range", "front")
     async with agg:
         good = peer_bus.publisher(sensor_key, "range")
-        raw_sensor = peer_bus.session.declare_publisher(sensor_key)
-        raw_heartbeat = peer_bus.session.declare_publisher(keys.heartbeat("liar"))
-        raw_clock = peer_bus.session.declare_publisher(keys.clock)
+        raw_sensor = zenoh_session(peer_bus).declare_publisher(sensor_key)
+        raw_heartbeat = zenoh_session(peer_bus).declare_publisher(keys.heartbeat("liar"))
+        raw_clock = zenoh_session(peer_bus).declare_publisher(keys.clock)
         clock_pub = peer_bus.publisher(keys.clock, "clock")
         for p in (good, clock_pub):
             await p.wait_for_subscribers()

@@ -38,11 +38,10 @@ import zenoh
 
 from tests.conftest import as_dict, eventually, free_port, read_until, repository_env
 from ubf_async.assembly.robotfile import load_robot
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, NotAllowedError, RefusedError
 from ubf_async.net import pki, tlsprobe
-from ubf_async.net.options import ConnectionOptions, RefusedError, listening
+from ubf_async.net.options import ConnectionOptions, listening
 from ubf_async.net.secure import (
-    NotAllowedError,
     access_control,
     apply,
     export,

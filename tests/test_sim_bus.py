@@ -19,7 +19,7 @@ import pytest
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.runner.stepper import DEVICES
 from components.sim.world.config import Arena, BallConfig, WorldConfig, WorldPose
-from tests.conftest import SimRobot, as_dict, eventually
+from tests.conftest import SimRobot, as_dict, eventually, zenoh_session
 from ubf_async.behaviors import seek_pink_ball
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
@@ -147,7 +147,7 @@ async def test_motors_reject_malformed_and_out_of_range_commands(
 ) -> None:
     async with SimRobot(robot_bus, open_floor(), speed=4, devices=("motors",)) as robot:
         motors = robot.device("motors")
-        raw = peer_bus.session.declare_publisher(peer_bus.keys.cmd("drive"))
+        raw = zenoh_session(peer_bus).declare_publisher(peer_bus.keys.cmd("drive"))
         good = peer_bus.publisher(peer_bus.keys.cmd("drive"), "drive")
         await good.wait_for_subscribers()
         bad = [

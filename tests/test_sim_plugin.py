@@ -15,8 +15,8 @@ from components.sim.world.config import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually, start_seeking_robot
 from ubf_async.assembly import registry
 from ubf_async.assembly.simulation import SimulationOptions, Simulator
+from ubf_async.clocks.clock import SimClock
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 
 def simulator() -> Simulator:

@@ -28,8 +28,8 @@ from tests.conftest import start_seeking_robot
 from ubf_async import experiment
 from ubf_async.assembly import registry
 from ubf_async.assembly.simulation import SimulationOptions
+from ubf_async.clocks.clock import SimClock
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 PERIOD_S = 0.05  # the runner's sampling period
 

@@ -11,9 +11,9 @@ from components.sim.runner.run import lateness_summary
 from components.sim.runner.stepper import SimulatorComponent
 from components.sim.world.config import WorldConfig
 from components.sim.world.physics import World
-from ubf_async.net.transport import InProcessTransport
+from ubf_async.clocks.clock import SimClock
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 
 def test_the_summary_gives_median_p99_and_worst_in_ms() -> None:

@@ -1,8 +1,8 @@
 """Time you can trust: only the robot's simulator moves simulated time, a new run is
 recognised by everyone, and safety deadlines hold in wall time when simulated time stops.
 
-The policy (:class:`~ubf_async.runtime.timesource.ClockFollower`) and the deadline rule
-(:class:`~ubf_async.runtime.clock.SilenceLimit`) are unit-tested; the rest runs real processes on
+The policy (:class:`~ubf_async.clocks.timesource.ClockFollower`) and the deadline rule
+(:class:`~ubf_async.clocks.clock.SilenceLimit`) are unit-tested; the rest runs real processes on
 loopback zenoh: a simulator in this process, devices and a controller in their own, and an
 outsider publishing plain zenoh + msgpack.
 """
@@ -22,12 +22,13 @@ import pytest
 
 from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.world.config import Arena, WorldConfig
-from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop
-from ubf_async.runtime import clock as clock_module
+from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop, zenoh_session
+from ubf_async.clocks import clock as clock_module
+from ubf_async.clocks import follow
+from ubf_async.clocks.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
+from ubf_async.clocks.simclock import follow_sim_clock
+from ubf_async.clocks.timesource import ClockAction, ClockFollower
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
-from ubf_async.runtime.simclock import follow_sim_clock
-from ubf_async.runtime.timesource import ClockAction, ClockFollower
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import CLOCK, SIM_WORLD
 
@@ -96,7 +97,7 @@ def test_refusals_are_counted_and_logged_first_and_every_100th(
 ) -> None:
     f = ClockFollower()
     f.offer(stamp_ns=S, epoch="a", wall_ns=0)
-    with caplog.at_level(logging.WARNING, logger="ubf_async.runtime.timesource"):
+    with caplog.at_level(logging.WARNING, logger="ubf_async.clocks.timesource"):
         for i in range(250):
             f.offer(stamp_ns=0, epoch="a" if i % 2 else "b", wall_ns=1)
     assert f.refused == {"backwards": 125, "other epoch": 125} and f.refused_total == 250
@@ -529,7 +530,6 @@ async def test_the_robots_time_is_followed_when_another_run_of_its_name_speaks_f
     attaches to the robot through zenoh's gossip, and its time arrives first. The process
     follows the robot's run all the same (before: the first heard, 88 s ahead)."""
     from ubf_async.net.options import ConnectionOptions
-    from ubf_async.runtime import clockdomain
 
     other_endpoint = f"tcp/127.0.0.1:{free_port()}"
     other = await Bus.open(ConnectionOptions(robot=robot, listen=[other_endpoint],
@@ -537,18 +537,20 @@ async def test_the_robots_time_is_followed_when_another_run_of_its_name_speaks_f
     follower = None
     sims: list[WithheldClock] = []
     try:
-        await eventually(lambda: other.session_id in map(str, robot_bus.session.info.peers_zid()),
+        robot_session = zenoh_session(robot_bus)
+        await eventually(lambda: other.session_id in map(str, robot_session.info.peers_zid()),
                          what="the other simulator to connect to the robot")
         follower = await Bus.open(ConnectionOptions(robot=robot, connect=[endpoint]))
         reached = {robot_bus.session_id, other.session_id}
-        await eventually(lambda: reached <= set(map(str, follower.session.info.peers_zid())),
+        follower_session = zenoh_session(follower)
+        await eventually(lambda: reached <= set(map(str, follower_session.info.peers_zid())),
                          what="the follower to reach both (gossip)")
         sims.append(WithheldClock(other, epoch="other", start_ns=100 * S))
         sims[-1].release()
         mine = WithheldClock(robot_bus, epoch="mine")
         sims.append(mine)
-        with caplog.at_level(logging.WARNING, logger="ubf_async.runtime.timesource"):
-            choosing = asyncio.create_task(clockdomain.follow_robot_clock(follower, mode="sim"))
+        with caplog.at_level(logging.WARNING, logger="ubf_async.clocks.timesource"):
+            choosing = asyncio.create_task(follow.follow_robot_clock(follower, mode="sim"))
             await eventually(lambda: choosing.done() or "(not the robot's)" in caplog.text,
                              timeout_s=15, what="the other run to be heard")
             if choosing.done():
@@ -579,12 +581,12 @@ async def test_a_router_at_the_endpoint_is_not_taken_for_the_robot(robot: str) -
     try:
         client = await Bus.open(ConnectionOptions(robot=robot, mode="client",
                                                   connect=[router_endpoint]))
-        await eventually(lambda: bool(list(client.session.info.routers_zid())),
+        await eventually(lambda: bool(list(zenoh_session(client).info.routers_zid())),
                          what="the client to reach the router")
         assert await client.connected_sessions() == frozenset()
         peer = await Bus.open(ConnectionOptions(robot=robot, connect=[router_endpoint]))
         try:
-            await eventually(lambda: bool(list(peer.session.info.routers_zid())),
+            await eventually(lambda: bool(list(zenoh_session(peer).info.routers_zid())),
                              what="the peer to reach the router")
             assert await peer.connected_sessions() == frozenset()
         finally:

@@ -7,7 +7,8 @@ import itertools
 import pytest
 import zenoh
 
-from ubf_async.net.transport import KeyExprError, intersects, key_chunks
+from ubf_async.errors import KeyExprError
+from ubf_async.net.keyexpr import intersects, key_chunks
 
 CASES = [
     ("a/b", "a/b"), ("a/b", "a/c"), ("a/*", "a/b"), ("a/*", "a"), ("a/**", "a"),

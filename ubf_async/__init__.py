@@ -38,7 +38,7 @@ _HOMES: dict[str, str] = {name: module for module, names in (
     ("ubf_async.runtime.component", ("Component",)),
     ("ubf_async.runtime.controller", ("Controller", "TickMode")),
     ("ubf_async.runtime.aggregator", ("StateAggregator",)),
-    ("ubf_async.runtime.clock", ("Clock", "SimClock", "every")),
+    ("ubf_async.clocks.clock", ("Clock", "SimClock", "every")),
     ("ubf_async.assembly.backend", ("Backend",)),
     ("ubf_async.assembly.context", ("DeviceContext",)),
     ("ubf_async.net.options", ("ConnectionOptions",)),

@@ -13,6 +13,11 @@ from ubf_async.cli.args import (
 from ubf_async.cli.run import (
     run_main,
 )
+from ubf_async.clocks.clock import (
+    Clock,
+    SimClock,
+    every,
+)
 from ubf_async.core.action import (
     COMMAND_LIMIT,
     STOP,
@@ -65,11 +70,6 @@ from ubf_async.runtime.aggregator import (
 )
 from ubf_async.runtime.bus import (
     Bus,
-)
-from ubf_async.runtime.clock import (
-    Clock,
-    SimClock,
-    every,
 )
 from ubf_async.runtime.component import (
     Component,

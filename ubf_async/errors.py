@@ -8,14 +8,30 @@ ValueError`` code keeps working.
 ::
 
     UbfError
-    ├── ProtocolError        a payload or key that does not follow docs/protocol.md
-    └── ConfigurationError   something a user wrote or asked for is wrong
-        ├── RobotFileError   a robot file (docs/robot-file.md), with its file and line
-        ├── ParameterError   parameters a plug-in's factory refuses (its signature says why)
-        ├── ScenarioError    a scenario file (docs/scenarios.md)
-        ├── PluginError      an unknown or broken behaviour/arbiter/device/backend name
-        │   └── MissingExtraError  a feature whose extra is not installed (ubf_async.extras)
-        └── TreeChangeError  a live change of the running tree that was refused
+    ├── ProtocolError          a payload or key that does not follow docs/protocol.md
+    ├── KeyExprError           a key expression zenoh refuses too (the in-process transport)
+    ├── ConfigurationError     something a user wrote or asked for is wrong
+    │   ├── RobotFileError     a robot file (docs/robot-file.md), with its file and line
+    │   ├── ParameterError     parameters a plug-in's factory refuses (its signature says why)
+    │   ├── ScenarioError      a scenario file (docs/scenarios.md)
+    │   ├── PluginError        an unknown or broken behaviour/arbiter/device/backend name
+│   │   └── MissingExtraError  a feature whose extra is not installed (ubf_async.extras)
+    │   ├── TreeChangeError    a live change of the running tree that was refused
+    │   ├── NameTakenError     a component name already alive on the robot
+    │   ├── UnknownFieldError  a field a sample's topic does not declare (a behaviour's typo)
+    │   └── NotAllowedError    what the robot's ACL would drop (secure mode)
+    ├── SessionError           a zenoh session that cannot be opened or reach the robot
+    │   ├── PortInUseError     a listen port another process holds
+    │   ├── NoRobotError       no robot answers at the endpoints
+    │   └── RefusedError       something there refuses this session (secure mode)
+    ├── QueryError             a queryable answered with an error
+    ├── SettleError            the in-process network still busy after its limit
+    ├── ResultsNotSavedError   a run's summary or recording could not be written
+    └── ShutdownError          a step of a program's end failed
+
+The specifications of sweeps and evolution runs and their journal refine these where they are
+read (``runs/``: ``SweepSpecError``, ``EvolveSpecError``, ``OverridePathError``,
+``JournalError``).
 """
 
 from __future__ import annotations
@@ -27,6 +43,10 @@ class UbfError(Exception):
 
 class ProtocolError(UbfError, ValueError):
     """A payload or key that does not follow the protocol. The message says what and where."""
+
+
+class KeyExprError(UbfError, ValueError):
+    """A key expression the in-process transport cannot route (zenoh refuses it too)."""
 
 
 class ConfigurationError(UbfError, ValueError):
@@ -103,3 +123,52 @@ class MissingExtraError(PluginError, ImportError):
 
 class TreeChangeError(ConfigurationError):
     """A live change of the running behaviour tree that was refused; the tree is untouched."""
+
+
+class NameTakenError(ConfigurationError):
+    """A component name already alive on the robot (see :func:`ensure_name_free`)."""
+
+
+class UnknownFieldError(ConfigurationError, AttributeError):
+    """A behaviour asked a sample for a field its topic does not declare (a typo)."""
+
+
+class NotAllowedError(ConfigurationError):
+    """An identity about to send what the robot's ACL would drop without a word."""
+
+
+class SessionError(UbfError, ConnectionError):
+    """A zenoh session that cannot be opened, or does not reach the robot (one line that
+    says what to do)."""
+
+
+class PortInUseError(SessionError):
+    """A listen endpoint whose port another process already holds."""
+
+
+class NoRobotError(SessionError):
+    """Nothing to connect to: no robot answers at the endpoints given."""
+
+
+class RefusedError(SessionError):
+    """Something listens at the robot's endpoint but did not accept this process's zenoh
+    session: a robot in secure mode refusing its credentials, as far as can be told."""
+
+
+class QueryError(UbfError, RuntimeError):
+    """A queryable answered with an error instead of a reply (see
+    :meth:`Bus.query <ubf_async.runtime.bus.Bus.query>`)."""
+
+
+class SettleError(UbfError, RuntimeError):
+    """:meth:`InProcessTransport.settle <ubf_async.net.inprocess.InProcessTransport.settle>`
+    found work still pending after its limit."""
+
+
+class ResultsNotSavedError(UbfError, OSError):
+    """The run's summary or recording could not be written at the end of the run; the summary
+    was printed instead (the message says where writing failed)."""
+
+
+class ShutdownError(UbfError):
+    """A step of the end failed (logged as it happened); everything else was still done."""

@@ -54,11 +54,11 @@ from components.quadrature import edges_to_radians
 from ubf_async.assembly.simulation import Simulator, TurnRig
 from ubf_async.behaviors.basic import ConstantDrive
 from ubf_async.cli.args import add_connection_arguments
-from ubf_async.cli.attach import attached_bus
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, attached_bus
 from ubf_async.cli.run import run_main
 from ubf_async.core.action import Action
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus
+from ubf_async.runtime.bus import Bus
 from ubf_async.services.remote import RemoteBehaviorHost
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import ENCODERS, SIM_TRUTH, Encoders, SimTruth

@@ -33,8 +33,8 @@ from components.quadrature import (
     edges_to_counts,
     edges_to_radians,
 )
+from ubf_async.clocks.clock import every
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY, MotorsApplied

@@ -17,8 +17,8 @@ import msgspec
 
 from components.leds.backend import LedBackend
 from components.leds.bank import MAX_LEDS, LedBank
+from ubf_async.clocks.clock import every
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LED_STATE, LEDS, Leds

@@ -8,7 +8,7 @@
 * **Watchdog:** if no valid drive command has arrived for ``timeout_s`` (default
   :data:`DEFAULT_TIMEOUT_S`, 110 ms), it applies the stop pulse — a controller that dies
   cannot leave the robot driving. The deadline follows
-  :class:`~ubf_async.runtime.clock.SilenceLimit`: ``timeout_s`` of robot time, or — when the robot
+  :class:`~ubf_async.clocks.clock.SilenceLimit`: ``timeout_s`` of robot time, or — when the robot
   clock's source has gone silent (a simulator that died, not one holding time on purpose) —
   ``max(timeout_s, 0.5 s)`` of wall time. A new simulation run (the clock reset) also stops
   the wheels: a command of the old run does not hold in the new one.
@@ -48,8 +48,8 @@ from components.motors.pwm import (
     clamp_drive,
     pulse_widths,
 )
+from ubf_async.clocks.clock import SilenceLimit, sleep_until
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SilenceLimit, sleep_until
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import DRIVE, MOTORS, Drive
@@ -229,7 +229,7 @@ def build_device(
 ) -> MotorsComponent:
     """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
     wheels when no drive command arrived for ``timeout_s`` (robot clock; also in wall time
-    when the clock's source goes silent, see :class:`~ubf_async.runtime.clock.SilenceLimit`) and
+    when the clock's source goes silent, see :class:`~ubf_async.clocks.clock.SilenceLimit`) and
     when it closes.
     ``left`` / ``right``: each motor's calibration (:class:`MotorTrim`); default: the
     thesis's measured Mini-WHEGS motors."""

@@ -23,9 +23,9 @@ import numpy as np
 from components.range.backend import MountPose, RangeBackend, RangeReadError
 from components.range.ir import GP2Y0A21, IR_MODELS, IrModel, limit_ir, read_ir
 from ubf_async import throttle
+from ubf_async.clocks.clock import every
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import every
 from ubf_async.runtime.component import Component
 from ubf_async.wire.topics import RANGE
 

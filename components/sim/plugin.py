@@ -21,8 +21,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, TextIO
 
 from ubf_async.assembly.simulation import FleetMember, SimulationOptions, Simulator, TurnRig
+from ubf_async.clocks.clock import SimClock
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 if TYPE_CHECKING:
     from components.sim.mirror.remote_world import RemoteWorld

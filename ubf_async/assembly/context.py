@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from ubf_async.clocks.clock import Clock
     from ubf_async.runtime.bus import Bus
-    from ubf_async.runtime.clock import Clock
 
 
 @dataclass(kw_only=True)

@@ -5,7 +5,7 @@ never imports one by module name. It provides
 
 * the *world* that simulated device backends read and drive (handed to backend factories as
   :attr:`DeviceContext.simulation`), and
-* a :class:`SimulationRun`: simulated time, the simulator's own components, a status-line
+* a :class:`OpenSimulation`: simulated time, the simulator's own components, a status-line
   suffix and, at the end, a summary.
 
 A device's backend that needs a simulator says which (its factory's ``requires_simulator``
@@ -27,8 +27,8 @@ from ubf_async.assembly.context import DeviceContext as DeviceContext
 
 if TYPE_CHECKING:
     from ubf_async.assembly.robotfile import ResolvedDevice
+    from ubf_async.clocks.clock import SimClock
     from ubf_async.runtime.bus import Bus
-    from ubf_async.runtime.clock import SimClock
     from ubf_async.runtime.component import Component
     from ubf_async.runtime.controller import Controller
 
@@ -52,17 +52,17 @@ class SimulationOptions:
     record_dir: Path | None = None
     record_every_s: float = 2.0
     keep_trajectory: bool = False
-    """Keep every trajectory sample in memory, for :meth:`SimulationRun.trajectory` (a library
+    """Keep every trajectory sample in memory, for :meth:`OpenSimulation.trajectory` (a library
     run's result); otherwise only a bounded, decimated history is kept."""
     lockstep_participants: int = 0
     """Hold simulated time at its start until this many lockstep participants of other
-    processes have joined (:mod:`ubf_async.runtime.lockstep`)."""
+    processes have joined (:mod:`ubf_async.clocks.lockstep`)."""
     command_line: tuple[str, ...] = ()
     """How the run was started (for its summary)."""
 
 
 @runtime_checkable
-class SimulationRun(Protocol):
+class OpenSimulation(Protocol):
     """One simulated run, as launch drives it. Every method runs on the event loop."""
 
     @property
@@ -155,7 +155,7 @@ class Simulator(Protocol):
         ``launch --check`` runs exactly it. Raises :class:`~ubf_async.errors.UbfError`."""
         ...
 
-    def open(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> SimulationRun:
+    def open(self, *, bus: Bus, clock: SimClock, options: SimulationOptions) -> OpenSimulation:
         """Build a run (raises :class:`~ubf_async.errors.ConfigurationError` on bad options)."""
         ...
 

@@ -1,18 +1,26 @@
 """What a tool attaching to a running robot from another process does around its own work
 (``python -m ubf_async.record``, ``python -m ubf_async.liveview``): its flags (``--duration``,
-``--name``, ``--wait-for-robot-s``), a session that has reached the robot and stamps on the
-robot's clock, and running until stopped."""
+``--name``, ``--wait-for-robot-s``), waiting for the robot (:func:`wait_for_robot`), a session
+that has reached the robot and stamps on the robot's clock, and running until stopped."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
 import contextlib
+import time
 from collections.abc import AsyncIterator
 
 from ubf_async.cli.args import connection_options
-from ubf_async.runtime import clockdomain
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
+from ubf_async.clocks import follow
+from ubf_async.errors import NoRobotError
+from ubf_async.net.options import START_ROBOT_HINT, refused_error
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.keys import ROOT
+
+DEFAULT_ATTACH_TIMEOUT_S = 10.0
+ATTACH_RETRY_S = 0.05
+"""How often :func:`wait_for_robot` asks whether the robot is there."""
 
 
 def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str) -> None:
@@ -25,15 +33,59 @@ def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str
                         metavar="S", help="with --connect: how long to wait for the robot")
 
 
+async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
+                         any_robot: bool = False) -> None:
+    """For a process attaching to a running robot: wait until the session reaches another
+    zenoh node and one of the robot's components is alive there (its liveliness token
+    ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
+    nothing answered at the endpoints or the robot there has another name, or
+    :class:`RefusedError` when something listens there but never let the session in.
+
+    Returns at once for a session that only listens (in ``peer`` mode without ``connect``
+    endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
+    anything. ``any_robot``: any robot's component will do (a tool looking at a fleet).
+
+    It asks (a liveliness query) every :data:`ATTACH_RETRY_S` rather than waiting on a
+    liveliness subscriber: with zenoh 1.10 a client's liveliness queries made while such a
+    subscriber is declared, or just after, sometimes find nothing (measured: an inspector
+    listing no component in 2-3 runs of 30), and a tool's next step is such a query."""
+    options = bus.options
+    if not options.connect and options.mode != "client":
+        return
+    where = " ".join(options.connect) or "(the configured router)"
+    deadline = time.monotonic() + timeout_s
+    reached = False
+    while True:
+        reached = reached or bus.reached_peers()
+        alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
+        if reached and await bus.alive_tokens(alive, timeout_s=1.0):
+            return
+        if time.monotonic() >= deadline:
+            break
+        await asyncio.sleep(ATTACH_RETRY_S)
+    if not reached:
+        refused = await asyncio.to_thread(refused_error, options)
+        if refused is not None:
+            raise refused
+        raise NoRobotError(f"no robot to connect to: nothing answered at {where} within "
+                           f"{timeout_s:g}s ({START_ROBOT_HINT})")
+    seen = sorted({key.split("/")[1] for key in await bus.alive_tokens(
+        f"{ROOT}/*/alive/*", timeout_s=1.0)} - {bus.robot})
+    other = f"; robots there: {', '.join(seen)} (check --robot)" if seen else ""
+    raise NoRobotError(f"no robot {bus.robot!r} answered at {where} within {timeout_s:g}s: "
+                       f"a zenoh node is there, but none of the robot's components is alive"
+                       f"{other}")
+
+
 @contextlib.asynccontextmanager
 async def attached_bus(args: argparse.Namespace) -> AsyncIterator[Bus]:
     """A bus on the connection flags that has reached the robot (:func:`wait_for_robot`) and
-    stamps on its clock (:func:`~ubf_async.runtime.clockdomain.follow_robot_clock`); closed on
+    stamps on its clock (:func:`~ubf_async.clocks.follow.follow_robot_clock`); closed on
     exit."""
     bus = await Bus.open(connection_options(args))
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
-        await clockdomain.follow_robot_clock(bus, mode="auto")
+        await follow.follow_robot_clock(bus, mode="auto")
         yield bus
     finally:
         await bus.aclose()

@@ -230,7 +230,7 @@ def loop_factory() -> Callable[[], asyncio.AbstractEventLoop]:
 def check_lockstep_loop() -> None:
     """Refuse, before anything starts, a simulation on a loop that cannot run it: simulated
     time advances in lockstep, which needs to know when the loop has nothing left to run
-    (:meth:`~ubf_async.runtime.lending.LendingEventLoop.idle`: the default loop and the lending
+    (:meth:`~ubf_async.runtime.lending.IdleEventLoop.idle`: the default loop and the lending
     loop; not uvloop)."""
     if loop_factory() not in (lending.new_idle_event_loop, lending.new_event_loop):
         raise ConfigurationError(

@@ -8,17 +8,13 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import msgspec
 
-from ubf_async.errors import ConfigurationError, ProtocolError
+from ubf_async.errors import ProtocolError, UnknownFieldError
 from ubf_async.wire import topics
 
 if TYPE_CHECKING:
     from ubf_async.core.action import Action
 
 T = TypeVar("T")
-
-
-class UnknownFieldError(ConfigurationError, AttributeError):
-    """A behaviour asked a sample for a field its topic does not declare (a typo)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -1,10 +1,11 @@
 """How a process joins the zenoh network: connection options, the zenoh configuration they
-make, and the session errors that say in one line what went wrong.
+make, and what tells in one line why a session did not open (the session errors themselves
+are in :mod:`ubf_async.errors`).
 
 :class:`ConnectionOptions` is what every entry point's connection flags
 (:mod:`ubf_async.cli.args`) come to; :meth:`ConnectionOptions.zenoh_config` is the zenoh
-configuration a session opens with (:meth:`ubf_async.runtime.bus.Bus.open`), secure mode
-applied (:mod:`ubf_async.net.secure`).
+configuration a session opens with (:meth:`ubf_async.net.transport.ZenohTransport.open`),
+secure mode applied (:mod:`ubf_async.net.secure`).
 """
 
 from __future__ import annotations
@@ -19,7 +20,13 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.errors import (
+    ConfigurationError,
+    NoRobotError,
+    PortInUseError,
+    RefusedError,
+    SessionError,
+)
 
 if TYPE_CHECKING:
     from ubf_async.net.secure import Rights
@@ -97,7 +104,14 @@ class ConnectionOptions:
         file, then these options over it; in secure mode the identity's credentials (and for
         ``robot`` the password dictionary and the ACL), and client mode for every identity
         but ``robot`` (see :mod:`ubf_async.net.secure`).
-        Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up."""
+        Raises :class:`~ubf_async.errors.ConfigurationError` for a bad secure set-up, and for
+        an endpoint or value zenoh refuses (``zenoh configuration: ...``)."""
+        try:
+            return self._zenoh_config()
+        except zenoh.ZError as exc:
+            raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
+
+    def _zenoh_config(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(str(self.config)) if self.config else zenoh.Config()
         for key, value in SESSION_LIMITS.items():
             if self.config is None or config_value(conf, key) is None:
@@ -207,24 +221,6 @@ def bind_free_ports(endpoints: list[str]) -> list[str]:
             continue
         resolved.append(f"{match['proto']}/{match['host']}:{port}{match['rest'] or ''}")
     return resolved
-
-
-class SessionError(UbfError, ConnectionError):
-    """A zenoh session that cannot be opened, or does not reach the robot (one line that
-    says what to do)."""
-
-
-class PortInUseError(SessionError):
-    """A listen endpoint whose port another process already holds."""
-
-
-class NoRobotError(SessionError):
-    """Nothing to connect to: no robot answers at the endpoints given."""
-
-
-class RefusedError(SessionError):
-    """Something listens at the robot's endpoint but did not accept this process's zenoh
-    session: a robot in secure mode refusing its credentials, as far as can be told."""
 
 
 START_ROBOT_HINT = ("is the robot running? `python -m ubf_async.launch` prints the endpoint "

@@ -2,9 +2,9 @@
 mechanisms.
 
 The library (set-up, :func:`apply`, :class:`Rights`, :func:`diagnose`); its command line is
-:mod:`ubf_async.tools.secure`. Split so the connection options (:mod:`ubf_async.runtime.bus`)
-can apply a set-up without importing the command line, which reads robot files (a module far
-above).
+:mod:`ubf_async.tools.secure`. Split so the connection options (:mod:`ubf_async.net.options`)
+can apply a set-up without importing the command line, which reads robot files (a room far
+above: what a set-up needs of a robot is :class:`SecuredRobot`).
 
 ``python -m ubf_async.secure init DIR --robot-file FILE [--host NAME_OR_IP ...]`` generates,
 for the robot the file describes:
@@ -49,11 +49,11 @@ import tarfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, NotAllowedError
 from ubf_async.net import pki, tlsprobe
 
 FORMAT = 2
@@ -138,7 +138,57 @@ class Identity:
                 }[self.role]
 
 
-def identities_for(robot: Any, *, devices: Iterable[str] = ()) -> list[Identity]:
+class _RemoteSlot(Protocol):
+    @property
+    def composite(self) -> str: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def key(self) -> str: ...
+
+
+class _Device(Protocol):
+    @property
+    def kind(self) -> str: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def requires_simulator(self) -> str | None: ...
+
+
+class _Ros2(Protocol):
+    @property
+    def enabled(self) -> bool: ...
+    @property
+    def domain_id(self) -> int: ...
+    @property
+    def namespace(self) -> str | None: ...
+    @property
+    def slot(self) -> str: ...
+
+
+class _RobotSpec(Protocol):
+    @property
+    def ros2(self) -> _Ros2 | None: ...
+
+
+class SecuredRobot(Protocol):
+    """What a set-up needs to know of a robot: a resolved robot file
+    (:class:`ubf_async.assembly.robotfile.Robot`, a room above this one) is one."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def source(self) -> str: ...
+    @property
+    def spec(self) -> _RobotSpec: ...
+    @property
+    def remotes(self) -> Sequence[_RemoteSlot]: ...
+    @property
+    def devices(self) -> Sequence[_Device]: ...
+
+
+def identities_for(robot: SecuredRobot, *, devices: Iterable[str] = ()) -> list[Identity]:
     """The identities of ``robot`` (a :class:`~ubf_async.assembly.robotfile.Robot`): the built-in
     ones, one per remote slot name, one per ``devices`` entry (``KIND/NAME`` of a device of
     the robot file). Raises :class:`ConfigurationError`."""
@@ -152,11 +202,11 @@ def identities_for(robot: Any, *, devices: Iterable[str] = ()) -> list[Identity]
             raise ConfigurationError(f"remote slot {name!r}: the name is taken by a built-in "
                                      f"identity ({', '.join(BUILTIN)}, device-*, ros2-*)")
         out.append(Identity(name=name, role="remote", composites=tuple(sorted(set(where)))))
-    ros2 = getattr(getattr(robot, "spec", None), "ros2", None)
+    ros2 = robot.spec.ros2
     if ros2 is not None and ros2.enabled:
         ros_at: tuple[int, str] = (ros2.domain_id, ros2.namespace or f"/{robot.name}")
-        slot = tuple(sorted({s.key for s in robot.remotes if s.name == ros2.slot}))
-        out += [Identity(name=ROS2_BRIDGE, role=ROS2_BRIDGE, composites=slot, ros2=ros_at),
+        bridged = tuple(sorted({s.key for s in robot.remotes if s.name == ros2.slot}))
+        out += [Identity(name=ROS2_BRIDGE, role=ROS2_BRIDGE, composites=bridged, ros2=ros_at),
                 Identity(name=ROS2_READER, role=ROS2_READER, ros2=ros_at),
                 Identity(name=ROS2_DRIVER, role=ROS2_DRIVER, ros2=ros_at)]
     known = {f"{d.kind}/{d.name}": d for d in robot.devices}
@@ -431,7 +481,7 @@ def identity_file(directory: Path, name: str, suffix: str = ".json") -> Path:
     return directory / IDENTITIES / f"{name}{suffix}"
 
 
-def init(directory: Path, *, robot: Any, devices: Iterable[str] = (),
+def init(directory: Path, *, robot: SecuredRobot, devices: Iterable[str] = (),
          hosts: Sequence[str] = (), force: bool = False,
          days: int = pki.IDENTITY_DAYS) -> SecureSetup:
     """Generate the certificate authority, identities and ACL of ``robot`` (a resolved robot
@@ -720,10 +770,6 @@ class Rights:
 
 
 OPEN = Rights()
-
-
-class NotAllowedError(ConfigurationError):
-    """An identity about to send what the robot's ACL would drop without a word."""
 
 
 class IdentityRights(Rights):

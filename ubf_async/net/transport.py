@@ -1,5 +1,5 @@
 """The transport seam: what a :class:`~ubf_async.runtime.bus.Bus` needs from the middleware that
-moves its bytes, and two implementations of it.
+moves its bytes, and zenoh's implementation of it.
 
 A :class:`Transport` is the network (think: a zenoh router and everything connected to it); a
 :class:`Connection` is one bus's session on it, made by :meth:`Transport.connect`. A bus never
@@ -8,43 +8,41 @@ connection, and everything it adds on top — the hand-off onto the event loop, 
 delivery, coalescing, bounded queues, handler errors, same-bus delivery — is the same whatever
 the transport (see :mod:`ubf_async.runtime.bus`).
 
-* :class:`ZenohTransport` wraps one open ``zenoh.Session`` (what :meth:`Bus.open
-  <ubf_async.runtime.bus.Bus.open>` makes); its callbacks run on zenoh's threads.
-* :class:`InProcessTransport` is a network inside one event loop: several buses connect to
-  the same instance (as processes connect to one router) and see each other's samples, tokens
-  and queryables. No zenoh session, no threads: its callbacks run on the loop, inside the call
-  that caused them. ``await transport.settle()`` runs the loop until every delivery is done,
-  which makes unit tests of the controller, the aggregator and remote votes deterministic.
+* :class:`ZenohTransport` opens and owns one ``zenoh.Session`` (:meth:`ZenohTransport.open`,
+  what :meth:`Bus.open <ubf_async.runtime.bus.Bus.open>` calls) and, for a peer with
+  ``connect`` endpoints, watches them (:func:`watch_connect_endpoints`); its callbacks run on
+  zenoh's threads. Closing the bus's connection closes the session.
+* The in-process transport, a network inside one event loop for unit tests, is
+  :mod:`ubf_async.net.inprocess`; key expressions in pure Python, :mod:`ubf_async.net.keyexpr`.
 
-Key expressions follow zenoh's rules for the parts ubf_async uses: chunks separated by ``/``,
-``*`` is exactly one chunk, ``**`` any number of chunks (none included), a chunk starting with
-``@`` is verbatim (matched only by itself). :func:`intersects` implements that in pure Python;
-``tests/test_transport_keyexpr.py`` checks it against ``zenoh.KeyExpr.intersects``.
+Nothing outside :mod:`ubf_async.net` imports zenoh (a contract of ``lint-imports``): a service
+speaking another protocol over the same session — the ROS 2 bridge, rmw_zenoh's attachments —
+declares through the :class:`Connection` too (:meth:`Connection.declare_attachment_publisher`,
+:meth:`Connection.declare_attachment_subscriber`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
+import dataclasses
 import threading
 import time
 from collections.abc import Callable, Collection
-from dataclasses import dataclass, field
 from typing import Any, NamedTuple, Protocol
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.errors import ConfigurationError, NoRobotError
+from ubf_async.net.connectwatch import watch_connect_endpoints
+from ubf_async.net.options import ConnectionOptions, bind_free_ports, refused_error, session_error
 
 SampleCallback = Callable[[str, bytes], None]
 """``callback(key, payload)`` — a transport's subscriber callback (see :class:`Connection`)."""
 LivelinessCallback = Callable[[str, bool], None]
 """``callback(key, alive)`` — a token appeared (``True``) or vanished (``False``)."""
-
-
-class KeyExprError(UbfError, ValueError):
-    """A key expression the in-process transport cannot route (zenoh refuses it too)."""
+AttachmentCallback = Callable[[str, bytes, bytes | None], None]
+"""``callback(key, payload, attachment)`` (see :meth:`Connection.declare_attachment_subscriber`)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -154,8 +152,39 @@ class Connection(Protocol):
         ``locators`` (``tcp/127.0.0.1:7447``): those at the endpoints it connected to, routers
         left out (the sessions behind a router are not at its endpoint)."""
 
-    async def close(self) -> None:
+    def declare_attachment_publisher(self, key: str, *,
+                                     encoding: str | None = None) -> AttachmentPublisher:
+        """A publisher on the concrete ``key`` whose samples carry an attachment and, if given,
+        an ``encoding`` (zenoh's name of it: ``application/cdr``) — for a service speaking
+        another protocol on the same network (the ROS 2 bridge: rmw_zenoh's wire format)."""
+
+    def declare_attachment_subscriber(self, key_expr: str,
+                                      callback: AttachmentCallback) -> AsyncDeclaration:
+        """Call ``callback(key, payload, attachment)`` for each sample matching ``key_expr``
+        from any connection, on the transport's thread in the order samples arrive (it must be
+        brief: copy and hand over). ``await declaration.aclose()`` returns once the callback
+        can no longer run."""
+
+    async def aclose(self) -> None:
         """Undeclare everything still declared and leave the network; idempotent."""
+
+
+class AttachmentPublisher(Protocol):
+    """A publisher whose samples carry an attachment
+    (:meth:`Connection.declare_attachment_publisher`)."""
+
+    def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
+        """Send ``payload`` with ``attachment`` to every matching subscriber."""
+
+    def undeclare(self) -> None:
+        """Stop publishing; idempotent."""
+
+
+class AsyncDeclaration(Declaration, Protocol):
+    """A declaration whose callback may still be running after :meth:`undeclare` returns:
+    :meth:`aclose` undeclares it and waits until the callback is done with."""
+
+    async def aclose(self) -> None: ...
 
 
 class Transport(Protocol):
@@ -197,6 +226,18 @@ class _ZenohPublisher:
             self._publisher.undeclare()
 
 
+class _ZenohAttachmentPublisher:
+    def __init__(self, publisher: zenoh.Publisher) -> None:
+        self._publisher = publisher
+
+    def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
+        self._publisher.put(payload, attachment=attachment)
+
+    def undeclare(self) -> None:
+        with contextlib.suppress(zenoh.ZError):
+            self._publisher.undeclare()
+
+
 class _ZenohQuery:
     """A zenoh query with its payload copied on the zenoh thread that received it."""
 
@@ -217,6 +258,23 @@ class _ZenohQuery:
     def drop(self) -> None:
         with contextlib.suppress(zenoh.ZError):
             self._query.drop()
+
+
+class _ZenohCallbackDeclaration:
+    """A declaration with its callback's end to wait for (:meth:`aclose`)."""
+
+    def __init__(self, entity: Any, end: CallbackEnd) -> None:
+        self._entity = entity
+        self._end = end
+
+    def undeclare(self) -> None:
+        with contextlib.suppress(zenoh.ZError):
+            self._entity.undeclare()
+
+    async def aclose(self) -> None:
+        self.undeclare()
+        if not self._end.dropped.is_set():
+            await asyncio.to_thread(self._end.wait, time.monotonic() + CALLBACK_END_WAIT_S)
 
 
 CALLBACK_END_WAIT_S = 2.0
@@ -271,12 +329,12 @@ class ZenohConnection:
     ``ordered``: run the callbacks on the zenoh thread that received the samples instead
     (``Callback(..., indirect=False)``), in the order a session sent them — what lockstep
     needs (an acknowledgement must not overtake the vote sent before it,
-    :mod:`ubf_async.runtime.lockstep`). The callbacks only copy and hand over, so zenoh's thread
+    :mod:`ubf_async.clocks.lockstep`). The callbacks only copy and hand over, so zenoh's thread
     is held briefly.
 
     Either way a callback can still be running, or about to run, when ``session.close()``
     returns (a callback thread ends once its channel is dropped; a zenoh thread may be
-    mid-call). :meth:`close` waits until each declaration's callback is done with
+    mid-call). :meth:`aclose` waits until each declaration's callback is done with
     (:class:`CallbackEnd`), so no thread enters Python from zenoh while the interpreter
     exits — which on Python 3.11 aborts the process ("FATAL: exception not rethrown")."""
 
@@ -286,6 +344,10 @@ class ZenohConnection:
         self.session = session
         self.ordered = ordered
         self._callback_ends: list[CallbackEnd] = []
+        self.connect_watch: asyncio.Task[None] | None = None
+        self._link_listener: Any = None
+        """The watch of a peer's ``connect`` endpoints (:class:`ZenohTransport`), cancelled
+        on :meth:`aclose`."""
 
     def _handler(self, callback: Callable[[Any], None]) -> Any:
         self._callback_ends = [e for e in self._callback_ends if not e.finished()]
@@ -362,10 +424,46 @@ class ZenohConnection:
         link to a ``connect`` endpoint has that endpoint as its destination."""
         return [str(link.dst) for link in self.session.info.links()]
 
-    async def close(self) -> None:
+    def link_changes(self, loop: asyncio.AbstractEventLoop) -> asyncio.Event:
+        """An event set (on ``loop``) whenever a link of the session comes or goes (zenoh's
+        link events; the listener goes with the session)."""
+        changed = asyncio.Event()
+
+        def on_link(event: zenoh.LinkEvent) -> None:  # on a zenoh thread
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(changed.set)
+
+        self._link_listener = self.session.info.declare_link_events_listener(
+            self._handler(on_link))
+        return changed
+
+    def declare_attachment_publisher(self, key: str, *,
+                                     encoding: str | None = None) -> AttachmentPublisher:
+        return _ZenohAttachmentPublisher(self.session.declare_publisher(
+            key, encoding=None if encoding is None else zenoh.Encoding(encoding)))
+
+    def declare_attachment_subscriber(self, key_expr: str,
+                                      callback: AttachmentCallback) -> AsyncDeclaration:
+        def on_sample(sample: zenoh.Sample) -> None:
+            attachment = sample.attachment
+            callback(str(sample.key_expr), sample.payload.to_bytes(),
+                     None if attachment is None else attachment.to_bytes())
+
+        # On zenoh's own thread, whatever ``ordered`` says: the callback only copies and
+        # hands over. Its end is waited for by the declaration's aclose, not the session's.
+        handler, end = CallbackEnd.handler(on_sample, on_zenoh_thread=True)
+        return _ZenohCallbackDeclaration(self.session.declare_subscriber(key_expr, handler),
+                                         end)
+
+    async def aclose(self) -> None:
+        if self.connect_watch is not None:
+            self.connect_watch.cancel()
         await asyncio.to_thread(self._close)
 
     def _close(self) -> None:
+        if self._link_listener is not None:  # first, as the bus undeclares its own first
+            with contextlib.suppress(zenoh.ZError):
+                self._link_listener.undeclare()
         self.session.close()
         deadline = time.monotonic() + CALLBACK_END_WAIT_S
         for end in self._callback_ends:
@@ -373,13 +471,39 @@ class ZenohConnection:
 
 
 class ZenohTransport:
-    """One open zenoh session, carrying one bus (closing the bus closes the session)."""
+    """One zenoh session, carrying one bus: :meth:`open` opens it, and closing the bus's
+    connection closes it."""
 
-    def __init__(self, session: zenoh.Session, *, ordered: bool = False) -> None:
-        """``ordered``: see :class:`ZenohConnection`."""
+    def __init__(self, session: zenoh.Session, *, ordered: bool = False,
+                 options: ConnectionOptions | None = None) -> None:
+        """``ordered``: see :class:`ZenohConnection`; ``options``: what the session was opened
+        with (a peer's ``connect`` endpoints are watched, :func:`watch_connect_endpoints`)."""
         self.session = session
         self.ordered = ordered
+        self.options = options
         self._connected = False
+
+    @classmethod
+    async def open(cls, options: ConnectionOptions, *, ordered: bool = False) -> ZenohTransport:
+        """Open a zenoh session on ``options`` (in a worker thread: opening can take a while).
+
+        Listen endpoints on port 0 get a free port first (:func:`bind_free_ports`), so
+        ``transport.options.listen`` names the ports really listened on. Raises
+        :class:`~ubf_async.errors.ConfigurationError` for a configuration zenoh refuses, and
+        :class:`SessionError` with a one-line message (:class:`PortInUseError` for a port
+        taken, :class:`NoRobotError` when nothing answers a ``client``,
+        :class:`RefusedError` when something there refuses it)."""
+        options = dataclasses.replace(options, listen=bind_free_ports(options.listen))
+        config = options.zenoh_config()
+        try:
+            session = await asyncio.to_thread(zenoh.open, config)
+        except zenoh.ZError as exc:
+            error = session_error(options, exc)
+            if isinstance(error, NoRobotError):  # or something there refused us
+                refused = await asyncio.to_thread(refused_error, options)
+                raise (refused or error) from None
+            raise error from None
+        return cls(session, ordered=ordered, options=options)
 
     def connect(
         self, *, loop: asyncio.AbstractEventLoop, pending: Callable[[], bool] | None = None
@@ -388,374 +512,13 @@ class ZenohTransport:
             raise ConfigurationError("a ZenohTransport carries one bus: open another zenoh "
                                      "session (Bus.open) for another bus")
         self._connected = True
-        return ZenohConnection(self.session, ordered=self.ordered)
-
-
-# ---------------------------------------------------------------------------------------------
-# Key expressions, in pure Python
-
-
-@functools.lru_cache(maxsize=4096)
-def key_chunks(key_expr: str) -> tuple[str, ...]:
-    """The chunks of ``key_expr``; :class:`KeyExprError` for one zenoh would refuse or that
-    uses what this module does not implement (``$*`` sub-chunk wildcards)."""
-    if not key_expr or key_expr.startswith("/") or key_expr.endswith("/"):
-        raise KeyExprError(f"invalid key expression {key_expr!r}: empty, or a leading or "
-                           f"trailing '/'")
-    chunks = tuple(key_expr.split("/"))
-    for i, chunk in enumerate(chunks):
-        if not chunk:
-            raise KeyExprError(f"invalid key expression {key_expr!r}: empty chunk")
-        if any(c in chunk for c in "#?$"):
-            raise KeyExprError(f"invalid key expression {key_expr!r}: '#', '?' and '$' are "
-                               f"not supported")
-        if "*" in chunk and chunk not in ("*", "**"):
-            raise KeyExprError(f"invalid key expression {key_expr!r}: '*' must be a whole "
-                               f"chunk")
-        if chunk == "**" and i > 0 and chunks[i - 1] == "**":
-            raise KeyExprError(f"invalid key expression {key_expr!r}: '**/**' is not "
-                               f"canonical (write '**')")
-        if chunk == "*" and i > 0 and chunks[i - 1] == "**":
-            raise KeyExprError(f"invalid key expression {key_expr!r}: '**/*' is not "
-                               f"canonical (write '*/**')")
-    return chunks
-
-
-def _chunk_meets(a: str, b: str) -> bool:
-    if a == b:
-        return True
-    if a.startswith("@") or b.startswith("@"):
-        return False  # a verbatim chunk only meets itself
-    return a == "*" or b == "*"
-
-
-@functools.lru_cache(maxsize=16384)
-def intersects(a: str, b: str) -> bool:
-    """Whether some concrete key matches both key expressions ``a`` and ``b`` (zenoh's
-    ``KeyExpr.intersects``)."""
-    left, right = key_chunks(a), key_chunks(b)
-
-    @functools.cache
-    def meet(i: int, j: int) -> bool:
-        if i == len(left) and j == len(right):
-            return True
-        if i < len(left) and left[i] == "**":
-            if meet(i + 1, j):
-                return True
-            return j < len(right) and not right[j].startswith("@") and meet(i, j + 1)
-        if j < len(right) and right[j] == "**":
-            if meet(i, j + 1):
-                return True
-            return i < len(left) and not left[i].startswith("@") and meet(i + 1, j)
-        if i == len(left) or j == len(right):
-            return False
-        return _chunk_meets(left[i], right[j]) and meet(i + 1, j + 1)
-
-    return meet(0, 0)
-
-
-# ---------------------------------------------------------------------------------------------
-# In-process
-
-
-@dataclass(eq=False)
-class _Entry:
-    """A declaration on the in-process network: the callback, and who declared it where."""
-
-    connection: InProcessConnection
-    key_expr: str
-    callback: Any
-    closed: bool = False
-
-    def undeclare(self) -> None:
-        if not self.closed:
-            self.connection._undeclare(self)
-
-
-@dataclass(eq=False)
-class _InProcessPublisher:
-    connection: InProcessConnection
-    key: str
-    closed: bool = False
-
-    def put(self, payload: bytes) -> None:
-        if self.closed or self.connection.closed:
-            return
-        self.connection.transport._deliver(self.connection, self.key, payload)
-
-    def has_remote_subscribers(self) -> bool:
-        return not self.closed and any(
-            entry.connection is not self.connection
-            for entry in self.connection.transport._route(self.key))
-
-    def undeclare(self) -> None:
-        self.closed = True
-
-
-@dataclass(eq=False)
-class _Get:
-    """One query in flight: resolved by the first reply, or when every queryable has dropped
-    it."""
-
-    future: asyncio.Future[GetResult]
-    outstanding: int
-    errors: list[str] = field(default_factory=list)
-
-    def reply(self, payload: bytes) -> None:
-        if not self.future.done():
-            self.future.set_result(GetResult(payload, self.errors))
-
-    def finish_one(self) -> None:
-        self.outstanding -= 1
-        if self.outstanding == 0 and not self.future.done():
-            self.future.set_result(GetResult(None, self.errors))
-
-
-class _InProcessQuery:
-    __slots__ = ("_done", "_get", "key", "payload")
-
-    def __init__(self, get: _Get, key: str, payload: bytes) -> None:
-        self._get = get
-        self._done = False
-        self.key = key
-        self.payload = payload
-
-    def reply(self, key: str, payload: bytes) -> None:
-        if not self._done:
-            self._get.reply(payload)
-
-    def reply_err(self, text: str) -> None:
-        if not self._done:
-            self._get.errors.append(text)
-
-    def drop(self) -> None:
-        if not self._done:
-            self._done = True
-            self._get.finish_one()
-
-
-class InProcessConnection:
-    """A bus's connection to an :class:`InProcessTransport` (callbacks on the loop)."""
-
-    callbacks_on_loop = True
-
-    def __init__(self, transport: InProcessTransport,
-                 pending: Callable[[], bool] | None) -> None:
-        self.transport = transport
-        self.pending = pending or (lambda: False)
-        self.closed = False
-        self._entries: list[_Entry] = []
-        self._publishers: list[_InProcessPublisher] = []
-
-    def _declare(self, kind: str, key_expr: str, callback: Any) -> _Entry:
-        if self.closed:
-            raise ConfigurationError("the in-process connection is closed")
-        key_chunks(key_expr)  # refuse what zenoh would refuse, at the call that made it
-        entry = _Entry(self, key_expr, callback)
-        self._entries.append(entry)
-        self.transport._add(kind, entry)
-        return entry
-
-    def _undeclare(self, entry: _Entry) -> None:
-        entry.closed = True
-        with contextlib.suppress(ValueError):
-            self._entries.remove(entry)
-        self.transport._remove(entry)
-
-    def declare_publisher(self, key: str) -> OutgoingPublisher:
-        if self.closed:
-            raise ConfigurationError("the in-process connection is closed")
-        if "*" in key_chunks(key):
-            raise KeyExprError(f"a publisher needs a concrete key, not {key!r}")
-        publisher = _InProcessPublisher(self, key)
-        self._publishers.append(publisher)
-        return publisher
-
-    def declare_subscriber(self, key_expr: str, callback: SampleCallback) -> Declaration:
-        return self._declare("sub", key_expr, callback)
-
-    def declare_token(self, key: str) -> Declaration:
-        return self._declare("token", key, None)
-
-    def declare_liveliness_subscriber(
-        self, key_expr: str, callback: LivelinessCallback
-    ) -> Declaration:
-        return self._declare("live", key_expr, callback)
-
-    async def liveliness_get(self, key_expr: str, *, timeout_s: float) -> list[str]:
-        key_chunks(key_expr)
-        return sorted(key for key in self.transport._tokens if intersects(key, key_expr))
-
-    def declare_queryable(
-        self, key: str, callback: Callable[[IncomingQuery], None]
-    ) -> Declaration:
-        return self._declare("queryable", key, callback)
-
-    async def get(self, key: str, payload: bytes | None, *, timeout_s: float) -> GetResult:
-        return await self.transport._get(key, payload or b"", timeout_s=timeout_s)
-
-    def reached_peers(self) -> bool:
-        return any(c is not self for c in self.transport._connections)
-
-    def session_id(self) -> str | None:
-        return None
-
-    def sessions_at(self, locators: Collection[str]) -> frozenset[str]:
-        return frozenset()  # no endpoints, no links
-
-    async def close(self) -> None:
-        if self.closed:
-            return
-        for publisher in self._publishers:
-            publisher.closed = True
-        for entry in list(self._entries):
-            entry.undeclare()
-        self.closed = True
-        self.transport._connections.remove(self)
-
-
-class SettleError(UbfError, RuntimeError):
-    """:meth:`InProcessTransport.settle` found work still pending after its limit."""
-
-
-class InProcessTransport:
-    """A network inside one event loop: buses connected to the same instance exchange samples,
-    liveliness tokens and queries as processes connected to one zenoh router would.
-
-    Semantics kept from zenoh: a subscriber sees samples of *other* connections only (the bus
-    delivers its own, see :meth:`Connection.declare_subscriber`); liveliness subscribers and
-    queryables see every connection, their own included; a liveliness subscriber starts with
-    the tokens alive now; closing a connection undeclares its tokens (the others see them
-    vanish). Several tokens on one key count as one (it vanishes with the last).
-
-    Everything runs on the loop, in the call that caused it: :meth:`OutgoingPublisher.put`
-    calls the matching subscribers' callbacks, which for a bus store the sample and schedule
-    its drain with ``loop.call_soon`` — so handlers run on the loop's next iterations, exactly
-    as for samples from zenoh, but with no thread involved.
-    """
-
-    def __init__(self) -> None:
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._thread: int | None = None
-        self._connections: list[InProcessConnection] = []
-        self._subs: list[_Entry] = []
-        self._live: list[_Entry] = []
-        self._queryables: list[_Entry] = []
-        self._token_entries: list[_Entry] = []
-        self._tokens: dict[str, int] = {}
-        """Alive token keys and how many tokens hold each."""
-        self._routes: dict[str, list[_Entry]] = {}
-        """Which subscribers each published key reaches; cleared on any change."""
-        self._gets: set[asyncio.Future[GetResult]] = set()
-
-    def connect(
-        self, *, loop: asyncio.AbstractEventLoop, pending: Callable[[], bool] | None = None
-    ) -> InProcessConnection:
-        if self._loop is None:
-            self._loop = loop
-            self._thread = threading.get_ident()
-        elif loop is not self._loop:
-            raise ConfigurationError("every bus on an InProcessTransport must run on the same "
-                                     "event loop")
-        connection = InProcessConnection(self, pending)
-        self._connections.append(connection)
+        connection = ZenohConnection(self.session, ordered=self.ordered)
+        options = self.options
+        if options is not None and options.mode == "peer" and options.connect:
+            # A client fails to open when nothing answers; a peer opens all the same and
+            # zenoh keeps trying in the background: say so, as a robot should.
+            changed = connection.link_changes(loop)
+            connection.connect_watch = loop.create_task(
+                watch_connect_endpoints(connection.link_destinations, changed,
+                                        options.connect), name="ubf-connect-watch")
         return connection
-
-    # -- routing (on the loop) ----------------------------------------------------------------
-    def _check_thread(self) -> None:
-        if threading.get_ident() != self._thread:
-            raise RuntimeError("InProcessTransport used off its event loop's thread")
-
-    def _add(self, kind: str, entry: _Entry) -> None:
-        self._check_thread()
-        if kind == "sub":
-            self._subs.append(entry)
-            self._routes.clear()
-        elif kind == "live":
-            self._live.append(entry)
-            for key in list(self._tokens):  # history: the tokens alive now
-                if intersects(key, entry.key_expr):
-                    entry.callback(key, True)
-        elif kind == "queryable":
-            self._queryables.append(entry)
-        else:
-            self._token_entries.append(entry)
-            count = self._tokens.get(entry.key_expr, 0)
-            self._tokens[entry.key_expr] = count + 1
-            if count == 0:
-                self._liveliness_changed(entry.key_expr, alive=True)
-
-    def _remove(self, entry: _Entry) -> None:
-        self._check_thread()
-        for entries in (self._subs, self._live, self._queryables):
-            if entry in entries:
-                entries.remove(entry)
-                self._routes.clear()
-                return
-        if entry in self._token_entries:
-            self._token_entries.remove(entry)
-            count = self._tokens[entry.key_expr] - 1
-            if count:
-                self._tokens[entry.key_expr] = count
-            else:
-                del self._tokens[entry.key_expr]
-                self._liveliness_changed(entry.key_expr, alive=False)
-
-    def _liveliness_changed(self, key: str, *, alive: bool) -> None:
-        for watcher in list(self._live):
-            if intersects(key, watcher.key_expr):
-                watcher.callback(key, alive)
-
-    def _route(self, key: str) -> list[_Entry]:
-        route = self._routes.get(key)
-        if route is None:
-            route = [entry for entry in self._subs if intersects(entry.key_expr, key)]
-            self._routes[key] = route
-        return route
-
-    def _deliver(self, sender: InProcessConnection, key: str, payload: bytes) -> None:
-        self._check_thread()
-        for entry in self._route(key):
-            if entry.connection is not sender:
-                entry.callback(key, payload)
-
-    async def _get(self, key: str, payload: bytes, *, timeout_s: float) -> GetResult:
-        self._check_thread()
-        key_chunks(key)
-        targets = [q for q in self._queryables if intersects(q.key_expr, key)]
-        if not targets:
-            return GetResult(None, [])
-        assert self._loop is not None
-        get = _Get(self._loop.create_future(), outstanding=len(targets))
-        self._gets.add(get.future)
-        try:
-            for queryable in targets:
-                queryable.callback(_InProcessQuery(get, key, payload))
-            try:
-                return await asyncio.wait_for(asyncio.shield(get.future), timeout_s)
-            except TimeoutError:
-                return GetResult(None, list(get.errors))
-        finally:
-            self._gets.discard(get.future)
-
-    # -- for tests -----------------------------------------------------------------------------
-    def pending(self) -> bool:
-        """Whether a bus still holds samples or queries it has not handled, or a query waits
-        for its replies."""
-        return bool(self._gets) or any(c.pending() for c in self._connections)
-
-    async def settle(self, *, quiet_iterations: int = 5, max_iterations: int = 100_000) -> None:
-        """Run the loop until every delivery is done: no bus holds an undelivered sample or an
-        unanswered query, no query waits for replies, and that has held for
-        ``quiet_iterations`` loop iterations in a row (so a task woken by a handler — an event
-        it set, a future it resolved — gets to run, and what it publishes is delivered too).
-        No wall-clock time is involved. Raises :class:`SettleError` if the network is still
-        busy after ``max_iterations`` (something publishes forever)."""
-        quiet = 0
-        for _ in range(max_iterations):
-            await asyncio.sleep(0)
-            quiet = 0 if self.pending() else quiet + 1
-            if quiet >= quiet_iterations:
-                return
-        raise SettleError(f"the in-process network was still busy after {max_iterations} "
-                          f"loop iterations")

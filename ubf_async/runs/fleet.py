@@ -25,12 +25,12 @@ from msgspec import Meta
 from ubf_async.assembly.registry import SIMULATORS
 from ubf_async.assembly.robotfile import Robot, load_robot
 from ubf_async.assembly.simulation import FLAT_OUT, FleetMember, SimulationOptions
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
 from ubf_async.runs import inprocess, wiring
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.wire.protocol import Keys, ProtocolError
 
 MAX_ROBOTS = 32

@@ -1,7 +1,7 @@
 """One simulated run as a library call: :func:`run` (public as :mod:`ubf_async.experiment`).
 
 A simulated run is a pure function of (robot file, scenario, seed): simulated time advances in
-lockstep (:mod:`ubf_async.runtime.lockstep`), so the run is the same at any speed, on any
+lockstep (:mod:`ubf_async.clocks.lockstep`), so the run is the same at any speed, on any
 machine, under any load. :func:`run` runs it in the calling process, flat out, exactly as
 ``python -m ubf_async.launch ROBOT --scenario S --seed N --speed max`` does — the same wiring
 (:mod:`ubf_async.runs.wiring`), the same simulator — with three differences that change
@@ -31,13 +31,13 @@ from typing import Any
 from ubf_async.assembly.registry import SIMULATORS
 from ubf_async.assembly.robotfile import Robot, load_robot
 from ubf_async.assembly.simulation import SimulationOptions
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.net.transport import InProcessTransport
 from ubf_async.runs import wiring
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 
 SUMMARY_FILE = "summary.json"
 TRAJECTORY_FILE = "trajectory.csv"
@@ -86,7 +86,7 @@ def run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | None = N
     with ``pictures``, ``trajectory.png`` and camera frames).
 
     Raises :class:`~ubf_async.errors.UbfError` (a bad robot file, scenario or option) before
-    anything runs, and :class:`~ubf_async.runs.wiring.ShutdownError` if the run could not end
+    anything runs, and :class:`~ubf_async.errors.ShutdownError` if the run could not end
     cleanly. Called from a running event loop, it refuses (``RuntimeError``): use
     :func:`run_async`.
     """
@@ -156,7 +156,7 @@ def plan_run(robot: str | Path | Robot, scenario: str | Path, *, seed: int | Non
 
 async def run_plan(plan: wiring.RunPlan) -> RunResult:
     """A planned run (:func:`plan_run`) on the running loop, which must be a
-    :class:`~ubf_async.runtime.lending.LendingEventLoop`: the in-process transport, the
+    :class:`~ubf_async.runtime.lending.IdleEventLoop`: the in-process transport, the
     robot's wiring, until the run's duration; then its end, which saves the results."""
     clock = SimClock()
     robot_run = wiring.RobotRun.on(Bus(transport=InProcessTransport(), options=plan.connection,

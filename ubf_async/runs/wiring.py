@@ -25,21 +25,21 @@ from typing import Any, TextIO
 from ubf_async.assembly.robotfile import ResolvedDevice, Robot
 from ubf_async.assembly.simulation import (
     DeviceContext,
+    OpenSimulation,
     SimulationOptions,
-    SimulationRun,
     Simulator,
 )
 from ubf_async.cli import ending
-from ubf_async.errors import ConfigurationError, UbfError
+from ubf_async.clocks.clock import Clock, SimClock
+from ubf_async.clocks.simclock import follow_sim_clock
+from ubf_async.errors import ConfigurationError, ResultsNotSavedError, ShutdownError
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.runtime import lockstep
+from ubf_async.runtime import timekeepers
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Clock, SimClock
 from ubf_async.runtime.component import Component, HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
-from ubf_async.runtime.hostclock import RobotTimeBeacon
-from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.runtime.timekeepers import RobotTimeBeacon
 from ubf_async.services.live import TreeService
 from ubf_async.services.remote import RemoteBehaviors
 from ubf_async.services.status import planned_ticks
@@ -142,15 +142,6 @@ def simulation_plan(robot: Robot, options: SimulationOptions, *, simulator: Simu
                    connection=connection, seed_given=options.seed is not None)
 
 
-class ResultsNotSavedError(UbfError, OSError):
-    """The run's summary or recording could not be written at the end of the run; the summary
-    was printed instead (the message says where writing failed)."""
-
-
-class ShutdownError(UbfError):
-    """A step of the end failed (logged as it happened); everything else was still done."""
-
-
 @dataclass(slots=True, kw_only=True)
 class RobotRun:
     """What a run has opened so far: whatever ended the run, :func:`end` closes all of it."""
@@ -160,7 +151,7 @@ class RobotRun:
     health: HealthMonitor
     components: list[Component] = field(default_factory=list)
     """In the order they start; closed in the reverse order."""
-    sim_run: SimulationRun | None = None
+    sim_run: OpenSimulation | None = None
     controller: Controller | None = None
     aggregator: StateAggregator | None = None
     remotes: RemoteBehaviors | None = None
@@ -271,7 +262,7 @@ def add_clock_components(plan: RunPlan, run: RobotRun) -> None:
         run.components.append(RobotTimeBeacon(bus=run.bus))
     if plan.lockstep:  # last started: the simulator waits for it once all else runs
         assert run.controller is not None
-        run.components.append(lockstep.LockstepParticipant(bus=run.bus,
+        run.components.append(timekeepers.LockstepParticipant(bus=run.bus,
                                                            participant=run.controller.name))
     if run.sim_run is not None:
         run.sim_run.add_devices(run.devices)
@@ -351,7 +342,7 @@ async def end(run: RobotRun, out: TextIO, *, saving: bool = False) -> int:
     return EXIT_DEGRADED if degraded else 0
 
 
-def print_unsaved_summary(sim_run: SimulationRun, controller: Controller,
+def print_unsaved_summary(sim_run: OpenSimulation, controller: Controller,
                           done: ending.Ending, out: TextIO) -> None:
     """The results were not written (a full disk, a folder removed during the run, a write
     stuck past its bound): print the summary as JSON so they are not lost."""

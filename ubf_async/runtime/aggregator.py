@@ -43,11 +43,12 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 from ubf_async import throttle
+from ubf_async.clocks import clockdomain
+from ubf_async.clocks.clock import SilenceLimit
 from ubf_async.core.action import Action
 from ubf_async.core.state import Reading, State
-from ubf_async.runtime import clockdomain, refusals
+from ubf_async.runtime import refusals
 from ubf_async.runtime.bus import Bus, Subscription
-from ubf_async.runtime.clock import SilenceLimit
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
@@ -238,7 +239,7 @@ class StateAggregator(Component):
         """This run's subscription to the sensors (its ``stats``: the bridge's counts)."""
         self.clock_domain = clockdomain.watch(bus)
         """Samples stamped on another clock than the robot's, per source
-        (:mod:`ubf_async.runtime.clockdomain`; shared with everything else on this bus)."""
+        (:mod:`ubf_async.clocks.clockdomain`; shared with everything else on this bus)."""
         self.notices = refusals.notices_of(bus) if notify_refusals else None
         """Where refusals are told to their senders (``notify_refusals``)."""
 
@@ -429,12 +430,12 @@ class StateAggregator(Component):
     def is_stale(self, entry: SourceEntry, now_ns: int, wall_now_ns: int) -> bool:
         """Whether ``entry`` has been quiet beyond its limit: in robot time, or — so that a
         dead simulator cannot keep dead data fresh — in wall time while the clock's source is
-        silent, as :class:`~ubf_async.runtime.clock.SilenceLimit` rules."""
+        silent, as :class:`~ubf_async.clocks.clock.SilenceLimit` rules."""
         return self.stale_why(entry, now_ns, wall_now_ns) is not None
 
     def stale_why(self, entry: SourceEntry, now_ns: int, wall_now_ns: int) -> str | None:
         """``None`` for a fresh ``entry``; for a stale one, how long it has been quiet, in
-        the clock that made it stale (:meth:`~ubf_async.runtime.clock.SilenceLimit.overdue`)."""
+        the clock that made it stale (:meth:`~ubf_async.clocks.clock.SilenceLimit.overdue`)."""
         limit = self.limit_s(entry)
         if limit == math.inf:
             return None

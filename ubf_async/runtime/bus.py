@@ -1,11 +1,12 @@
-"""The bus: the bridge from the transport's threads into asyncio, and attaching to a robot.
+"""The bus: the bridge from the transport's threads into asyncio.
 
-How a session is configured (connection options, zenoh configuration, session errors) is
-:mod:`ubf_async.net.options`; the command-line flags that make them, :mod:`ubf_async.cli.args`.
-
-A :class:`Bus` moves its bytes through a transport (:mod:`ubf_async.net.transport`): a zenoh
-session (:meth:`Bus.open`, what runs) or the in-process transport (``Bus(transport=...)``,
-for unit tests). Everything below is the same on both.
+A :class:`Bus` moves its bytes through a transport, which opens and owns the session: zenoh
+(:meth:`Bus.open` → :meth:`ZenohTransport.open <ubf_async.net.transport.ZenohTransport.open>`,
+what runs) or the in-process transport (``Bus(transport=InProcessTransport())``,
+:mod:`ubf_async.net.inprocess`, for unit tests). Everything below is the same on both; the bus
+never imports zenoh. How a session is configured is :mod:`ubf_async.net.options`; the
+command-line flags that make them, :mod:`ubf_async.cli.args`; waiting for a robot to attach to,
+:mod:`ubf_async.cli.attach`.
 
 zenoh-python is synchronous and runs subscriber callbacks on its own threads. The bridge
 here is deliberate about that hand-off:
@@ -30,9 +31,9 @@ A handler that raises is logged with its traceback and counted; the subscription
 and ``bench/latency``.
 
 A **direct** subscription (``subscribe(..., direct=True)``: the state aggregator's) skips the
-hand-off when it can: on a
-:class:`~ubf_async.runtime.lending.LendingEventLoop` — the loop every entry point runs on — a sample
-that finds the loop idle and nothing of its subscription pending is drained at once on the
+hand-off when it can: on the opt-in lending loop (``UBF_LOOP=lending``,
+:mod:`ubf_async.runtime.lending`; the default loop lends nothing) a sample that finds the loop
+idle and nothing of its subscription pending is drained at once on the
 transport's thread, with the loop lent to it (:mod:`ubf_async.runtime.lending`): same handler, same
 order, same counters, one thread at a time, and no wake-up of the loop thread on the way — up
 to :data:`DIRECT_RATE_HZ` samples a second; a flood beyond it takes the usual road and
@@ -47,15 +48,15 @@ thread to get the GIL — which is what lets a simulated robot run several times
 real time without its own commands arriving late in simulated time. Semantics (latest/every,
 counters, handler errors) are the same for both paths.
 
-Queries take the same road: :meth:`Bus.declare_queryable` answers each query on the event
-loop (the transport's callback only hands it over), and :meth:`Bus.query` awaits the first
-reply without blocking the loop (zenoh's query runs in a worker thread).
+Queries take the same road (:mod:`ubf_async.runtime.queries`): :meth:`Bus.declare_queryable`
+answers each query on the event loop (the transport's callback only hands it over), and
+:meth:`Bus.query` awaits the first reply without blocking the loop (zenoh's query runs in a
+worker thread).
 """
 
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import itertools
 import logging
 import secrets
@@ -64,38 +65,19 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Generic, Protocol, Self, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
-import zenoh
-
-from ubf_async.errors import ConfigurationError, UbfError
-from ubf_async.net.options import (
-    DEFAULT_ROBOT,
-    START_ROBOT_HINT,
-    ConnectionOptions,
-    NoRobotError,
-    bind_free_ports,
-    endpoint_locators,
-    listening,
-    refused_error,
-    session_error,
-    zenoh_message,
-)
-from ubf_async.net.transport import (
-    Connection,
-    Declaration,
-    IncomingQuery,
-    Transport,
-    ZenohConnection,
-    ZenohTransport,
-    intersects,
-)
-from ubf_async.runtime import lending
-from ubf_async.runtime.clock import Clock, WallClock
+from ubf_async.clocks.clock import Clock, WallClock
+from ubf_async.errors import ConfigurationError
+from ubf_async.net.keyexpr import intersects
+from ubf_async.net.options import DEFAULT_ROBOT, ConnectionOptions, endpoint_locators
+from ubf_async.net.transport import Connection, Declaration, Transport, ZenohTransport
+from ubf_async.runtime import lending, queries
+from ubf_async.runtime.declared import Declared
+from ubf_async.runtime.queries import Queryable, QueryHandler
 from ubf_async.runtime.ratelimit import TokenBucket
 from ubf_async.wire.protocol import (
     INT64_MAX,
-    ROOT,
     Keys,
     Message,
     ProtocolError,
@@ -125,110 +107,7 @@ SampleHandler = Callable[[str, bytes, int], None]
 
 T = TypeVar("T")
 
-QueryHandler = Callable[[str, bytes], bytes]
-"""``handler(key, payload) -> reply payload`` — runs on the event loop (see
-:meth:`Bus.declare_queryable`)."""
 
-
-DEFAULT_ATTACH_TIMEOUT_S = 10.0
-
-CONNECT_GRACE_S = 2.0
-"""How long a peer's ``connect`` endpoint may stay unanswered before it is reported."""
-CONNECT_CHECK_S = 0.5
-"""How often the links to the ``connect`` endpoints are looked at."""
-CONNECT_REMIND_S = 60.0
-"""While an endpoint stays unanswered, the warning is repeated this often."""
-async def watch_connect_endpoints(bus: Bus, endpoints: list[str], *,
-                                  grace_s: float = CONNECT_GRACE_S,
-                                  check_s: float = CONNECT_CHECK_S,
-                                  remind_s: float = CONNECT_REMIND_S) -> None:
-    """Report, as warnings, the ``connect`` endpoints of a peer session that nothing answers
-    at (after ``grace_s``, then every ``remind_s``), and when one answers after all or its link
-    is lost; zenoh retries them meanwhile (:data:`RECONNECT_RETRY`). Runs until cancelled
-    (the bus closes)."""
-    connection = bus._connection
-    links = getattr(connection, "link_destinations", None)
-    if links is None:
-        return  # a transport without links to look at (the in-process one)
-    locators = {e: await asyncio.to_thread(endpoint_locators, e) for e in endpoints}
-    loop = asyncio.get_running_loop()
-    opened = loop.time()
-    up: dict[str, bool] = dict.fromkeys(endpoints, False)
-    warned_at: dict[str, float] = {}  # endpoints reported unanswered, and when last
-    ever_up: set[str] = set()
-    while True:
-        try:
-            destinations = set(links())
-        except Exception:  # a closing session: nothing left to watch
-            return
-        now = loop.time()
-        for endpoint in endpoints:
-            reached = bool(locators[endpoint] & destinations)
-            if reached and not up[endpoint]:
-                if endpoint in warned_at:
-                    log.warning("connected to %s%s", endpoint, " again" if endpoint in ever_up
-                                else f" after {now - opened:.0f} s")
-                    del warned_at[endpoint]
-                ever_up.add(endpoint)
-            elif not reached and up[endpoint]:
-                log.warning("lost the connection to %s: retrying until it answers again",
-                            endpoint)
-                warned_at[endpoint] = now
-            elif not reached and (
-                    (endpoint not in warned_at and now - opened >= grace_s)
-                    or (endpoint in warned_at and now - warned_at[endpoint] >= remind_s)):
-                if await asyncio.to_thread(listening, endpoint):
-                    # Something accepts TCP there and still no link: it refuses this session.
-                    log.warning("%s (--connect) does not let this session in after %.0f s: "
-                                "something listens there, as a robot in secure mode does to a "
-                                "process without valid credentials (docs/security.md); "
-                                "retrying every second", endpoint, now - opened)
-                else:
-                    log.warning("nothing answers at %s (--connect) after %.0f s: retrying "
-                                "every second until it does (%s)", endpoint, now - opened,
-                                START_ROBOT_HINT)
-                warned_at[endpoint] = now
-            up[endpoint] = reached
-        await asyncio.sleep(check_s)
-
-
-async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_S,
-                         any_robot: bool = False) -> None:
-    """For a process attaching to a running robot: wait until the session reaches another
-    zenoh node and one of the robot's components is alive there (its liveliness token
-    ``ubf/<robot>/alive/*``). Raises :class:`NoRobotError` after ``timeout_s``, saying whether
-    nothing answered at the endpoints or the robot there has another name, or
-    :class:`RefusedError` when something listens there but never let the session in.
-
-    Returns at once for a session that only listens (in ``peer`` mode without ``connect``
-    endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
-    anything. ``any_robot``: any robot's component will do (a tool looking at a fleet)."""
-    options = bus.options
-    if not options.connect and options.mode != "client":
-        return
-    where = " ".join(options.connect) or "(the configured router)"
-    deadline = time.monotonic() + timeout_s
-    reached = False
-    while True:
-        reached = reached or bus.reached_peers()
-        alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
-        if reached and await bus.alive_tokens(alive, timeout_s=1.0):
-            return
-        if time.monotonic() >= deadline:
-            break
-        await asyncio.sleep(0.05)
-    if not reached:
-        refused = await asyncio.to_thread(refused_error, options)
-        if refused is not None:
-            raise refused
-        raise NoRobotError(f"no robot to connect to: nothing answered at {where} within "
-                           f"{timeout_s:g}s ({START_ROBOT_HINT})")
-    seen = sorted({key.split("/")[1] for key in await bus.alive_tokens(
-        f"{ROOT}/*/alive/*", timeout_s=1.0)} - {bus.robot})
-    other = f"; robots there: {', '.join(seen)} (check --robot)" if seen else ""
-    raise NoRobotError(f"no robot {bus.robot!r} answered at {where} within {timeout_s:g}s: "
-                       f"a zenoh node is there, but none of the robot's components is alive"
-                       f"{other}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -313,30 +192,7 @@ class _Refused:
         self.error = error
 
 
-class _Declared:
-    """What :class:`Subscription` and :class:`Queryable` share: a declaration on the
-    transport, undone once on :meth:`close`, which also tells the bus (``_on_close``)."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._closed = False
-        self._declaration: Declaration | None = None
-        self._on_close: Callable[[Self], None] | None = None
-
-    def close(self: Self) -> None:
-        """Stop delivering samples or answering queries (queries still waiting get an error
-        reply); idempotent."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-        if self._on_close is not None:
-            self._on_close(self)
-        if self._declaration is not None:
-            self._declaration.undeclare()
-
-
-class Subscription(_Declared):
+class Subscription(Declared):
     """A subscriber whose samples are delivered on the event loop (the bridge): to
     ``handler(key, payload, received_ns)``, or through ``screen`` (:class:`Screen`) for a
     screened one."""
@@ -573,99 +429,6 @@ class Publisher:
         self._out.undeclare()
 
 
-class QueryError(UbfError, RuntimeError):
-    """A queryable answered with an error instead of a reply (see :meth:`Bus.query`)."""
-
-
-@dataclass
-class QueryStats:
-    received: int = 0
-    answered: int = 0
-    refused: int = 0
-    """Queries answered with an error at once because ``max_pending`` were waiting."""
-    handler_errors: int = 0
-
-
-class Queryable(_Declared):
-    """A queryable whose queries are answered on the event loop.
-
-    The transport's callback only takes the query (its payload already copied) and schedules
-    the answer on the loop (``call_soon_threadsafe`` from a zenoh thread, ``call_soon`` on the
-    loop's own); the handler runs there, so what it reads or changes is never touched by a
-    transport thread. Its return value is the reply; a handler that raises is logged and
-    counted, and the querier gets an error reply. At most ``max_pending`` queries wait for the
-    loop; more are refused with an error reply at once (a flood cannot queue up work).
-    """
-
-    def __init__(
-        self, loop: asyncio.AbstractEventLoop, key: str, handler: QueryHandler, *,
-        max_pending: int = 64, callbacks_on_loop: bool = False,
-    ) -> None:
-        super().__init__()
-        self.key = key
-        self._loop = loop
-        self._handler = handler
-        self._max_pending = max_pending
-        self._on_loop = callbacks_on_loop
-        self._pending = 0
-        self.stats = QueryStats()
-
-    @property
-    def pending(self) -> bool:
-        """Whether queries wait for the loop."""
-        return self._pending > 0
-
-    # transport thread --------------------------------------------------------------------
-    def on_query(self, query: IncomingQuery) -> None:
-        """The transport's callback: hand the query to the loop, never block."""
-        with self._lock:
-            self.stats.received += 1
-            refuse = "closed" if self._closed else (
-                "busy" if self._pending >= self._max_pending else "")
-            if refuse:
-                self.stats.refused += 1
-            else:
-                self._pending += 1
-        if refuse:
-            self._error(query, f"{self.key}: {refuse}, try again")
-            return
-        if self._on_loop:
-            self._loop.call_soon(self._answer, query)
-            return
-        try:
-            self._loop.call_soon_threadsafe(self._answer, query)
-        except RuntimeError:  # the loop is closed: nobody will answer
-            self._error(query, f"{self.key}: closed")
-
-    @staticmethod
-    def _error(query: IncomingQuery, text: str) -> None:
-        query.reply_err(text)
-        query.drop()
-
-    # event loop --------------------------------------------------------------------------
-    def _answer(self, query: IncomingQuery) -> None:
-        with self._lock:
-            self._pending -= 1
-            closed = self._closed
-        if closed:
-            self._error(query, f"{self.key}: closed")
-            return
-        try:
-            reply = self._handler(query.key, query.payload)
-        except Exception as exc:
-            self.stats.handler_errors += 1
-            log.exception("handler of queryable %s failed", self.key)
-            self._error(query, f"{self.key}: internal error: {type(exc).__name__}: {exc}")
-            return
-        try:
-            query.reply(self.key, reply)
-            self.stats.answered += 1
-        except Exception as exc:  # the transport's error (zenoh.ZError): the querier left
-            log.warning("cannot reply to a query on %s: %s", self.key, exc)
-        finally:
-            query.drop()
-
-
 class RawPublisher:
     """Puts payloads on one key as they are (:meth:`Bus.raw_publisher`)."""
 
@@ -734,57 +497,32 @@ class Bus:
         self._closed = False
         self._connection: Connection = transport.connect(loop=self._loop,
                                                          pending=self._has_pending)
-        self._connect_watch: asyncio.Task[None] | None = None
 
     @classmethod
     async def open(cls, options: ConnectionOptions, *, clock: Clock | None = None,
                    ordered: bool = False) -> Bus:
-        """Open a zenoh session (in a worker thread: opening can take a while) and a bus on it.
+        """A bus on a zenoh session the transport opens on ``options``
+        (:meth:`ZenohTransport.open <ubf_async.net.transport.ZenohTransport.open>`: what it
+        raises, and listen endpoints on port 0 given a free port first, so ``bus.options.listen``
+        names the ports really listened on).
 
         ``ordered``: samples of every key are handed to the loop in the order the sending
         session sent them (:class:`~ubf_async.net.transport.ZenohConnection`): for the processes
-        of a lockstep run.
-
-        Listen endpoints on port 0 get a free port first (:func:`bind_free_ports`), so
-        ``bus.options.listen`` names the ports really listened on. Raises
-        :class:`SessionError` with a one-line message (:class:`PortInUseError` for a port
-        taken, :class:`NoRobotError` when nothing answers a ``client``,
-        :class:`RefusedError` when something there refuses it)."""
-        options = dataclasses.replace(options, listen=bind_free_ports(options.listen))
-        try:
-            config = options.zenoh_config()
-        except zenoh.ZError as exc:
-            raise ConfigurationError(f"zenoh configuration: {zenoh_message(exc)}") from None
-        try:
-            session = await asyncio.to_thread(zenoh.open, config)
-        except zenoh.ZError as exc:
-            error = session_error(options, exc)
-            if isinstance(error, NoRobotError):  # or something there refused us
-                refused = await asyncio.to_thread(refused_error, options)
-                raise (refused or error) from None
-            raise error from None
-        bus = cls(transport=ZenohTransport(session, ordered=ordered), options=options,
-                  clock=clock)
-        if options.mode == "peer" and options.connect:
-            # A client fails to open when nothing answers; a peer opens all the same and
-            # zenoh keeps trying in the background: say so, as a robot should.
-            bus._connect_watch = asyncio.get_running_loop().create_task(
-                watch_connect_endpoints(bus, options.connect), name="ubf-connect-watch")
-        return bus
+        of a lockstep run."""
+        transport = await ZenohTransport.open(options, ordered=ordered)
+        assert transport.options is not None  # (open sets them)
+        return cls(transport=transport, options=transport.options, clock=clock)
 
     @property
     def robot(self) -> str:
         return self.options.robot
 
     @property
-    def session(self) -> zenoh.Session:
-        """The zenoh session under a bus made by :meth:`open` (tests and tools reach around
-        the bus with it); :class:`~ubf_async.errors.ConfigurationError` on another
-        transport."""
-        if isinstance(self._connection, ZenohConnection):
-            return self._connection.session
-        raise ConfigurationError(f"this bus runs on {type(self.transport).__name__}, not on a "
-                                 f"zenoh session")
+    def connection(self) -> Connection:
+        """This bus's connection on its transport (:class:`~ubf_async.net.transport.Connection`):
+        for a service speaking another protocol on the same network beside the bus (the ROS 2
+        bridge); what it declares there bypasses the bus (no hand-off, no rights checked)."""
+        return self._connection
 
     def _has_pending(self) -> bool:
         """Whether a subscription holds undelivered samples or a queryable unanswered
@@ -820,11 +558,11 @@ class Bus:
         (a subscriber of a topic wants :meth:`subscribe_topic`: garbage cannot displace its
         samples).
 
-        ``direct=True``: on a :class:`~ubf_async.runtime.lending.LendingEventLoop` (the one every
-        entry point runs on), a sample from another process that finds the loop idle is
-        handled at once on the transport's thread, with the loop lent to it, instead of
-        waking the loop thread (:mod:`ubf_async.runtime.lending`); for short handlers on a latency
-        path."""
+        ``direct=True``: on a :class:`~ubf_async.runtime.lending.LendingEventLoop` (opt-in,
+        ``UBF_LOOP=lending``; the default loop lends nothing), a sample from another process
+        that finds the loop idle is handled at once on the transport's thread, with the loop
+        lent to it, instead of waking the loop thread (:mod:`ubf_async.runtime.lending`); for
+        short handlers on a latency path."""
         return self._subscribe(key_expr, Subscription(
             self._loop, handler, latest=latest, max_queue=max_queue, name=key_expr,
             direct=direct))
@@ -931,15 +669,11 @@ class Bus:
         answered with an error. The loop is never blocked (zenoh's query runs in a worker
         thread), so a queryable on this same loop can answer it."""
         self.rights.check("query", key)
-        answer, errors = await self._connection.get(key, payload, timeout_s=timeout_s)
-        if answer is not None:
-            return answer
-        if errors:
-            raise QueryError("; ".join(errors))
-        raise TimeoutError(f"nothing answered a query on {key} within {timeout_s:g}s")
+        return await queries.query(self._connection, key, payload, timeout_s=timeout_s)
 
     def reached_peers(self) -> bool:
-        """Whether the transport reaches another node now (see :func:`wait_for_robot`)."""
+        """Whether the transport reaches another node now (see
+        :func:`ubf_async.cli.attach.wait_for_robot`)."""
         return self._connection.reached_peers()
 
     @property
@@ -971,13 +705,11 @@ class Bus:
         if self._closed:
             return
         self._closed = True
-        if self._connect_watch is not None:
-            self._connect_watch.cancel()
         for sub in list(self._subscriptions):
             sub.close()
         for queryable in list(self._queryables):
             queryable.close()
-        await self._connection.close()
+        await self._connection.aclose()
 
     async def __aenter__(self) -> Bus:
         return self

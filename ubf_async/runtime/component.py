@@ -37,7 +37,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from ubf_async.errors import ConfigurationError
+from ubf_async.clocks.port import Closing
+from ubf_async.errors import NameTakenError
 from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Screen, Subscription
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import (
@@ -57,10 +58,6 @@ HOST = socket.gethostname()[:253] or None
 """This host's name, as heartbeats name it."""
 MAX_WATCHED_COMPONENTS = 1024
 """Components the :class:`HealthMonitor` keeps track of (the oldest departed one goes first)."""
-
-
-class NameTakenError(ConfigurationError):
-    """A component name already alive on the robot (see :func:`ensure_name_free`)."""
 
 
 async def ensure_name_free(bus: Bus, name: str, *, hint: str = "", timeout_s: float = 2.0
@@ -106,7 +103,7 @@ class Component:
         """Set while :meth:`run` is executing (cleared between restarts)."""
         self._tasks: list[asyncio.Task[None]] = []
         self._token: Any = None
-        self._attempt_resources: list[Publisher | Subscription] = []
+        self._attempt_resources: list[Publisher | Closing] = []
         self._started = False
         self._closed = False
         self._on_close: list[Callable[[], Awaitable[object]]] = []
@@ -159,7 +156,7 @@ class Component:
         (:class:`~ubf_async.runtime.refusals.RefusalWatch`)."""
         return any(isinstance(r, Publisher) and r.key == key for r in self._attempt_resources)
 
-    def keep(self, resource: Publisher | Subscription) -> None:
+    def keep(self, resource: Publisher | Closing) -> None:
         """Close ``resource`` (made on another bus than the component's, say) when this run
         attempt ends, as :meth:`publisher` and :meth:`subscribe` do for theirs."""
         self._attempt_resources.append(resource)

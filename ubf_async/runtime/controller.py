@@ -71,12 +71,12 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from ubf_async import throttle
+from ubf_async.clocks.clock import Clock, WallClock, every
 from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior, Composite, Trace
 from ubf_async.core.state import State
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Clock, WallClock, every
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ratelimit import TokenBucket
@@ -285,7 +285,7 @@ class Controller(Component):
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
         self.host = socket.gethostname()[:253]
         """This host's name, in the status: with ``clock`` it tells a process attaching which
-        clock to stamp with (:func:`ubf_async.runtime.clockdomain.follow_robot_clock`)."""
+        clock to stamp with (:func:`ubf_async.clocks.follow.follow_robot_clock`)."""
         self.stats = TickStats()
         self.tree_changes: list[dict[str, Any]] = []
         """Live changes of the tree applied during the run (:meth:`tree_changed`)."""

@@ -27,13 +27,13 @@ exceptions: it must not rely on the identity of the thread it runs on
 should not add or remove the loop's readers and writers.
 
 Lending is opt-in (``UBF_LOOP=lending``, :func:`new_event_loop`): the entry points' default
-is the same class with lending off (:func:`new_idle_event_loop`), asyncio's selector loop plus
-:meth:`~LendingEventLoop.idle` — no other thread ever runs loop code. Measured in
+is its base, :class:`IdleEventLoop` (:func:`new_idle_event_loop`), asyncio's selector loop plus
+:meth:`~IdleEventLoop.idle` — no other thread ever runs loop code. Measured in
 ``python -m bench.latency --only loops`` (docs/latency.md, "Which event loop"), lending takes
 5-9 % off a reflex's median and nothing off its p99 (worse on a busy host): not worth being
 the mechanism every maintainer of async code must understand first.
 
-The same moment — the loop about to wait — is what :meth:`LendingEventLoop.idle` reports:
+The same moment — the loop about to wait — is what :meth:`IdleEventLoop.idle` reports:
 every task is blocked and no callback is ready, so whatever the caller's last step set off
 has run to its end. The simulator's lockstep barrier is built on it
 (:mod:`components.sim.runner.stepper`); asyncio's loop decides it (it asks its selector to wait
@@ -60,8 +60,8 @@ from typing import Any, TypeVarTuple
 
 Ts = TypeVarTuple("Ts")
 
-__all__ = ["LOOP_ENV", "LOOP_HELP", "LendingEventLoop", "idle_waiter", "new_event_loop",
-           "new_idle_event_loop", "run_if_idle"]
+__all__ = ["LOOP_ENV", "LOOP_HELP", "IdleEventLoop", "LendingEventLoop", "idle_waiter",
+           "new_event_loop", "new_idle_event_loop", "run_if_idle"]
 
 LOOP_ENV = "UBF_LOOP"
 """The environment variable that chooses the event loop (:func:`ubf_async.cli.run.loop_factory`)."""
@@ -90,27 +90,39 @@ def _take(lock: threading.Lock) -> None:
         raise interrupted
 
 
-class _LendingSelector(selectors.DefaultSelector):
-    """The platform's default selector, letting go of the run lock while it waits."""
+class _IdleSelector(selectors.DefaultSelector):
+    """The platform's default selector, telling its loop when it is about to wait."""
 
-    def __init__(self, loop: LendingEventLoop) -> None:
+    def __init__(self, loop: IdleEventLoop) -> None:
         super().__init__()
         self._loop = loop
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
-        if timeout is not None and timeout <= 0:  # a poll, not a wait: nothing to lend
+        if timeout is not None and timeout <= 0:  # a poll, not a wait: nothing to tell
             return super().select(timeout)
-        loop = self._loop
         # asyncio asks to wait only when no callback is ready: every task is blocked. Those
         # waiting for that moment (the simulator's step barrier) are woken instead of waiting.
-        if loop._wake_idle_waiters():
+        if self._loop._wake_idle_waiters():
             return super().select(0)
-        if not loop.lends:
-            return super().select(timeout)
+        return self._wait(timeout)
+
+    def _wait(self, timeout: float | None) -> list[tuple[selectors.SelectorKey, int]]:
+        return super().select(timeout)
+
+
+class _LendingSelector(_IdleSelector):
+    """:class:`_IdleSelector`, letting go of the run lock while it waits."""
+
+    def __init__(self, loop: LendingEventLoop) -> None:
+        super().__init__(loop)
+        self._lender = loop
+
+    def _wait(self, timeout: float | None) -> list[tuple[selectors.SelectorKey, int]]:
+        loop = self._lender
         loop._wanted = False
         loop._run_lock.release()
         try:
-            return super().select(timeout)
+            return super()._wait(timeout)
         finally:
             # No new borrower from now on: the loop thread waits for one at most, however
             # many threads bring samples (a flood must not starve the loop).
@@ -118,24 +130,17 @@ class _LendingSelector(selectors.DefaultSelector):
             _take(loop._run_lock)
 
 
-class LendingEventLoop(asyncio.SelectorEventLoop):
-    """asyncio's selector event loop, which other threads may borrow while it waits (module
-    docstring). Everything else is asyncio's own."""
+class IdleEventLoop(asyncio.SelectorEventLoop):
+    """asyncio's selector event loop that tells when it is idle (:meth:`idle`), nothing more:
+    the entry points' default (:func:`new_idle_event_loop`); no other thread ever runs loop
+    code."""
 
-    def __init__(self, *, lend: bool = True) -> None:
-        self.lends = lend
-        """Whether other threads may borrow the loop (:meth:`run_if_idle`). Without, this is
-        asyncio's selector loop that tells when it is idle (:meth:`idle`), nothing more."""
-        self._run_lock = threading.Lock()
-        self._run_lock.acquire()  # held except while the loop waits in select()
-        self._wanted = True
-        """The loop thread runs, or wants to: borrowers keep away."""
-        self._lent = False
-        self._scheduled_while_lent = False
-        self.lent_runs = 0
-        """Callbacks run by a borrowing thread so far."""
+    lends = False
+    """Whether other threads may borrow the loop (:class:`LendingEventLoop`)."""
+
+    def __init__(self, *, selector: selectors.BaseSelector | None = None) -> None:
         self._idle_waiters: list[asyncio.Future[None]] = []
-        super().__init__(selector=_LendingSelector(self))
+        super().__init__(selector=selector or _IdleSelector(self))
 
     async def idle(self) -> None:
         """Return once the loop has had nothing ready to run: every task is blocked (on a
@@ -160,6 +165,23 @@ class LendingEventLoop(asyncio.SelectorEventLoop):
                 waiter.set_result(None)
         return True
 
+class LendingEventLoop(IdleEventLoop):
+    """:class:`IdleEventLoop`, which other threads may borrow while it waits (module
+    docstring): opt-in, ``UBF_LOOP=lending`` (:func:`new_event_loop`)."""
+
+    lends = True
+
+    def __init__(self) -> None:
+        self._run_lock = threading.Lock()
+        self._run_lock.acquire()  # held except while the loop waits in select()
+        self._wanted = True
+        """The loop thread runs, or wants to: borrowers keep away."""
+        self._lent = False
+        self._scheduled_while_lent = False
+        self.lent_runs = 0
+        """Callbacks run by a borrowing thread so far."""
+        super().__init__(selector=_LendingSelector(self))
+
     # What a borrower schedules must wake the loop thread: it sleeps in select() with a
     # timeout computed before the borrower came. (call_later goes through call_at.)
     def call_soon(self, callback: Callable[[*Ts], object], *args: *Ts,
@@ -180,7 +202,7 @@ class LendingEventLoop(asyncio.SelectorEventLoop):
         the loop is busy, not running, closed or in debug mode. On the loop's own thread it
         always returns ``False`` (the loop is busy: it is running the caller). An exception
         from ``callback`` propagates to the caller, after the loop is given back."""
-        if (not self.lends or self._wanted or self.get_debug()
+        if (self._wanted or self.get_debug()
                 or not self._run_lock.acquire(blocking=False)):
             return False
         if self._wanted:  # the loop thread woke meanwhile: it goes first
@@ -213,20 +235,19 @@ def new_event_loop() -> LendingEventLoop:
     return LendingEventLoop()
 
 
-def new_idle_event_loop() -> LendingEventLoop:
-    """A new :class:`LendingEventLoop` that lends itself to no thread: asyncio's selector
-    loop plus :meth:`~LendingEventLoop.idle`, which simulated time's lockstep needs — the
+def new_idle_event_loop() -> IdleEventLoop:
+    """A new :class:`IdleEventLoop`, which lends itself to no thread: asyncio's selector
+    loop plus :meth:`~IdleEventLoop.idle`, which simulated time's lockstep needs — the
     default of every entry point (:func:`ubf_async.cli.run.loop_factory`)."""
-    return LendingEventLoop(lend=False)
+    return IdleEventLoop()
 
 
 def idle_waiter(loop: asyncio.AbstractEventLoop) -> Callable[[], Awaitable[None]] | None:
-    """``loop.idle`` for a :class:`LendingEventLoop`, ``None`` for any other loop (which
-    cannot tell when it has nothing left to run)."""
-    return loop.idle if isinstance(loop, LendingEventLoop) else None
+    """``loop.idle`` for an :class:`IdleEventLoop` (a :class:`LendingEventLoop` too),
+    ``None`` for any other loop (which cannot tell when it has nothing left to run)."""
+    return loop.idle if isinstance(loop, IdleEventLoop) else None
 
 
 def run_if_idle(loop: asyncio.AbstractEventLoop) -> Callable[..., bool] | None:
-    """``loop.run_if_idle`` for a :class:`LendingEventLoop` that lends, ``None`` for any
-    other loop."""
-    return loop.run_if_idle if isinstance(loop, LendingEventLoop) and loop.lends else None
+    """``loop.run_if_idle`` for a :class:`LendingEventLoop`, ``None`` for any other loop."""
+    return loop.run_if_idle if isinstance(loop, LendingEventLoop) else None

@@ -79,7 +79,7 @@ async def request(bus: Bus, data: Mapping[str, Any], *, timeout_s: float = 5.0,
     A query that nothing answers is sent again every ``retry_s`` until ``timeout_s`` has
     passed (a freshly connected session may not know the robot's queryable yet; unanswered,
     nothing was applied). Raises :class:`TimeoutError` if no robot answered,
-    :class:`~ubf_async.runtime.bus.QueryError` if it answered with an error instead of a reply, and
+    :class:`~ubf_async.errors.QueryError` if it answered with an error instead of a reply, and
     :class:`ProtocolError` for a malformed request or reply. A refusal is a reply: check
     ``reply["ok"]``."""
     payload = encode_request(data, stamp_ns=bus.clock.now_ns())

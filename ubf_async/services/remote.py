@@ -34,11 +34,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from ubf_async import throttle
+from ubf_async.clocks import clockdomain
 from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime import clockdomain, refusals
+from ubf_async.runtime import refusals
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.component import Component
@@ -395,7 +396,7 @@ class RemoteBehaviors(Component):
         self.future: dict[str, int] = {}
         """Votes refused for a stamp more than ``max_future_s`` ahead of the robot clock."""
         self.clock_domain = clockdomain.watch(bus)
-        """Votes stamped on another clock (:mod:`ubf_async.runtime.clockdomain`; shared with the
+        """Votes stamped on another clock (:mod:`ubf_async.clocks.clockdomain`; shared with the
         robot's aggregator on this bus)."""
         self.notices = refusals.notices_of(bus) if notify_refusals else None
         """Where refusals are told to their senders (``notify_refusals``)."""

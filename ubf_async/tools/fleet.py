@@ -48,6 +48,8 @@ from ubf_async.assembly.simulation import (
 )
 from ubf_async.cli.args import HelpFormatter, add_event_loop_help, add_secure_arguments
 from ubf_async.cli.run import run_main
+from ubf_async.clocks.clock import SimClock
+from ubf_async.clocks.simclock import follow_sim_clock
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import ConnectionOptions, over_tls
 from ubf_async.net.secure import FLEET, WORLD
@@ -57,9 +59,8 @@ from ubf_async.runs.fleet import (
     members_of,
     world_options,
 )
-from ubf_async.runtime.bus import ROOT, Bus
-from ubf_async.runtime.clock import SimClock
-from ubf_async.runtime.simclock import follow_sim_clock
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.keys import ROOT
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 

@@ -47,19 +47,19 @@ from ubf_async.assembly.robotfile import (
     builtin_robot_files,
     load_robot,
 )
-from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, SimulationRun, Simulator
+from ubf_async.assembly.simulation import FLAT_OUT, OpenSimulation, SimulationOptions, Simulator
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.run import check_lockstep_loop, run_main
+from ubf_async.clocks.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
 from ubf_async.net.secure import SecureSetup
 from ubf_async.runs import wiring
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import Clock, SimClock, WallClock
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
-from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.runtime.gcfreeze import freeze_startup_objects
 from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.services.liveview import FoxgloveServer
 from ubf_async.services.remote import remote_spec
@@ -453,7 +453,7 @@ def _print_started(plan: wiring.RunPlan, robot: Robot, out: TextIO) -> None:
 
 async def _run_until_done(
     args: argparse.Namespace, out: TextIO, robot: str, controller: Controller,
-    aggregator: StateAggregator, health: HealthMonitor, sim_run: SimulationRun | None,
+    aggregator: StateAggregator, health: HealthMonitor, sim_run: OpenSimulation | None,
 ) -> None:
     """Print the status line until the run's duration has passed (forever without one)."""
     wall_start = time.monotonic()

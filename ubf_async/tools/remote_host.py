@@ -16,13 +16,15 @@ from collections.abc import Callable
 from typing import TextIO
 
 from ubf_async.cli.args import add_connection_arguments, connection_options
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
+from ubf_async.clocks import follow
+from ubf_async.clocks.clock import Clock, WallClock
 from ubf_async.core.behavior import Behavior
 from ubf_async.errors import ConfigurationError
 from ubf_async.net.options import DEFAULT_LISTEN
-from ubf_async.runtime import clockdomain, lockstep, refusals
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, wait_for_robot
-from ubf_async.runtime.clock import Clock, WallClock
+from ubf_async.runtime import refusals, timekeepers
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import ensure_name_free
 from ubf_async.services.remote import DEFAULT_TTL_S, RemoteBehaviorHost, vote_key
 from ubf_async.wire.keys import Keys
@@ -76,7 +78,7 @@ def remote_parser(
     group.add_argument("--wait-for-robot-s", type=float, default=DEFAULT_ATTACH_TIMEOUT_S,
                        metavar="S", help="how long to wait for the robot to answer before "
                                          "giving up")
-    group.add_argument("--clock-wait-s", type=float, default=clockdomain.DEFAULT_CLOCK_WAIT_S,
+    group.add_argument("--clock-wait-s", type=float, default=follow.DEFAULT_CLOCK_WAIT_S,
                        help="with --clock auto: how long to wait for the robot to say which "
                             "clock it runs on (a running robot does within a second) before "
                             "stamping with this host's clock")
@@ -91,13 +93,13 @@ def remote_parser(
     return parser
 
 
-async def choose_clock(bus: Bus, mode: clockdomain.ClockMode, *,
-                       wait_s: float = clockdomain.DEFAULT_CLOCK_WAIT_S,
+async def choose_clock(bus: Bus, mode: follow.ClockMode, *,
+                       wait_s: float = follow.DEFAULT_CLOCK_WAIT_S,
                        say: Callable[[str], None] | None = None) -> Clock:
     """The clock a remote process stamps with (``wall``, ``sim`` or ``auto``): the robot's,
-    as :func:`ubf_async.runtime.clockdomain.follow_robot_clock` finds it (``say``: its lines for the
+    as :func:`ubf_async.clocks.follow.follow_robot_clock` finds it (``say``: its lines for the
     user). Sets ``bus.clock`` and returns it."""
-    return await clockdomain.follow_robot_clock(bus, mode=mode, wait_s=wait_s, say=say)
+    return await follow.follow_robot_clock(bus, mode=mode, wait_s=wait_s, say=say)
 
 
 async def host_remote_behavior(
@@ -116,7 +118,7 @@ async def host_remote_behavior(
     rights.check("liveliness_token", keys.alive(behavior.name))
     bus = await Bus.open(options, clock=WallClock(), ordered=args.lockstep)
     host: RemoteBehaviorHost | None = None
-    participant: lockstep.LockstepParticipant | None = None
+    participant: timekeepers.LockstepParticipant | None = None
     refusals_watch: refusals.RefusalWatch | None = None
 
     def say(line: str) -> None:
@@ -148,7 +150,7 @@ async def host_remote_behavior(
         refusals_watch.start()
         await host.start()
         if args.lockstep:
-            participant = lockstep.LockstepParticipant(bus=bus, participant=host.name)
+            participant = timekeepers.LockstepParticipant(bus=bus, participant=host.name)
             await participant.start()
         started = time.monotonic()
         last = 0.0

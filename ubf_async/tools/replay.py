@@ -31,7 +31,7 @@ subscribers known when it is put, so a replay into nobody would publish into the
 report success. Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
 
 In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
-the re-run's :class:`~ubf_async.runtime.clock.SimClock` and a ``settle`` (the in-process
+the re-run's :class:`~ubf_async.clocks.clock.SimClock` and a ``settle`` (the in-process
 transport's), :func:`replay` advances the clock to each message's time itself and waits until
 everything
 delivered has been handled — a deterministic re-run, tick for tick.
@@ -56,12 +56,13 @@ from typing import IO, TYPE_CHECKING
 
 from ubf_async import extras
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
-from ubf_async.errors import ConfigurationError
-from ubf_async.net.options import DEFAULT_LISTEN, NoRobotError
-from ubf_async.net.transport import intersects
-from ubf_async.runtime.bus import DEFAULT_ATTACH_TIMEOUT_S, Bus, RawPublisher, wait_for_robot
-from ubf_async.runtime.clock import SimClock
+from ubf_async.clocks.clock import SimClock
+from ubf_async.errors import ConfigurationError, NoRobotError
+from ubf_async.net.keyexpr import intersects
+from ubf_async.net.options import DEFAULT_LISTEN
+from ubf_async.runtime.bus import Bus, RawPublisher
 
 if TYPE_CHECKING:
     from mcap.reader import McapReader
@@ -530,7 +531,7 @@ async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
                              settle_s: float = SETTLE_S, poll_s: float = 0.01) -> list[str]:
     """Wait until something subscribes to ``keys``: return as soon as every key has a
     subscriber, or ``settle_s`` after the first one had (the keys still without one are
-    returned). :class:`~ubf_async.net.options.NoRobotError` when none has after ``timeout_s``.
+    returned). :class:`~ubf_async.errors.NoRobotError` when none has after ``timeout_s``.
 
     zenoh delivers a sample only to the subscribers its publisher knows when it is put
     (declarations travel asynchronously), so a replay that started before the robot's

@@ -14,11 +14,12 @@ from collections.abc import Sequence
 
 from ubf_async.cli import attach
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
+from ubf_async.cli.attach import wait_for_robot
 from ubf_async.cli.run import run_main
+from ubf_async.clocks import follow
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.net.secure import ROS2_BRIDGE
-from ubf_async.runtime import clockdomain
-from ubf_async.runtime.bus import Bus, wait_for_robot
+from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import ensure_name_free
 from ubf_async.services.ros2 import messages as rm
 from ubf_async.services.ros2.bridge import DEFAULT_UNITS, Ros2Bridge, Ros2Settings
@@ -81,7 +82,7 @@ async def serve(args: argparse.Namespace, settings: Ros2Settings) -> int:
     bus = await Bus.open(connection_options(args))
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
-        clock = await clockdomain.follow_robot_clock(bus, mode="auto")
+        clock = await follow.follow_robot_clock(bus, mode="auto")
         await ensure_name_free(bus, args.name, hint="start it with another --name")
         bridge = Ros2Bridge(bus=bus, settings=settings, name=args.name)
         await bridge.start()
@@ -89,7 +90,7 @@ async def serve(args: argparse.Namespace, settings: Ros2Settings) -> int:
             print(f"ROS 2 bridge of robot {bus.robot!r}: node "
                   f"{bridge.namespace.rstrip('/')}/{settings.node}, domain "
                   f"{settings.domain_id}, {settings.distro}; clock: "
-                  f"{clockdomain.describe(clock, robot=bus.robot)}", flush=True)
+                  f"{follow.describe(clock, robot=bus.robot)}", flush=True)
             status = asyncio.create_task(report(bridge, args.status_period_s))
             try:
                 await attach.run_until_stopped(args.duration)

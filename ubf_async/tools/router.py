@@ -35,7 +35,8 @@ from ubf_async.cli.args import HelpFormatter, add_event_loop_help, add_secure_ar
 from ubf_async.cli.run import run_main
 from ubf_async.net.options import ConnectionOptions, load_zenoh_config, over_tls
 from ubf_async.net.secure import ROUTER
-from ubf_async.runtime.bus import ROOT, Bus
+from ubf_async.runtime.bus import Bus
+from ubf_async.wire.keys import ROOT
 
 PROG = "python -m ubf_async.router"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"

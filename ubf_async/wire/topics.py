@@ -282,10 +282,11 @@ class Heartbeat(Data, frozen=True, kw_only=True):
     """Optional: the host the component runs on."""
 
 
-class Clock(Data, frozen=True, kw_only=True):
-    """The simulator's time is the envelope's ``stamp_ns``; ``epoch`` names the run, ``zid``
-    (optional) the zenoh session publishing it, so that a follower can tell the run of the
-    robot it connected to from others that reach it."""
+class SimTime(Data, frozen=True, kw_only=True):
+    """A simulator's time (the message on ``ubf/<robot>/clock``; the clock a process stamps
+    with is :class:`ubf_async.clocks.clock.Clock`): the envelope's ``stamp_ns``; ``epoch``
+    names the run, ``zid`` (optional) the zenoh session publishing it, so that a follower can
+    tell the run of the robot it connected to from others that reach it."""
 
     real_time_factor: Annotated[float, Meta(ge=0.0, le=1e6)] | None = None
     epoch: Annotated[str, Meta(max_length=64)] | None = None
@@ -299,7 +300,7 @@ class LockstepAck(Data, frozen=True, kw_only=True):
 
 class RobotTime(Data, frozen=True, kw_only=True):
     """The robot host's clock (``CLOCK_MONOTONIC``) is the envelope's ``stamp_ns``; a process
-    on another host learns its offset from it (:mod:`ubf_async.runtime.hostclock`)."""
+    on another host learns its offset from it (:mod:`ubf_async.clocks.hostclock`)."""
 
     host: Annotated[str, Meta(max_length=253)] | None = None
 
@@ -362,7 +363,10 @@ class SimTruth(Data, frozen=True, kw_only=True):
     ball: TruthBall | None = None
 
 
-class ArbiterSpec(Data, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class TreeArbiter(Data, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """An arbiter with parameters in a :class:`TreeRequest` (``set_arbiter``); a robot file's
+    is :class:`ubf_async.assembly.robotfile.ArbiterSpec`."""
+
     type: Annotated[str, Meta(max_length=200)]
     params: dict[Annotated[str, Meta(max_length=MAX_NAME_CHARS)], Any] = {}
     """Plain values (checked by :func:`plain`); the arbiter's factory types them."""
@@ -388,7 +392,7 @@ class TreeRequest(Data, frozen=True, kw_only=True, forbid_unknown_fields=True):
     op: Literal["show", "set_arbiter", "set_child", "load"]
     composite: Name | None = None
     child: Name | None = None
-    arbiter: Annotated[str, Meta(max_length=200)] | ArbiterSpec | None = None
+    arbiter: Annotated[str, Meta(max_length=200)] | TreeArbiter | None = None
     priority: Priority | None = None
     weight: Weight | None = None
     tree: Any = None
@@ -616,7 +620,7 @@ LEDS = Topic("leds", "cmd/leds", "leds", Leds, "which LEDs are lit")
 
 HEARTBEAT = Topic("heartbeat", HEARTBEAT_PATTERN, "heartbeat", Heartbeat,
                   "a component's heartbeat")
-CLOCK = Topic("clock", CLOCK_PATTERN, "clock", Clock,
+CLOCK = Topic("clock", CLOCK_PATTERN, "clock", SimTime,
               "simulated time (absent on wall-clock robots)")
 LOCKSTEP_ACK = Topic("lockstep_ack", "lockstep/{participant}", "lockstep.ack", LockstepAck,
                      "a lockstep participant's acknowledgement of a simulated instant "

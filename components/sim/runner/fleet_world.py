@@ -33,11 +33,11 @@ from ubf_async.assembly.simulation import (
     describe_speed,
 )
 from ubf_async.cli import ending
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError, ScenarioError
 from ubf_async.runtime.bus import Bus
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
-from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.runtime.gcfreeze import freeze_startup_objects
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 

@@ -1,6 +1,6 @@
 """One simulated run of the Mini-WHEGS, as launch drives it through the simulator seam.
 
-:class:`SimulationRun` implements :class:`ubf_async.assembly.simulation.SimulationRun` (the
+:class:`SimulationRun` implements :class:`ubf_async.assembly.simulation.OpenSimulation` (the
 :class:`~components.sim.plugin.MiniWhegsSimulator` plug-in's ``open()`` builds it from
 :class:`~ubf_async.assembly.simulation.SimulationOptions`): the world the simulated device backends
 are given, the simulator component, simulated time, the status-line suffix and, at the end, the
@@ -53,9 +53,9 @@ from components.sim.world.physics import World, wrap_angle
 from components.sim.world.snapshot import WorldSnapshot
 from ubf_async import __version__
 from ubf_async.assembly.simulation import FLAT_OUT, SimulationOptions, describe_speed
+from ubf_async.clocks.clock import SimClock, every
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.bus import Bus, Subscription
-from ubf_async.runtime.clock import SimClock, every
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
 from ubf_async.wire.protocol import Message

@@ -2,10 +2,10 @@
 
 :class:`SimulatorComponent` steps the :class:`~components.sim.world.physics.World` in fixed steps,
 paced to ``speed`` × real time (``--speed K``), advances the shared
-:class:`~ubf_async.runtime.clock.SimClock` of its process and publishes the time on
+:class:`~ubf_async.clocks.clock.SimClock` of its process and publishes the time on
 ``ubf/<robot>/clock`` so components in other processes follow it, with this run's random
 ``epoch`` (a new one for each simulator component: followers tell runs apart by it, see
-:mod:`ubf_async.runtime.timesource`). It also publishes ground
+:mod:`ubf_async.clocks.timesource`). It also publishes ground
 truth (robot pose, ball position) on ``ubf/<robot>/sim/truth`` — outside ``sensor/``, so
 behaviours never see it; tests and tools do — and the whole world snapshot on
 ``ubf/<robot>/sim/world``, from which sim-backed devices started in other processes
@@ -15,12 +15,12 @@ on ``ubf/<robot>/sim/pulses``.
 Lockstep: simulated time is a barrier, not a race. Before each 5 ms step the simulator waits
 (:meth:`SimulatorComponent._barrier`) until everything of the current instant is done: its
 process's event loop had nothing left to run
-(:meth:`~ubf_async.runtime.lending.LendingEventLoop.idle` — a periodic wake-up, the samples it
+(:meth:`~ubf_async.runtime.lending.IdleEventLoop.idle` — a periodic wake-up, the samples it
 publishes, a reflex tick and the drive command it sends have all run, however many loop
 iterations that took on however slow a machine), no component of the process
-:meth:`holds <ubf_async.runtime.clock.SimClock.hold>` the clock (the camera while it renders a
+:meth:`holds <ubf_async.clocks.clock.SimClock.hold>` the clock (the camera while it renders a
 frame, the recorder while it writes one), and every lockstep participant of another process has
-acknowledged the instant (:mod:`ubf_async.runtime.lockstep`). Only then does time advance, so a run
+acknowledged the instant (:mod:`ubf_async.clocks.lockstep`). Only then does time advance, so a run
 gives the same result at any speed, on any machine, under any load; simulated time starts
 once the holds taken at the start are released (and, if asked, the participants joined).
 
@@ -62,10 +62,11 @@ from components.devices import KINDS, make_backend, make_device
 from components.sim.world.physics import World
 from components.sim.world.snapshot_data import snapshot_to_data
 from ubf_async.assembly.context import DeviceContext
+from ubf_async.clocks import lockstep
+from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
-from ubf_async.runtime import lending, lockstep
+from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus, Publisher
-from ubf_async.runtime.clock import SimClock
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD, SimPulses
@@ -132,7 +133,7 @@ class SimulatorComponent(Component):
         ``more_robots[i - 1]``, a bus of that robot's name sharing ``clock``): each gets the
         clock, its truth and its view of the world on its own keys, and its pulses from
         there. ``lockstep_participants``: simulated time starts only once this many lockstep
-        participants of other processes have joined (:mod:`ubf_async.runtime.lockstep`), so a run
+        participants of other processes have joined (:mod:`ubf_async.clocks.lockstep`), so a run
         with them is repeatable from its first instant."""
         super().__init__(bus=bus, name=name, **component_options)
         if lockstep_participants < 0:
@@ -333,15 +334,15 @@ class SimulatorComponent(Component):
         wait. In order:
 
         1. everything of the current instant in this process is done: the event loop had
-           nothing left to run (:meth:`~ubf_async.runtime.lending.LendingEventLoop.idle`) and no
+           nothing left to run (:meth:`~ubf_async.runtime.lending.IdleEventLoop.idle`) and no
            hold forbids ``next_ns`` (a camera render, a frame being written, a device
            getting ready) — while a hold keeps it waiting, the clock sample is sent again
-           every :data:`~ubf_async.runtime.lockstep.RESEND_S` of wall time, so followers in other
-           processes know the simulator is alive (:class:`~ubf_async.runtime.clock.SilenceLimit`);
+           every :data:`~ubf_async.clocks.lockstep.RESEND_S` of wall time, so followers in other
+           processes know the simulator is alive (:class:`~ubf_async.clocks.clock.SilenceLimit`);
         2. the clock sample of this instant goes out to the processes that follow it — after
            the samples of this instant, which zenoh delivers first;
         3. every lockstep participant of another process has acknowledged this instant
-           (:mod:`ubf_async.runtime.lockstep`), and what they sent for it has been handled here.
+           (:mod:`ubf_async.clocks.lockstep`), and what they sent for it has been handled here.
         """
         idle = self._idle
         assert idle is not None, "run() sets it"
@@ -364,7 +365,7 @@ class SimulatorComponent(Component):
     async def _wait_for_participants(self, served: list[_Served]) -> None:
         """Before time starts: until :attr:`lockstep_participants` participants have joined
         and acknowledged the start (the clock sample is sent again meanwhile, so they find
-        it), or :data:`~ubf_async.runtime.lockstep.JOIN_WAIT_S` has passed (then with a warning)."""
+        it), or :data:`~ubf_async.clocks.lockstep.JOIN_WAIT_S` has passed (then with a warning)."""
         barrier = self._lockstep
         log.info("simulated time waits for %d lockstep participant(s)",
                  self.lockstep_participants)

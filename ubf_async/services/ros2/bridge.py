@@ -26,6 +26,11 @@ logged the first time for each source, never applied.
 Stamps: header stamps are the robot clock's — simulated time on a simulated robot (with
 ``/clock`` for ``use_sim_time``), else the robot host's ``CLOCK_MONOTONIC`` moved onto the
 wall clock (ROS time) by one offset taken at start. ``ubf/trace`` says which (``clock``).
+
+Transport: the bridge speaks rmw_zenoh's wire format on the bus's own session, through the
+transport seam (:attr:`Bus.connection <ubf_async.runtime.bus.Bus.connection>`: publishers and
+subscribers with attachments, liveliness tokens); it never imports zenoh. rmw_zenoh names a node
+by its zenoh session, so the bridge needs a transport whose connections have ids (zenoh's).
 """
 
 from __future__ import annotations
@@ -41,12 +46,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import zenoh
-
 from ubf_async import throttle
 from ubf_async.assembly.robotfile import RemoteSlot, Ros2Spec
 from ubf_async.core.action import Action
-from ubf_async.net.transport import CALLBACK_END_WAIT_S, CallbackEnd
+from ubf_async.errors import ConfigurationError
+from ubf_async.net.transport import AsyncDeclaration, Declaration
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.runtime.component import Component
 from ubf_async.services.remote import vote_data
@@ -138,13 +142,13 @@ class RosPublisher:
                                codec.hash(ros_type))
         self.gid = rk.new_gid()
         self.seq = 0
-        session = bridge.bus.session
-        self._publisher = session.declare_publisher(self.key,
-                                                    encoding=zenoh.Encoding.APPLICATION_CDR)
+        connection = bridge.bus.connection
+        self._publisher = connection.declare_attachment_publisher(self.key,
+                                                                  encoding=rk.CDR_ENCODING)
         self.token_key = bridge.ros_node.endpoint_token(
             rk.PUBLISHER, bridge.next_entity_id(), self.topic, ros_type, codec.hash(ros_type),
             qos)
-        self._token = session.liveliness().declare_token(self.token_key)
+        self._token = connection.declare_token(self.token_key)
         self.sent = 0
 
     def put(self, payload: bytes) -> None:
@@ -154,9 +158,8 @@ class RosPublisher:
         self.sent += 1
 
     def close(self) -> None:
-        for undeclare in (self._token.undeclare, self._publisher.undeclare):
-            with contextlib.suppress(zenoh.ZError):
-                undeclare()
+        self._token.undeclare()  # (both idempotent, harmless on a closed session)
+        self._publisher.undeclare()
 
 
 @dataclass
@@ -186,7 +189,12 @@ class Ros2Bridge(Component):
         self._pending = 0
         self._pending_lock = threading.Lock()
         self._pubs: dict[str, RosPublisher] = {}
-        bus.session  # noqa: B018 -- a ConfigurationError now for a bus without zenoh
+        session_id = bus.connection.session_id()
+        if session_id is None:
+            raise ConfigurationError(f"the ROS 2 bridge names its node by the zenoh session: "
+                                     f"this bus runs on {type(bus.transport).__name__}, not on "
+                                     f"a zenoh session")
+        self.session_id = session_id
         # The robot clock (this host's CLOCK_MONOTONIC, or the robot host's followed from
         # here) onto the wall clock, once: ROS time is wall time.
         self._wall_offset_ns = 0 if bus.clock.is_simulated else (
@@ -199,7 +207,7 @@ class Ros2Bridge(Component):
         self._ros_subscribers: dict[str, set[str]] = {}
         self._ros_drivers: set[str] = set()
         self._vote_pub: Publisher | None = None
-        self._slot_token: Any = None
+        self._slot_token: Declaration | None = None
         self._last_vote_ns: int | None = None
         self._on_demand_subs: dict[str, Subscription] = {}
         self.in_key = ""
@@ -232,15 +240,14 @@ class Ros2Bridge(Component):
     # -- run ---------------------------------------------------------------------------------
     async def run(self) -> None:
         self._loop = asyncio.get_running_loop()
-        session = self.bus.session
+        connection = self.bus.connection
         settings = self.settings
-        self.ros_node = rk.Node(settings.domain_id, str(session.info.zid()), 0, self.namespace,
+        self.ros_node = rk.Node(settings.domain_id, self.session_id, 0, self.namespace,
                                 settings.node)
-        liveliness = session.liveliness()
-        node_token = liveliness.declare_token(self.ros_node.token())
+        node_token = connection.declare_token(self.ros_node.token())
         cmd_in = rk.qualify(self.namespace, settings.cmd_vel_in)
-        declared: list[Any] = [node_token]
-        inbound_end: CallbackEnd | None = None
+        declared: list[Declaration] = [node_token]
+        inbound: AsyncDeclaration | None = None
         try:
             # Outbound: declared before any sample flows.
             self.ros_publisher("cmd_vel", rm.TWIST)
@@ -260,16 +267,17 @@ class Ros2Bridge(Component):
             # Inbound: cmd_vel_in's MS token, its data key (any type and hash: a wrong one is
             # seen, and refused), and its ROS publishers' MP tokens.
             twist_hash = self.codec.hash(rm.TWIST)
-            declared.append(liveliness.declare_token(self.ros_node.endpoint_token(
+            declared.append(connection.declare_token(self.ros_node.endpoint_token(
                 rk.SUBSCRIPTION, self.next_entity_id(), cmd_in, rm.TWIST, twist_hash)))
             self._vote_pub = self.publisher(VOTE, composite=settings.composite,
                                                behavior=settings.slot)
             self.in_key = rk.data_key(settings.domain_id, cmd_in, rm.TWIST, twist_hash)
             self._in_prefix = f"{settings.domain_id}/{cmd_in.lstrip('/')}/"
-            # On zenoh's own thread (it only copies and hands over); waited for once
-            # undeclared, so no call is left to enter Python (transport.CallbackEnd).
-            handler, inbound_end = CallbackEnd.handler(self._on_zenoh, on_zenoh_thread=True)
-            declared.append(session.declare_subscriber(self._in_prefix + "**", handler))
+            # On the transport's thread (it only copies and hands over); waited for once
+            # undeclared, so no call is left to enter Python (AsyncDeclaration.aclose).
+            inbound = connection.declare_attachment_subscriber(self._in_prefix + "**",
+                                                               self._on_transport_sample)
+            declared.append(inbound)
             self.keep(self.bus.watch_liveliness(
                 rk.endpoints_of(settings.domain_id, rk.PUBLISHER, cmd_in, rm.TWIST),
                 self._on_driver))
@@ -291,11 +299,9 @@ class Ros2Bridge(Component):
             self._ros_drivers.clear()
             self._vote_pub = None
             for declaration in reversed(declared):
-                with contextlib.suppress(zenoh.ZError):
-                    declaration.undeclare()
-            if inbound_end is not None and not inbound_end.dropped.is_set():
-                await asyncio.to_thread(inbound_end.wait,
-                                        time.monotonic() + CALLBACK_END_WAIT_S)
+                declaration.undeclare()  # (idempotent, harmless on a closed session)
+            if inbound is not None:
+                await inbound.aclose()
 
     # -- outbound ----------------------------------------------------------------------------
     def _on_drive(self, key: str, payload: bytes, received_ns: int) -> None:
@@ -438,8 +444,8 @@ class Ros2Bridge(Component):
                 sub.close()
 
     # -- inbound -----------------------------------------------------------------------------
-    def _on_zenoh(self, sample: zenoh.Sample) -> None:
-        """On a zenoh thread: copy, bound, hand to the loop."""
+    def _on_transport_sample(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+        """On the transport's thread: bound, hand to the loop."""
         loop = self._loop
         if loop is None:
             return
@@ -448,11 +454,8 @@ class Ros2Bridge(Component):
                 self.inbound.refused["overflow"] += 1
                 return
             self._pending += 1
-        attachment = sample.attachment
-        args = (str(sample.key_expr), sample.payload.to_bytes(),
-                None if attachment is None else attachment.to_bytes())
         with contextlib.suppress(RuntimeError):  # the loop is closing
-            loop.call_soon_threadsafe(self._on_sample, *args)
+            loop.call_soon_threadsafe(self._on_sample, key, payload, attachment)
 
     def _on_sample(self, key: str, payload: bytes, attachment: bytes | None) -> None:
         with self._pending_lock:
@@ -523,7 +526,6 @@ class Ros2Bridge(Component):
                 self._vote_pub.publish(vote_data(None, ttl_s=self.settings.ttl_s))
             except Exception:  # closing: the token going detaches the vote anyway
                 log.debug("abstaining vote not sent", exc_info=True)
-        with contextlib.suppress(zenoh.ZError):
-            self._slot_token.undeclare()
+        self._slot_token.undeclare()  # (idempotent, harmless on a closed session)
         self._slot_token = None
         self._last_vote_ns = None

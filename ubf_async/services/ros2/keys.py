@@ -29,6 +29,8 @@ NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 GID_SIZE = 16
 ATTACHMENT = struct.Struct("<qqB16s")
 ATTACHMENT_SIZE = ATTACHMENT.size  # 33
+CDR_ENCODING = "application/cdr"
+"""The encoding of rmw_zenoh's samples (zenoh's name for it)."""
 DEFAULT_QOS = "::,10:,:,:,,"
 """rmw_zenoh's QoS field for the default profile (reliable, volatile, keep last 10): every
 field equal to the default is left empty."""

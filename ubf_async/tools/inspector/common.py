@@ -10,7 +10,7 @@ from typing import Any
 
 import msgspec
 
-from ubf_async.net.transport import intersects
+from ubf_async.net.keyexpr import intersects
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.wire import topics
 from ubf_async.wire.protocol import Keys, Message, decode

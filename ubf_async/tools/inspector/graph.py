@@ -15,7 +15,7 @@ from typing import Any, TextIO
 
 import msgspec
 
-from ubf_async.net.transport import intersects
+from ubf_async.net.keyexpr import intersects
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.tools.inspector import common, samples

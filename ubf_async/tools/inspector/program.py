@@ -10,9 +10,10 @@ from collections.abc import Sequence
 from typing import TextIO
 
 from ubf_async.cli.args import connection_options
+from ubf_async.cli.attach import wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.errors import UbfError
-from ubf_async.runtime.bus import Bus, wait_for_robot
+from ubf_async.runtime.bus import Bus
 from ubf_async.tools.inspector import graph, parser, pub, samples, state, tree
 
 

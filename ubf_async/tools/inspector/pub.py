@@ -14,7 +14,7 @@ from typing import Any, TextIO
 import yaml
 
 from ubf_async.cli.run import STOP_SIGNALS
-from ubf_async.runtime import clockdomain
+from ubf_async.clocks import follow
 from ubf_async.runtime.bus import Bus
 from ubf_async.tools.inspector import common
 from ubf_async.wire import topics
@@ -74,7 +74,7 @@ async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         print("error: --count must be at least 1", file=sys.stderr)
         return 2
     count = args.count if args.count is not None else (None if args.rate else 1)
-    await clockdomain.follow_robot_clock(bus, mode="auto")
+    await follow.follow_robot_clock(bus, mode="auto")
     publisher = bus.publisher(key, schema)
     with contextlib.suppress(TimeoutError):  # nobody listening yet: publish all the same
         await publisher.wait_for_subscribers(timeout_s=min(args.timeout, 2.0))

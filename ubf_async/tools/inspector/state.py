@@ -11,7 +11,7 @@ import time
 from collections.abc import Awaitable, Callable
 from typing import Any, TextIO
 
-from ubf_async.runtime import clockdomain
+from ubf_async.clocks import clockdomain
 from ubf_async.runtime.bus import Bus
 from ubf_async.services.status import tick_rates
 from ubf_async.tools.inspector import common
@@ -92,7 +92,7 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
 
 
 def format_clock_domain(foreign: Any) -> list[str]:
-    """The status's ``clock_domain`` (:mod:`ubf_async.runtime.clockdomain`): sources whose stamps
+    """The status's ``clock_domain`` (:mod:`ubf_async.clocks.clockdomain`): sources whose stamps
     are on another clock than the robot's, so their ages mean nothing."""
     if not isinstance(foreign, list) or not foreign:
         return []

@@ -11,7 +11,8 @@ from typing import Any, TextIO
 
 import yaml
 
-from ubf_async.runtime.bus import Bus, QueryError
+from ubf_async.errors import QueryError
+from ubf_async.runtime.bus import Bus
 from ubf_async.services.live import encode_request, render_tree_data
 from ubf_async.services.live import request as tree_request
 from ubf_async.tools.inspector import common, state

@@ -9,7 +9,7 @@ Every stamp and every periodic wait in the runtime goes through a :class:`Clock`
   simulator in the same process or by samples on ``ubf/<robot>/clock`` from one in another
   (like ROS's ``use_sim_time``). A simulator running K× faster than real time makes every
   component's periods, timeouts and latencies K× shorter in wall time, consistently.
-  Which samples may move it is decided by :class:`ubf_async.runtime.timesource.ClockFollower`; a new
+  Which samples may move it is decided by :class:`ubf_async.clocks.timesource.ClockFollower`; a new
   simulation run *resets* it (:meth:`SimClock.reset_to`), and periodic loops re-anchor.
 
 Simulated time is a lockstep barrier (:mod:`components.sim.runner.stepper`): it waits for the work
@@ -68,7 +68,9 @@ class Clock(Protocol):
         ...
 
 
-class _NoHold:
+class NoHold:
+    """The hold of a clock that waits for nobody (wall time, a robot host's time)."""
+
     def release(self) -> None:
         pass
 
@@ -91,7 +93,7 @@ class WallClock:
 
     def hold(self, until_ns: int) -> Hold:
         """Real time waits for nobody: a no-op."""
-        return _NoHold()
+        return NoHold()
 
     async def sleep_until_ns(self, deadline_ns: int) -> None:
         # The event loop's own clock is also CLOCK_MONOTONIC on Linux, so call_at is exact.

@@ -1,5 +1,5 @@
-"""The start-up's objects leave the cyclic collector's walk (ubf_async.runtime.heap), and what the
-run allocates afterwards is still collected."""
+"""The start-up's objects leave the cyclic collector's walk (ubf_async.runtime.gcfreeze), and
+what the run allocates afterwards is still collected."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from ubf_async.runtime.heap import freeze_startup_objects
+from ubf_async.runtime.gcfreeze import freeze_startup_objects
 
 
 class Node:

@@ -1,7 +1,7 @@
 """Lockstep simulated time across processes: participants the simulator waits for.
 
 Within its own process the simulator steps only once everything of the current instant is
-done (:meth:`ubf_async.runtime.lending.LendingEventLoop.idle`). A process that follows its clock
+done (:meth:`ubf_async.runtime.lending.IdleEventLoop.idle`). A process that follows its clock
 from elsewhere — a remote behaviour, a standalone device, a fleet's controller — is outside that
 barrier unless it *takes part* (``--lockstep``). The protocol (``docs/protocol.md``,
 "Lockstep"), per robot ``R``:
@@ -33,11 +33,7 @@ import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 
-from ubf_async.errors import ConfigurationError
-from ubf_async.runtime import lending
-from ubf_async.runtime.bus import Bus, Subscription
-from ubf_async.runtime.clock import SimClock
-from ubf_async.runtime.component import Component
+from ubf_async.clocks.port import ClockBus, Closing
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LOCKSTEP_ACK, LockstepAck
 
@@ -80,7 +76,7 @@ class _Participant:
 class LockstepBarrier:
     """The simulator's side: the participants of ``buses``' robots, and :meth:`wait`."""
 
-    buses: Sequence[Bus]
+    buses: Sequence[ClockBus]
     silence_s: float = SILENCE_S
     participants: dict[str, _Participant] = field(default_factory=dict)
     """By token key, the participants whose token is alive."""
@@ -89,9 +85,9 @@ class LockstepBarrier:
     """Set whenever a participant joins, leaves or acknowledges."""
     malformed: dict[str, int] = field(default_factory=dict)
 
-    def open(self) -> list[Subscription]:
+    def open(self) -> list[Closing]:
         """Watch the participants' tokens and acknowledgements (close what is returned)."""
-        subs = []
+        subs: list[Closing] = []
         for bus in self.buses:
             expr = LOCKSTEP_ACK.key_expr(bus.keys)
             subs.append(bus.watch_liveliness(expr, self._on_token(bus.robot)))
@@ -153,48 +149,3 @@ class LockstepBarrier:
                 await asyncio.wait_for(self.changed.wait(), min(left, RESEND_S))
             except TimeoutError:
                 resend()
-
-
-class LockstepParticipant(Component):
-    """A process's part in its robot's lockstep (module docstring): a component named
-    ``<participant>-lockstep`` that declares the participant's token and acknowledges each
-    new simulated time of the bus clock (a :class:`~ubf_async.runtime.clock.SimClock` following the
-    robot's) once this process's event loop has nothing left to run.
-
-    Lifecycle: :meth:`run` (from :meth:`start`) declares the token and acknowledges until
-    the component is closed; the token goes with the run attempt. Needs ubf_async's event
-    loop, which tells when the work of an instant is done."""
-
-    def __init__(self, *, bus: Bus, participant: str, **component_options: float) -> None:
-        """Raises :class:`~ubf_async.errors.ConfigurationError` unless ``bus`` follows a
-        simulator's clock."""
-        super().__init__(bus=bus, name=f"{participant}-lockstep", **component_options)
-        if not isinstance(bus.clock, SimClock):
-            raise ConfigurationError(f"--lockstep takes part in a simulated run: nothing "
-                                     f"here follows a simulator's clock on {bus.keys.clock}")
-        self.clock = bus.clock
-        self.participant = participant
-        self.key = LOCKSTEP_ACK.key(bus.keys, participant)  # validates the name
-        self.acks = 0
-
-    async def run(self) -> None:
-        clock = self.clock
-        idle = lending.idle_waiter(asyncio.get_running_loop())
-        if idle is None:
-            raise ConfigurationError(
-                "--lockstep needs ubf_async's event loop (the default, or UBF_LOOP=lending; "
-                "not uvloop): it tells when the work of a simulated instant is done")
-        publisher = self.publisher(LOCKSTEP_ACK, self.participant)
-        token = self.bus.declare_token(self.key)
-        try:
-            await clock.started.wait()
-            while True:
-                # The time whose work the idle loop proves done. A later sample that
-                # arrives meanwhile is acknowledged on the next round, once its own work is.
-                now = clock.now_ns()
-                await idle()
-                publisher.publish({}, stamp_ns=now)
-                self.acks += 1
-                await clock.sleep_until_ns(now + 1)
-        finally:
-            token.undeclare()

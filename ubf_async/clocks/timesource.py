@@ -5,8 +5,8 @@ A process that follows simulation time (a device started on its own, ``launch --
 does anyone else on the bus. :class:`ClockFollower` decides, sample by sample, what such a
 sample may do. It is pure (no bus, no clock of its own: the caller passes the host monotonic
 time of arrival), so the policy is unit-tested on its own;
-:func:`ubf_async.runtime.simclock.follow_sim_clock` wires it to a subscription and a
-:class:`~ubf_async.runtime.clock.SimClock`.
+:func:`ubf_async.clocks.simclock.follow_sim_clock` wires it to a subscription and a
+:class:`~ubf_async.clocks.clock.SimClock`.
 
 The rules:
 

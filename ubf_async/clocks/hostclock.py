@@ -2,9 +2,10 @@
 
 A robot on wall time stamps everything with its host's ``CLOCK_MONOTONIC`` — meaningless on
 another host, whose monotonic clock started at another boot. So the robot publishes its clock:
-:class:`RobotTimeBeacon` puts a sample on ``ubf/<robot>/time`` every :data:`BEACON_PERIOD_S`,
-stamped with its ``CLOCK_MONOTONIC`` (nothing is published when simulating: then
-``ubf/<robot>/clock``, the simulated time, is the robot clock everywhere).
+its :class:`~ubf_async.runtime.timekeepers.RobotTimeBeacon` puts a sample on
+``ubf/<robot>/time`` every :data:`BEACON_PERIOD_S`, stamped with its ``CLOCK_MONOTONIC``
+(nothing is published when simulating: then ``ubf/<robot>/clock``, the simulated time, is the
+robot clock everywhere).
 
 A process on another host follows it with :class:`RobotTimeClock`: every sample gives
 ``stamp − local time of arrival`` = *offset − one-way latency*, so the **largest** of the recent
@@ -27,14 +28,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import socket
 import time
 from collections import deque
 from collections.abc import Callable
 
-from ubf_async.runtime.bus import Bus, Subscription
-from ubf_async.runtime.clock import Hold
-from ubf_async.runtime.component import Component
+from ubf_async.clocks.clock import Hold, NoHold
+from ubf_async.clocks.port import ClockBus, Closing
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import ROBOT_TIME, RobotTime
 
@@ -83,15 +82,10 @@ class OffsetEstimator:
         self.window.append(sample)
 
 
-class _NoHold:
-    def release(self) -> None:
-        pass
-
-
 class RobotTimeClock:
     """The robot's ``CLOCK_MONOTONIC`` seen from another host: the local monotonic clock
     (``local_ns``, injectable) plus the offset :class:`OffsetEstimator` learns from
-    ``ubf/<robot>/time``. A :class:`~ubf_async.runtime.clock.Clock`: give it to a bus
+    ``ubf/<robot>/time``. A :class:`~ubf_async.clocks.clock.Clock`: give it to a bus
     (``bus.clock = clock``) and everything that bus stamps is on the robot clock.
 
     :meth:`follow` subscribes; :attr:`ready` is set at the first sample (``now_ns()`` raises
@@ -113,7 +107,7 @@ class RobotTimeClock:
         return self.local_ns() + self.estimator.offset_ns
 
     def hold(self, until_ns: int) -> Hold:
-        return _NoHold()
+        return NoHold()
 
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         return 0.0
@@ -127,7 +121,7 @@ class RobotTimeClock:
     async def sleep(self, seconds: float) -> None:
         await asyncio.sleep(max(0.0, seconds))
 
-    def follow(self, bus: Bus) -> Subscription:
+    def follow(self, bus: ClockBus) -> Closing:
         """Learn the offset from ``bus``'s robot's ``ubf/<robot>/time`` samples."""
 
         def on_sample(key: str, message: Message[RobotTime], received_ns: int) -> None:
@@ -139,22 +133,3 @@ class RobotTimeClock:
 
         return bus.subscribe_topic(ROBOT_TIME.key(bus.keys), ROBOT_TIME, on_sample, self.malformed,
                                    latest=False)
-
-
-class RobotTimeBeacon(Component):
-    """Publishes the robot's clock on ``ubf/<robot>/time`` every ``period_s`` (a wall-time
-    robot's launch starts it; module docstring)."""
-
-    def __init__(self, *, bus: Bus, name: str = "robot-time",
-                 period_s: float = BEACON_PERIOD_S) -> None:
-        super().__init__(bus=bus, name=name)
-        if not period_s > 0:
-            raise ValueError(f"period_s must be > 0, got {period_s}")
-        self.period_s = period_s
-        self.host = socket.gethostname()[:253] or None
-
-    async def run(self) -> None:
-        publisher = self.publisher(ROBOT_TIME, period_s=self.period_s)
-        while True:
-            publisher.publish({"host": self.host})
-            await self.bus.clock.sleep(self.period_s)
