@@ -241,7 +241,7 @@ class _Outgoing(msgspec.Struct, omit_defaults=True):
 def _check_count(name: str, value: object, low: int = 0) -> None:
     if value.__class__ is not int and (isinstance(value, bool) or not isinstance(value, int)):
         raise ProtocolError(f"{name}: {value!r} is not an integer in [{low}, 2**63-1]")
-    if not low <= value <= INT64_MAX:  # type: ignore[operator]
+    if not low <= value <= INT64_MAX:
         raise ProtocolError(f"{name}: {value!r} is not an integer in [{low}, 2**63-1]")
 
 
