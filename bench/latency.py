@@ -877,6 +877,9 @@ def ratios(res: dict[str, Any]) -> dict[str, Any]:
     put("plain_loop_over_floor_median", "plain_loop_100hz", "floor_100hz")
     put("python_floor_over_floor_median", "tree_echo_100hz", "floor_100hz")
     put("reflex_over_python_floor_median", "reflex_100hz", "tree_echo_100hz")
+    put("reflex_over_python_floor_p99", "reflex_100hz", "tree_echo_100hz", "p99_us")
+    put("baseline_over_python_floor_median", "baseline_100hz", "tree_echo_100hz")
+    put("baseline_over_python_floor_p99", "baseline_100hz", "tree_echo_100hz", "p99_us")
     put("sync_over_default_median", "obstacle_sync", "obstacle_default", field="reaction")
     put("sync_over_periodic50_no_reflex_median", "obstacle_sync", "obstacle_periodic",
         field="reaction")
@@ -886,6 +889,10 @@ def ratios(res: dict[str, Any]) -> dict[str, Any]:
         out["reflex_over_dora_median"] = ratio(res["reflex_100hz"]["rtt"], dora["rtt"])
     if out.get("reflex_over_floor_median") is not None:
         out["aim_reflex_le_1.25x_met"] = out["reflex_over_floor_median"] <= REFLEX_AIM
+    pf = [out.get(f"reflex_over_python_floor_{k}") for k in ("median", "p99")]
+    if all(x is not None for x in pf):
+        out["aim_reflex_le_1.10x_python_floor_met"] = all(
+            x <= REFLEX_AIM_PYTHON_FLOOR for x in pf if x is not None)
     if out.get("reflex_over_dora_median") is not None:
         out["aim_reflex_2x_faster_than_dora_met"] = out["reflex_over_dora_median"] <= 0.5
     if out.get("sync_over_default_median") is not None:
@@ -1146,7 +1153,7 @@ def strip_raw(obj: Any) -> Any:
     """Drop the raw per-sample arrays (``*_ns`` lists) from what goes to --json."""
     if isinstance(obj, dict):
         return {k: strip_raw(v) for k, v in obj.items()
-                if not (k.endswith("_ns") and isinstance(v, list | dict))}
+                if not (str(k).endswith("_ns") and isinstance(v, list | dict))}
     return obj
 
 
