@@ -20,6 +20,7 @@ a ``{"skipped": reason}`` when dora is not installed or fails.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import shutil
@@ -27,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -119,38 +121,32 @@ def dora_executable() -> str | None:
     return shutil.which("dora")
 
 
-def run_dora(*, warmup: int, count: int, timeout_s: float = 120.0) -> dict[str, Any]:
-    """Run the two-node dataflow; returns ``{"rtt_ns": [...], "sent": n, ...}`` or
-    ``{"skipped": reason}``."""
-    try:
-        import dora  # noqa: F401
-        import pyarrow  # noqa: F401
-    except ImportError as exc:
-        return {"skipped": f"dora-rs Python package not installed ({exc.name})"}
+NodesOf = Callable[[str, Path, dict[str, str]], list[dict[str, Any]]]
+"""``nodes(this_file, result_path, env)``: a dataflow's nodes, run as this file's roles."""
+
+
+def run_dataflow(nodes: NodesOf, *, budget_s: float, timeout_s: float,
+                 modules: tuple[str, ...] = ("dora", "pyarrow")) -> dict[str, Any]:
+    """Run a dataflow of this file's nodes with ``dora run`` (stopped after ``budget_s``);
+    returns ``{"result": <the JSON a node wrote>, "version": ...}`` or ``{"skipped":
+    reason}`` when dora, one of ``modules`` or the CLI is missing, or the run wrote nothing."""
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            return {"skipped": f"dora-rs Python package not installed ({exc.name})"}
     exe = dora_executable()
     if exe is None:
         return {"skipped": "dora CLI not found (pip install dora-rs-cli)"}
     with tempfile.TemporaryDirectory(prefix="ubf-dora-") as tmp:
         out = Path(tmp) / "result.json"
-        me = str(Path(__file__).resolve())
-        env = {"PYTHONPATH": str(ROOT)}
-        dataflow = {
-            "nodes": [
-                {"id": "sensor", "path": sys.executable,
-                 "args": f"{me} sensor {out} {warmup} {count}", "env": env,
-                 "inputs": {"tick": "dora/timer/millis/10", "cmd": "controller/cmd"},
-                 "outputs": ["sample"]},
-                {"id": "controller", "path": sys.executable, "args": f"{me} controller",
-                 "env": env, "inputs": {"sample": "sensor/sample"}, "outputs": ["cmd"]},
-            ]
-        }
         flow = Path(tmp) / "dataflow.yml"
-        flow.write_text(json.dumps(dataflow))  # JSON is YAML
-        budget = max(30.0, (warmup + count) * 0.01 * 3 + 20)
+        flow.write_text(json.dumps({"nodes": nodes(str(Path(__file__).resolve()), out,
+                                                   {"PYTHONPATH": str(ROOT)})}))  # JSON: YAML
         try:
             proc = subprocess.run(
-                [exe, "run", str(flow), "--stop-after", f"{int(budget)}s"],
-                cwd=tmp, capture_output=True, text=True, timeout=min(timeout_s, budget + 30),
+                [exe, "run", str(flow), "--stop-after", f"{int(budget_s)}s"],
+                cwd=tmp, capture_output=True, text=True, timeout=min(timeout_s, budget_s + 30),
                 env={**os.environ, "PYTHONPATH": str(ROOT)},
             )
         except (OSError, subprocess.TimeoutExpired) as exc:
@@ -161,10 +157,32 @@ def run_dora(*, warmup: int, count: int, timeout_s: float = 120.0) -> dict[str, 
                                + " | ".join(tail)}
         result = json.loads(out.read_text())
     version = subprocess.run([exe, "--version"], capture_output=True, text=True).stdout.strip()
+    return {"result": result, "version": version}
+
+
+def run_dora(*, warmup: int, count: int, timeout_s: float = 120.0) -> dict[str, Any]:
+    """Run the two-node dataflow; returns ``{"rtt_ns": [...], "sent": n, ...}`` or
+    ``{"skipped": reason}``."""
+
+    def nodes(me: str, out: Path, env: dict[str, str]) -> list[dict[str, Any]]:
+        return [
+            {"id": "sensor", "path": sys.executable,
+             "args": f"{me} sensor {out} {warmup} {count}", "env": env,
+             "inputs": {"tick": "dora/timer/millis/10", "cmd": "controller/cmd"},
+             "outputs": ["sample"]},
+            {"id": "controller", "path": sys.executable, "args": f"{me} controller",
+             "env": env, "inputs": {"sample": "sensor/sample"}, "outputs": ["cmd"]},
+        ]
+
+    ran = run_dataflow(nodes, budget_s=max(30.0, (warmup + count) * 0.01 * 3 + 20),
+                       timeout_s=timeout_s)
+    if "skipped" in ran:
+        return ran
+    result = ran["result"]
     rtts = sorted(result["rtts"])
     measured = [r - s for seq, s, r in rtts if seq > warmup]
     return {"rtt_ns": measured, "sent": result["sent"] - warmup,
-            "lost": max(0, count - len(measured)), "version": version}
+            "lost": max(0, count - len(measured)), "version": ran["version"]}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -244,44 +262,25 @@ def dora_sizes_receiver(out: str, warmup: int, total: int) -> None:
 def run_dora_sizes(*, sizes: tuple[int, ...], warmup: int, count: int) -> dict[str, Any]:
     """dora's two Python nodes sending each size ``warmup + count`` times; returns
     ``{"values": {size: [ns, ...]}, "version": ...}`` or ``{"skipped": reason}``."""
-    try:
-        import dora  # noqa: F401
-        import numpy  # noqa: F401
-        import pyarrow  # noqa: F401
-    except ImportError as exc:
-        return {"skipped": f"dora-rs Python package not installed ({exc.name})"}
-    exe = dora_executable()
-    if exe is None:
-        return {"skipped": "dora CLI not found (pip install dora-rs-cli)"}
     total = (warmup + count) * len(sizes)
-    with tempfile.TemporaryDirectory(prefix="ubf-dora-sizes-") as tmp:
-        out = Path(tmp) / "result.json"
-        me = str(Path(__file__).resolve())
-        env = {"PYTHONPATH": str(ROOT)}
-        listing = ",".join(map(str, sizes))
-        flow = Path(tmp) / "dataflow.yml"
-        flow.write_text(json.dumps({"nodes": [
+    listing = ",".join(map(str, sizes))
+
+    def nodes(me: str, out: Path, env: dict[str, str]) -> list[dict[str, Any]]:
+        return [
             {"id": "sender", "path": sys.executable,
              "args": f"{me} sizes-sender {listing} {warmup + count}", "env": env,
              "outputs": ["data"]},
             {"id": "receiver", "path": sys.executable,
              "args": f"{me} sizes-receiver {out} {warmup} {total}", "env": env,
              "inputs": {"data": "sender/data"}},
-        ]}))
-        budget = 30 + total * SIZES_PERIOD_S * 3
-        try:
-            proc = subprocess.run([exe, "run", str(flow), "--stop-after", f"{int(budget)}s"],
-                                  cwd=tmp, capture_output=True, text=True, timeout=budget + 30,
-                                  env={**os.environ, "PYTHONPATH": str(ROOT)})
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            return {"skipped": f"dora run failed: {exc}"}
-        if not out.exists():
-            tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-5:]
-            return {"skipped": f"dora run produced no result (exit {proc.returncode}): "
-                               + " | ".join(tail)}
-        values = {int(k): v for k, v in json.loads(out.read_text()).items()}
-    version = subprocess.run([exe, "--version"], capture_output=True, text=True).stdout.strip()
-    return {"values": values, "version": version}
+        ]
+
+    budget = 30 + total * SIZES_PERIOD_S * 3
+    ran = run_dataflow(nodes, budget_s=budget, timeout_s=budget + 30,
+                       modules=("dora", "numpy", "pyarrow"))
+    if "skipped" in ran:
+        return ran
+    return {"values": {int(k): v for k, v in ran["result"].items()}, "version": ran["version"]}
 
 
 async def ours_sizes_receiver(cfg: dict[str, Any]) -> dict[str, Any]:
