@@ -40,6 +40,15 @@ Sections (each prints n, median, p90, p99 and max, and the ratios the issue asks
              rotates from round to round (the reflex's servers interleaved sample by sample),
              so the host's noise falls on each loop alike. Medians and p99 of all rounds
              pooled, ratios to the plain loop, and the spread of the per-round median ratios.
+9. dora      dora-rs/dora-benchmark on its own terms: its sizes (8 B … 4 MB), its method (the
+             sender's ``perf_counter_ns`` in the payload, one-way), our path (a Bus raw
+             publisher → a Bus subscription's handler on the event loop) and dora's Python
+             nodes taking turns in rounds, its published figures beside; our path refuses
+             payloads over 256 KiB by design.
+
+Section 2 runs in rounds (``--rounds``), the servers' order rotating, and reports the reflex
+against the Python floor (median, p90, p99, max and their ratios; aim ≤ 1.10×, issue 40);
+``--baseline DIR`` adds the controller of another checkout to the same rounds.
 
 Every figure comes from ``time.monotonic_ns()`` stamps carried in the messages and read on
 the same host (CLOCK_MONOTONIC is shared by all processes), by the process that observed the
