@@ -40,6 +40,15 @@ Sections (each prints n, median, p90, p99 and max, and the ratios the issue asks
              rotates from round to round (the reflex's servers interleaved sample by sample),
              so the host's noise falls on each loop alike. Medians and p99 of all rounds
              pooled, ratios to the plain loop, and the spread of the per-round median ratios.
+9. dora      dora-rs/dora-benchmark on its own terms: its sizes (8 B … 4 MB), its method (the
+             sender's ``perf_counter_ns`` in the payload, one-way), our path (a Bus raw
+             publisher → a Bus subscription's handler on the event loop) and dora's Python
+             nodes taking turns in rounds, its published figures beside; our path refuses
+             payloads over 256 KiB by design.
+
+Section 2 runs in rounds (``--rounds``), the servers' order rotating, and reports the reflex
+against the Python floor (median, p90, p99, max and their ratios; aim ≤ 1.10×, issue 40);
+``--baseline DIR`` adds the controller of another checkout to the same rounds.
 
 Every figure comes from ``time.monotonic_ns()`` stamps carried in the messages and read on
 the same host (CLOCK_MONOTONIC is shared by all processes), by the process that observed the
@@ -71,7 +80,7 @@ from bench.latency_stats import fmt_us, header, ratio, row, summarize
 
 ROOT = Path(__file__).resolve().parent.parent
 SECTIONS = ("floor", "reflex", "periodic", "obstacle", "camera", "peers", "breakdown",
-            "loops")
+            "loops", "dora")
 CAMERA_PERIOD_S = 0.11
 REFLEX_AIM = 1.25
 """Issue 12's aim: the reflex round trip's median at most this many times the floor's."""
@@ -92,13 +101,15 @@ class Worker:
     """A child process (``python -m <module> '<json>'``) that may print ``READY`` and ends
     with ``RESULT <json>``. Servers stop when their stdin closes."""
 
-    def __init__(self, module: str, cfg: dict[str, Any]) -> None:
+    def __init__(self, module: str, cfg: dict[str, Any], root: Path = ROOT) -> None:
+        """``root``: the checkout whose ``ubf_async`` and ``bench`` the child runs (another
+        one for a before/after comparison in one run, ``--baseline``)."""
         self.module = module
         self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (lives with the child)
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", module, json.dumps(cfg)], cwd=ROOT,
+            [sys.executable, "-m", module, json.dumps(cfg)], cwd=root,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
-            env={**os.environ, "PYTHONPATH": str(ROOT)},
+            env={**os.environ, "PYTHONPATH": str(root)},
         )
         self._lines: queue.Queue[str | None] = queue.Queue()
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -174,7 +185,9 @@ def serve_and_measure(server_cfgs: list[dict[str, Any]], sensor_cfg: dict[str, A
         for i, cfg in enumerate(server_cfgs):
             target = {"endpoint": free_endpoint(),
                       "robot": f"lat{os.getpid()}x{time.monotonic_ns() % 10**6}n{i}"}
-            servers.append(Worker("bench.latency_robot", {**cfg, **target}))
+            tree = cfg.get("tree")
+            servers.append(Worker("bench.latency_robot", {**cfg, **target},
+                                  root=Path(tree) if tree else ROOT))
             targets.append(target)
         for w in servers:
             w.wait_ready()
@@ -217,6 +230,16 @@ for _loop in LOOPS:
     SERVERS[f"loop_{_loop}"] = {**SERVERS["as_run"], "loop": _loop}
 
 REFLEX_SERVERS = ("echo", "as_run", "controller", "plain_loop", "tree_echo")
+BASELINE_SERVER = "baseline"
+"""``as_run`` from another checkout (``--baseline DIR``): before and after in the same rounds."""
+
+
+def use_baseline(tree: str | None) -> tuple[str, ...]:
+    """The reflex section's servers, with ``as_run`` from the checkout ``tree`` added."""
+    if not tree:
+        return REFLEX_SERVERS
+    SERVERS[BASELINE_SERVER] = {**SERVERS["as_run"], "tree": str(Path(tree).resolve())}
+    return (*REFLEX_SERVERS, BASELINE_SERVER)
 
 CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {
     # Section 4's controllers: (label, server config).
@@ -256,7 +279,8 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
         out["controller"] = {k: served.get(k) for k in (
             "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct")}
     if served.get("samples"):  # observed through the hooks
-        out["segments"] = reflex_segments(answered, served)
+        out["segments_ns"] = reflex_segments(answered, served)
+        out["segments"] = {k: summarize(v) for k, v in out["segments_ns"].items()}
         # Account for every unanswered sample: superseded by a newer one before the loop
         # got to it (the bridge keeps the newest per key), stored but never ticked on, or
         # lost after its tick (neither seen so far).
@@ -286,7 +310,7 @@ SEGMENTS = (
 """Segments of a reflex round trip, in path order (the last two are sums)."""
 
 
-def reflex_segments(rows: list[list[int]], served: dict[str, Any]) -> dict[str, Any]:
+def reflex_segments(rows: list[list[int]], served: dict[str, Any]) -> dict[str, list[int]]:
     """Join the sensor's rows with the controller's instrumentation by sample seq.
 
     The drive command's stamp is taken inside ``publish``, before encoding; ``put`` is when
@@ -305,7 +329,42 @@ def reflex_segments(rows: list[list[int]], served: dict[str, Any]) -> dict[str, 
                   put - cmd_stamp, t1 - put, received - put, put - cb, t1 - t0)
         for key, value in zip(SEGMENTS, values, strict=True):
             seg[key].append(value)
-    return {k: summarize(v) for k, v in seg.items()}
+    return seg
+
+
+_SUMMED = ("sent", "answered", "lost", "duplicates", "unmatched", "mismatched",
+           "coalesced_by_bridge", "skipped_by_controller", "lost_after_tick")
+
+
+def measure_rtt_rounds(*servers: str, rounds: int, rate_hz: float, warmup: int, count: int,
+                       log: Callable[[str], None] = lambda _: None) -> dict[str, dict[str, Any]]:
+    """:func:`measure_rtt` in ``rounds`` rounds, the servers' order (so their place in the
+    interleaving) rotating each round; every count summed, every sample pooled, and each
+    round's median kept (``round_medians_us``) for the spread of per-round ratios."""
+    pooled: dict[str, dict[str, Any]] = {}
+    for r in range(rounds):
+        order = servers[r % len(servers):] + servers[:r % len(servers)]
+        log(f"    round {r + 1}/{rounds}: {', '.join(order)}")
+        got = measure_rtt(*order, rate_hz=rate_hz, warmup=warmup, count=count)
+        for name in servers:
+            g, acc = got[name], pooled.setdefault(name, {"round_medians_us": []})
+            for key in _SUMMED:
+                if key in g:
+                    acc[key] = acc.get(key, 0) + g[key]
+            acc.setdefault("rtt_ns", []).extend(g["rtt_ns"])
+            if g["rtt_ns"]:
+                acc["round_medians_us"].append(statistics.median(g["rtt_ns"]) / 1e3)
+            if "controller" in g:
+                ctl = acc.setdefault("controller", {})
+                for key, value in g["controller"].items():
+                    ctl[key] = (ctl.get(key) or 0) + (value or 0)
+            for key, values in g.get("segments_ns", {}).items():
+                acc.setdefault("segments_ns", {}).setdefault(key, []).extend(values)
+    for acc in pooled.values():
+        acc["rtt"] = summarize(acc["rtt_ns"])
+        if "segments_ns" in acc:
+            acc["segments"] = {k: summarize(v) for k, v in acc["segments_ns"].items()}
+    return pooled
 
 
 def measure_periodic_ages(rate_hz: float, *, warmup: int, count: int,
@@ -495,6 +554,105 @@ def measure_loops(loops: tuple[str, ...], *, rounds: int, warmup: int, count: in
     return out
 
 
+def measure_ours_sizes(*, sizes: tuple[int, ...], warmup: int, count: int
+                       ) -> dict[int, list[int]]:
+    """One-way latency of each size through our path (a :class:`Bus` raw publisher in one
+    process, a :class:`Bus` subscription's handler on the event loop in another), dora's
+    method (``bench.latency_dora``)."""
+    target = {"endpoint": free_endpoint(), "robot": f"sizes{os.getpid()}"}
+    cfg = {**target, "sizes": list(sizes), "warmup": warmup, "count": count}
+    receiver = Worker("bench.latency_dora", {**cfg, "side": "receiver"})
+    sender: Worker | None = None
+    try:
+        receiver.wait_ready()
+        sender = Worker("bench.latency_dora", {**cfg, "side": "sender"})
+        sender.result(60 + len(sizes) * (warmup + count) * 0.05)
+        got = receiver.result(30)
+    finally:
+        for w in (sender, receiver):
+            if w is not None:
+                w.kill()
+    return {int(k): v for k, v in got["values"].items()}
+
+
+def measure_dora_section(*, rounds: int, warmup: int, count: int,
+                         log: Callable[[str], None] = lambda _: None) -> dict[str, Any]:
+    """dora-rs's own benchmark on its terms (its sizes, its method: the sender's
+    ``perf_counter_ns`` in the payload, one-way) for our path and dora's Python nodes, taking
+    turns in ``rounds`` rounds (the one first alternating), pooled per size."""
+    from bench.latency_dora import (
+        DORA_PUBLISHED_US,
+        DORA_SIZES,
+        OURS_LIMIT_BYTES,
+        run_dora_sizes,
+    )
+
+    pooled: dict[str, dict[int, list[int]]] = {"ours": {}, "dora": {}}
+    dora_version, skipped = None, None
+    for r in range(rounds):
+        order = ("ours", "dora") if r % 2 == 0 else ("dora", "ours")
+        log(f"    round {r + 1}/{rounds}: {', '.join(order)}")
+        for who in order:
+            if who == "ours":
+                values = measure_ours_sizes(sizes=tuple(x for x in DORA_SIZES
+                                                        if x <= OURS_LIMIT_BYTES),
+                                            warmup=warmup, count=count)
+            else:
+                if skipped:
+                    continue
+                d = run_dora_sizes(sizes=DORA_SIZES, warmup=warmup, count=count)
+                if "skipped" in d:
+                    skipped = d["skipped"]
+                    continue
+                values, dora_version = d["values"], d["version"]
+            for size, v in values.items():
+                pooled[who].setdefault(size, []).extend(v)
+    out: dict[str, Any] = {
+        "rounds": rounds, "count_per_round": count, "sizes": list(DORA_SIZES),
+        "ours_limit_bytes": OURS_LIMIT_BYTES,
+        "published_us": DORA_PUBLISHED_US,
+        "ours": {size: summarize(pooled["ours"].get(size, ())) for size in DORA_SIZES}}
+    out["dora"] = ({"skipped": skipped} if skipped else
+                   {"version": dora_version, **{size: summarize(pooled["dora"].get(size, ()))
+                                                 for size in DORA_SIZES}})
+    return out
+
+
+def dora_report(d: dict[str, Any]) -> list[str]:
+    def size_label(n: int) -> str:
+        return (f"{n // 1_048_576} MB" if n >= 1_048_576 and n % 1_048_576 == 0 else
+                f"{n // 1024} KB" if n >= 1024 else f"{n} B")
+
+    dora = d["dora"]
+    out = [f"9. dora-rs's benchmark on its own terms: one-way latency, the sender's "
+           f"perf_counter_ns in the payload, one sample every 10 ms, {d['count_per_round']} "
+           f"per size and round, {d['rounds']} rounds taking turns (pooled)",
+           "   ours: Bus raw publisher → zenoh → Bus subscription → handler on the event loop "
+           "(default loop)"]
+    if "skipped" in dora:
+        out.append(f"   dora-rs Python nodes: skipped — {dora['skipped']}")
+    else:
+        out.append(f"   dora: two Python nodes in one `dora run` dataflow ({dora['version']})")
+    out.append(f"  {'size':>7}  {'ours median':>11} {'p90':>8} {'p99':>8} {'mean':>8}"
+               f"   {'dora median':>11} {'p99':>8} {'mean':>8}  {'ours/dora':>9}"
+               f"  {'published (dora, mean)':>22}")
+    for size in d["sizes"]:
+        o = d["ours"][size] if size in d["ours"] else d["ours"].get(str(size), {})
+        x = dora.get(size, dora.get(str(size), {})) if "skipped" not in dora else {}
+        q = ratio(o, x)
+        pub = d["published_us"].get(size, d["published_us"].get(str(size)))
+        ours = (f"{fmt_us(o.get('median_us')):>11} {fmt_us(o.get('p90_us')):>8} "
+                f"{fmt_us(o.get('p99_us')):>8} {fmt_us(o.get('mean_us')):>8}"
+                if size <= d["ours_limit_bytes"] else f"{'refused by design (> 256 KiB)':>38}")
+        out.append(f"  {size_label(size):>7}  {ours}   {fmt_us(x.get('median_us')):>11} "
+                   f"{fmt_us(x.get('p99_us')):>8} {fmt_us(x.get('mean_us')):>8}  "
+                   f"{(f'{q:.2f}×' if q else '—'):>9}  "
+                   f"{(f'{pub} µs' if pub else '—'):>22}")
+    out.append("   published: dora-rs/dora-benchmark, Python nodes, average of 1 000 samples per "
+               "size on its authors' machine (not this one; its pacing and hardware differ)")
+    return out
+
+
 def measure_peers(*, warmup: int, count: int, ticks: int) -> dict[str, Any]:
     from bench.latency_dora import run_dora
     from bench.tick import (
@@ -628,21 +786,23 @@ def measure_breakdown(n: int = 2000) -> dict[str, Any]:
 
 def counts(quick: bool) -> dict[str, Any]:
     if quick:
-        return {"warm": 30, "rtt": 200, "b2b": 300, "ages": 40, "sim_s": 2.0,
+        return {"warm": 30, "rtt": 150, "b2b": 200, "reflex_rounds": 2, "dora_rounds": 2,
+                "dora_count": 40, "ages": 40, "sim_s": 2.0,
                 "sync_trials": 10, "default_trials": 12, "periodic_trials": 12,
                 "event_trials": 12, "frames": 15, "dora": 200, "ticks": 300, "micro": 500,
                 "loop_rounds": 3, "loop_rtt": 150, "loop_b2b": 200, "loop_trials": 6}
-    return {"warm": 200, "rtt": 1500, "b2b": 3000, "ages": 300, "sim_s": 10.0,
+    return {"warm": 200, "rtt": 500, "b2b": 800, "reflex_rounds": 4, "dora_rounds": 3,
+            "dora_count": 150, "ages": 300, "sim_s": 10.0,
             "sync_trials": 60, "default_trials": 100, "periodic_trials": 100,
             "event_trials": 100, "frames": 100, "dora": 1500, "ticks": 2000, "micro": 2000,
             "loop_rounds": 8, "loop_rtt": 500, "loop_b2b": 800, "loop_trials": 12}
 
 
 def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None],
-        rounds: int | None = None) -> dict[str, Any]:
+        rounds: int | None = None, baseline: str | None = None) -> dict[str, Any]:
     c = counts(quick)
     if rounds is not None:
-        c["loop_rounds"] = rounds
+        c["loop_rounds"] = c["reflex_rounds"] = c["dora_rounds"] = rounds
     res: dict[str, Any] = {
         "date": datetime.date.today().isoformat(), "cores": os.cpu_count(),
         "python": sys.version.split()[0], "quick": quick, "counts": c,
@@ -660,16 +820,21 @@ def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None],
         log(f"[{step}] {what} …")
 
     if "floor" in sections or "reflex" in sections:
-        names = REFLEX_SERVERS if "reflex" in sections else ("echo",)
-        progress(f"{', '.join(names)}, interleaved, 100 Hz")
-        at_rate = measure_rtt(*names, rate_hz=100, warmup=c["warm"], count=c["rtt"])
-        progress(f"{', '.join(names)}, interleaved, back-to-back")
-        b2b = measure_rtt(*names, rate_hz=0, warmup=c["warm"], count=c["b2b"])
+        names = use_baseline(baseline) if "reflex" in sections else ("echo",)
+        n = c["reflex_rounds"]
+        res["reflex_rounds"] = n
+        progress(f"{', '.join(names)}, interleaved, 100 Hz, {n} rounds")
+        at_rate = measure_rtt_rounds(*names, rounds=n, rate_hz=100, warmup=c["warm"],
+                                     count=c["rtt"], log=log)
+        progress(f"{', '.join(names)}, interleaved, back-to-back, {n} rounds")
+        b2b = measure_rtt_rounds(*names, rounds=n, rate_hz=0, warmup=c["warm"],
+                                 count=c["b2b"], log=log)
         res["floor_100hz"], res["floor_b2b"] = at_rate["echo"], b2b["echo"]
         if "as_run" in names:
             res["reflex_100hz"], res["reflex_b2b"] = at_rate["as_run"], b2b["as_run"]
-            for name in ("controller", "plain_loop", "tree_echo"):
-                res[f"{name}_100hz"], res[f"{name}_b2b"] = at_rate[name], b2b[name]
+            for name in ("controller", "plain_loop", "tree_echo", BASELINE_SERVER):
+                if name in names:
+                    res[f"{name}_100hz"], res[f"{name}_b2b"] = at_rate[name], b2b[name]
     if "periodic" in sections:
         for hz in (50, 100):
             progress(f"periodic mode {hz} Hz (no reflex), sample age at command")
@@ -690,6 +855,11 @@ def run(sections: tuple[str, ...], quick: bool, log: Callable[[str], None],
     if "breakdown" in sections:
         progress("in-process breakdown")
         res["breakdown"] = measure_breakdown(c["micro"])
+    if "dora" in sections:
+        progress(f"dora-rs's benchmark at its sizes, ours and dora's taking turns, "
+                 f"{c['dora_rounds']} rounds")
+        res["dora_sizes"] = measure_dora_section(rounds=c["dora_rounds"], warmup=10,
+                                                 count=c["dora_count"], log=log)
     if "loops" in sections:
         loops = available_loops()
         progress(f"event loops {', '.join(loops)}: {c['loop_rounds']} rounds, order rotating")
@@ -716,6 +886,9 @@ def ratios(res: dict[str, Any]) -> dict[str, Any]:
     put("plain_loop_over_floor_median", "plain_loop_100hz", "floor_100hz")
     put("python_floor_over_floor_median", "tree_echo_100hz", "floor_100hz")
     put("reflex_over_python_floor_median", "reflex_100hz", "tree_echo_100hz")
+    put("reflex_over_python_floor_p99", "reflex_100hz", "tree_echo_100hz", "p99_us")
+    put("baseline_over_python_floor_median", "baseline_100hz", "tree_echo_100hz")
+    put("baseline_over_python_floor_p99", "baseline_100hz", "tree_echo_100hz", "p99_us")
     put("sync_over_default_median", "obstacle_sync", "obstacle_default", field="reaction")
     put("sync_over_periodic50_no_reflex_median", "obstacle_sync", "obstacle_periodic",
         field="reaction")
@@ -725,6 +898,10 @@ def ratios(res: dict[str, Any]) -> dict[str, Any]:
         out["reflex_over_dora_median"] = ratio(res["reflex_100hz"]["rtt"], dora["rtt"])
     if out.get("reflex_over_floor_median") is not None:
         out["aim_reflex_le_1.25x_met"] = out["reflex_over_floor_median"] <= REFLEX_AIM
+    pf = [out.get(f"reflex_over_python_floor_{k}") for k in ("median", "p99")]
+    if all(x is not None for x in pf):
+        out["aim_reflex_le_1.10x_python_floor_met"] = all(
+            x <= REFLEX_AIM_PYTHON_FLOOR for x in pf if x is not None)
     if out.get("reflex_over_dora_median") is not None:
         out["aim_reflex_2x_faster_than_dora_met"] = out["reflex_over_dora_median"] <= 0.5
     if out.get("sync_over_default_median") is not None:
@@ -780,6 +957,7 @@ def report(res: dict[str, Any]) -> str:
         add(f"     controller: coalesced {ctl['coalesced']}, malformed {ctl['malformed']}, "
             f"errors {ctl['errors']}, triggered ticks {ctl['triggered']}, handled on "
             f"zenoh's thread (loop lent) {ctl['direct']}/{ctl['received']}")
+        lines.extend(python_floor_report(res))
         o, ob = res["controller_100hz"], res["controller_b2b"]
         p, pb = res["plain_loop_100hz"], res["plain_loop_b2b"]
         t, tb = res["tree_echo_100hz"], res["tree_echo_b2b"]
@@ -891,7 +1069,67 @@ def report(res: dict[str, Any]) -> str:
             add(row(k, v))
     if "loops" in res:
         lines.extend(loops_report(res["loops"]))
+    if "dora_sizes" in res:
+        lines.extend(dora_report(res["dora_sizes"]))
     return "\n".join(x for x in lines if x is not None)
+
+
+PYTHON_FLOOR_ROWS = (
+    ("tree_echo", "Python floor: the tree in zenoh's callback"),
+    ("as_run", "reflex as run (default loop, nothing lent)"),
+    (BASELINE_SERVER, "reflex as run, --baseline checkout"),
+    ("controller", "observed, lending loop (UBF_LOOP=lending)"),
+    ("plain_loop", "observed, default loop"),
+    ("echo", "raw zenoh echo (the transport floor)"),
+)
+REFLEX_AIM_PYTHON_FLOOR = 1.10
+"""Issue 40's aim: the reflex as run at most this many times the Python floor, median and
+p99, on the default loop."""
+
+
+def python_floor_report(res: dict[str, Any]) -> list[str]:
+    """Section 2's reflex against the Python floor: pooled rounds, ratios of the median, p90,
+    p99 and max to the Python floor's in the same rounds, and the per-round median ratios."""
+    out = []
+    for when, label in (("100hz", "at 100 Hz"), ("b2b", "back-to-back")):
+        base = res.get(f"tree_echo_{when}")
+        if base is None:
+            continue
+        rounds = len(base.get("round_medians_us", ())) or 1
+        out.append(f"  against the Python floor, {label} ({rounds} rounds pooled; ratios to the "
+                   f"Python floor of the same rounds)")
+        out.append(f"    {'':<44} {'n':>6}  {'median':>9} {'p90':>9} {'p99':>9} {'max':>9}"
+                   f"  {'×med':>5} {'×p90':>5} {'×p99':>5} {'×max':>5}  per-round ×med")
+        for name, row_label in PYTHON_FLOOR_ROWS:
+            r = res.get("floor_" + when if name == "echo" else
+                        ("reflex_" + when if name == "as_run" else f"{name}_{when}"))
+            if r is None:
+                continue
+            qs = [ratio(r["rtt"], base["rtt"], k) for k in ("median_us", "p90_us", "p99_us",
+                                                            "max_us")]
+            per = [a / b for a, b in zip(r.get("round_medians_us", ()),
+                                         base.get("round_medians_us", ()), strict=False) if b]
+            spread = f"{min(per):.2f}–{max(per):.2f}" if per else "—"
+            t = r["rtt"]
+            out.append(f"    {row_label:<44} {t.get('n', 0):>6}  "
+                       + " ".join(f"{fmt_us(t.get(k)):>9}" for k in ("median_us", "p90_us",
+                                                                       "p99_us", "max_us"))
+                       + "  " + " ".join(f"{q:5.2f}" if q is not None else "    —" for q in qs)
+                       + f"  {spread}")
+        if when == "100hz" and "reflex_100hz" in res:
+            q = ratio(res["reflex_100hz"]["rtt"], base["rtt"])
+            q99 = ratio(res["reflex_100hz"]["rtt"], base["rtt"], "p99_us")
+            if q is not None and q99 is not None:
+                ok = q <= REFLEX_AIM_PYTHON_FLOOR and q99 <= REFLEX_AIM_PYTHON_FLOOR
+                out.append(f"     reflex / Python floor at 100 Hz: median {q:.2f}×, p99 "
+                           f"{q99:.2f}×  (aim ≤ {REFLEX_AIM_PYTHON_FLOOR:.2f}× both: "
+                           f"{'met' if ok else 'MISSED'})")
+            if BASELINE_SERVER + "_100hz" in res:
+                b = res[BASELINE_SERVER + "_100hz"]["rtt"]
+                now = res["reflex_100hz"]["rtt"]
+                out.append(f"     this checkout / --baseline: median "
+                           f"{ratio(now, b) or 0:.2f}×, p99 {ratio(now, b, 'p99_us') or 0:.2f}×")
+    return out
 
 
 def loops_report(lp: dict[str, Any]) -> list[str]:
@@ -924,7 +1162,7 @@ def strip_raw(obj: Any) -> Any:
     """Drop the raw per-sample arrays (``*_ns`` lists) from what goes to --json."""
     if isinstance(obj, dict):
         return {k: strip_raw(v) for k, v in obj.items()
-                if not (k.endswith("_ns") and isinstance(v, list))}
+                if not (str(k).endswith("_ns") and isinstance(v, list | dict))}
     return obj
 
 
@@ -942,13 +1180,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="+", choices=SECTIONS, metavar="SECTION",
                         help=f"run only these sections ({', '.join(SECTIONS)})")
     parser.add_argument("--rounds", type=int, metavar="N",
-                        help="section loops: rounds over the event loops (default 8, "
-                             "--quick 3); more rounds average more of a noisy host's load")
+                        help="rounds of sections reflex (default 4, --quick 2), loops "
+                             "(default 8, --quick 3) and dora (default 3, --quick 2); more "
+                             "rounds average more of a noisy host's load")
+    parser.add_argument("--baseline", metavar="DIR",
+                        help="section reflex: also run the controller from the checkout DIR "
+                             "(e.g. git worktree add DIR <commit>), in the same rounds: "
+                             "before and after under the same load")
     args = parser.parse_args(argv)
     sections = tuple(args.only) if args.only else SECTIONS
     started = time.monotonic()
     res = run(sections, args.quick, lambda m: print(m, file=sys.stderr, flush=True),
-              rounds=args.rounds)
+              rounds=args.rounds, baseline=args.baseline)
     res["elapsed_s"] = time.monotonic() - started
     print(report(res))
     print(f"\n(run took {res['elapsed_s']:.0f} s)")

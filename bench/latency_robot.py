@@ -323,8 +323,8 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
 def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
     from ubf_async.clocks.clock import WallClock
-    from ubf_async.wire.protocol import Keys, decode, encode
-    from ubf_async.wire.topics import RANGE, BasedOn, Drive
+    from ubf_async.wire.protocol import Encoder, Keys, decode
+    from ubf_async.wire.topics import DRIVE, RANGE, BasedOn, Drive
 
     class StandInBus:  # what StateAggregator.ingest and snapshot read
         clock = WallClock()
@@ -332,6 +332,9 @@ def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
     agg = StateAggregator(bus=StandInBus())  # type: ignore[arg-type]
     tree = reflex_tree()
+    # The controller's own drive encoding (built valid, not checked again): the floor does
+    # the essential work with the cheapest means the framework has.
+    encoder = Encoder(DRIVE, trusted=True)
 
     def answer(payload: bytes, count: int) -> bytes:
         received = time.monotonic_ns()
@@ -339,9 +342,10 @@ def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
         agg.ingest("range/front", message, received)
         trace = tree.evaluate(agg.snapshot())
         action = trace.action if trace is not None else None
-        return encode("drive", Drive(
-            speed=action.speed if action is not None and action.speed is not None else 0.0,
-            turn=action.turn if action is not None and action.turn is not None else 0.0,
+        return encoder.encode(Drive(
+            speed=float(action.speed) if action is not None and action.speed is not None
+            else 0.0,
+            turn=float(action.turn) if action is not None and action.turn is not None else 0.0,
             based_on=BasedOn(source="range/front", seq=message.seq, stamp_ns=message.stamp_ns),
             tick=count), stamp_ns=time.monotonic_ns(), seq=count)
 

@@ -167,6 +167,11 @@ NOT_RUN = {
         "each event loop in interleaved rounds: minutes (see python -m bench.latency)",
     "python -m bench.latency --only loops --rounds 12":
         "each event loop, 12 interleaved rounds: minutes (see python -m bench.latency)",
+    "python -m bench.latency --only reflex dora":
+        "4 rounds of the reflex and 3 of dora's benchmark: about 2.5 minutes (see python -m "
+        "bench.latency); tests/test_latency.py runs the pieces",
+    "python -m bench.latency --only reflex dora --baseline ../ubf-base":
+        "the same with a second checkout (see python -m bench.latency --only reflex dora)",
     "python -m bench.realtime --runs 5 --duration 20":
         "five runs of 20 simulated s, each also without the camera and flat out: minutes",
     "python -m ubf_async.inspector echo ubf/pi-whegs/sensor/encoders/wheels":

@@ -189,6 +189,18 @@ def test_missing_peer_is_reported_skipped_not_faked(monkeypatch: pytest.MonkeyPa
     assert "skipped" in result and "rtt_ns" not in result
 
 
+def test_dora_method_one_way_per_size_warm_up_discarded_missing_dora_skipped(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    got = latency_dora.SizesCollector(warmup=1)
+    for size in (8, 8, 8, 4096):
+        payload = latency_dora.stamped(size)
+        assert len(payload) == size
+        got.add(payload, int.from_bytes(payload[:8], "little") + 250_000)
+    assert got.values == {8: [250_000, 250_000]}  # the first of each size is warm-up
+    monkeypatch.setattr(latency_dora, "dora_executable", lambda: None)
+    assert "skipped" in latency_dora.run_dora_sizes(sizes=(8,), warmup=1, count=1)
+
+
 def test_summary_reports_only_observed_values() -> None:
     values = [5_000, 1_000, 3_000, 2_000, 4_000]
     s = summarize(values)

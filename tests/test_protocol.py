@@ -9,12 +9,13 @@ import pytest
 
 from ubf_async.wire.protocol import (
     MAX_PAYLOAD_BYTES,
+    Encoder,
     Keys,
     ProtocolError,
     decode,
     encode,
 )
-from ubf_async.wire.topics import Range
+from ubf_async.wire.topics import DRIVE, BasedOn, Drive, Range
 
 
 def envelope(data: object, **overrides: object) -> bytes:
@@ -99,6 +100,32 @@ def test_encode_refuses_what_decode_would_reject() -> None:
         encode("drive", {"speed": math.nan, "turn": 0}, stamp_ns=0, seq=1)
     with pytest.raises(ProtocolError):
         encode("range", GOOD_RANGE, stamp_ns=-1, seq=1)
+
+
+def test_a_trusted_encoder_sends_the_same_bytes_and_still_checks_what_it_is_not_told() -> None:
+    drive = Drive(speed=-50.0, turn=0.0, tick=7, winners=("avoid",), ticked_by="event",
+                  based_on=BasedOn(source="range/front", seq=3, stamp_ns=99))
+    trusted = Encoder(DRIVE, period_s=0.02, pub=5, trusted=True)
+    payload = trusted.encode(drive, stamp_ns=123, seq=4)
+    assert payload == encode(DRIVE, drive, stamp_ns=123, seq=4, period_s=0.02, pub=5)
+    message = decode(payload, topic=DRIVE)
+    assert (message.data, message.stamp_ns, message.seq, message.period_s, message.pub) == (
+        drive, 123, 4, 0.02, 5)
+    # Built valid is the caller's promise for the typed message only: a map is still checked,
+    # and so are the stamp and the number of every message.
+    with pytest.raises(ProtocolError):
+        trusted.encode({"speed": 500.0, "turn": 0.0}, stamp_ns=1, seq=1)
+    with pytest.raises(ProtocolError):
+        trusted.encode(drive, stamp_ns=-1, seq=1)
+    with pytest.raises(ProtocolError):
+        trusted.encode(drive, stamp_ns=1, seq=True)
+    # Untrusted (every other publisher): the typed message is validated as a receiver will.
+    with pytest.raises(ProtocolError):
+        Encoder(DRIVE).encode(Drive(speed=500.0, turn=0.0), stamp_ns=1, seq=1)
+    with pytest.raises(ProtocolError):
+        Encoder(DRIVE, pub=0)
+    with pytest.raises(ProtocolError):
+        Encoder(DRIVE, period_s=0.0)
 
 
 def test_keys() -> None:

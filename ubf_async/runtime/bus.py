@@ -78,12 +78,12 @@ from ubf_async.runtime.queries import Queryable, QueryHandler
 from ubf_async.runtime.ratelimit import TokenBucket
 from ubf_async.wire.protocol import (
     INT64_MAX,
+    Encoder,
     Keys,
     Message,
     ProtocolError,
     count_malformed,
     decode,
-    encode,
 )
 from ubf_async.wire.topics import Data, Topic
 
@@ -380,15 +380,20 @@ class Publisher:
     restarted component (a new instance, a new ``pub``, ``seq`` from 1 again) as a new
     publisher rather than as a replay (:mod:`ubf_async.runtime.ordering`)."""
 
-    def __init__(self, bus: Bus, key: str, schema: str, *, period_s: float | None) -> None:
+    def __init__(self, bus: Bus, key: str, schema: str, *, period_s: float | None,
+                 trusted: bool = False) -> None:
+        """``trusted``: what is published is built valid by construction as the topic's
+        typed message, so it is not validated again on every call (:class:`Encoder`)."""
         self.key = key
         self.schema = schema
         self.period_s = period_s
         self.seq = 0
         self.pub = secrets.randbelow(INT64_MAX) + 1
+        self._encoder = Encoder(schema, period_s=period_s, pub=self.pub, trusted=trusted)
         self._bus = bus
         bus.rights.check("put", key)
         self._out = bus._connection.declare_publisher(key)
+        self._put = self._out.put
         self._closed = False
 
     def publish(self, data: Data | Mapping[str, Any], *,
@@ -397,16 +402,16 @@ class Publisher:
         validated either way): to the matching subscriptions of this bus (on the loop)
         and through the transport to other buses. Returns ``(seq, stamp_ns)`` of what was sent.
         Call it on the bus's event loop."""
-        stamp = self._bus.clock.now_ns() if stamp_ns is None else stamp_ns
+        bus = self._bus
+        stamp = bus.clock.now_ns() if stamp_ns is None else stamp_ns
         self.seq += 1
-        payload = encode(self.schema, data, stamp_ns=stamp, seq=self.seq, period_s=self.period_s,
-                         pub=self.pub)
-        local = self._bus._local_subscriptions(self.key)
+        payload = self._encoder.encode(data, stamp_ns=stamp, seq=self.seq)
+        local = bus._local_subscriptions(self.key)
         if local:
-            on_loop = threading.get_ident() == self._bus._loop_thread
+            on_loop = threading.get_ident() == bus._loop_thread
             for sub in local:
                 sub.push(self.key, payload, on_loop=on_loop)
-        self._out.put(payload)
+        self._put(payload)
         return self.seq, stamp
 
     def has_subscribers(self) -> bool:
@@ -534,16 +539,17 @@ class Bus:
         return sub.push_from_loop if self._connection.callbacks_on_loop else sub.push
 
     def publisher(self, topic: Topic[Any] | str, *parts: str, period_s: float | None = None,
-                  **named_parts: str) -> Publisher:
+                  trusted: bool = False, **named_parts: str) -> Publisher:
         """A publisher of ``topic`` (:mod:`ubf_async.wire.topics`) on its key for this robot:
         ``bus.publisher(CAMERA, "front", period_s=0.11)``. For a schema not declared there,
-        give the key and the schema name instead: ``bus.publisher(key, "my.schema")``."""
+        give the key and the schema name instead: ``bus.publisher(key, "my.schema")``.
+        ``trusted``: see :class:`Publisher`."""
         if isinstance(topic, Topic):
             return Publisher(self, topic.key(self.keys, *parts, **named_parts), topic.schema,
-                             period_s=period_s)
+                             period_s=period_s, trusted=trusted)
         if len(parts) != 1 or named_parts:
             raise TypeError("publisher(key, schema): give the key and one schema name")
-        return Publisher(self, topic, parts[0], period_s=period_s)
+        return Publisher(self, topic, parts[0], period_s=period_s, trusted=trusted)
 
     def raw_publisher(self, key: str) -> RawPublisher:
         """A publisher of payloads exactly as given (no encoding, no checks: a tool replaying

@@ -114,10 +114,11 @@ class Component:
         raise NotImplementedError
 
     def publisher(self, topic: Topic[Any] | str, *parts: str, period_s: float | None = None,
-                  **named_parts: str) -> Publisher:
+                  trusted: bool = False, **named_parts: str) -> Publisher:
         """A publisher (:meth:`Bus.publisher <ubf_async.runtime.bus.Bus.publisher>`) closed
         automatically when this run attempt ends."""
-        pub = self.bus.publisher(topic, *parts, period_s=period_s, **named_parts)
+        pub = self.bus.publisher(topic, *parts, period_s=period_s, trusted=trusted,
+                                 **named_parts)
         self._attempt_resources.append(pub)
         return pub
 

@@ -321,7 +321,10 @@ class Controller(Component):
 
     async def run(self) -> None:
         periodic = self.mode is TickMode.PERIODIC
-        self._drive = self.publisher(DRIVE, period_s=1.0 / self.rate_hz if periodic else None)
+        # Trusted: every drive command is built valid here (speed and turn from a validated
+        # Action, names clipped, based_on from a validated sample), so it is not checked again.
+        self._drive = self.publisher(DRIVE, period_s=1.0 / self.rate_hz if periodic else None,
+                                     trusted=True)
         self._extras = {
             "seek_color": self.publisher(SEEK_COLOR),
             "message": self.publisher(RADIO_SEND),
@@ -429,14 +432,17 @@ class Controller(Component):
                               self.stats.errors)
             trace = None
         action = trace.action if trace is not None else None
-        speed = action.speed if action is not None and action.speed is not None else 0.0
-        turn = action.turn if action is not None and action.turn is not None else 0.0
+        # float(): an Action takes any real number in range; the trusted drive encoder wants
+        # exactly the wire's type.
+        speed = float(action.speed) if action is not None and action.speed is not None else 0.0
+        turn = float(action.turn) if action is not None and action.turn is not None else 0.0
         basis = based_on if based_on is not None else self.aggregator.newest()
         winners = trace.winning_leaves() if trace is not None else []
         self.stats.ticks += 1
         counted = self.stats.winner_ticks
-        # Bounded: behaviours of other processes come and go under any name.
-        counted.update(w for w in winners if w in counted or len(counted) < MAX_COUNTED_NAMES)
+        for w in winners:  # bounded: behaviours of other processes come and go under any name
+            if w in counted or len(counted) < MAX_COUNTED_NAMES:
+                counted[w] += 1
         command = Drive(
             speed=speed,
             turn=turn,
@@ -472,7 +478,9 @@ class Controller(Component):
                 self._trace.publish(TickTrace(tick=self.stats.ticks, nodes=trace_nodes(trace)))
             except Exception:
                 self._publish_failed("tick's trace")
-        self.last_action = Action(speed=speed, turn=turn)
+        last = self.last_action
+        if last is None or last.speed != speed or last.turn != turn:  # (else: the same)
+            self.last_action = Action(speed=speed, turn=turn)
         self.last_trace = trace
         self.stats.tick_ns.append(time.perf_counter_ns() - t0)
         self.ticked.set()

@@ -51,8 +51,8 @@ from ubf_async.wire.topics import (
 )
 
 __all__ = ["INT64_MAX", "MAX_CONTAINER_LEN", "MAX_DEPTH", "MAX_NAME_CHARS", "MAX_STR_LEN",
-           "Keys", "Message", "ProtocolError", "check_segment", "clip", "decode", "encode",
-           "plain"]
+           "Encoder", "Keys", "Message", "ProtocolError", "check_segment", "clip", "decode",
+           "encode", "plain"]
 
 PROTOCOL_VERSION = 1
 MAX_PAYLOAD_BYTES = 256 * 1024
@@ -213,34 +213,82 @@ def encode(
     """Build a payload of ``schema`` (a name or a :class:`~ubf_async.wire.topics.Topic`). The data
     is validated like incoming data, so this side never publishes what it would itself
     reject (raises :class:`ProtocolError`). ``pub`` is the publisher's identity
-    (:class:`~ubf_async.runtime.bus.Publisher` sets it)."""
-    name = schema.schema if isinstance(schema, Topic) else _check_schema(schema)
-    raw = encode_data(name, data)
-    return encode_raw(name, raw, stamp_ns=stamp_ns, seq=seq, period_s=period_s, pub=pub)
+    (:class:`~ubf_async.runtime.bus.Publisher` sets it). A publisher keeps an
+    :class:`Encoder` instead, which checks what does not change once."""
+    return Encoder(schema, period_s=period_s, pub=pub).encode(data, stamp_ns=stamp_ns, seq=seq)
 
 
 def encode_raw(schema: str, raw: bytes, *, stamp_ns: int, seq: int,
                period_s: float | None = None, pub: int | None = None) -> bytes:
     """An envelope around data already encoded and validated by :func:`encode_data`."""
-    _check_schema(schema)
-    if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, int) or not (
-            0 <= stamp_ns <= INT64_MAX):
-        raise ProtocolError(f"stamp_ns: {stamp_ns!r} is not an integer in [0, 2**63-1]")
-    if isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= INT64_MAX:
-        raise ProtocolError(f"seq: {seq!r} is not an integer in [0, 2**63-1]")
-    if pub is not None and (isinstance(pub, bool) or not isinstance(pub, int)
-                            or not 1 <= pub <= INT64_MAX):
-        raise ProtocolError(f"pub: {pub!r} is not an integer in [1, 2**63-1]")
-    if period_s is not None and (isinstance(period_s, bool)
-                                 or not isinstance(period_s, int | float)
-                                 or not 1e-6 <= period_s <= 3600.0):
-        raise ProtocolError(f"period_s: {period_s!r} is not a number in [1e-6, 3600]")
-    payload = _ENCODER.encode(_Envelope(
-        schema=schema, v=PROTOCOL_VERSION, stamp_ns=stamp_ns, seq=seq, data=msgspec.Raw(raw),
-        period_s=None if period_s is None else float(period_s), pub=pub))
-    if len(payload) > MAX_PAYLOAD_BYTES:
-        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-    return payload
+    return Encoder(schema, period_s=period_s, pub=pub).wrap(msgspec.Raw(raw), stamp_ns=stamp_ns,
+                                                            seq=seq)
+
+
+class _Outgoing(msgspec.Struct, omit_defaults=True):
+    """The envelope as it is sent: :class:`_Envelope`'s fields in its order, ``data`` either
+    the topic's message itself (encoded inline, one pass) or bytes already encoded."""
+
+    schema: str
+    v: int
+    stamp_ns: int
+    seq: int
+    data: Any
+    period_s: float | None = None
+    pub: int | None = None
+
+
+def _check_count(name: str, value: object, low: int = 0) -> None:
+    if value.__class__ is not int and (isinstance(value, bool) or not isinstance(value, int)):
+        raise ProtocolError(f"{name}: {value!r} is not an integer in [{low}, 2**63-1]")
+    if not low <= value <= INT64_MAX:
+        raise ProtocolError(f"{name}: {value!r} is not an integer in [{low}, 2**63-1]")
+
+
+class Encoder:
+    """Encodes the messages of one publisher: the schema, ``period_s`` and the publisher
+    identity ``pub`` are checked once, here; each :meth:`encode` checks ``stamp_ns`` and
+    ``seq`` and validates the data as a receiver will (:func:`encode_data`).
+
+    ``trusted``: the caller builds its data valid by construction as the topic's typed message
+    (the controller's drive command: speed and turn from a validated
+    :class:`~ubf_async.core.action.Action`, names clipped, counts from validated samples), so
+    its constraints are not checked again on every message and the envelope is encoded in one
+    pass with the data inline. A map, or another type, is still converted and checked."""
+
+    __slots__ = ("_kind", "_period_s", "_pub", "_trusted", "schema")
+
+    def __init__(self, schema: str | Topic[Any], *, period_s: float | None = None,
+                 pub: int | None = None, trusted: bool = False) -> None:
+        self.schema = schema.schema if isinstance(schema, Topic) else _check_schema(schema)
+        if pub is not None:
+            _check_count("pub", pub, 1)
+        if period_s is not None and (isinstance(period_s, bool)
+                                     or not isinstance(period_s, int | float)
+                                     or not 1e-6 <= period_s <= 3600.0):
+            raise ProtocolError(f"period_s: {period_s!r} is not a number in [1e-6, 3600]")
+        self._period_s = None if period_s is None else float(period_s)
+        self._pub = pub
+        topic = BY_SCHEMA.get(self.schema)
+        self._kind: type | None = topic.type if topic is not None and trusted else None
+        self._trusted = trusted
+
+    def encode(self, data: Any, *, stamp_ns: int, seq: int) -> bytes:
+        """The payload of ``data`` stamped ``stamp_ns``, numbered ``seq`` (raises
+        :class:`ProtocolError`)."""
+        if self._kind is not None and data.__class__ is self._kind:
+            return self.wrap(data, stamp_ns=stamp_ns, seq=seq)
+        return self.wrap(msgspec.Raw(encode_data(self.schema, data)), stamp_ns=stamp_ns, seq=seq)
+
+    def wrap(self, data: Any, *, stamp_ns: int, seq: int) -> bytes:
+        """The envelope around ``data``: a valid message, or its bytes (``msgspec.Raw``)."""
+        _check_count("stamp_ns", stamp_ns)
+        _check_count("seq", seq)
+        payload = _ENCODER.encode(_Outgoing(self.schema, PROTOCOL_VERSION, stamp_ns, seq, data,
+                                            self._period_s, self._pub))
+        if len(payload) > MAX_PAYLOAD_BYTES:
+            raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+        return payload
 
 
 def _check_schema(schema: object) -> str:
