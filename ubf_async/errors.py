@@ -1,9 +1,9 @@
 """One exception tree with one root, :class:`UbfError`.
 
 Library code raises these; only a command line's ``main()`` turns them into an exit status
-(:func:`ubf_async.cli.run.run_main`). Each subclass also derives from the built-in exception a
-caller would naturally catch (``ValueError``, ``LookupError``), so existing ``except
-ValueError`` code keeps working.
+(:func:`ubf_async.cli.run.run_main`, :func:`~ubf_async.cli.run.run_sync`). Each subclass also
+derives from the built-in exception a caller would naturally catch (``ValueError``,
+``LookupError``), so existing ``except ValueError`` code keeps working.
 
 ::
 
@@ -12,10 +12,14 @@ ValueError`` code keeps working.
     ├── KeyExprError           a key expression zenoh refuses too (the in-process transport)
     ├── ConfigurationError     something a user wrote or asked for is wrong
     │   ├── RobotFileError     a robot file (docs/robot-file.md), with its file and line
+    │   │   ├── SweepSpecError     a sweep's SPEC (docs/sweep.md), SPEC:LINE
+    │   │   ├── EvolveSpecError    an evolution's SPEC (docs/evolve.md), SPEC:LINE
+    │   │   └── OverridePathError  an override's path that leads nowhere in the robot file
+    │   ├── JournalError       a run journal that cannot be read as one (FILE:LINE)
     │   ├── ParameterError     parameters a plug-in's factory refuses (its signature says why)
     │   ├── ScenarioError      a scenario file (docs/scenarios.md)
     │   ├── PluginError        an unknown or broken behaviour/arbiter/device/backend name
-│   │   └── MissingExtraError  a feature whose extra is not installed (ubf_async.extras)
+    │   │   └── MissingExtraError  a feature whose extra is not installed (ubf_async.extras)
     │   ├── TreeChangeError    a live change of the running tree that was refused
     │   ├── NameTakenError     a component name already alive on the robot
     │   ├── UnknownFieldError  a field a sample's topic does not declare (a behaviour's typo)
@@ -28,10 +32,6 @@ ValueError`` code keeps working.
     ├── SettleError            the in-process network still busy after its limit
     ├── ResultsNotSavedError   a run's summary or recording could not be written
     └── ShutdownError          a step of a program's end failed
-
-The specifications of sweeps and evolution runs and their journal refine these where they are
-read (``runs/``: ``SweepSpecError``, ``EvolveSpecError``, ``OverridePathError``,
-``JournalError``).
 """
 
 from __future__ import annotations
@@ -73,6 +73,24 @@ class RobotFileError(ConfigurationError):
         if self.line is not None:
             where += f":{self.line}"
         return f"{where}: {self.message}"
+
+
+class SweepSpecError(RobotFileError):
+    """A sweep spec that does not hold together; reads ``SPEC:LINE: message`` as a robot file's
+    errors do."""
+
+
+class EvolveSpecError(RobotFileError):
+    """An evolution SPEC that does not hold together (``SPEC:LINE: message``)."""
+
+
+class OverridePathError(RobotFileError):
+    """An override's path that does not lead to a place of the robot file (whatever its
+    value)."""
+
+
+class JournalError(ConfigurationError):
+    """A journal that cannot be read as one (``FILE:LINE: …``)."""
 
 
 class ParameterError(ConfigurationError):

@@ -41,18 +41,13 @@ from ubf_async.assembly.robotfile import (
     resolve,
     struct_at,
 )
-from ubf_async.errors import RobotFileError
+from ubf_async.errors import OverridePathError, RobotFileError
 
 PATH_SYNTAX = re.compile(
     r'[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*|\[\d+\]|\["[^"\]]*"\])*')
 """``tree.children[1].params.period_s``, ``controller.stale_after_s["camera/front"]``."""
 OPEN_MAPS = frozenset({"params", "backend_params"})
 """Maps whose keys a factory's signature checks: an override may add a key to them."""
-
-
-class OverridePathError(RobotFileError):
-    """An override's path that does not lead to a place of the robot file (whatever its
-    value)."""
 
 
 def parse_path(text: str) -> Path_:

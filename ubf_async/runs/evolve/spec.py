@@ -43,7 +43,7 @@ from ubf_async.assembly.robotfile import (
     load_robot_text,
     read_robot_file,
 )
-from ubf_async.errors import ParameterError, PluginError, RobotFileError, UbfError
+from ubf_async.errors import EvolveSpecError, ParameterError, PluginError, RobotFileError, UbfError
 from ubf_async.runs import inprocess, overrides
 from ubf_async.runs.evolve import genome, scenarios
 from ubf_async.runs.evolve.fitness import Fitness, Term, task
@@ -64,10 +64,6 @@ Seed = Annotated[int, Meta(ge=0, le=2**63 - 1)]
 Name = Annotated[str, Meta(min_length=1, max_length=500)]
 Span = tuple[float, float]
 Weight = Annotated[float, Meta(ge=0.0, le=1e6)]
-
-
-class EvolveSpecError(RobotFileError):
-    """An evolution SPEC that does not hold together (``SPEC:LINE: message``)."""
 
 
 class GeneratorSpec(Spec):

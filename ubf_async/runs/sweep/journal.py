@@ -15,15 +15,11 @@ from typing import BinaryIO
 
 import msgspec
 
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import JournalError
 from ubf_async.runs.sweep.execution import RunRecord
 
 JOURNAL = "journal.jsonl"
 HEADER = {"journal": "ubf_async.sweep", "format": 1}
-
-
-class JournalError(ConfigurationError):
-    """A journal that cannot be read as one (``FILE:LINE: …``)."""
 
 
 def _complete(data: bytes) -> bytes:

@@ -25,7 +25,13 @@ import msgspec
 from msgspec import Meta
 
 from ubf_async.assembly.robotfile import Locator, Path_, Robot, Spec, read_robot_file
-from ubf_async.errors import ConfigurationError, RobotFileError, ScenarioError, UbfError
+from ubf_async.errors import (
+    ConfigurationError,
+    RobotFileError,
+    ScenarioError,
+    SweepSpecError,
+    UbfError,
+)
 from ubf_async.runs import inprocess, overrides
 
 MAX_RUNS = 1_000_000
@@ -39,11 +45,6 @@ Figure = Annotated[str, Meta(pattern=FIGURE, max_length=200)]
 Seed = Annotated[int, Meta(ge=0, le=2**63 - 1)]  # numpy's generators refuse negative seeds
 Name = Annotated[str, Meta(min_length=1, max_length=500)]
 S = TypeVar("S", bound=Spec)
-
-
-class SweepSpecError(RobotFileError):
-    """A sweep spec that does not hold together; reads ``SPEC:LINE: message`` as a robot file's
-    errors do."""
 
 
 class SeedRange(Spec):
