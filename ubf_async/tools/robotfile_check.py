@@ -11,6 +11,7 @@ from pathlib import Path
 from ubf_async import __version__
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot, schema_text
+from ubf_async.cli.run import run_sync
 from ubf_async.errors import ConfigurationError
 
 
@@ -26,6 +27,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     schema.add_argument("--write", type=Path, default=None, metavar="FILE")
     sub.add_parser("plugins", help="list the registered behaviours, arbiters, devices …")
     args = parser.parse_args(argv)
+    return run_sync(lambda: run(args), prog="python -m ubf_async.robotfile")
+
+
+def run(args: argparse.Namespace) -> int:
+    """The command's work; a file that fails its check is this command's finding (status 1,
+    the next file still checked), not an error of the command."""
     if args.command == "schema":
         if args.write is None:
             sys.stdout.write(schema_text())
