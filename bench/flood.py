@@ -26,7 +26,7 @@ import time
 from typing import Any
 
 from tests.conftest import free_port
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus

@@ -695,7 +695,8 @@ def measure_breakdown(n: int = 2000) -> dict[str, Any]:
     from ubf_async.net.options import ConnectionOptions
     from ubf_async.runtime.aggregator import StateAggregator
     from ubf_async.runtime.bus import Subscription
-    from ubf_async.wire.protocol import Keys, decode, encode
+    from ubf_async.wire.keys import Keys
+    from ubf_async.wire.protocol import decode, encode
 
     out: dict[str, Any] = {}
     sample = msgpack.packb({"schema": "range", "v": 1, "stamp_ns": time.monotonic_ns(),

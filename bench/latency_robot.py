@@ -52,7 +52,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from ubf_async import Action, Behavior, Child, Composite, HighestPriority, State
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.cli.run import run_loop
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
@@ -286,7 +286,7 @@ def serve_raw(cfg: dict[str, Any], answer: Callable[[bytes, int], bytes]) -> dic
     ``cmd/drive``; serves until stdin closes."""
     import zenoh
 
-    from ubf_async.wire.protocol import Keys
+    from ubf_async.wire.keys import Keys
 
     keys = Keys(cfg["robot"])
     session = zenoh.open(ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]])
@@ -323,7 +323,8 @@ def echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
 
 def tree_echo_role(cfg: dict[str, Any]) -> dict[str, Any]:
     from ubf_async.clocks.clock import WallClock
-    from ubf_async.wire.protocol import Encoder, Keys, decode
+    from ubf_async.wire.keys import Keys
+    from ubf_async.wire.protocol import Encoder, decode
     from ubf_async.wire.topics import DRIVE, RANGE, BasedOn, Drive
 
     class StandInBus:  # what StateAggregator.ingest and snapshot read

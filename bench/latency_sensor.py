@@ -49,7 +49,7 @@ import msgpack
 import zenoh
 
 from ubf_async.net.options import ConnectionOptions
-from ubf_async.wire.protocol import Keys
+from ubf_async.wire.keys import Keys
 
 FAR_MM = 600
 NEAR_MM = 120

@@ -23,6 +23,8 @@ from typing import Any
 from ubf_async import extras
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["describe", "gpio_errors", "pin_factory", "pins_error", "require"]
+
 _FACTORIES: dict[str, Any] = {}
 _LOCK = threading.Lock()
 

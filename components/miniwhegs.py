@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = ["MINI_WHEGS", "MiniWhegsGeometry"]
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MiniWhegsGeometry:

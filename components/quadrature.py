@@ -36,6 +36,9 @@ import numpy as np
 
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 
+__all__ = ["FORWARD_SEQUENCE", "DirectionMode", "QuadratureDecoder", "edges_to_counts",
+           "edges_to_radians"]
+
 FORWARD_SEQUENCE: tuple[int, ...] = (0, 1, 3, 2)
 """States in the order a forward-turning wheel produces them (then back to 0)."""
 

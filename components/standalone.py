@@ -38,10 +38,11 @@ from typing import Any
 
 import yaml
 
-from components.devices import make_backend, make_device, requires_simulator
+from components.devices import make_backend, make_device
 from ubf_async.assembly import registry
 from ubf_async.assembly.backend import Backend
 from ubf_async.assembly.context import DeviceContext
+from ubf_async.assembly.devices import requires_simulator
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connection_options
 from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
@@ -51,6 +52,8 @@ from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime import refusals, timekeepers
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component, ensure_name_free
+
+__all__ = ["Device", "Params", "add_backend_argument", "run_device"]
 
 Params = Callable[[argparse.Namespace], dict[str, Any]]
 """Maps the parsed command line to keyword parameters (of the device or of its backend)."""

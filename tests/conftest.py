@@ -242,7 +242,7 @@ async def start_seeking_robot(bus: Bus, run: object) -> tuple[object, list[objec
     controller and the run's own components, started in that order. Returns (controller,
     components); close the components in reverse order."""
     from components.sim.runner.stepper import simulated_devices
-    from ubf_async.behaviors import seek_pink_ball
+    from ubf_async.behaviors.pink_ball import seek_pink_ball
     from ubf_async.runtime.aggregator import StateAggregator
     from ubf_async.runtime.controller import Controller
 

@@ -27,7 +27,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus

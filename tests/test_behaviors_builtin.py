@@ -13,7 +13,9 @@ import pytest
 
 from ubf_async.assembly import registry
 from ubf_async.assembly.plugins import conditional, predicate_from
-from ubf_async.behaviors import Avoid, Chase, ConstantDrive, Flee, Search, Stop
+from ubf_async.behaviors.basic import ConstantDrive, Stop
+from ubf_async.behaviors.obstacles import Avoid
+from ubf_async.behaviors.pink_ball import Chase, Flee, Search
 from ubf_async.core.action import Action
 from ubf_async.core.arbiters import Conditional, MonteCarlo
 from ubf_async.core.behavior import Arbiter, Behavior, Composite, FunctionBehavior

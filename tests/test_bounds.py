@@ -7,9 +7,10 @@ import itertools
 
 import pytest
 
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime.bus import DRAIN_BATCH, Subscription, TopicScreen
 from ubf_async.runtime.component import MAX_WATCHED_COMPONENTS, HealthMonitor
-from ubf_async.wire.protocol import MAX_COUNTED_KEYS, ProtocolError, decode_or_count
+from ubf_async.wire.protocol import MAX_COUNTED_KEYS, decode_or_count
 from ubf_async.wire.topics import DRIVE
 
 

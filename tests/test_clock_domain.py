@@ -17,7 +17,7 @@ import pytest
 
 from tests.conftest import eventually
 from tests.remote_robot import Process
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.clocks import clockdomain, follow
 from ubf_async.clocks.clock import SimClock
 from ubf_async.clocks.clockdomain import ClockDomainWatch, foreign_clock
@@ -28,7 +28,7 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal
 from ubf_async.services.remote import ReceivedVote, RemoteBehaviors
-from ubf_async.tools.inspector import format_clock_domain
+from ubf_async.tools.inspector.state import format_clock_domain
 from ubf_async.wire.protocol import Message, decode
 from ubf_async.wire.topics import Range
 

@@ -10,22 +10,17 @@ from typing import Any
 import msgspec
 import pytest
 
-from components.devices import (
-    BACKEND_INJECTED,
-    DEVICE_INJECTED,
-    KINDS,
-    make_backend,
-    make_device,
-    requires_simulator,
-)
+from components.devices import KINDS, make_backend, make_device
 from components.range.backend import RangeBackend
 from components.range.ir import IR_MODELS
 from components.sim.scenarios.scenario import load_scenario
 from components.sim.world.config import WorldConfig
 from components.sim.world.physics import World
 from ubf_async.assembly import registry
+from ubf_async.assembly.context import DeviceContext
+from ubf_async.assembly.devices import BACKEND_INJECTED, DEVICE_INJECTED, requires_simulator
 from ubf_async.assembly.robotfile import load_robot_text
-from ubf_async.assembly.simulation import DeviceContext, OpenSimulation, SimulationOptions
+from ubf_async.assembly.simulation import OpenSimulation, SimulationOptions
 from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import (
     ConfigurationError,

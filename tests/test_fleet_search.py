@@ -12,9 +12,9 @@ import pytest
 
 from components.sim.world.config import Arena, WorldConfig, WorldPose
 from components.sim.world.physics import World
+from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.devices import build_device
 from ubf_async.assembly.robotfile import load_robot
-from ubf_async.assembly.simulation import DeviceContext
 from ubf_async.behaviors.ball_reports import GoToReport, ReportBall, format_report, parse_report
 from ubf_async.core.state import State
 from ubf_async.net.inprocess import InProcessTransport

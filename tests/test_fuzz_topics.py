@@ -34,20 +34,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from ubf_async.errors import ProtocolError
 from ubf_async.wire import topics
-from ubf_async.wire.protocol import (
+from ubf_async.wire.protocol import MAX_PAYLOAD_BYTES, PROTOCOL_VERSION, Message, decode, encode
+from ubf_async.wire.topics import (
     INT64_MAX,
     MAX_CONTAINER_LEN,
     MAX_DEPTH,
-    MAX_PAYLOAD_BYTES,
     MAX_STR_LEN,
-    PROTOCOL_VERSION,
-    Message,
-    ProtocolError,
-    decode,
-    encode,
+    TOPICS,
+    PlainData,
+    Topic,
 )
-from ubf_async.wire.topics import TOPICS, PlainData, Topic
 
 GENERIC_SCHEMA = "fuzz.newkind"
 """A schema declared nowhere: its data takes the generic path."""

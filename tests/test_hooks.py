@@ -16,11 +16,13 @@ from tests.conftest import as_dict, eventually, zenoh_session
 from ubf_async import Action, FunctionBehavior, State
 from ubf_async.clocks.clock import WallClock
 from ubf_async.core.behavior import Trace
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.controller import Controller
-from ubf_async.wire.protocol import Keys, Message, ProtocolError, decode
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import Message, decode
 
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
 

@@ -22,13 +22,15 @@ from ubf_async import Action, FunctionBehavior, State
 from ubf_async.clocks.clock import SimClock
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Child, Composite
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime.aggregator import MAX_SOURCES, StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.runtime.ratelimit import TokenBucket
 from ubf_async.wire.keys import Keys
-from ubf_async.wire.protocol import MAX_NAME_CHARS, Message, ProtocolError, decode, encode
+from ubf_async.wire.protocol import Message, decode, encode
+from ubf_async.wire.topics import MAX_NAME_CHARS
 
 CAMERA = {"bins": [0, 0, 140, 0, 0], "total": 140}
 

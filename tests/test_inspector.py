@@ -15,18 +15,13 @@ import pytest
 from tests.cli_inprocess import run_main
 from tests.conftest import free_port
 from tests.remote_robot import ROOT, Process, start_robot
-from ubf_async.tools.inspector import (
-    build_parser,
-    expected_schema,
-    format_sample,
-    resolve_key,
-    tree_request_data,
-)
-from ubf_async.tools.inspector import (
-    main as inspector_main,
-)
-from ubf_async.tools.inspector.common import key_or_report
-from ubf_async.wire.protocol import Keys, encode
+from ubf_async.tools.inspector.common import expected_schema, key_or_report, resolve_key
+from ubf_async.tools.inspector.parser import build_parser
+from ubf_async.tools.inspector.program import main as inspector_main
+from ubf_async.tools.inspector.samples import format_sample
+from ubf_async.tools.inspector.tree import tree_request_data
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import encode
 
 EXAMPLES = ROOT / "examples"
 ROBOT_COMPONENTS = ["aggregator", "camera-front", "controller", "remotes", "robot-time"]
@@ -297,7 +292,7 @@ def test_a_key_that_does_not_resolve_is_reported(capsys: pytest.CaptureFixture[s
 
 
 def test_state_shows_refusals_and_quarantined_behaviours() -> None:
-    from ubf_async.tools.inspector import format_state
+    from ubf_async.tools.inspector.state import format_state
 
     status = {
         "mode": "periodic", "sources": [

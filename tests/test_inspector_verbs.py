@@ -21,7 +21,8 @@ from tests.conftest import eventually, free_port
 from tests.remote_robot import Process
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.bus import Bus
-from ubf_async.tools.inspector import build_parser, run
+from ubf_async.tools.inspector.parser import build_parser
+from ubf_async.tools.inspector.program import run
 from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import HEARTBEAT, LEDS, RANGE
 

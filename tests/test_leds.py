@@ -25,12 +25,13 @@ from components.sim.outputs.trajectory import (
     read_trajectory_csv,
 )
 from tests.conftest import as_dict, eventually, free_port, spawn, stop
+from ubf_async.errors import ProtocolError
 from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runs.inprocess import plan_run, run_plan
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
-from ubf_async.wire.protocol import ProtocolError, decode, encode
+from ubf_async.wire.protocol import decode, encode
 from ubf_async.wire.topics import LED_STATE, LEDS, LedState
 
 

@@ -27,7 +27,7 @@ from ubf_async.core.action import Action
 from ubf_async.core.arbiters import HighestPriority
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
-from ubf_async.errors import QueryError
+from ubf_async.errors import ProtocolError, QueryError
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
@@ -40,9 +40,9 @@ from ubf_async.services.live import (
     request,
 )
 from ubf_async.services.remote import RemoteBehaviorHost, RemoteBehaviors
-from ubf_async.tools.inspector import build_parser
 from ubf_async.tools.inspector import program as inspector_program
-from ubf_async.wire.protocol import ProtocolError, decode, encode
+from ubf_async.tools.inspector.parser import build_parser
+from ubf_async.wire.protocol import decode, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.asyncio

@@ -10,14 +10,9 @@ import pytest
 
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.core.arbiters import UtilityFusion
-from ubf_async.errors import RobotFileError
+from ubf_async.errors import OverridePathError, RobotFileError
 from ubf_async.runs import inprocess
-from ubf_async.runs.overrides import (
-    OverridePathError,
-    load_robot_text_with,
-    load_robot_with,
-    parse_path,
-)
+from ubf_async.runs.overrides import load_robot_text_with, load_robot_with, parse_path
 
 ROBOT = Path(__file__).resolve().parent.parent / "ubf_async" / "robots" / "mini-whegs.yaml"
 

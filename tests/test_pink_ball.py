@@ -7,7 +7,7 @@ import random
 import pytest
 
 from ubf_async import Action, State
-from ubf_async.behaviors import Chase, Flee, Search, seek_pink_ball
+from ubf_async.behaviors.pink_ball import Chase, Flee, Search, seek_pink_ball
 
 S = 1_000_000_000
 

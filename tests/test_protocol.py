@@ -7,14 +7,9 @@ import math
 import msgpack
 import pytest
 
-from ubf_async.wire.protocol import (
-    MAX_PAYLOAD_BYTES,
-    Encoder,
-    Keys,
-    ProtocolError,
-    decode,
-    encode,
-)
+from ubf_async.errors import ProtocolError
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import MAX_PAYLOAD_BYTES, Encoder, decode, encode
 from ubf_async.wire.topics import DRIVE, BasedOn, Drive, Range
 
 

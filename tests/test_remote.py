@@ -26,8 +26,9 @@ import pytest
 from tests.conftest import eventually
 from tests.remote_robot import ROOT, Process, start_robot
 from ubf_async import Action, Composite, Conditional, FunctionBehavior, PriorityMerge, State
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.clocks.clock import SimClock, WallClock
+from ubf_async.errors import ProtocolError
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
@@ -44,7 +45,8 @@ from ubf_async.services.remote import (
     vote_key,
 )
 from ubf_async.tools.remote_host import choose_clock
-from ubf_async.wire.protocol import Keys, ProtocolError, decode, encode
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import decode, encode
 
 EXAMPLES = ROOT / "examples"
 PINK = {"bins": [0, 0, 60, 0, 0], "total": 60}  # chase: speed +40, turn 0

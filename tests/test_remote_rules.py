@@ -13,11 +13,12 @@ from typing import Any
 import pytest
 
 from ubf_async import Composite, PriorityMerge, State
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError
 from ubf_async.services.remote import MAX_NAME_LEN, RemoteBehaviors
-from ubf_async.wire.protocol import Keys, encode
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import encode
 
 T0 = 10_000_000_000
 PINK = {"bins": [0, 0, 60, 0, 0], "total": 60}

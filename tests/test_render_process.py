@@ -30,7 +30,7 @@ from components.sim.render.process import ENV_VAR, RenderProcess, shared_render_
 from components.sim.world.config import Arena, BallConfig, WorldConfig, WorldPose
 from components.sim.world.physics import RobotView, World
 from tests.test_sim_camera import busy_arena
-from ubf_async.assembly.simulation import DeviceContext
+from ubf_async.assembly.context import DeviceContext
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -15,11 +15,11 @@ from zenoh_ros2_sdk.keyexpr import node_liveliness_keyexpr, topic_keyexpr
 from zenoh_ros2_sdk.qos import QosHistoryKind, QosProfile, QosReliability
 
 from ubf_async.assembly.robotfile import RemoteSlot, Ros2Spec
+from ubf_async.errors import ProtocolError
 from ubf_async.services.ros2 import keys as rk
 from ubf_async.services.ros2 import messages as rm
 from ubf_async.services.ros2.bridge import settings_of_spec
 from ubf_async.tools.ros2 import build_parser, settings_of
-from ubf_async.wire.protocol import ProtocolError
 
 TWIST_HASH = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"
 
@@ -107,7 +107,8 @@ def test_settings_from_the_robot_file_and_the_command_line(
 
 
 def test_a_robot_file_s_ros2_section_is_checked_when_it_loads() -> None:
-    from ubf_async.assembly.robotfile import RobotFileError, load_robot_text
+    from ubf_async.assembly.robotfile import load_robot_text
+    from ubf_async.errors import RobotFileError
 
     shipped = (Path(__file__).resolve().parent.parent / "ubf_async" / "robots" /
                "mini-whegs.yaml").read_text()

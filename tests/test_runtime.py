@@ -22,7 +22,7 @@ import pytest_asyncio
 from tests.conftest import LoopClock, as_dict, eventually, zenoh_session
 from tests.test_inprocess_units import Rig
 from ubf_async import Action, FunctionBehavior, State
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.clocks.clock import SimClock
 from ubf_async.clocks.simclock import follow_sim_clock
 from ubf_async.net.inprocess import InProcessTransport

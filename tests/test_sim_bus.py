@@ -20,7 +20,7 @@ from components.motors.component import DEFAULT_TIMEOUT_S
 from components.sim.runner.stepper import DEVICES
 from components.sim.world.config import Arena, BallConfig, WorldConfig, WorldPose
 from tests.conftest import SimRobot, as_dict, eventually, zenoh_session
-from ubf_async.behaviors import seek_pink_ball
+from ubf_async.behaviors.pink_ball import seek_pink_ball
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller

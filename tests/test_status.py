@@ -146,7 +146,7 @@ def test_without_a_terminal_each_period_is_one_plain_line(tmp_path: Path) -> Non
 def test_the_plan_and_the_inspector_use_the_status_lines_labels(
         capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     from ubf_async.services.status import planned_ticks
-    from ubf_async.tools.inspector import format_state
+    from ubf_async.tools.inspector.state import format_state
 
     # launch --check (its main, here): a sync controller does not tick at the clock's rate,
     # nor take reflexes.

@@ -27,8 +27,10 @@ import pytest
 from tests.conftest import REPOSITORY, repository_env
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import sweep
-from ubf_async.runs.sweep import RunRecord, RunTask, execution
+from ubf_async.runs.sweep import execution
+from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import HEADER, JOURNAL, Journal, read_journal
+from ubf_async.runs.sweep.spec import RunTask
 from ubf_async.tools.sweep import main
 
 ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"

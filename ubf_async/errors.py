@@ -36,6 +36,13 @@ derives from the built-in exception a caller would naturally catch (``ValueError
 
 from __future__ import annotations
 
+__all__ = ["ConfigurationError", "EvolveSpecError", "JournalError", "KeyExprError",
+           "MissingExtraError", "NameTakenError", "NoRobotError", "NotAllowedError",
+           "OverridePathError", "ParameterError", "PluginError", "PortInUseError", "ProtocolError",
+           "QueryError", "RefusedError", "ResultsNotSavedError", "RobotFileError", "ScenarioError",
+           "SessionError", "SettleError", "ShutdownError", "SweepSpecError", "TreeChangeError",
+           "UbfError", "UnknownFieldError"]
+
 
 class UbfError(Exception):
     """Root of every error ubf_async raises on purpose."""

@@ -3,5 +3,7 @@
 
 from ubf_async.tools.replay import main
 
+__all__ = []
+
 if __name__ == "__main__":
     raise SystemExit(main())

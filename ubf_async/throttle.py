@@ -3,6 +3,8 @@ and every ``every``-th time after, so a flood of bad input says so without flood
 
 from __future__ import annotations
 
+__all__ = ["first_and_every", "passes"]
+
 
 def first_and_every(count: int, every: int = 100) -> bool:
     """Whether the ``count``-th occurrence (1 for the first) should be logged."""

@@ -8,6 +8,8 @@ import numpy as np
 
 from ubf_async.assembly.backend import Backend
 
+__all__ = ["CameraBackend"]
+
 
 class CameraBackend(Backend):
     """A frame source. :meth:`capture` blocks (the component calls it from a worker thread).

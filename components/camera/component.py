@@ -41,6 +41,9 @@ from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView, SeekColor
 
+__all__ = ["CAPTURE_DRAIN_S", "OV9655_LATENCY_S", "CameraComponent", "CaptureOutcome",
+           "build_device"]
+
 OV9655_LATENCY_S = 0.11
 CAPTURE_DRAIN_S = 2.0
 """How long a closing camera waits, at most, for a capture in progress to leave its backend."""

@@ -15,6 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["BIN_ANGLES_DEG", "BIN_COUNT", "DEFAULT_HFOV_DEG", "PINK", "SUBSAMPLE_STEP",
+           "ColorRange", "SeekResult", "color_mask", "seekcolor", "subsample"]
+
 BIN_COUNT = 5
 BIN_ANGLES_DEG: tuple[float, ...] = (14.0, 7.0, 0.0, -7.0, -14.0)
 """Bearing of each bin's centre, in image order (left to right)."""

@@ -19,6 +19,8 @@ from components.camera.backend import CameraBackend
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["CameraError", "VideoCaptureBackend", "video_backend"]
+
 
 class CameraError(RuntimeError):
     """The source cannot be opened, is closed, or yields no frame."""

@@ -20,6 +20,9 @@ from components.camera.seekcolor import (
     subsample,
 )
 
+__all__ = ["BIN_LINE_BGR", "DEFAULT_VIEW_SCALE", "JPEG_QUALITY", "MATCH_BGR", "draw_view",
+           "encode_jpeg"]
+
 BIN_LINE_BGR = (0, 200, 0)
 MATCH_BGR = (255, 255, 0)
 """Matching pixels are marked in cyan: it stands out against pink and the arena's beige."""

@@ -8,6 +8,8 @@ import numpy as np
 
 from ubf_async.assembly.backend import Backend
 
+__all__ = ["EdgeTiming", "EncoderBackend"]
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EdgeTiming:

@@ -63,6 +63,11 @@ from ubf_async.services.remote import RemoteBehaviorHost
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import ENCODERS, SIM_TRUTH, Encoders, SimTruth
 
+__all__ = ["DEFAULT_TURNS", "Latest", "RobotTurnRig", "TrackFit", "Turn", "WheelReading",
+           "ask_turned_deg", "calibrate_robot", "fit_effective_track", "format_fit",
+           "given_turned_deg", "main", "measure_turns", "parse_commands", "parse_degrees",
+           "simulated_rig"]
+
 DEFAULT_TURNS: tuple[tuple[float, float], ...] = (
     (40.0, 30.0), (40.0, -30.0), (40.0, 60.0), (40.0, -60.0), (10.0, 80.0), (10.0, -80.0),
     (0.0, 100.0), (0.0, -100.0),

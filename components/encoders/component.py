@@ -39,6 +39,8 @@ from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import ENCODERS, MOTORS, ODOMETRY, MotorsApplied
 
+__all__ = ["EncodersComponent", "build_device", "wheel_speed_rad_s"]
+
 
 def wheel_speed_rad_s(edges: int, timing: EdgeTiming,
                       geometry: MiniWhegsGeometry = MINI_WHEGS) -> float | None:

@@ -35,6 +35,8 @@ from components import hardware
 from components.encoders.backend import EdgeTiming, EncoderBackend
 from ubf_async.assembly.context import DeviceContext
 
+__all__ = ["MAX_EDGE_GAP_S", "GpioEncoderBackend", "Pin", "gpio_backend"]
+
 log = logging.getLogger(__name__)
 
 Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 
+__all__ = ["EFFECTIVE_TRACK_M", "OdometryPose", "WheelOdometry", "wrap_angle"]
+
 
 def wrap_angle(angle_rad: float) -> float:
     """``angle_rad`` wrapped to ``(−π, π]``."""

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from ubf_async.assembly.backend import Backend
 
+__all__ = ["LedBackend"]
+
 
 class LedBackend(Backend):
     def set_leds(self, mask: int) -> None:

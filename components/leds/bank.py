@@ -7,6 +7,8 @@ with bits beyond them is refused by :meth:`LedBank.check` or cut to the bank by
 
 from __future__ import annotations
 
+__all__ = ["MAX_LEDS", "LedBank"]
+
 MAX_LEDS = 8
 """The most LEDs a bank drives (the action's ``leds`` is one byte)."""
 

@@ -23,6 +23,8 @@ from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LED_STATE, LEDS, Leds
 
+__all__ = ["LedsComponent", "build_device"]
+
 
 class LedsComponent(Component):
     def __init__(self, *, bus: Bus, backend: LedBackend, name: str = "panel", count: int = 2,

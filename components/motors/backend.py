@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from ubf_async.assembly.backend import Backend
 
+__all__ = ["MotorBackend"]
+
 
 class MotorBackend(Backend):
     """Hardware (or simulated) motor driver.

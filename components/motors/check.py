@@ -37,6 +37,9 @@ from components.motors.pwm import DEFAULT_PWM, MotorCalibration
 from components.quadrature import DirectionMode, QuadratureDecoder, edges_to_counts
 from ubf_async.errors import ConfigurationError, UbfError
 
+__all__ = ["STOP_SIGNALS", "WHEELS", "EncoderLines", "Interrupted", "Step", "hold", "main",
+           "release", "run_check", "signals_interrupt"]
+
 WHEELS = ("left", "right")
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -252,7 +255,7 @@ def release(*closers: Callable[[], object]) -> None:
 
 def _backends(robot_file: str) -> tuple[MotorBackend, EncoderLines, MotorCalibration,
                                         MotorCalibration]:
-    from components.motors.component import DEFAULT_LEFT_CALIBRATION, DEFAULT_RIGHT_CALIBRATION
+    from components.motors.pwm import DEFAULT_LEFT_CALIBRATION, DEFAULT_RIGHT_CALIBRATION
     from ubf_async.assembly.robotfile import load_robot
 
     robot = load_robot(robot_file)

@@ -54,6 +54,8 @@ from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import DRIVE, MOTORS, Drive
 
+__all__ = ["DEFAULT_TIMEOUT_S", "STOP_GOAL_S", "MotorTrim", "MotorsComponent", "build_device"]
+
 log = logging.getLogger(__name__)
 
 DEFAULT_TIMEOUT_S = 0.11

@@ -35,6 +35,8 @@ from components.motors.backend import MotorBackend
 from components.motors.pwm import DEFAULT_PWM, hold_s
 from ubf_async.assembly.context import DeviceContext
 
+__all__ = ["GpioMotorBackend", "Pin", "gpio_backend"]
+
 log = logging.getLogger(__name__)
 
 Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]

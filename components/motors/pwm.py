@@ -21,6 +21,12 @@ import numpy as np
 from ubf_async.core.action import COMMAND_LIMIT as COMMAND_LIMIT
 from ubf_async.core.action import clamp_command
 
+__all__ = ["COMMON_MAX_WHEEL_SPEED_RAD_S", "DEFAULT_LEFT_CALIBRATION", "DEFAULT_PWM",
+           "DEFAULT_RIGHT_CALIBRATION", "FULL_FORWARD_MS", "FULL_REVERSE_MS", "HOLD_PERIODS",
+           "LEFT_MOTOR", "MEASURED_ZERO_MS", "RIGHT_MOTOR", "MotorCalibration",
+           "MotorCharacteristic", "PulseCommand", "PwmConfig", "calibration_for", "clamp_drive",
+           "hold_s", "mix", "pulse_for_wheel_speed_ms", "pulse_widths", "wheel_speed_rad_s"]
+
 MEASURED_ZERO_MS = 1.55
 """Pulse at which both real motors stand still (the nominal zero is 1.5 ms)."""
 FULL_REVERSE_MS = 1.0

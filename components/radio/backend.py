@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from ubf_async.assembly.backend import Backend
 
+__all__ = ["RadioBackend"]
+
 
 class RadioBackend(Backend):
     def send(self, text: str) -> None:

@@ -17,6 +17,8 @@ from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import RADIO, RADIO_SEND, RadioSend
 
+__all__ = ["RadioComponent", "build_device"]
+
 
 class RadioComponent(Component):
     def __init__(

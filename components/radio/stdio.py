@@ -14,6 +14,8 @@ from typing import TextIO
 from components.radio.backend import RadioBackend
 from ubf_async.assembly.context import DeviceContext
 
+__all__ = ["StdioRadioBackend", "stdio_backend"]
+
 
 class StdioRadioBackend(RadioBackend):
     def __init__(self, *, stdin: TextIO | None = None, stdout: TextIO | None = None) -> None:

@@ -7,6 +7,8 @@ from typing import ClassVar
 
 from ubf_async.assembly.backend import Backend
 
+__all__ = ["MountPose", "RangeBackend", "RangeReadError"]
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MountPose:

@@ -29,6 +29,8 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.wire.topics import RANGE
 
+__all__ = ["ModelName", "RangeComponent", "build_device"]
+
 log = logging.getLogger(__name__)
 
 

@@ -32,6 +32,9 @@ from components.range.backend import MountPose, RangeBackend, RangeReadError
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["SHARP_CURVES", "Address", "Ads1115Ranger", "DigitalRanger", "SMBusLike", "SharpCurve",
+           "ads1115_backend", "i2c_backend"]
+
 
 class SMBusLike(Protocol):
     """The part of ``smbus2.SMBus`` these backends use."""

@@ -15,6 +15,9 @@ from typing import Literal
 
 import numpy as np
 
+__all__ = ["DEFAULT_ERROR_FRACTION", "GP2Y0A02", "GP2Y0A21", "GP2Y0A41", "IR_MODELS", "IrModel",
+           "IrReading", "IrStatus", "limit_ir", "read_ir"]
+
 IrStatus = Literal["ok", "too_close", "too_far"]
 
 

@@ -28,6 +28,8 @@ if TYPE_CHECKING:
     from components.sim.mirror.remote_world import RemoteWorld
     from components.sim.runner.run import SimulationRun
 
+__all__ = ["MiniWhegsSimulator", "SimTurnRig"]
+
 
 class SimTurnRig(TurnRig):
     """Drives the simulated Mini-WHEGS in an empty world with the pulses the motors' default

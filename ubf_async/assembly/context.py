@@ -15,6 +15,8 @@ if TYPE_CHECKING:
     from ubf_async.clocks.clock import Clock
     from ubf_async.runtime.bus import Bus
 
+__all__ = ["DeviceContext"]
+
 
 @dataclass(kw_only=True)
 class DeviceContext:

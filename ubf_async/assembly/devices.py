@@ -19,6 +19,9 @@ from ubf_async.assembly.registry import accepts
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.component import Component
 
+__all__ = ["BACKEND_INJECTED", "DEVICE_INJECTED", "backend_label", "build_device",
+           "checked_backend", "device_label", "requires_simulator"]
+
 DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
 """Parameters of a device kind's factory the builder supplies itself."""
 BACKEND_INJECTED = frozenset({"context"})

@@ -51,6 +51,11 @@ import msgspec.inspect
 from ubf_async import extras
 from ubf_async.errors import MissingExtraError, ParameterError, PluginError
 
+__all__ = ["ARBITERS", "BACKENDS", "BEHAVIORS", "DEVICES", "GROUP_PREFIX", "LIVE_VIEWS",
+           "PREDICATES", "READ", "REFERENCE_SEPARATOR", "SIMULATORS", "Registry", "accepts",
+           "backends_for", "checked_params", "get_backend", "is_reference", "meant_group",
+           "parameters_of", "resolve_reference", "unread_groups", "validation_parts"]
+
 REFERENCE_SEPARATOR = ":"
 GROUP_PREFIX = "ubf_async."
 """Every entry-point group of ubf_async starts so."""

@@ -32,6 +32,9 @@ if TYPE_CHECKING:
     from ubf_async.runtime.component import Component
     from ubf_async.runtime.controller import Controller
 
+__all__ = ["CONTROLLER_SUMMARY_FIELDS", "FLAT_OUT", "FleetMember", "OpenSimulation",
+           "SimulationOptions", "Simulator", "TurnRig", "describe_speed"]
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SimulationOptions:

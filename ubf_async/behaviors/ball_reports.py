@@ -28,6 +28,9 @@ from ubf_async.core.behavior import Behavior
 from ubf_async.core.state import State
 from ubf_async.wire.topics import require_field
 
+__all__ = ["BIN_BEARINGS_DEG", "ODOMETRY_SOURCE", "RADIO_SOURCE", "REPORT_PREFIX", "GoToReport",
+           "ReportBall", "format_report", "parse_report", "wrap_deg"]
+
 ODOMETRY_SOURCE = "odometry/wheels"
 RADIO_SOURCE = "radio/link"
 BIN_BEARINGS_DEG: tuple[float, ...] = (14.0, 7.0, 0.0, -7.0, -14.0)

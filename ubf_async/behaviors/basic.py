@@ -12,6 +12,8 @@ from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior
 from ubf_async.core.state import State
 
+__all__ = ["ConstantDrive", "Stop"]
+
 
 class Stop(Behavior):
     """Always ``Action(speed=0, turn=0)`` with vote ``vote``."""

@@ -20,6 +20,8 @@ from ubf_async.core.behavior import Behavior
 from ubf_async.core.state import State
 from ubf_async.wire.topics import require_field
 
+__all__ = ["DEFAULT_HOLD_S", "DEFAULT_NEAR_MM", "RANGE_PREFIX", "Avoid", "nearest_obstacle"]
+
 RANGE_PREFIX = "range/"
 DEFAULT_NEAR_MM = 250
 DEFAULT_HOLD_S = 1.5

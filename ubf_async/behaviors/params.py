@@ -16,6 +16,8 @@ import msgspec
 from ubf_async.core.action import COMMAND_LIMIT
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["Command", "LedMask", "Millimetres", "Pixels", "VoteWeight", "check"]
+
 Command = Annotated[float, msgspec.Meta(ge=-COMMAND_LIMIT, le=COMMAND_LIMIT)]
 """A speed or turn, −100…+100 (percent of full scale)."""
 Pixels = Annotated[int, msgspec.Meta(ge=0)]

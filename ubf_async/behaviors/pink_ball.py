@@ -36,6 +36,8 @@ from ubf_async.core.behavior import Behavior, Child, Composite
 from ubf_async.core.state import State
 from ubf_async.wire.topics import require_field
 
+__all__ = ["BIN_TURNS", "CAMERA_SOURCE", "Chase", "Flee", "Search", "pink_bins", "seek_pink_ball"]
+
 CAMERA_SOURCE = "camera/front"
 BIN_TURNS: tuple[float, ...] = (60.0, 30.0, 0.0, -30.0, -60.0)
 """chase's turn for pink concentrated in each bin (image order: outer left … outer right)."""

@@ -26,6 +26,8 @@ from ubf_async.core.state import State
 from ubf_async.errors import ConfigurationError
 from ubf_async.wire.topics import require_field
 
+__all__ = ["CAMERA_SOURCE", "obstacle_within", "sees_color", "source_fresh"]
+
 CAMERA_SOURCE = "camera/front"
 
 

@@ -8,7 +8,7 @@ import argparse
 from collections.abc import Iterable
 from pathlib import Path
 
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.net.options import (
     DEFAULT_ROBOT,
     ConnectionOptions,
@@ -18,7 +18,10 @@ from ubf_async.net.options import (
     over_tls,
 )
 from ubf_async.runtime import lending
-from ubf_async.wire.protocol import Keys, ProtocolError
+from ubf_async.wire.keys import Keys
+
+__all__ = ["HelpFormatter", "add_connection_arguments", "add_event_loop_help",
+           "add_secure_arguments", "connection_options"]
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

@@ -18,6 +18,9 @@ from ubf_async.net.options import START_ROBOT_HINT, refused_error
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.keys import ROOT
 
+__all__ = ["ATTACH_RETRY_S", "DEFAULT_ATTACH_TIMEOUT_S", "add_attach_arguments", "attached_bus",
+           "run_until_stopped", "wait_for_robot"]
+
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
 ATTACH_RETRY_S = 0.05
 """How often :func:`wait_for_robot` asks whether the robot is there."""

@@ -34,6 +34,9 @@ import time
 from collections.abc import Awaitable, Callable
 from typing import Any, TextIO, TypeVar
 
+__all__ = ["PR_SET_PDEATHSIG", "CallThread", "DaemonExecutor", "Ending", "SafeStream",
+           "die_with_parent", "exit_now", "on_exit_now"]
+
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")

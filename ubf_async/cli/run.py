@@ -37,6 +37,10 @@ from ubf_async.cli import ending, trim
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runtime import lending
 
+__all__ = ["DEFAULT_LOOP", "EXIT_ERROR", "EXIT_INTERRUPTED", "EXIT_NOW_BUDGET_S", "LOOP_CHOICES",
+           "LOOP_ENV", "LOOP_HELP", "SAY_WAIT_S", "STOP_BOUND_S", "STOP_SIGNALS", "StopGuard",
+           "check_lockstep_loop", "loop_factory", "run_loop", "run_main", "run_sync", "said_error"]
+
 T = TypeVar("T")
 
 EXIT_ERROR = 2

@@ -18,6 +18,8 @@ import ctypes
 import ctypes.util
 from collections.abc import Callable
 
+__all__ = ["PERIOD_S", "every", "malloc_trim"]
+
 PERIOD_S = 60.0
 """Wall seconds between two trims."""
 

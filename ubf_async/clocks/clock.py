@@ -30,6 +30,9 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
+__all__ = ["MIN_SILENCE_S", "Clock", "Hold", "NoHold", "SilenceLimit", "SimClock", "SimHold",
+           "WallClock", "every", "sleep_until"]
+
 
 class Hold(Protocol):
     def release(self) -> None:

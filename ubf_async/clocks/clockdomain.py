@@ -55,8 +55,14 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from ubf_async.clocks.port import ClockBus, Closing
-from ubf_async.wire.protocol import ProtocolError, clip, decode
+from ubf_async.errors import ProtocolError
+from ubf_async.wire.protocol import clip, decode
 from ubf_async.wire.topics import HEARTBEAT, Heartbeat
+
+__all__ = ["CLOSE_NS", "CLOSE_S", "FAR_S", "HOST_MATCH_S", "MAX_REPORTED", "MAX_SOURCES",
+           "MAX_WARNED_SOURCES", "NAME_WAIT_S", "REALTIME_FLOOR_NS", "ClockDomainWatch",
+           "ClockName", "ForeignSource", "SenderNames", "foreign_clock", "how_to_stamp",
+           "sender_name", "the", "watch"]
 
 log = logging.getLogger(__name__)
 

@@ -17,8 +17,12 @@ from ubf_async.clocks.clock import Clock, SimClock
 from ubf_async.clocks.hostclock import RobotTimeClock
 from ubf_async.clocks.port import ClockBus, Closing
 from ubf_async.clocks.simclock import follow_sim_clock
-from ubf_async.wire.protocol import ProtocolError, decode
+from ubf_async.errors import ProtocolError
+from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import CONTROLLER_STATUS, ROBOT_TIME
+
+__all__ = ["DEFAULT_CLOCK_WAIT_S", "HOST", "WAITING_SAID_AFTER_S", "ClockMode", "describe",
+           "follow_robot_clock"]
 
 log = logging.getLogger(__name__)
 

@@ -37,6 +37,8 @@ from ubf_async.clocks.port import ClockBus, Closing
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import ROBOT_TIME, RobotTime
 
+__all__ = ["BEACON_PERIOD_S", "RESTART_S", "WINDOW", "OffsetEstimator", "RobotTimeClock"]
+
 log = logging.getLogger(__name__)
 
 BEACON_PERIOD_S = 0.1

@@ -37,6 +37,8 @@ from ubf_async.clocks.port import ClockBus, Closing
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LOCKSTEP_ACK, LockstepAck
 
+__all__ = ["JOIN_WAIT_S", "RESEND_S", "SILENCE_S", "LockstepBarrier", "wait_resending"]
+
 log = logging.getLogger(__name__)
 
 SILENCE_S = 2.0

@@ -16,6 +16,8 @@ from ubf_async.wire.keys import Keys
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import Topic
 
+__all__ = ["ClockBus", "Closing"]
+
 T = TypeVar("T")
 
 

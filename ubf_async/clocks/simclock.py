@@ -10,6 +10,8 @@ from ubf_async.clocks.timesource import ClockAction, ClockFollower
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CLOCK, SimTime
 
+__all__ = ["follow_sim_clock"]
+
 
 def follow_sim_clock(
     bus: ClockBus, clock: SimClock, malformed: dict[str, int], *,

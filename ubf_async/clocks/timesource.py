@@ -48,6 +48,9 @@ from dataclasses import dataclass
 
 from ubf_async import throttle
 
+__all__ = ["DEFAULT_MAX_SPEED", "DEFAULT_PREFER_S", "DEFAULT_SLACK_S", "DEFAULT_TAKEOVER_S",
+           "ClockAction", "ClockFollower", "ClockVerdict"]
+
 log = logging.getLogger(__name__)
 
 DEFAULT_TAKEOVER_S = 1.0

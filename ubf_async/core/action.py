@@ -11,6 +11,9 @@ import math
 from collections import namedtuple
 from typing import Any, NamedTuple
 
+__all__ = ["COMMAND_LIMIT", "FIELDS", "MAX_MESSAGE_CHARS", "NUMERIC_FIELDS", "STOP", "Action",
+           "ColorBox", "clamp_command"]
+
 COMMAND_LIMIT = 100.0
 """Speed and turn are percentages of full scale, −100…+100 (+speed forward, +turn left)."""
 MAX_MESSAGE_CHARS = 256

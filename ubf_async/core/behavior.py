@@ -80,6 +80,9 @@ from ubf_async.core.action import Action
 from ubf_async.core.state import State
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["Arbiter", "Behavior", "Candidate", "Child", "Composite", "Decision", "FunctionBehavior",
+           "Trace", "behavior"]
+
 log = logging.getLogger(__name__)
 
 _INTERNAL_METHODS = ("run", "evaluate")

@@ -14,6 +14,8 @@ from ubf_async.wire import topics
 if TYPE_CHECKING:
     from ubf_async.core.action import Action
 
+__all__ = ["Reading", "State", "typed"]
+
 T = TypeVar("T")
 
 

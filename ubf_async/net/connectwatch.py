@@ -15,6 +15,8 @@ from collections.abc import Callable
 
 from ubf_async.net.options import START_ROBOT_HINT, endpoint_locators, listening
 
+__all__ = ["CONNECT_GRACE_S", "CONNECT_REMIND_S", "watch_connect_endpoints"]
+
 log = logging.getLogger(__name__)
 
 CONNECT_GRACE_S = 2.0

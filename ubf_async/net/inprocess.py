@@ -30,6 +30,8 @@ from ubf_async.net.transport import (
     SampleCallback,
 )
 
+__all__ = ["InProcessConnection", "InProcessTransport"]
+
 _P = TypeVar("_P", bound="_InProcessPublisher")
 
 

@@ -11,6 +11,8 @@ import functools
 
 from ubf_async.errors import KeyExprError
 
+__all__ = ["intersects", "key_chunks"]
+
 
 @functools.lru_cache(maxsize=4096)
 def key_chunks(key_expr: str) -> tuple[str, ...]:

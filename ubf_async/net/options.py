@@ -31,6 +31,11 @@ from ubf_async.errors import (
 if TYPE_CHECKING:
     from ubf_async.net.secure import Rights
 
+__all__ = ["DEFAULT_LISTEN", "DEFAULT_ROBOT", "INGRESS_LIMIT_BYTES", "MAX_MESSAGE_BYTES",
+           "RECONNECT_RETRY", "SESSION_LIMITS", "START_ROBOT_HINT", "ConnectionOptions",
+           "bind_free_ports", "config_endpoints", "config_value", "endpoint_locators", "listening",
+           "load_zenoh_config", "over_tls", "refused_error", "session_error", "zenoh_message"]
+
 DEFAULT_ROBOT = "mini"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 

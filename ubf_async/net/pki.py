@@ -28,6 +28,9 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["CA_DAYS", "IDENTITY_DAYS", "Issued", "check_host", "common_name", "hosts_of", "issue",
+           "make_ca", "own_certificate_problem", "read", "signed_by", "write_private"]
+
 CA_DAYS = 3650
 IDENTITY_DAYS = 365
 _EARLY = datetime.timedelta(minutes=5)

@@ -56,6 +56,14 @@ import zenoh
 from ubf_async.errors import ConfigurationError, NotAllowedError
 from ubf_async.net import pki, tlsprobe
 
+__all__ = ["ACL", "ALL_MESSAGES", "BUILTIN", "CA_CERT", "CA_KEY", "DEFAULT_HOSTS", "FLEET_BUILTIN",
+           "FORMAT", "IDENTITIES", "INIT_HINT", "INSPECTOR", "LISTENERS", "MANIFEST", "OPEN",
+           "OPERATOR", "PASSWORDS", "PRIVATE", "READ_MESSAGES", "REISSUE", "ROBOT",
+           "ROS2_IDENTITIES", "Identity", "IdentityRights", "Rights", "SecureSetup", "SecuredRobot",
+           "access_control", "apply", "diagnose", "export", "fleet_access_control",
+           "fleet_identities", "identities_for", "identity_file", "init", "init_fleet", "override",
+           "revoke", "rights", "rotate", "settings"]
+
 FORMAT = 2
 ROBOT = "robot"
 INSPECTOR = "inspector"

@@ -15,6 +15,8 @@ import ssl
 from dataclasses import dataclass
 from pathlib import Path
 
+__all__ = ["PROBE_TIMEOUT_S", "Finding", "peer_names", "probe", "split_endpoint"]
+
 PROBE_TIMEOUT_S = 1.0
 """How long the probe waits to connect, and after its handshake for the robot's verdict on
 this process's certificate (in TLS 1.3 the server checks it after the client has finished)."""

@@ -37,6 +37,11 @@ from ubf_async.errors import ConfigurationError, NoRobotError
 from ubf_async.net.connectwatch import watch_connect_endpoints
 from ubf_async.net.options import ConnectionOptions, bind_free_ports, refused_error, session_error
 
+__all__ = ["CALLBACK_END_WAIT_S", "AsyncDeclaration", "AttachmentCallback", "AttachmentPublisher",
+           "CallbackEnd", "Connection", "Declaration", "GetResult", "IncomingQuery",
+           "LivelinessCallback", "OutgoingPublisher", "SampleCallback", "Transport",
+           "ZenohConnection", "ZenohTransport"]
+
 SampleCallback = Callable[[str, bytes], None]
 """``callback(key, payload)`` — a transport's subscriber callback (see :class:`Connection`)."""
 LivelinessCallback = Callable[[str, bool], None]

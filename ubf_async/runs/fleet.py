@@ -26,12 +26,15 @@ from ubf_async.assembly.registry import SIMULATORS
 from ubf_async.assembly.robotfile import Robot, load_robot
 from ubf_async.assembly.simulation import FLAT_OUT, FleetMember, SimulationOptions
 from ubf_async.clocks.clock import SimClock
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runs import inprocess, wiring
 from ubf_async.runtime.bus import Bus
-from ubf_async.wire.protocol import Keys, ProtocolError
+from ubf_async.wire.keys import Keys
+
+__all__ = ["DEFAULT_ROUTER", "MAX_ROBOTS", "Finite", "Fleet", "FleetFile", "FleetRobot",
+           "FleetWorld", "StartPose", "load_fleet", "members_of", "run_fleet", "world_options"]
 
 MAX_ROBOTS = 32
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"

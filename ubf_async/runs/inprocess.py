@@ -39,6 +39,9 @@ from ubf_async.runs import wiring
 from ubf_async.runtime import lending
 from ubf_async.runtime.bus import Bus
 
+__all__ = ["SUMMARY_FILE", "TRAJECTORY_FILE", "RunResult", "own_loop", "plan_run", "run",
+           "run_async", "run_plan"]
+
 SUMMARY_FILE = "summary.json"
 TRAJECTORY_FILE = "trajectory.csv"
 

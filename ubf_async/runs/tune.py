@@ -40,6 +40,9 @@ from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import JOURNAL
 
+__all__ = ["HISTORY_PNG", "IMPORTANCE_PNG", "SAMPLERS", "TRIALS_CSV", "TuneOutputs",
+           "distributions", "draw", "run_study", "tuned_text", "write_trials"]
+
 TRIALS_CSV = "trials.csv"
 IMPORTANCE_PNG = "importance.png"
 HISTORY_PNG = "history.png"

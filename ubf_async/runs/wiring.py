@@ -22,13 +22,9 @@ from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
+from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.robotfile import ResolvedDevice, Robot
-from ubf_async.assembly.simulation import (
-    DeviceContext,
-    OpenSimulation,
-    SimulationOptions,
-    Simulator,
-)
+from ubf_async.assembly.simulation import OpenSimulation, SimulationOptions, Simulator
 from ubf_async.cli import ending
 from ubf_async.clocks.clock import Clock, SimClock
 from ubf_async.clocks.simclock import follow_sim_clock
@@ -43,6 +39,10 @@ from ubf_async.runtime.timekeepers import RobotTimeBeacon
 from ubf_async.services.live import TreeService
 from ubf_async.services.remote import RemoteBehaviors
 from ubf_async.services.status import planned_ticks
+
+__all__ = ["CLOSE_BOUND_S", "EXIT_DEGRADED", "RESULTS_BOUND_S", "ControllerSettings", "RobotRun",
+           "RunPlan", "add_clock_components", "build_robot", "end", "open_simulation",
+           "print_unsaved_summary", "simulation_plan", "simulator_needed", "start"]
 
 log = logging.getLogger(__name__)
 

@@ -18,7 +18,7 @@ published) and that is not silence; each reading still reports its age from its 
 What is refused — each counted and logged (the first and every 100th per reason):
 
 * malformed samples (per key, :attr:`StateAggregator.malformed`);
-* a source name longer than :data:`~ubf_async.wire.protocol.MAX_NAME_CHARS` (the controller
+* a source name longer than :data:`~ubf_async.wire.topics.MAX_NAME_CHARS` (the controller
   copies source names into its commands);
 * a sample stamped more than ``future_tolerance_s`` ahead of the robot clock, and one not
   newer from its publisher than what is held (:mod:`ubf_async.runtime.ordering`): a future stamp
@@ -47,20 +47,18 @@ from ubf_async.clocks import clockdomain
 from ubf_async.clocks.clock import SilenceLimit
 from ubf_async.core.action import Action
 from ubf_async.core.state import Reading, State
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime import refusals
 from ubf_async.runtime.bus import Bus, Subscription
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
-from ubf_async.wire.protocol import (
-    MAX_NAME_CHARS,
-    Message,
-    ProtocolError,
-    clip,
-    count_malformed,
-    decode,
-)
-from ubf_async.wire.topics import sensor_topic
+from ubf_async.wire.protocol import Message, clip, count_malformed, decode
+from ubf_async.wire.topics import MAX_NAME_CHARS, sensor_topic
+
+__all__ = ["DEFAULT_FORGET_AFTER_S", "DEFAULT_FUTURE_TOLERANCE_S", "MAX_SOURCES", "STALE_PERIODS",
+           "IngestHook", "ReceiveHook", "RecentCounts", "SampleHook", "SourceEntry", "SourceInfo",
+           "StateAggregator"]
 
 log = logging.getLogger(__name__)
 

@@ -68,7 +68,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
 from ubf_async.clocks.clock import Clock, WallClock
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.net.keyexpr import intersects
 from ubf_async.net.options import DEFAULT_ROBOT, ConnectionOptions, endpoint_locators
 from ubf_async.net.transport import Connection, Declaration, Transport, ZenohTransport
@@ -76,16 +76,12 @@ from ubf_async.runtime import lending, queries
 from ubf_async.runtime.declared import Declared
 from ubf_async.runtime.queries import Queryable, QueryHandler
 from ubf_async.runtime.ratelimit import TokenBucket
-from ubf_async.wire.protocol import (
-    INT64_MAX,
-    Encoder,
-    Keys,
-    Message,
-    ProtocolError,
-    count_malformed,
-    decode,
-)
-from ubf_async.wire.topics import Data, Topic
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import Encoder, Message, count_malformed, decode
+from ubf_async.wire.topics import INT64_MAX, Data, Topic
+
+__all__ = ["DIRECT_BURST", "DIRECT_RATE_HZ", "DRAIN_BATCH", "BridgeStats", "Bus", "Publisher",
+           "RawPublisher", "SampleHandler", "Screen", "Subscription", "TopicScreen"]
 
 log = logging.getLogger(__name__)
 

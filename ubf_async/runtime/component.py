@@ -50,6 +50,9 @@ from ubf_async.wire.topics import (
     Topic,
 )
 
+__all__ = ["HOST", "MAX_WATCHED_COMPONENTS", "Component", "ComponentHealth",
+           "EveryMessageComponent", "HealthMonitor", "ensure_name_free"]
+
 T = TypeVar("T")
 
 log = logging.getLogger(__name__)

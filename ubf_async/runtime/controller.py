@@ -102,6 +102,9 @@ from ubf_async.wire.topics import (
     TraceNode,
 )
 
+__all__ = ["MAX_COUNTED_NAMES", "MAX_EXPLANATION_CHARS", "REFLEX_SHARE", "Controller", "TickHook",
+           "TickMode", "TickStats", "outgoing_names", "trace_nodes"]
+
 log = logging.getLogger(__name__)
 
 TickHook = Callable[[State, Trace | None, Any], None]

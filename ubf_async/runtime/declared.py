@@ -9,6 +9,8 @@ from typing import Self
 
 from ubf_async.net.transport import Declaration
 
+__all__ = ["Declared"]
+
 
 class Declared:
     """What :class:`Subscription` and :class:`Queryable` share: a declaration on the

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import gc
 
+__all__ = ["freeze_startup_objects"]
+
 
 def freeze_startup_objects() -> int:
     """Collect, then freeze every object that survives (see the module docstring); returns

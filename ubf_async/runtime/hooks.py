@@ -7,6 +7,8 @@ import logging
 from collections.abc import Callable
 from typing import ParamSpec
 
+__all__ = ["add_hook", "run_hooks"]
+
 log = logging.getLogger(__name__)
 
 P = ParamSpec("P")

@@ -26,6 +26,8 @@ from __future__ import annotations
 import enum
 from collections import OrderedDict
 
+__all__ = ["Refusal", "SampleOrder", "ahead_of_clock"]
+
 
 class Refusal(enum.StrEnum):
     """Why a valid sample was not taken (the counters' keys)."""
@@ -35,7 +37,7 @@ class Refusal(enum.StrEnum):
     OUT_OF_ORDER = "out_of_order"
     """Not newer than what its publisher already sent (a replay, or reordered)."""
     NAME_TOO_LONG = "name_too_long"
-    """A source name longer than :data:`~ubf_async.wire.protocol.MAX_NAME_CHARS`."""
+    """A source name longer than :data:`~ubf_async.wire.topics.MAX_NAME_CHARS`."""
     FULL = "full"
     """No room for a new source: every source held is protected, or has sent at least as
     many samples lately as the newcomer."""

@@ -16,6 +16,8 @@ from ubf_async.errors import QueryError
 from ubf_async.net.transport import Connection, IncomingQuery
 from ubf_async.runtime.declared import Declared
 
+__all__ = ["QueryHandler", "QueryStats", "Queryable", "query"]
+
 log = logging.getLogger(__name__)
 
 QueryHandler = Callable[[str, bytes], bytes]

@@ -3,6 +3,8 @@ robot clock for the controller's reflex ticks, wall time for the robot's refusal
 
 from __future__ import annotations
 
+__all__ = ["TokenBucket"]
+
 
 class TokenBucket:
     """At most ``burst`` at once and ``rate_hz`` on average, on the clock of the times given to

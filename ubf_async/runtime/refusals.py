@@ -31,10 +31,14 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.runtime.ratelimit import TokenBucket
-from ubf_async.wire.protocol import ProtocolError, clip, decode_or_count
+from ubf_async.wire.protocol import clip, decode_or_count
 from ubf_async.wire.topics import MAX_REFUSAL_DETAIL, REFUSED, RefusalNotice
+
+__all__ = ["MAX_KEYS", "MAX_NOTICES_PER_S", "NOTICE_PERIOD_S", "RefusalNotices", "RefusalWatch",
+           "notices_of"]
 
 log = logging.getLogger(__name__)
 

@@ -17,6 +17,8 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.wire.topics import LOCKSTEP_ACK, ROBOT_TIME
 
+__all__ = ["LockstepParticipant", "RobotTimeBeacon"]
+
 
 class RobotTimeBeacon(Component):
     """Publishes the robot's clock on ``ubf/<robot>/time`` every ``period_s`` (a wall-time

@@ -61,6 +61,14 @@ from ubf_async.wire.topics import BY_SCHEMA, PlainData
 if TYPE_CHECKING:
     from foxglove.websocket import ChannelView, Client, ServerListener
 
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "IR_MOUNT_X_M", "NOT_AS_JSON", "ODOM_FRAME",
+           "ROBOT_FRAME", "TRAIL_POINTS", "TRAIL_REFRESH_S", "TRAIL_STEP_M", "WORLD_FRAME",
+           "CameraViewConverter", "FoxgloveServer", "JsonConverter", "LiveConverter", "LiveMessage",
+           "LiveSchema", "LiveView", "LiveViewStats", "OdometryConverter", "RangeConverter",
+           "TruthConverter", "foxglove_message", "framework_converters", "layout", "layout_json",
+           "pose", "registered_converters", "relative_source", "rgba", "timestamp",
+           "yaw_quaternion"]
+
 log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 8765

@@ -38,21 +38,14 @@ from ubf_async.clocks import clockdomain
 from ubf_async.core.action import Action
 from ubf_async.core.behavior import Behavior, Composite
 from ubf_async.core.state import State
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.runtime import refusals
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus, Publisher
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.ordering import SampleOrder, ahead_of_clock
-from ubf_async.wire.protocol import (
-    Keys,
-    Message,
-    ProtocolError,
-    check_segment,
-    count_malformed,
-    decode,
-    encode_data,
-)
+from ubf_async.wire.keys import Keys, check_segment
+from ubf_async.wire.protocol import Message, count_malformed, decode, encode_data
 from ubf_async.wire.topics import (
     DRIVE,
     REMOTES_STATUS,
@@ -70,6 +63,11 @@ from ubf_async.wire.topics import (
     PRIORITY_LIMIT as PRIORITY_LIMIT,
 )
 from ubf_async.wire.topics import Vote as VoteData
+
+__all__ = ["DEFAULT_MAX_FUTURE_S", "DEFAULT_TTL_S", "MAX_NAME_LEN", "RESERVED_NAMES",
+           "STATUS_SCHEMA", "VOTE_SCHEMA", "PriorityWeight", "ReceivedVote", "RemoteBehavior",
+           "RemoteBehaviorHost", "RemoteBehaviors", "RemoteInfo", "action_of_vote", "all_votes",
+           "parse_remote_spec", "parse_vote_key", "remote_spec", "vote_data", "vote_key"]
 
 log = logging.getLogger(__name__)
 

@@ -23,6 +23,9 @@ from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.wire.topics import LED_STATE, sensor_topic
 
+__all__ = ["MAX_LINES", "SEPARATOR", "StatusWriter", "fit", "planned_ticks", "status_fields",
+           "tick_label", "tick_rates"]
+
 SEPARATOR = " | "
 MAX_LINES = 2
 

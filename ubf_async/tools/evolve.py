@@ -43,6 +43,9 @@ from ubf_async.tools.sweep import (
     pool_words,
 )
 
+__all__ = ["EXAMPLE", "PROG", "BarProgress", "PlainProgress", "build_parser", "describe", "main",
+           "report", "resume_command", "run"]
+
 PROG = "python -m ubf_async.evolve"
 
 EXAMPLE = """\

@@ -64,6 +64,11 @@ from ubf_async.wire.keys import ROOT
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
 
+__all__ = ["CHILD_STOP_S", "CONTROLLERS_WAIT_S", "FLEET_STOP_BOUND_S", "PROG", "FleetStatus",
+           "RobotView", "build_parser", "controller_arguments", "finish", "fleet_options",
+           "fleet_router", "main", "main_async", "open_when_up", "run_controllers", "run_fleet",
+           "run_world", "secure_flags", "spawn", "stop_all", "tail", "wait_for_controllers"]
+
 PROG = "python -m ubf_async.fleet"
 CONTROLLERS_WAIT_S = 60.0
 """How long the world waits for every robot's controller before giving up."""

@@ -67,6 +67,12 @@ from ubf_async.services.status import StatusWriter, status_fields
 from ubf_async.tools.liveview import add_host_argument
 from ubf_async.tools.record import McapRecorder, require_recording
 
+__all__ = ["PROG", "add_controller_arguments", "add_device_arguments", "add_live_view_arguments",
+           "add_robot_file_arguments", "add_run_arguments", "add_simulation_arguments",
+           "build_parser", "check_outputs", "main", "optional_port_only_if_numeric", "parse_args",
+           "plan_launch", "print_plan", "print_tree", "run_robot", "selected_devices",
+           "speed_argument"]
+
 log = logging.getLogger("ubf_async.tools.launch")
 
 PROG = "python -m ubf_async.launch"

@@ -22,6 +22,8 @@ from ubf_async.services.liveview import (
     layout_json,
 )
 
+__all__ = ["PROG", "add_host_argument", "build_parser", "main", "serve"]
+
 PROG = "python -m ubf_async.liveview"
 
 

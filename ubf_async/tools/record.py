@@ -58,6 +58,11 @@ from ubf_async.services.liveview import LiveMessage, LiveView
 from ubf_async.wire.protocol import PROTOCOL_VERSION, Message, decode
 from ubf_async.wire.topics import BY_SCHEMA, PlainData, Topic
 
+__all__ = ["ABANDON_S", "DEFAULT_CHUNK_BYTES", "DEFAULT_DRAIN_S", "DEFAULT_FLUSH_S",
+           "DEFAULT_MAX_QUEUE", "GENERIC_SCHEMA_NAME", "MESSAGE_ENCODING", "PROG",
+           "SCHEMA_ENCODING", "McapRecorder", "RecorderStats", "build_parser", "envelope_schema",
+           "main", "record", "require_recording"]
+
 log = logging.getLogger(__name__)
 
 MESSAGE_ENCODING = "msgpack"

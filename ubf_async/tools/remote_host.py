@@ -29,6 +29,8 @@ from ubf_async.runtime.component import ensure_name_free
 from ubf_async.services.remote import DEFAULT_TTL_S, RemoteBehaviorHost, vote_key
 from ubf_async.wire.keys import Keys
 
+__all__ = ["choose_clock", "host_remote_behavior", "remote_parser", "run_remote_behavior"]
+
 
 def remote_parser(
     *,

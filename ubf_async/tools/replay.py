@@ -68,6 +68,11 @@ if TYPE_CHECKING:
     from mcap.reader import McapReader
     from mcap.records import Channel
 
+__all__ = ["CLOCK_LOOKAHEAD", "CLOCK_LOOKAHEAD_NS", "CONTINUED", "CONTROLLER_INPUTS",
+           "PROBE_SCHEMA", "PROG", "SETTLE_S", "WARN_BEHIND_S", "Lag", "Recorded", "Recording",
+           "ReplayStats", "Settle", "ThreadTimes", "build_parser", "main", "replay",
+           "wait_for_listeners"]
+
 log = logging.getLogger(__name__)
 
 CONTROLLER_INPUTS = ("sensor/**", "vote/**", "clock")

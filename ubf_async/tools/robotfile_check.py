@@ -14,6 +14,8 @@ from ubf_async.assembly.robotfile import load_robot, schema_text
 from ubf_async.cli.run import run_sync
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["list_plugins", "main", "run"]
+
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(

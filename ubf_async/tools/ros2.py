@@ -24,6 +24,9 @@ from ubf_async.runtime.component import ensure_name_free
 from ubf_async.services.ros2 import messages as rm
 from ubf_async.services.ros2.bridge import DEFAULT_UNITS, Ros2Bridge, Ros2Settings
 
+__all__ = ["PROG", "build_parser", "default_domain_id", "main", "report", "serve", "settings_of",
+           "status_line", "totals"]
+
 PROG = "python -m ubf_async.ros2"
 
 

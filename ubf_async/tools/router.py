@@ -38,6 +38,9 @@ from ubf_async.net.secure import ROUTER
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.keys import ROOT
 
+__all__ = ["DEFAULT_LISTEN", "PROG", "REPORT_EVERY_S", "FleetRoster", "build_parser", "main",
+           "router_options", "serve"]
+
 PROG = "python -m ubf_async.router"
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 REPORT_EVERY_S = 1.0

@@ -38,6 +38,12 @@ from ubf_async.runs import sweep
 from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import EXECUTORS, RunRecord
 
+__all__ = ["EXAMPLE", "EXIT_RUNS_FAILED", "PLAIN_STEPS", "PROG", "RAY_STOP_BOUND_S", "BarProgress",
+           "ExampleFormatter", "PlainProgress", "add_pool_arguments", "build_parser",
+           "check_arguments", "check_pool_arguments", "clock_text", "execute", "json_object",
+           "main", "pool_description", "pool_stop_guard", "pool_words", "print_plan", "report",
+           "resume_command", "run"]
+
 PROG = "python -m ubf_async.sweep"
 EXIT_RUNS_FAILED = 1
 RAY_STOP_BOUND_S = 30.0

@@ -23,7 +23,7 @@ from ubf_async import __version__
 from ubf_async.cli.run import EXIT_INTERRUPTED, run_sync
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import tune
-from ubf_async.runs.evolve import load_evolve
+from ubf_async.runs.evolve.spec import load_evolve
 from ubf_async.tools.sweep import (
     ExampleFormatter,
     add_pool_arguments,
@@ -31,6 +31,8 @@ from ubf_async.tools.sweep import (
     pool_stop_guard,
     pool_words,
 )
+
+__all__ = ["EXAMPLE", "PROG", "build_parser", "main", "run"]
 
 PROG = "python -m ubf_async.tune"
 

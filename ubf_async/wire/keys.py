@@ -11,6 +11,9 @@ from dataclasses import dataclass
 
 from ubf_async.errors import ProtocolError
 
+__all__ = ["CLOCK_PATTERN", "HEARTBEAT_PATTERN", "ROOT", "STATUS_PATTERN", "TREE_PATTERN", "Keys",
+           "check_segment"]
+
 ROOT = "ubf"
 
 # The patterns (under ``ubf/<robot>/``) of the topics :class:`Keys` has a shortcut for; the

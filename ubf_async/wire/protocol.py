@@ -28,31 +28,20 @@ from typing import Annotated, Any, Generic, TypeVar, overload
 import msgspec
 from msgspec import Meta
 
-# Defined with the rest of the exception tree; re-exported here, where it has always been.
 from ubf_async import throttle
-from ubf_async.errors import ProtocolError as ProtocolError
-
-# The key builders live below topics (which needs them) and are re-exported here, where they
-# have always been.
-from ubf_async.wire.keys import ROOT as ROOT
-from ubf_async.wire.keys import Keys as Keys
-from ubf_async.wire.keys import check_segment as check_segment
+from ubf_async.errors import ProtocolError
 from ubf_async.wire.topics import (
     BY_SCHEMA,
     INT64_MAX,
-    MAX_CONTAINER_LEN,
-    MAX_DEPTH,
     MAX_NAME_CHARS,
-    MAX_STR_LEN,
     PlainData,
     StampNs,
     Topic,
     plain,
 )
 
-__all__ = ["INT64_MAX", "MAX_CONTAINER_LEN", "MAX_DEPTH", "MAX_NAME_CHARS", "MAX_STR_LEN",
-           "Encoder", "Keys", "Message", "ProtocolError", "check_segment", "clip", "decode",
-           "encode", "plain"]
+__all__ = ["MAX_PAYLOAD_BYTES", "PROTOCOL_VERSION", "Encoder", "Message", "clip",
+           "count_malformed", "decode", "encode"]
 
 PROTOCOL_VERSION = 1
 MAX_PAYLOAD_BYTES = 256 * 1024

@@ -44,6 +44,23 @@ from ubf_async.wire.keys import (
     check_segment,
 )
 
+__all__ = ["BY_SCHEMA", "CAMERA", "CAMERA_VIEW", "CLOCK", "CONTROLLER_STATUS", "DRIVE", "ENCODERS",
+           "HEARTBEAT", "INT64_MAX", "LARGEST_FLOAT", "LEDS", "LED_STATE", "LOCKSTEP_ACK",
+           "MAX_ANNOUNCED", "MAX_ANNOUNCED_KEY_CHARS", "MAX_CONTAINER_LEN", "MAX_DEPTH",
+           "MAX_IMAGE_BYTES", "MAX_NAME_CHARS", "MAX_REFUSAL_DETAIL", "MAX_STR_LEN",
+           "MAX_TRACE_NODES", "MAX_TREE_DEPTH", "MAX_TTL_S", "MAX_WEIGHT", "MAX_WINNERS", "MOTORS",
+           "ODOMETRY", "PRIORITY_LIMIT", "RADIO", "RADIO_SEND", "RANGE", "REFUSED",
+           "REMOTES_STATUS", "RGB", "ROBOT_TIME", "SEEK_COLOR", "SENSORS", "SIM_PULSES",
+           "SIM_TRUTH", "SIM_WORLD", "TOPICS", "TRACE", "TREE_OPS", "TREE_REPLY", "TREE_REQUEST",
+           "VOTE", "BasedOn", "Byte", "CameraSeekcolor", "CameraView", "Command", "Count", "Data",
+           "Drive", "Encoders", "Finite", "Heartbeat", "Int64", "LedState", "Leds", "LockstepAck",
+           "Millimetres", "MotorsApplied", "Name", "NonNegative", "Odometry", "PlainData",
+           "Priority", "Published", "PulseMs", "RadioMessage", "RadioSend", "Range",
+           "RefusalNotice", "RobotTime", "SeekColor", "SimPulses", "SimTime", "SimTruth", "StampNs",
+           "Text256", "TickTrace", "TickedBy", "Topic", "TraceNode", "TreeArbiter", "TreeNode",
+           "TreeReply", "TreeRequest", "TreeSlot", "TruthBall", "TruthRobot", "Vote", "Weight",
+           "matching", "plain", "require_field", "sensor_topic", "tree_depth"]
+
 INT64_MAX = 2**63 - 1
 MAX_NAME_CHARS = 128
 """Longest name a command or status carries back out: a state source (``"<kind>/<name>"``)

@@ -44,6 +44,13 @@ from components.sim.world.snapshot import WorldSnapshot
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["CAMERA_RNG_STREAM", "ENCODER_RNG_STREAM", "QUADRATURE_SEQUENCE", "RENDER_DELAY_ENV",
+           "SIMULATOR", "SimAirRadioBackend", "SimCameraBackend", "SimEncoderBackend",
+           "SimLedBackend", "SimMotorBackend", "SimRadioBackend", "SimRangeBackend", "WorldView",
+           "camera_backend", "edge_index", "encoders_backend", "insert_glitches", "leds_backend",
+           "motors_backend", "quadrature_states", "radio_air_backend", "radio_backend",
+           "range_backend", "render_delay_s"]
+
 
 class WorldView(Protocol):
     """What the backends use of a world: a :class:`~components.sim.world.physics.World` in this

@@ -19,6 +19,9 @@ from components.sim.world.snapshot_data import snapshot_from_data
 from ubf_async.services.liveview import LiveMessage, foxglove_message, pose, rgba, timestamp
 from ubf_async.wire.protocol import Message
 
+__all__ = ["BODY_HEIGHT_M", "ROBOT_RGB", "SCENE_PERIOD_S", "WALL_THICKNESS_M", "ArenaConverter",
+           "arena_converter", "scene"]
+
 SCENE_PERIOD_S = 0.1
 WALL_THICKNESS_M = 0.01
 BODY_HEIGHT_M = 0.04

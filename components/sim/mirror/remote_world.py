@@ -23,6 +23,8 @@ from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import SIM_PULSES, SIM_WORLD, PlainData
 
+__all__ = ["RemoteWorld"]
+
 log = logging.getLogger(__name__)
 
 

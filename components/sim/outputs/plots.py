@@ -30,6 +30,9 @@ from matplotlib.transforms import Bbox
 from components.sim.outputs.trajectory import TrajectorySample, ball_on_stage
 from components.sim.world.snapshot import WorldSnapshot
 
+__all__ = ["BALL_COLOUR", "NEAR_PX", "WINNER_COLOURS", "plot_run", "save_run_plot",
+           "time_mark_step_s"]
+
 WINNER_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
                   "tab:brown", "tab:olive", "tab:cyan")
 BALL_COLOUR = "#ff3ca0"

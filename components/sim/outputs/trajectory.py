@@ -28,6 +28,11 @@ from components.sim.scenarios.scenario import CAMERA_OFFSET_M
 from components.sim.world.snapshot import WorldSnapshot
 from ubf_async.wire.topics import LedState
 
+__all__ = ["CAMERA_HALF_FOV_DEG", "CLOSE_M", "FACING_DEG", "HISTORY_CAPACITY", "LED_DARK_BGR",
+           "LED_LIT_BGR", "RECENT_SAMPLES", "BallView", "TrajectoryBuffer", "TrajectoryCsvWriter",
+           "TrajectorySample", "annotate_frame", "ball_on_stage", "camera_to_ball", "motion_over",
+           "read_trajectory_csv", "trajectory_sample"]
+
 
 @dataclass(frozen=True, slots=True)
 class TrajectorySample:

@@ -27,6 +27,10 @@ from components.sim.world.config import BallConfig, Distractor, Lighting, WorldC
 from components.sim.world.physics import World
 from ubf_async.errors import ConfigurationError
 
+__all__ = ["CONTACT_M", "DEFAULT_DISTANCES_M", "DOC_BEGIN", "DOC_END", "CalibrationRow",
+           "ball_ahead_world", "calibration_table", "main", "markdown_table", "pink_counts",
+           "seek_speed", "update_doc"]
+
 CONTACT_M = 0.035
 """Camera → ball centre with the ball touching the robot's front (the camera sits at the
 front; the ball's radius is 3.25 cm)."""

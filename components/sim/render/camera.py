@@ -46,6 +46,9 @@ import numpy as np
 from components.sim.world.config import Color, Lighting, Wall
 from components.sim.world.snapshot import WorldSnapshot
 
+__all__ = ["DEFAULT_CAMERA", "FRAME_HEIGHT_PX", "FRAME_WIDTH_PX", "CameraParams",
+           "auto_exposure_gain", "camera_pose", "render_camera", "warm_up"]
+
 FRAME_WIDTH_PX = 1280
 FRAME_HEIGHT_PX = 1024
 

@@ -71,6 +71,9 @@ import numpy as np
 from components.sim.render.camera import CameraParams, render_camera, warm_up
 from components.sim.world.snapshot import WorldSnapshot
 
+__all__ = ["ENV_VAR", "RenderProcess", "RenderProcessError", "frame_shape", "render_process_wanted",
+           "shared_render_process", "worker_main"]
+
 log = logging.getLogger(__name__)
 
 ENV_VAR = "UBF_RENDER_PROCESS"

@@ -19,6 +19,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+__all__ = ["MAX_LISTED_PERIODS", "DisturbedPeriod", "HeadingAudit"]
+
 MAX_LISTED_PERIODS = 100
 """Disturbed periods listed in the summary (the first ones; ``count`` counts them all)."""
 

@@ -25,9 +25,9 @@ from components.sim.scenarios.scenario import check_placement, load_scenario
 from components.sim.world.config import WorldConfig, WorldPose
 from components.sim.world.physics import World
 from components.sim.world.snapshot import WorldSnapshot
+from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.simulation import (
     CONTROLLER_SUMMARY_FIELDS,
-    DeviceContext,
     FleetMember,
     SimulationOptions,
     describe_speed,
@@ -40,6 +40,9 @@ from ubf_async.runtime.component import Component
 from ubf_async.runtime.gcfreeze import freeze_startup_objects
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CONTROLLER_STATUS, PlainData
+
+__all__ = ["FOUND_BEARING_DEG", "FOUND_DISTANCE_M", "MIN_SEPARATION_M", "PATH_SAMPLE_S",
+           "WORLD_CLOSE_BOUND_S", "fleet_world_config", "found", "host_fleet"]
 
 FOUND_DISTANCE_M = 1.0
 FOUND_BEARING_DEG = 30.0

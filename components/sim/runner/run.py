@@ -61,6 +61,10 @@ from ubf_async.runtime.controller import Controller
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LED_STATE, LedState
 
+__all__ = ["CSV_BATCH_SAMPLES", "DEFAULT_SCENARIO", "LISTED_FRAMES", "SAMPLE_PERIOD_S",
+           "SIGNIFICANT_DIGITS", "SLOW_SHARE", "SimulationRun", "check_options", "lateness_summary",
+           "rounded", "save_run_plot", "window_summary"]
+
 
 def save_run_plot(path: Path, samples: Sequence[TrajectorySample], world: WorldSnapshot, *,
                   title: str, events: Sequence[tuple[float, str]] = ()) -> Any:

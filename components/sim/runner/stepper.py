@@ -71,6 +71,9 @@ from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CLOCK, SIM_PULSES, SIM_TRUTH, SIM_WORLD, SimPulses
 
+__all__ = ["CLOCK_MATCH_STEPS", "DEVICES", "RTF_WINDOWS_KEPT", "RTF_WINDOW_S", "STEP_LATENESS_KEPT",
+           "SimulatorComponent", "simulated_devices"]
+
 log = logging.getLogger(__name__)
 
 DEVICES = KINDS

@@ -7,6 +7,8 @@ from dataclasses import replace
 from components.sim.scenarios.scenario import load_scenario
 from components.sim.world.config import WorldConfig
 
+__all__ = ["ball_in_view"]
+
 
 def ball_in_view(*, seed: int = 0) -> WorldConfig:
     """The world of the built-in ``ball-in-sight`` scenario: the pink ball ≈60 cm ahead of

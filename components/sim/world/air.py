@@ -10,6 +10,8 @@ from __future__ import annotations
 import threading
 from collections import deque
 
+__all__ = ["MAX_QUEUED", "RadioAir"]
+
 MAX_QUEUED = 64
 
 

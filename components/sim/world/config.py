@@ -19,6 +19,11 @@ from typing import Literal
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
 from components.motors.pwm import LEFT_MOTOR, RIGHT_MOTOR, MotorCharacteristic
 
+__all__ = ["BALL_DIAMETER_M", "BALL_PINK", "BOX_COLOR", "ORANGE", "WALL_COLOR", "Arena",
+           "BallConfig", "BoxObstacle", "Color", "Distractor", "DistractorKind", "Lighting",
+           "RobotConfig", "Wall", "WorldConfig", "WorldPose", "box_corners", "require_finite",
+           "require_positive"]
+
 Color = tuple[int, int, int]
 """An 8-bit RGB colour."""
 

@@ -88,6 +88,9 @@ from components.sim.world.config import (
 )
 from components.sim.world.snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
+__all__ = ["PUSH_LABEL", "ROBOT_COLOR", "ROBOT_HEIGHT_M", "RobotView", "StepHook", "World",
+           "wrap_angle"]
+
 ROBOT_COLOR: Color = (70, 72, 86)
 """The Mini-WHEGS's dark shell, as other robots' cameras see it."""
 ROBOT_HEIGHT_M = 0.05

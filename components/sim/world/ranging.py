@@ -17,6 +17,8 @@ from collections.abc import Iterable
 from components.range.backend import MountPose
 from components.sim.world.snapshot import WorldSnapshot
 
+__all__ = ["Point", "beam_distance_m", "ray_box", "ray_circle", "ray_segment", "sensor_ray"]
+
 Point = tuple[float, float]
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 from components.sim.world.config import BoxObstacle, Color, DistractorKind, Lighting, Wall
 
+__all__ = ["BallState", "DistractorState", "RobotState", "WorldSnapshot"]
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RobotState:

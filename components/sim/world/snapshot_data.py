@@ -13,6 +13,8 @@ from typing import Any
 from components.sim.world.config import BoxObstacle, Lighting, Wall
 from components.sim.world.snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
+__all__ = ["snapshot_from_data", "snapshot_to_data"]
+
 # The world snapshot's topic (ubf_async.wire.topics.SIM_WORLD) is checked generically on the wire
 # and then by snapshot_from_data.
 

@@ -15,6 +15,9 @@ from components.motors.pwm import pulse_widths
 from components.sim.world.config import RobotConfig, WorldConfig
 from components.sim.world.physics import World
 
+__all__ = ["THESIS_DRIVE_COMMANDS", "SteadyDrive", "drive_table", "format_drive_table",
+           "steady_drive"]
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SteadyDrive:

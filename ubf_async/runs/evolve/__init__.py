@@ -20,6 +20,7 @@ Library code: nothing here prints or reads a command line (the tool is
 :mod:`ubf_async.tools.evolve`).
 """
 
+from ubf_async.errors import EvolveSpecError
 from ubf_async.runs.evolve.driver import (
     EvolveOutputs,
     check_folder,
@@ -29,7 +30,7 @@ from ubf_async.runs.evolve.driver import (
 from ubf_async.runs.evolve.fitness import FAILED_FITNESS, Evaluation, Evaluator, Fitness, Term
 from ubf_async.runs.evolve.genome import OPERATORS, Space
 from ubf_async.runs.evolve.loop import Evolution, Individual, State
-from ubf_async.runs.evolve.spec import EvolvePlan, EvolveSpecError, ScenarioSet, load_evolve
+from ubf_async.runs.evolve.spec import EvolvePlan, ScenarioSet, load_evolve
 
 __all__ = ["FAILED_FITNESS", "OPERATORS", "Evaluation", "Evaluator", "Evolution", "EvolveOutputs",
            "EvolvePlan", "EvolveSpecError", "Fitness", "Individual", "ScenarioSet", "Space",

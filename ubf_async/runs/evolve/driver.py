@@ -17,6 +17,8 @@ from ubf_async.runs.sweep import execution
 from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import JOURNAL
 
+__all__ = ["EvolveOutputs", "check_folder", "compared_robots", "run_evolution"]
+
 
 @dataclass(frozen=True, slots=True)
 class EvolveOutputs:

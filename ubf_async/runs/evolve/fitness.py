@@ -32,6 +32,8 @@ from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import Journal, read_journal
 from ubf_async.runs.sweep.spec import RunTask, digest
 
+__all__ = ["FAILED_FITNESS", "Evaluation", "Evaluator", "Fitness", "RunScore", "Term", "task"]
+
 FAILED_FITNESS = -1e9
 """The fitness of a candidate one of whose runs raised: below any other."""
 

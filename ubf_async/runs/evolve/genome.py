@@ -33,6 +33,13 @@ from typing import Any, Protocol
 
 import yaml
 
+__all__ = ["CONDITIONAL", "DECIMALS", "GROUP", "NODE_KEYS", "OPERATORS", "RESAMPLE", "STEP",
+           "Choice", "Fixed", "Gene", "Genes", "Node", "Operator", "Path_", "Range", "Space",
+           "arbiter_kind", "arbiter_params", "at", "crossover", "delete", "depth", "identity",
+           "insert", "is_composite", "mutate_arbiter", "mutate_parameter", "mutate_predicate",
+           "named", "normalize", "replaced", "robot_text", "rounded", "shrink", "size", "walk",
+           "without_remotes"]
+
 Node = dict[str, Any]
 Path_ = tuple[int, ...]
 """A node's place: the child indices from the root."""

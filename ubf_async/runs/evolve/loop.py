@@ -37,6 +37,9 @@ from ubf_async.runs.evolve.fitness import Evaluation, Evaluator
 from ubf_async.runs.evolve.spec import EvolvePlan
 from ubf_async.runs.sweep import table
 
+__all__ = ["CHECKPOINT", "FORMAT", "MUTATIONS", "TRIES", "Evolution", "Individual", "State",
+           "load_checkpoint", "log_entry", "pareto_front", "save_checkpoint", "write_log"]
+
 CHECKPOINT = "checkpoint.json"
 LOG = "log.jsonl"
 FORMAT = 1

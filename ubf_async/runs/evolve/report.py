@@ -19,6 +19,11 @@ from ubf_async.runs.evolve.loop import Individual, State
 from ubf_async.runs.evolve.spec import EvolvePlan, ScenarioSet
 from ubf_async.runs.sweep import table
 
+__all__ = ["BEST", "FITNESS_PNG", "HALL_OF_FAME", "HELD_OUT_CSV", "PARETO", "REPORT", "SCENARIOS",
+           "TREES_PNG", "Compared", "draw_trees", "header", "held_out", "layout", "markdown",
+           "node_label", "plot_fitness", "rows", "write_report", "write_robot", "write_robots",
+           "write_scenarios"]
+
 BEST = "best.yaml"
 HALL_OF_FAME = "hall-of-fame"
 PARETO = "pareto"

@@ -25,6 +25,8 @@ import math
 import random
 from dataclasses import dataclass
 
+__all__ = ["ARENA_HALF_M", "DEFAULTS", "KINDS", "MAX_DISTANCE_M", "Generated", "generate"]
+
 ARENA_HALF_M = 1.5
 MAX_DISTANCE_M = 1.3
 """Farthest a ball is placed from the robot's centre (inside the arena, its radius clear)."""

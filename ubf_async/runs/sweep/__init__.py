@@ -16,6 +16,7 @@ Library code: nothing here prints or reads a command line (the tool is
 :mod:`ubf_async.tools.sweep`).
 """
 
+from ubf_async.errors import SweepSpecError
 from ubf_async.runs.sweep.driver import (
     Sweep,
     SweepOutputs,
@@ -25,7 +26,7 @@ from ubf_async.runs.sweep.driver import (
     run_sweep,
 )
 from ubf_async.runs.sweep.execution import RunRecord, default_workers, open_pool
-from ubf_async.runs.sweep.spec import RunTask, SweepPlan, SweepSpecError, load_sweep
+from ubf_async.runs.sweep.spec import RunTask, SweepPlan, load_sweep
 
 __all__ = ["RunRecord", "RunTask", "Sweep", "SweepOutputs", "SweepPlan", "SweepSpecError",
            "default_workers", "execute", "finish", "load_sweep", "open_pool", "open_sweep",

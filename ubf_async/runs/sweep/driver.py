@@ -15,6 +15,8 @@ from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import JOURNAL, Journal, read_journal
 from ubf_async.runs.sweep.spec import RunTask, SweepPlan, load_sweep
 
+__all__ = ["RUNS_LOG", "Sweep", "SweepOutputs", "execute", "finish", "open_sweep", "run_sweep"]
+
 RUNS_LOG = "runs.log"
 
 

@@ -35,6 +35,10 @@ from ubf_async.errors import ConfigurationError
 from ubf_async.runs import inprocess, overrides
 from ubf_async.runs.sweep.spec import RunTask
 
+__all__ = ["CODE_PACKAGES", "EXECUTORS", "MAX_LOG_LINES", "MAX_TEXT", "Pool", "RunRecord",
+           "code_runtime_env", "default_workers", "init_local_worker", "init_worker", "open_pool",
+           "pool_workers", "run_task", "scenario_file", "scenario_path"]
+
 EXECUTORS = ("local", "ray")
 MAX_LOG_LINES = 20
 """Log lines kept per run (warnings and errors): the first ones, then a count."""

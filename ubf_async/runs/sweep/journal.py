@@ -18,6 +18,8 @@ import msgspec
 from ubf_async.errors import JournalError
 from ubf_async.runs.sweep.execution import RunRecord
 
+__all__ = ["HEADER", "JOURNAL", "Journal", "read_journal"]
+
 JOURNAL = "journal.jsonl"
 HEADER = {"journal": "ubf_async.sweep", "format": 1}
 

@@ -17,6 +17,8 @@ from typing import Any
 from ubf_async.runs.sweep.spec import SweepPlan
 from ubf_async.runs.sweep.table import Row, number, text
 
+__all__ = ["LABEL_CHARS", "PANELS_PER_ROW", "PANEL_SIZE", "plot_figure", "swept"]
+
 PANEL_SIZE = (4.2, 3.4)
 PANELS_PER_ROW = 3
 LABEL_CHARS = 18

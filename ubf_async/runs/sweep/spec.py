@@ -34,6 +34,10 @@ from ubf_async.errors import (
 )
 from ubf_async.runs import inprocess, overrides
 
+__all__ = ["DEFAULT_FIGURES", "FIGURE", "MAX_RUNS", "RESULT_COLUMNS", "Checker", "Figure", "Name",
+           "RunTask", "Seed", "SeedRange", "SweepFile", "SweepPlan", "decode_spec", "digest",
+           "format_place", "load_sweep", "read_scenario"]
+
 MAX_RUNS = 1_000_000
 DEFAULT_FIGURES = ("ball_distance_m", "ball_bearing_deg")
 FIGURE = r"^[A-Za-z0-9_-]+(\.[A-Za-z0-9_-]+)*$"

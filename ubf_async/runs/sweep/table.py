@@ -23,6 +23,10 @@ from typing import Any
 from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.spec import SweepPlan
 
+__all__ = ["CELLS_CSV", "CRITERION_PREFIX", "RUNS_CSV", "RUNS_PARQUET", "Row", "aggregate",
+           "cell_rows", "csv_text", "figure", "number", "run_rows", "significant", "text",
+           "write_parquet", "write_whole"]
+
 RUNS_CSV = "runs.csv"
 RUNS_PARQUET = "runs.parquet"
 CELLS_CSV = "cells.csv"

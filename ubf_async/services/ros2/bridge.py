@@ -49,14 +49,14 @@ from typing import Any
 from ubf_async import throttle
 from ubf_async.assembly.robotfile import RemoteSlot, Ros2Spec
 from ubf_async.core.action import Action
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.net.transport import AsyncDeclaration, Declaration
 from ubf_async.runtime.bus import Bus, Publisher, Subscription
 from ubf_async.runtime.component import Component
 from ubf_async.services.remote import vote_data
 from ubf_async.services.ros2 import keys as rk
 from ubf_async.services.ros2 import messages as rm
-from ubf_async.wire.protocol import ProtocolError, decode
+from ubf_async.wire.protocol import decode
 from ubf_async.wire.topics import (
     CAMERA,
     CAMERA_VIEW,
@@ -67,6 +67,9 @@ from ubf_async.wire.topics import (
     TRACE,
     VOTE,
 )
+
+__all__ = ["CLOCK_PERIOD_NS", "DEFAULT_UNITS", "MAX_PENDING", "MAX_SOURCES", "InboundStats",
+           "Ros2Bridge", "Ros2Settings", "RosPublisher", "settings_of_spec"]
 
 log = logging.getLogger(__name__)
 

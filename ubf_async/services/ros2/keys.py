@@ -22,7 +22,12 @@ import re
 import struct
 from dataclasses import dataclass
 
-from ubf_async.wire.protocol import ProtocolError
+from ubf_async.errors import ProtocolError
+
+__all__ = ["ADMIN_SPACE", "ATTACHMENT", "ATTACHMENT_SIZE", "CDR_ENCODING", "DEFAULT_QOS",
+           "GID_SIZE", "MAX_DOMAIN_ID", "SENSOR_QOS", "Attachment", "Node", "attachment",
+           "check_domain_id", "check_name", "data_key", "dds_type", "endpoints_of", "mangle",
+           "new_gid", "parse_attachment", "qualify"]
 
 ADMIN_SPACE = "@ros2_lv"
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"

@@ -24,10 +24,14 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from ubf_async import extras
-from ubf_async.wire.protocol import ProtocolError
+from ubf_async.errors import ProtocolError
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
+
+__all__ = ["CDR_HEADER", "CLOCK", "COMPRESSED_IMAGE", "DEFAULT_DISTRO", "DISTROS", "INFRARED",
+           "NO_TYPE_HASH", "ODOMETRY", "RANGE", "STRING", "TWIST", "UNKNOWN_COVARIANCE", "Codec",
+           "Distro", "Units", "planar_covariance", "type_hash", "typestore"]
 
 Distro = Literal["humble", "jazzy", "kilted"]
 DISTROS: tuple[Distro, ...] = ("humble", "jazzy", "kilted")

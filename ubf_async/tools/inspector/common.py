@@ -13,7 +13,11 @@ import msgspec
 from ubf_async.net.keyexpr import intersects
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.wire import topics
-from ubf_async.wire.protocol import Keys, Message, decode
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import Message, decode
+
+__all__ = ["HEARD_WITHIN_S", "KEY_HELP", "announcing", "decode_for", "expected_schema", "jsonable",
+           "key_or_report", "number", "resolve_key", "to_json"]
 
 HEARD_WITHIN_S = 5.0
 """How much longer ``echo`` and ``info`` wait, at most, for a heartbeat of every live

@@ -15,12 +15,18 @@ from typing import Any, TextIO
 
 import msgspec
 
+from ubf_async.errors import ProtocolError
 from ubf_async.net.keyexpr import intersects
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.tools.inspector import common, samples
 from ubf_async.wire import topics
-from ubf_async.wire.protocol import ROOT, Keys, ProtocolError, decode
+from ubf_async.wire.keys import ROOT, Keys
+from ubf_async.wire.protocol import decode
+
+__all__ = ["KeyStats", "RobotRow", "add_components_parser", "add_info_parser", "add_keys_parser",
+           "add_robots_parser", "cmd_components", "cmd_info", "cmd_keys", "cmd_robots",
+           "describe_type", "format_publishers", "print_declared"]
 
 
 def add_robots_parser(sub: Any, connection: argparse.ArgumentParser) -> None:

@@ -10,6 +10,8 @@ from ubf_async.cli.args import add_connection_arguments
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.tools.inspector import graph, pub, samples, state, tree
 
+__all__ = ["PROG", "build_parser", "common_parser"]
+
 PROG = "python -m ubf_async.inspector"
 
 

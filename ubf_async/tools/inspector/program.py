@@ -16,6 +16,8 @@ from ubf_async.errors import UbfError
 from ubf_async.runtime.bus import Bus
 from ubf_async.tools.inspector import graph, parser, pub, samples, state, tree
 
+__all__ = ["COMMANDS", "main", "open_bus", "run"]
+
 
 async def open_bus(args: argparse.Namespace) -> Bus:
     """Open a session and wait until it reaches the robot: :class:`NoRobotError` (one line:

@@ -20,6 +20,8 @@ from ubf_async.tools.inspector import common
 from ubf_async.wire import topics
 from ubf_async.wire.protocol import encode
 
+__all__ = ["add_pub_parser", "cmd_pub"]
+
 
 def add_pub_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
     """``pub``: publish a message on a key."""

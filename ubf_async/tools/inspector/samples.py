@@ -18,11 +18,16 @@ from typing import Any, TextIO
 
 import msgpack
 
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.tools.inspector import common
 from ubf_async.wire import topics
-from ubf_async.wire.protocol import MAX_PAYLOAD_BYTES, Keys, ProtocolError, decode
+from ubf_async.wire.keys import Keys
+from ubf_async.wire.protocol import MAX_PAYLOAD_BYTES, decode
+
+__all__ = ["ECHO_QUIET_S", "MAX_TICK_KINDS", "MIXED_TICKS", "KeyWindow", "add_echo_parser",
+           "add_rate_parsers", "cmd_echo", "cmd_rate", "format_sample", "tick_kind", "unpublished"]
 
 MAX_TICK_KINDS = 16
 """Kinds of tick ``hz`` keeps apart per key (a reflex or trigger source each makes one)."""

@@ -12,11 +12,15 @@ from collections.abc import Awaitable, Callable
 from typing import Any, TextIO
 
 from ubf_async.clocks import clockdomain
+from ubf_async.errors import ProtocolError
 from ubf_async.runtime.bus import Bus
 from ubf_async.services.status import tick_rates
 from ubf_async.tools.inspector import common
 from ubf_async.wire import topics
-from ubf_async.wire.protocol import Message, ProtocolError, decode
+from ubf_async.wire.protocol import Message, decode
+
+__all__ = ["add_state_parser", "add_watch_arguments", "cmd_state", "format_clock_domain",
+           "format_state", "watch"]
 
 
 def add_state_parser(sub: Any, connection: argparse.ArgumentParser) -> None:

@@ -11,12 +11,13 @@ from typing import Any, TextIO
 
 import yaml
 
-from ubf_async.errors import QueryError
+from ubf_async.errors import ProtocolError, QueryError
 from ubf_async.runtime.bus import Bus
 from ubf_async.services.live import encode_request, render_tree_data
 from ubf_async.services.live import request as tree_request
 from ubf_async.tools.inspector import common, state
-from ubf_async.wire.protocol import ProtocolError
+
+__all__ = ["add_tree_parser", "cmd_tree", "param", "tree_request_data"]
 
 
 def param(text: str) -> tuple[str, Any]:
