@@ -232,6 +232,7 @@ def lint_imports_on_a_copy(tmp_path: Path,
                         ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     for path, line in edits.items():
+        (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)  # a new room
         with (tmp_path / path).open("a", encoding="utf-8") as module:
             module.write(f"\n{line}\n")
     # lint-imports puts its working directory first on the path, so the copy is what it reads.
@@ -264,7 +265,14 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
      ["The framework imports no component"]),
     # A component reaching for a tool.
     ({"components/sim/mirror/arena.py": "import ubf_async.tools.liveview  # noqa"},
-     ["Nothing below the tools imports a tool"]),
+     ["No component imports a tool"]),
+    # A new room nobody placed in the layers (the contract is exhaustive) — here one that
+    # reaches for the launch tool, which an unplaced room could otherwise do unseen.
+    ({"ubf_async/newroom/__init__.py": "import ubf_async.tools.launch  # noqa"},
+     ["ubf_async's rooms"]),
+    # A room below the tools reaching up for one.
+    ({"ubf_async/services/status.py": "import ubf_async.tools.launch  # noqa"},
+     ["ubf_async's rooms"]),
     # The simulator's world reaching up for the renderer.
     ({"components/sim/world/physics.py": "import components.sim.render.camera  # noqa"},
      ["The simulator's rooms"]),
