@@ -1,8 +1,9 @@
-"""The wire protocol: key expressions and the msgpack codec (version 1).
+"""The wire protocol's codec: msgpack envelopes (version 1).
 
-Everything another process needs to attach to a robot is here and in ``docs/protocol.md``;
-this module is its executable form. Pure functions, no zenoh: the bus module moves bytes,
-this one turns them into validated messages and back.
+Everything another process needs to attach to a robot is here, in :mod:`ubf_async.wire.keys`
+(the key expressions) and :mod:`ubf_async.wire.topics` (each topic's message), and in
+``docs/protocol.md``; these modules are its executable form. Pure functions, no I/O: the bus
+moves bytes, this module turns them into validated messages and back.
 
 Every payload is a msgpack map (the *envelope*)::
 
