@@ -270,6 +270,11 @@ def test_lint_imports_keeps_the_contracts_of_an_unchanged_copy(tmp_path: Path) -
     # reaches for the launch tool, which an unplaced room could otherwise do unseen.
     ({"ubf_async/newroom/__init__.py": "import ubf_async.tools.launch  # noqa"},
      ["ubf_async's rooms"]),
+    # A behaviour doing I/O: the network, an event loop.
+    ({"ubf_async/behaviors/basic.py": "import ubf_async.net.transport  # noqa"},
+     ["The UBF core and the behaviours do no I/O"]),
+    ({"ubf_async/core/state.py": "import asyncio  # noqa"},
+     ["The UBF core and the behaviours do no I/O"]),
     # A room below the tools reaching up for one.
     ({"ubf_async/services/status.py": "import ubf_async.tools.launch  # noqa"},
      ["ubf_async's rooms"]),
