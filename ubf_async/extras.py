@@ -37,11 +37,12 @@ missing extra's module is reported the same way by the registry (:func:`missing_
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from types import ModuleType
 
 from ubf_async.errors import MissingExtraError
 
-__all__ = ["EXTRA_OF", "MissingExtraError", "missing_extra", "require"]
+__all__ = ["EXTRA_OF", "check", "missing_extra", "require"]
 
 EXTRA_OF: dict[str, str] = {
     "pymunk": "sim",
@@ -73,6 +74,17 @@ def require(extra: str, module: str, *, who: str) -> ModuleType:
         if exc.name is None or exc.name.partition(".")[0] != module.partition(".")[0]:
             raise  # something inside the installed module is broken: not a missing extra
         raise MissingExtraError(who, extra, exc.name) from None
+
+
+def check(extra: str, module: str, *, who: str) -> None:
+    """As :func:`require`, without importing ``module``: for a feature that only imports it
+    later, if at all (the simulator's plots: matplotlib costs ≈ 0.1 s to import)."""
+    try:
+        found = importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:  # a finder that refuses the name outright
+        found = False
+    if not found:
+        raise MissingExtraError(who, extra, module)
 
 
 def missing_extra(exc: BaseException, *, who: str) -> MissingExtraError | None:

@@ -23,5 +23,5 @@ from ubf_async import extras
 
 # The simulator is the sim extra (ubf_async/extras.py): without it, whatever reaches this
 # package — a simulated launch, a `sim` backend, experiment.run — says so in one line.
-extras.require("sim", "pymunk", who="the simulator")
-extras.require("sim", "matplotlib", who="the simulator")
+extras.check("sim", "pymunk", who="the simulator")
+extras.check("sim", "matplotlib", who="the simulator")
