@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import time
 from collections.abc import AsyncIterator
 
 from ubf_async.cli.args import connection_options
@@ -18,12 +17,10 @@ from ubf_async.net.options import START_ROBOT_HINT, refused_error
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.keys import ROOT
 
-__all__ = ["ATTACH_RETRY_S", "DEFAULT_ATTACH_TIMEOUT_S", "add_attach_arguments", "attached_bus",
+__all__ = ["DEFAULT_ATTACH_TIMEOUT_S", "add_attach_arguments", "attached_bus",
            "run_until_stopped", "wait_for_robot"]
 
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
-ATTACH_RETRY_S = 0.05
-"""How often :func:`wait_for_robot` asks whether the robot is there."""
 
 
 def add_attach_arguments(parser: argparse.ArgumentParser, *, name: str, who: str) -> None:
@@ -48,24 +45,37 @@ async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_
     endpoints others come to it). Call it right after :meth:`Bus.open`, before starting
     anything. ``any_robot``: any robot's component will do (a tool looking at a fleet).
 
-    It asks (a liveliness query) every :data:`ATTACH_RETRY_S` rather than waiting on a
-    liveliness subscriber: with zenoh 1.10 a client's liveliness queries made while such a
-    subscriber is declared, or just after, sometimes find nothing (measured: an inspector
-    listing no component in 2-3 runs of 30), and a tool's next step is such a query."""
+    It asks (a liveliness query) once, and then again each time a component's heartbeat
+    arrives (every component beats every half second): it waits on that event, not on a timer.
+    Not on a liveliness subscriber: with zenoh 1.10 a client's liveliness queries made while
+    such a subscriber is declared, or just after, sometimes find nothing (measured: an
+    inspector listing no component in 2-3 runs of 30), and a tool's next step is such a
+    query."""
     options = bus.options
     if not options.connect and options.mode != "client":
         return
     where = " ".join(options.connect) or "(the configured router)"
-    deadline = time.monotonic() + timeout_s
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout_s
+    alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
+    beat = asyncio.Event()
+    heartbeats = bus.subscribe(f"{ROOT}/*/heartbeat/*" if any_robot else bus.keys.all_heartbeats,
+                               lambda key, payload, received_ns: beat.set())
     reached = False
-    while True:
-        reached = reached or bus.reached_peers()
-        alive = f"{ROOT}/*/alive/*" if any_robot else bus.keys.all_alive
-        if reached and await bus.alive_tokens(alive, timeout_s=1.0):
-            return
-        if time.monotonic() >= deadline:
-            break
-        await asyncio.sleep(ATTACH_RETRY_S)
+    try:
+        while True:
+            beat.clear()
+            reached = reached or bus.reached_peers()
+            if reached and await bus.alive_tokens(alive, timeout_s=1.0):
+                return
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(beat.wait(), deadline - loop.time())
+            if loop.time() >= deadline:
+                break
+            reached = True  # a heartbeat came: another node is there
+    finally:
+        heartbeats.close()
+    reached = reached or bus.reached_peers()
     if not reached:
         refused = await asyncio.to_thread(refused_error, options)
         if refused is not None:
