@@ -224,6 +224,8 @@ class _ZenohPublisher:
         self._matching = False
         """Kept by a matching listener: asking zenoh (``matching_status``) costs ≈ 45 µs on an
         idle 2-core host, and the controller asks on every tick (its trace's subscribers)."""
+        self.listener: Any = None
+        """Its matching listener, undeclared with it."""
 
     def matched(self, status: zenoh.MatchingStatus) -> None:
         """The matching listener's callback (zenoh calls it at once with the current status,
@@ -235,6 +237,8 @@ class _ZenohPublisher:
 
     def undeclare(self) -> None:
         with contextlib.suppress(zenoh.ZError):
+            if self.listener is not None:
+                self.listener.undeclare()
             self._publisher.undeclare()
 
 
@@ -357,9 +361,11 @@ class ZenohConnection:
         self.ordered = ordered
         self._callback_ends: list[CallbackEnd] = []
         self.connect_watch: asyncio.Task[None] | None = None
-        self._link_listener: Any = None
         """The watch of a peer's ``connect`` endpoints (:class:`ZenohTransport`), cancelled
         on :meth:`aclose`."""
+        self._link_listener: Any = None
+        self._listeners: list[Any] = []
+        """Each publisher's matching listener (undeclared before the session closes)."""
 
     def _handler(self, callback: Callable[[Any], None], *,
                  on_zenoh_thread: bool | None = None) -> Any:
@@ -373,7 +379,9 @@ class ZenohConnection:
         publisher = self.session.declare_publisher(key)
         out = _ZenohPublisher(publisher)
         # On zenoh's thread: it only stores a bool (no Python thread for each publisher).
-        publisher.declare_matching_listener(self._handler(out.matched, on_zenoh_thread=True))
+        out.listener = publisher.declare_matching_listener(
+            self._handler(out.matched, on_zenoh_thread=True))
+        self._listeners.append(out.listener)
         return out
 
     def declare_subscriber(self, key_expr: str, callback: SampleCallback) -> Declaration:
@@ -479,9 +487,12 @@ class ZenohConnection:
         await asyncio.to_thread(self._close)
 
     def _close(self) -> None:
-        if self._link_listener is not None:  # first, as the bus undeclares its own first
-            with contextlib.suppress(zenoh.ZError):
-                self._link_listener.undeclare()
+        # Listeners first, as the bus undeclares its own first: the session's closing changes
+        # links and matching, and their callbacks must not run into the interpreter's exit.
+        for listener in [self._link_listener, *self._listeners]:
+            if listener is not None:
+                with contextlib.suppress(zenoh.ZError):
+                    listener.undeclare()
         self.session.close()
         deadline = time.monotonic() + CALLBACK_END_WAIT_S
         for end in self._callback_ends:
