@@ -120,7 +120,10 @@ async def test_the_command_calibrates_a_running_robot(tmp_path: Path, endpoint: 
         fitted = printed_track_m(text)
         assert fitted == pytest.approx(fit_effective_track(turns).effective_track_m, rel=2e-3)
         assert 0.96 * rig.effective_track_m < fitted < rig.effective_track_m, (fitted, rig)
-        assert f"effective_track_m: {fitted:.3f}" in text
+        # The robot file's line rounds the fit itself, which the 4-decimal line shows rounded
+        # already (0.4135 may be 0.41353: 0.414), so the two agree to within half a mm.
+        kept = re.search(r"effective_track_m: ([\d.]+)\}", text)
+        assert kept and abs(float(kept[1]) - fitted) <= 0.00051, text
 
         # The angles a person gives are the ones fitted, whatever the simulator says.
         given = [200.0, -150.0]
