@@ -286,7 +286,8 @@ def run_dora_sizes(*, sizes: tuple[int, ...], warmup: int, count: int) -> dict[s
 async def ours_sizes_receiver(cfg: dict[str, Any]) -> dict[str, Any]:
     """Our path's receiving end: a :class:`~ubf_async.runtime.bus.Bus` subscription, each
     sample handed from zenoh's thread to the handler on the event loop (the bridge), the
-    arrival stamped there. Prints ``READY``, serves until stdin closes."""
+    arrival stamped there. Prints ``READY``, serves until every sample has come or stdin
+    closes."""
     import asyncio
     import threading
 
@@ -302,8 +303,12 @@ async def ours_sizes_receiver(cfg: dict[str, Any]) -> dict[str, Any]:
         sys.stdin.read()
         loop.call_soon_threadsafe(done.set)
 
+    expected = len(cfg["sizes"]) * (cfg["warmup"] + cfg["count"])
+
     def handler(key: str, payload: bytes, received_ns: int) -> None:
         got.add(payload, time.perf_counter_ns())
+        if sum(got.seen.values()) == expected:
+            done.set()  # all there: the sender sees this subscriber go and stops
 
     threading.Thread(target=stdin_closed, daemon=True).start()
     try:
@@ -320,6 +325,7 @@ async def ours_sizes_sender(cfg: dict[str, Any]) -> dict[str, Any]:
     payload as it is: the protocol's envelope carries at most 256 KiB), one sample every
     :data:`SIZES_PERIOD_S`, each size ``warmup + count`` times."""
     import asyncio
+    import contextlib
 
     from ubf_async.net.options import ConnectionOptions
     from ubf_async.runtime.bus import Bus
@@ -327,16 +333,15 @@ async def ours_sizes_sender(cfg: dict[str, Any]) -> dict[str, Any]:
     bus = await Bus.open(ConnectionOptions(robot=cfg["robot"], connect=[cfg["endpoint"]]))
     try:
         pub = bus.raw_publisher(bus.keys.prefix + "/bench/sizes")
-        deadline = time.monotonic() + 10
-        while not pub._out.has_remote_subscribers():
-            if time.monotonic() > deadline:
-                raise TimeoutError("the receiver's subscriber never appeared")
-            await asyncio.sleep(0.01)
+        await pub.wait_for_subscribers(10)
         for size in cfg["sizes"]:
             for _ in range(cfg["warmup"] + cfg["count"]):
                 pub.put(bytes(stamped(size)))
-                await asyncio.sleep(SIZES_PERIOD_S)
-        await asyncio.sleep(0.2)  # the last samples' way through
+                await asyncio.sleep(SIZES_PERIOD_S)  # the pace: one sample a period
+        # The receiver leaves once it has every sample: closing before would drop the last.
+        # (A sample lost on the way keeps it there: then the samples it has are what count.)
+        with contextlib.suppress(TimeoutError):
+            await pub.wait_for_subscribers(10, present=False)
     finally:
         await bus.aclose()
     return {"sent": len(cfg["sizes"]) * (cfg["warmup"] + cfg["count"])}

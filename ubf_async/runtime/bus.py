@@ -71,7 +71,13 @@ from ubf_async.clocks.clock import Clock, WallClock
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.net.keyexpr import intersects
 from ubf_async.net.options import DEFAULT_ROBOT, ConnectionOptions, endpoint_locators
-from ubf_async.net.transport import Connection, Declaration, Transport, ZenohTransport
+from ubf_async.net.transport import (
+    Connection,
+    Declaration,
+    OutgoingPublisher,
+    Transport,
+    ZenohTransport,
+)
 from ubf_async.runtime import lending, queries
 from ubf_async.runtime.declared import Declared
 from ubf_async.runtime.queries import Queryable, QueryHandler
@@ -368,7 +374,30 @@ def _take_batch(pending: dict[str, _Refused]) -> list[tuple[str, _Refused]]:
     return [(k, pending.pop(k)) for k in keys]
 
 
-class Publisher:
+class _Sending:
+    """What a publisher and a raw publisher share: knowing who listens on their key."""
+
+    key: str
+    _bus: Bus
+    _out: OutgoingPublisher
+
+    def has_subscribers(self) -> bool:
+        """Whether a subscriber matching this key is known: on this bus, or to the transport."""
+        return bool(self._bus._local_subscriptions(self.key)) or self._out.has_remote_subscribers()
+
+    async def wait_for_subscribers(self, timeout_s: float = 5.0, *, present: bool = True) -> None:
+        """Wait until a matching subscriber is known (declarations propagate asynchronously:
+        a sample put before that is not delivered to it); with ``present=False``, until none
+        is left. Raises TimeoutError."""
+        deadline = time.monotonic() + timeout_s
+        while self.has_subscribers() is not present:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{'no' if present else 'still a'} subscriber for "
+                                   f"{self.key} within {timeout_s}s")
+            await asyncio.sleep(0.01)
+
+
+class Publisher(_Sending):
     """Publishes validated messages of one schema on one key, numbering them.
 
     Every instance draws a random publisher identity (``pub``: 1 ≤ pub < 2**63) that goes in
@@ -410,19 +439,6 @@ class Publisher:
         self._put(payload)
         return self.seq, stamp
 
-    def has_subscribers(self) -> bool:
-        """Whether a subscriber matching this key is known: on this bus, or to the transport."""
-        return bool(self._bus._local_subscriptions(self.key)) or self._out.has_remote_subscribers()
-
-    async def wait_for_subscribers(self, timeout_s: float = 5.0) -> None:
-        """Wait until a matching subscriber is known (declarations propagate asynchronously:
-        a sample put before that is not delivered to it). Raises TimeoutError."""
-        deadline = time.monotonic() + timeout_s
-        while not self.has_subscribers():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"no subscriber for {self.key} within {timeout_s}s")
-            await asyncio.sleep(0.01)
-
     def close(self) -> None:
         if self._closed:
             return
@@ -430,7 +446,7 @@ class Publisher:
         self._out.undeclare()
 
 
-class RawPublisher:
+class RawPublisher(_Sending):
     """Puts payloads on one key as they are (:meth:`Bus.raw_publisher`)."""
 
     def __init__(self, bus: Bus, key: str) -> None:
