@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
-import socket
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
@@ -17,6 +16,7 @@ import pytest
 import pytest_asyncio
 import zenoh
 
+from tests.ports import free_port
 from ubf_async.clocks.clock import Hold, WallClock
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.net.transport import ZenohTransport
@@ -53,35 +53,6 @@ def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item
     if item.path.name in LENDING_TESTS:
         return {"lending": lending.new_event_loop}
     return {"asyncio": lending.new_idle_event_loop}
-
-
-PORTS_PER_WORKER = 1500
-PORTS_FROM = 20000
-"""Under pytest-xdist each worker takes its loopback ports from its own block below the
-kernel's ephemeral range (32768-): a port one worker just found free and handed to a
-subprocess cannot be found free by another worker before the subprocess binds it."""
-_next_port: dict[str, int] = {}
-
-
-def free_port() -> int:
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
-    if not worker.startswith("gw"):
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.bind(("127.0.0.1", 0))
-            return s.getsockname()[1]
-    first = PORTS_FROM + int(worker[2:]) % 8 * PORTS_PER_WORKER
-    # In turn through the block (from a point set by the pid, so that a child process of
-    # this worker starts elsewhere): a port handed out is not handed out again soon.
-    for _ in range(PORTS_PER_WORKER):
-        offset = _next_port.setdefault(worker, os.getpid() * 97 % PORTS_PER_WORKER)
-        _next_port[worker] = (offset + 1) % PORTS_PER_WORKER
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", first + offset))
-            except OSError:
-                continue
-            return first + offset
-    raise RuntimeError(f"no free loopback port in {first}-{first + PORTS_PER_WORKER - 1}")
 
 
 @pytest.fixture
