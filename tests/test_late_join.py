@@ -305,9 +305,14 @@ async def test_a_tool_whose_votes_or_samples_are_refused_says_so_at_once(
         assert f"REFUSES the samples on ubf/{robot}/sensor/radio/ext (1 so far, future)" \
             in said, said
 
-        await eventually(lambda: {key for _, _, key in notices} >= {
-            f"ubf/{robot}/refused/vote/seek_pink_ball/teleop",
-            f"ubf/{robot}/refused/sensor/radio/ext"}, timeout_s=30, what="both notices")
+        wanted = {f"ubf/{robot}/refused/vote/seek_pink_ball/teleop",
+                  f"ubf/{robot}/refused/sensor/radio/ext"}
+        try:
+            await eventually(lambda: {key for _, _, key in notices} >= wanted, timeout_s=30,
+                             what="both notices")
+        except AssertionError as exc:  # say what did come, and what the robot said it sent
+            raise AssertionError(f"{exc}; arrived: {[(k, m.data) for _, m, k in notices]}\n"
+                                 + launch.output()) from None
         assert all(m.schema == REFUSED.schema and m.data["reason"] == "future"
                    for _, m, _ in notices)
     finally:
