@@ -574,6 +574,10 @@ async def test_remote_override_takes_control_and_gives_it_back_within_its_ttl(
                          "--ttl-s", str(ttl_s), "--quiet")
         await eventually(lambda: log.now() == teleop_output, timeout_s=15,
                          what="the override to take control")
+        # Its votes reach this session only once the teleop and this session have found each
+        # other (zenoh peers link by gossip, and the robot forwards nothing): the last vote
+        # before the freeze must be among those seen here.
+        await eventually(lambda: bool(votes), timeout_s=15, what="the teleop's votes here too")
 
         # Frozen (SIGSTOP): its session and token live on, its votes stop — the TTL decides.
         stopped_ns = time.monotonic_ns()
