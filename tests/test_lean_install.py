@@ -147,3 +147,23 @@ def test_a_feature_says_which_extra_it_needs(tmp_path: Path, args: list[str],
     result, _ = _lean_run(tmp_path, *args)
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines() == [f"python -m ubf_async.launch: error: {line}"]
+
+
+def test_a_library_call_without_an_extra_raises_it_as_a_missing_extra(tmp_path: Path) -> None:
+    """A simulated run asked of the library on the lean install: a MissingExtraError (what a
+    caller catches to offer the install), still told where the robot file asked for it."""
+    code = """
+from ubf_async import MissingExtraError, experiment
+try:
+    experiment.run("mini-whegs", scenario="ball-in-sight", duration_s=0.1)
+except MissingExtraError as exc:
+    print(exc.extra, exc.where, sep="|")
+    print(exc)
+"""
+    result, _ = _lean_run(tmp_path, "-c", code)
+    assert result.returncode == 0, result.stderr
+    extra, where = result.stdout.splitlines()[0].split("|")
+    assert (extra, Path(where).name) == ("sim", "mini-whegs.yaml:14"), result.stdout
+    assert result.stdout.splitlines()[1].endswith(
+        "mini-whegs.yaml:14: the simulator needs the 'sim' extra (pymunk is not installed): "
+        "pip install 'ubf-async[sim]'"), result.stdout

@@ -75,11 +75,14 @@ class RobotFileError(ConfigurationError):
         self.column = column
         super().__init__(self._format())
 
-    def _format(self) -> str:
+    @property
+    def where(self) -> str:
+        """``FILE:LINE`` (``FILE`` when the line is unknown)."""
         where = self.path or "<robot file>"
-        if self.line is not None:
-            where += f":{self.line}"
-        return f"{where}: {self.message}"
+        return where if self.line is None else f"{where}:{self.line}"
+
+    def _format(self) -> str:
+        return f"{self.where}: {self.message}"
 
 
 class SweepSpecError(RobotFileError):
@@ -138,12 +141,20 @@ class MissingExtraError(PluginError, ImportError):
     ``str()`` names the feature, the extra and the command that installs it
     (:func:`ubf_async.extras.require`)."""
 
-    def __init__(self, who: str, extra: str, missing: str) -> None:
+    def __init__(self, who: str, extra: str, missing: str, *, where: str | None = None) -> None:
+        """``where``: the place that asked for the feature (a robot file's ``FILE:LINE``),
+        which ``str()`` then starts with, as a :class:`RobotFileError`'s does."""
         self.who = who
         self.extra = extra
         self.missing = missing
-        super().__init__(f"{who} needs the '{extra}' extra ({missing} is not installed): "
-                         f"pip install 'ubf-async[{extra}]'")
+        self.where = where
+        said = (f"{who} needs the '{extra}' extra ({missing} is not installed): "
+                f"pip install 'ubf-async[{extra}]'")
+        super().__init__(said if where is None else f"{where}: {said}")
+
+    def asked_at(self, where: str) -> MissingExtraError:
+        """The same error, told where it was asked for (``FILE:LINE``)."""
+        return MissingExtraError(self.who, self.extra, self.missing, where=where)
 
 
 class TreeChangeError(ConfigurationError):

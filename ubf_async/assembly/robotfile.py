@@ -54,7 +54,7 @@ from ubf_async.assembly.registry import (
     validation_parts,
 )
 from ubf_async.core.behavior import Behavior, Child, Composite
-from ubf_async.errors import ParameterError, PluginError, RobotFileError
+from ubf_async.errors import MissingExtraError, ParameterError, PluginError, RobotFileError
 from ubf_async.runtime.component import Component
 
 FORMAT_VERSION: Final = 1
@@ -616,6 +616,8 @@ def _requires(factory: Callable[..., Any], parameter: str) -> bool:
 def _lookup(registry_get: Callable[[], Any], locator: Locator, path: Path_, key: str) -> Any:
     try:
         return registry_get()
+    except MissingExtraError as exc:  # the install's fault, not the file's: its own type
+        raise exc.asked_at(locator.error("", path, key=key).where) from None
     except PluginError as exc:
         raise locator.error(str(exc), path, key=key) from None
 
