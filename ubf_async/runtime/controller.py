@@ -18,7 +18,18 @@ Three ways to decide *when* to tick (:class:`TickMode`):
 * ``event`` — tick whenever a chosen source (``trigger``) delivers a new sample.
 
 Triggered ticks (reflexes, ``sync``, ``event``) run right where the aggregator stores the
-sample, with no extra pass through the event loop.
+sample, with no extra pass through the event loop. On a wall-clock robot they do not wait
+for the loop at all: the **reflex lane** (``lane=True``, the default; a robot file's
+``controller: {lane: false}`` turns it off) stores a sample of a source that ticks the
+controller, and runs that tick, on the transport's thread that brought it, while the loop
+sleeps (:meth:`StateAggregator.open_lane
+<ubf_async.runtime.aggregator.StateAggregator.open_lane>`). Behaviours, arbiters and the
+aggregator are still never run by two threads at once: the lane and the loop's ticks, holds,
+status and tree changes all hold the aggregator's :attr:`lock` — one at a time, in the order
+they took it. So a behaviour needs no locks of its own, but it must not call the event loop
+from ``act`` (no ``asyncio.get_running_loop()``, no task created): with the lane it may run
+on another thread. A tree that must run on the loop thread says ``lane: false``. Lockstep
+and simulated time never take the lane (their order is simulated time's, kept on the loop).
 
 Each tick takes a :class:`~ubf_async.core.state.State` snapshot from the aggregator (with the
 previous tick's published action in ``previous_action``), evaluates the root behaviour,
@@ -142,6 +153,10 @@ def trace_nodes(trace: Trace) -> tuple[TraceNode, ...]:
     return tuple(nodes)
 
 
+def _no_lane() -> None:
+    """The closer of a lane never opened."""
+
+
 class TickMode(enum.StrEnum):
     PERIODIC = "periodic"
     SYNC = "sync"
@@ -257,12 +272,14 @@ class Controller(Component):
         reflex_sources: tuple[str, ...] = (),
         reflex_rate_hz: float | None = None,
         reflex_burst: int = 2,
+        lane: bool = True,
         status_period_s: float = 0.5,
         status_clock: Clock | None = None,
         name: str = "controller",
         **component_options: float,
     ) -> None:
-        """``status_clock``: what the status period is measured on — wall time by default
+        """``lane``: run triggered ticks on the reflex lane on a wall-clock robot (module
+        docstring). ``status_clock``: what the status period is measured on — wall time by default
         (what people and tools watch, even while a simulation stands still); the robot's
         clock for a controller in a lockstep run, so that each status is of a simulated
         instant, the same at any speed (a fleet's world collects them)."""
@@ -273,6 +290,10 @@ class Controller(Component):
         if self.mode is TickMode.EVENT and not trigger:
             raise ValueError("event mode needs a trigger source, e.g. trigger='range/front'")
         self.aggregator = aggregator
+        self.lock = aggregator.lock
+        """The aggregator's lock: held for every tick, hold, status and tree change, on the
+        loop or on the reflex lane (module docstring)."""
+        self.lane = lane
         self.root = root
         self.rate_hz = rate_hz
         self.sync_source = sync_source
@@ -316,8 +337,11 @@ class Controller(Component):
         It runs before the tick publishes ``seek_color``/``radio``/``leds`` and before
         ``last_action``, ``last_trace``, ``stats.tick_ns`` and ``ticked`` are updated
         (``stats.ticks`` and ``stats.periodic`` already count the tick), so the time it
-        reads is when the command left. Hooks run in the order they were added, on the
-        event loop: keep them short, a slow hook delays the tick's end. A hook that raises
+        reads is when the command left. Hooks run in the order they were added, where the
+        tick runs — on the event loop, or on the reflex lane's thread (holding :attr:`lock`,
+        never beside another tick; hand anything for the loop over with
+        :meth:`Bus.call_on_loop <ubf_async.runtime.bus.Bus.call_on_loop>`): keep them
+        short, a slow hook delays the tick's end. A hook that raises
         is logged and removed; the tick and the controller go on. With no hook a tick pays
         one truth test."""
         return add_hook(self._tick_hooks, callback)
@@ -343,18 +367,24 @@ class Controller(Component):
             TickMode.EVENT: self._run_triggered,
         }[self.mode]
         try:
-            self.root.setup()
-            self.root.reset()
-            remove_listener = self.aggregator.on_sample(self._on_sample)
+            with self.lock:
+                self.root.setup()
+                self.root.reset()
+                remove_listener = self.aggregator.on_sample(self._on_sample)
+                close_lane = (self.aggregator.open_lane(self._triggers) if self.lane
+                              else _no_lane)
             try:
                 async with asyncio.TaskGroup() as group:
                     group.create_task(self._publish_status())
                     group.create_task(loop())
             finally:
-                remove_listener()
+                with self.lock:  # waits for a tick on the lane to end: none after it
+                    close_lane()
+                    remove_listener()
         finally:
             try:
-                self.root.shutdown()
+                with self.lock:
+                    self.root.shutdown()
             except Exception:  # must not replace the exception (or cancellation) ending run
                 log.exception("shutdown of the behaviour tree %r raised", self.root.name)
 
@@ -396,26 +426,34 @@ class Controller(Component):
         trigger = self.sync_source if self.mode is TickMode.SYNC else self.trigger
         while True:
             await clock.sleep(period_s)
-            now = clock.now_ns()
-            if 0 <= now - self._last_drive_ns < period_ns:
-                continue  # a tick published lately (a clock that went back re-anchors here)
-            fresh = trigger is not None and self.aggregator.fresh(trigger, now)
-            last = self.last_action if fresh else None  # a tick always sets both fields
-            trace = self.last_trace if fresh else None
-            self.stats.holds += 1
-            try:
-                self._drive.publish(Drive(
-                    speed=last.speed if last and last.speed is not None else 0.0,
-                    turn=last.turn if last and last.turn is not None else 0.0,
-                    tick=self.stats.ticks, hold=True,
-                    winners=tuple(outgoing_names(trace.winning_leaves() if trace else [])),
-                ))
-            except Exception:
-                self._publish_failed("hold drive command")
-            self._last_drive_ns = now
+            with self.lock:
+                self._hold(clock.now_ns(), period_ns, trigger)
+
+    def _hold(self, now: int, period_ns: int, trigger: str | None) -> None:
+        """Repeat the last decision unless a tick published lately (:meth:`_run_triggered`)."""
+        if 0 <= now - self._last_drive_ns < period_ns:
+            return  # a tick published lately (a clock that went back re-anchors here)
+        fresh = trigger is not None and self.aggregator.fresh(trigger, now)
+        last = self.last_action if fresh else None  # a tick always sets both fields
+        trace = self.last_trace if fresh else None
+        self.stats.holds += 1
+        try:
+            self._drive.publish(Drive(
+                speed=last.speed if last and last.speed is not None else 0.0,
+                turn=last.turn if last and last.turn is not None else 0.0,
+                tick=self.stats.ticks, hold=True,
+                winners=tuple(outgoing_names(trace.winning_leaves() if trace else [])),
+            ))
+        except Exception:
+            self._publish_failed("hold drive command")
+        self._last_drive_ns = now
 
     def tick(self, *, based_on: SourceEntry | None = None) -> Trace | None:
-        """One UBF cycle: snapshot, evaluate, publish."""
+        """One UBF cycle: snapshot, evaluate, publish (holding :attr:`lock`)."""
+        with self.lock:
+            return self._tick(based_on)
+
+    def _tick(self, based_on: SourceEntry | None) -> Trace | None:
         t0 = time.perf_counter_ns()
         if self.bus.clock.resets != self._clock_resets:
             self._clock_resets = self.bus.clock.resets
@@ -486,7 +524,8 @@ class Controller(Component):
             self.last_action = Action(speed=speed, turn=turn)
         self.last_trace = trace
         self.stats.tick_ns.append(time.perf_counter_ns() - t0)
-        self.ticked.set()
+        if not self.ticked.is_set():  # (set, it stays so until a waiter clears it)
+            self.bus.call_on_loop(self.ticked.set)  # from the lane: after the command left
         return trace
 
     def _publish_failed(self, what: str) -> None:
@@ -511,6 +550,10 @@ class Controller(Component):
             publisher.publish(self._EXTRA_MESSAGES[field_name](value))
 
     def status(self) -> dict[str, Any]:
+        with self.lock:
+            return self._status_now()
+
+    def _status_now(self) -> dict[str, Any]:
         explanation = self.last_trace.render() if self.last_trace is not None else ""
         last = self.last_action
         return {
@@ -538,9 +581,10 @@ class Controller(Component):
     def runs(self, name: str) -> bool:
         """Whether the tree has a behaviour called ``name`` (a scenario's expectation is
         judged only on a robot that runs what it describes)."""
-        root = self.root
-        return (root.find(name) if isinstance(root, Composite) else
-                root if root.name == name else None) is not None
+        with self.lock:
+            root = self.root
+            return (root.find(name) if isinstance(root, Composite) else
+                    root if root.name == name else None) is not None
 
     def tree_changed(self, what: str) -> None:
         """Called by the live tree service when a change was applied: kept, with the robot
@@ -551,7 +595,8 @@ class Controller(Component):
         """Behaviours of the tree quarantined now (``composite/child``); they stay so until
         their composite is reset — the controller's next run, a reload of the tree — or
         they leave and join again."""
-        return self.root.quarantined() if isinstance(self.root, Composite) else []
+        with self.lock:
+            return self.root.quarantined() if isinstance(self.root, Composite) else []
 
     async def _publish_status(self) -> None:
         periods = every(self.status_clock, self.status_period_s)
