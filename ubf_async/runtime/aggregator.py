@@ -323,7 +323,7 @@ class StateAggregator(Component):
         if self._receive_hooks:
             run_hooks(self._receive_hooks, "receive", key, payload, received_ns)
         source, message = decoded
-        self.ingest(source, message, received_ns)
+        self._ingest(source, message, received_ns)  # (the subscription holds the lock)
 
     def _on_malformed(self, key: str, payload: bytes, received_ns: int, error: ProtocolError,
                       count: int) -> None:
@@ -570,7 +570,8 @@ def _resolve(waiters: list[asyncio.Future[SourceEntry]], entry: SourceEntry) -> 
 class _ReflexLane(Lane):
     """The aggregator's :class:`~ubf_async.runtime.bus.Lane`: a valid sample of a source the
     open lane's controller ticks on, on a wall-clock robot, stamped near the robot clock
-    (else its clock-domain check, which is the loop's, would run on the lane)."""
+    (else its clock-domain check, which may ask the loop who sent it, would run on the
+    lane)."""
 
     def __init__(self, aggregator: StateAggregator) -> None:
         self._aggregator = aggregator

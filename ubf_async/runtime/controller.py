@@ -157,6 +157,11 @@ def _no_lane() -> None:
     """The closer of a lane never opened."""
 
 
+def _never(source: str) -> bool:
+    """No source ticks a periodic controller without reflexes."""
+    return False
+
+
 class TickMode(enum.StrEnum):
     PERIODIC = "periodic"
     SYNC = "sync"
@@ -305,6 +310,8 @@ class Controller(Component):
         self.reflex_burst = reflex_burst
         self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
                                           now_ns=bus.clock.now_ns())
+        self._reflex_bucket_used = self.mode is TickMode.PERIODIC
+        self._triggers = self._triggering_sources()
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
         self.host = socket.gethostname()[:253]
@@ -397,22 +404,25 @@ class Controller(Component):
     def _count_overrun(self) -> None:
         self.stats.overruns += 1
 
-    def _triggers(self, source: str) -> bool:
+    def _triggering_sources(self) -> Callable[[str], bool]:
+        """Whether a sample of a source ticks the controller (its mode's rule), as one call:
+        the reflex lane asks it of every sample on the transport's thread."""
         if self.mode is TickMode.SYNC:
-            return source == self.sync_source
+            return self.sync_source.__eq__
         if self.mode is TickMode.EVENT:
-            return source == self.trigger
-        return source.startswith(self.reflex_sources) if self.reflex_sources else False
+            assert self.trigger is not None  # (checked in __init__)
+            return self.trigger.__eq__
+        prefixes = self.reflex_sources
+        return (lambda source: source.startswith(prefixes)) if prefixes else _never
 
     def _on_sample(self, source: str, entry: SourceEntry) -> None:
         if not self._triggers(source):
             return
-        if self.mode is TickMode.PERIODIC and not self._reflex_bucket.take(
-                self.bus.clock.now_ns()):
+        if self._reflex_bucket_used and not self._reflex_bucket.take(self.bus.clock.now_ns()):
             self.stats.reflex_limited += 1
             return
         self.stats.triggered += 1
-        self.tick(based_on=entry)
+        self._tick(entry)  # (inside ingest: the lock is held)
 
     async def _run_triggered(self) -> None:
         """Ticks come from :meth:`_on_sample`. Between them the last decision is repeated
@@ -454,16 +464,9 @@ class Controller(Component):
             return self._tick(based_on)
 
     def _tick(self, based_on: SourceEntry | None) -> Trace | None:
+        # Only what the drive command needs comes before its put; the bookkeeping follows it.
         t0 = time.perf_counter_ns()
-        if self.bus.clock.resets != self._clock_resets:
-            self._clock_resets = self.bus.clock.resets
-            self.stats.new_run()
         state = self.aggregator.snapshot(previous_action=self.last_action)
-        self.stats.tick_starts_ns.append(state.now_ns)
-        if based_on is None:
-            self.stats.periodic += 1
-            self.stats.periodic_starts_ns.append(state.now_ns)
-            self.stats.periodic_wall_ns.append(t0)
         try:
             trace: Trace | None = self.root.evaluate(state)
         except Exception:
@@ -479,18 +482,15 @@ class Controller(Component):
         turn = float(action.turn) if action is not None and action.turn is not None else 0.0
         basis = based_on if based_on is not None else self.aggregator.newest()
         winners = trace.winning_leaves() if trace is not None else []
-        self.stats.ticks += 1
-        counted = self.stats.winner_ticks
-        for w in winners:  # bounded: behaviours of other processes come and go under any name
-            if w in counted or len(counted) < MAX_COUNTED_NAMES:
-                counted[w] += 1
+        stats = self.stats
+        stats.ticks += 1
         command = Drive(
             speed=speed,
             turn=turn,
             based_on=None if basis is None else BasedOn(
                 source=clip(basis.source, MAX_NAME_CHARS), seq=basis.message.seq,
                 stamp_ns=basis.message.stamp_ns),
-            tick=self.stats.ticks,
+            tick=stats.ticks,
             winners=tuple(outgoing_names(winners)),
             ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
         )
@@ -501,12 +501,24 @@ class Controller(Component):
             self._publish_failed("tick's drive command; a plain stop goes out instead")
             speed = turn = 0.0
             action = None
-            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks,
+            command = Drive(speed=0.0, turn=0.0, tick=stats.ticks,
                             ticked_by=command.ticked_by)
             try:
                 self._drive.publish(command)
             except Exception:  # nothing goes out: the motors' watchdog stops the wheels
                 self._publish_failed("plain stop either")
+        if self.bus.clock.resets != self._clock_resets:
+            self._clock_resets = self.bus.clock.resets
+            stats.new_run()
+        stats.tick_starts_ns.append(state.now_ns)
+        if based_on is None:
+            stats.periodic += 1
+            stats.periodic_starts_ns.append(state.now_ns)
+            stats.periodic_wall_ns.append(t0)
+        counted = stats.winner_ticks
+        for w in winners:  # bounded: behaviours of other processes come and go under any name
+            if w in counted or len(counted) < MAX_COUNTED_NAMES:
+                counted[w] += 1
         if self._tick_hooks:
             run_hooks(self._tick_hooks, "tick", state, trace, command)
         if action is not None:
