@@ -277,7 +277,8 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
     }
     if "triggered" in served:  # a controller
         out["controller"] = {k: served.get(k) for k in (
-            "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct")}
+            "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct",
+            "lane")}
     if served.get("samples"):  # observed through the hooks
         out["segments_ns"] = reflex_segments(answered, served)
         out["segments"] = {k: summarize(v) for k, v in out["segments_ns"].items()}
@@ -296,7 +297,7 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
 
 SEGMENTS = (
     "sensor put → controller zenoh callback",
-    "bridge hand-off (callback → loop handler)",
+    "callback → handler (lane / hand-off)",
     "decode + validate",
     "ingest: store the sample",
     "stored → tick start",
@@ -957,7 +958,8 @@ def report(res: dict[str, Any]) -> str:
         ctl = r["controller"]
         add(f"     controller: coalesced {ctl['coalesced']}, malformed {ctl['malformed']}, "
             f"errors {ctl['errors']}, triggered ticks {ctl['triggered']}, handled on "
-            f"zenoh's thread (loop lent) {ctl['direct']}/{ctl['received']}")
+            f"zenoh's thread: on the reflex lane {ctl.get('lane')}, loop lent {ctl['direct']}, "
+            f"of {ctl['received']}")
         lines.extend(python_floor_report(res))
         o, ob = res["controller_100hz"], res["controller_b2b"]
         p, pb = res["plain_loop_100hz"], res["plain_loop_b2b"]
@@ -982,7 +984,8 @@ def report(res: dict[str, Any]) -> str:
             add(f"    {k:<42} {fmt_us(v.get('median_us')):>12} {fmt_us(v.get('p90_us')):>8} "
                 f"{fmt_us(b.get('median_us')):>8} {fmt_us(b.get('p90_us')):>8} "
                 f"{fmt_us(w.get('median_us')):>12} {fmt_us(w.get('p90_us')):>8}")
-        add("    (lent: handled on zenoh's thread while the loop waits; plain: through the "
+        add("    (the reflex lane on either loop; lent: other samples handled on zenoh's thread "
+            "while the loop waits; plain: through the "
             "self-pipe to the loop thread)")
     for hz in (50, 100):
         p = res.get(f"periodic_{hz}hz")

@@ -266,10 +266,11 @@ class StateAggregator(Component):
 
     # -- hooks -------------------------------------------------------------------------------
     # Observers of the ingest path, in the order a sample meets them: on_receive (raw bytes),
-    # on_ingest (decoded and valid), on_sample (accepted and stored). Each runs on the event
-    # loop, synchronously, in the order the hooks were added; one that raises is logged and
-    # removed, and the aggregator goes on. Each returns a remover. With none added a sample
-    # pays one truth test per point.
+    # on_ingest (decoded and valid), on_sample (accepted and stored). Each runs where the
+    # sample is stored — on the event loop, or on the reflex lane's thread holding the lock
+    # (module docstring) — synchronously, in the order the hooks were added; one that raises
+    # is logged and removed, and the aggregator goes on. Each returns a remover. With none
+    # added a sample pays one truth test per point.
 
     def on_sample(self, callback: SampleHook) -> Callable[[], None]:
         """Call ``callback(source, entry)`` right after each accepted sample is stored (entry
