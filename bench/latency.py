@@ -278,7 +278,7 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
     if "triggered" in served:  # a controller
         out["controller"] = {k: served.get(k) for k in (
             "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct",
-            "lane")}
+            "lane", "lane_waited", "lane_busy", "lane_deferred")}
     if served.get("samples"):  # observed through the hooks
         out["segments_ns"] = reflex_segments(answered, served)
         out["segments"] = {k: summarize(v) for k, v in out["segments_ns"].items()}
@@ -958,7 +958,9 @@ def report(res: dict[str, Any]) -> str:
         ctl = r["controller"]
         add(f"     controller: coalesced {ctl['coalesced']}, malformed {ctl['malformed']}, "
             f"errors {ctl['errors']}, triggered ticks {ctl['triggered']}, handled on "
-            f"zenoh's thread: on the reflex lane {ctl.get('lane')}, loop lent {ctl['direct']}, "
+            f"zenoh's thread: on the reflex lane {ctl.get('lane')} (waited for the loop's lock "
+            f"{ctl.get('lane_waited')}, handed to the loop: lock held {ctl.get('lane_busy')}, "
+            f"behind an elder {ctl.get('lane_deferred')}), loop lent {ctl['direct']}, "
             f"of {ctl['received']}")
         lines.extend(python_floor_report(res))
         o, ob = res["controller_100hz"], res["controller_b2b"]

@@ -568,6 +568,10 @@ def _resolve(waiters: list[asyncio.Future[SourceEntry]], entry: SourceEntry) -> 
             future.set_result(entry)
 
 
+_LANE_CLOSE_NS = clockdomain.CLOSE_NS // 2
+"""How near the robot clock a sample's stamp must be to take the lane."""
+
+
 class _ReflexLane(Lane):
     """The aggregator's :class:`~ubf_async.runtime.bus.Lane`: a valid sample of a source the
     open lane's controller ticks on, on a wall-clock robot, stamped near the robot clock
@@ -585,9 +589,9 @@ class _ReflexLane(Lane):
             return False
         clock = aggregator.bus.clock
         source, message = decoded
+        # Half the clock domain's "close": ingest, a moment later, cannot find it far.
         return (not clock.is_simulated and triggers(source)
-                and -clockdomain.CLOSE_NS <= message.stamp_ns - clock.now_ns()
-                <= clockdomain.CLOSE_NS)
+                and -_LANE_CLOSE_NS <= message.stamp_ns - clock.now_ns() <= _LANE_CLOSE_NS)
 
 
 class _SensorScreen:
