@@ -323,8 +323,8 @@ class Subscription(Declared):
         ``False`` if it must go to the loop instead (the lock stayed held by the loop)."""
         stats = self.stats
         lock = lane.lock
-        waited = not lock.acquire(blocking=False)
-        if waited and not lock.acquire(timeout=LANE_WAIT_S):
+        waited = not lock.acquire(False)
+        if waited and not lock.acquire(True, LANE_WAIT_S):
             with self._lock:
                 stats.lane_busy += 1
             return False
@@ -339,7 +339,8 @@ class Subscription(Declared):
                     deferred = False
                     stats.received += 1
                     stats.lane += 1
-                    stats.lane_waited += waited
+                    if waited:
+                        stats.lane_waited += 1
             if deferred:  # queued behind its elder, still holding the lock: nothing overtakes
                 self._queue(key, payload, received_ns, decoded, None, False)
                 return True

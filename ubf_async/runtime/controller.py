@@ -311,6 +311,7 @@ class Controller(Component):
         self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
                                           now_ns=bus.clock.now_ns())
         self._reflex_bucket_used = self.mode is TickMode.PERIODIC
+        self._ticked_by = _TICKED_BY[self.mode]
         self._triggers = self._triggering_sources()
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
@@ -492,7 +493,7 @@ class Controller(Component):
                 stamp_ns=basis.message.stamp_ns),
             tick=stats.ticks,
             winners=tuple(outgoing_names(winners)),
-            ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
+            ticked_by="clock" if based_on is None else self._ticked_by,
         )
         self._last_drive_ns = state.now_ns
         try:
