@@ -512,6 +512,7 @@ def measure_loops(loops: tuple[str, ...], *, rounds: int, warmup: int, count: in
     sent = {x: 0 for x in loops}
     lost = {x: 0 for x in loops}
     lent = {x: 0 for x in loops}
+    lane = {x: 0 for x in loops}
     missed = {x: 0 for x in loops}
 
     def keep(path: str, loop: str, values: list[int]) -> None:
@@ -531,12 +532,14 @@ def measure_loops(loops: tuple[str, ...], *, rounds: int, warmup: int, count: in
                 sent[x] += g["sent"]
                 lost[x] += g["lost"]
                 lent[x] += g["controller"]["direct"] or 0
+                lane[x] += g["controller"].get("lane") or 0
         for x in order:
             o = measure_robot("default", trials=trials, seed=2 + r, loop=x)
             keep("obstacle", x, o["reaction_ns"])
             missed[x] += o["missed"]
     out: dict[str, Any] = {"loops": list(loops), "rounds": rounds, "baseline": BASELINE_LOOP,
-                           "sent": sent, "lost": lost, "lent": lent, "obstacles_missed": missed,
+                           "sent": sent, "lost": lost, "lent": lent, "lane": lane,
+                           "obstacles_missed": missed,
                            "paths": {}}
     for path in LOOP_PATHS:
         base = summarize(pooled[path][BASELINE_LOOP]) if BASELINE_LOOP in loops else None
@@ -1157,8 +1160,8 @@ def loops_report(lp: dict[str, Any]) -> list[str]:
                        + f"  {x(s.get('ratio_median')):>7} {x(s.get('ratio_p99')):>6}  {spread}")
     out.append("  reflex samples lost (superseded in the bridge) / sent: " + ", ".join(
         f"{x} {lp['lost'][x]}/{lp['sent'][x]}" for x in lp["loops"]))
-    out.append("  handled on zenoh's thread (loop lent): " + ", ".join(
-        f"{x} {lp['lent'][x]}" for x in lp["loops"]))
+    out.append("  handled on zenoh's thread, on the reflex lane / loop lent: " + ", ".join(
+        f"{x} {lp.get('lane', {}).get(x)}/{lp['lent'][x]}" for x in lp["loops"]))
     out.append("  obstacles missed: " + ", ".join(
         f"{x} {lp['obstacles_missed'][x]}" for x in lp["loops"]))
     return out

@@ -295,8 +295,8 @@ class StateAggregator(Component):
 
     def open_lane(self, triggers: Callable[[str], bool]) -> Callable[[], None]:
         """Open the reflex lane (module docstring) for the sources ``triggers(source)``
-        names: a controller's that tick it. Returns the closer; called with :attr:`lock`
-        held by the closer's caller, no lane sample is in progress once it returns."""
+        names: a controller's that tick it. Returns the closer: it takes :attr:`lock`, so
+        once it returns no sample is on the lane and none follows."""
         self._lane_trigger = triggers
 
         def close() -> None:
