@@ -277,7 +277,8 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
     }
     if "triggered" in served:  # a controller
         out["controller"] = {k: served.get(k) for k in (
-            "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct")}
+            "overruns", "errors", "malformed", "coalesced", "received", "triggered", "direct",
+            "lane", "lane_waited", "lane_busy", "lane_deferred")}
     if served.get("samples"):  # observed through the hooks
         out["segments_ns"] = reflex_segments(answered, served)
         out["segments"] = {k: summarize(v) for k, v in out["segments_ns"].items()}
@@ -296,7 +297,7 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
 
 SEGMENTS = (
     "sensor put → controller zenoh callback",
-    "bridge hand-off (callback → loop handler)",
+    "callback → handler (lane / hand-off)",
     "decode + validate",
     "ingest: store the sample",
     "stored → tick start",
@@ -511,6 +512,7 @@ def measure_loops(loops: tuple[str, ...], *, rounds: int, warmup: int, count: in
     sent = {x: 0 for x in loops}
     lost = {x: 0 for x in loops}
     lent = {x: 0 for x in loops}
+    lane = {x: 0 for x in loops}
     missed = {x: 0 for x in loops}
 
     def keep(path: str, loop: str, values: list[int]) -> None:
@@ -530,12 +532,14 @@ def measure_loops(loops: tuple[str, ...], *, rounds: int, warmup: int, count: in
                 sent[x] += g["sent"]
                 lost[x] += g["lost"]
                 lent[x] += g["controller"]["direct"] or 0
+                lane[x] += g["controller"].get("lane") or 0
         for x in order:
             o = measure_robot("default", trials=trials, seed=2 + r, loop=x)
             keep("obstacle", x, o["reaction_ns"])
             missed[x] += o["missed"]
     out: dict[str, Any] = {"loops": list(loops), "rounds": rounds, "baseline": BASELINE_LOOP,
-                           "sent": sent, "lost": lost, "lent": lent, "obstacles_missed": missed,
+                           "sent": sent, "lost": lost, "lent": lent, "lane": lane,
+                           "obstacles_missed": missed,
                            "paths": {}}
     for path in LOOP_PATHS:
         base = summarize(pooled[path][BASELINE_LOOP]) if BASELINE_LOOP in loops else None
@@ -957,7 +961,10 @@ def report(res: dict[str, Any]) -> str:
         ctl = r["controller"]
         add(f"     controller: coalesced {ctl['coalesced']}, malformed {ctl['malformed']}, "
             f"errors {ctl['errors']}, triggered ticks {ctl['triggered']}, handled on "
-            f"zenoh's thread (loop lent) {ctl['direct']}/{ctl['received']}")
+            f"zenoh's thread: on the reflex lane {ctl.get('lane')} (waited for the loop's lock "
+            f"{ctl.get('lane_waited')}, handed to the loop: lock held {ctl.get('lane_busy')}, "
+            f"behind an elder {ctl.get('lane_deferred')}), loop lent {ctl['direct']}, "
+            f"of {ctl['received']}")
         lines.extend(python_floor_report(res))
         o, ob = res["controller_100hz"], res["controller_b2b"]
         p, pb = res["plain_loop_100hz"], res["plain_loop_b2b"]
@@ -982,7 +989,8 @@ def report(res: dict[str, Any]) -> str:
             add(f"    {k:<42} {fmt_us(v.get('median_us')):>12} {fmt_us(v.get('p90_us')):>8} "
                 f"{fmt_us(b.get('median_us')):>8} {fmt_us(b.get('p90_us')):>8} "
                 f"{fmt_us(w.get('median_us')):>12} {fmt_us(w.get('p90_us')):>8}")
-        add("    (lent: handled on zenoh's thread while the loop waits; plain: through the "
+        add("    (the reflex lane on either loop; lent: other samples handled on zenoh's thread "
+            "while the loop waits; plain: through the "
             "self-pipe to the loop thread)")
     for hz in (50, 100):
         p = res.get(f"periodic_{hz}hz")
@@ -1152,8 +1160,8 @@ def loops_report(lp: dict[str, Any]) -> list[str]:
                        + f"  {x(s.get('ratio_median')):>7} {x(s.get('ratio_p99')):>6}  {spread}")
     out.append("  reflex samples lost (superseded in the bridge) / sent: " + ", ".join(
         f"{x} {lp['lost'][x]}/{lp['sent'][x]}" for x in lp["loops"]))
-    out.append("  handled on zenoh's thread (loop lent): " + ", ".join(
-        f"{x} {lp['lent'][x]}" for x in lp["loops"]))
+    out.append("  handled on zenoh's thread, on the reflex lane / loop lent: " + ", ".join(
+        f"{x} {lp.get('lane', {}).get(x)}/{lp['lent'][x]}" for x in lp["loops"]))
     out.append("  obstacles missed: " + ", ".join(
         f"{x} {lp['obstacles_missed'][x]}" for x in lp["loops"]))
     return out

@@ -228,6 +228,9 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
             "coalesced": bridge.coalesced if bridge else None,
             "received": bridge.received if bridge else None,
             "direct": bridge.direct if bridge else None,
+            "lane": bridge.lane if bridge else None,
+            **{k: getattr(bridge, k) if bridge else None
+               for k in ("lane_waited", "lane_busy", "lane_deferred")},
         }
     finally:
         await ctl.aclose()

@@ -273,16 +273,18 @@ async def test_a_direct_subscription_handles_a_remote_sample_on_zenohs_thread(
 
 
 @pytest.mark.asyncio
+@pytest.mark.parametrize("lane", [False, True], ids=["lent", "lane"])
 async def test_a_reflex_is_answered_on_the_thread_that_brought_its_sample(
-        robot_bus: Bus, peer_bus: Bus) -> None:
+        robot_bus: Bus, peer_bus: Bus, lane: bool) -> None:
     """A range sample from another session ticks the controller inside ingest, on zenoh's
-    thread while the loop is idle; the drive command based on it reaches the sender."""
+    thread: lent the idle loop, or on the reflex lane (which needs no lending: it takes every
+    sample of its key); the drive command based on it reaches the sender."""
     agg = StateAggregator(bus=robot_bus)
     behavior = FunctionBehavior(
         lambda s: None if s.range("front") is None else Action(speed=-50.0, turn=0.0),
         name="avoid")
     ctl = Controller(bus=robot_bus, aggregator=agg, root=behavior, mode="event",
-                     trigger="range/front", rate_hz=50.0)
+                     trigger="range/front", rate_hz=50.0, lane=lane)
     tick_threads: list[int] = []
     ctl.on_tick(lambda state, trace, command: tick_threads.append(threading.get_ident()))
     for c in (agg, ctl):
@@ -306,7 +308,12 @@ async def test_a_reflex_is_answered_on_the_thread_that_brought_its_sample(
         answered = [decode(msgpack.packb(r), topic=DRIVE).data for r in replies]
         assert all(d.speed == -50.0 for d in answered if d.based_on is not None)
         assert ctl.stats.triggered == 30
-        assert agg.subscription is not None and agg.subscription.stats.direct > 0
+        stats = agg.subscription.stats if agg.subscription is not None else None
+        assert stats is not None
+        if lane:
+            assert (stats.lane, stats.direct) == (30, 0)
+        else:
+            assert stats.direct > 0 and stats.lane == 0
         loop_thread = threading.get_ident()
         assert any(t != loop_thread for t in tick_threads)
     finally:

@@ -177,6 +177,10 @@ class ControllerSpec(Spec):
     samples declare, :data:`ubf_async.runtime.aggregator.STALE_PERIODS`)."""
     default_stale_after_s: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
     """For sources that declare no period (events): stale after this long (default: never)."""
+    lane: bool = True
+    """Run a tick triggered by a sample on the thread that brought it (the reflex lane,
+    wall-clock robots only); ``false`` keeps every tick on the event loop's thread, for
+    behaviours that need it (:mod:`ubf_async.runtime.controller`)."""
 
     def __post_init__(self) -> None:
         if self.mode == "event" and self.trigger is None:

@@ -56,6 +56,8 @@ class ControllerSettings:
     reflex: tuple[str, ...]
     sync_source: str
     trigger: str | None
+    lane: bool = True
+    """Triggered ticks on the reflex lane (the robot file's ``controller: lane``)."""
 
     @classmethod
     def of(cls, robot: Robot, *, mode: str | None = None, rate_hz: float | None = None,
@@ -73,7 +75,7 @@ class ControllerSettings:
                                      "the robot file's controller)")
         prefixes = spec.reflex if reflex is None else reflex
         return cls(mode=tick_mode, rate_hz=rate_hz, reflex=tuple(p for p in prefixes if p),
-                   sync_source=spec.sync_source, trigger=trigger)
+                   sync_source=spec.sync_source, trigger=trigger, lane=spec.lane)
 
     def planned(self, sources: Collection[str]) -> str:
         """What will tick the controller, in the status line's terms, given the robot's own
@@ -240,7 +242,7 @@ def _build_control(plan: RunPlan, robot: Robot, run: RobotRun, seed: int) -> Non
     controller = run.controller = Controller(
         bus=run.bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,
         mode=settings.mode, sync_source=settings.sync_source, trigger=settings.trigger,
-        reflex_sources=settings.reflex,
+        reflex_sources=settings.reflex, lane=settings.lane,
         # In lockstep each status is of a simulated instant (a fleet's world reads them).
         status_clock=run.clock if plan.status_on_robot_clock else None,
     )
@@ -248,7 +250,7 @@ def _build_control(plan: RunPlan, robot: Robot, run: RobotRun, seed: int) -> Non
         bus=run.bus, root=root, config={**robot.remote_config(), **plan.remotes},
         only_configured=spec.remotes.only_declared,
         default_ttl_s=spec.remotes.default_ttl_s, max_ttl_s=spec.remotes.max_ttl_s,
-        max_remotes=spec.remotes.max_remotes, notify_refusals=True,
+        max_remotes=spec.remotes.max_remotes, notify_refusals=True, lock=controller.lock,
     )
     tree_service = TreeService(bus=run.bus, controller=controller, remotes=remotes, seed=seed,
                                slots=robot.remotes)

@@ -29,6 +29,18 @@ None of them replaces a good sample or stops the aggregator. The table is bounde
 silent for ``forget_after_s`` is forgotten, and when :data:`MAX_SOURCES` sources are held
 a new one evicts the one silent longest — except the ``protected_sources`` (the devices the
 robot declares), which are never forgotten nor evicted.
+
+**Threads.** Samples are stored on the event loop, except on the **reflex lane**
+(:meth:`StateAggregator.open_lane`, opened by a controller on a wall-clock robot): a valid
+sample of a source that triggers a tick is ingested — and its tick run, by the sample hook —
+on the transport's thread that brought it, without waking the loop. Everything that reads or
+changes the aggregator's state therefore holds :attr:`StateAggregator.lock` (its methods do;
+the controller holds it for its ticks, and the robot's tree changers for theirs): one thread
+at a time, samples of one key in the order they came (:class:`~ubf_async.runtime.bus.Lane`).
+What belongs to the loop — a :meth:`~StateAggregator.wait_for_update` future, a refusal
+notice — is handed to it (:meth:`~ubf_async.runtime.bus.Bus.call_on_loop`). The lane does
+not take a sample stamped far from the robot clock (its clock-domain check belongs to the
+loop) nor any sample on simulated time (the lockstep orders by simulated time, on the loop).
 """
 
 from __future__ import annotations
@@ -36,6 +48,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import threading
 import time
 from array import array
 from collections import Counter, OrderedDict
@@ -49,7 +62,7 @@ from ubf_async.core.action import Action
 from ubf_async.core.state import Reading, State
 from ubf_async.errors import ProtocolError
 from ubf_async.runtime import refusals
-from ubf_async.runtime.bus import Bus, Subscription
+from ubf_async.runtime.bus import Bus, Lane, Subscription
 from ubf_async.runtime.component import Component
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
@@ -240,6 +253,11 @@ class StateAggregator(Component):
         (:mod:`ubf_async.clocks.clockdomain`; shared with everything else on this bus)."""
         self.notices = refusals.notices_of(bus) if notify_refusals else None
         """Where refusals are told to their senders (``notify_refusals``)."""
+        self.lock = threading.RLock()
+        """Held by whatever reads or changes this aggregator's state — and by the ticks of
+        its controller, whose reflex lane stores samples on the transport's thread (module
+        docstring). Re-entrant: a triggered tick runs inside :meth:`ingest`."""
+        self._lane_trigger: Callable[[str], bool] | None = None
 
     @property
     def refused_sources(self) -> int:
@@ -248,10 +266,11 @@ class StateAggregator(Component):
 
     # -- hooks -------------------------------------------------------------------------------
     # Observers of the ingest path, in the order a sample meets them: on_receive (raw bytes),
-    # on_ingest (decoded and valid), on_sample (accepted and stored). Each runs on the event
-    # loop, synchronously, in the order the hooks were added; one that raises is logged and
-    # removed, and the aggregator goes on. Each returns a remover. With none added a sample
-    # pays one truth test per point.
+    # on_ingest (decoded and valid), on_sample (accepted and stored). Each runs where the
+    # sample is stored — on the event loop, or on the reflex lane's thread holding the lock
+    # (module docstring) — synchronously, in the order the hooks were added; one that raises
+    # is logged and removed, and the aggregator goes on. Each returns a remover. With none
+    # added a sample pays one truth test per point.
 
     def on_sample(self, callback: SampleHook) -> Callable[[], None]:
         """Call ``callback(source, entry)`` right after each accepted sample is stored (entry
@@ -274,16 +293,30 @@ class StateAggregator(Component):
         checks: the sample may still be refused (future stamp, out of order, table full)."""
         return add_hook(self._ingest_hooks, callback)
 
+    def open_lane(self, triggers: Callable[[str], bool]) -> Callable[[], None]:
+        """Open the reflex lane (module docstring) for the sources ``triggers(source)``
+        names: a controller's that tick it. Returns the closer: it takes :attr:`lock`, so
+        once it returns no sample is on the lane and none follows."""
+        self._lane_trigger = triggers
+
+        def close() -> None:
+            with self.lock:
+                if self._lane_trigger is triggers:
+                    self._lane_trigger = None
+
+        return close
+
     async def run(self) -> None:
         self.subscription = self.subscribe_screened(
-            self.bus.keys.all_sensors, _SensorScreen(self), direct=True)
+            self.bus.keys.all_sensors, _SensorScreen(self), direct=True, lane=_ReflexLane(self))
         forget_after_s = self.forget_after_s
         if forget_after_s is None:
             await asyncio.Event().wait()  # samples arrive through the subscription
             return
         while True:  # samples arrive through the subscription; this only forgets
             await self.bus.clock.sleep(min(1.0, forget_after_s / 4))
-            self.forget_silent()
+            with self.lock:
+                self.forget_silent()
 
     # -- ingest (event loop) -----------------------------------------------------------------
     def _on_decoded(self, key: str, payload: bytes, received_ns: int,
@@ -291,7 +324,7 @@ class StateAggregator(Component):
         if self._receive_hooks:
             run_hooks(self._receive_hooks, "receive", key, payload, received_ns)
         source, message = decoded
-        self.ingest(source, message, received_ns)
+        self._ingest(source, message, received_ns)  # (the subscription holds the lock)
 
     def _on_malformed(self, key: str, payload: bytes, received_ns: int, error: ProtocolError,
                       count: int) -> None:
@@ -309,12 +342,17 @@ class StateAggregator(Component):
         n = self.refused[reason]
         if throttle.first_and_every(n):
             log.warning("refused sample #%d (%s) of %s: %s", n, reason, clip(source), detail)
-        if self.notices is not None:
-            self.notices.report(f"{self.bus.keys.prefix}/sensor/{source}", reason, detail)
+        if self.notices is not None:  # (it publishes: on the loop, also for a lane's sample)
+            self.bus.call_on_loop(self.notices.report, f"{self.bus.keys.prefix}/sensor/{source}",
+                                  reason, detail)
 
     def ingest(self, source: str, message: Message, received_ns: int) -> bool:
         """Store a validated sample (also usable in-process, without the bus); returns
         whether it was taken (module docstring for what is refused)."""
+        with self.lock:
+            return self._ingest(source, message, received_ns)
+
+    def _ingest(self, source: str, message: Message, received_ns: int) -> bool:
         if self._ingest_hooks:
             run_hooks(self._ingest_hooks, "ingest", source, message, received_ns)
         if len(source) > MAX_NAME_CHARS:
@@ -366,10 +404,9 @@ class StateAggregator(Component):
         if source not in self.protected_sources:
             self._silence[source] = None
             self._silence.move_to_end(source)
-        waiters, entry.waiters = entry.waiters, []
-        for future in waiters:
-            if not future.done():
-                future.set_result(entry)
+        if entry.waiters:
+            waiters, entry.waiters = entry.waiters, []
+            self.bus.call_on_loop(_resolve, waiters, entry)
         if self._sample_hooks:
             run_hooks(self._sample_hooks, "sample", source, entry)
         return True
@@ -465,19 +502,24 @@ class StateAggregator(Component):
     def snapshot(
         self, *, previous_action: Action | None = None, now_ns: int | None = None
     ) -> State:
-        now = self.bus.clock.now_ns() if now_ns is None else now_ns
-        wall_now = time.monotonic_ns()
-        readings = {}
-        for source, entry in self.entries.items():
-            message = entry.message
-            age = max(0.0, (now - message.stamp_ns) / 1e9)
-            readings[source] = Reading(
-                value=message.data, stamp_ns=message.stamp_ns, seq=message.seq, age_s=age,
-                stale=self.is_stale(entry, now, wall_now),
-            )
+        with self.lock:
+            now = self.bus.clock.now_ns() if now_ns is None else now_ns
+            wall_now = time.monotonic_ns()
+            readings = {}
+            for source, entry in self.entries.items():
+                message = entry.message
+                age = max(0.0, (now - message.stamp_ns) / 1e9)
+                readings[source] = Reading(
+                    value=message.data, stamp_ns=message.stamp_ns, seq=message.seq, age_s=age,
+                    stale=self.is_stale(entry, now, wall_now),
+                )
         return State(readings, now_ns=now, previous_action=previous_action)
 
     def sources(self) -> list[SourceInfo]:
+        with self.lock:
+            return self._sources()
+
+    def _sources(self) -> list[SourceInfo]:
         now = self.bus.clock.now_ns()
         wall_now = time.monotonic_ns()
         out = []
@@ -495,25 +537,61 @@ class StateAggregator(Component):
     def refusals(self) -> dict[str, int]:
         """Everything refused so far: per reason, plus ``malformed`` (all keys),
         ``evicted`` and ``forgotten`` sources."""
-        return {**{str(k): v for k, v in sorted(self.refused.items())},
-                "malformed": sum(self.malformed.values()),
-                "evicted": self.evicted, "forgotten": self.forgotten}
+        with self.lock:
+            return {**{str(k): v for k, v in sorted(self.refused.items())},
+                    "malformed": sum(self.malformed.values()),
+                    "evicted": self.evicted, "forgotten": self.forgotten}
 
     def newest(self) -> SourceEntry | None:
         """The entry holding the most recently stamped sample."""
-        return max(self.entries.values(), key=lambda e: e.message.stamp_ns, default=None)
+        with self.lock:
+            return max(self.entries.values(), key=lambda e: e.message.stamp_ns, default=None)
 
     async def wait_for_update(self, source: str, *, after_version: int = 0) -> SourceEntry:
         """Return the entry of ``source`` once its version exceeds ``after_version``."""
-        entry = self.entries.get(source)
-        if entry is not None and entry.version > after_version:
-            return entry
         future: asyncio.Future[SourceEntry] = asyncio.get_running_loop().create_future()
-        if entry is None:
-            self._pending_waiters.setdefault(source, []).append(future)
-        else:
-            entry.waiters.append(future)
+        with self.lock:  # a lane's sample may be stored meanwhile: checked and added at once
+            entry = self.entries.get(source)
+            if entry is not None and entry.version > after_version:
+                return entry
+            if entry is None:
+                self._pending_waiters.setdefault(source, []).append(future)
+            else:
+                entry.waiters.append(future)
         return await future
+
+
+def _resolve(waiters: list[asyncio.Future[SourceEntry]], entry: SourceEntry) -> None:
+    """Resolve :meth:`StateAggregator.wait_for_update`'s waiters (on the loop)."""
+    for future in waiters:
+        if not future.done():
+            future.set_result(entry)
+
+
+_LANE_CLOSE_NS = clockdomain.CLOSE_NS // 2
+"""How near the robot clock a sample's stamp must be to take the lane."""
+
+
+class _ReflexLane(Lane):
+    """The aggregator's :class:`~ubf_async.runtime.bus.Lane`: a valid sample of a source the
+    open lane's controller ticks on, on a wall-clock robot, stamped near the robot clock
+    (else its clock-domain check, which may ask the loop who sent it, would run on the
+    lane)."""
+
+    def __init__(self, aggregator: StateAggregator) -> None:
+        self._aggregator = aggregator
+        self.lock = aggregator.lock
+
+    def takes(self, key: str, decoded: tuple[str, Message]) -> bool:
+        aggregator = self._aggregator
+        triggers = aggregator._lane_trigger
+        if triggers is None:
+            return False
+        clock = aggregator.bus.clock
+        source, message = decoded
+        # Half the clock domain's "close": ingest, a moment later, cannot find it far.
+        return (not clock.is_simulated and triggers(source)
+                and -_LANE_CLOSE_NS <= message.stamp_ns - clock.now_ns() <= _LANE_CLOSE_NS)
 
 
 class _SensorScreen:

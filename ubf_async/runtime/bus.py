@@ -39,6 +39,17 @@ order, same counters, one thread at a time, and no wake-up of the loop thread on
 to :data:`DIRECT_RATE_HZ` samples a second; a flood beyond it takes the usual road and
 coalesces.
 
+A subscription with a **lane** (``subscribe_screened(..., lane=...)``, :class:`Lane`: the state
+aggregator's, once a controller opened its reflex lane) skips the hand-off for the keys the
+lane takes: a valid sample of such a key is delivered at once on the transport's thread,
+holding ``lane.lock`` — which the drain also holds while it takes its batch and delivers it —
+so the handler never runs on two threads at once, and in the order the samples came: while
+a sample of that key still waits for the loop, a newer one joins it there instead of
+overtaking it. A malformed sample takes the usual road (refusals are reported on the loop,
+counted as before). If the loop holds the lock, the lane waits for it at most
+:data:`LANE_WAIT_S`, then hands the sample to the loop (``BridgeStats.lane_busy``). The
+handler must hand anything that belongs to the loop over with :meth:`Bus.call_on_loop`.
+
 Samples between components of the **same** :class:`Bus` (one process) never take that detour:
 a :class:`Publisher` hands them straight to the matching subscriptions of its bus, on the loop
 (``loop.call_soon``), and transport subscribers are declared **remote only** (zenoh:
@@ -86,8 +97,9 @@ from ubf_async.wire.keys import Keys
 from ubf_async.wire.protocol import Encoder, Message, count_malformed, decode
 from ubf_async.wire.topics import INT64_MAX, Data, Topic
 
-__all__ = ["DIRECT_BURST", "DIRECT_RATE_HZ", "DRAIN_BATCH", "BridgeStats", "Bus", "Publisher",
-           "RawPublisher", "SampleHandler", "Screen", "Subscription", "TopicScreen"]
+__all__ = ["DIRECT_BURST", "DIRECT_RATE_HZ", "DRAIN_BATCH", "LANE_WAIT_S", "BridgeStats", "Bus",
+           "Lane", "Publisher", "RawPublisher", "SampleHandler", "Screen", "Subscription",
+           "TopicScreen"]
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +115,11 @@ transport's threads never hold the GIL for long against the loop."""
 DIRECT_BURST = 100
 """Samples a direct subscription may have handled on the transport's thread back to back,
 before :data:`DIRECT_RATE_HZ` paces it."""
+
+LANE_WAIT_S = 0.005
+"""How long a sample on a lane waits for the lock the loop holds (a tick, a drain) before it
+is handed to the loop instead: the loop would handle it only after that work anyway, so
+waiting costs no more, and the bound keeps the transport's thread from being held long."""
 
 SampleHandler = Callable[[str, bytes, int], None]
 """``handler(key, payload, received_ns)`` — runs on the event loop."""
@@ -130,6 +147,16 @@ class BridgeStats:
     refused: int = 0
     """Samples a screen refused and reported (screened subscriptions): they replaced nothing.
     (Refusals on a new key beyond ``max_queue`` keys waiting are counted as dropped.)"""
+    lane: int = 0
+    """Samples delivered on the transport's thread by the subscription's :class:`Lane`."""
+    lane_waited: int = 0
+    """Of those the lane took, how many found its lock held (by the loop) and waited."""
+    lane_busy: int = 0
+    """Samples of a lane's key handed to the loop because its lock stayed held
+    :data:`LANE_WAIT_S`."""
+    lane_deferred: int = 0
+    """Samples of a lane's key handed to the loop because an older one of that key still
+    waited there (per-key order)."""
 
 
 class Screen(Protocol):
@@ -182,6 +209,20 @@ class TopicScreen(Generic[T]):
             self.on_error(key, error)
 
 
+class Lane(Protocol):
+    """Which samples of a screened subscription are delivered on the transport's thread, and
+    the lock that makes that safe (module docstring): whoever else touches what the handler
+    touches holds ``lock`` too, on the loop."""
+
+    lock: threading.RLock
+    """Held around every delivery of the subscription, on the lane and in the drain."""
+
+    def takes(self, key: str, decoded: Any) -> bool:
+        """Whether this valid sample (``decoded``: what the screen's ``check`` returned) is
+        delivered at once on the transport's thread; called there, without the lock."""
+        ...
+
+
 class _Refused:
     """The refusals on one key since the last drain: how many, and the newest."""
 
@@ -209,6 +250,7 @@ class Subscription(Declared):
         name: str = "",
         direct: bool = False,
         screen: Screen | None = None,
+        lane: Lane | None = None,
     ) -> None:
         super().__init__()
         self._loop = loop
@@ -223,6 +265,9 @@ class Subscription(Declared):
         else:
             raise TypeError("a subscription takes a handler or a screen, one of them")
         self._screen = screen
+        if lane is not None and screen is None:
+            raise TypeError("a lane needs a screened subscription (it judges decoded samples)")
+        self._lane = lane
         self._latest = latest
         self._run_if_idle = lending.run_if_idle(loop) if direct else None
         """Runs the drain on the transport's thread while the loop waits (:mod:`.lending`)."""
@@ -266,6 +311,53 @@ class Subscription(Declared):
                 decoded = self._check(key, payload)
             except ProtocolError as exc:
                 error = exc
+        lane = self._lane
+        if (lane is not None and error is None and not on_loop and lane.takes(key, decoded)
+                and self._on_lane(lane, key, payload, received_ns, decoded)):
+            return
+        self._queue(key, payload, received_ns, decoded, error, on_loop)
+
+    def _on_lane(self, lane: Lane, key: str, payload: bytes, received_ns: int,
+                 decoded: Any) -> bool:
+        """Deliver one valid sample here, on the transport's thread, holding the lane's lock;
+        ``False`` if it must go to the loop instead (the lock stayed held by the loop)."""
+        stats = self.stats
+        lock = lane.lock
+        waited = not lock.acquire(False)
+        if waited and not lock.acquire(True, LANE_WAIT_S):
+            with self._lock:
+                stats.lane_busy += 1
+            return False
+        try:
+            with self._lock:
+                if self._closed:
+                    return True
+                if (key in self._pending_latest) if self._latest else self._pending_queue:
+                    stats.lane_deferred += 1
+                    deferred = True
+                else:
+                    deferred = False
+                    stats.received += 1
+                    stats.lane += 1
+                    if waited:
+                        stats.lane_waited += 1
+            if deferred:  # queued behind its elder, still holding the lock: nothing overtakes
+                self._queue(key, payload, received_ns, decoded, None, False)
+                return True
+            try:
+                self._deliver(key, payload, received_ns, decoded)
+            except Exception:
+                stats.handler_errors += 1
+                log.exception("handler of subscription %s failed on %s (lane)", self.name, key)
+            else:
+                stats.delivered += 1
+            return True
+        finally:
+            lock.release()
+
+    def _queue(self, key: str, payload: bytes, received_ns: int, decoded: Any,
+               error: ProtocolError | None, on_loop: bool) -> None:
+        """Store one sample for the loop's drain and schedule it (the usual road)."""
         stats = self.stats
         with self._lock:
             if self._closed:
@@ -316,6 +408,14 @@ class Subscription(Declared):
 
     # event loop --------------------------------------------------------------------------
     def _drain(self) -> None:
+        lane = self._lane
+        if lane is None:
+            self._drain_batch()
+            return
+        with lane.lock:  # taken before the batch: a lane sample never overtakes one in it
+            self._drain_batch()
+
+    def _drain_batch(self) -> None:
         with self._lock:
             refused = _take_batch(self._pending_refused) if self._pending_refused else None
             if self._latest:
@@ -547,6 +647,18 @@ class Bus:
         return (any(sub.pending for sub in self._subscriptions)
                 or any(q.pending for q in self._queryables))
 
+    def call_on_loop(self, callback: Callable[..., object], *args: Any) -> None:
+        """Run ``callback(*args)`` now on the loop's thread; from any other thread (a lane),
+        hand it to the loop (``call_soon_threadsafe``) without waiting for it: what a handler
+        on a lane does with whatever belongs to the loop (a future, an asyncio event)."""
+        if threading.get_ident() == self._loop_thread:
+            callback(*args)
+            return
+        try:  # noqa: SIM105 — the lane's path: kept as cheap as the bridge's own
+            self._loop.call_soon_threadsafe(callback, *args)
+        except RuntimeError:  # a closed loop: nothing left to hand it to
+            pass
+
     def _bridge_callback(self, sub: Subscription) -> Callable[[str, bytes], None]:
         return sub.push_from_loop if self._connection.callbacks_on_loop else sub.push
 
@@ -587,14 +699,15 @@ class Bus:
 
     def subscribe_screened(
         self, key_expr: str, screen: Screen, *, latest: bool = True, max_queue: int = 1024,
-        direct: bool = False,
+        direct: bool = False, lane: Lane | None = None,
     ) -> Subscription:
         """:meth:`subscribe`, with every sample passed through ``screen`` (:class:`Screen`)
         before it may replace or queue behind anything: the newest *valid* sample per key is
-        what the loop gets, at any rate of garbage on the key."""
+        what the loop gets, at any rate of garbage on the key. ``lane``: the valid samples
+        it takes are delivered on the transport's thread instead (module docstring)."""
         return self._subscribe(key_expr, Subscription(
             self._loop, None, latest=latest, max_queue=max_queue, name=key_expr,
-            direct=direct, screen=screen))
+            direct=direct, screen=screen, lane=lane))
 
     def subscribe_topic(
         self, key_expr: str, topic: Topic[T],

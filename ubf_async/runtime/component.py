@@ -39,7 +39,7 @@ from typing import Any, TypeVar
 
 from ubf_async.clocks.port import Closing
 from ubf_async.errors import NameTakenError
-from ubf_async.runtime.bus import Bus, Publisher, SampleHandler, Screen, Subscription
+from ubf_async.runtime.bus import Bus, Lane, Publisher, SampleHandler, Screen, Subscription
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import (
     HEARTBEAT,
@@ -135,11 +135,11 @@ class Component:
             self.bus.subscribe(key_expr, handler, latest=latest, direct=direct))
 
     def subscribe_screened(self, key_expr: str, screen: Screen, *, latest: bool = True,
-                           direct: bool = False) -> Subscription:
+                           direct: bool = False, lane: Lane | None = None) -> Subscription:
         """:meth:`Bus.subscribe_screened <ubf_async.runtime.bus.Bus.subscribe_screened>`,
         closed automatically when this run attempt ends."""
-        return self._keep_for_attempt(
-            self.bus.subscribe_screened(key_expr, screen, latest=latest, direct=direct))
+        return self._keep_for_attempt(self.bus.subscribe_screened(
+            key_expr, screen, latest=latest, direct=direct, lane=lane))
 
     def subscribe_topic(self, key_expr: str, topic: Topic[T],
                         on_message: Callable[[str, Message[T], int], None],

@@ -18,7 +18,18 @@ Three ways to decide *when* to tick (:class:`TickMode`):
 * ``event`` — tick whenever a chosen source (``trigger``) delivers a new sample.
 
 Triggered ticks (reflexes, ``sync``, ``event``) run right where the aggregator stores the
-sample, with no extra pass through the event loop.
+sample, with no extra pass through the event loop. On a wall-clock robot they do not wait
+for the loop at all: the **reflex lane** (``lane=True``, the default; a robot file's
+``controller: {lane: false}`` turns it off) stores a sample of a source that ticks the
+controller, and runs that tick, on the transport's thread that brought it, while the loop
+sleeps (:meth:`StateAggregator.open_lane
+<ubf_async.runtime.aggregator.StateAggregator.open_lane>`). Behaviours, arbiters and the
+aggregator are still never run by two threads at once: the lane and the loop's ticks, holds,
+status and tree changes all hold the aggregator's :attr:`lock` — one at a time, in the order
+they took it. So a behaviour needs no locks of its own, but it must not call the event loop
+from ``act`` (no ``asyncio.get_running_loop()``, no task created): with the lane it may run
+on another thread. A tree that must run on the loop thread says ``lane: false``. Lockstep
+and simulated time never take the lane (their order is simulated time's, kept on the loop).
 
 Each tick takes a :class:`~ubf_async.core.state.State` snapshot from the aggregator (with the
 previous tick's published action in ``previous_action``), evaluates the root behaviour,
@@ -142,6 +153,15 @@ def trace_nodes(trace: Trace) -> tuple[TraceNode, ...]:
     return tuple(nodes)
 
 
+def _no_lane() -> None:
+    """The closer of a lane never opened."""
+
+
+def _never(source: str) -> bool:
+    """No source ticks a periodic controller without reflexes."""
+    return False
+
+
 class TickMode(enum.StrEnum):
     PERIODIC = "periodic"
     SYNC = "sync"
@@ -257,12 +277,14 @@ class Controller(Component):
         reflex_sources: tuple[str, ...] = (),
         reflex_rate_hz: float | None = None,
         reflex_burst: int = 2,
+        lane: bool = True,
         status_period_s: float = 0.5,
         status_clock: Clock | None = None,
         name: str = "controller",
         **component_options: float,
     ) -> None:
-        """``status_clock``: what the status period is measured on — wall time by default
+        """``lane``: run triggered ticks on the reflex lane on a wall-clock robot (module
+        docstring). ``status_clock``: what the status period is measured on — wall time by default
         (what people and tools watch, even while a simulation stands still); the robot's
         clock for a controller in a lockstep run, so that each status is of a simulated
         instant, the same at any speed (a fleet's world collects them)."""
@@ -273,6 +295,10 @@ class Controller(Component):
         if self.mode is TickMode.EVENT and not trigger:
             raise ValueError("event mode needs a trigger source, e.g. trigger='range/front'")
         self.aggregator = aggregator
+        self.lock = aggregator.lock
+        """The aggregator's lock: held for every tick, hold, status and tree change, on the
+        loop or on the reflex lane (module docstring)."""
+        self.lane = lane
         self.root = root
         self.rate_hz = rate_hz
         self.sync_source = sync_source
@@ -284,6 +310,9 @@ class Controller(Component):
         self.reflex_burst = reflex_burst
         self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
                                           now_ns=bus.clock.now_ns())
+        self._reflex_bucket_used = self.mode is TickMode.PERIODIC
+        self._ticked_by = _TICKED_BY[self.mode]
+        self._triggers = self._triggering_sources()
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
         self.host = socket.gethostname()[:253]
@@ -316,8 +345,11 @@ class Controller(Component):
         It runs before the tick publishes ``seek_color``/``radio``/``leds`` and before
         ``last_action``, ``last_trace``, ``stats.tick_ns`` and ``ticked`` are updated
         (``stats.ticks`` and ``stats.periodic`` already count the tick), so the time it
-        reads is when the command left. Hooks run in the order they were added, on the
-        event loop: keep them short, a slow hook delays the tick's end. A hook that raises
+        reads is when the command left. Hooks run in the order they were added, where the
+        tick runs — on the event loop, or on the reflex lane's thread (holding :attr:`lock`,
+        never beside another tick; hand anything for the loop over with
+        :meth:`Bus.call_on_loop <ubf_async.runtime.bus.Bus.call_on_loop>`): keep them
+        short, a slow hook delays the tick's end. A hook that raises
         is logged and removed; the tick and the controller go on. With no hook a tick pays
         one truth test."""
         return add_hook(self._tick_hooks, callback)
@@ -343,18 +375,24 @@ class Controller(Component):
             TickMode.EVENT: self._run_triggered,
         }[self.mode]
         try:
-            self.root.setup()
-            self.root.reset()
-            remove_listener = self.aggregator.on_sample(self._on_sample)
+            with self.lock:
+                self.root.setup()
+                self.root.reset()
+                remove_listener = self.aggregator.on_sample(self._on_sample)
+                close_lane = (self.aggregator.open_lane(self._triggers) if self.lane
+                              else _no_lane)
             try:
                 async with asyncio.TaskGroup() as group:
                     group.create_task(self._publish_status())
                     group.create_task(loop())
             finally:
-                remove_listener()
+                with self.lock:  # waits for a tick on the lane to end: none after it
+                    close_lane()
+                    remove_listener()
         finally:
             try:
-                self.root.shutdown()
+                with self.lock:
+                    self.root.shutdown()
             except Exception:  # must not replace the exception (or cancellation) ending run
                 log.exception("shutdown of the behaviour tree %r raised", self.root.name)
 
@@ -367,22 +405,25 @@ class Controller(Component):
     def _count_overrun(self) -> None:
         self.stats.overruns += 1
 
-    def _triggers(self, source: str) -> bool:
+    def _triggering_sources(self) -> Callable[[str], bool]:
+        """Whether a sample of a source ticks the controller (its mode's rule), as one call:
+        the reflex lane asks it of every sample on the transport's thread."""
         if self.mode is TickMode.SYNC:
-            return source == self.sync_source
+            return self.sync_source.__eq__
         if self.mode is TickMode.EVENT:
-            return source == self.trigger
-        return source.startswith(self.reflex_sources) if self.reflex_sources else False
+            assert self.trigger is not None  # (checked in __init__)
+            return self.trigger.__eq__
+        prefixes = self.reflex_sources
+        return (lambda source: source.startswith(prefixes)) if prefixes else _never
 
     def _on_sample(self, source: str, entry: SourceEntry) -> None:
         if not self._triggers(source):
             return
-        if self.mode is TickMode.PERIODIC and not self._reflex_bucket.take(
-                self.bus.clock.now_ns()):
+        if self._reflex_bucket_used and not self._reflex_bucket.take(self.bus.clock.now_ns()):
             self.stats.reflex_limited += 1
             return
         self.stats.triggered += 1
-        self.tick(based_on=entry)
+        self._tick(entry)  # (inside ingest: the lock is held)
 
     async def _run_triggered(self) -> None:
         """Ticks come from :meth:`_on_sample`. Between them the last decision is repeated
@@ -396,36 +437,37 @@ class Controller(Component):
         trigger = self.sync_source if self.mode is TickMode.SYNC else self.trigger
         while True:
             await clock.sleep(period_s)
-            now = clock.now_ns()
-            if 0 <= now - self._last_drive_ns < period_ns:
-                continue  # a tick published lately (a clock that went back re-anchors here)
-            fresh = trigger is not None and self.aggregator.fresh(trigger, now)
-            last = self.last_action if fresh else None  # a tick always sets both fields
-            trace = self.last_trace if fresh else None
-            self.stats.holds += 1
-            try:
-                self._drive.publish(Drive(
-                    speed=last.speed if last and last.speed is not None else 0.0,
-                    turn=last.turn if last and last.turn is not None else 0.0,
-                    tick=self.stats.ticks, hold=True,
-                    winners=tuple(outgoing_names(trace.winning_leaves() if trace else [])),
-                ))
-            except Exception:
-                self._publish_failed("hold drive command")
-            self._last_drive_ns = now
+            with self.lock:
+                self._hold(clock.now_ns(), period_ns, trigger)
+
+    def _hold(self, now: int, period_ns: int, trigger: str | None) -> None:
+        """Repeat the last decision unless a tick published lately (:meth:`_run_triggered`)."""
+        if 0 <= now - self._last_drive_ns < period_ns:
+            return  # a tick published lately (a clock that went back re-anchors here)
+        fresh = trigger is not None and self.aggregator.fresh(trigger, now)
+        last = self.last_action if fresh else None  # a tick always sets both fields
+        trace = self.last_trace if fresh else None
+        self.stats.holds += 1
+        try:
+            self._drive.publish(Drive(
+                speed=last.speed if last and last.speed is not None else 0.0,
+                turn=last.turn if last and last.turn is not None else 0.0,
+                tick=self.stats.ticks, hold=True,
+                winners=tuple(outgoing_names(trace.winning_leaves() if trace else [])),
+            ))
+        except Exception:
+            self._publish_failed("hold drive command")
+        self._last_drive_ns = now
 
     def tick(self, *, based_on: SourceEntry | None = None) -> Trace | None:
-        """One UBF cycle: snapshot, evaluate, publish."""
+        """One UBF cycle: snapshot, evaluate, publish (holding :attr:`lock`)."""
+        with self.lock:
+            return self._tick(based_on)
+
+    def _tick(self, based_on: SourceEntry | None) -> Trace | None:
+        # Only what the drive command needs comes before its put; the bookkeeping follows it.
         t0 = time.perf_counter_ns()
-        if self.bus.clock.resets != self._clock_resets:
-            self._clock_resets = self.bus.clock.resets
-            self.stats.new_run()
         state = self.aggregator.snapshot(previous_action=self.last_action)
-        self.stats.tick_starts_ns.append(state.now_ns)
-        if based_on is None:
-            self.stats.periodic += 1
-            self.stats.periodic_starts_ns.append(state.now_ns)
-            self.stats.periodic_wall_ns.append(t0)
         try:
             trace: Trace | None = self.root.evaluate(state)
         except Exception:
@@ -441,20 +483,17 @@ class Controller(Component):
         turn = float(action.turn) if action is not None and action.turn is not None else 0.0
         basis = based_on if based_on is not None else self.aggregator.newest()
         winners = trace.winning_leaves() if trace is not None else []
-        self.stats.ticks += 1
-        counted = self.stats.winner_ticks
-        for w in winners:  # bounded: behaviours of other processes come and go under any name
-            if w in counted or len(counted) < MAX_COUNTED_NAMES:
-                counted[w] += 1
+        stats = self.stats
+        stats.ticks += 1
         command = Drive(
             speed=speed,
             turn=turn,
             based_on=None if basis is None else BasedOn(
                 source=clip(basis.source, MAX_NAME_CHARS), seq=basis.message.seq,
                 stamp_ns=basis.message.stamp_ns),
-            tick=self.stats.ticks,
+            tick=stats.ticks,
             winners=tuple(outgoing_names(winners)),
-            ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
+            ticked_by="clock" if based_on is None else self._ticked_by,
         )
         self._last_drive_ns = state.now_ns
         try:
@@ -463,12 +502,24 @@ class Controller(Component):
             self._publish_failed("tick's drive command; a plain stop goes out instead")
             speed = turn = 0.0
             action = None
-            command = Drive(speed=0.0, turn=0.0, tick=self.stats.ticks,
+            command = Drive(speed=0.0, turn=0.0, tick=stats.ticks,
                             ticked_by=command.ticked_by)
             try:
                 self._drive.publish(command)
             except Exception:  # nothing goes out: the motors' watchdog stops the wheels
                 self._publish_failed("plain stop either")
+        if self.bus.clock.resets != self._clock_resets:
+            self._clock_resets = self.bus.clock.resets
+            stats.new_run()
+        stats.tick_starts_ns.append(state.now_ns)
+        if based_on is None:
+            stats.periodic += 1
+            stats.periodic_starts_ns.append(state.now_ns)
+            stats.periodic_wall_ns.append(t0)
+        counted = stats.winner_ticks
+        for w in winners:  # bounded: behaviours of other processes come and go under any name
+            if w in counted or len(counted) < MAX_COUNTED_NAMES:
+                counted[w] += 1
         if self._tick_hooks:
             run_hooks(self._tick_hooks, "tick", state, trace, command)
         if action is not None:
@@ -486,7 +537,8 @@ class Controller(Component):
             self.last_action = Action(speed=speed, turn=turn)
         self.last_trace = trace
         self.stats.tick_ns.append(time.perf_counter_ns() - t0)
-        self.ticked.set()
+        if not self.ticked.is_set():  # (set, it stays so until a waiter clears it)
+            self.bus.call_on_loop(self.ticked.set)  # from the lane: after the command left
         return trace
 
     def _publish_failed(self, what: str) -> None:
@@ -511,6 +563,10 @@ class Controller(Component):
             publisher.publish(self._EXTRA_MESSAGES[field_name](value))
 
     def status(self) -> dict[str, Any]:
+        with self.lock:
+            return self._status_now()
+
+    def _status_now(self) -> dict[str, Any]:
         explanation = self.last_trace.render() if self.last_trace is not None else ""
         last = self.last_action
         return {
@@ -538,9 +594,10 @@ class Controller(Component):
     def runs(self, name: str) -> bool:
         """Whether the tree has a behaviour called ``name`` (a scenario's expectation is
         judged only on a robot that runs what it describes)."""
-        root = self.root
-        return (root.find(name) if isinstance(root, Composite) else
-                root if root.name == name else None) is not None
+        with self.lock:
+            root = self.root
+            return (root.find(name) if isinstance(root, Composite) else
+                    root if root.name == name else None) is not None
 
     def tree_changed(self, what: str) -> None:
         """Called by the live tree service when a change was applied: kept, with the robot
@@ -551,7 +608,8 @@ class Controller(Component):
         """Behaviours of the tree quarantined now (``composite/child``); they stay so until
         their composite is reset — the controller's next run, a reload of the tree — or
         they leave and join again."""
-        return self.root.quarantined() if isinstance(self.root, Composite) else []
+        with self.lock:
+            return self.root.quarantined() if isinstance(self.root, Composite) else []
 
     async def _publish_status(self) -> None:
         periods = every(self.status_clock, self.status_period_s)

@@ -40,7 +40,9 @@ has run to its end. The simulator's lockstep barrier is built on it
 only when nothing is ready), so no loop iterations are counted and no private attribute read.
 
 Only subscriptions that ask for it are handled this way (``Bus.subscribe(..., direct=True)``):
-the state aggregator's, so a reflex is answered on the thread that brought its sample. Keep
+the state aggregator's, for its samples that do not take the controller's reflex lane (which
+answers a reflex on the thread that brought its sample without borrowing the loop, on any
+loop: :mod:`ubf_async.runtime.controller`). Keep
 it to short handlers on a latency path, in processes where little else runs Python: a
 borrower holds the loop for the whole handler, and when it waits for the GIL (a ``put``
 lets go of it) the loop waits too — in a busy simulator process with a render thread that

@@ -204,7 +204,12 @@ class TreeService(Component):
 
     # -- the queryable (event loop) ----------------------------------------------------------
     def on_query(self, key: str, payload: bytes) -> bytes:
-        """Handle one query: decode, apply, reply. Never raises for a bad request."""
+        """Handle one query: decode, apply, reply. Never raises for a bad request. Holds
+        the controller's lock: its reflex lane may tick on another thread."""
+        with self.controller.lock:
+            return self._answer(payload)
+
+    def _answer(self, payload: bytes) -> bytes:
         op = "?"
         try:
             request = decode(payload, topic=TREE_REQUEST).data

@@ -27,11 +27,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import functools
 import logging
 import math
-from collections.abc import Iterable, Mapping
+import threading
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Concatenate, ParamSpec, TypeVar
 
 from ubf_async import throttle
 from ubf_async.clocks import clockdomain
@@ -304,6 +306,20 @@ class _Entry:
         self.attached_as: tuple[Composite, int, float] | None = None
 
 
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _holding_lock(method: Callable[Concatenate[RemoteBehaviors, P], R]
+                  ) -> Callable[Concatenate[RemoteBehaviors, P], R]:
+    """The method runs holding the component's ``lock`` (the tree's: the reflex lane)."""
+    @functools.wraps(method)
+    def locked(self: RemoteBehaviors, *args: P.args, **kwargs: P.kwargs) -> R:
+        with self.lock:
+            return method(self, *args, **kwargs)
+    return locked
+
+
 class RemoteBehaviors(Component):
     """Attaches behaviours of other processes to the robot's tree (the robot's side).
 
@@ -333,6 +349,9 @@ class RemoteBehaviors(Component):
       so strangers cannot exhaust the slots.
     * ``max_future_s`` — a vote stamped more than this ahead of the robot clock is refused
       and counted in ``future`` (a far-future stamp would otherwise win every ordering).
+    * ``lock`` — held while the tree is changed or a remote child's vote is taken: the
+      controller's (launch passes it), whose reflex lane may tick the tree on another thread
+      (:mod:`ubf_async.runtime.controller`); by default one of its own.
     * ``notify_refusals`` — also tell each refused or malformed vote's sender why, on
       ``ubf/<robot>/refused/vote/<composite>/<behaviour>`` (:mod:`ubf_async.runtime.refusals`;
       launch turns it on).
@@ -358,6 +377,7 @@ class RemoteBehaviors(Component):
         max_future_s: float = DEFAULT_MAX_FUTURE_S,
         status_period_s: float = 0.5,
         notify_refusals: bool = False,
+        lock: threading.RLock | None = None,
         name: str = "remotes",
         **component_options: float,
     ) -> None:
@@ -373,6 +393,7 @@ class RemoteBehaviors(Component):
             raise ValueError(f"max_stranger_priority must be an int or None, got "
                              f"{max_stranger_priority!r}")
         self.root = root
+        self.lock = lock if lock is not None else threading.RLock()
         self.reserved: set[str] = {*RESERVED_NAMES, name}
         """Names no remote behaviour may take (see :meth:`reserve`)."""
         self.config: dict[str, PriorityWeight] = {}
@@ -436,6 +457,7 @@ class RemoteBehaviors(Component):
         if self.notices is not None:
             self.notices.report(key, "malformed", f"malformed vote: {error}")
 
+    @_holding_lock
     def accept(self, vote: ReceivedVote, *, key: str = "") -> bool:
         """Take a validated vote (arrived on ``key``, by default its own vote key): create or
         attach its remote child as needed."""
@@ -484,6 +506,7 @@ class RemoteBehaviors(Component):
             return self._attach(entry, key)
         return True
 
+    @_holding_lock
     def on_liveliness(self, key: str, alive: bool) -> None:
         """A token ``ubf/<robot>/alive/<name>`` appeared (``alive``) or vanished."""
         name = self.bus.keys.component_of_alive(key)
@@ -615,6 +638,7 @@ class RemoteBehaviors(Component):
             composite.remove(entry.behavior.name)
         self.changed.set()
 
+    @_holding_lock
     def prune(self) -> None:
         """Forget votes still waiting for a token after ``max_ttl_s`` (run periodically)."""
         now = self.bus.clock.now_ns()
@@ -626,6 +650,7 @@ class RemoteBehaviors(Component):
             ):
                 del self._entries[ident]
 
+    @_holding_lock
     def detach_all(self) -> None:
         """Remove every remote child from the tree and forget every vote."""
         for entry in self._entries.values():
@@ -652,6 +677,7 @@ class RemoteBehaviors(Component):
         entry = self._entries.get((composite, behavior))
         return entry.behavior if entry is not None else None
 
+    @_holding_lock
     def set_root(self, root: Composite, *,
                  config: Mapping[str, PriorityWeight] | None = None) -> list[str]:
         """Move to a new tree (a live ``load``): detach every remote child from the old tree,
@@ -701,6 +727,7 @@ class RemoteBehaviors(Component):
             ))
         return out
 
+    @_holding_lock
     def status(self) -> dict[str, Any]:
         return {
             "remotes": [

@@ -7,7 +7,7 @@ patterns and :mod:`ubf_async.wire.protocol` re-exports :class:`Keys` and :func:`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ubf_async.errors import ProtocolError
 
@@ -39,9 +39,12 @@ class Keys:
     """The key expressions of one robot, ``ubf/<robot>/...``."""
 
     robot: str
+    _sensor_head: str = field(init=False, repr=False, compare=False)
+    """``ubf/<robot>/sensor/``, made once: :meth:`source_of` runs for every sensor sample."""
 
     def __post_init__(self) -> None:
         check_segment("robot name", self.robot)
+        object.__setattr__(self, "_sensor_head", f"{ROOT}/{self.robot}/sensor/")
 
     @property
     def prefix(self) -> str:
@@ -60,8 +63,8 @@ class Keys:
 
     def source_of(self, key: str) -> str:
         """``ubf/<robot>/sensor/<kind>/<name>`` → ``"<kind>/<name>"``."""
-        head = f"{self.prefix}/sensor/"
-        if not key.startswith(head) or key.count("/") != head.count("/") + 1:
+        head = self._sensor_head
+        if not key.startswith(head) or key.count("/", len(head)) != 1:
             raise ProtocolError(f"{key!r} is not a sensor key of robot {self.robot!r}")
         return key[len(head):]
 
