@@ -54,6 +54,7 @@ from array import array
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from ubf_async import throttle
 from ubf_async.clocks import clockdomain
@@ -67,7 +68,7 @@ from ubf_async.runtime.component import Component
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.wire.protocol import Message, clip, count_malformed, decode
-from ubf_async.wire.topics import MAX_NAME_CHARS, sensor_topic
+from ubf_async.wire.topics import MAX_NAME_CHARS, Topic, sensor_topic
 
 __all__ = ["DEFAULT_FORGET_AFTER_S", "DEFAULT_FUTURE_TOLERANCE_S", "MAX_SOURCES", "STALE_PERIODS",
            "IngestHook", "ReceiveHook", "RecentCounts", "SampleHook", "SourceEntry", "SourceInfo",
@@ -587,7 +588,7 @@ class _ReflexLane(Lane):
         triggers = aggregator._lane_trigger
         if triggers is None:
             return False
-        clock = aggregator.bus.clock
+        clock = aggregator.bus.clock  # (read each time: a clock follower may swap it)
         source, message = decoded
         # Half the clock domain's "close": ingest, a moment later, cannot find it far.
         return (not clock.is_simulated and triggers(source)
@@ -604,10 +605,19 @@ class _SensorScreen:
         self._keys = aggregator.bus.keys
         self.accept = aggregator._on_decoded
         self.refuse = aggregator._on_malformed
+        self._parsed: dict[str, tuple[str, Topic[Any] | None]] = {}
+        """Each sensor key's source and topic, parsed once (the reflex path's every sample
+        would parse it again); bounded like the sources, since keys come from the network."""
 
     def check(self, key: str, payload: bytes) -> tuple[str, Message]:
         # A declared kind (ubf_async.wire.topics) only takes its own schema: behaviours read its
         # samples as that type. Other kinds take any schema, checked generically.
-        source = self._keys.source_of(key)
-        topic = sensor_topic(source)
+        parsed = self._parsed.get(key)
+        if parsed is None:
+            source = self._keys.source_of(key)  # (a key that is no sensor's raises: not kept)
+            parsed = (source, sensor_topic(source))
+            if len(self._parsed) >= MAX_SOURCES:
+                self._parsed.clear()
+            self._parsed[key] = parsed
+        source, topic = parsed
         return source, decode(payload) if topic is None else decode(payload, topic=topic)
