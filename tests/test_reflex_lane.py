@@ -243,3 +243,35 @@ async def test_the_lane_and_the_loop_never_tick_the_tree_at_once(
         assert behavior.overlaps == 0
         assert threading.get_ident() in behavior.threads and len(behavior.threads) == 2
         assert sub.stats.lane == n and ctl.stats.reflex_limited == 0
+
+
+@pytest.mark.asyncio
+async def test_a_trigger_sample_published_from_a_tick_on_the_lane_waits_for_the_loop(
+        endpoint: str) -> None:
+    """A tick hook that publishes a sample of the trigger source on the same bus (from the
+    lane's thread): not delivered inside the tick that published it — the lock is
+    re-entrant, so it would tick again from within, and again — but queued for the loop,
+    which stores it (and ticks on it) after."""
+    clock = WallClock()
+    async with robot(clock, endpoint) as (agg, ctl, sub, key):
+        echo = agg.bus.publisher(RANGE, "front")
+        depth = 0
+        deepest = 0
+        published: list[int] = []
+
+        def hook(state: State, trace: Any, command: Any) -> None:
+            nonlocal depth, deepest
+            depth += 1
+            deepest = max(deepest, depth)
+            if not published:  # once: the first lane tick publishes one more sample
+                published.append(echo.publish({"range_mm": 99, "status": "ok"})[0])
+            depth -= 1
+
+        ctl.on_tick(hook)
+        done = ticks_until(ctl, 2)
+        await from_thread(lambda: sub.push(key, sample(clock, 1)))
+        await asyncio.wait_for(done.wait(), 5)
+        assert deepest == 1, "a tick ran inside another"
+        assert sub.stats.lane == 1 and sub.stats.delivered == 2
+        assert agg.entries[KEY_SOURCE].message.data.range_mm == 99
+        echo.close()

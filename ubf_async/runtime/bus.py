@@ -47,7 +47,9 @@ so the handler never runs on two threads at once, and in the order the samples c
 a sample of that key still waits for the loop, a newer one joins it there instead of
 overtaking it. A malformed sample takes the usual road (refusals are reported on the loop,
 counted as before). If the loop holds the lock, the lane waits for it at most
-:data:`LANE_WAIT_S`, then hands the sample to the loop (``BridgeStats.lane_busy``). The
+:data:`LANE_WAIT_S`, then hands the sample to the loop (``BridgeStats.lane_busy``); a sample
+a delivery itself publishes to the same subscription (a tick hook's) goes to the loop too,
+never into the delivery that published it. The
 handler must hand anything that belongs to the loop over with :meth:`Bus.call_on_loop`.
 
 Samples between components of the **same** :class:`Bus` (one process) never take that detour:
@@ -268,6 +270,9 @@ class Subscription(Declared):
         if lane is not None and screen is None:
             raise TypeError("a lane needs a screened subscription (it judges decoded samples)")
         self._lane = lane
+        self._lane_thread: int | None = None
+        """The thread delivering a sample on the lane now (holding its lock): a sample that
+        delivery publishes to this subscription goes to the loop, not into the delivery."""
         self._latest = latest
         self._run_if_idle = lending.run_if_idle(loop) if direct else None
         """Runs the drain on the transport's thread while the loop waits (:mod:`.lending`)."""
@@ -320,7 +325,11 @@ class Subscription(Declared):
     def _on_lane(self, lane: Lane, key: str, payload: bytes, received_ns: int,
                  decoded: Any) -> bool:
         """Deliver one valid sample here, on the transport's thread, holding the lane's lock;
-        ``False`` if it must go to the loop instead (the lock stayed held by the loop)."""
+        ``False`` if it must go to the loop instead (the lock stayed held by the loop, or
+        this thread is delivering on this lane already)."""
+        me = threading.get_ident()
+        if self._lane_thread == me:
+            return False  # published from within a delivery here (a tick's hook): not inside it
         stats = self.stats
         lock = lane.lock
         waited = not lock.acquire(False)
@@ -344,6 +353,7 @@ class Subscription(Declared):
             if deferred:  # queued behind its elder, still holding the lock: nothing overtakes
                 self._queue(key, payload, received_ns, decoded, None, False)
                 return True
+            self._lane_thread = me
             try:
                 self._deliver(key, payload, received_ns, decoded)
             except Exception:
@@ -351,6 +361,8 @@ class Subscription(Declared):
                 log.exception("handler of subscription %s failed on %s (lane)", self.name, key)
             else:
                 stats.delivered += 1
+            finally:
+                self._lane_thread = None
             return True
         finally:
             lock.release()
