@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 
+from tests.conftest import eventually
 from ubf_async import Action, Behavior, State
 from ubf_async.clocks.clock import Clock, SimClock, WallClock
 from ubf_async.net.options import ConnectionOptions
@@ -125,12 +126,8 @@ async def test_on_wall_clock_a_trigger_sample_ticks_on_its_own_thread_and_hands_
 
 
 async def eventually_delivered(sub: Subscription, n: int) -> None:
-    """Wait for the loop's drain to deliver ``n`` samples (each drain is one loop pass)."""
-    for _ in range(1000):
-        if sub.stats.delivered >= n:
-            return
-        await asyncio.sleep(0)
-    raise AssertionError(f"{sub.stats.delivered} of {n} samples delivered")
+    """Wait for the loop's drain to deliver ``n`` samples."""
+    await eventually(lambda: sub.stats.delivered >= n, what=f"{n} samples delivered")
 
 
 @pytest.mark.asyncio
@@ -209,10 +206,8 @@ async def test_a_malformed_sample_on_the_lane_key_is_counted_and_logged_and_the_
         await from_thread(burst)
         await asyncio.wait_for(done.wait(), 5)
         await eventually_delivered(sub, 2)
-        for _ in range(1000):  # the refusals are reported by the loop's drain
-            if agg.malformed.get(key) == 2:
-                break
-            await asyncio.sleep(0)
+        # The refusals are reported by the loop's drain.
+        await eventually(lambda: agg.malformed.get(key) == 2, what="both refusals counted")
         assert agg.malformed == {key: 2}
         assert sub.stats.refused == 2 and sub.stats.lane == 2
         assert agg.entries[KEY_SOURCE].message.seq == 3
