@@ -310,8 +310,6 @@ class Controller(Component):
         self.reflex_burst = reflex_burst
         self._reflex_bucket = TokenBucket(rate_hz=self.reflex_rate_hz, burst=reflex_burst,
                                           now_ns=bus.clock.now_ns())
-        self._reflex_bucket_used = self.mode is TickMode.PERIODIC
-        self._ticked_by = _TICKED_BY[self.mode]
         self._triggers = self._triggering_sources()
         self.status_period_s = status_period_s
         self.status_clock: Clock = status_clock if status_clock is not None else WallClock()
@@ -419,7 +417,7 @@ class Controller(Component):
     def _on_sample(self, source: str, entry: SourceEntry) -> None:
         if not self._triggers(source):
             return
-        if self._reflex_bucket_used and not self._reflex_bucket.take(self.bus.clock.now_ns()):
+        if self.mode is TickMode.PERIODIC and not self._reflex_bucket.take(self.bus.clock.now_ns()):
             self.stats.reflex_limited += 1
             return
         self.stats.triggered += 1
@@ -493,7 +491,7 @@ class Controller(Component):
                 stamp_ns=basis.message.stamp_ns),
             tick=stats.ticks,
             winners=tuple(outgoing_names(winners)),
-            ticked_by="clock" if based_on is None else self._ticked_by,
+            ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
         )
         self._last_drive_ns = state.now_ns
         try:
