@@ -291,3 +291,43 @@ def test_child_validation() -> None:
         Child(const("a", None), weight=float("nan"))
     with pytest.raises(ValueError):
         Child(const("a", None), weight=-1)
+
+
+def reference_winners(trace) -> list[str]:
+    """The winning leaves read through the built child traces (what ``render`` shows)."""
+    if not trace.children:
+        return [trace.name] if trace.action is not None else []
+    return [name for child in trace.children if child.won for name in reference_winners(child)]
+
+
+def random_tree(rng: random.Random, depth: int, counter: list[int]) -> Behavior:
+    counter[0] += 1
+    name = f"n{counter[0]}"
+    if depth == 0 or rng.random() < 0.4:
+        roll = rng.random()
+        if roll < 0.2:
+            return const(name, None)
+        if roll < 0.3:
+            def fail(state: State) -> Action | None:
+                raise RuntimeError("a behaviour that fails")
+            return FunctionBehavior(fail, name=name)
+        return const(name, Action(speed=rng.uniform(-100, 100), turn=rng.uniform(-100, 100),
+                                  vote=rng.choice([0.0, 1.0, 2.0])))
+    arbiter = rng.choice(ALL_ARBITERS)()
+    children = [Child(random_tree(rng, depth - 1, counter), priority=rng.randint(0, 3),
+                      weight=rng.choice([0.5, 1.0])) for _ in range(rng.randint(0, 4))]
+    return Composite(name=name, arbiter=arbiter, children=children)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_winning_leaves_read_from_an_unbuilt_trace_match_the_built_children(seed: int) -> None:
+    # The controller asks every tick, before anything builds the child traces.
+    rng = random.Random(seed)
+    root = Composite(name="root", arbiter=rng.choice(ALL_ARBITERS)(),
+                     children=[random_tree(rng, 2, counter)
+                               for counter in [[0]] for _ in range(rng.randint(1, 4))])
+    for _ in range(3):
+        trace = root.evaluate(STATE)
+        fast = trace.winning_leaves()
+        assert fast == reference_winners(trace)  # (this builds the children)
+        assert trace.winning_leaves() == fast

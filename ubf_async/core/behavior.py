@@ -357,11 +357,24 @@ class Trace:
 
     def winning_leaves(self) -> list[str]:
         """Names of the leaf behaviours whose actions reached this node's result."""
-        children = self.children
-        if not children:
-            return [self.name] if self.action is not None else []
         out: list[str] = []
-        for child in children:
+        if self._children is None:
+            # Every tick asks this (the drive command carries it): read what the composite
+            # kept instead of building its child traces for it.
+            if not self._selected:
+                return [self.name] if self.action is not None else []
+            winners = self._winners
+            for (index, spec), (action, sub) in zip(self._selected, self._results,
+                                                    strict=True):
+                if index in winners:
+                    if sub is not None:
+                        out.extend(sub.winning_leaves())
+                    elif action is not None:
+                        out.append(spec.behavior.name)
+            return out
+        if not self._children:
+            return [self.name] if self.action is not None else []
+        for child in self._children:
             if child.won:
                 out.extend(child.winning_leaves())
         return out
