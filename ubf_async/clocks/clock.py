@@ -84,8 +84,9 @@ class WallClock:
     is_simulated = False
     resets = 0
 
-    def now_ns(self) -> int:
-        return time.monotonic_ns()
+    # The C function itself, not a method calling it: read several times per sample on the
+    # reflex path, where a Python frame fewer is measurable (docs/latency.md).
+    now_ns: Callable[[], int] = staticmethod(time.monotonic_ns)
 
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         """Wall time never stalls."""

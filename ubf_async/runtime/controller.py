@@ -131,7 +131,11 @@ MAX_COUNTED_NAMES = 1024
 
 def outgoing_names(names: list[str]) -> list[str]:
     """Behaviour names as a drive command may carry them (count and length bounded)."""
-    return [clip(name, MAX_NAME_CHARS) for name in names[:MAX_WINNERS]]
+    names = names[:MAX_WINNERS]
+    for name in names:  # (a plain loop, no comprehension: every tick asks, almost never cut)
+        if len(name) > MAX_NAME_CHARS:
+            return [clip(name, MAX_NAME_CHARS) for name in names]
+    return names
 
 
 def trace_nodes(trace: Trace) -> tuple[TraceNode, ...]:
@@ -487,8 +491,11 @@ class Controller(Component):
             speed=speed,
             turn=turn,
             based_on=None if basis is None else BasedOn(
-                source=clip(basis.source, MAX_NAME_CHARS), seq=basis.message.seq,
-                stamp_ns=basis.message.stamp_ns),
+                # (ingest refuses a longer name; cut anyway, should one get in, and the
+                # test inline: clip() is called only for a name it changes)
+                source=basis.source if len(basis.source) <= MAX_NAME_CHARS
+                else clip(basis.source, MAX_NAME_CHARS),
+                seq=basis.message.seq, stamp_ns=basis.message.stamp_ns),
             tick=stats.ticks,
             winners=tuple(outgoing_names(winners)),
             ticked_by="clock" if based_on is None else _TICKED_BY[self.mode],
@@ -520,7 +527,8 @@ class Controller(Component):
                 counted[w] += 1
         if self._tick_hooks:
             run_hooks(self._tick_hooks, "tick", state, trace, command)
-        if action is not None:
+        if action is not None and (action.seek_color is not None or action.message is not None
+                                   or action.leds is not None):  # (_EXTRA_MESSAGES' fields)
             try:
                 self._publish_extras(action)
             except Exception:
