@@ -274,6 +274,10 @@ def rtt_result(server: str, served: dict[str, Any], sensed: dict[str, Any]) -> d
         "mismatched": sensed["mismatched"],
         "rtt": summarize(r[3] - r[1] for r in answered),
         "rtt_ns": [r[3] - r[1] for r in answered],
+        # Split at the drive command's own stamp (taken before it is encoded, by every
+        # server): what happens before it, and what after.
+        "inbound_ns": [r[2] - r[1] for r in answered],
+        "outbound_ns": [r[3] - r[2] for r in answered],
     }
     if "triggered" in served:  # a controller
         out["controller"] = {k: served.get(k) for k in (
@@ -333,6 +337,11 @@ def reflex_segments(rows: list[list[int]], served: dict[str, Any]) -> dict[str, 
     return seg
 
 
+SPLIT = ("inbound_ns", "outbound_ns")
+"""Each round trip split at the drive command's stamp: sample stamp → command stamp (the
+sample's way in and the work before the command), command stamp → the sensor's callback
+(encoding, the put, the way back)."""
+
 _SUMMED = ("sent", "answered", "lost", "duplicates", "unmatched", "mismatched",
            "coalesced_by_bridge", "skipped_by_controller", "lost_after_tick")
 
@@ -352,7 +361,8 @@ def measure_rtt_rounds(*servers: str, rounds: int, rate_hz: float, warmup: int, 
             for key in _SUMMED:
                 if key in g:
                     acc[key] = acc.get(key, 0) + g[key]
-            acc.setdefault("rtt_ns", []).extend(g["rtt_ns"])
+            for key in ("rtt_ns", *SPLIT):
+                acc.setdefault(key, []).extend(g[key])
             if g["rtt_ns"]:
                 acc["round_medians_us"].append(statistics.median(g["rtt_ns"]) / 1e3)
             if "controller" in g:
@@ -363,6 +373,8 @@ def measure_rtt_rounds(*servers: str, rounds: int, rate_hz: float, warmup: int, 
                 acc.setdefault("segments_ns", {}).setdefault(key, []).extend(values)
     for acc in pooled.values():
         acc["rtt"] = summarize(acc["rtt_ns"])
+        for key in SPLIT:
+            acc[key.removesuffix("_ns")] = summarize(acc[key])
         if "segments_ns" in acc:
             acc["segments"] = {k: summarize(v) for k, v in acc["segments_ns"].items()}
     return pooled
@@ -1138,6 +1150,29 @@ def python_floor_report(res: dict[str, Any]) -> list[str]:
                 now = res["reflex_100hz"]["rtt"]
                 out.append(f"     this checkout / --baseline: median "
                            f"{ratio(now, b) or 0:.2f}×, p99 {ratio(now, b, 'p99_us') or 0:.2f}×")
+        out.extend(split_report(res, when, base))
+    return out
+
+
+def split_report(res: dict[str, Any], when: str, base: dict[str, Any]) -> list[str]:
+    """Medians of each server's round trip split at the drive command's stamp (:data:`SPLIT`),
+    and the difference to the Python floor's: where the framework's extra time lies."""
+    if "inbound" not in base:
+        return []
+    out = [f"    split at the drive command's stamp (median; ± the Python floor's)"
+           f"{'':<3}{'sample → command':>18} {'command → sensor':>18}"]
+    for name, row_label in PYTHON_FLOOR_ROWS:
+        r = res.get("floor_" + when if name == "echo" else
+                    ("reflex_" + when if name == "as_run" else f"{name}_{when}"))
+        if r is None or "inbound" not in r:
+            continue
+        cells = []
+        for part in ("inbound", "outbound"):
+            us, floor_us = r[part].get("median_us"), base[part].get("median_us")
+            diff = "" if name == "tree_echo" or us is None or floor_us is None else (
+                f" ({us - floor_us:+.0f})")
+            cells.append(f"{fmt_us(us)}{diff}")
+        out.append(f"    {row_label:<44}{'':<25}{cells[0]:>18} {cells[1]:>18}")
     return out
 
 

@@ -58,6 +58,7 @@ from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import SourceEntry, StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller
+from ubf_async.runtime.gcfreeze import freeze_startup_objects
 
 AVOID_BELOW_MM = 200
 AVOID_SPEED = -50.0
@@ -217,6 +218,7 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
             await asyncio.wait_for(c.running.wait(), 10)
         if rec is not None:
             rec.after_controller_started(agg)
+        freeze_startup_objects()  # as launch does once everything has started
         print("READY", flush=True)
         await stop.wait()
         bridge = agg.subscription.stats if agg.subscription is not None else None
