@@ -31,6 +31,17 @@ def pytest_configure(config: pytest.Config) -> None:
     # makes the question fail instead, as it does after any async test.
     asyncio.set_event_loop(None)
     keep_the_bytecode_of_spawned_processes(config)
+    one_blas_thread_per_process()
+
+
+def one_blas_thread_per_process() -> None:
+    """NumPy's OpenBLAS starts a thread per core when it is imported, and they spin a while
+    waiting for work that never comes: ≈ 0.06 s of CPU in each of the hundreds of processes
+    the suite spawns (robots, tools, render processes, the workers). Nothing here multiplies
+    matrices big enough for OpenBLAS to use a second thread (a camera's 3×3 rotations, norms
+    of a few points), so one thread computes the same numbers. Set before the workers start,
+    so every process of the session inherits it; a value given in the environment is kept."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def keep_the_bytecode_of_spawned_processes(config: pytest.Config) -> None:
