@@ -49,12 +49,15 @@ import tarfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
 from ubf_async.errors import ConfigurationError, NotAllowedError
-from ubf_async.net import pki, tlsprobe
+from ubf_async.net import tlsprobe
+
+if TYPE_CHECKING:
+    from ubf_async.net import pki
 
 __all__ = ["ACL", "ALL_MESSAGES", "BUILTIN", "CA_CERT", "CA_KEY", "DEFAULT_HOSTS", "FLEET_BUILTIN",
            "FORMAT", "IDENTITIES", "INIT_HINT", "INSPECTOR", "LISTENERS", "MANIFEST", "OPEN",
@@ -491,7 +494,7 @@ def identity_file(directory: Path, name: str, suffix: str = ".json") -> Path:
 
 def init(directory: Path, *, robot: SecuredRobot, devices: Iterable[str] = (),
          hosts: Sequence[str] = (), force: bool = False,
-         days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+         days: int | None = None) -> SecureSetup:
     """Generate the certificate authority, identities and ACL of ``robot`` (a resolved robot
     file) into ``directory``; ``hosts``: the robot's host names and addresses (default
     :data:`DEFAULT_HOSTS`). An existing set-up is kept unless ``force`` (a new CA: every
@@ -502,7 +505,7 @@ def init(directory: Path, *, robot: SecuredRobot, devices: Iterable[str] = (),
 
 def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str,
                hosts: Sequence[str] = (), force: bool = False,
-               days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+               days: int | None = None) -> SecureSetup:
     """Generate a fleet's set-up (:func:`fleet_identities`, :func:`fleet_access_control`):
     one CA for its router, world, launcher and ``robots``; ``hosts``: the router's names."""
     return _make(directory, name, fleet_identities(robots), source=source, hosts=hosts,
@@ -511,7 +514,9 @@ def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str
 
 def _make(directory: Path, robot: str, identities: Sequence[Identity], *, source: str,
           hosts: Sequence[str], fleet: tuple[str, ...] = (), force: bool,
-          days: int) -> SecureSetup:
+          days: int | None) -> SecureSetup:
+    from ubf_async.net import pki  # (cryptography: imported where certificates are made)
+
     setup = SecureSetup(directory=directory, robot=robot,
                         identities={i.name: i for i in identities}, source=source,
                         hosts=tuple(pki.check_host(h) for h in hosts) or DEFAULT_HOSTS,
@@ -538,9 +543,13 @@ def _make(directory: Path, robot: str, identities: Sequence[Identity], *, source
     return setup
 
 
-def _issue(setup: SecureSetup, ca: pki.Issued, name: str, *, days: int) -> str:
-    """Write identity ``name``'s certificate, key and credentials (a new password); return
-    the password."""
+def _issue(setup: SecureSetup, ca: pki.Issued, name: str, *, days: int | None) -> str:
+    """Write identity ``name``'s certificate, key and credentials (a new password), valid for
+    ``days`` (``None``: :data:`~ubf_async.net.pki.IDENTITY_DAYS`); return the password."""
+    from ubf_async.net import pki
+
+    if days is None:
+        days = pki.IDENTITY_DAYS
     password = secrets.token_urlsafe(24)
     issued = pki.issue(ca, name, hosts=setup.hosts if name in LISTENERS else (), days=days)
     _write_secret(setup.identity_file(name, ".pem"), issued.cert_pem.decode())
@@ -552,6 +561,8 @@ def _issue(setup: SecureSetup, ca: pki.Issued, name: str, *, days: int) -> str:
 
 
 def _the_ca(setup: SecureSetup) -> pki.Issued:
+    from ubf_async.net import pki
+
     key = setup.directory / PRIVATE / CA_KEY
     if not key.is_file():
         raise ConfigurationError(
@@ -571,11 +582,13 @@ def _write_passwords(setup: SecureSetup, passwords: Mapping[str, str]) -> None:
 
 
 def rotate(directory: Path, name: str, *, hosts: Sequence[str] = (),
-           days: int = pki.IDENTITY_DAYS) -> SecureSetup:
+           days: int | None = None) -> SecureSetup:
     """Issue identity ``name`` a new key, certificate and password, leaving every other
     identity as it is; for a listener ``hosts`` replace the names its certificate carries.
     The robot reads its password dictionary when it starts: restart it. Raises
     :class:`ConfigurationError`."""
+    from ubf_async.net import pki
+
     setup = SecureSetup.load(directory)
     setup.identity(name)
     ca = _the_ca(setup)
@@ -641,6 +654,8 @@ def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:
 
 
 def _write_secret(path: Path, text: str) -> None:
+    from ubf_async.net import pki
+
     pki.write_private(path, text.encode())
 
 
@@ -684,6 +699,8 @@ def settings(*, directory: Path, identity: str | None, robot: str,
     password dictionary and the ACL; client mode for any other identity, which may not listen.
     Every endpoint must be ``tls/``. What :func:`apply` sets, and what a ROS 2 node's
     ``ZENOH_CONFIG_OVERRIDE`` carries (:func:`override`). Raises :class:`ConfigurationError`."""
+    from ubf_async.net import pki
+
     if not identity:
         raise ConfigurationError(f"--secure {directory} needs --identity NAME (the file names "
                                  f"in {directory / IDENTITIES})")

@@ -53,7 +53,6 @@ from ubf_async.cli.run import check_lockstep_loop, run_main
 from ubf_async.clocks.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
-from ubf_async.net.secure import SecureSetup
 from ubf_async.runs import wiring
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
@@ -382,6 +381,8 @@ def _print_session(robot: Robot, options: ConnectionOptions, out: TextIO) -> Non
     """Where the robot is on zenoh, and how other processes attach to it."""
     secure = ""
     if options.secure is not None:
+        from ubf_async.net.secure import SecureSetup  # (cryptography: only secure mode)
+
         setup = SecureSetup.load(options.secure)
         secure = f" --secure {options.secure} --identity NAME"
         print(f"ubf_async: secure mode: mutual TLS with the set-up in {options.secure} "
