@@ -33,7 +33,13 @@ from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.controller import Controller, TickMode
-from ubf_async.tools.replay import Recording, replay, wait_for_listeners
+from ubf_async.tools.replay import (
+    CONTROLLER,
+    Recording,
+    replay,
+    wait_for_controller,
+    wait_for_listeners,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -142,8 +148,9 @@ def test_the_replay_tool_feeds_a_launched_controller_over_zenoh(
          endpoint, "--quiet", "--record", str(tmp_path)], cwd=ROOT, env=ENV,
         stdout=subprocess.DEVNULL)
     try:
-        # Started with the robot, not after it: the replay waits for the robot and for its
-        # subscriptions before its first message, so none of the recording is lost.
+        # Started with the robot, not after it: the replay waits for the robot, for its
+        # subscriptions and for its controller to tick before its first message, so none of
+        # the recording is lost.
         result = subprocess.run(
             [sys.executable, "-m", "ubf_async.replay", str(path), "--speed", "2", "--connect",
              endpoint, "--wait-for-robot-s", "60"], cwd=ROOT, env=ENV, capture_output=True,
@@ -231,6 +238,28 @@ async def test_waiting_for_listeners_returns_when_they_are_there() -> None:
     started = asyncio.get_running_loop().time()
     assert await wait_for_listeners(player, keys, timeout_s=5, settle_s=5) == []
     assert asyncio.get_running_loop().time() - started < 1  # all there: no settling wait
+    await player.aclose()
+    await robot.aclose()
+
+
+@pytest.mark.asyncio
+async def test_waiting_for_the_controller_waits_for_its_status_if_it_has_one() -> None:
+    """A controller's ticks start where the clock stands when its loop starts: the replay's
+    clock waits for its first status (sent once its loop runs), and for no controller where
+    there is none."""
+    net = InProcessTransport()
+    player, robot = Bus(transport=net, robot="r"), Bus(transport=net, robot="r")
+    assert await wait_for_controller(player, timeout_s=5) is False  # devices alone: no wait
+    token = robot.declare_token(robot.keys.alive(CONTROLLER))
+    with pytest.raises(NoRobotError, match=r"'r'.s controller is alive but sent no status "
+                                           r"within 0\.05s"):
+        await wait_for_controller(player, timeout_s=0.05)
+    waiting = asyncio.create_task(wait_for_controller(player, timeout_s=5))
+    await asyncio.sleep(0.05)  # its chance to return before any status (it must not)
+    assert not waiting.done()
+    robot.raw_publisher(robot.keys.status(CONTROLLER)).put(b"status")
+    assert await waiting is True
+    token.undeclare()
     await player.aclose()
     await robot.aclose()
 

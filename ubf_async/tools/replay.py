@@ -28,7 +28,8 @@ Before the first message goes out the tool waits until the robot is there (it co
 ``tcp/127.0.0.1:7447``, where ``launch`` listens, unless given ``--connect`` or ``--listen``)
 **and** something subscribes to what it replays: zenoh delivers a sample only to the
 subscribers known when it is put, so a replay into nobody would publish into the void and
-report success. Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
+report success; and, if the robot has a controller, until it ticks (:func:`wait_for_controller`).
+Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
 
 In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
 the re-run's :class:`~ubf_async.clocks.clock.SimClock` and a ``settle`` (the in-process
@@ -68,10 +69,10 @@ if TYPE_CHECKING:
     from mcap.reader import McapReader
     from mcap.records import Channel
 
-__all__ = ["CLOCK_LOOKAHEAD", "CLOCK_LOOKAHEAD_NS", "CONTINUED", "CONTROLLER_INPUTS",
+__all__ = ["CLOCK_LOOKAHEAD", "CLOCK_LOOKAHEAD_NS", "CONTINUED", "CONTROLLER", "CONTROLLER_INPUTS",
            "PROBE_SCHEMA", "PROG", "SETTLE_S", "WARN_BEHIND_S", "Lag", "Recorded", "Recording",
            "ReplayStats", "Settle", "ThreadTimes", "build_parser", "main", "replay",
-           "wait_for_listeners"]
+           "wait_for_controller", "wait_for_listeners"]
 
 log = logging.getLogger(__name__)
 
@@ -568,6 +569,36 @@ async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
             probe.close()
 
 
+CONTROLLER = "controller"
+"""The component name of the robot's controller (launch's, a fleet's): :func:`wait_for_controller`
+waits for it."""
+
+
+async def wait_for_controller(bus: Bus, *, timeout_s: float) -> bool:
+    """Wait until the robot's controller, if it has one, is ticking: its periodic ticks start
+    where the clock stands when its loop starts, so a replay whose clock went out before
+    that (a controller still starting: its subscriptions are declared before its loop runs)
+    would re-run the recording from later on. Its first status says its loop runs: the
+    status comes one status period after the loop's task and its own were created, together.
+    Returns whether there was a controller to wait for (a robot of devices or behaviours
+    alone has none: nothing then to wait for). :class:`~ubf_async.errors.NoRobotError` when
+    its controller is alive but sends no status within ``timeout_s``."""
+    if not await bus.alive_tokens(bus.keys.alive(CONTROLLER), timeout_s=1.0):
+        return False
+    ticking = asyncio.Event()
+    status = bus.subscribe(bus.keys.status(CONTROLLER),
+                           lambda key, payload, received_ns: ticking.set())
+    try:
+        await asyncio.wait_for(ticking.wait(), timeout_s)
+    except TimeoutError:
+        raise NoRobotError(f"robot {bus.robot!r}'s {CONTROLLER} is alive but sent no status "
+                           f"within {timeout_s:g}s: it is not ticking, and a replay now would "
+                           f"lose its start") from None
+    finally:
+        status.close()
+    return True
+
+
 async def _main(args: argparse.Namespace) -> int:
     only = [k for k in args.only.split(",") if k.strip()]
     recording = await asyncio.to_thread(Recording, args.file, only=only, robot=args.robot)
@@ -581,6 +612,7 @@ async def _main(args: argparse.Namespace) -> int:
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
         unheard = await wait_for_listeners(bus, keys, timeout_s=args.wait_for_robot_s)
+        await wait_for_controller(bus, timeout_s=args.wait_for_robot_s)
         print(f"{PROG}: replaying {args.file} onto robot {recording.robot!r} "
               f"({'as fast as possible' if args.fast else f'{args.speed:g}x'}; "
               f"{', '.join(only)}: {len(keys)} keys"
