@@ -89,11 +89,16 @@ async def test_closing_undeclares_them_and_a_new_subscription_hears_every_key(
     key = f"ubf/{robot}/sensor/range/front"
     sub, got = listen(robot_bus, f"ubf/{robot}/sensor/*/*")
     await send(peer_bus, [key], 1, 1)
-    await eventually(lambda: declared_keys(sub) == {key}, what="the key declared")
+    await eventually(lambda: declared_keys(sub) == {key} and len(got) == 1,
+                     what="the key declared and its sample handled")
     declarer = sub._declaration._keys  # type: ignore[union-attr]
+    watch = peer_bus.raw_publisher(key)
     sub.close()
     assert declarer._declared == [] and declarer.full
+    # The peer must know the old subscription gone before it can tell the new one is there.
+    await watch.wait_for_subscribers(present=False)
     again, got_again = listen(robot_bus, f"ubf/{robot}/sensor/*/*")
+    watch.close()
     await send(peer_bus, [key], 2, 20)
     await eventually(lambda: len(got_again) == 19, what="19 samples after the undeclaration")
     assert per_key(got_again, key) == list(range(2, 21))
