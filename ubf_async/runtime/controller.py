@@ -113,10 +113,13 @@ from ubf_async.wire.topics import (
     TraceNode,
 )
 
-__all__ = ["MAX_COUNTED_NAMES", "MAX_EXPLANATION_CHARS", "REFLEX_SHARE", "Controller", "TickHook",
-           "TickMode", "TickStats", "outgoing_names", "trace_nodes"]
+__all__ = ["DEFAULT_NAME", "MAX_COUNTED_NAMES", "MAX_EXPLANATION_CHARS", "REFLEX_SHARE",
+           "Controller", "TickHook", "TickMode", "TickStats", "outgoing_names", "trace_nodes"]
 
 log = logging.getLogger(__name__)
+
+DEFAULT_NAME = "controller"
+"""A controller's component name unless given one (its status and liveliness keys carry it)."""
 
 TickHook = Callable[[State, Trace | None, Any], None]
 """``callback(state, trace, command)`` after a tick's drive command went out
@@ -284,7 +287,7 @@ class Controller(Component):
         lane: bool = True,
         status_period_s: float = 0.5,
         status_clock: Clock | None = None,
-        name: str = "controller",
+        name: str = DEFAULT_NAME,
         **component_options: float,
     ) -> None:
         """``lane``: run triggered ticks on the reflex lane on a wall-clock robot (module

@@ -63,6 +63,7 @@ from ubf_async.clocks.clock import SimClock
 from ubf_async.errors import ConfigurationError, NoRobotError
 from ubf_async.net.keyexpr import intersects
 from ubf_async.net.options import DEFAULT_LISTEN
+from ubf_async.runtime import controller
 from ubf_async.runtime.bus import Bus, RawPublisher
 
 if TYPE_CHECKING:
@@ -569,7 +570,7 @@ async def wait_for_listeners(bus: Bus, keys: Sequence[str], *, timeout_s: float,
             probe.close()
 
 
-CONTROLLER = "controller"
+CONTROLLER = controller.DEFAULT_NAME
 """The component name of the robot's controller (launch's, a fleet's): :func:`wait_for_controller`
 waits for it."""
 
