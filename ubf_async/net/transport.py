@@ -208,61 +208,12 @@ class Transport(Protocol):
 
 
 class _ZenohDeclaration:
-    def __init__(self, entity: Any, *, keys: _KeyDeclarer | None = None) -> None:
+    def __init__(self, entity: Any) -> None:
         self._entity = entity
-        self._keys = keys
 
     def undeclare(self) -> None:
         with contextlib.suppress(zenoh.ZError):  # already undeclared, or the session closed
             self._entity.undeclare()
-        if self._keys is not None:
-            self._keys.undeclare()
-
-
-MAX_DECLARED_KEYS = 64
-"""Concrete keys one wildcard subscription declares to its session (:class:`_KeyDeclarer`):
-a robot's sensors are a handful; the bound keeps a sender of many keys from growing it."""
-
-
-class _KeyDeclarer:
-    """Declares to a zenoh session each concrete key a wildcard subscriber of it receives
-    samples on — the first :data:`MAX_DECLARED_KEYS` of them — so that peers send the later
-    samples of that key under the session's own numeric id.
-
-    Why: zenoh delivers a sample sent under a key expression the receiving session declared
-    through that declaration's cached list of subscribers. One sent as a key string, which is
-    how a peer sends to a wildcard subscriber, is parsed and matched against every subscriber
-    of the session on each delivery: ≈ 60 µs per sample on the reflex path of a 2-core host
-    (docs/latency.md, "The reflex at the Python floor"). The subscriber's callback runs on its
-    own Python thread, so the declaration (a message to the peers) is not made on zenoh's."""
-
-    def __init__(self, session: zenoh.Session) -> None:
-        self._session = session
-        self.known: set[str] = set()
-        """Keys declared already (read without the lock: a miss only takes it)."""
-        self.full = False
-        self._declared: list[Any] = []
-        self._lock = threading.Lock()
-
-    def declare(self, key: str) -> None:
-        """Declare ``key`` (a key a sample arrived on), unless it was or the bound is met."""
-        with self._lock:
-            if key in self.known or self.full:
-                return
-            try:
-                self._declared.append(self._session.declare_keyexpr(key))
-            except zenoh.ZError:  # the session is closing: samples arrive as before
-                return
-            self.known.add(key)
-            self.full = len(self._declared) >= MAX_DECLARED_KEYS
-
-    def undeclare(self) -> None:
-        with self._lock:
-            declared, self._declared = self._declared, []
-            self.full = True  # (a sample still in flight declares nothing more)
-        for key_expr in declared:
-            with contextlib.suppress(zenoh.ZError):
-                self._session.undeclare(key_expr)
 
 
 class _ZenohPublisher:
@@ -434,21 +385,11 @@ class ZenohConnection:
         return out
 
     def declare_subscriber(self, key_expr: str, callback: SampleCallback) -> Declaration:
-        # A wildcard subscriber on its own thread declares the keys it hears (_KeyDeclarer);
-        # an ordered one runs on zenoh's threads, which must not declare from a callback.
-        keys = _KeyDeclarer(self.session) if "*" in key_expr and not self.ordered else None
-        if keys is None:
-            def on_sample(sample: zenoh.Sample) -> None:
-                callback(str(sample.key_expr), sample.payload.to_bytes())
-        else:
-            def on_sample(sample: zenoh.Sample) -> None:
-                key = str(sample.key_expr)
-                callback(key, sample.payload.to_bytes())
-                if key not in keys.known and not keys.full:  # (after: this sample waits not)
-                    keys.declare(key)
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(str(sample.key_expr), sample.payload.to_bytes())
 
         return _ZenohDeclaration(self.session.declare_subscriber(
-            key_expr, self._handler(on_sample), allowed_origin=zenoh.Locality.REMOTE), keys=keys)
+            key_expr, self._handler(on_sample), allowed_origin=zenoh.Locality.REMOTE))
 
     def declare_token(self, key: str) -> Declaration:
         return _ZenohDeclaration(self.session.liveliness().declare_token(key))
