@@ -255,7 +255,7 @@ async def test_waiting_for_the_controller_waits_for_its_status_if_it_has_one() -
                                            r"within 0\.05s"):
         await wait_for_controller(player, timeout_s=0.05)
     waiting = asyncio.create_task(wait_for_controller(player, timeout_s=5))
-    await asyncio.sleep(0.05)  # its chance to return before any status (it must not)
+    await net.settle()  # it has subscribed and waits: its chance to return (it must not)
     assert not waiting.done()
     robot.raw_publisher(robot.keys.status(CONTROLLER)).put(b"status")
     assert await waiting is True
