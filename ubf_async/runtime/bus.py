@@ -543,10 +543,7 @@ class Publisher(_Sending):
         stamp = bus.clock.now_ns() if stamp_ns is None else stamp_ns
         self.seq += 1
         payload = self._encoder.encode(data, stamp_ns=stamp, seq=self.seq)
-        # (the cache read inline: a call fewer on every drive command of the reflex path)
-        local = bus._local_by_key.get(self.key)
-        if local is None:
-            local = bus._local_subscriptions(self.key)
+        local = bus._local_subscriptions(self.key)
         if local:
             on_loop = threading.get_ident() == bus._loop_thread
             for sub in local:
