@@ -208,7 +208,8 @@ async def controller_role(cfg: dict[str, Any]) -> dict[str, Any]:
     options = ConnectionOptions(robot=cfg["robot"], listen=[cfg["endpoint"]])
     bus = await Bus.open(options)
     stop = _stdin_closed_event(asyncio.get_running_loop())
-    agg = StateAggregator(bus=bus)
+    # As launch does, the trigger is one of the robot's own sources (never evicted).
+    agg = StateAggregator(bus=bus, protected_sources=[s for s in (cfg.get("trigger"),) if s])
     ctl = build_controller(bus, agg, cfg)
     rec = Recorder(agg, ctl) if cfg.get("instrument", True) else None
     try:

@@ -55,6 +55,11 @@ class _Entry:
         self.undeclare()  # its callback runs on the loop: done with once undeclared
 
 
+class _NothingDeclared:
+    def undeclare(self) -> None:
+        pass
+
+
 @dataclass(eq=False)
 class _InProcessPublisher:
     connection: InProcessConnection
@@ -176,6 +181,10 @@ class InProcessConnection:
 
     def declare_subscriber(self, key_expr: str, callback: SampleCallback) -> Declaration:
         return self._declare("sub", key_expr, callback)
+
+    def declare_key(self, key: str) -> Declaration:
+        key_chunks(key)
+        return _NothingDeclared()  # every delivery here is one call on the loop already
 
     def declare_token(self, key: str) -> Declaration:
         return self._declare("token", key, None)

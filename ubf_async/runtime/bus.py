@@ -732,6 +732,13 @@ class Bus:
         return self.subscribe_screened(key_expr, TopicScreen(topic, on_message, malformed),
                                        latest=latest, max_queue=max_queue, direct=direct)
 
+    def declare_key(self, key: str) -> Declaration:
+        """Tell the network that samples on the concrete ``key``, heard by a subscription of
+        this bus, come often and want delivering fast (the reflex lane's sensors):
+        :meth:`Connection.declare_key <ubf_async.net.transport.Connection.declare_key>`.
+        ``undeclare()`` it once they no longer do."""
+        return self._connection.declare_key(key)
+
     def _subscribe(self, key_expr: str, sub: Subscription) -> Subscription:
         # Samples from this bus arrive through Publisher.publish instead (module docstring).
         sub._declaration = self._connection.declare_subscriber(key_expr,
