@@ -40,6 +40,17 @@ def test_help_explains_every_option(capfd: pytest.CaptureFixture[str],
         assert flag in out
 
 
+def test_launch_gives_numpy_one_blas_thread_unless_told_otherwise(
+        capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    # set before the devices import numpy, which starts OpenBLAS's threads then
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert launch_main(["--check"], capfd, monkeypatch).returncode == 0
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # the user's own choice
+    assert launch_main(["--check"], capfd, monkeypatch).returncode == 0
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
+
+
 def test_launch_without_sensors_runs_and_says_so(endpoint: str, robot: str) -> None:
     # (--devices motors: the one device left needs the simulator, so none runs here)
     proc = launch("--no-sim", "--devices", "motors", "--listen", endpoint, "--robot", robot,
