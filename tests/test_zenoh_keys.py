@@ -12,7 +12,6 @@ The aggregator declares the keys of the robot's own sources that take its reflex
 
 from __future__ import annotations
 
-import asyncio
 from typing import Any
 
 import pytest
@@ -37,8 +36,11 @@ def listen(bus: Bus, key_expr: str) -> tuple[Subscription, list[tuple[str, bytes
     return sub, got
 
 
+END = b"end"
+
+
 def per_key(got: list[tuple[str, bytes]], key: str) -> list[int]:
-    return [int(payload.split(b":")[0]) for k, payload in got if k == key]
+    return [int(payload.split(b":")[0]) for k, payload in got if k == key and payload != END]
 
 
 @pytest.mark.asyncio
@@ -64,22 +66,20 @@ async def test_every_sample_arrives_once_and_in_order_across_declaring_and_undec
 
     send(5)  # as key strings
     declared: list[Declaration] = [robot_bus.declare_key(key) for key in keys]
-    send(20)  # some still in flight as strings, the later ones under the session's ids
-    await asyncio.sleep(0)
-    send(20)
+    send(40)  # the first still in flight as strings, the later ones under the session's ids
     for declaration in declared:
         declaration.undeclare()  # with samples under the ids in flight
     send(20)
     for declaration in declared:
         declaration.undeclare()  # idempotent
+    for pub in pubs.values():
+        pub.put(END)  # each key's last: what came before it on its key has come
     for sub, got in subs:
-        await eventually(lambda got=got: len(got) >= 2 * sent,  # type: ignore[misc]
-                         what=f"{2 * sent} samples on {sub.name}")
-    await asyncio.sleep(0.05)  # (nothing more may come: a duplicate would show now)
-    for sub, got in subs:
-        assert len(got) == 2 * sent, sub.name
+        await eventually(lambda got=got: sum(p == END for _, p in got) == len(keys),
+                         what=f"the end of both keys on {sub.name}")
         for key in keys:
             assert per_key(got, key) == list(range(1, sent + 1)), (sub.name, key)
+            assert [p for k, p in got if k == key][-1] == END, (sub.name, key)
         assert sub.stats.dropped == sub.stats.coalesced == 0
     for pub in pubs.values():
         pub.undeclare()
