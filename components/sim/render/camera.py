@@ -745,8 +745,9 @@ def _auto_expose(
     lighting = snapshot.lighting
     if gain < 1.0:
         lighting = Lighting(brightness=lighting.brightness * gain, glare=lighting.glare)
-        # A per-channel scalar: OpenCV's stubs know only arrays here.
-        cv2.multiply(frame, (gain, gain, gain, 0.0), dst=frame)  # type: ignore[call-overload]
+        # A per-channel scalar, typed Any: OpenCV 4's stubs take only arrays here, 5's take it.
+        per_channel: Any = (gain, gain, gain, 0.0)
+        cv2.multiply(frame, per_channel, dst=frame)
     return gain, lighting
 
 
