@@ -817,12 +817,24 @@ def build_arbiter(spec: str | Mapping[str, Any], *, source: str = "<arbiter>",
 
 def robot_file_schema() -> dict[str, Any]:
     """The JSON Schema of robot files, generated from :class:`RobotFile`."""
-    schema: dict[str, Any] = msgspec.json.schema(RobotFile)
+    schema: dict[str, Any] = _clean_descriptions(msgspec.json.schema(RobotFile))
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "ubf_async robot file"
     schema["description"] = ("One robot: devices, controller and behaviour tree "
                              "(docs/robot-file.md).")
     return schema
+
+
+def _clean_descriptions(node: Any) -> Any:
+    """Every ``description`` in ``node`` as :func:`inspect.cleandoc` gives it: msgspec copies
+    a class's docstring raw up to 0.22 and dedents it from 0.23 (and Python 3.13 dedents
+    docstrings itself), so the schema is made the same whichever built it."""
+    if isinstance(node, dict):
+        return {key: inspect.cleandoc(value) if key == "description" and isinstance(value, str)
+                else _clean_descriptions(value) for key, value in node.items()}
+    if isinstance(node, list):
+        return [_clean_descriptions(value) for value in node]
+    return node
 
 
 def schema_text() -> str:
