@@ -47,10 +47,11 @@ IMPORTERS = {"import_module", "require", "__import__"}
 """Calls whose first argument, a literal, names a module they import."""
 
 
-def imported_modules(path: Path) -> set[str]:
-    """Every module ``path`` imports, absolute (relative imports resolved)."""
+def imported_modules(path: Path, root: Path = ROOT) -> set[str]:
+    """Every module ``path`` imports, absolute (relative imports resolved against its place
+    under ``root``)."""
     tree = ast.parse(path.read_text("utf-8"), filename=str(path))
-    package = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
+    package = ".".join(path.relative_to(root).with_suffix("").parts[:-1])
     found: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Call) and node.args:
@@ -131,16 +132,15 @@ def test_only_the_hardware_backends_import_the_hardware_libraries() -> None:
 
 
 def test_the_checker_sees_relative_and_nested_imports(tmp_path: Path) -> None:
-    module = ROOT / "components" / "camera" / "_probe_for_test.py"
-    source = ("def f():\n    from ..sim import world\n    import pymunk\n"
-              "    hardware.require('gpiozero.pins', who='x')\n"
-              "    importlib.import_module('smbus2')\n")
-    try:
-        module.write_text(source, "utf-8")
-        assert {"components.sim", "components.sim.world", "pymunk", "gpiozero.pins",
-                "smbus2"} <= imported_modules(module)
-    finally:
-        module.unlink()
+    # A module placed as if in the tree, under tmp_path: the source tree stays untouched
+    # (other workers scan it, and a checkout may be read-only).
+    module = tmp_path / "components" / "camera" / "_probe_for_test.py"
+    module.parent.mkdir(parents=True)
+    module.write_text("def f():\n    from ..sim import world\n    import pymunk\n"
+                      "    hardware.require('gpiozero.pins', who='x')\n"
+                      "    importlib.import_module('smbus2')\n", "utf-8")
+    assert {"components.sim", "components.sim.world", "pymunk", "gpiozero.pins",
+            "smbus2"} <= imported_modules(module, root=tmp_path)
 
 
 BLOCKER = """
