@@ -52,11 +52,10 @@ def keep_the_bytecode_of_spawned_processes(config: pytest.Config) -> None:
     (``PYTHONPYCACHEPREFIX``), outside the source tree, as the variable asks."""
     if not os.environ.get("PYTHONDONTWRITEBYTECODE") or "PYTHONPYCACHEPREFIX" in os.environ:
         return
-    cache = config.cache
-    prefix = cache.mkdir("pycache") if cache is not None else None
-    if prefix is not None:
-        os.environ["PYTHONPYCACHEPREFIX"] = str(prefix)
-        del os.environ["PYTHONDONTWRITEBYTECODE"]
+    if not config.pluginmanager.has_plugin("cacheprovider"):
+        return  # -p no:cacheprovider: no cache folder (config.cache is not there at all)
+    os.environ["PYTHONPYCACHEPREFIX"] = str(config.cache.mkdir("pycache"))
+    del os.environ["PYTHONDONTWRITEBYTECODE"]
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
