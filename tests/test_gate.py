@@ -1,0 +1,117 @@
+"""The gate itself: the lock CI installs from agrees with the declared ranges, and a hung test
+fails with its name and every thread's stack (README, "Upgrading dependencies")."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+from packaging.version import Version
+
+ROOT = Path(__file__).resolve().parent.parent
+LOCK = ROOT / "requirements" / "test.txt"
+PROJECT = "ubf-async"
+
+
+def locked_versions() -> dict[str, list[Version]]:
+    """Every pin of the lock by package (one per environment marker: numpy has two)."""
+    pins: dict[str, list[Version]] = {}
+    for line in LOCK.read_text("utf-8").splitlines():
+        match = re.match(r"^([A-Za-z0-9._-]+)==([^\s;]+)", line)
+        if match:
+            pins.setdefault(canonicalize_name(match[1]), []).append(Version(match[2]))
+    return pins
+
+
+def required_by_the_tests() -> list[Requirement]:
+    """What the test extra asks for, with every extra of the project it names, unfolded."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text("utf-8"))["project"]
+    extras = project["optional-dependencies"]
+    wanted, seen, todo = [Requirement(r) for r in project["dependencies"]], set(), ["test"]
+    while todo:
+        extra = todo.pop()
+        if extra in seen:
+            continue
+        seen.add(extra)
+        for text in extras[extra]:
+            requirement = Requirement(text)
+            if canonicalize_name(requirement.name) == PROJECT:
+                todo.extend(requirement.extras)
+            else:
+                wanted.append(requirement)
+    return wanted
+
+
+def test_the_lock_pins_every_requirement_within_its_declared_range() -> None:
+    pins = locked_versions()
+    assert pins, f"{LOCK} pins nothing"
+    wrong = []
+    for requirement in required_by_the_tests():
+        versions = pins.get(canonicalize_name(requirement.name))
+        if not versions:
+            wrong.append(f"{requirement}: not in the lock")
+        wrong += [f"{requirement}: locked at {version}" for version in versions or []
+                  if not requirement.specifier.contains(version, prereleases=True)]
+    assert not wrong, ("the lock is out of step with pyproject.toml (python .ci/deps.py lock):\n"
+                       + "\n".join(wrong))
+
+
+HANGS = '''
+import ctypes
+import threading
+import time
+
+
+def wait_for_ever(event):
+    event.wait()
+
+
+def test_passes():
+    pass
+
+
+def test_waits_in_python():
+    event = threading.Event()
+    threading.Thread(target=wait_for_ever, args=(event,), name="a-helper", daemon=True).start()
+    while True:
+        time.sleep(1)
+
+
+def test_waits_in_c_with_the_gil():
+    # A mutex locked twice by one thread, called with the GIL held (PyDLL): no Python runs
+    # again in this process, so only a dump from C can tell where it stopped.
+    libc = ctypes.PyDLL(None)
+    mutex = ctypes.create_string_buffer(64)
+    libc.pthread_mutex_init(mutex, None)
+    libc.pthread_mutex_lock(mutex)
+    libc.pthread_mutex_lock(mutex)
+'''
+
+
+@pytest.mark.slow
+def test_a_hung_test_fails_with_its_name_and_every_threads_stack(tmp_path: Path) -> None:
+    """The project's own configuration with its timeouts shortened: a test waiting in Python
+    fails at pytest-timeout's timeout with every thread's stack, and the run goes on; one
+    stuck in C with the GIL is dumped from C by faulthandler, and its worker ends, named."""
+    (tmp_path / "test_planted.py").write_text(HANGS, "utf-8")
+    run = subprocess.run(
+        [sys.executable, "-m", "pytest", "-c", str(ROOT / "pyproject.toml"),
+         "--rootdir", str(tmp_path), "-p", "no:cacheprovider", "-p", "no:randomly",
+         "--numprocesses=2", "--timeout=2", "-o", "faulthandler_timeout=4",
+         str(tmp_path / "test_planted.py")],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    out = run.stdout + run.stderr
+    assert run.returncode == 1, out
+    planted = r"test_planted\.py::test_waits_in_"
+    assert re.search(rf"FAILED .*{planted}python - Failed: Timeout", out), out
+    assert "Stack of a-helper" in out and "in wait_for_ever" in out, out
+    assert re.search(rf"FAILED .*{planted}c_with_the_gil - .*crashed", out), out
+    assert re.search(r'File ".*test_planted\.py", line \d+ in test_waits_in_c_with_the_gil',
+                     out), out
+    assert "1 passed" in out, out
