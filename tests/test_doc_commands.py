@@ -139,9 +139,21 @@ NOT_RUN = {
         "install the project's build dependencies without the network)",
     ". .venv/bin/activate": "the quick start's installation (see python3 -m venv)",
     "pip install -e .[all]": "the quick start's installation (see python3 -m venv)",
-    "pip install -e .[test]":
-        "the test command's installation of the test extra: .ci/run does it from a clean "
-        "clone (tests/test_docs.py checks that it installs the same)",
+    "pip install -r requirements/test.txt -e .[test]":
+        "the test command's installation of the lock and the test extra: .ci/run does it "
+        "from a clean clone (tests/test_docs.py checks that it installs the same)",
+    "python .ci/deps.py latest":
+        "a fresh venv of every newest release and the whole suite in it: a maintainer's "
+        "command (tests/test_gate.py checks the lock it is compared with)",
+    "python .ci/deps.py lock --upgrade":
+        "resolves the lock against the package index: a maintainer's command, which changes "
+        "requirements/test.txt",
+    "python .ci/deps.py lowest":
+        "a fresh venv of the ranges' lower bounds and the whole suite in it: a maintainer's "
+        "command",
+    "python .ci/deps.py lock": "resolves the lock against the package index (see lock "
+                               "--upgrade)",
+    "bash .ci/run": "CI itself, from a clean clone: the suite this test is part of",
     "python -m pytest": "the test suite this test is part of (.ci/run runs it)",
     "python -m pytest tests/test_latency.py": "part of the test suite this test is part of",
     "pip install -e .[hardware]":

@@ -328,17 +328,20 @@ def test_the_quick_start_installs_the_project_and_ci_what_the_test_command_insta
     test = next(c for c in commands if c[-3:] == ["python", "-m", "pytest"])
 
     def installs(words: list[str]) -> list[str]:
-        """What each `pip install -e X` of a command installs."""
-        return [words[i + 3] for i in range(len(words) - 3)
-                if words[i:i + 3] == ["pip", "install", "-e"]]
+        """What a `pip install` of a command installs: its -e and -r arguments (issue 47: the
+        tests install the lock, requirements/test.txt, with the project)."""
+        start = next(i for i in range(len(words)) if words[i:i + 2] == ["pip", "install"])
+        return [f"{words[i]} {words[i + 1]}" for i in range(start + 2, len(words) - 1)
+                if words[i] in ("-e", "-r")]
 
-    assert installs(quick_start) == [".[all]"]  # every feature the README shows (issue 39)
-    assert installs(test) == [".[test]"]
+    assert installs(quick_start) == ["-e .[all]"]  # every feature the README shows (issue 39)
+    locked = ["-r requirements/test.txt", "-e .[test]"]
+    assert installs(test) == locked
     ci = [tokens(line) for line in (ROOT / ".ci" / "run").read_text("utf-8").splitlines()
           if "pip install" in line and " -e " in line]
-    assert [installs([w for w in line if w not in ("--quiet", "python", "-m")])
-            for line in ci] == [[".[test]"]]
-    assert "python -m pytest" in (ROOT / ".ci" / "run").read_text("utf-8")
+    assert [installs(line) for line in ci] == [locked]
+    assert "python -m pytest" in (ROOT / ".ci" / "checks").read_text("utf-8")
+    assert ".ci/checks" in (ROOT / ".ci" / "run").read_text("utf-8")
 
 
 def test_transport_md_imports_the_classes_its_examples_use() -> None:
