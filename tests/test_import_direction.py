@@ -105,9 +105,22 @@ def test_devices_import_neither_the_simulator_nor_launch(where: tuple[str, str])
     assert offending(paths, "components.sim", "ubf_async.tools", "ubf_async.launch") == {}
 
 
+def python_files(*, skip: frozenset[str] = frozenset()) -> list[Path]:
+    """Every ``.py`` file of the checkout, not descending into hidden folders (``.git``,
+    ``.venv``, the maintainer's ``.venvs``), ``build``, any virtual environment (a folder with
+    a ``pyvenv.cfg``: one made anywhere in the tree holds thousands of modules) or ``skip``."""
+    found = []
+    for folder, folders, files in os.walk(ROOT):
+        folders[:] = sorted(
+            name for name in folders
+            if not name.startswith(".") and name not in {"build", "__pycache__", *skip}
+            and not (Path(folder) / name / "pyvenv.cfg").exists())
+        found += [Path(folder) / name for name in sorted(files) if name.endswith(".py")]
+    return found
+
+
 def test_only_the_simulator_imports_pymunk() -> None:
-    everywhere = [p for p in ROOT.rglob("*.py")
-                  if not {".venv", ".git", "build"} & set(p.relative_to(ROOT).parts)]
+    everywhere = python_files()
     simulator = ROOT / "components" / "sim"
     outside = [p for p in everywhere if simulator not in p.parents]
     assert offending(outside, "pymunk") == {}
@@ -117,8 +130,7 @@ def test_only_the_simulator_imports_pymunk() -> None:
 def project_sources() -> list[Path]:
     """Every module of the project but its tests (which use the libraries' own test
     facilities, gpiozero's mock pins among them)."""
-    skip = {".venv", ".git", "build", "tests"}
-    return [p for p in ROOT.rglob("*.py") if not skip & set(p.relative_to(ROOT).parts)]
+    return python_files(skip=frozenset({"tests"}))
 
 
 def test_only_the_hardware_backends_import_the_hardware_libraries() -> None:
