@@ -102,7 +102,12 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
     other tools attach to as well: tools of the same names may have come and gone before."""
     tools: list[Process] = []
     radio: subprocess.Popen[str] | None = None
-    bus = await Bus.open(ConnectionOptions(connect=[endpoint]))
+    # The robot's client, not a peer: a tool's votes and samples reach this session through
+    # the robot, as the robot takes them. A peer hears another peer only once the two link
+    # directly, which gossip brings about some time after the tool has joined the robot:
+    # under CPU load, after the robot had taken the tool's first samples (then none had come
+    # here, or the first came late).
+    bus = await Bus.open(ConnectionOptions(mode="client", connect=[endpoint]))
     try:
         seen = Watcher(bus)
         drives = seen.watch(bus.keys.cmd("drive"))
@@ -137,6 +142,10 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
 
         await eventually(lambda: avoid_counts() is not None, timeout_s=60,
                          what="the robot to take avoid_obstacles' votes")
+        # (the robot forwards each vote as it takes it in, before its status says so; the two
+        # keys' samples reach this bus's loop on threads of their own)
+        await eventually(lambda: seen.first(votes, started) is not None, timeout_s=60,
+                         what="avoid_obstacles' first vote through the robot")
         first_vote = seen.first(votes, started)
         assert first_vote is not None and first_vote - started <= TAKES_S, avoid.output()
         assert abs(avoid_counts()["age_s"]) <= avoid_counts()["ttl_s"]  # type: ignore[index]
@@ -158,6 +167,8 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
 
         await eventually(lambda: taken("range/left"), timeout_s=60,
                          what="the robot to take range/left")
+        await eventually(lambda: seen.first(ranges, started) is not None, timeout_s=60,
+                         what="the range finder's first sample through the robot")
         first_range = seen.first(ranges, started)
         assert first_range is not None and first_range - started <= TAKES_S, ranger.output()
         left = source("range/left")
@@ -178,6 +189,8 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
         radio.stdin.flush()
         await eventually(lambda: source("radio/ext") is not None, timeout_s=60,
                          what="the robot to take radio/ext")
+        await eventually(lambda: seen.first(messages, started) is not None, timeout_s=60,
+                         what="the radio's message through the robot")
         first_message = seen.first(messages, started)
         assert first_message is not None and first_message - started <= TAKES_S
         assert source("radio/ext")["refused"] == 0  # type: ignore[index]
@@ -280,10 +293,13 @@ async def test_a_tool_whose_votes_or_samples_are_refused_says_so_at_once(
         simulator.start()
         seen = Watcher(bus)
         notices = seen.watch(f"{bus.keys.prefix}/refused/**")
-        started = time.monotonic()
         teleop = Process(str(ROOT / "examples" / "teleop_override.py"), "--connect", endpoint,
                          "--robot", robot, "--clock", "wall", "--speed", "30")
         vote_key = f"ubf/{robot}/vote/seek_pink_ball/teleop"
+        # Timed from its clock line, which it prints as it starts voting: not from its launch,
+        # whose interpreter start alone can take seconds on a busy machine.
+        await asyncio.to_thread(teleop.wait_for_line, "clock:", timeout_s=60)
+        started = time.monotonic()
         said = await asyncio.to_thread(teleop.wait_for_line, "REFUSES", timeout_s=60)
         assert time.monotonic() - started <= TAKES_S + 2.0, teleop.output()
         assert f"REFUSES the votes on {vote_key}" in said and "(1 so far, future)" in said
