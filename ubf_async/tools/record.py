@@ -152,6 +152,10 @@ def require_recording(*, live_channels: bool = True, who: str) -> None:
         extras.require("record", "foxglove", who=who)
 
 
+_WAKE: tuple[str, bytes, int] = ("", b"", 0)
+"""Queued (by identity) to wake the writer thread at once when the file must be finished now."""
+
+
 class McapRecorder(EveryMessageComponent):
     """Records every message on the robot's keys to MCAP (module docstring).
 
@@ -215,6 +219,8 @@ class McapRecorder(EveryMessageComponent):
         """For :func:`ubf_async.cli.ending.exit_now` (another thread): finish the file at once."""
         self._abandon.set()
         self._stop.set()
+        with contextlib.suppress(queue.Full):  # full: the writer is not waiting for one
+            self._queue.put_nowait(_WAKE)  # now, not at the end of its wait for a message
         thread = self._thread
         if thread is not None:
             thread.join(timeout_s)
@@ -260,10 +266,13 @@ class McapRecorder(EveryMessageComponent):
                     item = self._queue.get(timeout=self.flush_s / 4)
                 except queue.Empty:
                     item = None
+                if item is _WAKE:
+                    item = None
                 if item is not None:
                     file.write(*item)
                     self.stats.written += 1
-                if time.monotonic() - last_flush >= self.flush_s:
+                if (time.monotonic() - last_flush >= self.flush_s
+                        and not self._abandon.is_set()):  # finishing now: finish() syncs
                     file.flush()
                     last_flush = time.monotonic()
                     if self.split_bytes is not None and file.size() >= self.split_bytes:
@@ -382,7 +391,11 @@ class _File:
             return
         self.finished = True
         try:
-            self.writer.finish()
+            self.writer.finish()  # leaves its last bytes (the footer's magic) in our buffer
+            # Handed to the kernel before the fsync, not after it: a process that exits at once
+            # (a second signal: exit_now's budget) while fsync waits on a busy disk still
+            # leaves a finished file; and the fsync then covers the whole of it.
+            self.stream.flush()
             os.fsync(self.stream.fileno())
         finally:
             self.stream.close()
