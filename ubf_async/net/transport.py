@@ -507,9 +507,27 @@ class ZenohConnection:
                                          end)
 
     async def aclose(self) -> None:
+        """Close the session; returns once it is closed and every callback is done with — also
+        when cancelled meanwhile (a stop signal during a program's end, a bounded step left
+        behind), which is raised then. A close cut short would go on in a worker thread that
+        the process does not wait for, and a thread still in zenoh while the interpreter
+        finalizes aborts the process ("FATAL: exception not rethrown"). Its time is bounded by
+        zenoh's close and :data:`CALLBACK_END_WAIT_S`."""
         if self.connect_watch is not None:
             self.connect_watch.cancel()
-        await asyncio.to_thread(self._close)
+        # A future, not a task: no cancellation (asyncio.Runner's of every task included)
+        # can end it while its thread is still closing.
+        closing = asyncio.get_running_loop().run_in_executor(None, self._close)
+        cancelled = False
+        while not closing.done():
+            try:
+                await asyncio.wait({closing})
+            except asyncio.CancelledError:
+                cancelled = True
+        if cancelled:
+            closing.exception()  # (retrieved: the cancellation is what is raised)
+            raise asyncio.CancelledError
+        closing.result()
 
     def _close(self) -> None:
         # Listeners first, as the bus undeclares its own first: the session's closing changes
