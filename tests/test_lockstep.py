@@ -465,13 +465,23 @@ def test_motors_elsewhere_do_not_stop_while_the_simulator_waits_on_purpose(
          "--lockstep-participants", "1"],
         cwd=REPOSITORY, env={**repository_env(), RENDER_DELAY_ENV: "0.7"},
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # The motors attach once the robot's components run (it says so with its controller's
+    # line; simulated time waits for the motors): started together, a busy machine may take
+    # longer to start the robot than the motors wait for one to answer.
+    started = []
+    assert robot.stdout is not None
+    for line in robot.stdout:
+        started.append(line)
+        if line.startswith("  controller:"):
+            break
     motors = subprocess.Popen(
         [sys.executable, "-m", "components.motors", "--connect", endpoint, "--robot", "held",
          "--lockstep"],
         cwd=REPOSITORY, env=repository_env(), stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT, text=True)
     try:
-        output, _ = robot.communicate(timeout=300)
+        rest, _ = robot.communicate(timeout=300)
+        output = "".join(started) + rest
         assert robot.returncode == 0, output
         summary = json.loads((folder / "summary.json").read_text())
         assert summary["camera_frames"] >= 9  # 1 s simulated: ≥ 6 s of held time

@@ -135,7 +135,8 @@ class SimClock:
     Whether the time source is alive (:meth:`stalled_s`): a simulator of this process
     declares itself with :meth:`driven` for as long as it runs; a follower hears it through
     its samples, which the simulator keeps sending while it waits on purpose
-    (:meth:`advance_to` with the same time counts).
+    (:meth:`advance_to` with the same time counts); a lockstep participant knows it from
+    the simulator's session itself (:meth:`source_alive_while`).
     """
 
     is_simulated = True
@@ -145,6 +146,7 @@ class SimClock:
         self.resets = 0
         self._heard_wall_ns = time.monotonic_ns()
         self._drivers = 0
+        self._alive_while: list[Callable[[], bool]] = []
         self._sleepers: list[tuple[int, int, asyncio.Future[None]]] = []
         self._order = itertools.count()
         self._holds: list[SimHold] = []
@@ -196,16 +198,34 @@ class SimClock:
             self._drivers -= 1
             self._heard_wall_ns = time.monotonic_ns()
 
+    @contextlib.contextmanager
+    def source_alive_while(self, alive: Callable[[], bool]) -> Iterator[None]:
+        """Declare, for the block's duration, that the simulator this clock follows is alive
+        whenever ``alive()`` says so — not judged by the wall time between its samples: a
+        lockstep participant's simulator cannot move time without it, and its barrier's
+        subscription to the participant's acknowledgements is there exactly as long as the
+        simulator's session is (:class:`ubf_async.runtime.timekeepers.LockstepParticipant`).
+        On a busy machine a simulator waiting on purpose may go unheard for longer than any
+        wall-time limit; that must not decide what happens in simulated time. Once
+        ``alive()`` says no (the simulator ended, died or was cut off), the silence counts
+        from its last sample."""
+        self._alive_while.append(alive)
+        try:
+            yield
+        finally:
+            self._alive_while.remove(alive)
+
     def describe(self, robot: str) -> str:
         return f"simulated time (ubf/{robot}/clock)"
 
     def stalled_s(self, wall_now_ns: int | None = None) -> float:
         """Wall seconds since the time source was last heard from: 0 while a simulator of
-        this process drives the clock (:meth:`driven`) or a hold of this process keeps it
-        still on purpose; otherwise since the last :meth:`advance_to` — a followed simulator
-        sends its time every step, and again while it waits, so only a dead or cut-off
-        simulator is silent."""
-        if self._drivers or self._holds:
+        this process drives the clock (:meth:`driven`), a hold of this process keeps it
+        still on purpose, or the followed simulator is known to be alive
+        (:meth:`source_alive_while`); otherwise since the last :meth:`advance_to` — a
+        followed simulator sends its time every step, and again while it waits, so only a
+        dead or cut-off simulator is silent."""
+        if self._drivers or self._holds or any(alive() for alive in self._alive_while):
             return 0.0
         now = time.monotonic_ns() if wall_now_ns is None else wall_now_ns
         return max(0.0, (now - self._heard_wall_ns) / 1e9)
@@ -297,7 +317,9 @@ class SilenceLimit:
     (:meth:`SimClock.driven`), and one in another process keeps sending its time while it
     waits. So a live simulator is judged in simulated time only, however slowly it runs.
     ``min_silence_s`` keeps a follower in another process from taking a busy simulator's
-    pause for its death.
+    pause for its death; a lockstep participant does not judge by the pauses at all while
+    the simulator's session is there (:meth:`SimClock.source_alive_while`): what it does
+    then is part of a run that must not depend on wall time.
     """
 
     limit_s: float

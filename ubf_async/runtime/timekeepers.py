@@ -71,14 +71,21 @@ class LockstepParticipant(Component):
         publisher = self.publisher(LOCKSTEP_ACK, self.participant)
         token = self.bus.declare_token(self.key)
         try:
-            await clock.started.wait()
-            while True:
-                # The time whose work the idle loop proves done. A later sample that
-                # arrives meanwhile is acknowledged on the next round, once its own work is.
-                now = clock.now_ns()
-                await idle()
-                publisher.publish({}, stamp_ns=now)
-                self.acks += 1
-                await clock.sleep_until_ns(now + 1)
+            # The simulator's barrier subscribes to these acknowledgements for as long as its
+            # session lives (zenoh's matching status): while it does, the simulator is alive
+            # and simulated time waits for this process, so the clock's silence — however long
+            # a busy machine keeps its samples from arriving — is no reason for a safety limit
+            # of this process (SilenceLimit) to act in wall time and change the run.
+            with clock.source_alive_while(publisher.has_subscribers):
+                await clock.started.wait()
+                while True:
+                    # The time whose work the idle loop proves done. A later sample that
+                    # arrives meanwhile is acknowledged on the next round, once its own work
+                    # is.
+                    now = clock.now_ns()
+                    await idle()
+                    publisher.publish({}, stamp_ns=now)
+                    self.acks += 1
+                    await clock.sleep_until_ns(now + 1)
         finally:
             token.undeclare()

@@ -219,8 +219,9 @@ class SimulatorComponent(Component):
             self.clock.advance_to(round(self.world.time_s * 1e9))
             # Components of this process that are still getting ready (the camera building
             # its renderer's caches) hold the start: time starts, and is measured, once they
-            # are done.
-            await self._barrier(served, self.clock.now_ns() + 1)
+            # are done. Meanwhile the world goes out with the clock, so that sim-backed
+            # devices elsewhere can attach (and join the lockstep) however long that takes.
+            await self._barrier(served, self.clock.now_ns() + 1, starting=True)
             if self.lockstep_participants:
                 await self._wait_for_participants(served)
             self.wall_started_s = time.monotonic()
@@ -332,7 +333,8 @@ class SimulatorComponent(Component):
         robot.clock.publish({"real_time_factor": rtf or 0.0, "epoch": self.epoch,
                              "zid": robot.zid}, stamp_ns=self.clock.now_ns())
 
-    async def _barrier(self, served: list[_Served], next_ns: int) -> bool:
+    async def _barrier(self, served: list[_Served], next_ns: int, *,
+                       starting: bool = False) -> bool:
         """The lockstep barrier before the step to ``next_ns``; return whether a hold made it
         wait. In order:
 
@@ -341,7 +343,8 @@ class SimulatorComponent(Component):
            hold forbids ``next_ns`` (a camera render, a frame being written, a device
            getting ready) — while a hold keeps it waiting, the clock sample is sent again
            every :data:`~ubf_async.clocks.lockstep.RESEND_S` of wall time, so followers in other
-           processes know the simulator is alive (:class:`~ubf_async.clocks.clock.SilenceLimit`);
+           processes know the simulator is alive (:class:`~ubf_async.clocks.clock.SilenceLimit`)
+           — and, ``starting``, the world with it (:meth:`_announce`);
         2. the clock sample of this instant goes out to the processes that follow it — after
            the samples of this instant, which zenoh delivers first;
         3. every lockstep participant of another process has acknowledged this instant
@@ -356,8 +359,10 @@ class SimulatorComponent(Component):
             if held is None or held >= next_ns:
                 break
             waited = True
-            await lockstep.wait_resending(self.clock.wait_for_holds(next_ns),
-                                          lambda: self._publish_clocks(served))
+            await lockstep.wait_resending(
+                self.clock.wait_for_holds(next_ns),
+                (lambda: self._announce(served)) if starting
+                else (lambda: self._publish_clocks(served)))
         self._publish_clocks(served)
         if self._lockstep.has_participants():
             await self._lockstep.wait(self.clock.now_ns(),
@@ -383,11 +388,17 @@ class SimulatorComponent(Component):
             barrier.changed.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(barrier.changed.wait(), lockstep.RESEND_S)
-            self._publish_clocks(served, force=True)
-            for robot in served:  # sim-backed devices elsewhere attach once they see it
-                if robot.world.has_subscribers():
-                    self._publish_world(robot)
+            self._announce(served, force=True)
         await self._barrier(served, self.clock.now_ns() + 1)
+
+    def _announce(self, served: list[_Served], *, force: bool = False) -> None:
+        """Before time starts: the clock sample of now (:meth:`_publish_clocks`) and the
+        world, to each robot whose world someone elsewhere waits for — sim-backed devices
+        in other processes attach once they see it."""
+        self._publish_clocks(served, force=force)
+        for robot in served:
+            if robot.world.has_subscribers():
+                self._publish_world(robot)
 
     def _publish_clocks(self, served: list[_Served], *, force: bool = False) -> None:
         """The clock sample of now, to each robot's followers and participants (to each
