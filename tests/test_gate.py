@@ -3,6 +3,7 @@ fails with its name and every thread's stack (README, "Upgrading dependencies").
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -67,6 +68,8 @@ import ctypes
 import threading
 import time
 
+import pytest
+
 
 def wait_for_ever(event):
     event.wait()
@@ -81,6 +84,17 @@ def test_waits_in_python():
     threading.Thread(target=wait_for_ever, args=(event,), name="a-helper", daemon=True).start()
     while True:
         time.sleep(1)
+
+
+@pytest.fixture
+def hangs_when_torn_down():
+    yield
+    while True:
+        time.sleep(1)
+
+
+def test_fails_then_hangs_in_its_teardown(hangs_when_torn_down):
+    raise AssertionError("failed first")
 
 
 def test_waits_in_c_with_the_gil():
@@ -98,14 +112,18 @@ def test_waits_in_c_with_the_gil():
 def test_a_hung_test_fails_with_its_name_and_every_threads_stack(tmp_path: Path) -> None:
     """The project's own configuration with its timeouts shortened: a test waiting in Python
     fails at pytest-timeout's timeout with every thread's stack, and the run goes on; one
-    stuck in C with the GIL is dumped from C by faulthandler, and its worker ends, named."""
+    stuck in C with the GIL, or hanging in its teardown after it failed (when pytest-timeout
+    and faulthandler stop watching: tests/hang_guard.py), is dumped by faulthandler, and its
+    worker ends, named."""
     (tmp_path / "test_planted.py").write_text(HANGS, "utf-8")
     run = subprocess.run(
         [sys.executable, "-m", "pytest", "-c", str(ROOT / "pyproject.toml"),
          "--rootdir", str(tmp_path), "-p", "no:cacheprovider", "-p", "no:randomly",
          "--numprocesses=2", "--timeout=2", "-o", "faulthandler_timeout=4",
          str(tmp_path / "test_planted.py")],
-        cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT),  # tests.hang_guard
+                               "COLUMNS": "300"},  # the summary's lines whole
+        capture_output=True, text=True, timeout=120)
     out = run.stdout + run.stderr
     assert run.returncode == 1, out
     planted = r"test_planted\.py::test_waits_in_"
@@ -114,4 +132,9 @@ def test_a_hung_test_fails_with_its_name_and_every_threads_stack(tmp_path: Path)
     assert re.search(rf"FAILED .*{planted}c_with_the_gil - .*crashed", out), out
     assert re.search(r'File ".*test_planted\.py", line \d+ in test_waits_in_c_with_the_gil',
                      out), out
+    assert re.search(r"FAILED .*test_planted\.py::test_fails_then_hangs_in_its_teardown - "
+                     r"AssertionError: failed first", out), out
+    assert re.search(r"FAILED .*test_planted\.py::test_fails_then_hangs_in_its_teardown - "
+                     r".*crashed", out), out
+    assert re.search(r'File ".*test_planted\.py", line \d+ in hangs_when_torn_down', out), out
     assert "1 passed" in out, out
