@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import bisect
 import datetime
 import importlib.metadata
 import itertools
@@ -395,9 +396,30 @@ def measure_periodic_ages(rate_hz: float, *, warmup: int, count: int,
     rows = sensed["rows"]
     used = [r for r in rows if r[2] is not None]
     clock_ticks = [t for t in served["ticks"] if not t[8]]
+    # The controller's side (its own clock, one process): when each sample was stored, and
+    # when the clock ticks started (each reads the newest sample stored before it started).
+    stored = {s[1]: s[5] for s in served["samples"] if s[0] == "range/front"}
+    starts = sorted(t[0] for t in clock_ticks)
+    waits, missed = [], 0
+    for seq, _, *command in rows:
+        if seq not in stored:
+            continue
+        at = stored[seq]
+        first = bisect.bisect_right(starts, at)
+        if first == len(starts):
+            continue
+        superseded = stored.get(seq + 1)
+        if superseded is not None and starts[first] > superseded:
+            continue  # a newer sample came before any tick: nothing could command this one
+        if command[0] is None:
+            missed += 1  # newest when a tick started, yet no command was based on it
+        else:
+            waits.append(starts[first] - at)
     return {
         "rate_hz": rate_hz, "samples": len(rows), "commanded": len(used),
         "never_commanded": len(rows) - len(used),
+        "missed_while_newest": missed,
+        "wait_for_tick": summarize(waits),
         "age_at_publish": summarize(r[2] - r[1] for r in used),
         "age_at_publish_ns": [r[2] - r[1] for r in used],
         "age_at_receipt": summarize(r[3] - r[1] for r in used),
@@ -1014,6 +1036,9 @@ def report(res: dict[str, Any]) -> str:
         add(row(f"{hz} Hz tick (half period {500 / hz:.0f} ms)", p["age_at_publish"],
                 f"never commanded {p['never_commanded']}/{p['samples']}"))
         add(row("  … when the sensor receives it", p["age_at_receipt"]))
+        if "wait_for_tick" in p:
+            add(row("  stored → the tick that reads it", p["wait_for_tick"],
+                    f"missed while newest {p['missed_while_newest']}"))
         add(row("  tick jitter |Δ−T|, wall, no sim", p["tick_jitter_wall"],
                 f"overruns {p['overruns']}"))
     for hz in (50, 100):

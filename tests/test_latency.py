@@ -128,18 +128,21 @@ def test_each_event_loop_is_measured_in_the_same_rounds_against_the_plain_loop(
     assert "ratios to asyncio's plain loop" in text and "×median" in text
 
 
-def test_periodic_age_follows_the_tick_period() -> None:
+def test_a_periodic_tick_commands_the_sample_that_is_newest_when_it_starts() -> None:
     slow = measure_periodic_ages(50, warmup=5, count=60)
     fast = measure_periodic_ages(100, warmup=5, count=60)
     for p in (slow, fast):
-        # Samples come slower than the tick, so each is picked up by a command — unless the
-        # controller is starved for longer than the gap to the next sample (a loaded host),
-        # which may make it skip a few.
-        assert p["never_commanded"] <= 0.1 * p["samples"], p["never_commanded"]
+        # Measured where it happens, on the controller's clock: a sample still the newest
+        # when a clock tick starts is what that tick's command is based on. (On a loaded
+        # host a starved controller or sensor lets a newer sample supersede one before any
+        # tick: that one is never commanded, rightly; its end-to-end age says nothing.)
+        assert p["missed_while_newest"] == 0, p["missed_while_newest"]
+        assert p["wait_for_tick"]["n"] > 0 and p["wait_for_tick"]["min_us"] >= 0
         assert p["age_at_publish"]["min_us"] >= 0
-    # A sample waits for the next tick: on average half a period, so doubling the rate
-    # must shorten the median age.
-    assert slow["age_at_publish"]["median_us"] > fast["age_at_publish"]["median_us"]
+    # How long a sample waits (half a period on average on an idle host, so shorter at 100
+    # Hz than at 50) is a figure, not a relation: a starved controller stores a sample and
+    # runs its overdue tick in the same wake-up, whatever the period. `python -m
+    # bench.latency` reports it (wait_for_tick).
 
 
 def test_tick_schedule_holds_in_sim_time_with_the_full_simulated_robot() -> None:
