@@ -252,9 +252,9 @@ def test_instants_passed_without_a_round_of_the_loop_change_nothing(
     rounds = {"barriers": 0, "steps": 0}
     barrier, step = SimulatorComponent._barrier, SimulatorComponent._step
 
-    async def counted_barrier(self: SimulatorComponent, *args: Any) -> bool:
+    async def counted_barrier(self: SimulatorComponent, *args: Any, **kwargs: Any) -> bool:
         rounds["barriers"] += 1
-        return await barrier(self, *args)
+        return await barrier(self, *args, **kwargs)
 
     def counted_step(self: SimulatorComponent, *args: Any) -> bool:
         rounds["steps"] += 1
