@@ -49,21 +49,22 @@ def normalise(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
-def pins(text: str) -> dict[str, str]:
-    """``name -> version`` of a requirements file (versions joined where markers split them)."""
+def pins(text: str) -> dict[str, list[str]]:
+    """``name -> versions`` of a requirements file (one per environment marker: the lock
+    pins numpy twice)."""
     found: dict[str, list[str]] = {}
     for line in text.splitlines():
         match = re.match(r"^([A-Za-z0-9._-]+)==([^\s;]+)", line)
         if match:
             found.setdefault(normalise(match[1]), []).append(match[2])
-    return {name: " / ".join(versions) for name, versions in found.items()}
+    return found
 
 
-def moved(before: dict[str, str], after: dict[str, str]) -> list[str]:
+def moved(before: dict[str, list[str]], after: dict[str, list[str]]) -> list[str]:
     """One line per package added, removed or moved, sorted by name."""
     lines = []
     for name in sorted(before.keys() | after.keys()):
-        old, new = before.get(name), after.get(name)
+        old, new = " / ".join(before.get(name, [])), " / ".join(after.get(name, []))
         if old != new:
             lines.append(f"  {name}: {old or '(new)'} -> {new or '(gone)'}")
     return lines
@@ -174,7 +175,7 @@ def lowest() -> int:
     names = {normalise(re.split(r"[\s\[<>=!~;]", text.strip(), maxsplit=1)[0])
              for text in project["optional-dependencies"]["test"]} - {PROJECT}
     locked = pins(LOCK.read_text("utf-8"))
-    tools = [f"{name}=={locked[name]}" for name in sorted(names)]
+    tools = [f"{name}=={locked[name][0]}" for name in sorted(names)]
     with tempfile.TemporaryDirectory() as scratch:
         constraints, resolved = Path(scratch) / "tools.txt", Path(scratch) / "lowest.txt"
         constraints.write_text("\n".join(tools) + "\n", "utf-8")

@@ -3,57 +3,36 @@ fails with its name and every thread's stack (README, "Upgrading dependencies").
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import subprocess
 import sys
-import tomllib
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
-from packaging.version import Version
 
 ROOT = Path(__file__).resolve().parent.parent
-LOCK = ROOT / "requirements" / "test.txt"
-PROJECT = "ubf-async"
 
 
-def locked_versions() -> dict[str, list[Version]]:
-    """Every pin of the lock by package (one per environment marker: numpy has two)."""
-    pins: dict[str, list[Version]] = {}
-    for line in LOCK.read_text("utf-8").splitlines():
-        match = re.match(r"^([A-Za-z0-9._-]+)==([^\s;]+)", line)
-        if match:
-            pins.setdefault(canonicalize_name(match[1]), []).append(Version(match[2]))
-    return pins
-
-
-def required_by_the_tests() -> list[Requirement]:
-    """What the test extra asks for, with every extra of the project it names, unfolded."""
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text("utf-8"))["project"]
-    extras = project["optional-dependencies"]
-    wanted, seen, todo = [Requirement(r) for r in project["dependencies"]], set(), ["test"]
-    while todo:
-        extra = todo.pop()
-        if extra in seen:
-            continue
-        seen.add(extra)
-        for text in extras[extra]:
-            requirement = Requirement(text)
-            if canonicalize_name(requirement.name) == PROJECT:
-                todo.extend(requirement.extras)
-            else:
-                wanted.append(requirement)
-    return wanted
+def maintainer_tool() -> ModuleType:
+    """.ci/deps.py, the lock's own reader (not a package: loaded from its path)."""
+    spec = importlib.util.spec_from_file_location("deps", ROOT / ".ci" / "deps.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def test_the_lock_pins_every_requirement_within_its_declared_range() -> None:
-    pins = locked_versions()
-    assert pins, f"{LOCK} pins nothing"
+    deps = maintainer_tool()
+    pins = deps.pins(deps.LOCK.read_text("utf-8"))
+    assert pins, f"{deps.LOCK} pins nothing"
     wrong = []
-    for requirement in required_by_the_tests():
+    for requirement in map(Requirement, deps.project_requirements()):
         versions = pins.get(canonicalize_name(requirement.name))
         if not versions:
             wrong.append(f"{requirement}: not in the lock")
