@@ -25,7 +25,7 @@ from components.sim.world.config import Arena, WorldConfig
 from tests.conftest import SimRobot, eventually, free_port, read_until, spawn, stop, zenoh_session
 from ubf_async.clocks import clock as clock_module
 from ubf_async.clocks import follow
-from ubf_async.clocks.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every
+from ubf_async.clocks.clock import MIN_SILENCE_S, SilenceLimit, SimClock, every, sleep_until
 from ubf_async.clocks.simclock import follow_sim_clock
 from ubf_async.clocks.timesource import ClockAction, ClockFollower
 from ubf_async.runtime.bus import Bus
@@ -164,6 +164,53 @@ async def test_a_reset_wakes_sleepers_and_reanchors_every() -> None:
     await eventually(lambda: len(ticks) == 3)
     assert ticks[2] == 3 * S + 100_000_000
     task.cancel()
+
+
+@pytest.mark.asyncio
+async def test_a_sleep_cancelled_as_its_robot_time_comes_is_cancelled() -> None:
+    """A watchdog's sleep (robot time or wall time, whichever comes first) cancelled in the
+    instants after its robot time came, before it resumed, ends cancelled: Python 3.11's
+    ``asyncio.wait_for`` returned normally then, and the motors' watchdog closed in that
+    instant went on guarding, and then waited for a command for ever (its close with it)."""
+    clock = SimClock(start_ns=S)
+    far = time.monotonic_ns() + 3600 * S  # the wall deadline plays no part
+    for rounds in range(6):  # how many rounds of the loop between the wake-up and the cancel
+        sleeping = asyncio.create_task(sleep_until(clock, clock.now_ns() + S,
+                                                   wall_deadline_ns=far))
+        for _ in range(3):  # (rounds of the loop: the sleep started and asleep)
+            await asyncio.sleep(0)
+        assert clock.next_wakeup_ns() == clock.now_ns() + S
+        clock.advance_to(clock.now_ns() + S)  # its robot time comes
+        for _ in range(rounds):
+            await asyncio.sleep(0)
+        asked = sleeping.cancel()
+        await asyncio.wait({sleeping})
+        # Cancelled if it was still going when asked; ended normally only if it had already.
+        assert sleeping.cancelled() == asked, (rounds, asked)
+
+
+@pytest.mark.asyncio
+async def test_motors_closed_after_their_session_end_when_cancelled(robot_bus: Bus) -> None:
+    """An event loop's teardown cancels what is left after the fixtures closed the session:
+    the motors' stop pulse cannot be published any more (zenoh: session closed), and that
+    ends their task — it does not count as a failure to restart from, again and again, for
+    ever."""
+    from components.motors.component import MotorsComponent
+    from components.sim.backends.devices import SimMotorBackend
+    from components.sim.world.physics import World
+
+    robot_bus.clock = SimClock(start_ns=S)
+    motors = MotorsComponent(bus=robot_bus, backend=SimMotorBackend(World(floor())))
+    await motors.start()
+    try:
+        await eventually(lambda: motors.applied is not None, what="the init pulse")
+        run = motors._tasks[0]
+        await robot_bus.aclose()
+        run.cancel()
+        done, _ = await asyncio.wait({run}, timeout=30)
+        assert done and run.cancelled() and motors.restarts == 0, (run, motors.last_error)
+    finally:
+        await motors.aclose()
 
 
 @pytest.mark.asyncio

@@ -373,10 +373,22 @@ class SilenceLimit:
 
 async def sleep_until(clock: Clock, deadline_ns: int, *, wall_deadline_ns: int) -> None:
     """Sleep until robot time ``deadline_ns`` or host monotonic time ``wall_deadline_ns``,
-    whichever comes first (or a reset of the clock wakes it)."""
+    whichever comes first (or a reset of the clock wakes it).
+
+    A cancellation is never lost, however it coincides with the robot-time sleep's end.
+    (``asyncio.wait_for`` of Python 3.11 returns normally when it is cancelled after the
+    sleep it waits for has ended but before its caller resumed, CPython gh-86296: a motors
+    watchdog closed in that instant went on guarding, stopped the wheels 0.5 s after its
+    simulator had closed and then waited for a drive command for ever, and so did the close
+    that awaited it.)"""
     wall_s = (wall_deadline_ns - time.monotonic_ns()) / 1e9
     if wall_s <= 0:
         await asyncio.sleep(0)
         return
-    with contextlib.suppress(TimeoutError):
-        await asyncio.wait_for(clock.sleep_until_ns(deadline_ns), wall_s)
+    sleeper = asyncio.ensure_future(clock.sleep_until_ns(deadline_ns))
+    try:
+        done, _ = await asyncio.wait({sleeper}, timeout=wall_s)
+    finally:
+        sleeper.cancel()  # the wall deadline came first, or this sleep was cancelled
+    for ended in done:
+        ended.result()

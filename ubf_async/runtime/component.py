@@ -231,6 +231,8 @@ class Component:
         # Timed on the loop's clock, the one the backoff sleeps on (CLOCK_MONOTONIC, as
         # time.monotonic(); a test's virtual time when it runs the loop on one).
         loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        assert task is not None, "start() runs it as a task"
         backoff = self.restart_backoff_s
         while True:
             started = loop.time()
@@ -240,6 +242,15 @@ class Component:
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
+                if task.cancelling():
+                    # Cancelled (closed), and what the run did on its way out failed: the
+                    # motors' stop pulse published on a session already closed, say. That is
+                    # the component's end, not a failure: a restart would run it again, and
+                    # fail again, on whatever is gone — a task that never ends when
+                    # cancelled (an event loop's teardown that waited for it for ever).
+                    log.warning("component %s: its run failed while closing: %r", self.name,
+                                exc)
+                    raise asyncio.CancelledError from exc
                 self.last_error = exc
                 self.restarts += 1
                 if loop.time() - started >= self.healthy_after_s:
