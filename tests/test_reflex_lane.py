@@ -219,25 +219,54 @@ async def test_a_malformed_sample_on_the_lane_key_is_counted_and_logged_and_the_
 async def test_the_lane_and_the_loop_never_tick_the_tree_at_once(
         endpoint: str) -> None:
     """Periodic 500 Hz on the loop plus reflexes on the lane: both threads run the tree, never
-    together (the behaviour gives the GIL away inside ``act``, where an overlap would show)."""
+    together (the behaviour gives the GIL away inside ``act``, where an overlap would show).
+
+    Samples come until the lane has ticked ``n`` times. A sample finding the loop's tick
+    holding the lock past :data:`~ubf_async.runtime.bus.LANE_WAIT_S` (a busy machine) is
+    handed to the loop, and those after it join it there, the newest replacing the others
+    (the loop's road): so not every sample ticks, but each either ticks, in order, or is
+    replaced by a newer one."""
     clock = WallClock()
     async with robot(clock, endpoint, mode="periodic", trigger=None, rate_hz=500.0,
                      reflex_sources=("range/",), reflex_rate_hz=10_000.0,
-                     reflex_burst=1000) as (_agg, ctl, sub, key):
+                     reflex_burst=1000) as (agg, ctl, sub, key):
         behavior = ctl.root
         assert isinstance(behavior, Exclusive)
         n = 400
-        done = ticks_until(ctl, n)
-        payloads = [sample(clock, seq) for seq in range(1, n + 1)]
-        await from_thread(lambda: [sub.push(key, p) for p in payloads])
-        await asyncio.wait_for(done.wait(), 5)
+        reflexes: list[int] = []  # the seq each reflex tick was based on, on either thread
+
+        def hook(state: State, trace: Any, command: Any) -> None:
+            if command.ticked_by == "reflex":
+                reflexes.append(command.based_on.seq)
+
+        ctl.on_tick(hook)
+        pushed = 0
+        stop = threading.Event()  # (only should the lane never take one: no thread left behind)
+
+        def push() -> None:
+            nonlocal pushed
+            while sub.stats.lane < n and not stop.is_set():
+                pushed += 1  # stamped as it goes, as a sensor's sample would be
+                sub.push(key, sample(clock, pushed))
+
+        try:
+            await asyncio.wait_for(from_thread(push), 5)
+        finally:
+            stop.set()
+        # The last sample took the lane (and ticked there): nothing waits for the loop.
+        stats = sub.stats
+        assert stats.lane == n and not sub.pending
+        assert stats.received == stats.delivered + stats.coalesced == pushed
+        assert stats.dropped == stats.refused == 0
+        assert agg.refused == {} and ctl.stats.reflex_limited == 0 and ctl.stats.errors == 0
+        assert ctl.stats.triggered == stats.delivered == len(reflexes)
+        assert reflexes == sorted(set(reflexes)) and reflexes[-1] == pushed
         periodic = ctl.stats.periodic
         while ctl.stats.periodic < periodic + 3:  # and the loop's own ticks go on
             ctl.ticked.clear()
             await asyncio.wait_for(ctl.ticked.wait(), 5)
         assert behavior.overlaps == 0
         assert threading.get_ident() in behavior.threads and len(behavior.threads) == 2
-        assert sub.stats.lane == n and ctl.stats.reflex_limited == 0
 
 
 @pytest.mark.asyncio
