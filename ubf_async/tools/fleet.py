@@ -232,6 +232,12 @@ CHILD_STOP_S = 4.0
 a launch to save its results (it takes under a second; its own bound is 5 s)."""
 FLEET_STOP_BOUND_S = CHILD_STOP_S + 2.0
 """The launcher's stop bound: its children's wait, then the router's (docs/fleet.md)."""
+ROUTER_STOP_S = 1.0
+"""The router's wait after SIGTERM, at least: more when the children left it more of the
+launcher's stop bound. A router closes its session and waits for its callbacks to end
+(``CALLBACK_END_WAIT_S`` at most): on a busy machine that outlasts a fixed second."""
+OWN_EXIT_S = 0.5
+"""What the launcher keeps of its stop bound for its own exit, after the router's wait."""
 
 
 async def stop_all(procs: dict[str, asyncio.subprocess.Process], *,
@@ -264,6 +270,7 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
     world_summary = logs / "world-summary.json"
     procs: dict[str, asyncio.subprocess.Process] = {}
     tool: Bus | None = None
+    stop_deadline: float | None = None  # a stop signal's FLEET_STOP_BOUND_S, once it came
     try:
         if args.router is None:
             procs["router"] = await spawn(["-m", "ubf_async.router", "--listen", router,
@@ -313,6 +320,7 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
         except asyncio.CancelledError:
             # A stop signal ends the run as the world's duration does: the world and the
             # controllers stop (the world writes its summary as it stops), then the summary.
+            stop_deadline = time.monotonic() + FLEET_STOP_BOUND_S
             await stop_all({name: proc for name, proc in procs.items() if name != "router"})
         if world.returncode != 0:
             print(f"fleet: the world exited with status {world.returncode}: "
@@ -321,13 +329,17 @@ async def run_fleet(fleet: Fleet, args: argparse.Namespace, out: TextIO) -> int:
                                        world.returncode or 0)
     finally:
         # The controllers and the world together (a world in lockstep stops waiting for a
-        # controller that is gone), the router once they have left it.
+        # controller that is gone), the router once they have left it, with what is left of
+        # the stop bound (the run's end starts one as a signal does).
+        if stop_deadline is None:
+            stop_deadline = time.monotonic() + FLEET_STOP_BOUND_S
         router_proc = procs.pop("router", None)
         await stop_all(procs)
         if tool is not None:
             await tool.aclose()
         if router_proc is not None:
-            await stop_all({"router": router_proc}, grace_s=1.0)
+            left = stop_deadline - OWN_EXIT_S - time.monotonic()
+            await stop_all({"router": router_proc}, grace_s=max(ROUTER_STOP_S, left))
 
 
 def fleet_router(args: argparse.Namespace, default: str) -> str:
