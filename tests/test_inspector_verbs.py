@@ -12,6 +12,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
@@ -169,14 +170,15 @@ def test_hz_measures_the_drive_command_rate_and_each_kind_of_tick(robot_endpoint
 def test_echo_on_a_key_nobody_publishes_says_so_and_keeps_waiting(
         robot_endpoint: str) -> None:
     echo = Process("-m", "ubf_async.inspector", "--connect", robot_endpoint, "--robot", "insp",
-                   "echo", "sensor/range/frnt", "--count", "1")
+                   "echo", "sensor/range/frnt", "--count", "1", "--wait", "0")
     try:
         # Nothing comes: after a short wait it says so (on stderr) and names what is close.
         said = echo.wait_for_line("# nothing publishes", timeout_s=60)
         assert said.startswith("# nothing publishes ubf/insp/sensor/range/frnt yet: none of the "
                                ), said
         assert "announced keys like it: sensor/range/front" in said, said
-        assert said.endswith("still waiting (`inspector keys` lists what is published)"), said
+        assert said.endswith("still waiting (Ctrl-C stops) (`inspector keys` lists what is "
+                             "published)"), said
         # And it is still waiting: a message published now is echoed, and echo is done.
         sent = inspect(robot_endpoint, "pub", "sensor/range/frnt",
                        "{range_mm: 77, status: ok}")
@@ -195,6 +197,31 @@ def test_echo_on_a_key_nobody_publishes_says_so_and_keeps_waiting(
                                "announces publishing it"), said
     finally:
         quiet.kill()
+
+
+def test_echo_of_a_publisher_that_left_gives_up_after_its_wait(robot_endpoint: str) -> None:
+    # A second range finder attached from its own process, echoed while it runs...
+    left = Process("-m", "components.range", "--connect", robot_endpoint, "--robot", "insp",
+                   "--name", "left", "--yaw-deg", "45")
+    try:
+        heard = inspect(robot_endpoint, "echo", "sensor/range/left", "--count", "1")
+        assert heard.returncode == 0, heard.stderr
+        assert heard.stdout.splitlines()[-1].startswith("ubf/insp/sensor/range/left range #")
+    finally:
+        assert left.terminate() == 0, left.output()
+    # ... and once it has gone, an echo asking for 3 samples says so and gives up by itself
+    # (30 s by default; --wait here), exit status 1, instead of waiting for ever.
+    started = time.monotonic()
+    gone = inspect(robot_endpoint, "echo", "sensor/range/left", "--count", "3", "--wait", "3")
+    assert gone.returncode == 1, (gone.stdout, gone.stderr)
+    assert time.monotonic() - started >= 3.0
+    assert gone.stderr.splitlines()[-1] == (
+        "# nothing came on ubf/insp/sensor/range/left in 3 s: giving up (--wait S waits "
+        "longer, --wait 0 for ever)"), gone.stderr
+    assert gone.stdout == "# echo ubf/insp/sensor/range/left\n"
+    assert "--wait S" in inspect(robot_endpoint, "echo", "--help").stdout
+    refused = inspect(robot_endpoint, "echo", "sensor/range/left", "--wait", "-1")
+    assert refused.returncode == 2 and "--wait must be ≥ 0" in refused.stderr
 
 
 def test_bw_is_consistent_with_message_sizes(robot_endpoint: str) -> None:

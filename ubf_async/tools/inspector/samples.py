@@ -26,14 +26,18 @@ from ubf_async.wire import topics
 from ubf_async.wire.keys import Keys
 from ubf_async.wire.protocol import MAX_PAYLOAD_BYTES, decode
 
-__all__ = ["ECHO_QUIET_S", "MAX_TICK_KINDS", "MIXED_TICKS", "KeyWindow", "add_echo_parser",
-           "add_rate_parsers", "cmd_echo", "cmd_rate", "format_sample", "tick_kind", "unpublished"]
+__all__ = ["ECHO_QUIET_S", "ECHO_WAIT_S", "MAX_TICK_KINDS", "MIXED_TICKS", "KeyWindow",
+           "add_echo_parser", "add_rate_parsers", "cmd_echo", "cmd_rate", "format_sample",
+           "tick_kind", "unpublished"]
 
 MAX_TICK_KINDS = 16
 """Kinds of tick ``hz`` keeps apart per key (a reflex or trigger source each makes one)."""
 ECHO_QUIET_S = 2.0
 """How long ``echo`` hears nothing before it says whether anything publishes the key: four
 heartbeats of every component, which announce what each publishes."""
+ECHO_WAIT_S = 30.0
+"""How long ``echo`` waits for a first sample before it gives up (``--wait``): a key whose
+publisher has stopped would otherwise keep a ``--count N`` script waiting for ever."""
 
 
 def add_echo_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
@@ -50,6 +54,9 @@ def add_echo_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
                       help="stop after N samples (default: 0 = until Ctrl-C)")
     echo.add_argument("--seconds", type=float, default=None, metavar="S",
                       help="stop after S seconds")
+    echo.add_argument("--wait", type=float, default=ECHO_WAIT_S, metavar="S",
+                      help=f"give up (exit status 1) when no sample has come S seconds after "
+                           f"the start (default: {ECHO_WAIT_S:g}; 0 waits for ever)")
     echo.add_argument("--raw", action="store_true",
                       help="print the msgpack map as it came, without validation")
     echo.add_argument("--json", action="store_true", help="one JSON object per line")
@@ -85,6 +92,9 @@ def format_sample(keys: Keys, key: str, payload: bytes, *, raw: bool, as_json: b
 
 async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     keys = bus.keys
+    if args.wait < 0:
+        print("error: --wait must be ≥ 0 (0 waits for ever)", file=sys.stderr)
+        return 2
     key_expr = common.key_or_report(keys, args.key)
     if key_expr is None:
         return 2
@@ -113,35 +123,55 @@ async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         if shown == 0:
             await monitor.heard_from_all(common.HEARD_WITHIN_S)
             if shown == 0:
-                print(await unpublished(bus, monitor, key_expr), file=sys.stderr, flush=True)
+                print(await unpublished(bus, monitor, key_expr, wait_s=args.wait),
+                      file=sys.stderr, flush=True)
+
+    async def give_up_if_none() -> None:
+        await asyncio.sleep(args.wait)
+        if shown == 0:
+            gave_up.set()
+            done.set()
 
     started = asyncio.get_running_loop().time()
+    gave_up = asyncio.Event()
     note = asyncio.create_task(say_if_unpublished())
+    bound = asyncio.create_task(give_up_if_none()) if args.wait > 0 else None
     try:
         with contextlib.suppress(TimeoutError):  # --seconds elapsed
             await asyncio.wait_for(done.wait(), args.seconds)
         if (not note.done() and shown == 0
                 and asyncio.get_running_loop().time() - started >= ECHO_QUIET_S):
-            # --seconds ended while the note waited for heartbeats: say what is known.
+            # --seconds or --wait ended while the note waited for heartbeats: say what is
+            # known.
             note.cancel()
-            print(await unpublished(bus, monitor, key_expr), file=sys.stderr, flush=True)
+            print(await unpublished(bus, monitor, key_expr, wait_s=args.wait),
+                  file=sys.stderr, flush=True)
+        if gave_up.is_set():
+            print(f"# nothing came on {key_expr} in {args.wait:g} s: giving up (--wait S "
+                  f"waits longer, --wait 0 for ever)", file=sys.stderr, flush=True)
     finally:
         note.cancel()
+        if bound is not None:
+            bound.cancel()
         monitor.close()
-    return 0 if not args.count or shown >= args.count else 1
+    return 0 if (not args.count or shown >= args.count) and not gave_up.is_set() else 1
 
 
-async def unpublished(bus: Bus, monitor: HealthMonitor, key_expr: str) -> str:
+async def unpublished(bus: Bus, monitor: HealthMonitor, key_expr: str, *,
+                      wait_s: float = ECHO_WAIT_S) -> str:
     """What ``echo`` says on stderr when nothing has arrived on ``key_expr``: whether a live
     component announces publishing it (heartbeats, docs/protocol.md), and the keys they do
-    announce that look like it. It goes on waiting."""
+    announce that look like it. It goes on waiting, up to ``wait_s`` from its start (0: for
+    ever), which the line says."""
+    waiting = (f"still waiting (up to {wait_s:g} s from the start; --wait 0 waits for ever)"
+               if wait_s > 0 else "still waiting (Ctrl-C stops)")
     tokens = await bus.alive_tokens(bus.keys.all_alive, timeout_s=1.0)
     alive = {bus.keys.component_of_alive(t) for t in tokens} | set(monitor.alive_names())
     publishers = common.announcing(monitor, key_expr, alive)
     if publishers:
         return (f"# nothing on {key_expr} yet, though {', '.join(sorted(publishers))} "
                 f"announce{'s' if len(publishers) == 1 else ''} publishing it (it may publish "
-                f"only on a change); still waiting")
+                f"only on a change); {waiting}")
     announced = sorted({p.key for c, h in monitor.components.items() if c in alive
                         for p in h.publishes})
     prefix = bus.keys.prefix + "/"
@@ -153,7 +183,7 @@ async def unpublished(bus: Bus, monitor: HealthMonitor, key_expr: str) -> str:
             + (f" ({silent} announce nothing: they publish nothing, or do not say so)"
                if silent else "")
             + (f"; announced keys like it: {', '.join(near)}" if near else "")
-            + "; still waiting (`inspector keys` lists what is published)")
+            + f"; {waiting} (`inspector keys` lists what is published)")
 
 
 def add_rate_parsers(sub: Any, connection: argparse.ArgumentParser) -> None:
