@@ -160,7 +160,7 @@ BAD = {
     "figure the summary lacks": ("figure: ball_view.facing_share",
                                  "figure: ball_view.facing_time", 31,
                                  "figure 'ball_view.facing_time': a run's summary has no such "
-                                 "field (at ball_view: backing_when_close_share"),
+                                 "field (the nearest: ball_view.facing_share"),
     "an int range given as floats": ("flee: {start_pixels: [60, 220]}",
                                      "flee: {start_pixels: [60.5, 220]}", 14,
                                      "start_pixels is an int"),
@@ -184,6 +184,29 @@ def test_a_bad_spec_is_refused_at_its_line_before_anything_runs(
     assert err.startswith(f"python -m ubf_async.evolve: error: {path}:{line}: "), err
     assert message in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_every_mistake_of_form_in_an_evolve_or_tune_spec_is_told_at_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(SPEC.replace("population: 4", "population: four")
+                    .replace("  seeds: [1]\n", "  seeds: 1\n", 1)
+                    .replace("weight: 1.0}", "weight: 1.0, wieght: 2}")
+                    .replace("  trials: 2", "  trials: -2"))
+    assert main([str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == f"python -m ubf_async.evolve: error: {path}: 4 mistakes:", err
+    assert [line.split(": ", 1)[0] for line in err[1:]] == [
+        f"  {path}:{n}" for n in (2, 21, 31, 34)], err
+    assert err[1].endswith("Expected `int`, got `str` (at population)"), err
+    assert err[2].endswith("training.seeds must be a list of seeds: write [1]"), err
+    assert "unknown field `wieght`" in err[3], err
+    assert err[4].endswith("(at tune.trials)"), err
+    assert not (tmp_path / "out").exists()
+    # The tuner reads the same spec, and tells the same.
+    from ubf_async.tools.tune import main as tune_main
+    assert tune_main([str(path), "--out", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.splitlines()[1:] == err[1:]
 
 
 def test_generated_scenarios_are_the_same_for_a_seed_and_where_their_kind_says() -> None:

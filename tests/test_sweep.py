@@ -243,7 +243,17 @@ def test_a_folder_of_another_specs_sweep_is_refused_even_to_resume(spec: Path,
 BAD_SPECS = {
     "a typo'd key": (
         "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseedz: [1, 2]\n", 3,
-        "Object contains unknown field `seedz`; a sweep spec takes: robots, scenarios, seeds, "),
+        "Object contains unknown field `seedz`; did you mean `seeds`? a sweep spec takes: "
+        "robots, scenarios, seeds, "),
+    "one value where a list of them belongs": (
+        "robots: [mini-whegs]\noverrides:\n  tree.arbiter: PriorityMerge\n"
+        "scenarios: [ball-in-sight]\nseeds: [1]\n", 3,
+        'overrides["tree.arbiter"] must be a list of values to try: write [PriorityMerge]'),
+    "a figure no summary has": (
+        "robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseeds: [1]\n"
+        "figures: [ball_distance_m, ball_distnce_m]\nplot: ball_distnce_m\n", 4,
+        "figures: 'ball_distnce_m': a run's summary has no such field (the nearest: "
+        "ball_distance_m;"),
     "an unknown scenario": (
         "robots: [mini-whegs]\nscenarios:\n  - ball-in-sight\n  - no-such-scenario\n"
         "seeds: [1]\n", 4, "scenario 'no-such-scenario': unknown scenario 'no-such-scenario'"),
@@ -286,6 +296,37 @@ BAD_SPECS = {
     "not YAML": (
         "robots: [mini-whegs\nscenarios: [ball-in-sight]\nseeds: [1]\n", 1, "not valid YAML"),
 }
+
+
+def test_every_mistake_of_a_spec_is_told_at_once(tmp_path: Path) -> None:
+    # Four mistakes of form, each where msgspec alone would have stopped at the first...
+    path = tmp_path / "sweep.yaml"
+    path.write_text("robots: [mini-whegs]\noverrides:\n  tree.arbiter: PriorityMerge\n"
+                    "scenarios: ball-in-sight\nseeds: [1, -2]\nduration_s: -1\n")
+    with pytest.raises(sweep.SweepSpecError) as refused:
+        sweep.load_sweep(path)
+    told = refused.value
+    assert [(p.line, p.message) for p in told.problems] == [
+        (3, 'overrides["tree.arbiter"] must be a list of values to try: write [PriorityMerge]'),
+        (4, "scenarios must be a list of scenarios: write [ball-in-sight]"),
+        (5, "Expected `int` >= 0 (at seeds[1])"),
+        (6, "Expected `float` > 0.0 (at duration_s)")]
+    assert str(told).splitlines() == [f"{path}: 4 mistakes:",
+                                      *(f"  {path}:{p.line}: {p.message}" for p in told.problems)]
+    # ... and the spec's checks with its figures: a clash with the table, a seed twice, two
+    # figures no run's summary has (each with the nearest real names).
+    path.write_text("robots: [mini-whegs]\nscenarios: [ball-in-sight]\nseeds: [1, 1]\n"
+                    "figures: [seed, ball_distnce_m, motion_last_2s.max_ofset_m]\n")
+    with pytest.raises(sweep.SweepSpecError) as refused:
+        sweep.load_sweep(path)
+    messages = [p.message for p in refused.value.problems]
+    assert messages[0] == "seed 1 twice (also seeds[0])"
+    assert messages[1] == "figures: 'seed' is a column of the table already"
+    assert messages[2].startswith("figures: 'ball_distnce_m': a run's summary has no such "
+                                  "field (the nearest: ball_distance_m;")
+    assert messages[3].startswith("figures: 'motion_last_2s.max_ofset_m': a run's summary has "
+                                  "no such field (the nearest: motion_last_2s.max_offset_m")
+    assert len(messages) == 4
 
 
 @pytest.mark.parametrize("case", sorted(BAD_SPECS))

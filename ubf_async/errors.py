@@ -36,6 +36,8 @@ derives from the built-in exception a caller would naturally catch (``ValueError
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 __all__ = ["ConfigurationError", "EvolveSpecError", "JournalError", "KeyExprError",
            "MissingExtraError", "NameTakenError", "NoRobotError", "NotAllowedError",
            "OverridePathError", "ParameterError", "PluginError", "PortInUseError", "ProtocolError",
@@ -73,7 +75,24 @@ class RobotFileError(ConfigurationError):
         self.path = path
         self.line = line
         self.column = column
+        self.problems: tuple[RobotFileError, ...] = (self,)
+        """Every mistake this error tells (:meth:`all_of`): itself alone, or several."""
         super().__init__(self._format())
+
+    @classmethod
+    def all_of(cls, problems: Sequence[RobotFileError]) -> RobotFileError:
+        """One error of this type telling every one of ``problems`` (one or more), so that a
+        file with three mistakes is told all three at once: ``FILE: 3 mistakes:`` then each
+        ``FILE:LINE: message`` on a line of its own, in the file's order (one alone reads as
+        itself)."""
+        if len(problems) == 1:
+            [only] = problems
+            return cls(only.message, path=only.path, line=only.line, column=only.column)
+        ordered = sorted(problems, key=lambda problem: problem.line or 0)  # the file's order
+        told = cls(f"{len(problems)} mistakes:" + "".join(f"\n  {p}" for p in ordered),
+                   path=ordered[0].path)
+        told.problems = tuple(ordered)
+        return told
 
     @property
     def where(self) -> str:

@@ -21,10 +21,14 @@ Loading happens in two steps, and every mistake is reported as a
 
 from __future__ import annotations
 
+import datetime
+import difflib
 import inspect
 import json
 import random
 import re
+import types
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
@@ -84,6 +88,10 @@ class Spec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True, omit_defaul
 
     what: ClassVar[str] = "it"
     """What an error message calls an object of this type (``a tree node takes: …``)."""
+    lists: ClassVar[Mapping[str, str]] = {}
+    """What the lists of its fields hold (a field of lists: each of its lists), so that a
+    single value written where one belongs is told how to write it as a list
+    (``overrides["tree.arbiter"] must be a list of values to try: write [X]``)."""
 
 
 class ArbiterSpec(Spec):
@@ -339,6 +347,74 @@ class Locator:
                 text += f"; {spec.what} takes: {', '.join(spec.__struct_fields__)}"
         return self.error(text, path, key=unknown.group(1) if unknown else None)
 
+    def problems(self, data: Any, root: type[Spec]) -> list[RobotFileError]:
+        """Every mistake in ``data`` (a file's YAML, loaded) decoded as ``root``, each at its
+        line — not only msgspec's first: each field of an object, each item of a list and each
+        value of a map is checked on its own. Where every part is right but the whole is not
+        (a list too short, a union none of whose members fits), the whole's mistake is told."""
+        return self._problems(data, root, (), root)
+
+    def _problems(self, data: Any, kind: Any, path: Path_,
+                  root: type[Spec]) -> list[RobotFileError]:
+        try:
+            msgspec.convert(data, kind, strict=True, builtin_types=YAML_BUILTIN_TYPES)
+            return []
+        except msgspec.ValidationError as exc:
+            whole = exc
+        return self._parts(data, kind, path, root) or [self._told(whole, data, path, root)]
+
+    def _parts(self, data: Any, kind: Any, path: Path_,
+               root: type[Spec]) -> list[RobotFileError]:
+        """The mistakes of ``data``'s parts, each checked alone (none: not a shape whose parts
+        can be)."""
+        shape, kind = _shape_for(kind, data)
+        if isinstance(shape, type) and issubclass(shape, msgspec.Struct):
+            fields = {f.encode_name: f for f in msgspec.structs.fields(shape)}
+            missing = [name for name, f in fields.items() if f.required and name not in data]
+            found, meant = [], set()
+            for key in data:
+                if key in fields:
+                    continue
+                # A misspelt required field is one mistake, told with the name it means.
+                near = difflib.get_close_matches(str(key), missing, n=1)
+                meant.update(near)
+                found.append(self.error(
+                    f"Object contains unknown field `{key}`"
+                    f"{f' (at {format_path(path)})' if path else ''}; "
+                    + (f"did you mean `{near[0]}`? " if near else "")
+                    + f"{getattr(shape, 'what', 'it')} takes: {', '.join(fields)}",
+                    path, key=str(key)))
+            for name, field_ in fields.items():
+                if name in data:
+                    found += self._problems(data[name], field_.type, (*path, name), root)
+                elif field_.required and name not in meant:
+                    found.append(self.error(
+                        f"Object missing required field `{name}`"
+                        f"{f' (at {format_path(path)})' if path else ''}", path))
+            return found
+        if shape is list:
+            [item] = typing.get_args(kind) or (Any,)
+            return [p for i, value in enumerate(data)
+                    for p in self._problems(value, item, (*path, i), root)]
+        if shape is dict:
+            _, value_kind = typing.get_args(kind) or (Any, Any)
+            return [p for key, value in data.items()
+                    for p in self._problems(value, value_kind, (*path, str(key)), root)]
+        return []
+
+    def _told(self, whole: msgspec.ValidationError, data: Any, path: Path_,
+              root: type[Spec]) -> RobotFileError:
+        """``whole``, a mistake of the value at ``path``, as a refusal at its line: a single
+        value where a list belongs is told how to write it as one."""
+        message, where = validation_parts(whole)
+        holds = _list_holds(root, path)
+        if (holds and (not where or where == "$") and message.startswith("Expected `array`")
+                and not isinstance(data, list | dict)):
+            written = yaml.safe_dump([data], default_flow_style=True).strip()
+            return self.error(f"{format_path(path)} must be a list of {holds}: write {written}",
+                              path)
+        return self.from_validation(whole, path, root=struct_at(root, path))
+
     def from_refusal(self, refusal: ParameterError, base: Path_) -> RobotFileError:
         """Parameters refused (:func:`~ubf_async.assembly.registry.checked_params`, of the
         mapping at ``base``) as the same refusal at its line, its field named by its place in
@@ -351,6 +427,8 @@ class Locator:
 
 YAML_LOADER: Final = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 """libyaml when PyYAML has it, as msgspec.yaml uses: the same parser, the same messages."""
+YAML_BUILTIN_TYPES: Final = (datetime.datetime, datetime.date)
+"""What YAML's loader makes that msgspec.yaml.decode takes as it is."""
 
 # Where the parser notices a mistake is often past it: a key without its ':' is noticed on the
 # next line, an unclosed quote or bracket at the next token or the end of the file. For these
@@ -450,10 +528,51 @@ def _step(info: msgspec.inspect.Type, part: str | int) -> msgspec.inspect.Type |
 
 
 def format_path(path: Path_) -> str:
+    """``("tree", "children", 1, "priority")`` → ``tree.children[1].priority``; a map's key
+    that is no name is quoted: ``overrides["tree.arbiter"]``."""
     out = ""
     for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else part)
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif not part.isidentifier():
+            out += f"[{json.dumps(part)}]"
+        else:
+            out += f".{part}" if out else part
     return out
+
+
+def _list_holds(root: type[Spec], path: Path_) -> str:
+    """What the list at ``path`` holds, as the object whose field it is (or whose field's map
+    holds it) says in its :attr:`Spec.lists` ("": no such list)."""
+    for i in range(len(path) - 1, -1, -1):
+        holder = struct_at(root, path[:i])
+        if holder is not None:
+            return holder.lists.get(str(path[i]), "")
+    return ""
+
+
+def _bare(kind: Any) -> Any:
+    """``kind`` without its ``Annotated`` constraints."""
+    while typing.get_origin(kind) is Annotated:
+        kind = typing.get_args(kind)[0]
+    return kind
+
+
+def _shape_for(kind: Any, data: Any) -> tuple[Any, Any]:
+    """What ``data`` is checked as, part by part — a struct class, ``list`` or ``dict``, or
+    ``None`` — and the type that says so: the member of a union (``list[int] | SeedRange``)
+    that has ``data``'s shape."""
+    kind = _bare(kind)
+    members = typing.get_args(kind) if isinstance(kind, types.UnionType) \
+        or typing.get_origin(kind) is typing.Union else (kind,)
+    for member in map(_bare, members):
+        origin = typing.get_origin(member) or member
+        if isinstance(data, dict) and (origin is dict or (
+                isinstance(origin, type) and issubclass(origin, msgspec.Struct))):
+            return origin, member
+        if isinstance(data, list) and origin is list:
+            return list, member
+    return None, None
 
 
 # -- loading ----------------------------------------------------------------------------------

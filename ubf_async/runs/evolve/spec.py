@@ -49,15 +49,19 @@ from ubf_async.runs.evolve import genome, scenarios
 from ubf_async.runs.evolve.fitness import Fitness, Term, task
 from ubf_async.runs.evolve.scenarios import Generated
 from ubf_async.runs.sweep import execution
-from ubf_async.runs.sweep.spec import FIGURE, Checker, RunTask, decode_spec, read_scenario
+from ubf_async.runs.sweep.spec import (
+    FIGURE,
+    Checker,
+    RunTask,
+    decode_spec,
+    figure_problem,
+    probe_summary,
+    read_scenario,
+)
 
 DEFAULT_SEED_ROBOT = "mini-whegs"
 DEFAULT_DURATION_S = 20.0
 """A generated scenario's simulated seconds when its set gives none."""
-PROBE_S = 0.1
-"""Simulated seconds of the run that tells which fields a summary has."""
-OPEN_MAPS = ("ticks.winner_share", "distractors")
-"""Summary maps whose keys depend on the run (a behaviour that never won has no share)."""
 
 Figure = Annotated[str, Meta(pattern=FIGURE, max_length=200)]
 Seed = Annotated[int, Meta(ge=0, le=2**63 - 1)]
@@ -83,6 +87,7 @@ class ScenarioSetSpec(Spec):
     """A set of scenarios × seeds: named scenarios and generators."""
 
     what: ClassVar[str] = "a scenario set"
+    lists: ClassVar[Mapping[str, str]] = {"scenarios": "scenarios", "seeds": "seeds"}
 
     scenarios: Annotated[list[Name | GeneratorSpec], Meta(min_length=1)]
     seeds: Annotated[list[Seed], Meta(min_length=1)]
@@ -541,15 +546,16 @@ class _PlanCheck:
 
     def figures(self, spec: FitnessSpec, robot: Robot, training: ScenarioSet) -> None:
         """Each term's figure is a number field of a run's summary: a run of
-        :data:`PROBE_S` simulated seconds says which fields there are."""
+        :data:`~ubf_async.runs.sweep.spec.PROBE_S` simulated seconds says which fields there
+        are."""
         name, text = training.scenarios[0]
-        summary = inprocess.run(robot, execution.scenario_path(name, text), seed=training.seeds[0],
-                                duration_s=PROBE_S).summary
-        for i, term in enumerate(spec.terms):
-            problem = _figure_problem(summary, term.figure)
-            if problem is not None:
-                raise self.check.error(f"figure {term.figure!r}: {problem}",
-                                       ("fitness", "terms", i), key="figure")
+        summary = probe_summary(robot, execution.scenario_path(name, text), training.seeds[0])
+        problems = [self.check.error(f"figure {term.figure!r}: {problem}",
+                                     ("fitness", "terms", i), key="figure")
+                    for i, term in enumerate(spec.terms)
+                    if (problem := figure_problem(summary, term.figure)) is not None]
+        if problems:
+            raise EvolveSpecError.all_of(problems)
 
 
 def _item_of(spec: ScenarioSetSpec, index: int) -> int:
@@ -560,24 +566,6 @@ def _item_of(spec: ScenarioSetSpec, index: int) -> int:
         if index < count:
             return i
     return len(spec.scenarios) - 1
-
-
-def _figure_problem(summary: Mapping[str, Any], path: str) -> str | None:
-    value: Any = summary
-    parts = path.split(".")
-    for i, part in enumerate(parts):
-        here = ".".join(parts[:i])
-        if not isinstance(value, Mapping):
-            return f"{here} is not a map of fields"
-        if part not in value:
-            if here in OPEN_MAPS:
-                return None  # a key of a map the run fills
-            return (f"a run's summary has no such field (at {here or 'the top'}: "
-                    f"{', '.join(sorted(value))}; docs/scenarios.md, Outputs)")
-        value = value[part]
-    if isinstance(value, Mapping | list | str | bool):
-        return f"not a number (a {type(value).__name__}): name one of its fields"
-    return None
 
 
 # -- tune -------------------------------------------------------------------------------------

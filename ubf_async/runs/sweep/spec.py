@@ -13,18 +13,27 @@ run only while the robot file, the scenario file and the values are the same.
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import itertools
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, TypeVar
 
 import msgspec
+import yaml
 from msgspec import Meta
 
-from ubf_async.assembly.robotfile import Locator, Path_, Robot, Spec, read_robot_file
+from ubf_async.assembly.robotfile import (
+    YAML_LOADER,
+    Locator,
+    Path_,
+    Robot,
+    Spec,
+    read_robot_file,
+)
 from ubf_async.errors import (
     ConfigurationError,
     RobotFileError,
@@ -34,9 +43,10 @@ from ubf_async.errors import (
 )
 from ubf_async.runs import inprocess, overrides
 
-__all__ = ["DEFAULT_FIGURES", "FIGURE", "MAX_RUNS", "RESULT_COLUMNS", "Checker", "Figure", "Name",
-           "RunTask", "Seed", "SeedRange", "SweepFile", "SweepPlan", "decode_spec", "digest",
-           "format_place", "load_sweep", "read_scenario"]
+__all__ = ["DEFAULT_FIGURES", "FIGURE", "MAX_RUNS", "OPEN_MAPS", "PROBE_S", "RESULT_COLUMNS",
+           "Checker", "Figure", "Name", "RunTask", "Seed", "SeedRange", "SweepFile", "SweepPlan",
+           "decode_spec", "digest", "figure_problem", "format_place", "load_sweep",
+           "number_fields", "probe_summary", "read_scenario"]
 
 MAX_RUNS = 1_000_000
 DEFAULT_FIGURES = ("ball_distance_m", "ball_bearing_deg")
@@ -64,6 +74,9 @@ class SweepFile(Spec):
     """A sweep spec as written."""
 
     what: ClassVar[str] = "a sweep spec"
+    lists: ClassVar[Mapping[str, str]] = {
+        "robots": "robot files", "scenarios": "scenarios", "seeds": "seeds",
+        "overrides": "values to try", "figures": "summary fields"}
 
     robots: Annotated[list[Name], Meta(min_length=1)]
     """Robot files (relative to the spec) or shipped robots' names."""
@@ -80,6 +93,52 @@ class SweepFile(Spec):
     """Summary fields to tabulate (dotted paths into the run's summary)."""
     plot: Figure | None = None
     """The figure plotted against each swept parameter (default: the first figure)."""
+
+
+PROBE_S = 0.1
+"""Simulated seconds of the run that tells which fields a run's summary has."""
+OPEN_MAPS = ("ticks.winner_share", "distractors")
+"""Summary maps whose keys depend on the run (a behaviour that never won has no share)."""
+
+
+def probe_summary(robot: Robot, scenario: str, seed: int) -> dict[str, Any]:
+    """The summary of a :data:`PROBE_S`-second run of ``robot`` through ``scenario`` (a
+    built-in's name or a scenario file): which fields a run's summary has."""
+    return inprocess.run(robot, scenario, seed=seed, duration_s=PROBE_S).summary
+
+
+def figure_problem(summary: Mapping[str, Any], path: str) -> str | None:
+    """What is wrong with naming the dotted ``path`` as a figure of runs whose summary is like
+    ``summary`` (``None``: it is a number field, or a key of one of :data:`OPEN_MAPS`)."""
+    value: Any = summary
+    parts = path.split(".")
+    for i, part in enumerate(parts):
+        here = ".".join(parts[:i])
+        if not isinstance(value, Mapping):
+            return f"{here} is not a map of fields"
+        if part not in value:
+            if here in OPEN_MAPS:
+                return None  # a key of a map the run fills
+            near = difflib.get_close_matches(path, number_fields(summary), n=3, cutoff=0.6)
+            return ("a run's summary has no such field ("
+                    + (f"the nearest: {', '.join(near)}" if near else
+                       f"at {here or 'the top'}: {', '.join(sorted(value))}")
+                    + "; docs/scenarios.md, Outputs)")
+        value = value[part]
+    if isinstance(value, Mapping | list | str | bool):
+        return f"not a number (a {type(value).__name__}): name one of its fields"
+    return None
+
+
+def number_fields(summary: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """The dotted paths of every number in ``summary``."""
+    found = []
+    for key, value in summary.items():
+        if isinstance(value, Mapping):
+            found += number_fields(value, f"{prefix}{key}.")
+        elif isinstance(value, int | float) and not isinstance(value, bool):
+            found.append(f"{prefix}{key}")
+    return found
 
 
 def digest(text: str) -> str:
@@ -166,14 +225,17 @@ class Checker:
         found = self.locator.error(message, path, key=key)
         return self._error(found.message, path=found.path, line=found.line)
 
-    def unique(self, values: list[Any], path: Path_, what: str) -> None:
+    def unique(self, values: list[Any], path: Path_, what: str) -> list[RobotFileError]:
+        """A refusal of each value given again in ``values`` (at ``path``)."""
         seen: dict[str, int] = {}
+        found = []
         for i, value in enumerate(values):
             text = json.dumps(value, sort_keys=True, default=str)
             if text in seen:
-                raise self.error(f"{what} {text} twice (also {format_place(path, seen[text])})",
-                                 (*path, i))
-            seen[text] = i
+                found.append(self.error(
+                    f"{what} {text} twice (also {format_place(path, seen[text])})", (*path, i)))
+            seen.setdefault(text, i)
+        return found
 
 
 def format_place(path: Path_, index: int) -> str:
@@ -202,11 +264,14 @@ def decode_spec(source: Path, root: type[S], error: type[RobotFileError], *,
         try:
             return msgspec.yaml.decode(text, type=root), locator
         except msgspec.ValidationError as exc:
-            raise locator.from_validation(exc, root=root) from None
+            # Every mistake at once, not msgspec's first alone.
+            data = yaml.load(text, Loader=YAML_LOADER)
+            raise error.all_of(locator.problems(data, root)
+                               or [locator.from_validation(exc, root=root)]) from None
         except msgspec.DecodeError as exc:
             raise RobotFileError(f"not valid YAML: {exc}", path=str(source)) from None
     except RobotFileError as exc:
-        raise error(exc.message, path=exc.path, line=exc.line) from None
+        raise error.all_of(exc.problems) from None
 
 
 def load_sweep(path: str | Path) -> SweepPlan:
@@ -221,15 +286,18 @@ def load_sweep(path: str | Path) -> SweepPlan:
     if isinstance(spec.seeds, SeedRange) and not seeds:
         raise check.error(f"seeds: first ({spec.seeds.first}) is past last "
                           f"({spec.seeds.last})", ("seeds",))
-    _check_form(spec, check)
     robots = [_robot_text(spec, i, source.parent, check) for i in range(len(spec.robots))]
+    scenarios = [read_scenario(name, source.parent, check, ("scenarios", i))
+                 for i, name in enumerate(spec.scenarios)]
+    found = _check_form(spec, check) + _figure_problems(spec, robots[0], scenarios[0][0],
+                                                         seeds[0], check)
+    if found:  # every mistake of the spec's form and its figures at once
+        raise SweepSpecError.all_of(found)
     paths = list(spec.overrides)
     combinations = list(itertools.product(*(range(len(v)) for v in spec.overrides.values())))
     count = len(robots) * len(combinations) * len(spec.scenarios) * len(seeds)
     if count > MAX_RUNS:
         raise check.error(f"{count} runs: more than {MAX_RUNS} in one sweep", ())
-    scenarios = [read_scenario(name, source.parent, check, ("scenarios", i))
-                 for i, name in enumerate(spec.scenarios)]
     tasks: list[RunTask] = []
     for r, (robot_source, robot_text) in enumerate(robots):
         for combination in combinations:
@@ -248,36 +316,36 @@ def load_sweep(path: str | Path) -> SweepPlan:
                      scenarios=tuple(spec.scenarios), seeds=tuple(seeds), tasks=tuple(tasks))
 
 
-def _check_form(spec: SweepFile, check: Checker) -> None:
+def _check_form(spec: SweepFile, check: Checker) -> list[RobotFileError]:
     """What decoding cannot say: names twice, override paths, values JSON cannot carry,
-    figures that would clash with the table's own columns."""
-    check.unique(spec.robots, ("robots",), "robot")
-    check.unique(spec.scenarios, ("scenarios",), "scenario")
+    figures that would clash with the table's own columns — every mistake."""
+    found = [*check.unique(spec.robots, ("robots",), "robot"),
+             *check.unique(spec.scenarios, ("scenarios",), "scenario")]
     if isinstance(spec.seeds, list):
-        check.unique(spec.seeds, ("seeds",), "seed")
+        found += check.unique(spec.seeds, ("seeds",), "seed")
     for path, values in spec.overrides.items():
         try:
             overrides.parse_path(path)
         except ValueError as exc:
-            raise check.error(f"overrides: {exc}", ("overrides",), key=path) from None
+            found.append(check.error(f"overrides: {exc}", ("overrides",), key=path))
         if path == "seed":
-            raise check.error("overrides: the robot file's `seed` is replaced by each run's "
-                              "seed: give the seeds as `seeds:`", ("overrides",), key=path)
+            found.append(check.error("overrides: the robot file's `seed` is replaced by each "
+                                     "run's seed: give the seeds as `seeds:`", ("overrides",),
+                                     key=path))
         for i, value in enumerate(values):
             try:
                 json.dumps(value, allow_nan=False)
             except (TypeError, ValueError):
-                raise check.error(f"overrides: {path}: {value!r} is not a value a robot file "
-                                  f"takes", ("overrides", path, i)) from None
-        check.unique(values, ("overrides", path), "value")
-    check.unique(spec.figures, ("figures",), "figure")
-    for i, name in enumerate(spec.figures):
-        if name in RESULT_COLUMNS:
-            raise check.error(f"figures: {name!r} is a column of the table already",
-                              ("figures", i))
+                found.append(check.error(f"overrides: {path}: {value!r} is not a value a robot "
+                                         f"file takes", ("overrides", path, i)))
+        found += check.unique(values, ("overrides", path), "value")
+    found += check.unique(spec.figures, ("figures",), "figure")
+    found += [check.error(f"figures: {name!r} is a column of the table already", ("figures", i))
+              for i, name in enumerate(spec.figures) if name in RESULT_COLUMNS]
     if spec.plot is not None and spec.plot not in spec.figures:
-        raise check.error(f"plot: {spec.plot!r} is not one of the figures "
-                          f"({', '.join(spec.figures)})", ("plot",))
+        found.append(check.error(f"plot: {spec.plot!r} is not one of the figures "
+                                 f"({', '.join(spec.figures)})", ("plot",)))
+    return found
 
 
 def _robot_text(spec: SweepFile, index: int, spec_dir: Path,
@@ -337,6 +405,21 @@ def _check_run(spec: SweepFile, robot: Robot, scenario: str, seed: int, check: C
     except UbfError as exc:
         at: Path_ = ("overrides",) if overridden else ("robots", r)
         raise check.error(f"robot {spec.robots[r]!r}: {exc}", at) from None
+
+
+def _figure_problems(spec: SweepFile, robot: tuple[str, str], scenario: str, seed: int,
+                     check: Checker) -> list[RobotFileError]:
+    """A refusal of each figure that is no number field of a run's summary, as a short run of
+    the first robot file (``(source, text)``, without overrides: they change no field) through
+    the first scenario says. None when that run cannot start: planning every run says why."""
+    try:
+        summary = probe_summary(overrides.load_robot_text_with(robot[1], {}, source=robot[0]),
+                                scenario, seed)
+    except UbfError:
+        return []
+    return [check.error(f"figures: {name!r}: {problem}", ("figures", i))
+            for i, name in enumerate(spec.figures)
+            if (problem := figure_problem(summary, name)) is not None]
 
 
 def _task(spec: SweepFile, order: tuple[int, ...], robot_source: str, robot_text: str,
