@@ -12,6 +12,8 @@
 from __future__ import annotations
 
 import asyncio
+import doctest
+import io
 import json
 import logging
 import math
@@ -278,10 +280,16 @@ def python_blocks(page: Path) -> list[str]:
     return [block for block in blocks if "experiment.run(" in block or "run_fleet(" in block]
 
 
+def doctest_blocks(page: Path) -> list[str]:
+    """The ``pycon`` code blocks of a page: interactive sessions, run as doctests."""
+    return re.findall(r"^```pycon\n(.*?)^```", page.read_text("utf-8"), re.M | re.S)
+
+
 def test_the_library_calls_the_docs_show_run_as_they_say(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """README.md's and docs/experiments.md's blocks of Python, run (from the repository's
-    root, where their paths start); what their comments claim, checked."""
+    root, where their paths start); what their comments claim, checked; the sessions
+    (``pycon``) run as doctests, so what they show printed is what the objects hold."""
     monkeypatch.chdir(REPOSITORY)
     made: dict[tuple[Any, ...], experiment.RunResult] = {}
     run = experiment.run
@@ -295,9 +303,18 @@ def test_the_library_calls_the_docs_show_run_as_they_say(
         return made[key]
 
     monkeypatch.setattr(experiment, "run", run_once)
+    sessions = doctest_blocks(REPOSITORY / "docs" / "experiments.md")
+    assert len(sessions) == 1, sessions
+    for session in sessions:
+        test = doctest.DocTestParser().get_doctest(session, {}, "docs/experiments.md",
+                                                   "docs/experiments.md", 0)
+        runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+        shown = io.StringIO()
+        runner.run(test, out=shown.write)
+        assert runner.failures == 0 and runner.tries >= 6, shown.getvalue()
     blocks = [*python_blocks(REPOSITORY / "README.md"),
               *python_blocks(REPOSITORY / "docs" / "experiments.md")]
-    assert len(blocks) == 3, blocks
+    assert len(blocks) == 2, blocks
     for block in blocks:
         names: dict[str, Any] = {}
         exec(compile(block, "<docs>", "exec"), names)
