@@ -97,6 +97,41 @@ async def test_a_run_stopped_before_its_duration_is_not_judged(robot_bus: Bus,
 
 
 @pytest.mark.asyncio
+@pytest.mark.parametrize("judge", [False, True])
+async def test_a_run_with_no_set_length_is_judged_only_when_asked(
+        robot_bus: Bus, judge: bool) -> None:
+    """Issue 48: launch with no --scenario and no --duration, stopped by Ctrl-C after 4 s,
+    printed "expected: … — NOT met (…)": read as a failure of a run that had no end to
+    judge. It is said to be not judged, unless the user asked (``--judge``)."""
+    clock = SimClock()
+    robot_bus.clock = clock
+    run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
+        speed=math.inf, judge_open_ended=judge))
+    assert run.duration_s is None
+    controller, components = await start_seeking_robot(robot_bus, run)
+    out = io.StringIO()
+    try:
+        run.start(controller)
+        await run.until_elapsed(0.5)
+    finally:
+        summary = await run.finish(controller, out)
+        for component in reversed(components):
+            await component.aclose()
+    expected = summary["expected"]
+    assert summary["interrupted"] is None
+    if judge:
+        assert expected["judged"] is True and expected["criteria"], expected
+        assert "— not judged" not in out.getvalue()
+    else:
+        assert expected["judged"] is False and expected["pass"] is None, expected
+        why = (f"stopped after {summary['sim_time_s']:.1f} s of an open-ended run; launch "
+               f"--judge judges it anyway")
+        assert expected["why"] == why
+        assert f"  expected: {expected['outcome']} — not judged ({why})\n" in out.getvalue()
+        assert "met" not in out.getvalue().replace("not judged", "")
+
+
+@pytest.mark.asyncio
 async def test_attach_gives_the_world_of_a_simulator_in_another_session(
     robot_bus: Bus, peer_bus: Bus
 ) -> None:

@@ -57,6 +57,10 @@ class SimulationOptions:
     keep_trajectory: bool = False
     """Keep every trajectory sample in memory, for :meth:`OpenSimulation.trajectory` (a library
     run's result); otherwise only a bounded, decimated history is kept."""
+    judge_open_ended: bool = False
+    """Judge the scenario's expected outcome at the end of a run with no set length (no
+    ``duration_s``, no named scenario), stopped whenever its user stopped it; otherwise it is
+    said to be not judged: an outcome describes the end of a whole run."""
     lockstep_participants: int = 0
     """Hold simulated time at its start until this many lockstep participants of other
     processes have joined (:mod:`ubf_async.clocks.lockstep`)."""

@@ -197,6 +197,10 @@ def add_simulation_arguments(parser: argparse.ArgumentParser) -> None:
                      help="seed for every random source (default: the scenario's)")
     sim.add_argument("--summary", type=Path, default=None, metavar="FILE.json",
                      help="write a JSON summary of the run when it ends")
+    sim.add_argument("--judge", action="store_true",
+                     help="judge the scenario's expected outcome even at the end of a run with "
+                          "no set length (no --scenario, no --duration) stopped by Ctrl-C: "
+                          "without it, such a run's outcome is said to be not judged")
     sim.add_argument("--record", type=Path, default=None, metavar="DIR",
                      help="record every message on the robot's keys to DIR/<robot>.mcap "
                           "(docs/recording.md; simulated or not) and, for a simulated run, "
@@ -272,7 +276,7 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
             scenario=args.scenario, speed=args.speed, seed=args.seed,
             duration_s=args.duration, summary_path=args.summary, record_dir=args.record,
             trajectory_path=args.trajectory,
-            record_every_s=args.record_every_s,
+            record_every_s=args.record_every_s, judge_open_ended=args.judge,
             lockstep_participants=args.lockstep_participants,
             command_line=("python", "-m", "ubf_async.launch", *sys.argv[1:]))
         simulator.check(options)  # an unknown scenario is refused here, not after the bus opens

@@ -547,8 +547,10 @@ class SimulationRun:
                                         "bearing_deg": bearing}
         won = out["ticks"].get("winner_share") or {}
         expect = self.scenario.expect
+        open_ended = self.duration_s is None and not self.options.judge_open_ended
         out["expected"] = (expect.judge(out, ran=lambda name: controller.runs(name) or
-                                        name in won)
+                                        name in won,
+                                        open_ended_s=self.elapsed_s() if open_ended else None)
                            if expect is not None else None)
         out["quarantined"] = controller.quarantined()
         out["tree_changes"] = list(controller.tree_changes)

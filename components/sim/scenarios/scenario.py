@@ -131,13 +131,15 @@ class Expectation:
     judged only on a robot that ran them."""
 
     def judge(self, summary: Mapping[str, Any], *,
-              ran: Callable[[str], bool] = lambda name: True) -> dict[str, Any]:
+              ran: Callable[[str], bool] = lambda name: True,
+              open_ended_s: float | None = None) -> dict[str, Any]:
         """Each criterion's verdict, and ``pass``: all of them met — or ``None`` when the
         file gives no criteria (nothing was checked: the outcome is only words), when the
         robot did not run a behaviour the outcome describes (``ran(name)`` false; then
         ``applicable`` is false and ``why`` says which), or when the run ended before its
-        duration (the summary's ``interrupted``: ``{"at_s", "of_s"}``; then ``judged`` is
-        false and ``why`` says when): an outcome describes the end of a whole run."""
+        duration (the summary's ``interrupted``: ``{"at_s", "of_s"}``) or had none and was
+        stopped after ``open_ended_s`` (then ``judged`` is false and ``why`` says when): an
+        outcome describes the end of a whole run."""
         missing = [name for name in self.behaviors if not ran(name)]
         if missing:
             return {"outcome": self.outcome, "criteria": [], "pass": None,
@@ -149,6 +151,11 @@ class Expectation:
                     "applicable": True, "judged": False,
                     "why": f"interrupted at {interrupted['at_s']:.1f} s of "
                            f"{interrupted['of_s']:g} s"}
+        if open_ended_s is not None:
+            return {"outcome": self.outcome, "criteria": [], "pass": None,
+                    "applicable": True, "judged": False,
+                    "why": f"stopped after {open_ended_s:.1f} s of an open-ended run; "
+                           f"launch --judge judges it anyway"}
         verdicts = [c.judge(summary) for c in self.criteria]
         return {"outcome": self.outcome, "criteria": verdicts, "applicable": True,
                 "judged": True,
