@@ -18,11 +18,13 @@ not a valid envelope: those are recorded too, and counted).
 Nothing of it runs on the event loop but a queue put: a writer thread encodes, compresses
 (zstd, per chunk) and writes. The queue is bounded (``max_queue``); when the disk cannot keep
 up, messages are dropped, counted (``stats.dropped``), logged and reported when the recording
-ends — never silently. The writer closes its chunk every ``flush_s`` (1 s) and syncs the file
-to the disk (``fsync``, on the writer thread: ≈0.4–0.7 ms once per flush on this project's
-machine), so a recorder that is killed (``SIGKILL``, a crash) or loses its power leaves a file
-whose complete chunks any MCAP reader recovers, streaming: at most the last ``flush_s`` of
-messages, plus those still queued, are lost. ``split_bytes`` starts a new file
+ends — never silently. The writer closes its chunk every ``flush_s`` (1 s), hands it to the
+kernel and has the file synced to the disk (``fsync``, on a thread of its own: ≈0.4–0.7 ms
+once per flush on this project's idle machine, seconds on a busy disk, which must not hold
+up the writer), so a recorder that is killed (``SIGKILL``, a crash) leaves a file whose
+complete chunks any MCAP reader recovers, streaming: at most the last ``flush_s`` of
+messages, plus those still queued, are lost (on a power cut, also what a slow disk had not
+synced yet). ``split_bytes`` starts a new file
 (``<name>_1.mcap``, ``_2``…) when one grows past it, so a long run never needs one huge file;
 memory stays bounded by the queue and one chunk either way.
 """
@@ -292,7 +294,8 @@ class McapRecorder(EveryMessageComponent):
 
 
 class _File:
-    """One MCAP file of a recording, used by the writer thread only."""
+    """One MCAP file of a recording, used by the writer thread only (its fsyncs run on a
+    thread of their own)."""
 
     def __init__(self, recorder: McapRecorder, index: int) -> None:
         self.recorder = recorder
@@ -315,6 +318,8 @@ class _File:
         self.sequence = 0
         self.finished = False
         self.synced_dir = False
+        self._syncing: threading.Thread | None = None
+        """The fsync of the last flush, while it runs."""
 
     def _schema_id(self, name: str) -> int:
         topic = BY_SCHEMA.get(name)
@@ -369,14 +374,29 @@ class _File:
                                 publish_time=publish_ns, sequence=self.sequence)
 
     def flush(self) -> None:
-        self.writer.flush()  # closes the chunk and writes it out of Python's buffers
-        # ... and onto the disk: without fsync a power cut loses what the kernel still caches
-        # (a killed process does not). On the writer thread, never on the event loop.
+        self.writer.flush()  # closes the chunk
+        self.stream.flush()  # ... and hands it to the kernel: a killed process loses nothing
+        # ... then onto the disk, without which a power cut loses what the kernel still
+        # caches: on a thread of its own, not this one. On a busy disk one fsync can wait
+        # seconds (ext4 commits other files' data with it), and this thread must stay free to
+        # finish the file within the second an exit at once gives it. A sync still running
+        # covers this chunk's turn: the next flush syncs it.
+        if self._syncing is None or not self._syncing.is_alive():
+            self._syncing = threading.Thread(target=self._sync, daemon=True,
+                                             name=f"{self.recorder.name}:fsync")
+            self._syncing.start()
+
+    def _sync(self) -> None:
         started = time.monotonic()
-        os.fsync(self.stream.fileno())
-        if not self.synced_dir:  # the new file's directory entry too, once
-            self.synced_dir = True
-            _fsync_dir(self.path.parent)
+        try:
+            os.fsync(self.stream.fileno())
+            if not self.synced_dir:  # the new file's directory entry too, once
+                self.synced_dir = True
+                _fsync_dir(self.path.parent)
+        except OSError as exc:  # the writes themselves went through: said, not fatal
+            log.warning("%s: syncing %s to the disk failed: %s", self.recorder.name,
+                        self.path, exc)
+            return
         stats = self.recorder.stats
         stats.sync_s_max = max(stats.sync_s_max, time.monotonic() - started)
         stats.flushes += 1
@@ -392,10 +412,12 @@ class _File:
         self.finished = True
         try:
             self.writer.finish()  # leaves its last bytes (the footer's magic) in our buffer
-            # Handed to the kernel before the fsync, not after it: a process that exits at once
-            # (a second signal: exit_now's budget) while fsync waits on a busy disk still
-            # leaves a finished file; and the fsync then covers the whole of it.
+            # Handed to the kernel before any fsync, not after: a process that exits at once
+            # (a second signal: exit_now's budget) while an fsync waits on a busy disk still
+            # leaves a finished file; the last fsync then covers the whole of it.
             self.stream.flush()
+            if self._syncing is not None:
+                self._syncing.join()  # (the descriptor it syncs is closed below)
             os.fsync(self.stream.fileno())
         finally:
             self.stream.close()
