@@ -307,7 +307,11 @@ async def test_event_mode_ticks_per_trigger_sample(robot_bus: Bus, peer_bus: Bus
     for n, mm in enumerate([500, 100, 600], start=1):
         pub.publish({"range_mm": mm, "status": "ok"})
         await eventually(lambda n=n: ctl.stats.ticks == n)
-        assert ctl.last_action.speed == (-50 if mm < 200 else 50)
+        # The tick runs on the reflex lane (the transport's thread): seen counted, it may not
+        # have ended yet. Its lock is held for the whole tick: read under it.
+        with ctl.lock:
+            assert ctl.last_action is not None
+            assert ctl.last_action.speed == (-50 if mm < 200 else 50)
     await ctl.aclose()
     await agg.aclose()
 
