@@ -259,6 +259,9 @@ def test_the_fleet_launcher_runs_a_fleet_and_summarises_it(tmp_path: Path) -> No
         assert "fleet t=" in out, out
         assert all(f"| f{i} " in out for i in range(1, 5)), out
         assert "the ball: first found at 0.1 s (simulated)" in out, out  # f1 faces it
+        # Where the summary went is said, as launch says it.
+        assert out.rstrip().endswith(f"  summary written to {Path(result['fleet']).parent}"
+                                     f"/summary.json"), out
         assert result["lockstep"] is True
         assert result["sim_time_s"] == pytest.approx(4.0, abs=0.01)
         assert result["scenario"] == "ball-in-sight"

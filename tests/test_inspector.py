@@ -108,7 +108,8 @@ def test_help_lists_commands_and_shared_flags(capfd: pytest.CaptureFixture[str])
 def test_unreachable_robot_is_a_clear_error() -> None:
     proc = inspect("components", "--connect", f"tcp/127.0.0.1:{free_port()}", "--timeout", "1")
     assert proc.returncode == 2
-    assert proc.stderr.startswith("error:") and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith("python -m ubf_async.inspector: error:") \
+        and "Traceback" not in proc.stderr
 
 
 def test_components_lists_exactly_the_live_ones(
@@ -288,7 +289,7 @@ def test_a_key_that_does_not_resolve_is_reported(capsys: pytest.CaptureFixture[s
     assert key_or_report(keys, "cmd/drive") == "ubf/r/cmd/drive"
     assert capsys.readouterr().err == ""
     assert key_or_report(keys, " / ") is None
-    assert capsys.readouterr().err == "error: empty key\n"
+    assert capsys.readouterr().err == "python -m ubf_async.inspector: error: empty key\n"
 
 
 def test_state_shows_refusals_and_quarantined_behaviours() -> None:

@@ -476,7 +476,8 @@ async def test_inspector_tree_verbs(
     code, out, err = await inspector_here("tree", "set-arbiter", "root", "Conditional", "-p",
                                      "predicate=sees_color", *conn)
     assert code == 1 and out == ""
-    assert err.startswith(f"error: robot {robot!r} refused set-arbiter: ")
+    assert err.startswith(f"python -m ubf_async.inspector: error: robot {robot!r} refused "
+                          f"set-arbiter: ")
     assert "Conditional needs exactly two children" in err and "Traceback" not in err
     assert "(tree unchanged, version 1)" in err
 

@@ -39,7 +39,8 @@ from ubf_async.runtime import lending
 
 __all__ = ["DEFAULT_LOOP", "EXIT_ERROR", "EXIT_INTERRUPTED", "EXIT_NOW_BUDGET_S", "LOOP_CHOICES",
            "LOOP_ENV", "LOOP_HELP", "SAY_WAIT_S", "STOP_BOUND_S", "STOP_SIGNALS", "StopGuard",
-           "check_lockstep_loop", "loop_factory", "run_loop", "run_main", "run_sync", "said_error"]
+           "check_lockstep_loop", "loop_factory", "run_loop", "run_main", "run_sync", "said_error",
+           "say_error"]
 
 T = TypeVar("T")
 
@@ -249,9 +250,15 @@ def run_loop(main: Coroutine[Any, Any, T]) -> T:
         return runner.run(main)
 
 
+def say_error(prog: str, message: object) -> None:
+    """Say ``message`` as every entry point says an error: the one line ``PROG: error: …`` on
+    stderr (argparse's own format, so a usage mistake and a refusal read alike)."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+
+
 def said_error(prog: str, exc: BaseException) -> int:
     """Say ``exc`` as the one line ``PROG: error: …`` on stderr; return :data:`EXIT_ERROR`."""
-    print(f"{prog}: error: {exc}", file=sys.stderr)
+    say_error(prog, exc)
     return EXIT_ERROR
 
 

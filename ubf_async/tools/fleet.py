@@ -399,6 +399,7 @@ def finish(fleet: Fleet, status: FleetStatus, world_summary: Path, args: argpars
               f"{everyone}", file=out)
     if args.summary is not None:
         args.summary.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        print(f"  summary written to {args.summary}", file=out)  # as launch says it
     return code
 
 

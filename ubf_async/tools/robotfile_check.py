@@ -11,15 +11,17 @@ from pathlib import Path
 from ubf_async import __version__
 from ubf_async.assembly import registry
 from ubf_async.assembly.robotfile import load_robot, schema_text
-from ubf_async.cli.run import run_sync
+from ubf_async.cli.run import run_sync, say_error
 from ubf_async.errors import ConfigurationError
 
-__all__ = ["list_plugins", "main", "run"]
+__all__ = ["PROG", "list_plugins", "main", "run"]
+
+PROG = "python -m ubf_async.robotfile"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m ubf_async.robotfile",
+        prog=PROG,
         description="Check robot files, print their JSON Schema, list the plug-ins.")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -29,7 +31,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     schema.add_argument("--write", type=Path, default=None, metavar="FILE")
     sub.add_parser("plugins", help="list the registered behaviours, arbiters, devices …")
     args = parser.parse_args(argv)
-    return run_sync(lambda: run(args), prog="python -m ubf_async.robotfile")
+    return run_sync(lambda: run(args), prog=PROG)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             robot = load_robot(file)
         except ConfigurationError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            say_error(PROG, exc)
             status = 1
             continue
         print(f"{robot.source}: robot {robot.name!r}, {len(robot.devices)} device(s)"

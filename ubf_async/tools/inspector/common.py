@@ -5,19 +5,21 @@ which live components announce publishing a key (their heartbeats)."""
 from __future__ import annotations
 
 import json
-import sys
 from typing import Any
 
 import msgspec
 
+from ubf_async.cli import run
 from ubf_async.net.keyexpr import intersects
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.wire import topics
 from ubf_async.wire.keys import Keys
 from ubf_async.wire.protocol import Message, decode
 
-__all__ = ["HEARD_WITHIN_S", "KEY_HELP", "announcing", "decode_for", "expected_schema", "jsonable",
-           "key_or_report", "number", "resolve_key", "to_json"]
+__all__ = ["HEARD_WITHIN_S", "KEY_HELP", "PROG", "announcing", "decode_for", "expected_schema",
+           "jsonable", "key_or_report", "number", "resolve_key", "say_error", "to_json"]
+
+PROG = "python -m ubf_async.inspector"
 
 HEARD_WITHIN_S = 5.0
 """How much longer ``echo`` and ``info`` wait, at most, for a heartbeat of every live
@@ -25,6 +27,11 @@ component before they say who publishes what (on a busy machine they can be late
 KEY_HELP = ("a key or key expression, relative to ubf/<robot>/ unless it starts with ubf/ "
             "(e.g. cmd/drive, 'sensor/**')")
 """The help of a KEY argument taking a key expression (hz, bw, info)."""
+
+
+def say_error(message: object) -> None:
+    """``python -m ubf_async.inspector: error: …`` on stderr: the one format of an error."""
+    run.say_error(PROG, message)
 
 
 def expected_schema(keys: Keys, key: str) -> str | None:
@@ -54,7 +61,7 @@ def key_or_report(keys: Keys, key: str) -> str | None:
     try:
         return resolve_key(keys, key)
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        say_error(exc)
         return None
 
 

@@ -8,11 +8,11 @@ import argparse
 
 from ubf_async.cli.args import add_connection_arguments
 from ubf_async.net.options import DEFAULT_LISTEN
-from ubf_async.tools.inspector import graph, pub, samples, state, tree
+from ubf_async.tools.inspector import common, graph, pub, samples, state, tree
 
 __all__ = ["PROG", "build_parser", "common_parser"]
 
-PROG = "python -m ubf_async.inspector"
+PROG = common.PROG
 
 
 def common_parser(*, suppress: bool = False) -> argparse.ArgumentParser:

@@ -14,7 +14,7 @@ from ubf_async.cli.attach import wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.errors import UbfError
 from ubf_async.runtime.bus import Bus
-from ubf_async.tools.inspector import graph, parser, pub, samples, state, tree
+from ubf_async.tools.inspector import common, graph, parser, pub, samples, state, tree
 
 __all__ = ["COMMANDS", "main", "open_bus", "run"]
 
@@ -43,7 +43,7 @@ async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     try:
         bus = await open_bus(args)
     except (UbfError, ConnectionError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        common.say_error(exc)
         return 2
     try:
         return await COMMANDS[args.command](bus, args, out)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import sys
 import time
 from collections.abc import Iterator
 from typing import Any, TextIO
@@ -67,13 +66,13 @@ async def cmd_pub(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
             raise ValueError(f"{schema} has no field(s) {', '.join(unknown)} (the robot would "
                              f"ignore them); its fields: {', '.join(fields)}")
     except (ValueError, yaml.YAMLError) as exc:  # ProtocolError is a ValueError
-        print(f"error: refused, nothing sent: {exc}", file=sys.stderr)
+        common.say_error(f"refused, nothing sent: {exc}")
         return 2
     if args.rate is not None and not args.rate > 0:
-        print("error: --rate must be > 0", file=sys.stderr)
+        common.say_error("--rate must be > 0")
         return 2
     if args.count is not None and args.count < 1:
-        print("error: --count must be at least 1", file=sys.stderr)
+        common.say_error("--count must be at least 1")
         return 2
     count = args.count if args.count is not None else (None if args.rate else 1)
     await follow.follow_robot_clock(bus, mode="auto")

@@ -93,7 +93,7 @@ def format_sample(keys: Keys, key: str, payload: bytes, *, raw: bool, as_json: b
 async def cmd_echo(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     keys = bus.keys
     if args.wait < 0:
-        print("error: --wait must be ≥ 0 (0 waits for ever)", file=sys.stderr)
+        common.say_error("--wait must be ≥ 0 (0 waits for ever)")
         return 2
     key_expr = common.key_or_report(keys, args.key)
     if key_expr is None:
@@ -271,7 +271,7 @@ async def cmd_rate(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     if key_expr is None:
         return 2
     if args.window < 2:
-        print("error: --window must be at least 2", file=sys.stderr)
+        common.say_error("--window must be at least 2")
         return 2
     seen: dict[str, KeyWindow] = {}
     by_kind: dict[str, dict[str, KeyWindow]] = {}

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import sys
 import time
 from collections.abc import Awaitable, Callable
 from typing import Any, TextIO
@@ -144,8 +143,8 @@ async def cmd_state(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
             await asyncio.wait_for(arrived.wait(), args.timeout)
         except TimeoutError:
             why = f" (malformed: {errors[-1]})" if errors else ""
-            print(f"error: no status on {key} within {args.timeout:g}s{why}: is the robot's "
-                  f"controller running (--controller, --robot)?", file=sys.stderr)
+            common.say_error(f"no status on {key} within {args.timeout:g}s{why}: is the "
+                             f"robot's controller running (--controller, --robot)?")
             return None
         arrived.clear()
         message = latest[-1]

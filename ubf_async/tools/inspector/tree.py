@@ -5,7 +5,6 @@ changes")."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -111,19 +110,22 @@ async def cmd_tree(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
         data = tree_request_data(args)
         encode_request(data, stamp_ns=0)  # refuse what the robot would refuse, before sending
     except ValueError as exc:  # ProtocolError is a ValueError
-        print(f"error: {exc}", file=sys.stderr)
+        common.say_error(exc)
         return 2
     if getattr(args, "watch", False):
         async def block() -> str | None:
             code, text = await _tree_once(bus, args, data)
             if code:
-                print(text, file=sys.stderr)
+                common.say_error(text)
                 return None
             return text
 
         return 2 if await state.watch(block, args, out) else 0
     code, text = await _tree_once(bus, args, data)
-    print(text, file=sys.stderr if code else out)
+    if code:
+        common.say_error(text)
+    else:
+        print(text, file=out)
     return code
 
 
@@ -133,13 +135,13 @@ async def _tree_once(bus: Bus, args: argparse.Namespace, data: dict[str, Any]
     try:
         reply = await tree_request(bus, data, timeout_s=args.timeout)
     except TimeoutError:
-        return 2, (f"error: no robot {bus.robot!r} answered on ubf/{bus.robot}/tree within "
+        return 2, (f"no robot {bus.robot!r} answered on ubf/{bus.robot}/tree within "
                    f"{args.timeout:g}s: is it running, with its tree service (--robot, "
                    f"--connect)?")
     except (QueryError, ProtocolError) as exc:
-        return 2, f"error: robot {bus.robot!r} gave no usable reply: {exc}"
+        return 2, f"robot {bus.robot!r} gave no usable reply: {exc}"
     if not reply["ok"]:
-        return 1, (f"error: robot {bus.robot!r} refused {args.tree_command}: "
+        return 1, (f"robot {bus.robot!r} refused {args.tree_command}: "
                    f"{reply['error']} (tree unchanged, version {reply.get('version', '?')})")
     if args.json:
         return 0, common.to_json(reply)
