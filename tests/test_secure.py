@@ -126,6 +126,16 @@ def test_export_packs_one_hosts_files_rotate_and_revoke_touch_one_identity(tmp_p
         tar.extractall(tmp_path / "laptop", filter="data")
     apply(zenoh.Config(), directory=tmp_path / "laptop", identity="teleop", robot="sec",
           connect=["tls/127.0.0.1:1"])
+    # An identity of the set-up whose files this host was not given: which it has, and how to
+    # bring the other.
+    with pytest.raises(ConfigurationError) as missing:
+        apply(zenoh.Config(), directory=tmp_path / "laptop", identity="operator", robot="sec",
+              connect=["tls/127.0.0.1:1"])
+    assert str(missing.value) == (
+        f"--identity operator: {tmp_path / 'laptop' / 'identities' / 'operator.json'}: no such "
+        f"file: this host has the files of inspector, teleop only; on the set-up's host, "
+        f"`python -m ubf_async.secure export DIR operator` packs operator's for this one "
+        f"(docs/security.md)")
     with tarfile.open(export(d, ["robot"], tmp_path / "r.tar.gz") and tmp_path / "r.tar.gz") as t:
         assert {"passwords.txt", "acl.json", "identities/robot.key"} <= set(t.getnames())
         assert not any("private" in n or "ca.key" in n for n in t.getnames())

@@ -706,6 +706,13 @@ def settings(*, directory: Path, identity: str | None, robot: str,
                                  f"in {directory / IDENTITIES})")
     setup = SecureSetup.load(directory)
     setup.check_robot(setup.identity(identity), robot)
+    if not identity_file(directory, identity).exists():
+        present = sorted(p.stem for p in (directory / IDENTITIES).glob("*.json"))
+        raise ConfigurationError(
+            f"--identity {identity}: {identity_file(directory, identity)}: no such file: this "
+            f"host has the files of {', '.join(present) if present else 'no identity'} only; "
+            f"on the set-up's host, `python -m ubf_async.secure export DIR {identity}` packs "
+            f"{identity}'s for this one (docs/security.md)")
     creds = _read_json(identity_file(directory, identity), secret=True,
                        what=f"the credentials of identity {identity!r}")
     user, password = creds.get("user"), creds.get("password")
