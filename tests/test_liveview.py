@@ -6,12 +6,16 @@ shipped layout is the one the code builds."""
 
 from __future__ import annotations
 
+import asyncio
+import base64
 import json
+import logging
 import math
 import os
 import re
 import signal
 import socket
+import struct
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -23,11 +27,14 @@ import jsonschema
 import numpy as np
 import pytest
 
-from tests.conftest import free_port
+from tests.conftest import eventually, free_port
 from tests.foxglove_client import FoxgloveClient
+from ubf_async.runtime.bus import Bus
 from ubf_async.services.liveview import (
+    CLIENT_GONE,
     TRAIL_REFRESH_S,
     TRAIL_STEP_M,
+    FoxgloveServer,
     LiveMessage,
     LiveView,
     RangeConverter,
@@ -290,3 +297,35 @@ def test_the_shipped_layout_is_the_one_the_code_builds() -> None:
         "regenerate it: python -m ubf_async.liveview --layout docs/foxglove-layout.json")
     assert {"/camera/front/image", "/arena", "/ubf/cmd/drive", "/ubf/trace"} <= \
         advertised_layout_topics()
+
+
+@pytest.mark.asyncio
+async def test_a_viewer_gone_without_a_goodbye_is_news_not_an_error(
+        robot_bus: Bus, caplog: pytest.LogCaptureFixture) -> None:
+    """A browser tab closed: its connection reset without the WebSocket's closing handshake.
+    foxglove-sdk logs that as an ERROR; the live view says it at INFO."""
+    server = FoxgloveServer(bus=robot_bus, port=0, host="127.0.0.1")
+    await server.start()
+    try:
+        with caplog.at_level(logging.INFO, logger="foxglove"):
+            assert server.port is not None
+            tab = socket.create_connection(("127.0.0.1", server.port))
+            key = base64.b64encode(os.urandom(16)).decode()
+            tab.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
+                        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                        f"Sec-WebSocket-Version: 13\r\n"
+                        f"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n".encode())
+            assert (await asyncio.to_thread(tab.recv, 4096)).startswith(b"HTTP/1.1 101")
+            tab.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            tab.close()  # a reset, no closing handshake
+
+            def gone() -> list[logging.LogRecord]:
+                return [r for r in caplog.records
+                        if any(words in r.getMessage() for words in CLIENT_GONE)]
+
+            await eventually(lambda: bool(gone()), timeout_s=30, what="the reset logged")
+            assert [r.levelname for r in gone()] == ["INFO"]
+            assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    finally:
+        await server.aclose()
+

@@ -61,9 +61,10 @@ from ubf_async.wire.topics import BY_SCHEMA, PlainData
 if TYPE_CHECKING:
     from foxglove.websocket import ChannelView, Client, ServerListener
 
-__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "IR_MOUNT_X_M", "NOT_AS_JSON", "ODOM_FRAME",
-           "ROBOT_FRAME", "TRAIL_POINTS", "TRAIL_REFRESH_S", "TRAIL_STEP_M", "WORLD_FRAME",
-           "CameraViewConverter", "FoxgloveServer", "JsonConverter", "LiveConverter", "LiveMessage",
+__all__ = ["CLIENT_GONE", "CLIENT_POLLER_LOGGER", "DEFAULT_HOST", "DEFAULT_PORT", "IR_MOUNT_X_M",
+           "NOT_AS_JSON", "ODOM_FRAME", "ROBOT_FRAME", "TRAIL_POINTS", "TRAIL_REFRESH_S",
+           "TRAIL_STEP_M", "WORLD_FRAME", "CameraViewConverter", "ClientGoneIsNews",
+           "FoxgloveServer", "JsonConverter", "LiveConverter", "LiveMessage",
            "LiveSchema", "LiveView", "LiveViewStats", "OdometryConverter", "RangeConverter",
            "TruthConverter", "foxglove_message", "framework_converters", "layout", "layout_json",
            "pose", "registered_converters", "relative_source", "rgba", "timestamp",
@@ -457,6 +458,27 @@ class _Subscriptions:
         return Listener()
 
 
+CLIENT_POLLER_LOGGER = "foxglove.websocket.connected_client.poller"
+"""foxglove-sdk's logger of what it receives from each client."""
+CLIENT_GONE = ("Connection reset without closing handshake", "Connection reset by peer")
+"""How foxglove-sdk says that a viewer went without a goodbye (a closed browser tab): the
+WebSocket's words, or the socket's when the reset comes first."""
+
+
+class ClientGoneIsNews(logging.Filter):
+    """foxglove-sdk logs a viewer that went away without the WebSocket's closing handshake
+    (a browser tab closed) as an ERROR; it is how viewers leave, so it is said at INFO."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno > logging.INFO and any(
+                words in record.getMessage() for words in CLIENT_GONE):
+            record.levelno, record.levelname = logging.INFO, "INFO"
+        return True
+
+
+_CLIENT_GONE_FILTER = ClientGoneIsNews()
+
+
 class FoxgloveServer(EveryMessageComponent):
     """Serves one robot live to Foxglove (module docstring) on ``host``:``port`` (``port`` 0:
     any free port; :attr:`port` says which once started). Loopback by default: the server has
@@ -492,6 +514,7 @@ class FoxgloveServer(EveryMessageComponent):
         if self._server is None and not self.closed:
             import foxglove
 
+            logging.getLogger(CLIENT_POLLER_LOGGER).addFilter(_CLIENT_GONE_FILTER)  # (once)
             self._context = foxglove.Context()
             try:
                 self._server = foxglove.start_server(
