@@ -27,6 +27,7 @@ import pytest
 
 from tests.cli_inprocess import launch_main
 from tests.conftest import free_port
+from ubf_async.cli import run as cli_run
 from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.cli.attach import wait_for_robot
 from ubf_async.errors import ConfigurationError
@@ -223,6 +224,74 @@ def test_a_second_signal_exits_at_once_whatever_the_shutdown_is_stuck_on(
     assert code == 130, robot.text()
     assert time.monotonic() - sent < 5
     assert any(f"{sig.name} again: exiting now" in line for line in robot.err), robot.text()
+
+
+WAITS_FOR_A_STOP = """\
+import asyncio, sys
+from ubf_async.cli.run import run_main
+
+async def main() -> int:
+    print("ready", flush=True)
+    try:
+        await asyncio.Event().wait()
+    finally:
+        await asyncio.sleep(1.0)  # a stop that takes a while: a second signal may come meanwhile
+        print("stopped cleanly", flush=True)
+
+sys.exit(run_main(main, prog="waits"))
+"""
+
+
+@pytest.mark.parametrize("apart", ["at once", "later"])
+def test_one_signal_sent_twice_at_once_is_one_stop(apart: str) -> None:
+    """``timeout -s INT`` sends its signal to the command and to its process group: the
+    command gets two SIGINTs within microseconds. That is one request to stop, not "SIGINT
+    again: exiting now"; a second signal that comes later (a second Ctrl-C) still exits at
+    once, status 130."""
+    proc = subprocess.Popen([sys.executable, "-c", WAITS_FOR_A_STOP], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline() == "ready\n"
+        proc.send_signal(signal.SIGINT)
+        if apart == "later":
+            time.sleep(cli_run.SECOND_SIGNAL_AFTER_S + 0.1)  # a person's second Ctrl-C, later
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    if apart == "at once":
+        assert proc.returncode == 0, err
+        assert out == "stopped cleanly\n" and "exiting now" not in err, err
+    else:
+        assert proc.returncode == 130, err
+        assert "SIGINT again: exiting now" in err and "stopped cleanly" not in out, (out, err)
+
+
+def test_stop_signals_read_together_are_one_request_and_a_later_one_a_second() -> None:
+    """The stop guard's watcher, fed as the signal handler feeds it (a byte per signal on its
+    wake-up pipe): two signals that came together are the first request; one that comes
+    SECOND_SIGNAL_AFTER_S later is the second, which exits."""
+    guard = cli_run.StopGuard(prog="t", stop_bound_s=3600)
+    exits: list[int] = []
+    guard.exit_now = lambda signum, **_: exits.append(signum)  # type: ignore[method-assign]
+    read_fd, write_fd = os.pipe()
+    watcher = threading.Thread(target=guard._watch, args=(read_fd,), daemon=True)
+    watcher.start()
+    try:
+        os.write(write_fd, bytes([signal.SIGINT, signal.SIGINT]))  # timeout -s INT's pair
+        deadline = time.monotonic() + 30
+        while guard.signals < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert guard.signals == 1 and exits == []
+        time.sleep(cli_run.SECOND_SIGNAL_AFTER_S + 0.05)  # a person's second Ctrl-C, later
+        os.write(write_fd, bytes([signal.SIGINT]))
+        os.close(write_fd)
+        watcher.join(30)
+        assert guard.signals == 2 and exits == [signal.SIGINT]
+    finally:
+        assert guard.overdue is not None
+        guard.overdue.cancel()
+        os.close(read_fd)
 
 
 # ---------------------------------------------------------------------------------------------

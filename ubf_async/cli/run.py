@@ -28,6 +28,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Awaitable, Callable, Coroutine, Iterator
 from types import FrameType
 from typing import Any, TextIO, TypeVar, cast
@@ -38,9 +39,9 @@ from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.runtime import lending
 
 __all__ = ["DEFAULT_LOOP", "EXIT_ERROR", "EXIT_INTERRUPTED", "EXIT_NOW_BUDGET_S", "LOOP_CHOICES",
-           "LOOP_ENV", "LOOP_HELP", "SAY_WAIT_S", "STOP_BOUND_S", "STOP_SIGNALS", "StopGuard",
-           "check_lockstep_loop", "loop_factory", "run_loop", "run_main", "run_sync", "said_error",
-           "say_error"]
+           "LOOP_ENV", "LOOP_HELP", "SAY_WAIT_S", "SECOND_SIGNAL_AFTER_S", "STOP_BOUND_S",
+           "STOP_SIGNALS", "StopGuard", "check_lockstep_loop", "loop_factory", "run_loop",
+           "run_main", "run_sync", "said_error", "say_error"]
 
 T = TypeVar("T")
 
@@ -55,6 +56,11 @@ STOP_BOUND_S = 5.0
 """How long a program may take to stop after the first Ctrl-C/SIGTERM (docs: README)."""
 EXIT_NOW_BUDGET_S = 1.0
 """Wall time an immediate exit gives to what must be finished (a recording's index)."""
+SECOND_SIGNAL_AFTER_S = 0.25
+"""A stop signal within this long of the first is the same request, not a second one: tools
+send one signal twice at once (``timeout -s INT`` to the command and to its process group, a
+terminal's Ctrl-C to a wrapper that forwards it), while a person pressing Ctrl-C again to quit
+at once takes longer than this between the two."""
 SAY_WAIT_S = 0.5
 """How long the stop waits for the watcher thread to finish saying that it stops."""
 
@@ -85,6 +91,11 @@ class StopGuard:
         self._stopping_said = threading.Event()
         self._lock = threading.Lock()
         self._exiting = threading.Lock()
+        self._first_at = 0.0
+        """When the watcher read the first stop signal (``time.monotonic``)."""
+        self.overdue: threading.Timer | None = None
+        """Exits the process if the stop the first signal began is not over within
+        ``stop_bound_s``."""
 
     def arm(self, on_first: Callable[[], None]) -> None:
         """What the first signal does (typically: cancel the main task, thread-safely)."""
@@ -122,7 +133,9 @@ class StopGuard:
             first = not self._first_handled
             self._first_handled = True
         if not first:
-            self.exit_now(signum)  # the watcher normally got there first
+            if self.signals > 1:  # a second request, as the watcher counts them
+                self.exit_now(signum)  # (the watcher normally got there first)
+            return
         # Said before the stop begins, so that it comes before whatever the stop prints.
         self._say_stopping(wait=True)
         if self._on_first is None:
@@ -138,15 +151,22 @@ class StopGuard:
                 return
             if not data:
                 return
+            # When the signals came, as near as this process can tell: this thread waits
+            # for them in read(), on no lock, whatever the main thread is doing.
+            now = time.monotonic()
             for signum in data:
                 if signum not in STOP_SIGNALS:
                     continue
+                if self.signals and now - self._first_at < SECOND_SIGNAL_AFTER_S:
+                    continue  # the first request, sent twice at once
                 self.signals += 1
                 if self.signals == 1:
+                    self._first_at = now
                     self._say_stopping(wait=False)  # the main thread may be stuck in C
-                    overdue = threading.Timer(self.stop_bound_s, self._overdue, args=(signum,))
-                    overdue.daemon = True
-                    overdue.start()
+                    self.overdue = threading.Timer(self.stop_bound_s, self._overdue,
+                                                   args=(signum,))
+                    self.overdue.daemon = True
+                    self.overdue.start()
                 else:
                     self.exit_now(signum)
 
