@@ -30,6 +30,7 @@ from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import DEFAULT_LISTEN, ConnectionOptions
 from ubf_async.runtime.bus import Bus
 from ubf_async.tools import liveview
+from ubf_async.tools import record as recording
 from ubf_async.tools.record import McapRecorder, build_parser, record
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -291,19 +292,22 @@ def recover(path: Path) -> Recovered:
 
 
 @pytest.mark.asyncio
-async def test_drops_are_counted_when_the_writer_does_not_keep_up(tmp_path: Path) -> None:
-    # The writer thread stalls in its progress callback after its first flush, as it would on
-    # a stalled disk: the bounded queue fills, the rest is dropped and counted, the loop goes on.
+async def test_drops_are_counted_when_the_writer_does_not_keep_up(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The writer thread stalls after its first flush, as it would in a write to a stalled
+    # disk: the bounded queue fills, the rest is dropped and counted, the loop goes on.
     stalled, release = threading.Event(), threading.Event()
+    flush = recording._File.flush
 
-    def slow_progress(stats: object) -> None:
+    def stalling_flush(file: recording._File) -> None:
+        flush(file)
         stalled.set()
         release.wait(timeout=30)
 
+    monkeypatch.setattr(recording._File, "flush", stalling_flush)
     net = InProcessTransport()
     robot, device = Bus(transport=net, robot="r1"), Bus(transport=net, robot="r1")
-    recorder = McapRecorder(bus=robot, out=tmp_path, max_queue=10, flush_s=0.01,
-                            on_flush=slow_progress)
+    recorder = McapRecorder(bus=robot, out=tmp_path, max_queue=10, flush_s=0.01)
     await recorder.start()
     sensor = device.publisher(device.keys.sensor("light", "x"), "light")
     sensor.publish({"lux": -1.0})

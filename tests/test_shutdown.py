@@ -30,7 +30,7 @@ from mcap.reader import make_reader
 
 from tests.conftest import REPOSITORY, free_port, repository_env
 from ubf_async.cli import ending
-from ubf_async.cli.run import EXIT_ERROR, EXIT_NOW_BUDGET_S, STOP_BOUND_S
+from ubf_async.cli.run import EXIT_ERROR, EXIT_NOW_BUDGET_S, SECOND_SIGNAL_AFTER_S, STOP_BOUND_S
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.net.transport import ZenohConnection
 from ubf_async.runtime.bus import Bus
@@ -164,6 +164,13 @@ def assert_summary_saved(path: Path) -> dict[str, Any]:
     return summary
 
 
+def second_signal_later(first: float) -> None:
+    """Let :data:`~ubf_async.cli.run.SECOND_SIGNAL_AFTER_S` pass since the first signal was
+    sent at ``first`` (``time.monotonic``), and half a second more for the process to have
+    read it: a signal sent sooner would be the same request sent twice, not a second one."""
+    time.sleep(max(0.0, first + SECOND_SIGNAL_AFTER_S + 0.5 - time.monotonic()))
+
+
 def launch(commands: list[Command], tmp: Path, *args: str, env: dict[str, str] | None = None,
            stdout_file: IO[str] | None = None, fault: str | None = None,
            slow_fsync_s: float | None = None) -> Command:
@@ -272,7 +279,9 @@ def test_a_second_signal_exits_at_once_and_still_finishes_the_recording(
                    str(tmp_path / "rec"), slow_fsync_s=20.0 if disk == "slow" else None)
     robot.wait_for(SIMULATED_SECOND)
     robot.proc.send_signal(signal.SIGTERM)
+    first = time.monotonic()
     robot.wait_for("saving the run's results")
+    second_signal_later(first)
     code = robot.stopped_within(EXIT_NOW_BUDGET_S + 1.0)
     assert code == 130, robot.text()
     assert any("SIGTERM again: exiting now" in line for line in robot.err), robot.text()

@@ -127,7 +127,8 @@ def _msgpack_bytes(node: Any) -> Any:
 
 @dataclass
 class RecorderStats:
-    """What a recorder did (read from any thread; written by the loop and the writer)."""
+    """What a recorder did (read from any thread; written by the loop, the writer and the
+    writer's fsyncs)."""
 
     received: int = 0
     written: int = 0
@@ -137,6 +138,9 @@ class RecorderStats:
     """Messages that are not a valid envelope (recorded all the same)."""
     flushes: int = 0
     """Chunks closed and synced to the disk (``fsync``)."""
+    synced: int = 0
+    """Of the messages written, those on the disk: written before the last flush whose
+    ``fsync`` returned."""
     sync_s_max: float = 0.0
     """The longest ``fsync`` so far (s): what durability costs the writer."""
     live: int = 0
@@ -382,11 +386,13 @@ class _File:
         # finish the file within the second an exit at once gives it. A sync still running
         # covers this chunk's turn: the next flush syncs it.
         if self._syncing is None or not self._syncing.is_alive():
-            self._syncing = threading.Thread(target=self._sync, daemon=True,
+            self._syncing = threading.Thread(target=self._sync,
+                                             args=(self.recorder.stats.written,), daemon=True,
                                              name=f"{self.recorder.name}:fsync")
             self._syncing.start()
 
-    def _sync(self) -> None:
+    def _sync(self, written: int) -> None:
+        """Sync the file, whose first ``written`` messages the kernel has."""
         started = time.monotonic()
         try:
             os.fsync(self.stream.fileno())
@@ -399,6 +405,7 @@ class _File:
             return
         stats = self.recorder.stats
         stats.sync_s_max = max(stats.sync_s_max, time.monotonic() - started)
+        stats.synced = max(stats.synced, written)
         stats.flushes += 1
         if self.recorder._on_flush is not None:
             self.recorder._on_flush(self.recorder.stats)
@@ -469,8 +476,9 @@ async def record(args: argparse.Namespace) -> int:
         await ensure_name_free(bus, args.name, hint="give this recorder another --name")
 
         def progress(stats: RecorderStats) -> None:
-            # After the flush: the written messages are on the disk; the queued ones not yet.
-            print(f"recorded {stats.written} messages ({stats.dropped} dropped, "
+            # After a flush's fsync: the synced messages are on the disk; the queued ones, and
+            # those written since, not yet.
+            print(f"recorded {stats.synced} messages ({stats.dropped} dropped, "
                   f"{recorder.queued} queued) to {stats.files[-1]}", flush=True)
 
         recorder = McapRecorder(
