@@ -106,6 +106,18 @@ def main(argv: Sequence[str] | None = None) -> int:
 # Helpers for the subprocess tests
 
 
+def cpu_wait_s(pid: int) -> float:
+    """How long process ``pid``'s live threads have waited for a CPU while ready to run
+    (Linux's run-queue wait, the second field of ``/proc/PID/task/TID/schedstat``): on a busy
+    machine, what its wall times owe to the machine rather than to the process. 0 where that
+    is not available."""
+    waited = 0
+    for stat in Path(f"/proc/{pid}/task").glob("*/schedstat"):
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            waited += int(stat.read_text().split()[1])
+    return waited / 1e9
+
+
 class Process:
     """A child process whose stdout lines are collected by a reader thread."""
 

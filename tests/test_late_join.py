@@ -24,7 +24,7 @@ from typing import Any
 import pytest
 
 from tests.conftest import eventually
-from tests.remote_robot import Process
+from tests.remote_robot import Process, cpu_wait_s
 from ubf_async.clocks import follow
 from ubf_async.clocks.clock import SimClock, WallClock
 from ubf_async.net.inprocess import InProcessTransport
@@ -39,7 +39,9 @@ S = 10**9
 LATE_S = 10.0
 """The issue's late join: the tool starts this long after launch."""
 TAKES_S = 3.0
-"""... and must be working within this long of its start."""
+"""... and must be working within this long of its start — not counting the time the machine
+kept it waiting for a CPU (:func:`~tests.remote_robot.cpu_wait_s`): beside a busy loop on
+every core and the rest of the suite, a tool's start-up alone (its imports) can take longer."""
 
 
 def readme_command(program: str, endpoint: str) -> list[str]:
@@ -95,8 +97,9 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
     """The default simulated robot, as the README starts it (on a free port), started at
     ``launched`` (``time.monotonic()``): 10 s after that, the README's teleop command,
     unchanged, takes control within 3 s; then the README's obstacle avoidance and range finder
-    and the radio, each joining later still, are at work within 3 s: their votes or samples
-    reach the robot and it takes them (refuses none).
+    and the radio, each joining later still, are at work within 3 s (:data:`TAKES_S`, the
+    time each waited for a CPU not counted): their votes or samples reach the robot and it
+    takes them (refuses none).
 
     Run by tests/test_doc_commands.py on the README's quick-start robot, which the README's
     other tools attach to as well: tools of the same names may have come and gone before."""
@@ -124,7 +127,9 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
                                             == ["teleop"]) is not None,
                          timeout_s=60, what="teleop to take control")
         took = seen.first(drives, started, lambda m: list(m.data.winners) == ["teleop"])
-        assert took is not None and took - started <= TAKES_S, (took, started, teleop.output())
+        assert took is not None, teleop.output()
+        waited = cpu_wait_s(teleop.pid)
+        assert took - started - waited <= TAKES_S, (took - started, waited, teleop.output())
         assert (drives[-1][1].data.speed, drives[-1][1].data.turn) == (30.0, 0.0)
         assert "clock: simulated time" in teleop.output()
 
@@ -147,7 +152,10 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
         await eventually(lambda: seen.first(votes, started) is not None, timeout_s=60,
                          what="avoid_obstacles' first vote through the robot")
         first_vote = seen.first(votes, started)
-        assert first_vote is not None and first_vote - started <= TAKES_S, avoid.output()
+        assert first_vote is not None, avoid.output()
+        waited = cpu_wait_s(avoid.pid)
+        assert first_vote - started - waited <= TAKES_S, (first_vote - started, waited,
+                                                          avoid.output())
         assert abs(avoid_counts()["age_s"]) <= avoid_counts()["ttl_s"]  # type: ignore[index]
         assert latest(remotes)["future"] == 0 and latest(remotes)["rejected"] == 0
 
@@ -170,7 +178,10 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
         await eventually(lambda: seen.first(ranges, started) is not None, timeout_s=60,
                          what="the range finder's first sample through the robot")
         first_range = seen.first(ranges, started)
-        assert first_range is not None and first_range - started <= TAKES_S, ranger.output()
+        assert first_range is not None, ranger.output()
+        waited = cpu_wait_s(ranger.pid)
+        assert first_range - started - waited <= TAKES_S, (first_range - started, waited,
+                                                           ranger.output())
         left = source("range/left")
         assert left is not None and left["refused"] == 0 and not left["stale"]
         assert 0 <= left["age_s"] < 0.5
@@ -192,7 +203,9 @@ async def readme_tools_join_late(endpoint: str, launched: float) -> None:
         await eventually(lambda: seen.first(messages, started) is not None, timeout_s=60,
                          what="the radio's message through the robot")
         first_message = seen.first(messages, started)
-        assert first_message is not None and first_message - started <= TAKES_S
+        assert first_message is not None
+        waited = cpu_wait_s(radio.pid)
+        assert first_message - started - waited <= TAKES_S, (first_message - started, waited)
         assert source("radio/ext")["refused"] == 0  # type: ignore[index]
 
         status = latest(statuses)
