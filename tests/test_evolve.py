@@ -14,6 +14,7 @@ import csv
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -233,16 +234,31 @@ def test_a_tune_study_kept_in_a_storage_resumes(spec: Path, tmp_path: Path,
     storage = f"sqlite:///{tmp_path / 'study.db'}"
     out = tmp_path / "tune"
     args = [str(spec), "--out", str(out), "--storage", storage, "--workers", "1"]
+    # What it would do, checked first: the parameters by their names.
+    assert tune_main([str(spec), "--check"]) == 0
+    checked = capsys.readouterr().out.splitlines()
+    assert checked[0] == f"{spec}: 2 parameters of mini-whegs.yaml, 2 trials (tpe, seed 3) — OK"
+    assert checked[1:3] == [
+        "  search.period_s: float in [1, 8], from 4  (tree.children[0].params.period_s)",
+        "  chase.speed: float in [10, 80], from 40  (tree.children[1].params.speed)"]
+    assert not out.exists()
     assert tune_main(args) == 0
     first = capsys.readouterr().out
-    assert "trial 0: " in first and "trial 1: " in first, first
+    # A line per trial, with the count, the time spent and left; the best by name; and the
+    # caution that an importance ranking of 2 trials is noise.
+    assert re.search(r"^  trial 0 \(1/2\): \S+ \(best \S+\); \d+:\d\d elapsed, about "
+                     r"\d+:\d\d left$", first, re.M), first
+    assert re.search(r"^  trial 1 \(2/2\): \S+ \(best \S+\); \d+:\d\d elapsed$", first,
+                     re.M), first
+    assert re.search(r"best \S+: search.period_s = \S+, chase.speed = \S+$", first, re.M), first
+    assert "caution: importance.png's ranking is from 2 trials, noise below 20" in first
     before = (out / "trials.csv").read_text().splitlines()
-    assert len(before) == 3
+    assert len(before) == 3 and before[0] == "trial,state,value,search.period_s,chase.speed"
     # The first trial is the robot file's own values.
     assert before[1].endswith(",4.0,40.0"), before
     assert tune_main([*args, "--trials", "3"]) == 0
     second = capsys.readouterr().out
-    assert "trial 0: " not in second and "trial 2: " in second, second
+    assert "trial 0 " not in second and "  trial 2 (3/3): " in second, second
     after = (out / "trials.csv").read_text().splitlines()
     assert after[:3] == before and len(after) == 4
     assert load_robot(out / "best.yaml").name == "mini"

@@ -22,7 +22,8 @@ from __future__ import annotations
 import copy
 import json
 import re
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +59,38 @@ def parse_path(text: str) -> Path_:
         raise ValueError(f"not a path into a robot file: {text!r} (expected names joined by "
                          f"'.' and list items as [i], e.g. tree.children[1].params.period_s)")
     return parse_error_path("$." + text)
+
+
+def readable_name(data: Any, path: str) -> str:
+    """``tree.children[0].params.period_s`` → ``search.period_s``: the path from the last
+    named object it passes through in the robot file's ``data`` (a tree node by its ``name``,
+    ``behavior`` or ``remote``, a device as ``KIND/NAME``), without ``params``; the path
+    itself where none is named."""
+    node, named, rest = data, "", list[str | int]()
+    for part in parse_path(path):
+        if isinstance(part, int):
+            node = node[part] if isinstance(node, list) and 0 <= part < len(node) else None
+        else:
+            node = node.get(part) if isinstance(node, dict) else None
+        name = next((node[k] for k in ("name", "behavior", "remote")
+                     if isinstance(node.get(k), str)), None) if isinstance(node, dict) else None
+        if name is not None and isinstance(node, dict):
+            kind = node.get("kind")
+            named, rest = (f"{kind}/{name}" if isinstance(kind, str) else name), []
+        elif part != "params":
+            rest.append(part)
+    if not named:
+        return path
+    tail = format_path(tuple(rest))
+    return named + ("" if not tail else tail if tail.startswith("[") else f".{tail}")
+
+
+def readable_names(data: Any, paths: Sequence[str]) -> dict[str, str]:
+    """:func:`readable_name` of each of ``paths``; a path whose name another path's name is
+    too keeps its path."""
+    names = {path: readable_name(data, path) for path in paths}
+    taken = Counter(names.values())
+    return {path: name if taken[name] == 1 else path for path, name in names.items()}
 
 
 def describe(overrides: Mapping[str, Any]) -> str:

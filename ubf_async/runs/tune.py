@@ -40,13 +40,17 @@ from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import JOURNAL
 
-__all__ = ["HISTORY_PNG", "IMPORTANCE_PNG", "SAMPLERS", "TRIALS_CSV", "TuneOutputs",
+__all__ = ["HISTORY_PNG", "IMPORTANCE_PNG", "IMPORTANCE_TRIALS", "SAMPLERS", "TRIALS_CSV",
+           "TuneOutputs",
            "distributions", "draw", "run_study", "tuned_text", "write_trials"]
 
 TRIALS_CSV = "trials.csv"
 IMPORTANCE_PNG = "importance.png"
 HISTORY_PNG = "history.png"
 SAMPLERS = ("tpe", "cmaes")
+IMPORTANCE_TRIALS = 20
+"""Complete trials below which a ranking of the parameters' importance is noise: the plot
+and the console say so (fANOVA fits a forest to the trials; a handful fit anything)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,13 +95,15 @@ def run_study(plan: EvolvePlan, out_dir: str | Path, *, storage: str | None = No
               study_name: str | None = None, trials: int | None = None,
               sampler: str | None = None, workers: int | None = None, executor: str = "local",
               address: str | None = None, runtime_env: dict[str, Any] | None = None,
-              on_trial: Callable[[int, float, float], None] | None = None,
+              on_trial: Callable[[int, float, float, int, int], None] | None = None,
               on_run: Callable[[RunRecord], None] | None = None,
               on_batch: Callable[[int], None] | None = None) -> TuneOutputs:
     """Tune ``plan``'s ``tune`` parameters into ``out_dir`` until the study holds ``trials``
     complete trials (default: the SPEC's), then write the outputs. ``on_trial(number, value,
-    best)`` is told of each trial told. Raises :class:`ConfigurationError` before anything
-    runs (no ``tune`` section, no Optuna, a storage that cannot be opened)."""
+    best, complete, wanted)`` is told of each trial told (``complete``: the study's complete
+    trials, that one included; ``wanted``: how many it is to hold). Raises
+    :class:`ConfigurationError` before anything runs (no ``tune`` section, no Optuna, a
+    storage that cannot be opened)."""
     tune = plan.tune
     if tune is None:
         raise ConfigurationError(f"{plan.source}: no `tune` section: nothing to tune")
@@ -127,14 +133,14 @@ def run_study(plan: EvolvePlan, out_dir: str | Path, *, storage: str | None = No
         evaluator = Evaluator(plan.fitness, pool, out / JOURNAL, on_run=on_run,
                               on_batch=on_batch)
         try:
-            while len(study.get_trials(deepcopy=False, states=(complete,))) < wanted:
+            while (held := len(study.get_trials(deepcopy=False, states=(complete,)))) < wanted:
                 trial = study.ask(space)
                 values = tuple(trial.params.items())
                 runs = plan.training.tasks(tune.robot_text, tune.robot_source, values)
                 value = evaluator.evaluate([runs])[0].fitness
                 study.tell(trial, value)
                 if on_trial is not None:
-                    on_trial(trial.number, value, study.best_value)
+                    on_trial(trial.number, value, study.best_value, held + 1, wanted)
             best = study.best_trial
             header_lines = [f"Tuned by python -m ubf_async.tune {plan.source.name} "
                             f"(study {name!r}, {chosen}, seed {plan.seed}) from "
@@ -151,24 +157,27 @@ def run_study(plan: EvolvePlan, out_dir: str | Path, *, storage: str | None = No
         finally:
             evaluator.close()
     done = study.get_trials(deepcopy=False, states=(complete,))
-    write_trials(out / TRIALS_CSV, study, [p for p, *_ in tune.parameters])
-    plots = draw(optuna, study, out)
+    write_trials(out / TRIALS_CSV, study, tune.names)
+    plots = draw(optuna, study, out, tune.names)
     return TuneOutputs(out_dir=out, best=best_path, study=name, trials=len(done),
                        best_value=best.value, best_params=dict(best.params),
                        held_out=compared, plots=plots, ran=evaluator.ran)
 
 
-def write_trials(path: Path, study: Any, parameters: list[str]) -> Path:
-    columns = ["trial", "state", "value", *parameters]
+def write_trials(path: Path, study: Any, names: dict[str, str]) -> Path:
+    """Every trial: its number, state, value and each parameter, under the name it is shown by
+    (``names``: path → name, :attr:`TunePlan.names`)."""
+    columns = ["trial", "state", "value", *names.values()]
     rows = [{"trial": t.number, "state": t.state.name, "value": t.value,
-             **{p: t.params.get(p) for p in parameters}}
+             **{name: t.params.get(path) for path, name in names.items()}}
             for t in study.get_trials(deepcopy=False)]
     return table.write_whole(path, table.csv_text(columns, rows))
 
 
-def draw(optuna: Any, study: Any, out: Path) -> list[Path]:
-    """Optuna's history and importance plots (matplotlib): the importance needs two complete
-    trials of different values, and is left out without them."""
+def draw(optuna: Any, study: Any, out: Path, names: dict[str, str]) -> list[Path]:
+    """Optuna's history and importance plots (matplotlib), the parameters under their
+    ``names``: the importance needs two complete trials of different values, and is left out
+    without them; with fewer than :data:`IMPORTANCE_TRIALS` its title says it is noise."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -185,6 +194,14 @@ def draw(optuna: Any, study: Any, out: Path) -> list[Path]:
                 axes = plot(study)
             except (ValueError, RuntimeError):  # too few distinct trials to say anything
                 continue
+        if name == IMPORTANCE_PNG:
+            axes.set_yticks(axes.get_yticks(), [names.get(label.get_text(), label.get_text())
+                                                for label in axes.get_yticklabels()])
+            trials = len(study.get_trials(deepcopy=False,
+                                          states=(optuna.trial.TrialState.COMPLETE,)))
+            if trials < IMPORTANCE_TRIALS:
+                axes.set_title(f"Hyperparameter importances — from {trials} trials: noise "
+                               f"below {IMPORTANCE_TRIALS}", color="firebrick")
         figure = axes.figure
         figure.set_size_inches(7, 4)
         figure.tight_layout()

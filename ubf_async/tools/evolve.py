@@ -37,10 +37,10 @@ from ubf_async.tools.sweep import (
     ExampleFormatter,
     add_pool_arguments,
     check_pool_arguments,
-    clock_text,
     pool_description,
     pool_stop_guard,
     pool_words,
+    time_spent,
 )
 
 __all__ = ["EXAMPLE", "PROG", "BarProgress", "PlainProgress", "build_parser", "describe", "main",
@@ -114,12 +114,9 @@ class PlainProgress:
 
     def generation(self, entry: dict[str, Any]) -> None:
         done = entry["generation"] + 1
-        elapsed = time.monotonic() - self.start
-        left = elapsed / done * (self.generations - done) if done < self.generations else 0
         print(f"  generation {done}/{self.generations}: best {entry['best']['fitness']:g} "
               f"({entry['best']['size']} nodes), mean {entry['fitness']['mean']:g}; "
-              f"{clock_text(elapsed)} elapsed"
-              + (f", about {clock_text(left)} left" if left else ""),
+              f"{time_spent(self.start, done, self.generations)}",
               file=self.out, flush=True)
 
 

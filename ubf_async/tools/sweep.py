@@ -42,7 +42,7 @@ __all__ = ["EXAMPLE", "EXIT_RUNS_FAILED", "PLAIN_STEPS", "PROG", "RAY_STOP_BOUND
            "ExampleFormatter", "PlainProgress", "add_pool_arguments", "build_parser",
            "check_arguments", "check_pool_arguments", "clock_text", "execute", "json_object",
            "main", "pool_description", "pool_stop_guard", "pool_words", "print_plan", "report",
-           "resume_command", "run"]
+           "resume_command", "run", "time_spent"]
 
 PROG = "python -m ubf_async.sweep"
 EXIT_RUNS_FAILED = 1
@@ -187,11 +187,8 @@ class PlainProgress:
         self.failed += record.status == "failed"
         if self.done % self.every and self.done != self.total:
             return
-        elapsed = time.monotonic() - self.start
-        left = elapsed / self.done * (self.total - self.done)
         print(f"  {self.done}/{self.total} runs ({100 * self.done // self.total} %), "
-              f"{self.failed} failed, {clock_text(elapsed)} elapsed"
-              + (f", about {clock_text(left)} left" if self.done < self.total else ""),
+              f"{self.failed} failed, {time_spent(self.start, self.done, self.total)}",
               file=self.out, flush=True)
 
 
@@ -228,6 +225,16 @@ class BarProgress:
         self.done += 1
         self.failed += record.status == "failed"
         self.bar.update(self.task, advance=1, failed=self.failed)
+
+
+def time_spent(start: float, done: int, total: int) -> str:
+    """``0:12 elapsed, about 1:30 left``: since ``start`` (``time.monotonic``), ``done`` of
+    ``total`` steps taken here, the rest guessed at the same pace (nothing left: elapsed
+    alone)."""
+    elapsed = time.monotonic() - start
+    left = elapsed / done * (total - done) if 0 < done < total else 0.0
+    return f"{clock_text(elapsed)} elapsed" + (f", about {clock_text(left)} left"
+                                               if done < total else "")
 
 
 def clock_text(seconds: float) -> str:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
@@ -23,16 +24,17 @@ from ubf_async import __version__
 from ubf_async.cli.run import EXIT_INTERRUPTED, run_sync
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import tune
-from ubf_async.runs.evolve.spec import load_evolve
+from ubf_async.runs.evolve.spec import EvolvePlan, load_evolve
 from ubf_async.tools.sweep import (
     ExampleFormatter,
     add_pool_arguments,
     check_pool_arguments,
     pool_stop_guard,
     pool_words,
+    time_spent,
 )
 
-__all__ = ["EXAMPLE", "PROG", "build_parser", "main", "run"]
+__all__ = ["EXAMPLE", "PROG", "build_parser", "main", "print_plan", "run"]
 
 PROG = "python -m ubf_async.tune"
 
@@ -41,6 +43,7 @@ examples:
   python -m ubf_async.tune examples/evolve/mini-whegs.yaml --out out/tune
   python -m ubf_async.tune SPEC.yaml --out DIR --storage sqlite:///study.db   # resumable
   python -m ubf_async.tune SPEC.yaml --out DIR --sampler cmaes --trials 60
+  python -m ubf_async.tune SPEC.yaml --check     # what it would tune and run
 
 Out, in DIR: best.yaml (the robot file with the best values), trials.csv, history.png and
 importance.png (Optuna's plots), report.md and heldout.csv (the tuned robot against the file
@@ -56,8 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXAMPLE, formatter_class=ExampleFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("spec", type=Path, metavar="SPEC.yaml", help="the SPEC (its `tune`)")
-    parser.add_argument("--out", type=Path, required=True, metavar="DIR",
-                        help="the folder of the outputs")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
+                        help="the folder of the outputs (required unless --check)")
     parser.add_argument("--storage", default=None, metavar="URL",
                         help="Optuna's storage (sqlite:///FILE): the study is kept there, "
                              "resumed by the same command, shared by machines given the same "
@@ -70,8 +73,30 @@ def build_parser() -> argparse.ArgumentParser:
                         help="default: the SPEC's (tpe)")
     parser.add_argument("--seed", type=int, default=None, metavar="N",
                         help="the sampler's seed (default: the SPEC's)")
+    parser.add_argument("--check", action="store_true",
+                        help="check the SPEC, say what the study would tune and run, and exit "
+                             "(--out is then not needed)")
     add_pool_arguments(parser)
     return parser
+
+
+def print_plan(plan: EvolvePlan, args: argparse.Namespace, out: TextIO) -> None:
+    """What ``--check`` says: the parameters by name (with their paths and ranges), the
+    training runs of a trial, the trials and the sampler."""
+    assert plan.tune is not None
+    tune_plan = plan.tune
+    wanted = args.trials if args.trials is not None else tune_plan.trials
+    print(f"{plan.source}: {len(tune_plan.parameters)} parameters of "
+          f"{tune_plan.robot_source}, {wanted} trials ({args.sampler or tune_plan.sampler}, "
+          f"seed {plan.seed}) — OK", file=out)
+    for path, low, high, integer in tune_plan.parameters:
+        kind = "int" if integer else "float"
+        start = tune_plan.start.get(path)
+        print(f"  {tune_plan.names[path]}: {kind} in [{low:g}, {high:g}]"
+              + (f", from {start:g}" if start is not None else "") + f"  ({path})", file=out)
+    print(f"  training: {plan.training.describe()} = {plan.training.runs} runs per trial",
+          file=out)
+    print(f"  held out: {plan.held_out.describe()}", file=out)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -86,6 +111,12 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     plan = load_evolve(args.spec, seed=args.seed)
     if plan.tune is None:
         raise ConfigurationError(f"{args.spec}: no `tune` section: nothing to tune")
+    if args.check:
+        print_plan(plan, args, out)
+        return 0
+    if args.out is None:
+        raise ConfigurationError("--out DIR is required (unless --check)")
+    names = plan.tune.names
     try:  # a line per trial is said below, not Optuna's own
         import optuna
         optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -95,8 +126,14 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
           f"training: {plan.training.describe()} = {plan.training.runs} runs per trial",
           file=out, flush=True)
 
-    def said(number: int, value: float, best: float) -> None:
-        print(f"  trial {number}: {value:g} (best {best:g})", file=out, flush=True)
+    started: list[tuple[float, int]] = []  # (when, complete trials then): this process's pace
+
+    def said(number: int, value: float, best: float, complete: int, wanted: int) -> None:
+        if not started:
+            started.append((time.monotonic() - 1e-9, complete - 1))
+        since, before = started[0]
+        print(f"  trial {number} ({complete}/{wanted}): {value:g} (best {best:g}); "
+              f"{time_spent(since, complete - before, wanted - before)}", file=out, flush=True)
 
     guard = pool_stop_guard(PROG, args)
     try:
@@ -116,7 +153,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
               file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
     print(f"study {outputs.study!r}: {outputs.trials} trials; best {outputs.best_value:g}: "
-          + ", ".join(f"{k} = {v:g}" for k, v in outputs.best_params.items()), file=out)
+          + ", ".join(f"{names[k]} = {v:g}" for k, v in outputs.best_params.items()), file=out)
     print("held out:", file=out)
     for robot in outputs.held_out:
         e = robot.evaluation
@@ -125,6 +162,9 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
               file=out)
     print(f"written in {outputs.out_dir}: best.yaml, {tune.TRIALS_CSV}, "
           + ", ".join(p.name for p in outputs.plots) + ", report.md, heldout.csv", file=out)
+    if outputs.trials < tune.IMPORTANCE_TRIALS:
+        print(f"  caution: {tune.IMPORTANCE_PNG}'s ranking is from {outputs.trials} trials, "
+              f"noise below {tune.IMPORTANCE_TRIALS} (--trials N)", file=out)
     return 0
 
 

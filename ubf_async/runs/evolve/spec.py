@@ -216,6 +216,9 @@ class TunePlan:
     """The robot file's own values of the parameters, where in range (the first trial)."""
     trials: int
     sampler: str
+    names: dict[str, str]
+    """Each parameter's path → the name it is shown by (``search.period_s``:
+    :func:`~ubf_async.runs.overrides.readable_name`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -604,7 +607,9 @@ def _tune(spec: EvolveFile, seed_source: str, seed_text: str, spec_dir: Path,
         if isinstance(current, int | float) and not isinstance(current, bool) \
                 and low <= current <= high:
             start[path] = current
+    names = overrides.readable_names(data, [path for path, *_ in parameters])
     return TunePlan(robot_text=text, robot_source=source, parameters=tuple(parameters),
+                    names=names,
                     start=start, trials=tune.trials, sampler=tune.sampler)
 
 
