@@ -200,8 +200,8 @@ def draw(optuna: Any, study: Any, out: Path, names: dict[str, str]) -> list[Path
             trials = len(study.get_trials(deepcopy=False,
                                           states=(optuna.trial.TrialState.COMPLETE,)))
             if trials < IMPORTANCE_TRIALS:
-                axes.set_title(f"Hyperparameter importances — from {trials} trials: noise "
-                               f"below {IMPORTANCE_TRIALS}", color="firebrick")
+                axes.set_title(f"Importances from {trials} trials: noise below "
+                               f"{IMPORTANCE_TRIALS}", loc="left", color="firebrick")
         figure = axes.figure
         figure.set_size_inches(7, 4)
         figure.tight_layout()
