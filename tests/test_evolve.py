@@ -11,6 +11,7 @@ generated scenario.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -208,6 +209,26 @@ def test_every_mistake_of_form_in_an_evolve_or_tune_spec_is_told_at_once(
     from ubf_async.tools.tune import main as tune_main
     assert tune_main([str(path), "--out", str(tmp_path / "out")]) == 2
     assert capsys.readouterr().err.splitlines()[1:] == err[1:]
+
+
+def test_an_evolution_whose_best_is_the_seed_says_so(tmp_path: Path) -> None:
+    """Nothing evolved beat the seed robot: the report says the best tree is the seed's, and
+    that the held-out lines are the same for that reason."""
+    from ubf_async.runs.evolve.driver import EvolveOutputs
+    from ubf_async.tools.evolve import report
+
+    for is_seed in (True, False):
+        said = io.StringIO()
+        report(EvolveOutputs(out_dir=tmp_path, best=tmp_path / "best.yaml", generations=2,
+                             best_fitness=0.5, seed_fitness=0.5, held_out=[], ran=0,
+                             best_is_seed=is_seed), said)
+        lines = said.getvalue().splitlines()
+        assert ("  the best tree is the seed robot's own: no tree evolved beat it on the "
+                "training set (more generations, a larger population or other operators may)"
+                in lines) is is_seed
+        assert ("held out (the evolved robot is the seed's tree: the same figures):" in lines
+                ) is is_seed
+    assert "trees.png" in main.__globals__["EXAMPLE"]  # the help lists every output
 
 
 def test_generated_scenarios_are_the_same_for_a_seed_and_where_their_kind_says() -> None:

@@ -56,7 +56,8 @@ examples:
   python -m ubf_async.evolve SPEC.yaml --out DIR --resume --compare out/tune/best.yaml
 
 Out, in DIR: best.yaml (python -m ubf_async.launch DIR/best.yaml runs it), hall-of-fame/
-and pareto/ (robot files), log.jsonl (a line per generation), fitness.png, report.md and
+and pareto/ (robot files), log.jsonl (a line per generation), fitness.png (fitness and
+tree sizes per generation), trees.png (the seed's tree and the best's), report.md and
 heldout.csv (the best and the seed robot on the held-out set), scenarios/ (the generated
 scenario files), checkpoint.json and journal.jsonl (what --resume goes on from).
 docs/evolve.md says more."""
@@ -189,7 +190,12 @@ def report(outputs: evolve.EvolveOutputs, out: TextIO) -> None:
     print(f"{outputs.generations} generations: best fitness {outputs.best_fitness:g} on the "
           f"training set (the seed robot: {outputs.seed_fitness:g}); {outputs.ran} runs run",
           file=out)
-    print("held out:", file=out)
+    if outputs.best_is_seed:
+        print("  the best tree is the seed robot's own: no tree evolved beat it on the "
+              "training set (more generations, a larger population or other operators may)",
+              file=out)
+    print("held out" + (" (the evolved robot is the seed's tree: the same figures)"
+                        if outputs.best_is_seed else "") + ":", file=out)
     for robot in outputs.held_out:
         e = robot.evaluation
         assert e is not None

@@ -32,6 +32,8 @@ class EvolveOutputs:
     held_out: list[report.Compared]
     ran: int
     """Runs run by this call (the others were in the journal, or met before)."""
+    best_is_seed: bool = False
+    """Whether the best tree found is the seed robot's own: nothing evolved beat it."""
 
     @property
     def files(self) -> list[str]:
@@ -113,4 +115,5 @@ def run_evolution(plan: EvolvePlan, out_dir: str | Path, *, workers: int | None 
             evaluator.close()
     return EvolveOutputs(out_dir=out, best=best, generations=state.generation + 1,
                          best_fitness=state.hall_of_fame[0].fitness,
-                         seed_fitness=seed.fitness, held_out=compared, ran=evaluator.ran)
+                         seed_fitness=seed.fitness, held_out=compared, ran=evaluator.ran,
+                         best_is_seed=state.hall_of_fame[0].hash == seed.hash)

@@ -76,24 +76,30 @@ def plot_fitness(path: Path, log: Sequence[dict[str, Any]]) -> Path:
 
     matplotlib.use("Agg")
     from matplotlib import pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
-    generations = [e["generation"] for e in log]
-    figure, left = plt.subplots(figsize=(7, 4), dpi=100)
+    # Numbered from 1, as the console counts them ("generation 2/2").
+    generations = [e["generation"] + 1 for e in log]
+    figure, (left, right) = plt.subplots(1, 2, figsize=(9, 4), dpi=100,
+                                         gridspec_kw={"width_ratios": [3, 2]})
     left.plot(generations, [e["best"]["fitness"] for e in log], "o-", color="tab:red",
               label="best")
     left.plot(generations, [e["fitness"]["mean"] for e in log], "s--", color="tab:orange",
               label="mean")
-    left.set_xlabel("generation")
     left.set_ylabel("fitness (training set)")
-    right = left.twinx()
-    right.plot(generations, [e["size"]["mean"] for e in log], ":", color="tab:blue",
-               label="mean size")
-    right.plot(generations, [e["best"]["size"] for e in log], "^:", color="tab:cyan",
-               label="best's size")
-    right.set_ylabel("nodes")
-    handles = left.get_legend_handles_labels()[0] + right.get_legend_handles_labels()[0]
-    left.legend(handles=handles, loc="lower right", fontsize=8)
-    left.grid(alpha=0.3)
+    # Sizes on an axis of their own, beside: a twin axis drew them over the fitness.
+    right.plot(generations, [e["size"]["mean"] for e in log], "s--", color="tab:blue",
+               label="mean")
+    right.plot(generations, [e["best"]["size"] for e in log], "^-", color="tab:cyan",
+               label="the best's")
+    right.set_ylabel("tree size (nodes)")
+    for axes in (left, right):
+        axes.set_xlabel("generation")
+        axes.xaxis.set_major_locator(MaxNLocator(integer=True))  # whole generations only
+        axes.grid(alpha=0.3)
+        # Outside the data: above the plot.
+        axes.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=2, fontsize=8,
+                    frameon=False)
     figure.tight_layout()
     figure.savefig(path)
     plt.close(figure)
