@@ -15,6 +15,7 @@ import io
 import logging
 import os
 import selectors
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,14 +25,15 @@ from pathlib import Path
 
 import pytest
 
+from components.sim.scenarios.scenario import load_scenario
 from tests.conftest import REPOSITORY, repository_env
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs import sweep
-from ubf_async.runs.sweep import execution
+from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.journal import HEADER, JOURNAL, Journal, read_journal
 from ubf_async.runs.sweep.spec import RunTask
-from ubf_async.tools.sweep import main
+from ubf_async.tools.sweep import main, report
 
 ROBOT = REPOSITORY / "ubf_async" / "robots" / "mini-whegs.yaml"
 SPEC = """\
@@ -117,6 +119,43 @@ def test_a_failing_run_is_recorded_with_its_error_and_the_others_complete(
     assert "robot=video-camera.yaml tree.arbiter=PriorityMerge scenario=ball-in-sight seed=1: " \
            "failed\n  Traceback" in log
     assert (reference / "ball_distance_m.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_the_console_shows_each_cell_and_the_plot_the_scenarios_expected_band(
+        reference: Path, spec: Path, tmp_path: Path) -> None:
+    out = tmp_path / "copy"
+    shutil.copytree(reference, out)
+    plan = sweep.load_sweep(spec)
+    state = sweep.open_sweep(plan, out, resume=True)  # the journal's runs ...
+    sweep.execute(state, InThisProcess())  # ... but the failed ones, which fail again
+    # The band: the range ball-in-sight's expected outcome gives ball_distance_m, read from
+    # the runs' summaries, as its scenario file states it.
+    [criterion] = [c for c in load_scenario("ball-in-sight").expect.criteria  # type: ignore[union-attr]
+                   if c.path == "ball_distance_m"]
+    assert table.expected_ranges(plan, state.records, "ball_distance_m") == {
+        "ball-in-sight": (criterion.low, criterion.high, False)}
+    assert table.expected_ranges(plan, state.records, "contacts.time_s") == {}
+    outputs = sweep.finish(state)
+    assert (out / "runs.csv").read_bytes() == (reference / "runs.csv").read_bytes()
+    # The console: a line per cell — its runs, the share that met the expected outcome and
+    # the plotted figure over the seeds — aligned, as cells.csv has them.
+    said = io.StringIO()
+    report(outputs, out, said, plan)
+    lines = said.getvalue().splitlines()
+    head = lines[1].split()
+    assert head == ["robot", "tree.arbiter", "scenario", "runs", "passed", "ball_distance_m",
+                    "mean", "min", "max"], lines
+    cells = rows(out, "cells.csv")
+    for line, cell in zip(lines[2:6], cells, strict=True):
+        words = line.split()
+        assert words[:4] == [cell["robot"], cell["tree.arbiter"], cell["scenario"],
+                             cell["runs"]], line
+        if cell["failed"] == "2":
+            assert words[4:] == ["0%"], line  # every run failed: no figure
+        else:
+            assert words[4] == f"{float(cell['pass_rate']):.0%}", line
+            assert words[5:] == [cell[f"ball_distance_m.{w}"] for w in ("mean", "min", "max")]
+    assert lines[6].startswith("written in "), lines
 
 
 @pytest.mark.slow

@@ -38,11 +38,34 @@ from ubf_async.runs import sweep
 from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import EXECUTORS, RunRecord
 
-__all__ = ["EXAMPLE", "EXIT_RUNS_FAILED", "PLAIN_STEPS", "PROG", "RAY_STOP_BOUND_S", "BarProgress",
-           "ExampleFormatter", "PlainProgress", "add_pool_arguments", "build_parser",
-           "check_arguments", "check_pool_arguments", "clock_text", "execute", "json_object",
-           "main", "pool_description", "pool_stop_guard", "pool_words", "print_plan", "report",
-           "resume_command", "run", "time_spent"]
+__all__ = [
+    "CELLS_SHOWN",
+    "EXAMPLE",
+    "EXIT_RUNS_FAILED",
+    "PLAIN_STEPS",
+    "PROG",
+    "RAY_STOP_BOUND_S",
+    "BarProgress",
+    "ExampleFormatter",
+    "PlainProgress",
+    "add_pool_arguments",
+    "build_parser",
+    "cells_table",
+    "check_arguments",
+    "check_pool_arguments",
+    "clock_text",
+    "execute",
+    "json_object",
+    "main",
+    "pool_description",
+    "pool_stop_guard",
+    "pool_words",
+    "print_plan",
+    "report",
+    "resume_command",
+    "run",
+    "time_spent",
+]
 
 PROG = "python -m ubf_async.sweep"
 EXIT_RUNS_FAILED = 1
@@ -285,10 +308,42 @@ def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | 
     return None
 
 
-def report(outputs: sweep.SweepOutputs, out_dir: Path, out: TextIO) -> None:
+CELLS_SHOWN = 20
+"""Cells the console's table shows at most (all of them are in ``cells.csv``)."""
+
+
+def cells_table(plan: sweep.SweepPlan, cells: Sequence[dict[str, Any]]) -> list[str]:
+    """The console's table of the cells (each key but the seed): its runs, the share that met
+    the scenario's expected outcome, and the plotted figure's mean, min and max over the
+    seeds — aligned, at most :data:`CELLS_SHOWN` lines of cells."""
+    keys = [c for c in plan.key_columns if c != "seed"]
+    name = plan.plot
+    head = [*keys, "runs", "passed", f"{name} mean", "min", "max"]
+
+    def cell_text(value: Any) -> str:
+        return "" if value is None else table.text(value)
+
+    lines = [[cell_text(cell.get(k)) for k in keys]
+             + [str(cell["runs"]), "" if cell.get("pass_rate") is None
+                else f"{cell['pass_rate']:.0%}",
+                *(cell_text(cell.get(f"{name}.{what}")) for what in ("mean", "min", "max"))]
+             for cell in cells[:CELLS_SHOWN]]
+    widths = [max(len(row[i]) for row in [head, *lines]) for i in range(len(head))]
+    shown = ["  " + "  ".join(text.ljust(w) if i < len(keys) else text.rjust(w)
+                              for i, (text, w) in enumerate(zip(row, widths, strict=True)))
+             .rstrip() for row in [head, *lines]]
+    if len(cells) > CELLS_SHOWN:
+        shown.append(f"  … and {len(cells) - CELLS_SHOWN} more cells ({table.CELLS_CSV})")
+    return shown
+
+
+def report(outputs: sweep.SweepOutputs, out_dir: Path, out: TextIO,
+           plan: sweep.SweepPlan | None = None) -> None:
     ok = outputs.runs - outputs.failed
     print(f"{outputs.runs} runs: {ok} ok, {outputs.failed} failed; {outputs.passed} met their "
           f"scenario's expected outcome", file=out)
+    if plan is not None and outputs.cells:
+        print("\n".join(cells_table(plan, outputs.cells)), file=out)
     written = [outputs.runs_csv, outputs.cells_csv, outputs.parquet, outputs.plot, outputs.log]
     print(f"written in {out_dir}: {', '.join(p.name for p in written if p is not None)}",
           file=out)
@@ -321,7 +376,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         if stopped is not None:
             return stopped
     outputs = sweep.finish(state)
-    report(outputs, args.out, out)
+    report(outputs, args.out, out, plan)
     return EXIT_RUNS_FAILED if outputs.failed else 0
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ubf_async.errors import ConfigurationError
 from ubf_async.runs.sweep import execution, plot, table
@@ -51,6 +52,8 @@ class SweepOutputs:
     passed: int
     failures: list[str] = field(default_factory=list)
     """``KEY: error`` of each failed run (the first ten)."""
+    cells: list[dict[str, Any]] = field(default_factory=list)
+    """``cells.csv``'s rows: per cell (the key but the seed), its runs, passes and figures."""
 
 
 def open_sweep(plan: SweepPlan, out_dir: str | Path, *, resume: bool = False) -> Sweep:
@@ -103,13 +106,15 @@ def finish(sweep: Sweep) -> SweepOutputs:
     cell_columns, cells = table.cell_rows(plan, rows)
     cells_csv = table.write_whole(out / table.CELLS_CSV, table.csv_text(cell_columns, cells))
     parquet = table.write_parquet(out / table.RUNS_PARQUET, columns, rows)
-    drawn = plot.plot_figure(plan, rows, plan.plot, out / f"{plan.plot}.png")
+    drawn = plot.plot_figure(plan, rows, plan.plot, out / f"{plan.plot}.png",
+                             bands=table.expected_ranges(plan, sweep.records, plan.plot))
     log = _write_log(sweep)
     failed = [row for row in rows if row["status"] == "failed"]
     return SweepOutputs(
         runs_csv=runs_csv, cells_csv=cells_csv, parquet=parquet, plot=drawn, log=log,
         runs=len(rows), failed=len(failed), passed=sum(1 for row in rows if row["pass"] is True),
-        failures=[f"{_key_text(row, plan)}: {row['error']}" for row in failed[:10]])
+        failures=[f"{_key_text(row, plan)}: {row['error']}" for row in failed[:10]],
+        cells=cells)
 
 
 def _key_text(key: dict[str, object], plan: SweepPlan) -> str:

@@ -3,14 +3,15 @@
 One panel per parameter the sweep varies (the robot file, each override with more than one
 value; the scenario when nothing else varies): its values along the x axis in the spec's order,
 every run as a dot (one colour per scenario), the mean over the dots at each value as a dash,
-the dashes joined by a line where the values are numbers. Drawn with matplotlib's Agg canvas
+the dashes joined by a line where the values are numbers, and the range each scenario's
+expected outcome gives the figure as a band of its colour. Drawn with matplotlib's Agg canvas
 on a figure of its own (no pyplot, no global state), once the runs are done.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +33,12 @@ def swept(plan: SweepPlan) -> list[tuple[str, tuple[Any, ...]]]:
     return varied or [("scenario", plan.scenarios)]
 
 
-def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path) -> Path | None:
+def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path,
+                bands: Mapping[str, tuple[float, float, bool]] | None = None) -> Path | None:
     """Draw figure ``name`` of the runs ``rows`` against each swept parameter into ``path``;
-    ``None`` (nothing written) when no run has a number for it."""
+    ``None`` (nothing written) when no run has a number for it. ``bands``: per scenario, the
+    range its expected outcome gives the figure (``(low, high, absolute)``:
+    :func:`~ubf_async.runs.sweep.table.expected_ranges`), drawn as a band of its colour."""
     # Imported here: a sweep's workers import this package too, and draw nothing.
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -52,6 +56,15 @@ def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path) -> 
     colours = [f"C{i % 10}" for i in range(len(scenarios))]
     for index, (column, values) in enumerate(panels):
         axes = figure.add_subplot(lines, columns, index + 1)
+        for s, scenario in enumerate(scenarios):
+            band = (bands or {}).get(scenario or plan.scenarios[0])
+            if band is not None:
+                low, high, absolute = band
+                spans = [(low, high), (-high, -low)] if absolute else [(low, high)]
+                for i, (bottom, top) in enumerate(spans):
+                    axes.axhspan(bottom, top, color=colours[s], alpha=0.12, linewidth=0,
+                                 label="expected" if i == 0 and index == 0 and s == 0
+                                 and len(scenarios) == 1 else None)
         spread = 0.5 / len(scenarios)
         scale = all(number(value) is not None for value in values)
         for s, scenario in enumerate(scenarios):
@@ -75,7 +88,10 @@ def plot_figure(plan: SweepPlan, rows: Sequence[Row], name: str, path: Path) -> 
         axes.set_ylabel(name)
         axes.grid(True, axis="y", alpha=0.3)
         if index == 0 and scenarios != ("",):
-            axes.legend(fontsize="small", title="scenario", title_fontsize="small")
+            axes.legend(fontsize="small", title="scenario (band: expected)",
+                        title_fontsize="small")
+        elif index == 0 and bands:
+            axes.legend(fontsize="small")
     failed = sum(1 for row in rows if row["status"] == "failed")
     figure.suptitle(f"{name}: {len(ok)} runs, mean per value"
                     + (f" ({failed} failed runs left out)" if failed else ""), fontsize="medium")

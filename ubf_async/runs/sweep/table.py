@@ -24,8 +24,8 @@ from ubf_async.runs.sweep.execution import RunRecord
 from ubf_async.runs.sweep.spec import SweepPlan
 
 __all__ = ["CELLS_CSV", "CRITERION_PREFIX", "RUNS_CSV", "RUNS_PARQUET", "Row", "aggregate",
-           "cell_rows", "csv_text", "figure", "number", "run_rows", "significant", "text",
-           "write_parquet", "write_whole"]
+           "cell_rows", "csv_text", "expected_ranges", "figure", "number", "run_rows",
+           "significant", "text", "write_parquet", "write_whole"]
 
 RUNS_CSV = "runs.csv"
 RUNS_PARQUET = "runs.parquet"
@@ -85,6 +85,25 @@ def run_rows(plan: SweepPlan, records: Mapping[str, RunRecord]) -> tuple[list[st
         rows.append(row)
     columns = [*plan.key_columns, "status", *plan.figures, "pass", *criteria, "error"]
     return columns, rows
+
+
+def expected_ranges(plan: SweepPlan, records: Mapping[str, RunRecord],
+                    name: str) -> dict[str, tuple[float, float, bool]]:
+    """Per scenario, the range its expected outcome gives figure ``name`` (a criterion on it,
+    or on its magnitude): ``(low, high, absolute)``, from the runs' summaries (``expected``'s
+    criteria); scenarios without one are left out."""
+    found: dict[str, tuple[float, float, bool]] = {}
+    for task in plan.tasks:
+        record = records.get(task.run_id)
+        if task.scenario in found or record is None or record.summary is None:
+            continue
+        for verdict in (record.summary.get("expected") or {}).get("criteria") or ():
+            criterion, bounds = verdict.get("criterion"), verdict.get("range")
+            if criterion in (name, f"|{name}|") and isinstance(bounds, list) \
+                    and len(bounds) == 2:
+                found[task.scenario] = (float(bounds[0]), float(bounds[1]),
+                                        criterion != name)
+    return found
 
 
 def cell_rows(plan: SweepPlan, rows: Sequence[Row]) -> tuple[list[str], list[Row]]:
