@@ -36,6 +36,8 @@ from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.tools.replay import (
     CONTROLLER,
     Recording,
+    compare_commands,
+    recorded_commands,
     replay,
     wait_for_controller,
     wait_for_listeners,
@@ -105,6 +107,25 @@ async def test_a_replayed_run_commands_what_the_original_commanded(
     assert len(original) > 250
     assert any("chase" in winners for _, _, winners, _, _ in original)  # it saw the ball
     assert again == original  # every tick: same time, number, winners, speed and turn
+    # replay --compare's comparison says so, from the file as the tool reads it.
+    commands, period_ns = recorded_commands(path)
+    assert period_ns == 20_000_000 and len(commands) == len(original)
+    same = compare_commands(commands, [(t, s, r, w) for t, _, w, s, r in again],
+                            within_ns=period_ns)
+    assert (same.compared, same.identical, same.first) == (len(original), len(original), None)
+    # ... and a re-run that stops 2 s in is told where, and what it did instead.
+    stopped = [(t, 0.0 if t >= commands[0][0] + 2 * 10**9 else s, r, w)
+               for t, _, w, s, r in again]
+    told = compare_commands(commands, stopped, within_ns=period_ns)
+    assert told.first is not None and told.identical < told.compared
+    recorded_then, rerun_then = told.first
+    # (the re-run's command in effect is the one up to a tick after: it may be the first stop)
+    assert recorded_then[0] >= commands[0][0] + 2 * 10**9 - period_ns
+    assert recorded_then[1] != 0.0
+    assert rerun_then is not None and rerun_then[1] == 0.0
+    assert told.lines()[1].startswith(
+        f"  first divergence {(recorded_then[0] - commands[0][0]) / 1e9:.2f} s into the "
+        f"recording: recorded speed ")
 
 
 @pytest.mark.asyncio
@@ -151,13 +172,23 @@ def test_the_replay_tool_feeds_a_launched_controller_over_zenoh(
         # Started with the robot, not after it: the replay waits for the robot, for its
         # subscriptions and for its controller to tick before its first message, so none of
         # the recording is lost.
+        # ... and compares the re-run's drive commands with the recorded ones.
         result = subprocess.run(
             [sys.executable, "-m", "ubf_async.replay", str(path), "--speed", "2", "--connect",
-             endpoint, "--wait-for-robot-s", "60"], cwd=ROOT, env=ENV, capture_output=True,
+             endpoint, "--wait-for-robot-s", "60", "--compare", "--compare-plot",
+             str(tmp_path / "compared.png")], cwd=ROOT, env=ENV, capture_output=True,
             text=True, timeout=120)
         assert result.returncode == 0, result.stdout + result.stderr
         assert "7 keys)" in result.stdout  # every replayed key had a subscriber
         assert "messages replayed" in result.stdout
+        # (How many are identical depends on the pace the machine kept: see the in-process
+        # re-run above, identical to the last command.)
+        said = re.search(r"compared (\d+) recorded drive commands with the re-run's in effect "
+                         r"at their time: [\d.]+% identical \(speed, turn and winners; a "
+                         r"tick's phase, 20 ms, allowed\)", result.stdout)
+        assert said is not None, result.stdout
+        assert int(said[1]) == len(original), result.stdout
+        assert (tmp_path / "compared.png").read_bytes().startswith(b"\x89PNG")
     finally:
         robot.terminate()  # SIGTERM: the robot stops and finishes its recording
         robot.wait(timeout=30)

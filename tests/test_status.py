@@ -22,9 +22,10 @@ import pytest
 
 from tests.cli_inprocess import launch_main
 from tests.test_inprocess_units import RANGE_PERIOD_S, Rig, tree
+from ubf_async.clocks.clock import SimClock, WallClock
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.controller import Controller, TickMode
-from ubf_async.services.status import fit, tick_label
+from ubf_async.services.status import CLOCK_SILENT_S, fit, followed_clock, tick_label
 from ubf_async.tools.launch import parse_args, plan_launch, print_plan
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,6 +51,20 @@ def test_fit_keeps_every_line_within_the_width_and_the_important_fields_first(
         assert left == 0 and len(lines) == 2  # all of it, wrapped to a second line
     else:
         assert left > 0  # what does not fit in two lines is counted, not run off the edge
+
+
+def test_a_followed_clock_that_fell_silent_is_said_so() -> None:
+    """A controller following a replay's clock (launch --no-sim --sim-time): its status line
+    shows the followed time, and once the replay has ended — its clock silent — says so,
+    instead of going on as if nothing had happened."""
+    clock = SimClock(0)
+    clock.advance_to(4_000_000_000)
+    now = time.monotonic_ns()
+    assert followed_clock(clock, wall_now_ns=now) == "sim 4.0s"
+    later = now + round((CLOCK_SILENT_S + 1.0) * 1e9)
+    assert followed_clock(clock, wall_now_ns=later) == (
+        f"sim 4.0s CLOCK SILENT {CLOCK_SILENT_S + 1.0:.0f}s (its replay or simulator ended?)")
+    assert followed_clock(WallClock()) == ""
 
 
 def test_fit_cuts_a_field_longer_than_a_line() -> None:

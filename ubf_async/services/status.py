@@ -18,12 +18,14 @@ from __future__ import annotations
 from collections.abc import Collection, Sequence
 from typing import TextIO
 
+from ubf_async.clocks.clock import Clock
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.wire.topics import LED_STATE, sensor_topic
 
-__all__ = ["MAX_LINES", "SEPARATOR", "StatusWriter", "fit", "planned_ticks", "status_fields",
+__all__ = ["CLOCK_SILENT_S", "MAX_LINES", "SEPARATOR", "StatusWriter", "fit", "followed_clock",
+           "planned_ticks", "status_fields",
            "tick_label", "tick_rates"]
 
 SEPARATOR = " | "
@@ -109,6 +111,24 @@ def status_fields(robot: str, elapsed_s: float, controller: Controller,
         fields.append(f"{s.source}{_reading(aggregator, s.source)} {s.age_s * 1e3:.0f}ms"
                       f"{' STALE' if s.stale else ''}")
     return fields
+
+
+CLOCK_SILENT_S = 2.0
+"""Wall seconds a followed simulated clock's source may be silent before the status line says
+so: a replay or a simulator of another process that ended leaves the robot's time still."""
+
+
+def followed_clock(clock: Clock, *, wall_now_ns: int | None = None) -> str:
+    """The status line's field for a robot following a simulated clock published elsewhere
+    (``launch --no-sim --sim-time`` fed by a replay or a simulator of another process): its
+    time, and once its source has been silent :data:`CLOCK_SILENT_S`, that it has (the replay
+    ended: the sources go stale and the robot's time stands still). Empty on wall time."""
+    if not clock.is_simulated:
+        return ""
+    silent = clock.stalled_s(wall_now_ns)
+    return (f"sim {clock.now_ns() / 1e9:.1f}s"
+            + (f" CLOCK SILENT {silent:.0f}s (its replay or simulator ended?)"
+               if silent >= CLOCK_SILENT_S else ""))
 
 
 def _reading(aggregator: StateAggregator, source: str) -> str:

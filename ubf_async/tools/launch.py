@@ -60,6 +60,7 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.runtime.controller import Controller, TickMode
 from ubf_async.runtime.gcfreeze import freeze_startup_objects
+from ubf_async.services import status
 from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.services.liveview import FoxgloveServer
 from ubf_async.services.remote import remote_spec
@@ -482,7 +483,8 @@ async def _run_until_done(
                 await asyncio.sleep(args.status_period_s)
                 writer.write(status_fields(
                     robot, elapsed(), controller, aggregator, health,
-                    simulation=sim_run.status_suffix() if sim_run is not None else ""))
+                    simulation=sim_run.status_suffix() if sim_run is not None
+                    else status.followed_clock(controller.bus.clock)))
         finally:
             writer.end()
 

@@ -31,6 +31,13 @@ subscribers known when it is put, so a replay into nobody would publish into the
 report success; and, if the robot has a controller, until it ticks (:func:`wait_for_controller`).
 Nobody there after ``--wait-for-robot-s`` is a one-line error (exit status 2).
 
+``--compare`` checks a re-run against the recording: it hears the re-run's drive commands
+while it replays, and says how many of the recorded ones were the re-run's command in effect
+at their time, a tick's phase allowed (the share identical), where they first differ, and
+with ``--compare-plot FILE.png`` draws both (:func:`compare_commands`, :func:`plot_commands`)
+— the regression check of a behaviour change on a real recording; ``--fail-under PCT`` makes
+a lower share exit 1.
+
 In a program, :class:`Recording` reads and filters a file and :func:`replay` publishes it; given
 the re-run's :class:`~ubf_async.clocks.clock.SimClock` and a ``settle`` (the in-process
 transport's), :func:`replay` advances the clock to each message's time itself and waits until
@@ -42,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import bisect
 import contextlib
 import logging
 import os
@@ -60,20 +68,24 @@ from ubf_async.cli.args import HelpFormatter, add_connection_arguments, connecti
 from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.clocks.clock import SimClock
-from ubf_async.errors import ConfigurationError, NoRobotError
+from ubf_async.errors import ConfigurationError, NoRobotError, ProtocolError
 from ubf_async.net.keyexpr import intersects
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.runtime import controller
 from ubf_async.runtime.bus import Bus, RawPublisher
+from ubf_async.wire.protocol import decode
+from ubf_async.wire.topics import DRIVE
 
 if TYPE_CHECKING:
     from mcap.reader import McapReader
     from mcap.records import Channel
 
-__all__ = ["CLOCK_LOOKAHEAD", "CLOCK_LOOKAHEAD_NS", "CONTINUED", "CONTROLLER", "CONTROLLER_INPUTS",
-           "PROBE_SCHEMA", "PROG", "SETTLE_S", "WARN_BEHIND_S", "Lag", "Recorded", "Recording",
-           "ReplayStats", "Settle", "ThreadTimes", "build_parser", "main", "replay",
-           "wait_for_controller", "wait_for_listeners"]
+__all__ = ["CLOCK_LOOKAHEAD", "CLOCK_LOOKAHEAD_NS", "COMPARE_WAIT_S", "CONTINUED", "CONTROLLER",
+           "CONTROLLER_INPUTS", "PROBE_SCHEMA", "PROG", "SETTLE_S", "WARN_BEHIND_S", "Command",
+           "Comparison", "Lag", "Recorded", "Recording", "ReplayStats", "Settle", "ThreadTimes",
+           "build_parser", "compare_commands", "drive_command", "main", "plot_commands",
+           "recorded_commands", "replay", "wait_for_controller",
+           "wait_for_listeners"]
 
 log = logging.getLogger(__name__)
 
@@ -523,6 +535,16 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar="S",
                         help="how long to wait for the robot and for a subscriber of what is "
                              "replayed before giving up (exit status 2)")
+    check = parser.add_argument_group("comparing the re-run with the recording")
+    check.add_argument("--compare", action="store_true",
+                       help="hear the re-run's drive commands and say how they differ from "
+                            "the recorded ones: the share identical (the re-run's command in "
+                            "effect at each recorded one's time), the first divergence")
+    check.add_argument("--compare-plot", type=Path, default=None, metavar="FILE.png",
+                       help="with --compare: draw the recorded and the re-run commands")
+    check.add_argument("--fail-under", type=float, default=None, metavar="PCT",
+                       help="with --compare: exit status 1 when less than PCT %% of the "
+                            "recorded commands are identical in the re-run")
     return parser
 
 
@@ -600,6 +622,132 @@ async def wait_for_controller(bus: Bus, *, timeout_s: float) -> bool:
     return True
 
 
+# -- comparing a re-run with the recording -----------------------------------------------------
+
+Command = tuple[int, float, float, tuple[str, ...]]
+"""A drive command as compared: ``(stamp_ns, speed, turn, winners)``."""
+COMPARE_WAIT_S = 10.0
+"""How long, once the replay is done, ``--compare`` waits for the re-run's command of the
+recording's last instant (a busy robot is behind its inputs)."""
+
+
+def drive_command(payload: bytes) -> Command | None:
+    """A drive command's payload as a :data:`Command` (``None``: not a valid one)."""
+    try:
+        message = decode(payload, schema=DRIVE.schema)
+    except ProtocolError:
+        return None
+    data = message.data
+    return (message.stamp_ns, float(data.speed), float(data.turn), tuple(data.winners))
+
+
+def recorded_commands(path: Path, robot: str | None = None) -> tuple[list[Command], int]:
+    """The drive commands of a recording, in log-time order, and the controller's tick
+    period (ns: its envelopes' ``period_s``; 20 ms, the default rate's, where they say none).
+    """
+    commands, period_ns = [], 20_000_000
+    for recorded in Recording(path, only=["cmd/drive"], robot=robot):
+        command = drive_command(recorded.payload)
+        if command is None:
+            continue
+        commands.append(command)
+        period_s = decode(recorded.payload).period_s
+        if period_s:
+            period_ns = round(period_s * 1e9)
+    return commands, period_ns
+
+
+@dataclass(frozen=True, slots=True)
+class Comparison:
+    """How a re-run's drive commands compare with the recorded ones."""
+
+    compared: int
+    """Recorded commands compared."""
+    identical: int
+    """Of them, those the re-run also commanded within ``within_ns`` of their time."""
+    within_ns: int
+    start_ns: int
+    """The recording's first command's time: times are said from it."""
+    first: tuple[Command, Command | None] | None
+    """The first recorded command the re-run did not have in effect, and the re-run's command
+    in effect then (``None``: none yet)."""
+
+    @property
+    def share(self) -> float:
+        return self.identical / self.compared if self.compared else 0.0
+
+    def lines(self) -> list[str]:
+        """What ``--compare`` says."""
+        said = [f"compared {self.compared} recorded drive commands with the re-run's in "
+                f"effect at their time: {self.share:.1%} identical (speed, turn and winners; "
+                f"a tick's phase, {self.within_ns / 1e6:g} ms, allowed)"]
+        if self.first is not None:
+            recorded, rerun = self.first
+            at = (recorded[0] - self.start_ns) / 1e9
+            said.append(f"  first divergence {at:.2f} s into the recording: recorded "
+                        f"{_command_text(recorded)}, the re-run's then "
+                        + (_command_text(rerun) if rerun is not None else "none yet"))
+        return said
+
+
+def _command_text(command: Command) -> str:
+    _, speed, turn, winners = command
+    return f"speed {speed:+.0f} turn {turn:+.0f} ({','.join(winners) or 'stop'})"
+
+
+def compare_commands(recorded: Sequence[Command], rerun: Sequence[Command], *,
+                     within_ns: int) -> Comparison:
+    """Each recorded command is identical in the re-run when the re-run's command in effect
+    at its time — or one it sent up to ``within_ns`` later (one tick: across processes the
+    re-run's ticks need not fall on the recorded instants) — has the same speed, turn and
+    winners: what the motors were told, however many ticks either skipped."""
+    by_time = sorted(rerun)
+    times = [c[0] for c in by_time]
+    identical, first = 0, None
+    for command in recorded:
+        now = bisect.bisect_right(times, command[0])  # the re-run's commands up to its time
+        late = bisect.bisect_right(times, command[0] + within_ns)  # ... and a tick later
+        in_effect = by_time[now - 1] if now else None
+        if any(c[1:] == command[1:] for c in by_time[max(now - 1, 0):late]):
+            identical += 1
+        elif first is None:
+            first = (command, in_effect)
+    return Comparison(compared=len(recorded), identical=identical, within_ns=within_ns,
+                      start_ns=recorded[0][0] if recorded else 0, first=first)
+
+
+def plot_commands(path: Path, recorded: Sequence[Command], rerun: Sequence[Command],
+                  comparison: Comparison) -> Path:
+    """Speed and turn over the recording's time, recorded and re-run, the first divergence
+    marked."""
+    import matplotlib  # drawn once, at the end
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    start = comparison.start_ns
+    figure, axes = plt.subplots(2, 1, figsize=(8, 5), dpi=100, sharex=True)
+    for row, (index, name) in enumerate(((1, "speed"), (2, "turn"))):
+        ax = axes[row]
+        for commands, style, label in ((recorded, "-", "recorded"), (rerun, "--", "re-run")):
+            ax.step([(c[0] - start) / 1e9 for c in commands], [c[index] for c in commands],
+                    style, where="post", label=label, linewidth=1.2)
+        if comparison.first is not None:
+            ax.axvline((comparison.first[0][0] - start) / 1e9, color="firebrick",
+                       linewidth=0.8, label="first divergence" if row == 0 else None)
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=3, fontsize=8,
+                   frameon=False)
+    axes[1].set_xlabel("s into the recording")
+    figure.suptitle(f"{comparison.share:.1%} of {comparison.compared} commands identical",
+                    fontsize="medium", x=0.99, ha="right")
+    figure.tight_layout()
+    figure.savefig(path)
+    plt.close(figure)
+    return path
+
+
 async def _main(args: argparse.Namespace) -> int:
     only = [k for k in args.only.split(",") if k.strip()]
     recording = await asyncio.to_thread(Recording, args.file, only=only, robot=args.robot)
@@ -608,9 +756,29 @@ async def _main(args: argparse.Namespace) -> int:
         raise ConfigurationError(f"{args.file}: nothing to replay: no message of robot "
                                  f"{recording.recorded_robot!r} on {', '.join(only)}")
     args.robot = recording.robot  # --robot, else the file's
+    recorded: list[Command] = []
+    within = 0
+    if args.compare:
+        recorded, within = await asyncio.to_thread(recorded_commands, args.file, args.robot)
+        if not recorded:
+            raise ConfigurationError(f"{args.file}: --compare: the recording has no drive "
+                                     f"commands to compare with (record the robot's bus with "
+                                     f"launch --record or python -m ubf_async.record)")
     options = connection_options(args)
     bus = await Bus.open(options)
     try:
+        rerun: list[Command] = []
+        heard_end = asyncio.Event()
+
+        def on_drive(key: str, payload: bytes, received_ns: int) -> None:
+            command = drive_command(payload)
+            if command is not None:
+                rerun.append(command)
+                if command[0] >= recorded[-1][0] - within:
+                    heard_end.set()
+
+        if args.compare:  # before anything is replayed: every command of the re-run is heard
+            bus.subscribe(bus.keys.cmd("drive"), on_drive, latest=False)
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
         unheard = await wait_for_listeners(bus, keys, timeout_s=args.wait_for_robot_s)
         await wait_for_controller(bus, timeout_s=args.wait_for_robot_s)
@@ -626,6 +794,21 @@ async def _main(args: argparse.Namespace) -> int:
                  else "")
               + (f", {stats.lag.at_s:.1f} s into the recording: {stats.lag.cause()}"
                  if stats.lag is not None else ""), flush=True)
+        if not args.compare:
+            return 0
+        with contextlib.suppress(TimeoutError):  # what came by then is compared
+            await asyncio.wait_for(heard_end.wait(), COMPARE_WAIT_S)
+        comparison = compare_commands(recorded, rerun, within_ns=within)
+        print("\n".join(f"{PROG}: {line}" if i == 0 else line
+                        for i, line in enumerate(comparison.lines())), flush=True)
+        if args.compare_plot is not None:
+            await asyncio.to_thread(plot_commands, args.compare_plot, recorded, rerun,
+                                    comparison)
+            print(f"  plot written to {args.compare_plot}", flush=True)
+        if args.fail_under is not None and comparison.share * 100 < args.fail_under:
+            print(f"{PROG}: {comparison.share:.1%} identical, under --fail-under "
+                  f"{args.fail_under:g} %", file=sys.stderr, flush=True)
+            return 1
         return 0
     finally:
         await bus.aclose()
@@ -647,6 +830,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.fast and not args.speed > 0:
         parser.error(f"--speed must be > 0, got {args.speed:g}")
+    if (args.compare_plot is not None or args.fail_under is not None) and not args.compare:
+        parser.error("--compare-plot and --fail-under go with --compare")
     logging.basicConfig(level="WARNING", format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     CONTINUED.install()  # a stop (Ctrl-Z) is then named for what it was
     return run_main(lambda: _main(args), prog=PROG)
