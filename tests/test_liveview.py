@@ -324,7 +324,8 @@ async def test_a_viewer_gone_without_a_goodbye_is_news_not_an_error(
                         if any(words in r.getMessage() for words in CLIENT_GONE)]
 
             await eventually(lambda: bool(gone()), timeout_s=30, what="the reset logged")
-            # (Said once or twice: what it was receiving, and sending, when the reset came.)
+            # (Said once or more: what it was receiving, sending, or its server's greeting,
+            # when the reset came.)
             assert {r.levelname for r in gone()} == {"INFO"}
             assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
     finally:

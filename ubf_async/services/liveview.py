@@ -61,7 +61,7 @@ from ubf_async.wire.topics import BY_SCHEMA, PlainData
 if TYPE_CHECKING:
     from foxglove.websocket import ChannelView, Client, ServerListener
 
-__all__ = ["CLIENT_GONE", "CLIENT_POLLER_LOGGER", "DEFAULT_HOST", "DEFAULT_PORT", "IR_MOUNT_X_M",
+__all__ = ["CLIENT_GONE", "CLIENT_LOGGERS", "DEFAULT_HOST", "DEFAULT_PORT", "IR_MOUNT_X_M",
            "NOT_AS_JSON", "ODOM_FRAME", "ROBOT_FRAME", "TRAIL_POINTS", "TRAIL_REFRESH_S",
            "TRAIL_STEP_M", "WORLD_FRAME", "CameraViewConverter", "ClientGoneIsNews",
            "FoxgloveServer", "JsonConverter", "LiveConverter", "LiveMessage",
@@ -458,8 +458,9 @@ class _Subscriptions:
         return Listener()
 
 
-CLIENT_POLLER_LOGGER = "foxglove.websocket.connected_client.poller"
-"""foxglove-sdk's logger of what it receives from each client."""
+CLIENT_LOGGERS = ("foxglove.websocket.connected_client.poller", "foxglove.websocket.server")
+"""foxglove-sdk's loggers of what it receives from and sends to each client (a filter on a
+logger sees only its own records, not its children's)."""
 CLIENT_GONE = ("Connection reset without closing handshake", "Connection reset by peer")
 """How foxglove-sdk says that a viewer went without a goodbye (a closed browser tab): the
 WebSocket's words, or the socket's when the reset comes first."""
@@ -514,7 +515,8 @@ class FoxgloveServer(EveryMessageComponent):
         if self._server is None and not self.closed:
             import foxglove
 
-            logging.getLogger(CLIENT_POLLER_LOGGER).addFilter(_CLIENT_GONE_FILTER)  # (once)
+            for name in CLIENT_LOGGERS:
+                logging.getLogger(name).addFilter(_CLIENT_GONE_FILTER)  # (once)
             self._context = foxglove.Context()
             try:
                 self._server = foxglove.start_server(
