@@ -7,6 +7,7 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -14,7 +15,7 @@ from components.sim.mirror.remote_world import RemoteWorld
 from components.sim.world.config import Arena, BallConfig, WorldConfig
 from tests.conftest import SimRobot, eventually, start_seeking_robot
 from ubf_async.assembly import registry
-from ubf_async.assembly.simulation import SimulationOptions, Simulator
+from ubf_async.assembly.simulation import OpenSimulation, SimulationOptions, Simulator
 from ubf_async.clocks.clock import SimClock
 from ubf_async.runtime.bus import Bus
 
@@ -63,6 +64,22 @@ async def test_a_run_as_launch_drives_it(robot_bus: Bus, tmp_path: Path) -> None
     assert summary["recording"]["frames_written"] == len(written)
 
 
+async def stopped_after_half_a_second(robot_bus: Bus, run: OpenSimulation
+                                      ) -> tuple[dict[str, Any], io.StringIO]:
+    """The seeking robot on ``run``, finished at 0.5 simulated s by whoever drives it (as
+    launch does on a signal): its summary and what the end printed."""
+    controller, components = await start_seeking_robot(robot_bus, run)
+    out = io.StringIO()
+    try:
+        run.start(controller)
+        await run.until_elapsed(0.5)
+    finally:
+        summary = await run.finish(controller, out)
+        for component in reversed(components):
+            await component.aclose()
+    return summary, out
+
+
 @pytest.mark.asyncio
 async def test_a_run_stopped_before_its_duration_is_not_judged(robot_bus: Bus,
                                                                tmp_path: Path) -> None:
@@ -75,15 +92,7 @@ async def test_a_run_stopped_before_its_duration_is_not_judged(robot_bus: Bus,
     run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
         scenario="keep-away", speed=math.inf, summary_path=summary_path))
     assert run.duration_s == 70
-    controller, components = await start_seeking_robot(robot_bus, run)
-    out = io.StringIO()
-    try:
-        run.start(controller)
-        await run.until_elapsed(0.5)
-    finally:
-        summary = await run.finish(controller, out)
-        for component in reversed(components):
-            await component.aclose()
+    summary, out = await stopped_after_half_a_second(robot_bus, run)
     interrupted = summary["interrupted"]
     assert interrupted["of_s"] == 70 and 0.5 <= interrupted["at_s"] < 70, interrupted
     assert json.loads(summary_path.read_text("utf-8"))["interrupted"] == interrupted
@@ -108,15 +117,7 @@ async def test_a_run_with_no_set_length_is_judged_only_when_asked(
     run = simulator().open(bus=robot_bus, clock=clock, options=SimulationOptions(
         speed=math.inf, judge_open_ended=judge))
     assert run.duration_s is None
-    controller, components = await start_seeking_robot(robot_bus, run)
-    out = io.StringIO()
-    try:
-        run.start(controller)
-        await run.until_elapsed(0.5)
-    finally:
-        summary = await run.finish(controller, out)
-        for component in reversed(components):
-            await component.aclose()
+    summary, out = await stopped_after_half_a_second(robot_bus, run)
     expected = summary["expected"]
     assert summary["interrupted"] is None
     if judge:
