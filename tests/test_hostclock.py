@@ -16,6 +16,7 @@ from tests.conftest import eventually, read_until
 from ubf_async.clocks import follow
 from ubf_async.clocks.clock import WallClock
 from ubf_async.clocks.hostclock import OffsetEstimator, RobotTimeClock
+from ubf_async.net.inprocess import InProcessTransport
 from ubf_async.net.options import ConnectionOptions
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
@@ -54,6 +55,37 @@ class OtherHostClock(WallClock):
 
     def __init__(self, offset_ns: int) -> None:
         self.now_ns = shifted(offset_ns)  # type: ignore[method-assign]
+
+
+@pytest.mark.asyncio
+async def test_a_pause_between_the_followers_clock_reads_makes_it_early_never_ahead() -> None:
+    """The follower carries each sample's arrival (stamped on CLOCK_MONOTONIC) to its own
+    clock with two reads; a busy machine may pause it between them. The pause must make the
+    estimate early: a robot-time stamp ahead of the robot is a sample from its future."""
+    host_offset_ns = HOUR_NS
+
+    def paused_after_reading() -> int:
+        now = time.monotonic_ns() + host_offset_ns
+        time.sleep(0.005)  # the process preempted just after this read
+        return now
+
+    net = InProcessTransport()
+    robot_bus = Bus(transport=net, robot="r1")  # on CLOCK_MONOTONIC: the robot's time
+    follower_bus = Bus(transport=net, robot="r1")
+    followed = RobotTimeClock(local_ns=paused_after_reading)
+    try:
+        subscription = followed.follow(follower_bus)
+        beacon = robot_bus.publisher(ROBOT_TIME)
+        for _ in range(3):
+            beacon.publish({"host": "robot"})
+            await net.settle()
+        assert followed.ready.is_set()
+        # robot time − local time is −host_offset_ns; learned, it may only be smaller.
+        assert followed.estimator.offset_ns <= -host_offset_ns
+        subscription.close()
+    finally:
+        await follower_bus.aclose()
+        await robot_bus.aclose()
 
 
 @pytest.mark.asyncio

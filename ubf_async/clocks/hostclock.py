@@ -128,7 +128,10 @@ class RobotTimeClock:
 
         def on_sample(key: str, message: Message[RobotTime], received_ns: int) -> None:
             # The bridge stamped the arrival on CLOCK_MONOTONIC; carry it to the local clock.
-            arrival = self.local_ns() - (time.monotonic_ns() - received_ns)
+            # CLOCK_MONOTONIC is read first: a pause between the two reads then makes the
+            # arrival later and the estimate early, never ahead of the robot's time.
+            since_arrival_ns = time.monotonic_ns() - received_ns
+            arrival = self.local_ns() - since_arrival_ns
             self.estimator.offer(robot_stamp_ns=message.stamp_ns, local_arrival_ns=arrival)
             self.host = message.data.host
             self.ready.set()
