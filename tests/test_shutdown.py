@@ -383,6 +383,10 @@ def test_every_entry_point_stops_within_its_bound_and_leaves_no_thread(
         code = program.stopped_within(STOP_BOUND_S)
         assert code == 0, program.text()
         assert_no_non_daemon_thread(program)
+    # Not even its reading thread, daemon though it is: killed inside the decompressor as
+    # the interpreter finalizes, it would abort the process.
+    assert not [t for t in replay.threads_left() if t["name"].startswith("replay:")], \
+        replay.threads_left()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -58,7 +58,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
+from collections.abc import AsyncGenerator, Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
@@ -197,7 +197,7 @@ class Recording:
         return sorted({key for key in replayed if key is not None})
 
     async def read_ahead(self, *, batch: int = 256, batches: int = 8,
-                         times: ThreadTimes | None = None) -> AsyncIterator[Recorded]:
+                         times: ThreadTimes | None = None) -> AsyncGenerator[Recorded, None]:
         """:meth:`__iter__` with the file read and decompressed on a thread (never on the
         event loop), at most ``batches`` × ``batch`` messages ahead of the consumer. The
         reading thread notes its times in ``times`` after each batch."""
@@ -223,6 +223,8 @@ class Recording:
             try:
                 chunk: list[Recorded] = []
                 for message in self:
+                    if stop.is_set():
+                        return
                     chunk.append(message)
                     if len(chunk) == batch:
                         note()
@@ -255,6 +257,10 @@ class Recording:
             # loop's executor can shut down; a full queue has nobody waiting on it.
             with contextlib.suppress(queue.Full):
                 ahead.put_nowait(None)
+            # And see the reader out (it stops at its next message): a thread still inside a
+            # decompressor when the interpreter finalizes is killed by a forced unwind, which
+            # aborts the process ("FATAL: exception not rethrown") instead of exiting it.
+            await asyncio.to_thread(reader.join)
 
 
 Settle = Callable[[], Awaitable[None]]
@@ -444,44 +450,47 @@ async def replay(recording: Recording, *, bus: Bus, speed: float | None = 1.0,
 
     asked_s = monotonic()
     try:
-        async for message in recording.read_ahead(times=reader):
-            now = monotonic()
-            waited_for_reader_s += now - asked_s
-            if first_ns is None:
-                # The schedule starts with the first message in hand, not before the file
-                # was opened: reading the first chunk is not lateness.
-                first_ns, wall_start = message.log_time_ns, now
-                on_time = now_since(now)
-            if speed is not None:
-                due = wall_start + (message.log_time_ns - first_ns) / 1e9 / speed
-                delay = due - now
-                if delay > 0:
-                    on_time = now_since(due)  # what happens from here on is lateness
-                    await asyncio.sleep(delay)
-                elif -delay > stats.late_s:
-                    stats.late_s = -delay
-                    if -delay >= WARN_BEHIND_S and on_time is not None:
-                        stats.lag = Lag.of(-delay, (message.log_time_ns - first_ns) / 1e9,
-                                           now_since(now) - on_time)
-                        if -delay >= warn_at_s and on_behind is not None:
-                            warn_at_s = 2 * -delay  # a few lines however late it gets
-                            on_behind(stats.lag)
-            if clock is not None and message.log_time_ns > clock.now_ns():
-                clock.advance_to(message.log_time_ns)
+        # Closed here, not when collected: its reading thread is seen out before the
+        # process may exit (Recording.read_ahead).
+        async with contextlib.aclosing(recording.read_ahead(times=reader)) as messages:
+            async for message in messages:
+                now = monotonic()
+                waited_for_reader_s += now - asked_s
+                if first_ns is None:
+                    # The schedule starts with the first message in hand, not before the file
+                    # was opened: reading the first chunk is not lateness.
+                    first_ns, wall_start = message.log_time_ns, now
+                    on_time = now_since(now)
+                if speed is not None:
+                    due = wall_start + (message.log_time_ns - first_ns) / 1e9 / speed
+                    delay = due - now
+                    if delay > 0:
+                        on_time = now_since(due)  # what happens from here on is lateness
+                        await asyncio.sleep(delay)
+                    elif -delay > stats.late_s:
+                        stats.late_s = -delay
+                        if -delay >= WARN_BEHIND_S and on_time is not None:
+                            stats.lag = Lag.of(-delay, (message.log_time_ns - first_ns) / 1e9,
+                                               now_since(now) - on_time)
+                            if -delay >= warn_at_s and on_behind is not None:
+                                warn_at_s = 2 * -delay  # a few lines however late it gets
+                                on_behind(stats.lag)
+                if clock is not None and message.log_time_ns > clock.now_ns():
+                    clock.advance_to(message.log_time_ns)
+                    if settle is not None:
+                        await settle()  # what was due by then runs before the message arrives
+                publisher = publishers.get(message.key)
+                if publisher is None:
+                    publisher = publishers[message.key] = bus.raw_publisher(message.key)
+                put_s = monotonic()
+                publisher.put(message.payload)
+                publishing_s += monotonic() - put_s
+                stats.published += 1
                 if settle is not None:
-                    await settle()  # what was due by then runs before the message arrives
-            publisher = publishers.get(message.key)
-            if publisher is None:
-                publisher = publishers[message.key] = bus.raw_publisher(message.key)
-            put_s = monotonic()
-            publisher.put(message.payload)
-            publishing_s += monotonic() - put_s
-            stats.published += 1
-            if settle is not None:
-                await settle()
-            elif speed is None and stats.published % 64 == 0:
-                await asyncio.sleep(0)  # let the loop breathe
-            asked_s = monotonic()
+                    await settle()
+                elif speed is None and stats.published % 64 == 0:
+                    await asyncio.sleep(0)  # let the loop breathe
+                asked_s = monotonic()
     finally:
         cpu_wait.close()
         for publisher in publishers.values():
