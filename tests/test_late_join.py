@@ -397,6 +397,39 @@ async def test_refusal_notices_are_bounded_per_key_and_in_all() -> None:
     assert len(heard) == 20 and notices.held_back == 80
     assert len(notices._refused) == 8 and notices.count(vote) == 0  # bounded, oldest out
     assert len(said) == 2  # none of those were the teleop's
+    notices.close()
+    watch.close()
+    await robot.aclose()
+    await tool.aclose()
+
+
+@pytest.mark.asyncio
+async def test_each_notice_is_sent_once_more_and_said_once() -> None:
+    """A refusal that happened once is noticed twice, a period apart (the first notice can be
+    lost as its sender joins); the second time with the count by then; the sender's watch
+    says a count it has had once only."""
+    net = InProcessTransport()
+    robot, tool = Bus(transport=net), Bus(transport=net)
+    notices = RefusalNotices(robot, period_s=0.05)
+    said: list[str] = []
+    watch = RefusalWatch(tool, mine=lambda key: True, who="radio", say=said.append)
+    watch.start()
+    heard: list[tuple[str, int]] = []
+    tool.subscribe("ubf/mini/refused/**",
+                   lambda k, p, t: heard.append((k.rsplit("/", 1)[-1],
+                                                 decode(p, topic=REFUSED).data.count)),
+                   latest=False)
+    notices.report("ubf/mini/sensor/radio/ext", "future", "stamped ahead")
+    await eventually(lambda: len(heard) >= 2, timeout_s=10, what="the notice again")
+    assert heard == [("ext", 1), ("ext", 1)] and len(said) == 1
+    # Refused again within the period: no notice then, and the one sent again a period
+    # after carries the new count (then, unchanged, nothing more).
+    notices.report("ubf/mini/vote/seek_pink_ball/teleop", "future", "stamped ahead")
+    notices.report("ubf/mini/vote/seek_pink_ball/teleop", "future", "stamped ahead")
+    await eventually(lambda: len(heard) >= 5, timeout_s=10, what="the new count")
+    assert heard[2:] == [("teleop", 1), ("teleop", 2), ("teleop", 2)]
+    assert len(said) == 3
+    notices.close()
     watch.close()
     await robot.aclose()
     await tool.aclose()

@@ -16,6 +16,12 @@ once per :data:`NOTICE_PERIOD_S` (with the count so far); at most :data:`MAX_NOT
 notices a second in all; :data:`MAX_KEYS` keys remembered, the least recently refused
 forgotten first.
 
+A notice is a best-effort sample, and the first one of a key usually goes out just as its
+sender joins the network — when zenoh is still linking the newcomer's peers and can lose it.
+So each notice is sent once more :data:`NOTICE_PERIOD_S` later, with the count by then: a
+refusal that happened once is still heard. A receiver takes a count it has already had for
+that key as the same notice (:class:`RefusalWatch` says it once).
+
 The sender's side (:class:`RefusalWatch`) subscribes to ``ubf/<robot>/refused/**`` and says,
 on its own console, what the robot refuses of what this process publishes: every standalone
 device (``python -m components.<device>``) and remote behaviour does.
@@ -23,6 +29,7 @@ device (``python -m components.<device>``) and remote behaviour does.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import sys
 import time
@@ -56,6 +63,10 @@ class _Refused:
     noticed_ns: int | None
     """Wall time (``CLOCK_MONOTONIC``) of its last notice; ``None`` before the first."""
     publisher: Publisher | None
+    noticed_count: int = 0
+    """The count its last notice carried."""
+    again: asyncio.TimerHandle | None = None
+    """Its last notice, due to be sent once more (module docstring)."""
 
 
 class RefusalNotices:
@@ -93,6 +104,8 @@ class RefusalNotices:
             refused = self._refused[key] = _Refused(0, None, None)
             if len(self._refused) > self.max_keys:
                 _, gone = self._refused.popitem(last=False)
+                if gone.again is not None:
+                    gone.again.cancel()
                 if gone.publisher is not None:
                     gone.publisher.close()
         else:
@@ -101,20 +114,43 @@ class RefusalNotices:
         now = self.wall_ns()
         if refused.noticed_ns is not None and now - refused.noticed_ns < self.period_ns:
             return
+        self._notice(key, parts, refused, RefusalNotice(
+            reason=clip(reason, 128), detail=clip(detail, MAX_REFUSAL_DETAIL),
+            count=refused.count))
+
+    def _notice(self, key: str, parts: list[str], refused: _Refused,
+                notice: RefusalNotice) -> None:
+        """Publish ``notice`` if the overall bound allows, and have it sent once more a
+        period later (with the count by then) unless it is that repetition of an unchanged
+        count already."""
+        now = self.wall_ns()
         if not self._bucket.take(now):
             self.held_back += 1
             return
         try:
             if refused.publisher is None:
                 refused.publisher = self.bus.publisher(REFUSED, *parts)
-            refused.publisher.publish(RefusalNotice(
-                reason=clip(reason, 128), detail=clip(detail, MAX_REFUSAL_DETAIL),
-                count=refused.count))
+            refused.publisher.publish(notice)
         except (ProtocolError, ValueError) as exc:  # a name zenoh or the schema cannot carry
             log.debug("no refusal notice for %s: %s", clip(key), exc)
             return
-        refused.noticed_ns = now
+        repeated = notice.count == refused.noticed_count
+        refused.noticed_ns, refused.noticed_count = now, notice.count
         self.sent += 1
+        if refused.again is not None:
+            refused.again.cancel()
+            refused.again = None
+        if not repeated:
+            refused.again = asyncio.get_running_loop().call_later(
+                self.period_ns / 1e9, self._again, key, parts, refused, notice)
+
+    def _again(self, key: str, parts: list[str], refused: _Refused,
+               notice: RefusalNotice) -> None:
+        refused.again = None
+        if self.bus.closed or self._refused.get(key) is not refused:
+            return  # the robot has ended, or the key was forgotten
+        self._notice(key, parts, refused, RefusalNotice(
+            reason=notice.reason, detail=notice.detail, count=refused.count))
 
     def count(self, key: str) -> int:
         """Refusals of ``key`` so far (0 once forgotten)."""
@@ -123,6 +159,8 @@ class RefusalNotices:
 
     def close(self) -> None:
         for refused in self._refused.values():
+            if refused.again is not None:
+                refused.again.cancel()
             if refused.publisher is not None:
                 refused.publisher.close()
         self._refused.clear()
@@ -180,6 +218,9 @@ class RefusalWatch:
         if message is None:
             return
         notice: RefusalNotice = message.data
+        last = next((seen for key, seen in reversed(self.notices) if key == refused_key), None)
+        if last is not None and last.count == notice.count:
+            return  # a notice sent once more (module docstring): said already
         self.notices = [*self.notices[-99:], (refused_key, notice)]
         self.last_notice_s = time.monotonic()
         what = "votes" if refused_key.split("/")[2] == "vote" else "samples"
