@@ -150,6 +150,7 @@ async def main_async(args: argparse.Namespace) -> dict[str, Any]:
         results["junk"] = await window(ctl, 3.0)
         results["junk"]["sources_held"] = len(agg.entries)
         results["refused"] = agg.refusals()
+        results["dropped"] = agg.dropped()
         results["restarts"] = ctl.restarts + agg.restarts
     finally:
         await ctl.aclose()
@@ -182,8 +183,8 @@ def main() -> None:
           f"(goal ≤ 2); periodic tick rate {r['periodic_ratio_to_baseline']:.3f}× the "
           f"baseline (goal within 5 %)")
     print(f"  flood samples taken by the aggregator: {flood['samples_taken']}; sources held "
-          f"after 1024 junk keys: {junk['sources_held']}; refused: {r['refused']}; restarts "
-          f"{r['restarts']}")
+          f"after 1024 junk keys: {junk['sources_held']}; refused: {r['refused']}; "
+          f"dropped: {r['dropped']}; restarts {r['restarts']}")
     print("  tick cost in process (evaluate + snapshot) with N sources: " + ", ".join(
         f"{n}: {c['median_us']:.0f} µs" for n, c in r["in_process_tick"].items()))
     if args.json:

@@ -19,12 +19,13 @@ import asyncio
 import contextlib
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from ubf_async.behaviors.pink_ball import seek_pink_ball
@@ -142,8 +143,16 @@ class Process:
 
     def wait_for_line(self, text: str, *, timeout_s: float = 15.0) -> str:
         """Block until a line containing ``text`` is printed (AssertionError on timeout/EOF)."""
+        return self._wait(lambda line: text in line, text, timeout_s)
+
+    def wait_for_match(self, pattern: str, *, timeout_s: float = 15.0) -> str:
+        """Block until a line in which the regular expression ``pattern`` is found is printed
+        (AssertionError on timeout/EOF)."""
+        return self._wait(re.compile(pattern).search, pattern, timeout_s)
+
+    def _wait(self, found: Callable[[str], object], text: str, timeout_s: float) -> str:
         for line in self.lines:
-            if text in line:
+            if found(line):
                 return line
         deadline = time.monotonic() + timeout_s
         while True:
@@ -157,7 +166,7 @@ class Process:
             if line is None:
                 raise AssertionError(f"{self.argv[:2]} exited ({self.proc.poll()}) before "
                                      f"printing {text!r}; output:\n" + "\n".join(self.lines))
-            if text in line:
+            if found(line):
                 return line.rstrip("\n")  # as the lines already read are kept
 
     @property

@@ -536,7 +536,8 @@ def test_aggregator_forgets_silent_sources_but_not_protected_ones() -> None:
     clock.advance_to(11 * 10**9)
     assert agg.forget_silent() == 1
     assert sorted(agg.entries) == ["camera/front", "range/b"]
-    assert agg.forgotten == 1
+    assert agg.dropped() == {"evicted": 0, "forgotten": 1}
+    assert "forgotten" not in agg.refusals()  # housekeeping, not a refusal
 
 
 def test_a_full_table_evicts_the_source_silent_longest_never_a_protected_one() -> None:

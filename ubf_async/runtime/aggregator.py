@@ -28,7 +28,14 @@ What is refused — each counted and logged (the first and every 100th per reaso
 None of them replaces a good sample or stops the aggregator. The table is bounded: a source
 silent for ``forget_after_s`` is forgotten, and when :data:`MAX_SOURCES` sources are held
 a new one evicts the one silent longest — except the ``protected_sources`` (the devices the
-robot declares), which are never forgotten nor evicted.
+robot declares), which are never forgotten nor evicted. Forgetting and evicting are the
+table's housekeeping, not refusals: they are counted apart (:meth:`StateAggregator.dropped`).
+
+A source whose publisher has **left** (its component said goodbye) or is **gone** (its token
+vanished without one) is reported so — by whoever knows the components, ``departures``
+(launch gives its :class:`~ubf_async.runtime.component.HealthMonitor`) — instead of as a
+source growing stale for no reason given. For the behaviours nothing changes: staleness is the
+robot clock's rule above, whatever the wall time at which a departure was heard.
 
 **Threads.** Samples are stored on the event loop, except on the **reflex lane**
 (:meth:`StateAggregator.open_lane`, opened by a controller on a wall-clock robot): a valid
@@ -54,7 +61,7 @@ from array import array
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from ubf_async import throttle
 from ubf_async.clocks import clockdomain
@@ -65,15 +72,15 @@ from ubf_async.errors import ProtocolError
 from ubf_async.net.transport import Declaration
 from ubf_async.runtime import refusals
 from ubf_async.runtime.bus import Bus, Lane, Subscription
-from ubf_async.runtime.component import Component
+from ubf_async.runtime.component import Component, Departure
 from ubf_async.runtime.hooks import add_hook, run_hooks
 from ubf_async.runtime.ordering import Refusal, SampleOrder, ahead_of_clock
 from ubf_async.wire.protocol import Message, clip, count_malformed, decode
 from ubf_async.wire.topics import MAX_NAME_CHARS, Topic, sensor_topic
 
 __all__ = ["DEFAULT_FORGET_AFTER_S", "DEFAULT_FUTURE_TOLERANCE_S", "MAX_SOURCES", "STALE_PERIODS",
-           "IngestHook", "ReceiveHook", "RecentCounts", "SampleHook", "SourceEntry", "SourceInfo",
-           "StateAggregator"]
+           "Departures", "IngestHook", "ReceiveHook", "RecentCounts", "SampleHook", "SourceEntry",
+           "SourceInfo", "StateAggregator"]
 
 log = logging.getLogger(__name__)
 
@@ -188,6 +195,16 @@ class SourceInfo:
     """Valid samples of this source refused, per reason (``future``, ``out_of_order``)."""
     stale_why: str | None = None
     """For a stale source: how long it has been quiet, in the clock that made it stale."""
+    departed: Departure | None = None
+    """Its publisher left or is gone (module docstring)."""
+
+
+class Departures(Protocol):
+    """Who knows which components have left
+    (:class:`~ubf_async.runtime.component.HealthMonitor`)."""
+
+    def departure(self, key: str, pub: int | None) -> Departure | None:
+        """How the component publishing ``key`` (as ``pub``) went, if it has."""
 
 
 class StateAggregator(Component):
@@ -200,6 +217,7 @@ class StateAggregator(Component):
     ``notify_refusals``: also tell each refused or malformed sample's sender, on
     ``ubf/<robot>/refused/...`` (:mod:`ubf_async.runtime.refusals`) — the robot's aggregator does;
     a remote behaviour's own copy of the state does not speak for the robot.
+    ``departures``: who says which sources' publishers have left (module docstring).
     """
 
     def __init__(
@@ -214,9 +232,11 @@ class StateAggregator(Component):
         protected_sources: Iterable[str] = (),
         max_sources: int = MAX_SOURCES,
         notify_refusals: bool = False,
+        departures: Departures | None = None,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=name, **component_options)
+        self.departures = departures
         if not (math.isfinite(future_tolerance_s) and future_tolerance_s >= 0):
             raise ValueError(f"future_tolerance_s must be finite and ≥ 0, got "
                              f"{future_tolerance_s}")
@@ -546,21 +566,30 @@ class StateAggregator(Component):
         for source, entry in sorted(self.entries.items()):
             age = max(0.0, (now - entry.message.stamp_ns) / 1e9)
             why = self.stale_why(entry, now, wall_now)
+            departed = None
+            if self.departures is not None:
+                kind, _, name = source.partition("/")
+                departed = self.departures.departure(self.bus.keys.sensor(kind, name),
+                                                     entry.message.pub)
             out.append(SourceInfo(
                 source=source, age_s=age, stale=why is not None, stale_why=why,
                 samples=entry.version,
                 rate_hz=1.0 / entry.interval_s if entry.interval_s else None,
-                schema=entry.message.schema, refused=dict(entry.refused),
+                schema=entry.message.schema, refused=dict(entry.refused), departed=departed,
             ))
         return out
 
     def refusals(self) -> dict[str, int]:
-        """Everything refused so far: per reason, plus ``malformed`` (all keys),
-        ``evicted`` and ``forgotten`` sources."""
+        """Everything refused so far: per reason, plus ``malformed`` (all keys)."""
         with self.lock:
             return {**{str(k): v for k, v in sorted(self.refused.items())},
-                    "malformed": sum(self.malformed.values()),
-                    "evicted": self.evicted, "forgotten": self.forgotten}
+                    "malformed": sum(self.malformed.values())}
+
+    def dropped(self) -> dict[str, int]:
+        """The table's housekeeping so far: sources ``evicted`` to make room for a new one,
+        and ``forgotten`` after ``forget_after_s`` of silence — not refusals."""
+        with self.lock:
+            return {"evicted": self.evicted, "forgotten": self.forgotten}
 
     def newest(self) -> SourceEntry | None:
         """The entry holding the most recently stamped sample."""

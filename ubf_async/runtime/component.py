@@ -22,6 +22,11 @@ component's event loop is turning: it carries a sequence number, the number of r
 the loop lag the heartbeat task itself observed, what it publishes (each publisher's ``pub``)
 and its process (pid and host), so that a receiver can name the process behind a sample.
 :class:`HealthMonitor` checks both.
+
+Leaving: a component that closes says goodbye — one last heartbeat with ``leaving`` before its
+token goes — so that the robot reports it **left**; one whose token vanishes without it (a
+killed process, a lost link) is **gone**. Neither is a fault of the robot's: the sources they
+published are reported as theirs, not as refusals (:meth:`HealthMonitor.departure`).
 """
 
 from __future__ import annotations
@@ -50,7 +55,7 @@ from ubf_async.wire.topics import (
     Topic,
 )
 
-__all__ = ["HOST", "MAX_WATCHED_COMPONENTS", "Component", "ComponentHealth",
+__all__ = ["HOST", "MAX_WATCHED_COMPONENTS", "Component", "ComponentHealth", "Departure",
            "EveryMessageComponent", "HealthMonitor", "ensure_name_free"]
 
 T = TypeVar("T")
@@ -295,6 +300,11 @@ class Component:
                 await asyncio.sleep(self.heartbeat_period_s)
                 lag = max(0.0, loop.time() - expected)
         finally:
+            if self._closed:  # the goodbye, before aclose() lets the token go
+                with contextlib.suppress(Exception):  # a session already closed: gone, then
+                    pub.publish({"component": self.name, "restarts": self.restarts,
+                                 "running": "no", "leaving": True, "pid": os.getpid(),
+                                 "host": HOST})
             pub.close()
 
 
@@ -323,7 +333,10 @@ class ComponentHealth:
     restarts: int = 0
     loop_lag_s: float = 0.0
     publishes: tuple[Published, ...] = ()
-    """What its newest heartbeat announces it publishes (empty: it does not say)."""
+    """What its newest heartbeat announces it publishes (empty: it does not say); kept from
+    before its goodbye once it has left."""
+    departed: Departure | None = None
+    """Once it has left (said goodbye) or is gone (its token vanished without one)."""
 
     def healthy(self, now_s: float, *, missed: float = 3.0) -> bool:
         """Alive and its heartbeat not more than ``missed`` periods late."""
@@ -331,6 +344,30 @@ class ComponentHealth:
             return False
         period = self.heartbeat_period_s or 1.0
         return now_s - self.last_heartbeat_s <= missed * period
+
+    def announces(self, key: str, pub: int | None) -> bool:
+        """Whether its heartbeat announced publishing on ``key`` (with that ``pub``, if
+        the sample carried one)."""
+        return any(p.key == key and (pub is None or p.pub == pub) for p in self.publishes)
+
+
+@dataclass(frozen=True, slots=True)
+class Departure:
+    """A component that is no longer there: ``how`` it went — ``"left"`` (it said goodbye)
+    or ``"gone"`` (its token vanished without one) — and when (host monotonic seconds)."""
+
+    component: str
+    how: str
+    at_s: float
+
+    def describe(self, now_s: float) -> str:
+        """``LEFT 3.2s ago`` — for a status line."""
+        return f"{self.how.upper()} {max(0.0, now_s - self.at_s):.1f}s ago"
+
+    def explain(self, now_s: float) -> str:
+        """The inspector's sentence."""
+        why = "said goodbye" if self.how == "left" else "vanished without a goodbye"
+        return f"its component {self.component} {why} {max(0.0, now_s - self.at_s):.1f}s ago"
 
 
 class HealthMonitor:
@@ -366,18 +403,41 @@ class HealthMonitor:
         return entry
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
-        self._entry(self.bus.keys.component_of_alive(key)).alive = alive
+        name = self.bus.keys.component_of_alive(key)
+        entry = self._entry(name)
+        entry.alive = alive
+        if alive:
+            entry.departed = None  # back (a restart under the same name)
+        elif entry.departed is None:  # no goodbye came first
+            entry.departed = Departure(name, "gone", time.monotonic())
         self.changed.set()
 
     def _on_heartbeat(self, key: str, message: Message[Heartbeat], received_ns: int) -> None:
         data = message.data
-        entry = self._entry(key.rsplit("/", 1)[-1])
+        name = key.rsplit("/", 1)[-1]
+        entry = self._entry(name)
+        if data.leaving:
+            # A goodbye may come just after its token's end was heard: still "left", as of
+            # when the first of the two came.
+            at_s = entry.departed.at_s if entry.departed is not None else time.monotonic()
+            entry.departed = Departure(name, "left", at_s)
+            self.changed.set()
+            return
+        entry.departed = None
         entry.last_heartbeat_s = received_ns / 1e9
         entry.heartbeat_period_s = message.period_s
         entry.restarts = data.restarts
         entry.loop_lag_s = data.loop_lag_s
         entry.publishes = data.publishes
         self.changed.set()
+
+    def departure(self, key: str, pub: int | None) -> Departure | None:
+        """How the component that announced publishing on ``key`` (with ``pub``) went, if it
+        has: the state aggregator reports such a source as left or gone, not as stale."""
+        for health in self.components.values():
+            if health.departed is not None and health.announces(key, pub):
+                return health.departed
+        return None
 
     async def heard_from_all(self, within_s: float) -> bool:
         """Wait until every component whose token this has seen has also sent a heartbeat
@@ -402,4 +462,4 @@ class HealthMonitor:
     def unhealthy(self) -> list[str]:
         now = time.monotonic()
         return sorted(name for name, h in self.components.items()
-                      if h.alive and not h.healthy(now))
+                      if h.alive and h.departed is None and not h.healthy(now))

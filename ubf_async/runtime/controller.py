@@ -577,6 +577,7 @@ class Controller(Component):
 
     def _status_now(self) -> dict[str, Any]:
         explanation = self.last_trace.render() if self.last_trace is not None else ""
+        now_s = time.monotonic()  # the departures' clock
         last = self.last_action
         return {
             "mode": str(self.mode),
@@ -589,10 +590,13 @@ class Controller(Component):
             "explanation": explanation[:MAX_EXPLANATION_CHARS],
             "quarantined": outgoing_names(self.quarantined()),
             "refused": self.aggregator.refusals(),
+            "dropped": self.aggregator.dropped(),
             "sources": [
                 {"source": s.source, "age_s": s.age_s, "stale": s.stale, "schema": s.schema,
                  "refused": sum(s.refused.values()),
-                 **({"stale_why": s.stale_why} if s.stale_why else {})}
+                 **({"stale_why": s.stale_why} if s.stale_why else {}),
+                 **({"departed": s.departed.how, "departed_why": s.departed.explain(now_s)}
+                    if s.departed else {})}
                 for s in self.aggregator.sources()[:256]
             ],
             "clock_domain": self.aggregator.clock_domain.status(),

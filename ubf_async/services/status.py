@@ -15,6 +15,7 @@ controller seen from another process (``inspector state``, :func:`tick_rates`).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Collection, Sequence
 from typing import TextIO
 
@@ -102,12 +103,19 @@ def status_fields(robot: str, elapsed_s: float, controller: Controller,
                if n and reason != "malformed"}
     if refused:
         fields.append("refused " + ",".join(f"{reason} {n}" for reason, n in refused.items()))
+    evicted = aggregator.dropped()["evicted"]
+    if evicted:  # the table full: a flood of names (forgetting the silent is no news)
+        fields.append(f"evicted {evicted}")
     if controller.stats.overruns:
         fields.append(f"overruns {controller.stats.overruns}")
     sources = aggregator.sources()
     if not sources:
         fields.append(f"no sensors yet (waiting on ubf/{robot}/sensor/*/*)")
+    now_s = time.monotonic()
     for s in sources:
+        if s.departed is not None:  # why it is quiet, instead of an age that keeps growing
+            fields.append(f"{s.source} {s.departed.describe(now_s)}")
+            continue
         fields.append(f"{s.source}{_reading(aggregator, s.source)} {s.age_s * 1e3:.0f}ms"
                       f"{' STALE' if s.stale else ''}")
     return fields

@@ -297,6 +297,9 @@ class Heartbeat(Data, frozen=True, kw_only=True):
     at when the robot reports its samples)."""
     host: Annotated[str, Meta(max_length=253)] | None = None
     """Optional: the host the component runs on."""
+    leaving: bool = False
+    """Optional: true in the one heartbeat a component sends as it closes, before its token
+    goes (a goodbye): the robot reports it left, not gone."""
 
 
 class SimTime(Data, frozen=True, kw_only=True):

@@ -74,7 +74,10 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
     width = max((len(str(s.get("source", ""))) for s in sources), default=0)
     for s in sources:
         why = s.get("stale_why")
-        stale = ("" if not s.get("stale") else f"  STALE: quiet {why}" if why else "  STALE")
+        departed = s.get("departed")
+        stale = (f"  {str(departed).upper()}: {s.get('departed_why', '')}" if departed
+                 else "" if not s.get("stale") else f"  STALE: quiet {why}" if why
+                 else "  STALE")
         age_s = s.get("age_s")
         age_ms = age_s * 1e3 if isinstance(age_s, int | float) else None
         refused = s.get("refused")
@@ -84,6 +87,12 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
     refusals = {k: v for k, v in (status.get("refused") or {}).items() if v}
     if refusals:
         lines.append("refused: " + ", ".join(f"{k} {v}" for k, v in refusals.items()))
+    dropped = {k: v for k, v in (status.get("dropped") or {}).items() if v}
+    if dropped:  # housekeeping, not refusals
+        lines.append("sources dropped: " + ", ".join(
+            f"{k} {v}" + {"forgotten": " (silent too long)",
+                          "evicted": " (to make room: table full)"}.get(k, "")
+            for k, v in dropped.items()))
     lines.extend(format_clock_domain(status.get("clock_domain")))
     quarantined = status.get("quarantined") or []
     if quarantined:
