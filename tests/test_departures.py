@@ -2,15 +2,22 @@
 cleanly: a last heartbeat with ``leaving``, then its token goes) is reported **left**; one whose
 token vanished without a goodbye is **gone**; the sources they published say so instead of an
 age that keeps growing, and the table's housekeeping (a silent source forgotten) is never
-counted with refused traffic."""
+counted with refused traffic.
+
+And (issue 55, item 1 of what to build) a component's health: one that sends no heartbeat —
+a token-only component, as a microcontroller's may be — is judged by its token, healthy while
+it is present, as is a joiner whose token is heard before its first heartbeat; only one whose
+heartbeats stopped while its token stays is UNHEALTHY."""
 
 from __future__ import annotations
 
 import asyncio
 import re
 import signal
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 import pytest_asyncio
@@ -27,6 +34,8 @@ from ubf_async.runtime.component import Component, HealthMonitor
 from ubf_async.runtime.controller import Controller
 from ubf_async.services.status import status_fields
 from ubf_async.wire.topics import HEARTBEAT, RANGE
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 class Ranger(Component):
@@ -137,6 +146,37 @@ async def test_a_component_whose_token_vanishes_without_a_goodbye_is_gone(
 
 
 @pytest.mark.asyncio
+async def test_a_token_is_healthy_without_heartbeats_and_stopped_heartbeats_are_not(
+        robot: Robot) -> None:
+    """20 joiners whose token is heard before their first heartbeat are never UNHEALTHY, nor
+    a component that sends no heartbeat at all; a component whose heartbeats stopped (its
+    token still there) is, 3 periods after its last."""
+    other = Bus(transport=robot.net, robot="unit", clock=SimClock(10**9))
+    try:
+        for i in range(20):
+            token = other.declare_token(other.keys.alive(f"joiner{i}"))
+            await robot.net.settle()
+            assert robot.health.unhealthy() == [], i  # the token first: not yet a heartbeat
+            other.publisher(HEARTBEAT, f"joiner{i}", period_s=0.5).publish(
+                {"component": f"joiner{i}"})
+            await robot.net.settle()
+            assert robot.health.unhealthy() == [], i
+            token.undeclare()
+        other.declare_token(other.keys.alive("token-only"))
+        other.declare_token(other.keys.alive("stuck"))
+        other.publisher(HEARTBEAT, "stuck", period_s=0.5).publish({"component": "stuck"})
+        await robot.net.settle()
+        stuck = robot.health.components["stuck"]
+        assert stuck.last_heartbeat_s is not None
+        assert stuck.healthy(stuck.last_heartbeat_s + 1.5)
+        assert not stuck.healthy(stuck.last_heartbeat_s + 1.6)  # 3 periods of 0.5 s late
+        assert robot.health.components["token-only"].healthy(time.monotonic() + 3600)
+        assert not any(f.startswith("UNHEALTHY") for f in robot.fields())
+    finally:
+        await other.aclose()
+
+
+@pytest.mark.asyncio
 async def test_a_forgotten_source_is_housekeeping_not_a_refusal(robot: Robot) -> None:
     other = Bus(transport=robot.net, robot="unit", clock=SimClock(10**9))
     try:
@@ -156,27 +196,32 @@ def test_a_device_process_stopped_has_left_one_killed_is_gone() -> None:
     """Real processes: the default simulated robot, and two range finders attached to it
     (``python -m components.range``): the one stopped (SIGINT, as Ctrl-C) is shown as LEFT,
     the one killed (SIGKILL: no goodbye) as GONE, on the robot's status line — and neither
-    as a refusal nor as UNHEALTHY."""
+    as a refusal nor as UNHEALTHY. A token-only range finder (examples/plain_range_sensor.py:
+    plain zenoh and msgpack, no heartbeat) attached all along is never UNHEALTHY either."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = Process("-m", "ubf_async.launch", "--listen", endpoint, "--status-period-s", "0.25",
                     "--duration", "600")
     rangers: list[Process] = []
     try:
         robot.wait_for_line("  controller:", timeout_s=60)
+        plain = Process(str(ROOT / "examples" / "plain_range_sensor.py"), "--connect", endpoint,
+                        "--robot", "mini", "--name", "plain", "--rate-hz", "25")
+        rangers.append(plain)
+        first = len(robot.lines)
+        robot.wait_for_line("range/plain ", timeout_s=60)
         for name in ("polite", "killed"):
             ranger = Process("-m", "components.range", "--connect", endpoint, "--name", name)
             rangers.append(ranger)
             ranger.wait_for_line("attached to robot", timeout_s=60)
             robot.wait_for_line(f"range/{name} ", timeout_s=30)
-        polite, killed = rangers
+        _, polite, killed = rangers
         polite.proc.send_signal(signal.SIGINT)
         assert polite.proc.wait(timeout=30) == 0, polite.output()
         killed.kill()
-        started = len(robot.lines)
         robot.wait_for_match(r"range/killed GONE [\d.]+s ago.*range/polite LEFT [\d.]+s ago"
                              r"|range/polite LEFT [\d.]+s ago.*range/killed GONE [\d.]+s ago",
                              timeout_s=30)
-        for later in robot.lines[started:]:
+        for later in robot.lines[first:]:
             assert "UNHEALTHY" not in later and "refused" not in later, later
     finally:
         for ranger in rangers:

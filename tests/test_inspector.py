@@ -145,7 +145,7 @@ def test_components_lists_exactly_the_live_ones(
 
         until(lambda: long_listing() == without, what="the long listing")
         assert rows["controller"].startswith("healthy")
-        assert rows["plain"].startswith("no heartbeat")  # plain zenoh: a token, no heartbeat
+        assert rows["plain"].startswith("token only: no heartbeat")  # plain zenoh
     finally:
         second.kill()
 

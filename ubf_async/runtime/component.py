@@ -339,9 +339,14 @@ class ComponentHealth:
     """Once it has left (said goodbye) or is gone (its token vanished without one)."""
 
     def healthy(self, now_s: float, *, missed: float = 3.0) -> bool:
-        """Alive and its heartbeat not more than ``missed`` periods late."""
-        if not self.alive or self.last_heartbeat_s is None:
+        """Alive, and — if it sends heartbeats — its last not more than ``missed`` periods
+        late (host monotonic time). A component that has sent none is judged by its token:
+        heartbeats are optional (a microcontroller's component may send none), and a joiner's
+        token may be heard before its first heartbeat."""
+        if not self.alive:
             return False
+        if self.last_heartbeat_s is None:
+            return True
         period = self.heartbeat_period_s or 1.0
         return now_s - self.last_heartbeat_s <= missed * period
 

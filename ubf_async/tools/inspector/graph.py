@@ -126,7 +126,7 @@ async def cmd_components(bus: Bus, args: argparse.Namespace, out: TextIO) -> int
     for name in names:
         health = monitor.components.get(name)
         if health is None or health.last_heartbeat_s is None:
-            detail = "no heartbeat (not a ubf_async component, or none yet)"
+            detail = "token only: no heartbeat (none sent, or none yet), judged by its token"
         else:
             state = "healthy" if health.healthy(now) else "UNHEALTHY"
             detail = (f"{state}: heartbeat {now - health.last_heartbeat_s:.2f}s ago, "
