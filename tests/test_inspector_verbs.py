@@ -240,7 +240,7 @@ def test_info_names_the_schema_fields_and_what_was_heard(robot_endpoint: str) ->
     result = inspect(robot_endpoint, "info", "cmd/drive")
     assert result.returncode == 0, result.stderr
     out = result.stdout
-    assert "schema: drive" in out and "speed: number (≥ -100, ≤ 100)" in out
+    assert "schema: drive" in out and "speed: number −100…100 (required)" in out
     heard = re.search(r"heard on ubf/insp/cmd/drive: (\d+) messages .* from 1 publisher", out)
     assert heard and int(heard.group(1)) > 20, out
     # The robot's components announce what they publish in their heartbeats.

@@ -8,25 +8,22 @@ import argparse
 import asyncio
 import contextlib
 import dataclasses
-import json
 import time
 from dataclasses import dataclass, field
 from typing import Any, TextIO
-
-import msgspec
 
 from ubf_async.errors import ProtocolError
 from ubf_async.net.keyexpr import intersects
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import HealthMonitor
 from ubf_async.tools.inspector import common, samples
-from ubf_async.wire import topics
+from ubf_async.wire import reference, topics
 from ubf_async.wire.keys import ROOT, Keys
 from ubf_async.wire.protocol import decode
 
 __all__ = ["KeyStats", "RobotRow", "add_components_parser", "add_info_parser", "add_keys_parser",
            "add_robots_parser", "cmd_components", "cmd_info", "cmd_keys", "cmd_robots",
-           "describe_type", "format_publishers", "print_declared"]
+           "format_publishers", "print_declared"]
 
 
 def add_robots_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
@@ -207,38 +204,6 @@ def add_info_parser(sub: Any, connection: argparse.ArgumentParser) -> None:
                            "component (default: 1)")
 
 
-def describe_type(info: msgspec.inspect.Type) -> str:
-    """A field's type with its bounds, as a reader of the protocol wants them."""
-    mi = msgspec.inspect
-    if isinstance(info, mi.UnionType):
-        return " | ".join(describe_type(t) for t in info.types)
-    if isinstance(info, mi.NoneType):
-        return "nil"
-    if isinstance(info, mi.LiteralType):
-        return " | ".join(json.dumps(v) for v in info.values)
-    bounds = []
-    for name, sign in (("ge", "≥"), ("gt", ">"), ("le", "≤"), ("lt", "<")):
-        value = getattr(info, name, None)
-        if value is not None:
-            bounds.append(f"{sign} {value:g}" if isinstance(value, float) else f"{sign} {value}")
-    for name, sign in (("min_length", "length ≥"), ("max_length", "length ≤")):
-        value = getattr(info, name, None)
-        if value is not None:
-            bounds.append(f"{sign} {value}")
-    if isinstance(info, mi.VarTupleType | mi.ListType):
-        base = f"array of {describe_type(info.item_type)}"
-    elif isinstance(info, mi.TupleType):
-        base = "[" + ", ".join(describe_type(t) for t in info.item_types) + "]"
-    elif isinstance(info, mi.StructType):
-        base = "map {" + ", ".join(f.name for f in info.fields) + "}"
-    elif isinstance(info, mi.DictType):
-        base = "map"
-    else:
-        base = {mi.IntType: "int", mi.FloatType: "number", mi.StrType: "str",
-                mi.BoolType: "bool", mi.BytesType: "bytes"}.get(type(info), type(info).__name__)
-    return base + (f" ({', '.join(bounds)})" if bounds else "")
-
-
 async def cmd_info(bus: Bus, args: argparse.Namespace, out: TextIO) -> int:
     key_expr = common.key_or_report(bus.keys, args.key)
     if key_expr is None:
@@ -296,12 +261,11 @@ def print_declared(keys: Keys, key_expr: str, out: TextIO) -> None:
     for topic in declared:
         print(f"declared topic: {topic.name} — {topic.doc}\n  key: {topic.key_expr(keys)}"
               f"\n  schema: {topic.schema}", file=out)
-        type_info = msgspec.inspect.type_info(topic.type)
-        if isinstance(type_info, msgspec.inspect.StructType):
-            for f in type_info.fields:
-                need = "" if f.required else " (optional)"
-                print(f"  {f.name}: {describe_type(f.type)}{need}", file=out)
-        else:
+        rows = reference.field_rows(topic)
+        for name, given, kind in rows:  # as docs/protocol.md's reference has them
+            print(f"  {reference.plain(name)}: {reference.plain(kind)} "
+                  f"({reference.plain(given)})", file=out)
+        if not rows and topic.type is topics.PlainData:
             print("  data: a map of plain values (checked generically)", file=out)
 
 

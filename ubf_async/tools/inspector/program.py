@@ -14,9 +14,9 @@ from ubf_async.cli.attach import wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.errors import UbfError
 from ubf_async.runtime.bus import Bus
-from ubf_async.tools.inspector import common, graph, parser, pub, samples, state, tree
+from ubf_async.tools.inspector import common, graph, parser, pub, samples, schemas, state, tree
 
-__all__ = ["COMMANDS", "main", "open_bus", "run"]
+__all__ = ["COMMANDS", "OFFLINE", "main", "open_bus", "run"]
 
 
 async def open_bus(args: argparse.Namespace) -> Bus:
@@ -39,7 +39,14 @@ COMMANDS = {"robots": graph.cmd_robots, "components": graph.cmd_components,
             "info": graph.cmd_info, "pub": pub.cmd_pub}
 
 
+OFFLINE = {"schemas": schemas.cmd_schemas}
+"""Commands that need no robot (no session is opened)."""
+
+
 async def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
+    offline = OFFLINE.get(args.command)
+    if offline is not None:
+        return offline(args, out)
     try:
         bus = await open_bus(args)
     except (UbfError, ConnectionError) as exc:
