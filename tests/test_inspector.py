@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import time
@@ -243,6 +244,28 @@ def test_keys_lists_keys_with_rates(watched_robot: tuple[str, str]) -> None:
     assert int(count) >= 30 and schema == "drive" and 30 <= float(rate.removesuffix("Hz")) <= 60
     assert rows[f"{prefix}sensor/range/plain"][2] == "range"
     assert 10 <= float(rows[f"{prefix}sensor/range/plain"][1].removesuffix("Hz")) <= 25
+
+
+def test_conform_checks_real_components_against_the_protocol(
+        watched_robot: tuple[str, str]) -> None:
+    """Issue 55, item 3, on real processes: the plain-zenoh range finder (no heartbeat: its
+    key named) and a ubf_async component (its keys announced) conform; without a key to check
+    the plain one is a deviation (exit status 1), and says how to name one."""
+    endpoint, robot = watched_robot
+    flags = ("--connect", endpoint, "--robot", robot, "--seconds", "2")
+    plain = inspect("conform", "plain", "--key", "sensor/range/plain", *flags)
+    assert plain.returncode == 0, plain.stdout + plain.stderr
+    assert f"ok    liveliness token ubf/{robot}/alive/plain" in plain.stdout
+    assert re.search(rf"ok    ubf/{robot}/sensor/range/plain \(no pub\): \d+ valid range "
+                     r"samples", plain.stdout), plain.stdout
+    camera = inspect("conform", "camera-front", *flags)
+    assert camera.returncode == 0, camera.stdout + camera.stderr
+    assert re.search(r"ok    ubf/\S+/heartbeat/camera-front: heartbeats every", camera.stdout)
+    assert f"ubf/{robot}/sensor/camera/front (pub" in camera.stdout
+    unnamed = inspect("conform", "plain", *flags)
+    assert unnamed.returncode == 1, unnamed.stdout + unnamed.stderr
+    assert "FAIL  no keys to check: plain announces none" in unnamed.stdout
+    assert unnamed.stdout.rstrip().endswith("1 deviation(s)")
 
 
 def test_tree_request_data_from_the_command_line(tmp_path: Path) -> None:

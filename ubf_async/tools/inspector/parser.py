@@ -8,7 +8,7 @@ import argparse
 
 from ubf_async.cli.args import add_connection_arguments
 from ubf_async.net.options import DEFAULT_LISTEN
-from ubf_async.tools.inspector import common, graph, pub, samples, schemas, state, tree
+from ubf_async.tools.inspector import common, conform, graph, pub, samples, schemas, state, tree
 
 __all__ = ["PROG", "build_parser", "common_parser"]
 
@@ -57,6 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                f"  {PROG} pub cmd/leds '{{mask: 1}}'\n"
                f"  {PROG} state --watch\n"
                f"  {PROG} schemas heartbeat range\n"
+               f"  {PROG} conform my_ir --key sensor/range/ext\n"
                f"connection flags (--connect, --robot, ...) go before or after COMMAND.\n"
                f"run `{PROG} COMMAND --help` for a command's options.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -72,4 +73,5 @@ def build_parser() -> argparse.ArgumentParser:
     graph.add_info_parser(sub, common)
     pub.add_pub_parser(sub, common)
     schemas.add_schemas_parser(sub)
+    conform.add_conform_parser(sub, common)
     return parser

@@ -14,7 +14,17 @@ from ubf_async.cli.attach import wait_for_robot
 from ubf_async.cli.run import run_main
 from ubf_async.errors import UbfError
 from ubf_async.runtime.bus import Bus
-from ubf_async.tools.inspector import common, graph, parser, pub, samples, schemas, state, tree
+from ubf_async.tools.inspector import (
+    common,
+    conform,
+    graph,
+    parser,
+    pub,
+    samples,
+    schemas,
+    state,
+    tree,
+)
 
 __all__ = ["COMMANDS", "OFFLINE", "main", "open_bus", "run"]
 
@@ -36,7 +46,7 @@ async def open_bus(args: argparse.Namespace) -> Bus:
 COMMANDS = {"robots": graph.cmd_robots, "components": graph.cmd_components,
             "keys": graph.cmd_keys, "echo": samples.cmd_echo, "state": state.cmd_state,
             "tree": tree.cmd_tree, "hz": samples.cmd_rate, "bw": samples.cmd_rate,
-            "info": graph.cmd_info, "pub": pub.cmd_pub}
+            "info": graph.cmd_info, "pub": pub.cmd_pub, "conform": conform.cmd_conform}
 
 
 OFFLINE = {"schemas": schemas.cmd_schemas}
