@@ -317,6 +317,27 @@ async def test_shipped_senders_work_against_the_default_sim_time_robot(
         assert "stamped on another clock" in shown.stdout
         assert re.search(r"range/wall\s+\d+ samples, like the wall clock", shown.stdout), \
             shown.stdout
+
+        # The conformance check (issue 55, item 3) on the same senders: the page's own remote
+        # behaviour and the plain sensor (raw zenoh, hand-built msgpack) pass it; the
+        # wall-stamped sender, which declares no token either, fails it on both counts.
+        def conform(component: str, key: str) -> subprocess.CompletedProcess[str]:
+            return subprocess.run(
+                [sys.executable, "-m", "ubf_async.inspector", "conform", component, "--key",
+                 key, "--seconds", "2", "--connect", endpoint, "--robot", robot],
+                cwd=ROOT, capture_output=True, text=True, timeout=60)
+
+        checked = await asyncio.gather(*(asyncio.to_thread(conform, *args) for args in (
+            ("teleop", "vote/seek_pink_ball/teleop"), ("plain", "sensor/range/plain"),
+            ("wall", "sensor/range/wall"))))
+        for result in checked[:2]:
+            assert result.returncode == 0, result.stdout + result.stderr
+            assert "conforms: no deviation seen" in result.stdout
+        assert checked[2].returncode == 1, checked[2].stdout + checked[2].stderr
+        assert f"FAIL  no liveliness token ubf/{robot}/alive/wall" in checked[2].stdout
+        assert re.search(r"FAIL  ubf/\S+/sensor/range/wall \(no pub\): \d+ stamped on the "
+                         r"wall clock: this robot runs on simulated time", checked[2].stdout), \
+            checked[2].stdout
     finally:
         await bus.aclose()
         if radio is not None:
