@@ -279,6 +279,54 @@ async def test_event_controller_ticks_per_trigger_sample_and_holds_between(rig: 
 
 
 @pytest.mark.asyncio
+@pytest.mark.parametrize("mode", ["event", "periodic"])
+async def test_a_tick_that_fails_outside_the_tree_is_contained_and_never_held(
+        rig: Rig, monkeypatch: pytest.MonkeyPatch, mode: str) -> None:
+    """A tick whose snapshot raises once (a fault outside the behaviour tree, which the tree's
+    own guard does not see): it is counted and commands a stop, what a hold then repeats is
+    that stop, not the decision before the fault, and the next sample — or the next period —
+    ticks as before (issue 53, item 1: the tick a sample runs was an observer the aggregator
+    dropped when it raised, after which holds repeated the old decision while the trigger
+    stayed fresh)."""
+    agg = StateAggregator(bus=rig.robot)
+    ctl = (Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10, mode="event",
+                      trigger="range/front") if mode == "event"
+           else Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10))
+    await rig.start(agg, ctl)
+    await rig.publish_range(300)
+    if mode == "periodic":
+        await rig.advance_s(0.1)
+    assert rig.drives[-1]["speed"] == 30.0
+    real_snapshot = agg.snapshot
+    faults = iter([RuntimeError("a bookkeeping step raised")])
+
+    def snapshot_failing_once(**kwargs: Any) -> Any:
+        fault = next(faults, None)
+        if fault is not None:
+            raise fault
+        return real_snapshot(**kwargs)
+
+    monkeypatch.setattr(agg, "snapshot", snapshot_failing_once)
+    if mode == "event":
+        await rig.publish_range(400)  # its tick fails
+    else:
+        await rig.advance_s(0.1)
+    assert ctl.stats.tick_faults == 1 and ctl.stats.errors == 0
+    assert (rig.drives[-1]["speed"], rig.drives[-1]["turn"]) == (0.0, 0.0)
+    await rig.advance_s(0.1)  # a hold (event) or a tick on stale-free data (periodic)
+    if mode == "event":
+        assert rig.drives[-1]["hold"] is True and rig.drives[-1]["speed"] == 0.0
+        await rig.publish_range(500)  # the controller still ticks on samples
+        assert (rig.drives[-1]["speed"], rig.drives[-1]["based_on"]["seq"]) == (50.0, 3)
+    else:
+        await rig.publish_range(500)
+        await rig.advance_s(0.1)
+        assert rig.drives[-1]["speed"] == 50.0
+    assert ctl.stats.tick_faults == 1
+    assert ctl.status()["tick_faults"] == 1
+
+
+@pytest.mark.asyncio
 async def test_reflex_samples_tick_at_once_within_their_token_bucket(rig: Rig) -> None:
     agg = StateAggregator(bus=rig.robot)
     ctl = Controller(bus=rig.robot, aggregator=agg, root=tree(), rate_hz=10,

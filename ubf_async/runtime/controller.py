@@ -58,7 +58,11 @@ off for that tick and, if it keeps failing, quarantined by its composite (see
 :mod:`ubf_async.core.behavior`; ``status()["quarantined"]`` lists them); if the root itself
 raises, the failure is logged, counted in ``errors``, and that tick commands a stop. If
 publishing the command still raises, it is counted in ``publish_errors``, logged, and a
-plain stop is published instead.
+plain stop is published instead. A fault anywhere else in a tick (the snapshot, the
+bookkeeping, an observer's hook) is contained too: counted in ``tick_faults``, logged, a stop
+commanded, and the decision a hold repeats is that stop — never the last one from before the
+fault. The next tick runs as usual: the tick a sample runs is not a droppable observer of the
+aggregator, it cannot raise out of :meth:`Controller._on_sample`.
 A tick that ends after the next tick was due counts as an overrun; missed ticks are skipped,
 not bunched up.
 
@@ -192,6 +196,9 @@ class TickStats:
     """Ticks on which the root behaviour raised (each commanded a stop)."""
     publish_errors: int = 0
     """Ticks whose command could not be published (a plain stop went out instead)."""
+    tick_faults: int = 0
+    """Ticks that failed outside the behaviour tree (each commanded a stop: module
+    docstring)."""
     reflex_limited: int = 0
     """Reflex samples that did not tick because the reflex bucket was empty."""
     holds: int = 0
@@ -255,6 +262,7 @@ class TickStats:
             "overruns": self.overruns,
             "errors": self.errors,
             "publish_errors": self.publish_errors,
+            "tick_faults": self.tick_faults,
             "reflex_limited": self.reflex_limited,
             "holds": self.holds,
             "rate_hz": self.rate_hz(),
@@ -422,12 +430,19 @@ class Controller(Component):
         return (lambda source: source.startswith(prefixes)) if prefixes else _never
 
     def _on_sample(self, source: str, entry: SourceEntry) -> None:
-        if not self._triggers(source):
+        # Contained whole: a sample hook that raises is dropped by the aggregator, and a
+        # controller unhooked would never tick on a sample again.
+        try:
+            if not self._triggers(source):
+                return
+            if (self.mode is TickMode.PERIODIC
+                    and not self._reflex_bucket.take(self.bus.clock.now_ns())):
+                self.stats.reflex_limited += 1
+                return
+            self.stats.triggered += 1
+        except Exception:
+            self._tick_failed(None)
             return
-        if self.mode is TickMode.PERIODIC and not self._reflex_bucket.take(self.bus.clock.now_ns()):
-            self.stats.reflex_limited += 1
-            return
-        self.stats.triggered += 1
         self._tick(entry)  # (inside ingest: the lock is held)
 
     async def _run_triggered(self) -> None:
@@ -470,6 +485,32 @@ class Controller(Component):
             return self._tick(based_on)
 
     def _tick(self, based_on: SourceEntry | None) -> Trace | None:
+        """:meth:`_run_tick`, its faults contained (module docstring): never raises."""
+        try:
+            return self._run_tick(based_on)
+        except Exception:
+            self._tick_failed(based_on)
+            return None
+
+    def _tick_failed(self, based_on: SourceEntry | None) -> None:
+        """A tick failed outside the tree: count it, say so, command a stop, and make the
+        stop what a hold repeats."""
+        stats = self.stats
+        stats.tick_faults += 1
+        if throttle.first_and_every(stats.tick_faults):
+            log.exception("a tick failed outside the behaviour tree (fault #%d): commanding "
+                          "a stop", stats.tick_faults)
+        self.last_action = Action(speed=0.0, turn=0.0)
+        self.last_trace = None
+        try:
+            self._drive.publish(Drive(speed=0.0, turn=0.0, tick=stats.ticks,
+                                      ticked_by="clock" if based_on is None
+                                      else _TICKED_BY[self.mode]))
+            self._last_drive_ns = self.bus.clock.now_ns()
+        except Exception:  # nothing goes out: the motors' watchdog stops the wheels
+            self._publish_failed("stop after a failed tick")
+
+    def _run_tick(self, based_on: SourceEntry | None) -> Trace | None:
         # Only what the drive command needs comes before its put; the bookkeeping follows it.
         t0 = time.perf_counter_ns()
         state = self.aggregator.snapshot(previous_action=self.last_action)

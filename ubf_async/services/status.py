@@ -106,6 +106,8 @@ def status_fields(robot: str, elapsed_s: float, controller: Controller,
     evicted = aggregator.dropped()["evicted"]
     if evicted:  # the table full: a flood of names (forgetting the silent is no news)
         fields.append(f"evicted {evicted}")
+    if controller.stats.tick_faults:
+        fields.append(f"TICK FAULTS {controller.stats.tick_faults}")
     if controller.stats.overruns:
         fields.append(f"overruns {controller.stats.overruns}")
     sources = aggregator.sources()
