@@ -493,3 +493,36 @@ def test_json_schema_accepts_the_shipped_file_and_refuses_mistakes() -> None:
     assert list(validator.iter_errors(data)) == []
     data["tree"]["children"][0]["priority"] = "high"
     assert list(validator.iter_errors(data))
+
+
+
+LOAD_TIME_TYPE_ERRORS = {
+    # case: (the tree's arbiter and children, the line the refusal points at, what it says)
+    "a behaviour reading a source of the wrong kind": (
+        " PriorityMerge\n  children:\n    - behavior: chase\n"
+        "      params: {source: range/front}\n",
+        "params:", "behaviour 'chase': Chase 'chase': 'range/front' is a range source; its "
+        "samples have no field 'bins'"),
+    "a predicate reading a source of the wrong kind": (
+        "\n    type: Conditional\n    params:\n      predicate: sees_color\n"
+        "      predicate_params: {source: range/front}\n"
+        "  children:\n    - behavior: chase\n    - behavior: search\n",
+        "predicate:", "arbiter 'Conditional': predicate 'sees_color': sees_color: "
+        "'range/front' is a range source; its samples have no field 'bins'"),
+    "a predicate's parameter of the wrong type": (
+        "\n    type: Conditional\n    params:\n      predicate: obstacle_within\n"
+        "      predicate_params: {near_mm: near}\n"
+        "  children:\n    - behavior: chase\n    - behavior: search\n",
+        "predicate:", "arbiter 'Conditional': predicate 'obstacle_within': Expected `int`, "
+        "got `str` (at $.near_mm)"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(LOAD_TIME_TYPE_ERRORS))
+def test_a_type_error_of_the_tree_is_refused_at_load_at_its_line(case: str) -> None:
+    """Issue 51, item 3: a behaviour or a predicate given a source of the wrong kind, or a
+    parameter of the wrong type, is refused when the file loads (launch --check), at the
+    line of its parameters — not when it ticks."""
+    tree, at, said = LOAD_TIME_TYPE_ERRORS[case]
+    text = f"format: 1\nname: wrong\ndevices: []\ntree:\n  name: root\n  arbiter:{tree}"
+    assert str(refused(text)).startswith(f"robot.yaml:{line_of(text, at)}: {said}")

@@ -768,8 +768,9 @@ class TreeBuilder:
                                  path=(*path, "params"), what=f"arbiter {kind!r}")
         try:
             return factory(**self._inject(factory), **values)
-        except (ValueError, TypeError, LookupError) as exc:
-            raise self.locator.error(f"arbiter {kind!r}: {exc}", path) from None
+        except (ValueError, TypeError, LookupError) as exc:  # at its parameters' line
+            raise self.locator.error(f"arbiter {kind!r}: {exc}",
+                                     (*path, "params") if params else path) from None
 
     def behavior(self, node: NodeSpec, path: Path_) -> Behavior:
         assert node.behavior is not None
@@ -789,8 +790,9 @@ class TreeBuilder:
                              else ref)
         try:
             made = factory(**extra, **values)
-        except (ValueError, TypeError, LookupError) as exc:
-            raise self.locator.error(f"behaviour {ref!r}: {exc}", path) from None
+        except (ValueError, TypeError, LookupError) as exc:  # at its parameters' line
+            raise self.locator.error(f"behaviour {ref!r}: {exc}",
+                                     (*path, "params") if node.params else path) from None
         if not isinstance(made, Behavior):
             raise self.locator.error(
                 f"behaviour {ref!r} made a {type(made).__name__}, not a "
