@@ -28,6 +28,8 @@ derives from the built-in exception a caller would naturally catch (``ValueError
     │   ├── PortInUseError     a listen port another process holds
     │   ├── NoRobotError       no robot answers at the endpoints
     │   └── RefusedError       something there refuses this session (secure mode)
+    ├── DeviceError            a device's hardware or driver failed (a camera that cannot open
+    │                          or read, a range finder's bus read), OSError too
     ├── QueryError             a queryable answered with an error
     ├── SettleError            the in-process network still busy after its limit
     ├── ResultsNotSavedError   a run's summary or recording could not be written
@@ -38,7 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-__all__ = ["ConfigurationError", "EvolveSpecError", "JournalError", "KeyExprError",
+__all__ = ["ConfigurationError", "DeviceError", "EvolveSpecError", "JournalError", "KeyExprError",
            "MissingExtraError", "NameTakenError", "NoRobotError", "NotAllowedError",
            "OverridePathError", "ParameterError", "PluginError", "PortInUseError", "ProtocolError",
            "QueryError", "RefusedError", "ResultsNotSavedError", "RobotFileError", "ScenarioError",
@@ -52,6 +54,11 @@ class UbfError(Exception):
 
 class ProtocolError(UbfError, ValueError):
     """A payload or key that does not follow the protocol. The message says what and where."""
+
+
+class DeviceError(UbfError, OSError):
+    """A device's hardware or its driver failed: a camera that cannot be opened or yields no
+    frame, a range finder's bus read. The devices' own errors derive from it."""
 
 
 class KeyExprError(UbfError, ValueError):

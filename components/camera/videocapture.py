@@ -17,12 +17,12 @@ import numpy as np
 
 from components.camera.backend import CameraBackend
 from ubf_async.assembly.context import DeviceContext
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, DeviceError
 
 __all__ = ["CameraError", "VideoCaptureBackend", "video_backend"]
 
 
-class CameraError(RuntimeError):
+class CameraError(DeviceError):
     """The source cannot be opened, is closed, or yields no frame."""
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from ubf_async.assembly.backend import Backend
+from ubf_async.errors import DeviceError
 
 __all__ = ["MountPose", "RangeBackend", "RangeReadError"]
 
@@ -19,7 +20,7 @@ class MountPose:
     yaw_rad: float = 0.0
 
 
-class RangeReadError(OSError):
+class RangeReadError(DeviceError):
     """A real sensor could not be read this time (an I²C bus error, a conversion that never
     finished): the range component counts it and publishes nothing for that period."""
 

@@ -70,6 +70,7 @@ import numpy as np
 
 from components.sim.render.camera import CameraParams, render_camera, warm_up
 from components.sim.world.snapshot import WorldSnapshot
+from ubf_async.errors import DeviceError
 
 __all__ = ["ENV_VAR", "RenderProcess", "RenderProcessError", "frame_shape", "render_process_wanted",
            "shared_render_process", "worker_main"]
@@ -98,8 +99,9 @@ def frame_shape(params: CameraParams, grid: int) -> tuple[int, int, int]:
     return (math.ceil(params.height_px / grid), math.ceil(params.width_px / grid), 3)
 
 
-class RenderProcessError(RuntimeError):
-    """The worker could not be started, or stopped answering."""
+class RenderProcessError(DeviceError):
+    """The worker could not be started, or stopped answering (the simulated camera's
+    device failure)."""
 
 
 # -- the worker --------------------------------------------------------------------------------
