@@ -122,6 +122,7 @@ def runs(*commands: str) -> Callable[[F], F]:
     return declare
 
 
+BOARD = "a Raspberry Pi–class board's set-up (root, apt, systemd as PID 1)"
 ROS_MACHINE = ("a ROS 2 installation with rmw_zenoh (none here): test_ros2_sees_the_robot_"
                "through_a_router does what it does with tests/ros2_side.py, an rmw_zenoh "
                "implementation independent of ubf_async.services.ros2")
@@ -160,6 +161,19 @@ NOT_RUN = {
         "installs gpiozero and smbus2 into the environment running the tests (they are test "
         "dependencies here; the gpio check below runs on them)",
     "sudo apt install python3-lgpio": "root, and a Raspberry Pi's packages",
+    "sudo apt install python3-venv python3-lgpio": BOARD,
+    "python3 -m venv --system-site-packages ~/ubf-venv": BOARD,
+    ". ~/ubf-venv/bin/activate": BOARD,
+    "sudo cp ubf-robot-mini.service /etc/systemd/system/": BOARD,
+    "sudo systemctl daemon-reload": BOARD,
+    "sudo systemctl enable --now ubf-robot-mini": BOARD,
+    "journalctl -u ubf-robot-mini -f": BOARD,
+    "python -m components.motors --backend gpio --check --robot-file my-robot.yaml":
+        "real GPIO motors (tests/test_hw_launch.py runs the check on gpiozero's mock pins)",
+    "python -m ubf_async.inspector robots --connect tls/192.168.1.10:7447 --secure "
+    "~/.ubf/mini --identity inspector":
+        "a robot on another host of the LAN: tests/test_secure.py reads a TLS robot with the "
+        "inspector's identity on loopback",
     "sudo usermod -aG gpio,i2c $USER": "root, and a Raspberry Pi's groups",
     "sudo raspi-config nonint do_i2c 0": "root, and a Raspberry Pi's configuration tool",
     "ls -l /dev/gpiochip* /dev/i2c-1": "a Raspberry Pi's GPIO and I²C device files",
@@ -975,6 +989,39 @@ def test_the_pi_robot_file_checks(tmp_path: Path) -> None:
     with page(tmp_path) as here:
         out = here.run(PI_LAUNCH, add=("--check",))
         assert out.splitlines()[0] == "examples/robots/pi-whegs.yaml: robot 'pi-whegs' — OK", out
+
+
+DEPLOY = ("python -m ubf_async.deploy my-robot.yaml --secure ~/.ubf/mini-secure --out "
+          "ubf-robot-mini.service")
+DEPLOY_README = ("python -m ubf_async.deploy examples/robots/pi-whegs.yaml --out "
+                 "ubf-robot-pi-whegs.service")
+SECURE_INIT = ("python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file my-robot.yaml "
+               "--host 192.168.1.10 --host mini.local")
+MY_ROBOT_CHECK = "python -m ubf_async.launch my-robot.yaml --check"
+
+
+@runs(DEPLOY, DEPLOY_README, MY_ROBOT_CHECK)
+def test_the_deploy_page_writes_units_systemd_accepts(tmp_path: Path) -> None:
+    """docs/deploy.md's and the README's units, written as shown by a normal user (``pi``) for
+    the Pi robot file (as ``my-robot.yaml``, with the page's secure set-up), check as launch
+    does and pass ``systemd-analyze verify`` without a word (where it is installed)."""
+    with page(tmp_path) as here:
+        (here.cwd / "my-robot.yaml").write_text((ROOT / "examples" / "robots" /
+                                                 "pi-whegs.yaml").read_text("utf-8"))
+        assert "my-robot.yaml: robot 'pi-whegs' — OK" in here.run(MY_ROBOT_CHECK)
+        here.run(SECURE_INIT)
+        user = {"USER": "pi", "LOGNAME": "pi"}
+        assert "unit written to ubf-robot-mini.service" in here.run(DEPLOY, env=user)
+        here.run(DEPLOY_README, env=user)
+        for unit in ("ubf-robot-mini.service", "ubf-robot-pi-whegs.service"):
+            text = (here.cwd / unit).read_text("utf-8")
+            assert "User=pi" in text and "SupplementaryGroups=gpio i2c video" in text
+            if shutil.which("systemd-analyze") is not None:
+                verified = subprocess.run(["systemd-analyze", "verify", unit], cwd=here.cwd,
+                                          capture_output=True, text=True, timeout=60)
+                assert (verified.returncode, verified.stdout + verified.stderr) == (0, ""), \
+                    verified.stderr
+        assert "--secure" in (here.cwd / "ubf-robot-mini.service").read_text("utf-8")
 
 
 # -- benchmarks and tools shown --------------------------------------------------------------
