@@ -140,9 +140,14 @@ class RefusalNotices:
         if refused.again is not None:
             refused.again.cancel()
             refused.again = None
-        if not repeated:
-            refused.again = asyncio.get_running_loop().call_later(
-                self.period_ns / 1e9, self._again, key, parts, refused, notice)
+        if repeated:
+            return
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # a caller off the loop (a synchronous test): nothing to repeat on
+            return
+        refused.again = loop.call_later(self.period_ns / 1e9, self._again, key, parts,
+                                        refused, notice)
 
     def _again(self, key: str, parts: list[str], refused: _Refused,
                notice: RefusalNotice) -> None:

@@ -15,7 +15,6 @@ Needs ``hypothesis`` (the ``test`` extra brings it).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -140,7 +139,6 @@ def states(sources: Mapping[str, Topic[Any]], *, stale: bool | None = False,
         return Reading(value=message, stamp_ns=now_ns - round(age_s * 1e9), seq=1,
                        age_s=age_s, stale=is_stale)
 
-    readings = {source: st.builds(reading, messages(topic),
-                                  st.floats(0.0, 1.0).filter(math.isfinite), stale_flags)
+    readings = {source: st.builds(reading, messages(topic), st.floats(0.0, 1.0), stale_flags)
                 for source, topic in sources.items()}
     return st.fixed_dictionaries(readings).map(lambda r: State(r, now_ns=now_ns))
