@@ -15,8 +15,10 @@ outputs), as gpiozero does.
 
 from __future__ import annotations
 
+import logging
 import sys
 import threading
+import warnings
 from types import ModuleType
 from typing import Any
 
@@ -24,6 +26,8 @@ from ubf_async import extras
 from ubf_async.errors import ConfigurationError
 
 __all__ = ["describe", "gpio_errors", "pin_factory", "pins_error", "require"]
+
+log = logging.getLogger(__name__)
 
 _FACTORIES: dict[str, Any] = {}
 _LOCK = threading.Lock()
@@ -71,16 +75,28 @@ def pin_factory(name: str | None, *, who: str) -> Any:
         factory = _FACTORIES.get(key)
         if factory is not None:
             return factory
-        try:
-            if name is None:
-                factory = devices.Device.pin_factory or devices.Device._default_pin_factory()
-                devices.Device.pin_factory = factory
-            else:
-                factory = _load_factory(name)
-        except Exception as exc:  # gpiozero's BadPinFactory, or the library's own error
-            raise ConfigurationError(f"{who}: no GPIO pin factory {name or '(default)'!r}: "
-                                     f"{describe(exc)} (docs/hardware.md, Pin factories)"
-                                     ) from None
+        # gpiozero warns once per factory it falls back from (four lines off a Pi before
+        # its error): they are folded into the one line said here instead.
+        with warnings.catch_warnings(record=True) as fallbacks:
+            warnings.simplefilter("always")
+            try:
+                if name is None:
+                    factory = (devices.Device.pin_factory
+                               or devices.Device._default_pin_factory())
+                    devices.Device.pin_factory = factory
+                else:
+                    factory = _load_factory(name)
+            except Exception as exc:  # gpiozero's BadPinFactory, or the library's own error
+                tried = "; ".join(str(w.message).removeprefix("Falling back from ")
+                                  for w in fallbacks)
+                venv = ("; in a venv, apt's python3-lgpio needs --system-site-packages, or "
+                        "pip install lgpio" if "No module named 'lgpio'" in tried else "")
+                raise ConfigurationError(
+                    f"{who}: no GPIO pin factory {name or '(default)'!r}: {describe(exc)}"
+                    + (f" (tried {tried})" if tried else "") + f" (docs/hardware.md, Pin "
+                    f"factories{venv})") from None
+        for fallback in fallbacks:
+            log.info("%s: %s", who, fallback.message)
         _FACTORIES[key] = factory
         return factory
 

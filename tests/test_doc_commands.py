@@ -1000,6 +1000,31 @@ SECURE_INIT = ("python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file 
 MY_ROBOT_CHECK = "python -m ubf_async.launch my-robot.yaml --check"
 
 
+BRINGUP = "python -m components.bringup examples/robots/pi-whegs.yaml --out bringup"
+BRINGUP_MY = "python -m components.bringup my-robot.yaml"
+
+
+@runs(BRINGUP, BRINGUP_MY)
+def test_bring_up_off_a_board_says_what_each_device_needs(tmp_path: Path) -> None:
+    """docs/hardware.md's bring-up, here where there is no GPIO, no I²C bus and no camera:
+    every device fails on its own line saying what to do, the motors are left to their check,
+    gpiozero's fallbacks are in the encoders' one line (not four warnings), exit status 1."""
+    with page(tmp_path) as here:
+        (here.cwd / "my-robot.yaml").write_text((ROOT / "examples" / "robots" /
+                                                 "pi-whegs.yaml").read_text("utf-8"))
+        for command in (BRINGUP, BRINGUP_MY):
+            out = here.run(command, status=1)
+            lines = dict(line.split(": ", 1) for line in out.splitlines() if ": " in line
+                         and line[:4] in ("ok  ", "FAIL", "--  "))
+            assert set(lines) == {"--    motors/main", "FAIL  encoders/wheels",
+                                  "FAIL  range/front", "FAIL  range/left",
+                                  "FAIL  camera/front"}, out
+            assert "cannot open /dev/i2c-1" in lines["FAIL  range/front"]
+            assert "(tried lgpio: " in lines["FAIL  encoders/wheels"]
+            assert "PinFactoryFallback" not in out
+            assert out.rstrip().endswith("4 of 5 devices failed")
+
+
 @runs(DEPLOY, DEPLOY_README, MY_ROBOT_CHECK)
 def test_the_deploy_page_writes_units_systemd_accepts(tmp_path: Path) -> None:
     """docs/deploy.md's and the README's units, written as shown by a normal user (``pi``) for
