@@ -997,7 +997,7 @@ DEPLOY_README = ("python -m ubf_async.deploy examples/robots/pi-whegs.yaml --out
                  "ubf-robot-pi-whegs.service")
 SECURE_INIT = ("python -m ubf_async.secure init ~/.ubf/mini-secure --robot-file my-robot.yaml "
                "--host 192.168.1.10 --host mini.local")
-MY_ROBOT_CHECK = "python -m ubf_async.launch my-robot.yaml --check"
+BOARD_CHECK = "python -m ubf_async.launch my-robot.yaml --check"
 
 
 BRINGUP = "python -m components.bringup examples/robots/pi-whegs.yaml --out bringup"
@@ -1025,7 +1025,7 @@ def test_bring_up_off_a_board_says_what_each_device_needs(tmp_path: Path) -> Non
             assert out.rstrip().endswith("4 of 5 devices failed")
 
 
-@runs(DEPLOY, DEPLOY_README, MY_ROBOT_CHECK)
+@runs(DEPLOY, DEPLOY_README, BOARD_CHECK)
 def test_the_deploy_page_writes_units_systemd_accepts(tmp_path: Path) -> None:
     """docs/deploy.md's and the README's units, written as shown by a normal user (``pi``) for
     the Pi robot file (as ``my-robot.yaml``, with the page's secure set-up), check as launch
@@ -1033,7 +1033,7 @@ def test_the_deploy_page_writes_units_systemd_accepts(tmp_path: Path) -> None:
     with page(tmp_path) as here:
         (here.cwd / "my-robot.yaml").write_text((ROOT / "examples" / "robots" /
                                                  "pi-whegs.yaml").read_text("utf-8"))
-        assert "my-robot.yaml: robot 'pi-whegs' — OK" in here.run(MY_ROBOT_CHECK)
+        assert "my-robot.yaml: robot 'pi-whegs' — OK" in here.run(BOARD_CHECK)
         here.run(SECURE_INIT)
         user = {"USER": "pi", "LOGNAME": "pi"}
         assert "unit written to ubf-robot-mini.service" in here.run(DEPLOY, env=user)
