@@ -4,6 +4,7 @@ transport, in simulated time — milliseconds of wall time for seconds of robot 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import difflib
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -242,8 +243,7 @@ async def run_script_async(robot: str | Path | Robot, script: Script, *, until_s
         await aggregator.aclose()
         await device_bus.aclose()
         await robot_bus.aclose()
-    return ScriptRun([c if c.hold else Command(c.t_s, c.speed, c.turn, c.winners, c.tick,
-                                               c.hold, traces.get(c.tick))
+    return ScriptRun([c if c.hold else dataclasses.replace(c, trace=traces.get(c.tick))
                       for c in commands], until_s)
 
 

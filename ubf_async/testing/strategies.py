@@ -32,10 +32,12 @@ _CHARACTERS = st.characters(codec="utf-8", exclude_categories=["Cs"])
 _PLAIN_TEXT = st.text(_CHARACTERS, max_size=32)
 
 
-def _bounded(info: mi.IntType | mi.FloatType) -> dict[str, Any]:
-    low = info.ge if info.ge is not None else info.gt
-    high = info.le if info.le is not None else info.lt
-    return {"min_value": low, "max_value": high}
+def _bounds(info: mi.IntType | mi.FloatType) -> tuple[Any, Any]:
+    """The lowest and highest value allowed (an int's strict bound moved by one)."""
+    step = 1 if isinstance(info, mi.IntType) else 0
+    low = info.ge if info.ge is not None else None if info.gt is None else info.gt + step
+    high = info.le if info.le is not None else None if info.lt is None else info.lt - step
+    return low, high
 
 
 def data_of(info: mi.Type) -> st.SearchStrategy[Any]:
@@ -43,15 +45,11 @@ def data_of(info: mi.Type) -> st.SearchStrategy[Any]:
     if isinstance(info, mi.Metadata):
         return data_of(info.type)
     if isinstance(info, mi.IntType):
-        bounds = _bounded(info)
-        if info.gt is not None:
-            bounds["min_value"] = info.gt + 1
-        if info.lt is not None:
-            bounds["max_value"] = info.lt - 1
-        return st.integers(**bounds)
+        low, high = _bounds(info)
+        return st.integers(min_value=low, max_value=high)
     if isinstance(info, mi.FloatType):
-        bounds = _bounded(info)
-        return st.floats(**bounds, allow_nan=False, allow_infinity=False,
+        low, high = _bounds(info)
+        return st.floats(min_value=low, max_value=high, allow_nan=False, allow_infinity=False,
                          exclude_min=info.gt is not None, exclude_max=info.lt is not None)
     if isinstance(info, mi.StrType):
         return st.text(_CHARACTERS, min_size=info.min_length or 0,

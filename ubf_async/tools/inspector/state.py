@@ -45,6 +45,16 @@ def add_watch_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --watch: stop after N refreshes (default: until Ctrl-C)")
 
 
+def _standing(source: dict[str, Any]) -> str:
+    """What a source's line says after its schema: why it is quiet, if it is."""
+    if source.get("departed"):
+        return f"  {str(source['departed']).upper()}: {source.get('departed_why', '')}"
+    if not source.get("stale"):
+        return ""
+    why = source.get("stale_why")
+    return f"  STALE: quiet {why}" if why else "  STALE"
+
+
 def format_state(status: dict[str, Any], *, robot: str, controller: str,
                  status_age_s: float | None) -> str:
     def num(value: Any, fmt: str, default: str = "--") -> str:
@@ -73,11 +83,7 @@ def format_state(status: dict[str, Any], *, robot: str, controller: str,
         lines.append("  (none yet)")
     width = max((len(str(s.get("source", ""))) for s in sources), default=0)
     for s in sources:
-        why = s.get("stale_why")
-        departed = s.get("departed")
-        stale = (f"  {str(departed).upper()}: {s.get('departed_why', '')}" if departed
-                 else "" if not s.get("stale") else f"  STALE: quiet {why}" if why
-                 else "  STALE")
+        stale = _standing(s)
         age_s = s.get("age_s")
         age_ms = age_s * 1e3 if isinstance(age_s, int | float) else None
         refused = s.get("refused")
