@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import json
 import re
 import subprocess
@@ -253,16 +254,17 @@ def test_conform_checks_real_components_against_the_protocol(
     the plain one is a deviation (exit status 1), and says how to name one."""
     endpoint, robot = watched_robot
     flags = ("--connect", endpoint, "--robot", robot, "--seconds", "2")
-    plain = inspect("conform", "plain", "--key", "sensor/range/plain", *flags)
+    with concurrent.futures.ThreadPoolExecutor(3) as pool:  # each listens 2 s: side by side
+        plain, camera, unnamed = pool.map(lambda argv: inspect(*argv, *flags), [
+            ("conform", "plain", "--key", "sensor/range/plain"), ("conform", "camera-front"),
+            ("conform", "plain")])
     assert plain.returncode == 0, plain.stdout + plain.stderr
     assert f"ok    liveliness token ubf/{robot}/alive/plain" in plain.stdout
     assert re.search(rf"ok    ubf/{robot}/sensor/range/plain \(no pub\): \d+ valid range "
                      r"samples", plain.stdout), plain.stdout
-    camera = inspect("conform", "camera-front", *flags)
     assert camera.returncode == 0, camera.stdout + camera.stderr
     assert re.search(r"ok    ubf/\S+/heartbeat/camera-front: heartbeats every", camera.stdout)
     assert f"ubf/{robot}/sensor/camera/front (pub" in camera.stdout
-    unnamed = inspect("conform", "plain", *flags)
     assert unnamed.returncode == 1, unnamed.stdout + unnamed.stderr
     assert "FAIL  no keys to check: plain announces none" in unnamed.stdout
     assert unnamed.stdout.rstrip().endswith("1 deviation(s)")
