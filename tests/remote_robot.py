@@ -120,12 +120,13 @@ def cpu_wait_s(pid: int) -> float:
 
 
 class Process:
-    """A child process whose stdout lines are collected by a reader thread."""
+    """A child process whose stdout lines are collected by a reader thread: Python running
+    ``argv``, or ``program`` (a compiled example) with ``argv`` as its arguments."""
 
-    def __init__(self, *argv: str) -> None:
+    def __init__(self, *argv: str, program: str = sys.executable) -> None:
         self.argv = argv
         self.proc = subprocess.Popen(
-            [sys.executable, *argv], cwd=ROOT, stdout=subprocess.PIPE,
+            [program, *argv], cwd=ROOT, stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         self.lines: list[str] = []
