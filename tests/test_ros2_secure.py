@@ -22,8 +22,9 @@ import pytest
 from tests.conftest import free_port
 from tests.ros2_side import RosSide
 from tests.test_ros2 import wait_until
+from ubf_async.access.setup import init
 from ubf_async.assembly.robotfile import load_robot
-from ubf_async.net.secure import init, override
+from ubf_async.net.secure import override
 
 ROOT = Path(__file__).resolve().parent.parent
 ROBOT = "rsec"

@@ -37,20 +37,13 @@ import pytest
 import zenoh
 
 from tests.conftest import as_dict, eventually, free_port, read_until, repository_env
+from ubf_async.access.policy import access_control
+from ubf_async.access.setup import identities_for, init, revoke, rights
 from ubf_async.assembly.robotfile import load_robot
 from ubf_async.errors import ConfigurationError, NotAllowedError, RefusedError
 from ubf_async.net import pki, tlsprobe
 from ubf_async.net.options import ConnectionOptions, listening
-from ubf_async.net.secure import (
-    access_control,
-    apply,
-    export,
-    identities_for,
-    init,
-    revoke,
-    rotate,
-    settings,
-)
+from ubf_async.net.secure import apply, export, rotate, settings
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.protocol import decode
 
@@ -279,13 +272,13 @@ def test_each_identity_is_told_before_it_acts_what_the_acl_would_drop(tmp_path: 
     d = tmp_path / "s"
     init(d, robot=load_robot(robot_file(tmp_path, "sec")))
 
-    def rights(identity: str) -> Any:
-        return ConnectionOptions(robot="sec", secure=d, identity=identity).rights()
+    def rights_of(identity: str) -> Any:
+        return rights(ConnectionOptions(robot="sec", secure=d, identity=identity))
 
-    rights("inspector").check("declare_subscriber", "ubf/sec/**")
-    rights("teleop").check("put", "ubf/sec/vote/seek_pink_ball/teleop")
-    rights("operator").check("query", "ubf/sec/tree")
-    rights("robot").check("put", "ubf/sec/cmd/drive")
+    rights_of("inspector").check("declare_subscriber", "ubf/sec/**")
+    rights_of("teleop").check("put", "ubf/sec/vote/seek_pink_ball/teleop")
+    rights_of("operator").check("query", "ubf/sec/tree")
+    rights_of("robot").check("put", "ubf/sec/cmd/drive")
     refused = [
         ("inspector", "put", "ubf/sec/cmd/drive", "only the robot itself may"),
         ("inspector", "query", "ubf/sec/tree", "operator may .*: run it with --identity operator"),
@@ -298,8 +291,8 @@ def test_each_identity_is_told_before_it_acts_what_the_acl_would_drop(tmp_path: 
         with pytest.raises(NotAllowedError, match=f"identity {identity!r} may not .* {key}: "
                                                    f"the robot's access control would drop it "
                                                    f"without a word; {hint}"):
-            rights(identity).check(message, key)
-    assert ConnectionOptions(robot="sec").rights().allows("put", "ubf/sec/cmd/drive")
+            rights_of(identity).check(message, key)
+    assert rights(ConnectionOptions(robot="sec")).allows("put", "ubf/sec/cmd/drive")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -784,7 +777,7 @@ async def test_a_fleet_runs_over_a_tls_router_that_holds_its_access_control(tmp_
     assert summary["robots"]["r1"]["ticks"] > 50, summary
     acl = json.loads((setup / "acl.json").read_text())["access_control"]
     assert {"id": "user-r1", "cert_common_names": ["r1"], "usernames": ["r1"]} in acl["subjects"]
-    r1 = ConnectionOptions(robot="r1", secure=setup, identity="r1").rights()
+    r1 = rights(ConnectionOptions(robot="r1", secure=setup, identity="r1"))
     r1.check("put", "ubf/r1/cmd/drive")
     with pytest.raises(NotAllowedError, match="identity 'r1' may not publish on "
                                               "ubf/r2/cmd/drive"):

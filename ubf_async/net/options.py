@@ -16,7 +16,7 @@ import re
 import socket
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import zenoh
 
@@ -27,9 +27,6 @@ from ubf_async.errors import (
     RefusedError,
     SessionError,
 )
-
-if TYPE_CHECKING:
-    from ubf_async.net.secure import Rights
 
 __all__ = ["DEFAULT_LISTEN", "DEFAULT_ROBOT", "INGRESS_LIMIT_BYTES", "MAX_MESSAGE_BYTES",
            "RECONNECT_RETRY", "SESSION_LIMITS", "START_ROBOT_HINT", "ConnectionOptions",
@@ -57,6 +54,9 @@ SESSION_LIMITS: dict[str, Any] = {
         "id": "ubf-max-payload",
         "flows": ["ingress"],
         "messages": ["put", "delete", "query", "reply"],
+        # The one key this room spells out: every session of every process sets it, from
+        # defaults no layer above hands down; tests/test_access.py holds it to the wire's own
+        # (ubf_async.wire.keys.EVERY_ROBOT).
         "key_exprs": ["ubf/**"],
         "size_limit": INGRESS_LIMIT_BYTES,
     }],
@@ -138,16 +138,6 @@ class ConnectionOptions:
         elif self.identity is not None:
             raise ConfigurationError(f"--identity {self.identity} needs --secure DIR")
         return conf
-
-    def rights(self) -> Rights:
-        """What this process may send (:class:`~ubf_async.net.secure.Rights`): everything in
-        open mode; in secure mode its identity's rights from the set-up's ACL, checked before
-        it acts. Raises :class:`~ubf_async.errors.ConfigurationError` for a bad set-up."""
-        from ubf_async.net import secure
-
-        if self.secure is None or self.identity is None:
-            return secure.OPEN
-        return secure.rights(self.secure, self.identity)
 
 
 def load_zenoh_config(path: Path) -> zenoh.Config:

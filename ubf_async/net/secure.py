@@ -1,10 +1,12 @@
 """Secure mode: who may say what on a robot's zenoh network, over mutual TLS, with zenoh's own
 mechanisms.
 
-The library (set-up, :func:`apply`, :class:`Rights`, :func:`diagnose`); its command line is
-:mod:`ubf_async.tools.secure`. Split so the connection options (:mod:`ubf_async.net.options`)
-can apply a set-up without importing the command line, which reads robot files (a room far
-above: what a set-up needs of a robot is :class:`SecuredRobot`).
+The mechanism (set-up files, :func:`apply`, :class:`Rights`, :func:`diagnose`); the policy —
+which identities a robot file has and what each may do — is :mod:`ubf_async.access` (a room
+above this one: it builds the rules from the wire's keys, which a transport does not know, and
+hands them here as :class:`Grant` data); the command line is :mod:`ubf_async.tools.secure`.
+Split so the connection options (:mod:`ubf_async.net.options`) can apply a set-up without
+importing either.
 
 ``python -m ubf_async.secure init DIR --robot-file FILE [--host NAME_OR_IP ...]`` generates,
 for the robot the file describes:
@@ -20,7 +22,8 @@ for the robot the file describes:
   **password** (zenoh ``transport/auth/usrpwd``: a second factor);
 * the robot's **access control** (zenoh ``access_control``, default deny; subjects matched on
   the certificate's common name *and* the username): what each identity may put, declare and
-  query under ``ubf/<robot>/`` (see :func:`access_control`).
+  query on the robot's keys (the grants of :mod:`ubf_async.access.policy`, turned into zenoh's
+  section by :func:`zenoh_access_control`).
 
 Every process then passes ``--secure DIR --identity NAME`` (the shared connection flags) and
 ``tls/`` endpoints: :func:`apply` sets zenoh's TLS link (mutual TLS, the robot's name checked
@@ -46,10 +49,10 @@ import os
 import secrets
 import stat
 import tarfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -62,10 +65,9 @@ if TYPE_CHECKING:
 __all__ = ["ACL", "ALL_MESSAGES", "BUILTIN", "CA_CERT", "CA_KEY", "DEFAULT_HOSTS", "FLEET_BUILTIN",
            "FORMAT", "IDENTITIES", "INIT_HINT", "INSPECTOR", "LISTENERS", "MANIFEST", "OPEN",
            "OPERATOR", "PASSWORDS", "PRIVATE", "READ_MESSAGES", "REISSUE", "ROBOT",
-           "ROS2_IDENTITIES", "Identity", "IdentityRights", "Rights", "SecureSetup", "SecuredRobot",
-           "access_control", "apply", "diagnose", "export", "fleet_access_control",
-           "fleet_identities", "identities_for", "identity_file", "init", "init_fleet", "override",
-           "revoke", "rights", "rotate", "settings"]
+           "ROS2_IDENTITIES", "Grant", "Identity", "IdentityRights", "Rights", "Rule",
+           "SecureSetup", "apply", "create", "diagnose", "export", "identity_file", "override",
+           "revoke", "rotate", "settings", "zenoh_access_control"]
 
 FORMAT = 2
 ROBOT = "robot"
@@ -126,266 +128,59 @@ class Identity:
                    simulated=bool(data.get("simulated", False)),
                    ros2=(int(ros2[0]), str(ros2[1])) if ros2 else None)
 
-    def describe(self) -> str:
-        if self.role == "remote":
-            return f"remote behaviour: votes in {', '.join(self.composites)}"
-        if self.role == "device" and self.device is not None:
-            return f"device {self.device[0]}/{self.device[1]}" + (
-                " (simulated: may drive the simulator's wheels)" if self.simulated else "")
-        if self.ros2 is not None:
-            where = f"ROS domain {self.ros2[0]}, {self.ros2[1]}"
-            return {ROS2_BRIDGE: f"the ROS 2 bridge as its own process ({where}): votes as "
-                                 f"{', '.join(self.composites)}",
-                    ROS2_READER: f"a ROS 2 node that reads the robot's topics ({where})",
-                    ROS2_DRIVER: f"a ROS 2 node that reads and drives (cmd_vel_in; {where})",
-                    }[self.role]
-        return {ROBOT: "the robot: every key of the robot",
-                INSPECTOR: "read-only: subscribe and liveliness",
-                OPERATOR: "read, and the tree service (show and change the tree)",
-                ROUTER: "the fleet's router: holds the access control, relays every key",
-                WORLD: "the fleet's world: every robot's simulator and devices",
-                FLEET: "the fleet's launcher: reads every robot",
-                "member": f"robot {self.name} of the fleet: every key of ubf/{self.name}/",
-                }[self.role]
+
+# ---------------------------------------------------------------------------------------------
+# The access control, as data from the policy and as zenoh's section
 
 
-class _RemoteSlot(Protocol):
-    @property
-    def composite(self) -> str: ...
-    @property
-    def name(self) -> str: ...
-    @property
-    def key(self) -> str: ...
+@dataclass(frozen=True, slots=True)
+class Rule:
+    """``messages`` (of :data:`ALL_MESSAGES`) allowed on ``key_exprs`` in one ``flow``:
+    ``ingress`` (what a process sends into the session) or ``egress`` (what the session sends
+    it)."""
+
+    id: str
+    messages: tuple[str, ...]
+    key_exprs: tuple[str, ...]
+    flow: str = "ingress"
 
 
-class _Device(Protocol):
-    @property
-    def kind(self) -> str: ...
-    @property
-    def name(self) -> str: ...
-    @property
-    def requires_simulator(self) -> str | None: ...
+@dataclass(frozen=True, slots=True)
+class Grant:
+    """``rules`` for the identities named in ``subjects``: one entry of a set-up's access
+    control, as :mod:`ubf_async.access.policy` decides it (this room knows no key of its
+    own)."""
+
+    id: str
+    rules: tuple[Rule, ...]
+    subjects: tuple[str, ...]
 
 
-class _Ros2(Protocol):
-    @property
-    def enabled(self) -> bool: ...
-    @property
-    def domain_id(self) -> int: ...
-    @property
-    def namespace(self) -> str | None: ...
-    @property
-    def slot(self) -> str: ...
-
-
-class _RobotSpec(Protocol):
-    @property
-    def ros2(self) -> _Ros2 | None: ...
-
-
-class SecuredRobot(Protocol):
-    """What a set-up needs to know of a robot: a resolved robot file
-    (:class:`ubf_async.assembly.robotfile.Robot`, a room above this one) is one."""
-
-    @property
-    def name(self) -> str: ...
-    @property
-    def source(self) -> str: ...
-    @property
-    def spec(self) -> _RobotSpec: ...
-    @property
-    def remotes(self) -> Sequence[_RemoteSlot]: ...
-    @property
-    def devices(self) -> Sequence[_Device]: ...
-
-
-def identities_for(robot: SecuredRobot, *, devices: Iterable[str] = ()) -> list[Identity]:
-    """The identities of ``robot`` (a :class:`~ubf_async.assembly.robotfile.Robot`): the built-in
-    ones, one per remote slot name, one per ``devices`` entry (``KIND/NAME`` of a device of
-    the robot file). Raises :class:`ConfigurationError`."""
-    out = [Identity(name=ROBOT, role=ROBOT), Identity(name=INSPECTOR, role=INSPECTOR),
-           Identity(name=OPERATOR, role=OPERATOR)]
-    composites: dict[str, list[str]] = {}
-    for slot in robot.remotes:
-        composites.setdefault(slot.name, []).append(slot.composite)
-    for name, where in composites.items():
-        if name in BUILTIN or name.startswith(("device-", "ros2-")):
-            raise ConfigurationError(f"remote slot {name!r}: the name is taken by a built-in "
-                                     f"identity ({', '.join(BUILTIN)}, device-*, ros2-*)")
-        out.append(Identity(name=name, role="remote", composites=tuple(sorted(set(where)))))
-    ros2 = robot.spec.ros2
-    if ros2 is not None and ros2.enabled:
-        ros_at: tuple[int, str] = (ros2.domain_id, ros2.namespace or f"/{robot.name}")
-        bridged = tuple(sorted({s.key for s in robot.remotes if s.name == ros2.slot}))
-        out += [Identity(name=ROS2_BRIDGE, role=ROS2_BRIDGE, composites=bridged, ros2=ros_at),
-                Identity(name=ROS2_READER, role=ROS2_READER, ros2=ros_at),
-                Identity(name=ROS2_DRIVER, role=ROS2_DRIVER, ros2=ros_at)]
-    known = {f"{d.kind}/{d.name}": d for d in robot.devices}
-    for wanted in devices:
-        device = known.get(wanted)
-        if device is None:
-            raise ConfigurationError(f"--device {wanted}: not a device of the robot file "
-                                     f"(its devices: {', '.join(sorted(known)) or 'none'})")
-        out.append(Identity(name=f"device-{device.kind}-{device.name}", role="device",
-                            device=(device.kind, device.name),
-                            simulated=device.requires_simulator is not None))
-    return out
-
-
-def access_control(robot: str, identities: Sequence[Identity]) -> dict[str, Any]:
-    """The robot's zenoh ``access_control`` section (default deny).
-
-    Ingress (what a connected process may send into the robot's session):
-
-    * ``robot``: everything under ``ubf/<robot>/``;
-    * everyone else: subscribe, liveliness-subscribe and liveliness-query under
-      ``ubf/<robot>/`` (they can read every key: sensors, commands, status);
-    * a remote behaviour ``N``: also put its votes ``vote/<composite>/N`` (only the
-      composites it has a slot in), its ``heartbeat/N``, and hold the token ``alive/N``;
-    * ``operator``: also query ``tree`` (show *and* change the tree: one key serves both);
-    * ``device-K-N``: also put ``sensor/K/N``, ``heartbeat/K-N`` and ``status/K-N``, hold
-      ``alive/K-N`` and, for a simulated backend, put ``sim/pulses``;
-    * with a ``ros2:`` section, the ROS 2 keys of its domain ``D`` and namespace ``NS``
-      (``D/NS/**``, ``D/clock/**``, and the graph ``@ros2_lv/D/**``): ``ros2-reader`` and
-      ``ros2-driver`` may subscribe to them, hold their own graph tokens and query the graph;
-      ``ros2-driver`` also put ``D/NS/cmd_vel_in/**``; ``ros2-bridge`` (the bridge in a
-      process of its own) put the ROS keys and vote in its slot (``vote/<composite>/<slot>``,
-      ``alive/<slot>``, ``alive/ros2``, ``heartbeat/ros2``). ROS keys go out (egress) to the
-      ROS identities only.
-
-    Nobody but ``robot`` may put ``cmd/*`` (drive, seek_color, radio, leds), ``clock`` or
-    other ``sim/*`` keys, declare a queryable, reply, or delete. Egress (what the session
-    sends to connected processes): everything under ``ubf/<robot>/``, to every identity."""
-    prefix = f"ubf/{robot}"
-    rules: list[dict[str, Any]] = [
-        _rule("egress", ALL_MESSAGES, [f"{prefix}/**"], flow="egress"),
-        _rule("read", READ_MESSAGES, [f"{prefix}/**"]),
-    ]
-    policies: list[dict[str, Any]] = [
-        {"id": "egress", "rules": ["egress"], "subjects": [_subject_id(i) for i in identities]},
-        {"id": "read", "rules": ["read"],
-         "subjects": [_subject_id(i) for i in identities if i.role != ROBOT]},
-    ]
-    ros = [i for i in identities if i.ros2 is not None]
-    if ros:
-        rules.append(_rule("ros2-egress", ALL_MESSAGES, _ros_keys(ros[0]), flow="egress"))
-        policies.append({"id": "ros2-egress", "rules": ["ros2-egress"],
-                         "subjects": [_subject_id(i) for i in ros]})
-    for identity in identities:
-        own = _own_rules(prefix, identity)
-        rules += own
-        if own:
-            policies.append({"id": f"own-{identity.name}", "rules": [r["id"] for r in own],
-                             "subjects": [_subject_id(identity)]})
-    return _acl(rules, policies, identities)
-
-
-def fleet_identities(robots: Sequence[str]) -> list[Identity]:
-    """The identities of a fleet of ``robots``: :data:`FLEET_BUILTIN` and one per robot.
-    Raises :class:`ConfigurationError` for a robot named as a built-in identity."""
-    clash = sorted(set(robots) & {*FLEET_BUILTIN, ROBOT})
-    if clash:
-        raise ConfigurationError(f"fleet robot {clash[0]!r}: the name is taken by a built-in "
-                                 f"identity ({', '.join((*FLEET_BUILTIN, ROBOT))})")
-    return [Identity(name=name, role=name) for name in FLEET_BUILTIN] + [
-        Identity(name=robot, role="member") for robot in robots]
-
-
-def fleet_access_control(robots: Sequence[str], identities: Sequence[Identity]
+def zenoh_access_control(grants: Sequence[Grant], identities: Sequence[Identity]
                          ) -> dict[str, Any]:
-    """A fleet router's zenoh ``access_control`` (default deny): ``router`` and ``world``
-    everything under ``ubf/``, each robot everything under its own keys, ``operator`` also
-    the tree queries; everyone reads under ``ubf/`` (the fleet's tools look at every robot at
-    once: ``ubf/*/alive/controller``). Egress: everything under ``ubf/``, to everyone."""
-    every = ["ubf/**"]
-    rules = [_rule("egress", ALL_MESSAGES, every, flow="egress"),
-             _rule("read", READ_MESSAGES, every),
-             _rule("all", ALL_MESSAGES, every),
-             _rule("tree", ("query",), [f"ubf/{robot}/tree" for robot in robots])]
-    subject = {i.name: _subject_id(i) for i in identities}
-    policies = [{"id": "egress", "rules": ["egress"], "subjects": list(subject.values())},
-                {"id": "read", "rules": ["read"], "subjects": list(subject.values())},
-                {"id": "all", "rules": ["all"], "subjects": [subject[ROUTER], subject[WORLD]]},
-                {"id": "tree", "rules": ["tree"], "subjects": [subject[OPERATOR]]}]
-    for identity in identities:
-        if identity.role == "member":
-            rules.append(_rule(f"{identity.name}-all", ALL_MESSAGES,
-                               [f"ubf/{identity.name}/**"]))
-            policies.append({"id": f"own-{identity.name}", "rules": [f"{identity.name}-all"],
-                             "subjects": [subject[identity.name]]})
-    return _acl(rules, policies, identities)
-
-
-def _acl(rules: list[dict[str, Any]], policies: list[dict[str, Any]],
-         identities: Sequence[Identity]) -> dict[str, Any]:
-    """A default-deny ``access_control`` section with one subject per identity."""
+    """zenoh's ``access_control`` section for ``grants``: default deny, one subject per
+    identity, the rules in the order the grants bring them. What ``acl.json`` holds and the
+    robot's session enforces."""
+    # A grant left to no one (its identities revoked) gives nothing, and zenoh refuses a
+    # policy without subjects: the robot would not start.
+    grants = [grant for grant in grants if grant.subjects]
+    rules = dict.fromkeys(rule for grant in grants for rule in grant.rules)
     return {
         "enabled": True,
         "default_permission": "deny",
-        "rules": rules,
+        "rules": [{"id": r.id, "messages": list(r.messages), "flows": [r.flow],
+                   "permission": "allow", "key_exprs": list(r.key_exprs)} for r in rules],
         # Both must match: the certificate's common name (mTLS) and the username (the
         # identity's password, a second factor).
-        "subjects": [{"id": _subject_id(i), "cert_common_names": [i.name], "usernames": [i.name]}
-                     for i in identities],
-        "policies": policies,
+        "subjects": [{"id": _subject_id(i.name), "cert_common_names": [i.name],
+                      "usernames": [i.name]} for i in identities],
+        "policies": [{"id": g.id, "rules": [r.id for r in g.rules],
+                      "subjects": [_subject_id(name) for name in g.subjects]} for g in grants],
     }
 
 
-def _rule(rule_id: str, messages: Sequence[str], key_exprs: Sequence[str], *,
-          flow: str = "ingress") -> dict[str, Any]:
-    return {"id": rule_id, "messages": list(messages), "flows": [flow], "permission": "allow",
-            "key_exprs": list(key_exprs)}
-
-
-def _subject_id(identity: Identity) -> str:
-    return f"user-{identity.name}"
-
-
-def _ros_keys(identity: Identity, topic: str = "**") -> list[str]:
-    """The ROS 2 keys of an identity's domain and namespace: data, ``/clock`` and graph."""
-    assert identity.ros2 is not None
-    domain, namespace = identity.ros2
-    data = f"{domain}/{namespace.strip('/')}/{topic}".replace("//", "/")
-    return [data] if topic != "**" else [data, f"{domain}/clock/**", f"@ros2_lv/{domain}/**"]
-
-
-def _own_rules(prefix: str, identity: Identity) -> list[dict[str, Any]]:
-    name = identity.name
-    if identity.ros2 is not None:
-        keys = _ros_keys(identity)
-        graph = [k for k in keys if k.startswith("@")]
-        rules = [_rule(f"{name}-read", ("declare_subscriber", "declare_liveliness_subscriber",
-                                        "liveliness_query"), keys),
-                 _rule(f"{name}-token", ("liveliness_token",), graph)]
-        if identity.role == ROS2_DRIVER:
-            rules.append(_rule(f"{name}-put", ("put",), _ros_keys(identity, "cmd_vel_in/**")))
-        if identity.role == ROS2_BRIDGE:
-            # composites: the slot's key, composite/slot
-            votes = [f"{prefix}/vote/{slot}" for slot in identity.composites]
-            alive = [f"{prefix}/alive/{slot.rsplit('/', 1)[1]}" for slot in identity.composites]
-            rules += [_rule(f"{name}-put", ("put",), [*keys[:2], *votes,
-                                                      f"{prefix}/heartbeat/ros2"]),
-                      _rule(f"{name}-alive", ("liveliness_token",),
-                            [*alive, f"{prefix}/alive/ros2"])]
-        return rules
-    if identity.role == ROBOT:
-        return [_rule(f"{name}-all", ALL_MESSAGES, [f"{prefix}/**"])]
-    if identity.role == OPERATOR:
-        return [_rule(f"{name}-tree", ("query",), [f"{prefix}/tree"])]
-    if identity.role == "remote":
-        puts = [f"{prefix}/vote/{c}/{name}" for c in identity.composites]
-        return [_rule(f"{name}-put", ("put",), [*puts, f"{prefix}/heartbeat/{name}"]),
-                _rule(f"{name}-token", ("liveliness_token",), [f"{prefix}/alive/{name}"])]
-    if identity.role == "device" and identity.device is not None:
-        kind, device = identity.device
-        component = f"{kind}-{device}"
-        puts = [f"{prefix}/sensor/{kind}/{device}", f"{prefix}/heartbeat/{component}",
-                f"{prefix}/status/{component}"]
-        if identity.simulated:
-            puts.append(f"{prefix}/sim/pulses")
-        return [_rule(f"{name}-put", ("put",), puts),
-                _rule(f"{name}-token", ("liveliness_token",), [f"{prefix}/alive/{component}"])]
-    return []
+def _subject_id(name: str) -> str:
+    return f"user-{name}"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -444,11 +239,6 @@ class SecureSetup:
     def identity_file(self, name: str, suffix: str = ".json") -> Path:
         return identity_file(self.directory, name, suffix)
 
-    def acl(self) -> dict[str, Any]:
-        if self.fleet:
-            return fleet_access_control(self.fleet, list(self.identities.values()))
-        return access_control(self.robot, list(self.identities.values()))
-
     def check_robot(self, identity: Identity, robot: str) -> None:
         """:class:`ConfigurationError` unless ``identity`` may run as robot ``robot``
         (``--robot``)."""
@@ -477,13 +267,20 @@ class SecureSetup:
         return self.identities[name]
 
     def save(self) -> None:
+        """Write ``DIR/secure.json`` (the access control is :meth:`save_access_control`'s)."""
         _write_secret(self.directory / MANIFEST, json.dumps({
             "format": FORMAT, "robot": self.robot, "source": self.source,
             "hosts": list(self.hosts), "revoked": list(self.revoked), "fleet": list(self.fleet),
             "identities": [i.as_data() for i in self.identities.values()],
         }, indent=2) + "\n")
+
+    def save_access_control(self, grants: Sequence[Grant]) -> None:
+        """Write ``DIR/acl.json``: ``grants`` (for this set-up's identities) as zenoh's section,
+        what the robot (a fleet's router) loads when it starts."""
         _write_secret(self.directory / ACL, json.dumps(
-            {"robot": self.robot, "access_control": self.acl()}, indent=2) + "\n")
+            {"robot": self.robot,
+             "access_control": zenoh_access_control(grants, list(self.identities.values()))},
+            indent=2) + "\n")
 
 
 def identity_file(directory: Path, name: str, suffix: str = ".json") -> Path:
@@ -492,29 +289,17 @@ def identity_file(directory: Path, name: str, suffix: str = ".json") -> Path:
     return directory / IDENTITIES / f"{name}{suffix}"
 
 
-def init(directory: Path, *, robot: SecuredRobot, devices: Iterable[str] = (),
-         hosts: Sequence[str] = (), force: bool = False,
-         days: int | None = None) -> SecureSetup:
-    """Generate the certificate authority, identities and ACL of ``robot`` (a resolved robot
-    file) into ``directory``; ``hosts``: the robot's host names and addresses (default
-    :data:`DEFAULT_HOSTS`). An existing set-up is kept unless ``force`` (a new CA: every
-    process then needs its new files). Raises :class:`ConfigurationError`."""
-    return _make(directory, robot.name, identities_for(robot, devices=devices),
-                 source=str(robot.source), hosts=hosts, force=force, days=days)
-
-
-def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str,
-               hosts: Sequence[str] = (), force: bool = False,
-               days: int | None = None) -> SecureSetup:
-    """Generate a fleet's set-up (:func:`fleet_identities`, :func:`fleet_access_control`):
-    one CA for its router, world, launcher and ``robots``; ``hosts``: the router's names."""
-    return _make(directory, name, fleet_identities(robots), source=source, hosts=hosts,
-                 fleet=tuple(robots), force=force, days=days)
-
-
-def _make(directory: Path, robot: str, identities: Sequence[Identity], *, source: str,
-          hosts: Sequence[str], fleet: tuple[str, ...] = (), force: bool,
-          days: int | None) -> SecureSetup:
+def create(directory: Path, robot: str, identities: Sequence[Identity], *,
+           grants: Sequence[Grant], source: str, hosts: Sequence[str] = (),
+           fleet: tuple[str, ...] = (), force: bool = False,
+           days: int | None = None) -> SecureSetup:
+    """Generate a set-up into ``directory``: a certificate authority, ``identities`` (each its
+    certificate, key and password) and the access control ``grants`` give them (made by
+    :mod:`ubf_async.access.setup`, whose ``init`` is what to call); ``robot``: the robot's
+    name (a fleet's: the fleet file's, and ``fleet`` its robots); ``hosts``: the listener's
+    host names and addresses (default :data:`DEFAULT_HOSTS`). An existing set-up is kept
+    unless ``force`` (a new CA: every process then needs its new files). Raises
+    :class:`ConfigurationError`."""
     from ubf_async.net import pki  # (cryptography: imported where certificates are made)
 
     setup = SecureSetup(directory=directory, robot=robot,
@@ -537,6 +322,7 @@ def _make(directory: Path, robot: str, identities: Sequence[Identity], *, source
         _write_passwords(setup, {name: _issue(setup, ca, name, days=days)
                                  for name in setup.identities})
         setup.save()
+        setup.save_access_control(grants)
     except OSError as exc:
         raise ConfigurationError(f"cannot write the secure set-up into {directory}: {exc}") \
             from None
@@ -584,9 +370,9 @@ def _write_passwords(setup: SecureSetup, passwords: Mapping[str, str]) -> None:
 def rotate(directory: Path, name: str, *, hosts: Sequence[str] = (),
            days: int | None = None) -> SecureSetup:
     """Issue identity ``name`` a new key, certificate and password, leaving every other
-    identity as it is; for a listener ``hosts`` replace the names its certificate carries.
-    The robot reads its password dictionary when it starts: restart it. Raises
-    :class:`ConfigurationError`."""
+    identity as it is (and the access control: the identities are the same); for a listener
+    ``hosts`` replace the names its certificate carries. The robot reads its password
+    dictionary when it starts: restart it. Raises :class:`ConfigurationError`."""
     from ubf_async.net import pki
 
     setup = SecureSetup.load(directory)
@@ -604,8 +390,9 @@ def rotate(directory: Path, name: str, *, hosts: Sequence[str] = (),
     return setup
 
 
-def revoke(directory: Path, name: str) -> SecureSetup:
-    """Remove identity ``name``: from the ACL's subjects and policies, from the password
+def revoke(directory: Path, name: str, *, grants: Sequence[Grant]) -> SecureSetup:
+    """Remove identity ``name``: from the ACL (now ``grants``, those of the identities left:
+    :func:`ubf_async.access.setup.revoke` makes them, and is what to call), from the password
     dictionary (so the robot refuses its session even with its still-valid certificate), and
     its files. The robot reads both when it starts: restart it. Raises
     :class:`ConfigurationError`."""
@@ -620,6 +407,7 @@ def revoke(directory: Path, name: str) -> SecureSetup:
     passwords.pop(name, None)
     _write_passwords(setup, passwords)
     setup.save()
+    setup.save_access_control(grants)
     for suffix in (".json", ".pem", ".key"):
         setup.identity_file(name, suffix).unlink(missing_ok=True)
     return setup
@@ -805,22 +593,17 @@ OPEN = Rights()
 
 
 class IdentityRights(Rights):
-    """An identity's ingress rights, read from the set-up's ACL (what the robot enforces)."""
+    """An identity's ingress rights in the set-up's access control (what the robot enforces):
+    its ``grants``, which :func:`ubf_async.access.setup.rights` makes from the set-up."""
 
-    def __init__(self, setup: SecureSetup, name: str) -> None:
+    def __init__(self, setup: SecureSetup, name: str, grants: Sequence[Grant]) -> None:
         self.setup, self.name = setup, name
-        acl = setup.acl()
-        rules = {r["id"]: r for r in acl["rules"] if "ingress" in r["flows"]}
         self._granted: dict[str, list[tuple[str, zenoh.KeyExpr]]] = {}
-        for policy in acl["policies"]:
-            for subject in policy["subjects"]:
-                who = subject.removeprefix("user-")
-                for rule_id in policy["rules"]:
-                    rule = rules.get(rule_id)
-                    if rule is None:
-                        continue
-                    self._granted.setdefault(who, []).extend(
-                        (m, zenoh.KeyExpr(k)) for m in rule["messages"] for k in rule["key_exprs"])
+        for grant in grants:
+            ingress = [(m, zenoh.KeyExpr(k)) for rule in grant.rules if rule.flow == "ingress"
+                       for m in rule.messages for k in rule.key_exprs]
+            for who in grant.subjects:
+                self._granted.setdefault(who, []).extend(ingress)
 
     def _may(self, who: str, message: str, key: str) -> bool:
         target = zenoh.KeyExpr(key)
@@ -844,14 +627,6 @@ class IdentityRights(Rights):
         raise NotAllowedError(
             f"identity {self.name!r} may not {_VERBS.get(message, message)} {key}: the "
             f"robot's access control would drop it without a word; {hint} (docs/security.md)")
-
-
-def rights(directory: Path, identity: str) -> Rights:
-    """The rights of ``identity`` in the set-up at ``directory``: everything for the robot or
-    a fleet's router (its own session holds the rules), its ACL rules for anyone else."""
-    if identity in LISTENERS:
-        return OPEN
-    return IdentityRights(SecureSetup.load(directory), identity)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -80,6 +80,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
+from ubf_async.access.setup import rights
 from ubf_async.clocks.clock import Clock, WallClock
 from ubf_async.errors import ConfigurationError, ProtocolError
 from ubf_async.net.keyexpr import intersects
@@ -611,8 +612,8 @@ class Bus:
         except ProtocolError as exc:
             raise ConfigurationError(f"robot name: {exc}") from None
         self.options = options
-        self.rights = options.rights()
-        """What this process may send (secure mode: its identity's ACL rules), checked
+        self.rights = rights(options)
+        """What this process may send (secure mode: its identity's grants), checked
         before each publisher, token, queryable and query."""
         self.clock: Clock = clock or WallClock()
         self.transport = transport

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 from typing import TextIO
 
+from ubf_async.access.setup import rights
 from ubf_async.cli.args import add_connection_arguments, connection_options
 from ubf_async.cli.attach import DEFAULT_ATTACH_TIMEOUT_S, wait_for_robot
 from ubf_async.cli.run import run_main
@@ -114,10 +115,10 @@ async def host_remote_behavior(
         args.identity = behavior.name  # a remote slot's identity is the slot's name
     options = connection_options(args)
     # Before anything connects: what the robot's access control would drop without a word.
-    keys, rights = Keys(options.robot), options.rights()
-    rights.check("put", vote_key(keys, args.composite, behavior.name))
-    rights.check("put", keys.heartbeat(behavior.name))
-    rights.check("liveliness_token", keys.alive(behavior.name))
+    keys, may = Keys(options.robot), rights(options)
+    may.check("put", vote_key(keys, args.composite, behavior.name))
+    may.check("put", keys.heartbeat(behavior.name))
+    may.check("liveliness_token", keys.alive(behavior.name))
     bus = await Bus.open(options, clock=WallClock(), ordered=args.lockstep)
     host: RemoteBehaviorHost | None = None
     participant: timekeepers.LockstepParticipant | None = None

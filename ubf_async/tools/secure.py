@@ -1,9 +1,10 @@
 """``python -m ubf_async.secure``: generate and show a robot's secure-mode set-up.
 
-The command line over :mod:`ubf_async.net.secure` (the library: identities, the ACL,
-:func:`~ubf_async.net.secure.apply`; import those from there). The library lives apart because
-reading a robot file (``init``) needs :mod:`ubf_async.assembly.robotfile`, far above the
-connection code that applies a set-up.
+The command line over :mod:`ubf_async.access.setup` (the policy: a robot file's identities and
+what each may do; ``init``, ``revoke``) and :mod:`ubf_async.net.secure` (the mechanism: the
+set-up's files, ``rotate``, ``export``, :func:`~ubf_async.net.secure.apply`); import those from
+there. The library lives apart because reading a robot file (``init``) needs
+:mod:`ubf_async.assembly.robotfile`, far above the connection code that applies a set-up.
 ``docs/security.md`` has the threat model, the set-up and the limits.
 """
 
@@ -13,19 +14,12 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
+from ubf_async.access import policy
+from ubf_async.access.setup import init, init_fleet, revoke
 from ubf_async.cli.run import run_sync
 from ubf_async.errors import ConfigurationError
 from ubf_async.net import pki
-from ubf_async.net.secure import (
-    LISTENERS,
-    SecureSetup,
-    export,
-    init,
-    init_fleet,
-    override,
-    revoke,
-    rotate,
-)
+from ubf_async.net.secure import LISTENERS, SecureSetup, export, override, rotate
 
 __all__ = ["build_parser", "describe", "main"]
 
@@ -101,7 +95,7 @@ def describe(setup: SecureSetup) -> str:
              f"  {listener} certificate carries: {', '.join(setup.hosts)} (clients dial "
              f"tls/<one of these>:PORT)"]
     for identity in setup.identities.values():
-        lines.append(f"  {identity.name:<24} {identity.describe()}")
+        lines.append(f"  {identity.name:<24} {policy.describe(identity)}")
         lines.append(f"  {'':<24} --secure {setup.directory} --identity {identity.name}")
     if setup.revoked:
         lines.append(f"  revoked: {', '.join(setup.revoked)}")

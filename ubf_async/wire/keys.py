@@ -1,8 +1,12 @@
-"""Key expressions of a robot, ``ubf/<robot>/...``: string builders only.
+"""Key expressions of a robot, ``ubf/<robot>/...``, and the ROS 2 keys beside them: string
+builders only.
 
 The lowest rung of the wire contract: :mod:`ubf_async.wire.topics` declares each topic with these
 patterns and :mod:`ubf_async.wire.protocol` re-exports :class:`Keys` and :func:`check_segment`
-(their old home), so neither of the two needs the other to build a key.
+(their old home), so neither of the two needs the other to build a key. Every key of the project
+is made here or from here: the access policy of a secure set-up (:mod:`ubf_async.access.policy`)
+names its keys with these builders, and ``tests/test_access.py`` fails on a key spelled out in
+the transport.
 """
 
 from __future__ import annotations
@@ -11,10 +15,14 @@ from dataclasses import dataclass, field
 
 from ubf_async.errors import ProtocolError
 
-__all__ = ["CLOCK_PATTERN", "HEARTBEAT_PATTERN", "ROOT", "STATUS_PATTERN", "TREE_PATTERN", "Keys",
-           "check_segment"]
+__all__ = ["CLOCK_PATTERN", "EVERY_ROBOT", "HEARTBEAT_PATTERN", "ROOT", "ROS2_ADMIN_SPACE",
+           "STATUS_PATTERN", "TREE_PATTERN", "Keys", "check_segment", "ros2_graph", "ros2_names"]
 
 ROOT = "ubf"
+EVERY_ROBOT = f"{ROOT}/**"
+"""Every key of every robot: what a fleet's router relays and its identities read, and what a
+session's payload limit covers (``ubf_async.net.options.SESSION_LIMITS`` spells it out, a test
+holds the two together)."""
 
 # The patterns (under ``ubf/<robot>/``) of the topics :class:`Keys` has a shortcut for; the
 # topics of the same name in :mod:`ubf_async.wire.topics` are declared with these very strings.
@@ -114,3 +122,25 @@ class Keys:
     @property
     def everything(self) -> str:
         return f"{self.prefix}/**"
+
+
+# ---------------------------------------------------------------------------------------------
+# ROS 2 keys (rmw_zenoh's), beside the robot's
+
+# rmw_zenoh keeps the ROS graph (nodes, publishers, subscriptions) as liveliness tokens under this
+# verbatim chunk, outside ``ubf/``: the ROS 2 bridge declares its tokens there
+# (ubf_async.services.ros2.keys) and a secure set-up grants them to the ROS 2 identities
+# (ubf_async.access.policy) — one spelling for both, so the grant cannot miss the tokens.
+ROS2_ADMIN_SPACE = "@ros2_lv"
+
+
+def ros2_names(domain_id: int, name: str) -> str:
+    """Every data key of ROS name ``name`` — a topic, or a namespace and all below it — in ROS
+    domain ``domain_id``, as rmw_zenoh writes them (``<domain>/<name, no leading slash>/…``):
+    ``(3, "/mini")`` → ``3/mini/**``, the root namespace ``(3, "/")`` → ``3/**``."""
+    return "/".join(part for part in (str(domain_id), name.strip("/"), "**") if part)
+
+
+def ros2_graph(domain_id: int) -> str:
+    """Every liveliness token of ROS domain ``domain_id``'s graph: ``@ros2_lv/<domain>/**``."""
+    return f"{ROS2_ADMIN_SPACE}/{domain_id}/**"

@@ -23,13 +23,14 @@ import struct
 from dataclasses import dataclass
 
 from ubf_async.errors import ProtocolError
+from ubf_async.wire.keys import ROS2_ADMIN_SPACE
 
 __all__ = ["ADMIN_SPACE", "ATTACHMENT", "ATTACHMENT_SIZE", "CDR_ENCODING", "DEFAULT_QOS",
            "GID_SIZE", "MAX_DOMAIN_ID", "SENSOR_QOS", "Attachment", "Node", "attachment",
            "check_domain_id", "check_name", "data_key", "dds_type", "endpoints_of", "mangle",
            "new_gid", "parse_attachment", "qualify"]
 
-ADMIN_SPACE = "@ros2_lv"
+ADMIN_SPACE = ROS2_ADMIN_SPACE  # (the wire's: a secure set-up grants the same tokens)
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 GID_SIZE = 16
 ATTACHMENT = struct.Struct("<qqB16s")
