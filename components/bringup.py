@@ -10,11 +10,14 @@ done without moving the robot, and gets one line: ``ok``, ``FAIL`` with what to 
   drawn (``--out``), and says what it counts;
 * the **encoders** listen ``--turn-s`` seconds while you turn each wheel by hand, and say
   which wheel's lines moved;
-* the rest (radio, LEDs without a real backend) have nothing to check here.
+* the **LEDs** (a backend that lights real ones) light one at a time, LED 0 first, twice
+  round, while you watch that each lights;
+* the rest (radio, LEDs in memory) have nothing to check here.
 
 Nothing of the robot starts: no zenoh, no controller. Exit status 1 if any device failed.
 The checks are plain classes (:class:`RangeCheck`, :class:`CameraCheck`,
-:class:`EncodersCheck`) run on whatever backend they are given, fakes included.
+:class:`EncodersCheck`, :class:`LedsCheck`) run on whatever backend they are given, fakes
+included.
 """
 
 from __future__ import annotations
@@ -31,17 +34,21 @@ import cv2
 
 from components.camera.seekcolor import PINK, ColorRange, seekcolor
 from components.camera.view import draw_view
+from components.leds.component import DEFAULT_COUNT
 from components.range.backend import MountPose
 from ubf_async.assembly.robotfile import ResolvedDevice, load_robot
 from ubf_async.cli.run import run_sync
 from ubf_async.errors import DeviceError, UbfError
 
-__all__ = ["CHECKS", "PROG", "CameraCheck", "DeviceCheck", "EncodersCheck", "Line",
-           "RangeCheck", "bring_up", "main"]
+__all__ = ["CHECKS", "PROG", "CameraCheck", "DeviceCheck", "EncodersCheck", "LedsCheck",
+           "Line", "RangeCheck", "bring_up", "main"]
 
 PROG = "python -m components.bringup"
 RANGE_READS = 5
 DEFAULT_TURN_S = 5.0
+BLINK_ROUNDS = 2
+BLINK_S = 0.4
+"""How long each LED stays lit while the LEDs blink in turn."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,7 +95,8 @@ class RangeCheck:
 
 
 class CameraCheck:
-    """One frame, saved with what seekcolor counts in it."""
+    """One frame, saved with what seekcolor counts in it (the camera's ``seek_color``, else
+    ``color``)."""
 
     def __init__(self, out: Path, color: ColorRange = PINK) -> None:
         self.out = out
@@ -102,10 +110,12 @@ class CameraCheck:
         except DeviceError as exc:
             return Line(name, "FAIL", f"{exc} — is the camera connected, and yours to open "
                                       f"(group video)?")
-        result = seekcolor(frame, self.color)
+        seek_color = device.params.get("seek_color")
+        color = seek_color.color_range() if seek_color is not None else self.color
+        result = seekcolor(frame, color)
         self.out.mkdir(parents=True, exist_ok=True)
         picture = self.out / f"camera-{device.name}.png"
-        cv2.imwrite(str(picture), draw_view(frame, result, color=self.color))
+        cv2.imwrite(str(picture), draw_view(frame, result, color=color))
         height, width = frame.shape[:2]
         return Line(name, "ok", f"a {width}×{height} frame, {result.total} pink pixels "
                                 f"(bins {list(result.bins)}): {picture}")
@@ -138,10 +148,40 @@ class EncodersCheck:
         return Line(name, "ok", counted)
 
 
+class LedsCheck:
+    """Each LED lit alone in turn, LED 0 first, :data:`BLINK_ROUNDS` times round, then all
+    off: the pins are driven, and you see whether each LED lights, in its place."""
+
+    def __init__(self, *, say: Callable[[str], None],
+                 wait: Callable[[float], None] = time.sleep) -> None:
+        self.say = say
+        self.wait = wait
+
+    def check(self, device: ResolvedDevice, backend: Any) -> Line:
+        name = f"leds/{device.name}"
+        if not backend.physical:
+            return Line(name, "--", f"{device.backend} backend: LEDs in memory, nothing to "
+                                    f"light here")
+        count = backend.count or device.params.get("count") or DEFAULT_COUNT
+        pins = device.backend_params.get("pins") or [f"LED {i}" for i in range(count)]
+        self.say(f"{name}: watch the LEDs light one at a time, LED 0 ({pins[0]}) first ...")
+        try:
+            for _ in range(BLINK_ROUNDS):
+                for led in range(count):
+                    backend.set_leds(1 << led)
+                    self.wait(BLINK_S)
+        finally:
+            backend.set_leds(0)
+        return Line(name, "ok", f"{count} LEDs lit in turn ({', '.join(pins)}); one that "
+                                f"stayed dark: check its wiring, its resistor and polarity, "
+                                f"and active_high")
+
+
 CHECKS: dict[str, Callable[[argparse.Namespace, Callable[[str], None]], DeviceCheck]] = {
     "range": lambda args, say: RangeCheck(),
     "camera": lambda args, say: CameraCheck(args.out),
     "encoders": lambda args, say: EncodersCheck(args.turn_s, say=say),
+    "leds": lambda args, say: LedsCheck(say=say),
 }
 """What is checked per kind of device (the others have nothing to check here)."""
 

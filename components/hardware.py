@@ -19,15 +19,27 @@ import logging
 import sys
 import threading
 import warnings
+from collections.abc import Callable
 from types import ModuleType
-from typing import Any
+from typing import Annotated, Any, TypeVar
+
+import msgspec
 
 from ubf_async import extras
 from ubf_async.errors import ConfigurationError
 
-__all__ = ["describe", "gpio_errors", "pin_factory", "pins_error", "require"]
+__all__ = ["Pin", "PinFactoryName", "describe", "gpio_errors", "on_pins", "pin_factory",
+           "pins_error", "require"]
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
+"""A pin as gpiozero names it, in a GPIO backend's parameters: ``"GPIO12"``, ``"12"``,
+``"BOARD32"``."""
+PinFactoryName = Annotated[str, msgspec.Meta(max_length=32)]
+"""A GPIO backend's ``pin_factory`` parameter: a factory's name (:func:`pin_factory`)."""
 
 _FACTORIES: dict[str, Any] = {}
 _LOCK = threading.Lock()
@@ -65,6 +77,18 @@ def pins_error(who: str, exc: BaseException) -> ConfigurationError:
         hint = ("pin names as gpiozero knows them, e.g. GPIO12; are you in the gpio group? "
                 "docs/hardware.md")
     return ConfigurationError(f"{who}: cannot set up the pins: {describe(exc)} ({hint})")
+
+
+def on_pins(who: str, factory_name: str | None, build: Callable[[Any], T]) -> T:
+    """``build(factory)`` on the pin factory ``factory_name`` (:func:`pin_factory`): what a
+    GPIO backend's factory does, pins it cannot have (taken, misnamed, not allowed) refused
+    in one line (:func:`pins_error`)."""
+    factory = pin_factory(factory_name, who=who)
+    refused: tuple[type[BaseException], ...] = (OSError, ValueError, *gpio_errors())
+    try:
+        return build(factory)
+    except refused as exc:
+        raise pins_error(who, exc) from None
 
 
 def pin_factory(name: str | None, *, who: str) -> Any:

@@ -1,8 +1,9 @@
 """Issue 50, item 1: bring-up, one device at a time — ``python -m components.bringup`` on fake
 backends, parametrised by device: an I²C ranger that answers and one that does not, a bus
 that cannot be opened, a camera's frame saved with its pink count, a camera that cannot be
-opened, encoders that move under the hand and a wheel that does not, and what is not checked
-here (the motors, which move; simulated backends)."""
+opened, encoders that move under the hand and a wheel that does not, LEDs on GPIO lit one at a
+time, and what is not checked here (the motors, which move; simulated backends, LEDs in
+memory)."""
 
 from __future__ import annotations
 
@@ -73,6 +74,8 @@ ENCODERS = ("  - kind: encoders\n    name: wheels\n    backend: gpio\n"
 MOTORS = ("  - kind: motors\n    name: main\n    backend: gpio\n"
           "    backend_params: {left_pin: GPIO12, right_pin: GPIO13}\n")
 SIMULATED = "  - kind: range\n    name: side\n    backend: sim\n"
+LEDS = "  - kind: leds\n    name: panel\n    backend: BACKEND\n"
+LED_PINS = ("GPIO17", "GPIO27")
 
 
 def checked(devices: str, tmp_path: Path, *, hand: Callable[[float], None] | None = None
@@ -141,6 +144,27 @@ def test_encoders_count_the_wheels_turned_by_hand(tmp_path: Path, mock_pins: Moc
         assert line.status == "FAIL"
         assert line.text.startswith("left 8 edges, right 0 edges: no edges from the right "
                                     "wheel — check its A/B lines (right: GPIO16/GPIO26)")
+
+
+def test_the_leds_light_one_at_a_time_while_you_watch(mock_pins: MockFactory) -> None:
+    lit: list[list[str]] = []  # which pins were high each time the check waited
+
+    def watch(seconds: float) -> None:
+        lit.append([pin for pin in LED_PINS if mock_pins.pin(pin).state])
+
+    said: list[str] = []
+    gpio = (LEDS.replace("BACKEND", "gpio")
+            + f"    backend_params: {{pins: [{', '.join(LED_PINS)}]}}\n")
+    (line,) = bringup.bring_up(robot(gpio).devices,
+                               {"leds": bringup.LedsCheck(say=said.append, wait=watch)})
+    assert lit == [["GPIO17"], ["GPIO27"]] * bringup.BLINK_ROUNDS
+    assert not any(mock_pins.pin(pin).state for pin in LED_PINS)  # all off after
+    assert said == ["leds/panel: watch the LEDs light one at a time, LED 0 (GPIO17) first ..."]
+    assert line.status == "ok" and line.text.startswith("2 LEDs lit in turn (GPIO17, GPIO27); ")
+    (line,) = bringup.bring_up(robot(LEDS.replace("BACKEND", "sim")).devices,
+                               {"leds": bringup.LedsCheck(say=said.append, wait=watch)})
+    assert (line.status, line.text) == ("--", "sim backend: LEDs in memory, nothing to light "
+                                              "here")
 
 
 def test_what_is_not_checked_here_says_so(tmp_path: Path, mock_pins: MockFactory) -> None:

@@ -33,7 +33,7 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 
 EXPECTED_PARAMETERS = {
-    "camera": {"latency_s", "hfov_deg", "view_scale"},
+    "camera": {"latency_s", "hfov_deg", "view_scale", "seek_color"},
     "motors": {"timeout_s", "left", "right"},
     "encoders": {"period_s", "direction", "effective_track_m", "origin_x_m", "origin_y_m",
                  "origin_heading_deg"},
@@ -43,12 +43,13 @@ EXPECTED_PARAMETERS = {
 }
 EXPECTED_BACKENDS = {"camera": {"sim", "video"}, "motors": {"sim", "gpio"},
                      "encoders": {"sim", "gpio"}, "range": {"sim", "i2c", "ads1115"},
-                     "radio": {"sim", "stdio", "air"}, "leds": {"sim"}}
+                     "radio": {"sim", "stdio", "air"}, "leds": {"sim", "gpio"}}
 REQUIRED_BACKEND_PARAMS = {
     ("motors", "gpio"): {"left_pin": "GPIO12", "right_pin": "GPIO13"},
     ("encoders", "gpio"): {"left_a": "GPIO5", "left_b": "GPIO6", "right_a": "GPIO16",
                            "right_b": "GPIO26"},
     ("range", "ads1115"): {"sensor": "ir-10-80"},
+    ("leds", "gpio"): {"pins": ["GPIO17", "GPIO27"]},
 }
 WRONG = [1, 2]
 """A value of the wrong type for every parameter: a list where a number, a string, a bool or

@@ -135,6 +135,12 @@ TUNE_WHY = ("the worked study, 30 trials: minutes on 2 cores; tests/test_evolve.
             "command (its main) on a tiny SPEC, resuming a study kept in SQLite")
 
 NOT_RUN = {
+    "ssh -L 8770:127.0.0.1:8770 pi@robot.local":
+        "a tunnel to another host (test_the_tree_is_served_to_browsers_and_changed_live serves "
+        "the page on loopback, where the tunnel ends)",
+    "python -m ubf_async.inspector conform my_ir --key sensor/range/my_ir":
+        "the page's own sensor snippet, not a file here: tests/test_clock_domain.py runs the "
+        "same check on examples/plain_range_sensor.py (conform plain --key sensor/range/plain)",
     "python3 -m venv .venv":
         "the quick start's installation: .ci/run does it from a clean clone (a test cannot "
         "install the project's build dependencies without the network)",
@@ -477,6 +483,8 @@ RANGE = "python -m components.range --connect tcp/127.0.0.1:7447 --name left --y
 ECHO = "python -m ubf_async.inspector echo ubf/mini/sensor/range/left --count 3"
 AVOID = "python examples/avoid_obstacles.py --connect tcp/127.0.0.1:7447"
 TELEOP = "python examples/teleop_override.py --connect tcp/127.0.0.1:7447 --speed 30 --turn 0"
+AVOID_BARE = "python examples/avoid_obstacles.py"  # (docs/protocol.md: the default endpoint)
+TELEOP_BACK = "python examples/teleop_override.py --speed -30 --turn 50"
 COMPONENTS = "python -m ubf_async.inspector components"
 STATE = "python -m ubf_async.inspector state --watch"
 HZ = "python -m ubf_async.inspector hz cmd/drive"
@@ -593,7 +601,7 @@ class TestWhileTheQuickStartRobotRuns:
         stopped(ranger)
 
     @pytest.mark.slow
-    @runs(AVOID, TELEOP)
+    @runs(AVOID, TELEOP, AVOID_BARE, TELEOP_BACK)
     def test_obstacle_avoidance_and_teleop_attach_and_teleop_outranks_the_tree(
             self, robot: Robot) -> None:
         since = len(robot.proc.lines)
@@ -605,6 +613,14 @@ class TestWhileTheQuickStartRobotRuns:
         avoid.wait_for(r"^\[avoid_obstacles\] votes \d+: .*\| robot drive ")
         for proc in (teleop, avoid):
             assert "clock: simulated time (ubf/mini/clock)" in proc.output, proc
+            stopped(proc)
+        # docs/protocol.md's forms of the two, on the default endpoint (given explicitly here)
+        since = len(robot.proc.lines)
+        avoid = robot.page.start(AVOID_BARE, add=robot.tool())
+        back = robot.page.start(TELEOP_BACK, add=robot.tool())
+        robot.proc.wait_for(r"\| drive -30/\+50 \(teleop\) \|", after=since)
+        avoid.wait_for(r"^\[avoid_obstacles\] votes \d+: .*\| robot drive ")
+        for proc in (back, avoid):
             stopped(proc)
 
     @pytest.mark.slow
@@ -715,6 +731,114 @@ class TestWhileTheQuickStartRobotRuns:
         # It ends as the other tools do: a closing line with what it did (issue 35).
         assert re.fullmatch(r"python -m ubf_async\.ros2: stopped; sent: .*/mini/odom [1-9]\d*"
                             r".* \| cmd_vel_in: 0 taken, refused: none", bridge.lines[-1]), bridge
+
+
+# -- docs/monitor.md: the tree in a browser; docs/protocol.md: live tree changes ----------------
+
+MONITOR = "python -m ubf_async.monitor --connect tcp/127.0.0.1:7447"
+MONITOR_LAUNCH = "python -m ubf_async.launch --scenario ball-behind --monitor"
+MONITOR_ANY_PORT = "python -m ubf_async.launch --scenario keep-away --monitor 0"
+MONITOR_READ_ONLY = ("python -m ubf_async.monitor --connect tcp/ROBOT_HOST:7447 --port 8771 "
+                     "--read-only")
+MONITOR_LISTEN = "python -m ubf_async.monitor --listen tcp/127.0.0.1:7450"
+REPLAY_ALL = "python -m ubf_async.replay rec/mini.mcap --only ** --connect tcp/127.0.0.1:7450"
+TREE_SHOW = "python -m ubf_async.inspector tree show"
+TREE_ARBITER = ("python -m ubf_async.inspector tree set-arbiter seek_pink_ball MonteCarlo "
+                "--param hold_ticks=5")
+TREE_CHILD = ("python -m ubf_async.inspector tree set-child seek_pink_ball chase --priority 3 "
+              "--weight 0.5")
+TREE_LOAD = "python -m ubf_async.inspector tree load my-tree.yaml"
+MY_TREE = """name: seek_pink_ball
+arbiter: HighestPriority
+children:
+  - {behavior: search, priority: 2}
+  - {behavior: chase, priority: 1}
+"""
+"""``my-tree.yaml`` for TREE_LOAD: the shipped tree without flee (a fragment: the tree's value)."""
+
+
+def monitor_frame(port: int) -> tuple[dict, dict]:
+    """The page of the monitor serving on ``port``, as a browser gets it: its ``hello`` and the
+    first frame with a tick's trace."""
+    import urllib.request
+
+    import websockets.sync.client
+
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=WAIT_S) as response:
+        assert "monitor.js" in response.read().decode()
+    with websockets.sync.client.connect(f"ws://127.0.0.1:{port}/ws",
+                                        open_timeout=WAIT_S) as ws:
+        hello = json.loads(ws.recv(WAIT_S))
+        assert hello["type"] == "hello", hello
+        while True:
+            message = json.loads(ws.recv(WAIT_S))
+            if message["type"] == "frame" and message["trace"]:
+                return hello, message
+
+
+def served_to_browsers(proc: Proc, port: int) -> dict:
+    """``proc`` serves the tree at ``http://127.0.0.1:PORT/`` to a page: its hello."""
+    proc.wait_for(rf"http://127\.0\.0\.1:{port}/")
+    hello, frame = monitor_frame(port)
+    assert frame["trace"]["nodes"][0]["name"] == "seek_pink_ball", frame
+    return hello
+
+
+@pytest.mark.slow
+@runs(MONITOR, MONITOR_LAUNCH, MONITOR_ANY_PORT, MONITOR_READ_ONLY, MONITOR_LISTEN, REPLAY_ALL,
+      TREE_SHOW, TREE_ARBITER, TREE_CHILD, TREE_LOAD)
+def test_the_tree_is_served_to_browsers_and_changed_live(tmp_path: Path) -> None:
+    ports = [free_port() for _ in range(4)]
+    with page(tmp_path) as here:
+        (here.cwd / "my-tree.yaml").write_text(MY_TREE)
+
+        def launched() -> None:  # launch --monitor, the tool on it, and protocol.md's verbs
+            endpoint = loopback()
+            robot = here.start(MONITOR_LAUNCH, add=(str(ports[0]), "--duration", "30",
+                                                    "--listen", endpoint))
+            assert served_to_browsers(robot, ports[0])["allow_changes"] is True
+            view = here.start(MONITOR, endpoint=endpoint, add=("--port", str(ports[1])))
+            served_to_browsers(view, ports[1])
+            remote = here.start(MONITOR_READ_ONLY, replace={
+                "tcp/ROBOT_HOST:7447": [endpoint], "8771": [str(ports[2])]})
+            assert served_to_browsers(remote, ports[2])["allow_changes"] is False
+            tool = ("--connect", endpoint)
+            assert "seek_pink_ball <PriorityMerge>" in here.run(TREE_SHOW, add=tool)
+            assert "seek_pink_ball <MonteCarlo(hold_ticks=5)>" in here.run(TREE_ARBITER, add=tool)
+            assert re.search(r"chase \(Chase\) \[p=3 w=0\.5\]", here.run(TREE_CHILD, add=tool))
+            loaded = here.run(TREE_LOAD, add=tool)
+            assert "seek_pink_ball <HighestPriority>" in loaded and "flee" not in loaded, loaded
+            robot.wait_for(r"\| tree changed 3 \|")
+            for proc in (view, remote):
+                stopped(proc)
+            # a run whose tree was changed live ends with status 3 (README)
+            assert robot.interrupt() == 3, robot
+
+        def any_port() -> None:
+            robot = here.start(MONITOR_ANY_PORT, add=(*SHORT_RUN, "--listen", loopback()))
+            port = int(robot.wait_for(r"the tree live in a browser on "
+                                      r"http://127\.0\.0\.1:(\d+)/")[1])
+            served_to_browsers(robot, port)
+            ended(robot)
+
+        def replayed_to_it() -> None:  # a recording of its own, replayed whole to a monitor
+            subprocess.run([sys.executable, "-m", "ubf_async.launch", "--scenario",
+                            "ball-in-sight", "--speed", "max", "--duration", "2", "--quiet",
+                            "--listen", "tcp/127.0.0.1:0", "--record", "rec/"],
+                           cwd=here.cwd, env=here.env, check=True, capture_output=True,
+                           timeout=WAIT_S)
+            endpoint = {"tcp/127.0.0.1:7450": [loopback()]}
+            monitor = here.start(MONITOR_LISTEN, replace=endpoint, add=("--port", str(ports[3])))
+            monitor.wait_for(r"http://127\.0\.0\.1:\d+/")
+            out = here.run(REPLAY_ALL, replace=endpoint)
+            assert re.search(r"\*\*: \d+ keys", out) and "messages replayed" in out, out
+            # the replayed run's last tick is on the page (no tree service: from the traces)
+            _, frame = monitor_frame(ports[3])
+            assert frame["trace"]["nodes"][0]["name"] == "seek_pink_ball"
+            assert frame["ticks"] and frame["trace"]["t"] > 1.5, frame["trace"]["t"]
+            stopped(monitor)
+
+        together(launched, any_port, replayed_to_it)
 
 
 # -- launch: the scenarios and robot files shown (README.md, scenarios.md, recording.md,
@@ -1018,11 +1142,53 @@ def test_bring_up_off_a_board_says_what_each_device_needs(tmp_path: Path) -> Non
                          and line[:4] in ("ok  ", "FAIL", "--  "))
             assert set(lines) == {"--    motors/main", "FAIL  encoders/wheels",
                                   "FAIL  range/front", "FAIL  range/left",
-                                  "FAIL  camera/front"}, out
+                                  "FAIL  camera/front", "FAIL  leds/panel"}, out
             assert "cannot open /dev/i2c-1" in lines["FAIL  range/front"]
             assert "(tried lgpio: " in lines["FAIL  encoders/wheels"]
             assert "PinFactoryFallback" not in out
-            assert out.rstrip().endswith("4 of 5 devices failed")
+            assert "(tried lgpio: " in lines["FAIL  leds/panel"]
+            assert out.rstrip().endswith("5 of 6 devices failed")
+
+
+CALIBRATE_COLOR = "python -m components.camera.calibrate my-robot.yaml --camera"
+CALIBRATE_COLOR_RECT = ("python -m components.camera.calibrate my-robot.yaml --frames "
+                        "calibration/frame-*.png --rect 493,650,294,294")
+CALIBRATE_COLOR_DRY = CALIBRATE_COLOR_RECT + " --dry-run"
+
+
+@runs(CALIBRATE_COLOR, CALIBRATE_COLOR_DRY, CALIBRATE_COLOR_RECT)
+def test_the_cameras_colour_is_calibrated_as_shown(tmp_path: Path) -> None:
+    """docs/hardware.md's colour calibration on the Pi robot file (as ``my-robot.yaml``) whose
+    camera is a video of the simulated ball 45 cm ahead, at the page's rectangle: the frames
+    are saved, the dry run writes nothing, the run writes the camera's seek_color and the
+    file still checks."""
+    import cv2
+
+    from components.sim.world.config import Lighting
+    from tests.test_calibrate_color import rendered
+
+    scene = rendered(Lighting(), tmp_path / "rendered")
+    assert str(scene.rect) == "493,650,294,294"  # the page's rectangle is the ball's
+    with page(tmp_path) as here:
+        video = here.cwd / "ball.avi"
+        writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0,
+                                 (1280, 1024))
+        for frame in scene.frames:
+            writer.write(cv2.imread(str(frame)))
+        writer.release()
+        robot_file = here.cwd / "my-robot.yaml"
+        robot_file.write_text((ROOT / "examples" / "robots" / "pi-whegs.yaml").read_text(
+            "utf-8").replace('source: "0"', "source: ball.avi"), "utf-8")
+        assert "camera/front: 5 frames 1280×1024 saved: " in here.run(CALIBRATE_COLOR)
+        frames = {"calibration/frame-*.png": [f"calibration/frame-{i}.png" for i in range(1, 6)]}
+        before = robot_file.read_text("utf-8")
+        out = here.run(CALIBRATE_COLOR_DRY, replace=frames)
+        assert "+    params: {latency_s: 0.11, seek_color: {lo: [" in out
+        assert robot_file.read_text("utf-8") == before
+        out = here.run(CALIBRATE_COLOR_RECT, replace=frames)
+        assert "written: my-robot.yaml (devices[4].params.seek_color: {lo: [" in out
+        assert (here.cwd / "calibration" / "seek-color-front.png").is_file()
+        assert "my-robot.yaml: robot 'pi-whegs' — OK" in here.run(BOARD_CHECK)
 
 
 @runs(DEPLOY, DEPLOY_README, BOARD_CHECK)

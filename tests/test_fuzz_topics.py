@@ -92,7 +92,7 @@ def raw_envelope(schema: str, data_bytes: bytes) -> bytes:
 
 
 def check_plain(value: Any, path: str = "data", depth: int = 0) -> None:
-    """The generic rules (docs/protocol.md, *Limits*)."""
+    """The generic rules (docs/protocol.md, *Payload: the envelope*: its limits)."""
     assert depth <= MAX_DEPTH, f"{path}: nested deeper than {MAX_DEPTH}"
     if value is None or isinstance(value, bool | bytes):
         return

@@ -41,7 +41,8 @@ ROOT = Path(__file__).resolve().parent.parent
 DEVICE_PACKAGES = ("camera", "motors", "encoders", "range", "radio", "leds")
 HARDWARE_LIBRARIES = ("gpiozero", "smbus2")
 HARDWARE_BACKENDS = ("components/hardware.py", "components/motors/gpio.py",
-                     "components/encoders/gpio.py", "components/range/i2c.py")
+                     "components/encoders/gpio.py", "components/range/i2c.py",
+                     "components/leds/gpio.py")
 """The modules that may import the hardware libraries."""
 IMPORTERS = {"import_module", "require", "__import__"}
 """Calls whose first argument, a literal, names a module they import."""

@@ -130,7 +130,7 @@ for device in load_robot({PI_WHEGS!r}).devices:
     assert "exit 0" in lines
     assert [line for line in lines if line.startswith("loaded")] == [
         "loaded motors gpio", "loaded encoders gpio", "loaded range i2c",
-        "loaded range ads1115", "loaded camera video"]
+        "loaded range ads1115", "loaded camera video", "loaded leds gpio"]
     assert not attempted & set(extras.EXTRA_OF), attempted  # not even tried
 
 

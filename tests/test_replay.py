@@ -440,3 +440,43 @@ def test_a_stop_is_named_even_when_it_fell_inside_a_put() -> None:
     slow = Lag(behind_s=1.0, at_s=0.2, elapsed_s=1.01, cpu_wait_s=0.0, computing_s=0.002,
                reading_s=0.0, publishing_s=1.005)
     assert "stopped" not in slow.cause().split(";")[0], slow.cause()
+
+
+@pytest.mark.asyncio
+async def test_a_replay_of_everything_shows_in_the_tree_monitor(
+        recorded: tuple[Path, int]) -> None:
+    """``replay FILE --only '**'`` with ``python -m ubf_async.monitor`` watching (docs/
+    monitor.md): the recorded run's own traces, drives and sources reach the monitor as a live
+    robot's would; with no tree service to ask, it draws the tree from the traces."""
+    from ubf_async.services.monitor import MonitorServer
+
+    path, _ = recorded
+    net, clock = InProcessTransport(), SimClock(0)
+    watcher = Bus(transport=net, robot="mini", clock=clock)
+    player = Bus(transport=net, robot="mini", clock=clock)
+    monitor = MonitorServer(bus=watcher, port=0)
+    await monitor.start()
+    winners: set[str] = set()
+    traced = monitor.model.on_trace
+
+    def on_trace(message: Any) -> None:
+        traced(message)
+        winners.update(monitor.model.ticks[-1][3])
+
+    monitor.model.on_trace = on_trace  # type: ignore[method-assign]
+    try:
+        await net.settle()
+        stats = await replay(Recording(path, only=["**"]), bus=player, speed=None, clock=clock,
+                             settle=net.settle)
+        assert stats.published > 1000
+        recorded_winners = {w for _, _, ws, _, _ in recorded_drives(path) for w in ws}
+        assert "chase" in winners and winners == recorded_winners
+        model = monitor.model
+        assert model.trace is not None and model.trace["nodes"][0]["name"] == "seek_pink_ball"
+        assert model.drive is not None and model.status is not None
+        assert {"camera/front", "range/front"} <= set(model.state)
+        assert model.tree is None  # a recording has no tree service: the traces draw it
+    finally:
+        await monitor.aclose()
+        await player.aclose()
+        await watcher.aclose()

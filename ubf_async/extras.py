@@ -13,6 +13,9 @@ sim         pymunk, matplotlib, rich           the simulator (every ``sim`` back
                                                a run's pictures, sweeps, evolution
 view        foxglove-sdk                       the live view (``launch --foxglove``,
                                                ``python -m ubf_async.liveview``)
+monitor     aiohttp                            the tree monitor in a browser
+                                               (``launch --monitor``,
+                                               ``python -m ubf_async.monitor``)
 record      mcap, foxglove-sdk                 recording and replay (``--record``,
                                                ``python -m ubf_async.record``/``replay``)
 ros2        rosbags                            the ROS 2 bridge (``python -m ubf_async.ros2``,
@@ -22,8 +25,8 @@ hardware    gpiozero, smbus2                   the ``gpio``, ``i2c``, ``ads1115`
 fast        uvloop                             ``UBF_LOOP=uvloop``
 cluster     ray[default] (and ``sim``)         ``sweep --executor ray``
 parquet     pyarrow                            a sweep's table as Parquet
-all         sim, view, record, ros2, tune,     everything a workstation runs
-            hardware
+all         sim, view, monitor, record, ros2,  everything a workstation runs
+            tune, hardware
 ==========  =================================  ==========================================
 
 A feature calls :func:`require` where it starts, before it imports what its extra brings:
@@ -49,6 +52,7 @@ EXTRA_OF: dict[str, str] = {
     "matplotlib": "sim",
     "rich": "sim",
     "foxglove": "view",
+    "aiohttp": "monitor",
     "mcap": "record",
     "rosbags": "ros2",
     "optuna": "tune",

@@ -18,7 +18,9 @@ before the frame is ready, and the wake-up at that deadline is booked at the sta
 sample comes out exactly at its deadline, in the same order among that instant's events,
 however long rendering took — a run is repeatable at any speed.
 
-``cmd/seek_color`` changes the colour range; the ordering rule (R > B > G) stays as
+The colour range counted is the robot file's ``seek_color`` (:class:`SeekColorRange`, written
+by ``python -m components.camera.calibrate``), the thesis's pink without one;
+``cmd/seek_color`` changes it while the robot runs, the ordering rule (R > B > G) staying as
 configured.
 """
 
@@ -42,7 +44,7 @@ from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import CAMERA, CAMERA_VIEW, SEEK_COLOR, CameraView, SeekColor
 
 __all__ = ["CAPTURE_DRAIN_S", "OV9655_LATENCY_S", "CameraComponent", "CaptureOutcome",
-           "build_device"]
+           "SeekColorRange", "build_device"]
 
 OV9655_LATENCY_S = 0.11
 CAPTURE_DRAIN_S = 2.0
@@ -194,6 +196,26 @@ class CameraComponent(Component):
             log.warning("refused seek colour on %s: %s", key, exc)
 
 
+Level = Annotated[int, msgspec.Meta(ge=0, le=255)]
+
+
+class SeekColorRange(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """The colour the camera counts, as a robot file gives it (``seek_color``): R, G and B
+    each within ``lo``…``hi``, and the thesis's ordering rule R > B > G on top unless
+    ``require_r_gt_b_gt_g`` is false. A range whose ``lo`` exceeds its ``hi`` is refused when
+    the robot file loads."""
+
+    lo: tuple[Level, Level, Level]
+    hi: tuple[Level, Level, Level]
+    require_r_gt_b_gt_g: bool = True
+
+    def __post_init__(self) -> None:
+        self.color_range()
+
+    def color_range(self) -> ColorRange:
+        return ColorRange(lo=self.lo, hi=self.hi, require_r_gt_b_gt_g=self.require_r_gt_b_gt_g)
+
+
 def build_device(
     *,
     bus: Bus,
@@ -202,6 +224,7 @@ def build_device(
     latency_s: Annotated[float, msgspec.Meta(ge=0)] = OV9655_LATENCY_S,
     hfov_deg: Annotated[float, msgspec.Meta(gt=0, lt=180)] = DEFAULT_HFOV_DEG,
     view_scale: Annotated[int, msgspec.Meta(ge=1, le=8)] = DEFAULT_VIEW_SCALE,
+    seek_color: SeekColorRange | None = None,
 ) -> CameraComponent:
     """The ``camera`` device kind: captures from ``backend``, publishes
     ``sensor/camera/<name>``.
@@ -209,7 +232,9 @@ def build_device(
     ``latency_s``: capture latency on the robot clock (the thesis's OV9655: 0.11 s; a real
     camera whose driver has its own latency: 0). ``hfov_deg``: horizontal field of view the
     bearing is computed with. ``view_scale``: how much the 160×128 view published on
-    ``view/camera/<name>`` is enlarged.
+    ``view/camera/<name>`` is enlarged. ``seek_color``: the colour counted
+    (:class:`SeekColorRange`; default: the thesis's pink).
     """
+    color = seek_color.color_range() if seek_color is not None else PINK
     return CameraComponent(bus=bus, backend=backend, name=name, latency_s=latency_s,
-                           hfov_deg=hfov_deg, view_scale=view_scale)
+                           color=color, hfov_deg=hfov_deg, view_scale=view_scale)

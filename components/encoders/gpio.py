@@ -26,20 +26,18 @@ from __future__ import annotations
 import logging
 import threading
 from collections import deque
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-import msgspec
 import numpy as np
 
 from components import hardware
 from components.encoders.backend import EdgeTiming, EncoderBackend
+from components.hardware import Pin, PinFactoryName
 from ubf_async.assembly.context import DeviceContext
 
 __all__ = ["MAX_EDGE_GAP_S", "GpioEncoderBackend", "Pin", "gpio_backend"]
 
 log = logging.getLogger(__name__)
-
-Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
 
 MAX_EDGE_GAP_S = 0.1
 """An edge this long or longer after the one before it starts a movement: the wait is not
@@ -196,19 +194,15 @@ def gpio_backend(
     right_a: Pin,
     right_b: Pin,
     pull: Literal["up", "down", "floating"] = "up",
-    pin_factory: Annotated[str, msgspec.Meta(max_length=32)] | None = None,
+    pin_factory: PinFactoryName | None = None,
 ) -> GpioEncoderBackend:
     """``encoders.gpio``: the A/B lines of the left and right encoders on GPIO pins
     (gpiozero names, e.g. ``GPIO5``), with ``pull`` resistors (``up`` for open-collector
     encoders); ``pin_factory`` as for ``motors.gpio``. The A/B order must make a wheel
     driving the robot forward step ``0 → 1 → 3 → 2`` (B leads A); swap A and B otherwise."""
-    factory = hardware.pin_factory(pin_factory, who="encoders.gpio")
-    refused: tuple[type[BaseException], ...] = (OSError, ValueError, *hardware.gpio_errors())
-    try:
-        return GpioEncoderBackend(factory=factory, left_a=left_a, left_b=left_b, right_a=right_a,
-                                  right_b=right_b, pull=pull)
-    except refused as exc:
-        raise hardware.pins_error("encoders.gpio", exc) from None
+    return hardware.on_pins("encoders.gpio", pin_factory, lambda factory: GpioEncoderBackend(
+        factory=factory, left_a=left_a, left_b=left_b, right_a=right_a, right_b=right_b,
+        pull=pull))
 
 
 gpio_backend.requires_simulator = None  # type: ignore[attr-defined]

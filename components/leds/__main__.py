@@ -12,13 +12,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("leds")
     group.add_argument("--name", default="panel",
                        help="publishes what is lit on ubf/<robot>/sensor/leds/<name>")
-    group.add_argument("--count", type=int, default=2, help="how many LEDs (1–8)")
+    group.add_argument("--count", type=int, help="how many LEDs (1–8; default: the backend's "
+                                                 "pins, else 2)")
     add_backend_argument(group, "leds", default="sim",
-                         help="sim: LEDs in memory, drawn on the simulator's recorded frames")
+                         help="sim: LEDs in memory, drawn on the simulator's recorded frames; "
+                              "gpio: LEDs on GPIO pins (--backend-params '{pins: [GPIO17, "
+                              "GPIO27]}', docs/hardware.md)")
 
 
 def device_params(args: argparse.Namespace) -> dict[str, Any]:
-    return {"count": args.count}
+    return {} if args.count is None else {"count": args.count}
 
 
 def main() -> int:

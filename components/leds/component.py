@@ -18,17 +18,23 @@ import msgspec
 from components.leds.backend import LedBackend
 from components.leds.bank import MAX_LEDS, LedBank
 from ubf_async.clocks.clock import every
+from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 from ubf_async.wire.protocol import Message
 from ubf_async.wire.topics import LED_STATE, LEDS, Leds
 
-__all__ = ["LedsComponent", "build_device"]
+__all__ = ["DEFAULT_COUNT", "LedsComponent", "build_device"]
+
+DEFAULT_COUNT = 2
+"""LEDs in a bank whose count neither the robot file nor the backend says (the thesis's
+robot's two)."""
 
 
 class LedsComponent(Component):
-    def __init__(self, *, bus: Bus, backend: LedBackend, name: str = "panel", count: int = 2,
-                 period_s: float = 0.5, **component_options: float) -> None:
+    def __init__(self, *, bus: Bus, backend: LedBackend, name: str = "panel",
+                 count: int = DEFAULT_COUNT, period_s: float = 0.5,
+                 **component_options: float) -> None:
         super().__init__(bus=bus, name=f"leds-{name}", **component_options)
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
@@ -72,10 +78,21 @@ def build_device(
     bus: Bus,
     name: str,
     backend: LedBackend,
-    count: Annotated[int, msgspec.Meta(ge=1, le=MAX_LEDS)] = 2,
+    count: Annotated[int, msgspec.Meta(ge=1, le=MAX_LEDS)] | None = None,
     period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.5,
 ) -> LedsComponent:
     """The ``leds`` device kind: ``count`` LEDs lit from ``cmd/leds`` through ``backend``;
     what is lit is published on ``sensor/leds/<name>`` on each change and every
-    ``period_s`` (robot clock)."""
-    return LedsComponent(bus=bus, backend=backend, name=name, count=count, period_s=period_s)
+    ``period_s`` (robot clock). ``count`` left out: as many as the backend drives (a
+    ``gpio`` backend's pins), else 2; given, a backend that drives a number of LEDs must
+    drive that many."""
+    drives = backend.count
+    if count is not None and drives is not None and count != drives:
+        # A bit with no LED behind it, or an LED no bit lights: either way a command would
+        # not show as it says.
+        raise ConfigurationError(f"leds {name!r}: its backend drives {drives} LEDs (its pins) "
+                                 f"but the device's count is {count}: give as many pins as "
+                                 f"LEDs, or leave count out")
+    return LedsComponent(bus=bus, backend=backend, name=name,
+                         count=count if count is not None else drives or DEFAULT_COUNT,
+                         period_s=period_s)

@@ -31,6 +31,7 @@ from typing import Annotated, Any
 import msgspec
 
 from components import hardware
+from components.hardware import Pin, PinFactoryName
 from components.motors.backend import MotorBackend
 from components.motors.pwm import DEFAULT_PWM, hold_s
 from ubf_async.assembly.context import DeviceContext
@@ -38,9 +39,6 @@ from ubf_async.assembly.context import DeviceContext
 __all__ = ["GpioMotorBackend", "Pin", "gpio_backend"]
 
 log = logging.getLogger(__name__)
-
-Pin = Annotated[str, msgspec.Meta(min_length=1, max_length=32)]
-"""A pin as gpiozero names it: ``"GPIO12"``, ``"12"``, ``"BOARD32"``."""
 
 
 class GpioMotorBackend(MotorBackend):
@@ -108,20 +106,15 @@ def gpio_backend(
     context: DeviceContext,
     left_pin: Pin,
     right_pin: Pin,
-    pin_factory: Annotated[str, msgspec.Meta(max_length=32)] | None = None,
+    pin_factory: PinFactoryName | None = None,
     period_ms: Annotated[float, msgspec.Meta(gt=0, le=100)] = DEFAULT_PWM.period_ms,
 ) -> GpioMotorBackend:
     """``motors.gpio``: servo-style pulses on ``left_pin`` and ``right_pin`` (gpiozero pin
     names, e.g. ``GPIO12``) every ``period_ms``; ``pin_factory`` picks gpiozero's pin
     factory (``lgpio``, ``pigpio``, ``rpigpio``, ``native``, ``mock``; default: gpiozero's
     choice, ``GPIOZERO_PIN_FACTORY``)."""
-    factory = hardware.pin_factory(pin_factory, who="motors.gpio")
-    refused: tuple[type[BaseException], ...] = (OSError, ValueError, *hardware.gpio_errors())
-    try:
-        return GpioMotorBackend(left_pin=left_pin, right_pin=right_pin, factory=factory,
-                                period_ms=period_ms)
-    except refused as exc:
-        raise hardware.pins_error("motors.gpio", exc) from None
+    return hardware.on_pins("motors.gpio", pin_factory, lambda factory: GpioMotorBackend(
+        left_pin=left_pin, right_pin=right_pin, factory=factory, period_ms=period_ms))
 
 
 gpio_backend.requires_simulator = None  # type: ignore[attr-defined]

@@ -8,7 +8,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
+from typing import Protocol, TypeVar
 
 from ubf_async.cli.args import connection_options
 from ubf_async.clocks import follow
@@ -17,8 +18,8 @@ from ubf_async.net.options import START_ROBOT_HINT, refused_error
 from ubf_async.runtime.bus import Bus
 from ubf_async.wire.keys import ROOT
 
-__all__ = ["DEFAULT_ATTACH_TIMEOUT_S", "add_attach_arguments", "attached_bus",
-           "run_until_stopped", "wait_for_robot"]
+__all__ = ["DEFAULT_ATTACH_TIMEOUT_S", "Served", "add_attach_arguments", "attached_bus",
+           "run_until_stopped", "serve_until_stopped", "wait_for_robot"]
 
 DEFAULT_ATTACH_TIMEOUT_S = 10.0
 
@@ -91,17 +92,50 @@ async def wait_for_robot(bus: Bus, *, timeout_s: float = DEFAULT_ATTACH_TIMEOUT_
 
 
 @contextlib.asynccontextmanager
-async def attached_bus(args: argparse.Namespace) -> AsyncIterator[Bus]:
+async def attached_bus(args: argparse.Namespace, *,
+                       follow_clock: bool = True) -> AsyncIterator[Bus]:
     """A bus on the connection flags that has reached the robot (:func:`wait_for_robot`) and
-    stamps on its clock (:func:`~ubf_async.clocks.follow.follow_robot_clock`); closed on
+    stamps on its clock (:func:`~ubf_async.clocks.follow.follow_robot_clock`; ``follow_clock``
+    ``False``: this host's, for a tool that stamps nothing a robot's rule reads); closed on
     exit."""
     bus = await Bus.open(connection_options(args))
     try:
         await wait_for_robot(bus, timeout_s=args.wait_for_robot_s)
-        await follow.follow_robot_clock(bus, mode="auto")
+        if follow_clock:
+            await follow.follow_robot_clock(bus, mode="auto")
         yield bus
     finally:
         await bus.aclose()
+
+
+class Served(Protocol):
+    """A server a tool runs on the robot's bus (the live view, the tree monitor)."""
+
+    async def start(self) -> None: ...
+    async def aclose(self) -> None: ...
+
+
+S = TypeVar("S", bound=Served)
+
+
+async def serve_until_stopped(server: S, *, duration_s: float | None,
+                              started: Callable[[S], str],
+                              ready: Callable[[S], None] | None = None,
+                              closed: Callable[[S], str] | None = None) -> int:
+    """Start ``server``, print what ``started`` says of it, hand it to ``ready`` (a test),
+    run until stopped (:func:`run_until_stopped`), close it and print what ``closed`` says.
+    Exit status 0."""
+    await server.start()
+    try:
+        print(started(server), flush=True)
+        if ready is not None:
+            ready(server)
+        await run_until_stopped(duration_s)
+        return 0
+    finally:
+        await server.aclose()
+        if closed is not None:
+            print(closed(server), flush=True)
 
 
 async def run_until_stopped(duration_s: float | None) -> None:

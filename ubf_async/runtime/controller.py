@@ -630,6 +630,7 @@ class Controller(Component):
             if self.last_trace else [],
             "explanation": explanation[:MAX_EXPLANATION_CHARS],
             "quarantined": outgoing_names(self.quarantined()),
+            "tree_changes": len(self.tree_changes),
             "refused": self.aggregator.refusals(),
             "dropped": self.aggregator.dropped(),
             "sources": [

@@ -93,6 +93,8 @@ def status_fields(robot: str, elapsed_s: float, controller: Controller,
     quarantined = controller.quarantined()
     if quarantined:
         fields.append("QUARANTINED " + ",".join(quarantined))
+    if controller.tree_changes:  # the run is no longer the robot file's (inspector, monitor)
+        fields.append(f"tree changed {len(controller.tree_changes)}")
     unhealthy = health.unhealthy()
     if unhealthy:
         fields.append("UNHEALTHY " + ",".join(unhealthy))

@@ -63,9 +63,12 @@ from ubf_async.runtime.gcfreeze import freeze_startup_objects
 from ubf_async.services import status
 from ubf_async.services.liveview import DEFAULT_PORT as DEFAULT_FOXGLOVE_PORT
 from ubf_async.services.liveview import FoxgloveServer
+from ubf_async.services.monitor import DEFAULT_PORT as DEFAULT_MONITOR_PORT
+from ubf_async.services.monitor import MonitorServer
 from ubf_async.services.remote import remote_spec
 from ubf_async.services.status import StatusWriter, status_fields
 from ubf_async.tools.liveview import add_host_argument
+from ubf_async.tools.monitor import add_host_argument as add_monitor_host_argument
 from ubf_async.tools.record import McapRecorder, require_recording
 
 __all__ = ["PROG", "add_controller_arguments", "add_device_arguments", "add_live_view_arguments",
@@ -224,6 +227,14 @@ def add_live_view_arguments(parser: argparse.ArgumentParser) -> None:
                            "word after it that is not a number is not its PORT (--foxglove "
                            "ROBOT_FILE runs ROBOT_FILE)")
     add_host_argument(view)
+    view.add_argument("--monitor", type=int, nargs="?", const=DEFAULT_MONITOR_PORT,
+                      default=None, metavar="PORT",
+                      help="serve the behaviour tree live to a browser on http://HOST:PORT/ "
+                           f"(PORT default {DEFAULT_MONITOR_PORT}, 0: any free port; "
+                           "docs/monitor.md): each node's vote, the winners, the sources' ages, "
+                           "and changes to the tree from the page (read-only in secure mode); "
+                           "a word after it that is not a number is not its PORT")
+    add_monitor_host_argument(view)
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:
@@ -298,6 +309,8 @@ def plan_launch(args: argparse.Namespace) -> wiring.RunPlan:
         require_recording(who="launch --record")
     if args.foxglove is not None:
         extras.require("view", "foxglove", who="launch --foxglove")
+    if args.monitor is not None:
+        extras.require("monitor", "aiohttp", who="launch --monitor")
     if args.duration is not None and not args.duration > 0:
         raise ConfigurationError(f"--duration must be > 0, got {args.duration:g}")
     args.robot = args.robot or robot.name or DEFAULT_ROBOT
@@ -350,7 +363,7 @@ async def run_robot(plan: wiring.RunPlan, args: argparse.Namespace,
     options = run.bus.options  # with the port really listened on for a `:0` endpoint
     try:
         _print_session(plan.robot, options, out)
-        await _start_recording(run, args, out)
+        await _start_observers(run, args, out)
         wiring.build_robot(plan, run, out)
         assert run.robot is not None and run.controller is not None
         assert run.aggregator is not None
@@ -413,9 +426,9 @@ def _print_session(robot: Robot, options: ConnectionOptions, out: TextIO) -> Non
                   file=out)
 
 
-async def _start_recording(run: wiring.RobotRun, args: argparse.Namespace, out: TextIO) -> None:
-    """``--record`` and ``--foxglove``: started first (and closed last), they see the whole
-    run; what they did is said at the end."""
+async def _start_observers(run: wiring.RobotRun, args: argparse.Namespace, out: TextIO) -> None:
+    """``--record``, ``--foxglove`` and ``--monitor``: started first (and closed last), they
+    see the whole run; what they did is said at the end."""
     if args.record is not None:
         recorder = McapRecorder(bus=run.bus, out=args.record)
         await recorder.start()
@@ -429,6 +442,17 @@ async def _start_recording(run: wiring.RobotRun, args: argparse.Namespace, out: 
         run.end_notes.append(lambda: f"  live view: {live.stats.summary()}")
         print(f"  live in Foxglove on {live.url} (layout: docs/foxglove-layout.json)",
               file=out)
+    if args.monitor is not None:
+        secure = run.bus.options.secure is not None
+        monitor = MonitorServer(
+            bus=run.bus, port=args.monitor, host=args.monitor_host, allow_changes=not secure,
+            refusal="in secure mode the robot's own page is read-only (a browser would get the "
+                    "robot's rights): change the tree from python -m ubf_async.monitor run "
+                    "with an identity that may (docs/monitor.md)")
+        await monitor.start()
+        run.components.append(monitor)
+        print(f"  the tree live in a browser on {monitor.url}"
+              + (" (read-only: secure mode)" if secure else ""), file=out)
 
 
 def _recorded(recorder: McapRecorder) -> str:
@@ -520,18 +544,23 @@ def print_tree(robot: Robot, out: TextIO) -> None:
         print(f"    remote slot {slot.key} [p={slot.priority} w={slot.weight:g}]", file=out)
 
 
+OPTIONAL_PORTS = {"--foxglove": DEFAULT_FOXGLOVE_PORT, "--monitor": DEFAULT_MONITOR_PORT}
+"""The flags whose PORT may be left out, and its default."""
+
+
 def optional_port_only_if_numeric(argv: Sequence[str]) -> list[str]:
-    """``--foxglove [PORT]``: argparse gives an optional value whatever word follows, so
-    ``launch --foxglove my_robot.yaml`` would read the robot file as the port. The word after
-    ``--foxglove`` is its PORT only if it is a number; otherwise the flag stands alone."""
+    """``--foxglove [PORT]``, ``--monitor [PORT]``: argparse gives an optional value whatever
+    word follows, so ``launch --foxglove my_robot.yaml`` would read the robot file as the port.
+    The word after such a flag is its PORT only if it is a number; otherwise the flag stands
+    alone."""
     out = list(argv)
     for i, word in enumerate(out[:-1]):
         if word == "--":
             break
         following = out[i + 1]
-        if (word == "--foxglove" and not following.startswith("-")
+        if (word in OPTIONAL_PORTS and not following.startswith("-")
                 and not following.strip().isdigit()):
-            out[i] = f"--foxglove={DEFAULT_FOXGLOVE_PORT}"
+            out[i] = f"{word}={OPTIONAL_PORTS[word]}"
     return out
 
 

@@ -12,7 +12,7 @@ from typing import Any
 
 from ubf_async import extras
 from ubf_async.cli.args import HelpFormatter, add_connection_arguments
-from ubf_async.cli.attach import add_attach_arguments, attached_bus, run_until_stopped
+from ubf_async.cli.attach import add_attach_arguments, attached_bus, serve_until_stopped
 from ubf_async.cli.run import run_main
 from ubf_async.net.options import DEFAULT_LISTEN
 from ubf_async.services.liveview import (
@@ -55,17 +55,11 @@ async def serve(args: argparse.Namespace, *,
     async with attached_bus(args) as bus:
         server = FoxgloveServer(bus=bus, port=args.port, host=args.foxglove_host,
                                 name=args.name)
-        await server.start()
-        try:
-            print(f"{PROG}: robot {bus.robot!r} live on {server.url} (Foxglove: open "
-                  f"connection → Foxglove WebSocket)", flush=True)
-            if ready is not None:
-                ready(server)
-            await run_until_stopped(args.duration)
-            return 0
-        finally:
-            await server.aclose()
-            print(f"{PROG}: {server.stats.summary()}", flush=True)
+        return await serve_until_stopped(
+            server, duration_s=args.duration, ready=ready,
+            started=lambda s: f"{PROG}: robot {bus.robot!r} live on {s.url} (Foxglove: open "
+                              f"connection → Foxglove WebSocket)",
+            closed=lambda s: f"{PROG}: {s.stats.summary()}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
