@@ -101,14 +101,6 @@ class Recording(Rights):
         self.asked.add((message, key))
 
 
-KNOWN_GAPS = {
-    # What the policy grants a device's own process (``sensor/KIND/NAME``) misses of what its
-    # component publishes: such a process, in secure mode, is refused these publishers.
-    # Pinned here so that neither the policy nor a device can change without this test saying
-    # so; closing a gap is a change of the ACL, to be made on purpose (docs/security.md).
-    "camera": {("put", "view/camera/front")},
-    "encoders": {("put", "sensor/odometry/wheels")},
-}
 
 
 async def sent_by(device: ResolvedDevice, bus: Bus, world: World) -> set[tuple[str, str]]:
@@ -153,7 +145,7 @@ async def test_every_key_a_device_component_publishes_or_holds_is_granted_to_it(
                 assert not identity.allows(message, f"{keys.prefix}/{key}"), (device, key)
     finally:
         await bus.aclose()
-    assert gaps == KNOWN_GAPS
+    assert gaps == {}  # (the camera's view and the encoders' odometry: publishes_also)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -238,3 +238,7 @@ def build_device(
     color = seek_color.color_range() if seek_color is not None else PINK
     return CameraComponent(bus=bus, backend=backend, name=name, latency_s=latency_s,
                            color=color, hfov_deg=hfov_deg, view_scale=view_scale)
+
+
+build_device.publishes_also = (CAMERA_VIEW,)  # type: ignore[attr-defined]
+"""Besides ``sensor/camera/<name>``: its view for people (a secure set-up grants it)."""

@@ -162,3 +162,7 @@ def build_device(
                              initial_states=initial, effective_track_m=effective_track_m,
                              origin=OdometryPose(x_m=origin_x_m or 0.0, y_m=origin_y_m or 0.0,
                                            heading_rad=math.radians(origin_heading_deg or 0.0)))
+
+
+build_device.publishes_also = (ODOMETRY,)  # type: ignore[attr-defined]
+"""Besides ``sensor/encoders/<name>``: the odometry (a secure set-up grants it)."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from ubf_async.errors import ConfigurationError
 from ubf_async.net.secure import (
     ALL_MESSAGES,
     FLEET,
@@ -35,7 +36,7 @@ from ubf_async.net.secure import (
     zenoh_access_control,
 )
 from ubf_async.wire.keys import EVERY_ROBOT, Keys, ros2_graph, ros2_names
-from ubf_async.wire.topics import SIM_PULSES, VOTE
+from ubf_async.wire.topics import SIM_PULSES, TOPICS, VOTE, Topic
 
 __all__ = ["ROS2_BRIDGE_COMPONENT", "ROS2_CLOCK", "ROS2_DRIVEN_TOPIC", "access_control",
            "describe", "fleet_grants", "grants", "grants_of", "robot_grants"]
@@ -204,9 +205,23 @@ def _own_rules(keys: Keys, identity: Identity) -> list[Rule]:
     if identity.role == "device" and identity.device is not None:
         kind, device = identity.device
         component = f"{kind}-{device}"  # (a device component's name: camera-front)
-        puts = [keys.sensor(kind, device), keys.heartbeat(component), keys.status(component)]
+        puts = [keys.sensor(kind, device), keys.heartbeat(component), keys.status(component),
+                *(_topic(name, identity).key(keys, device) for name in identity.publishes)]
         if identity.simulated:
             puts.append(SIM_PULSES.key(keys))
         return [Rule(f"{name}-put", ("put",), tuple(puts)),
                 Rule(f"{name}-token", ("liveliness_token",), (keys.alive(component),))]
     return []
+
+
+_BY_NAME = {topic.name: topic for topic in TOPICS}
+
+
+def _topic(name: str, identity: Identity) -> Topic[Any]:
+    """A device identity's further topic by name (``publishes``, from its set-up's file)."""
+    topic = _BY_NAME.get(name)
+    if topic is None or topic.placeholders != ("name",):
+        raise ConfigurationError(f"identity {identity.name!r}: {name!r} is not a topic a "
+                                 f"device may publish for its name (make the set-up again "
+                                 f"with this version: python -m ubf_async.secure init)")
+    return topic

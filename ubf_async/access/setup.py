@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from ubf_async.access.policy import fleet_grants, grants, grants_of, robot_grants
 from ubf_async.errors import ConfigurationError
@@ -36,6 +36,7 @@ from ubf_async.net.secure import (
     Rights,
     SecureSetup,
 )
+from ubf_async.wire.topics import Topic
 
 __all__ = ["SecuredRobot", "fleet_identities", "identities_for", "init", "init_fleet", "revoke",
            "rights"]
@@ -57,6 +58,8 @@ class _Device(Protocol):
     def name(self) -> str: ...
     @property
     def requires_simulator(self) -> str | None: ...
+    @property
+    def further_topics(self) -> Sequence[Topic[Any]]: ...
 
 
 class _Ros2(Protocol):
@@ -120,7 +123,8 @@ def identities_for(robot: SecuredRobot, *, devices: Iterable[str] = ()) -> list[
                                      f"(its devices: {', '.join(sorted(known)) or 'none'})")
         out.append(Identity(name=f"device-{device.kind}-{device.name}", role="device",
                             device=(device.kind, device.name),
-                            simulated=device.requires_simulator is not None))
+                            simulated=device.requires_simulator is not None,
+                            publishes=tuple(t.name for t in device.further_topics)))
     return out
 
 

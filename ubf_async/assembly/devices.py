@@ -18,9 +18,10 @@ from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.registry import accepts
 from ubf_async.errors import ConfigurationError
 from ubf_async.runtime.component import Component
+from ubf_async.wire.topics import Topic
 
 __all__ = ["BACKEND_INJECTED", "DEVICE_INJECTED", "backend_label", "build_device",
-           "checked_backend", "device_label", "requires_simulator"]
+           "checked_backend", "device_label", "further_topics", "requires_simulator"]
 
 DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
 """Parameters of a device kind's factory the builder supplies itself."""
@@ -35,6 +36,20 @@ def requires_simulator(factory: Callable[..., Any]) -> str | None:
         raise ConfigurationError(f"{factory!r}: requires_simulator must be a str or None, "
                                  f"got {name!r}")
     return name
+
+
+def further_topics(factory: Callable[..., Any]) -> tuple[Topic[Any], ...]:
+    """The topics a device kind's component publishes for its own name besides
+    ``sensor/<kind>/<name>`` (its factory's ``publishes_also``: the camera's view, the
+    encoders' odometry), which a secure set-up grants the device's own identity. Each has the
+    one placeholder ``{name}``."""
+    topics = tuple(getattr(factory, "publishes_also", ()))
+    for topic in topics:
+        if not isinstance(topic, Topic) or topic.placeholders != ("name",):
+            raise ConfigurationError(f"{factory!r}: publishes_also must hold topics of "
+                                     f"ubf_async.wire.topics keyed by {{name}} alone, got "
+                                     f"{topic!r}")
+    return topics
 
 
 def checked_backend(backend: object, *, what: str) -> Backend:

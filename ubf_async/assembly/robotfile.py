@@ -45,6 +45,7 @@ from ubf_async.assembly.devices import (
     backend_label,
     build_device,
     device_label,
+    further_topics,
     requires_simulator,
 )
 from ubf_async.assembly.registry import (
@@ -60,6 +61,7 @@ from ubf_async.assembly.registry import (
 from ubf_async.core.behavior import Behavior, Child, Composite
 from ubf_async.errors import MissingExtraError, ParameterError, PluginError, RobotFileError
 from ubf_async.runtime.component import Component
+from ubf_async.wire.topics import Topic
 
 FORMAT_VERSION: Final = 1
 DEFAULT_ROBOT_FILE = "mini-whegs"
@@ -676,6 +678,12 @@ class ResolvedDevice:
     @property
     def requires_simulator(self) -> str | None:
         return requires_simulator(self.backend_factory)
+
+    @property
+    def further_topics(self) -> tuple[Topic[Any], ...]:
+        """What its component publishes for its name besides its sensor key
+        (:func:`~ubf_async.assembly.devices.further_topics`)."""
+        return further_topics(self.factory)
 
     def build(self, *, context: DeviceContext) -> Component:
         """Build the backend and the device component (launch calls this). A device that

@@ -104,6 +104,9 @@ class Identity:
     """A device: ``(kind, name)``."""
     simulated: bool = False
     """A device whose backend drives the simulator (it may put ``sim/pulses``)."""
+    publishes: tuple[str, ...] = ()
+    """A device: the topics (by name) its component publishes for its own name besides its
+    ``sensor/<kind>/<name>`` (the camera's view, the encoders' odometry)."""
     ros2: tuple[int, str] | None = None
     """A ROS 2 identity (``ros2-bridge``, ``ros2-reader``, ``ros2-driver``): the robot file's
     ROS domain id and namespace (docs/ros2.md)."""
@@ -115,6 +118,8 @@ class Identity:
         if self.device is not None:
             data["device"] = list(self.device)
             data["simulated"] = self.simulated
+            if self.publishes:
+                data["publishes"] = list(self.publishes)
         if self.ros2 is not None:
             data["ros2"] = list(self.ros2)
         return data
@@ -126,6 +131,7 @@ class Identity:
                    composites=tuple(data.get("composites", ())),
                    device=(str(device[0]), str(device[1])) if device else None,
                    simulated=bool(data.get("simulated", False)),
+                   publishes=tuple(str(t) for t in data.get("publishes", ())),
                    ros2=(int(ros2[0]), str(ros2[1])) if ros2 else None)
 
 
