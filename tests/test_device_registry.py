@@ -33,7 +33,8 @@ from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
 
 EXPECTED_PARAMETERS = {
-    "camera": {"latency_s", "hfov_deg", "view_scale", "seek_color"},
+    "camera": {"latency_s", "hfov_deg", "view_scale", "seek_color", "x_m", "y_m", "z_m",
+               "yaw_deg", "pitch_deg", "width_px", "height_px"},
     "motors": {"timeout_s", "left", "right"},
     "encoders": {"period_s", "direction", "effective_track_m", "origin_x_m", "origin_y_m",
                  "origin_heading_deg"},

@@ -134,7 +134,14 @@ EVOLVE_WHY = ("the worked evolution, 16 × 10 generations: about 12 minutes on 2
 TUNE_WHY = ("the worked study, 30 trials: minutes on 2 cores; tests/test_evolve.py runs the same "
             "command (its main) on a tiny SPEC, resuming a study kept in SQLite")
 
+PIONEER_WHY = ("the library call, byte for byte a launch (tests/test_experiment.py), runs each of "
+               "the four: tests/test_bodies.py::test_the_pioneer_passes_the_thesis_scenarios_"
+               "scaled (flat out)")
+
 NOT_RUN = {
+    **{f"python -m ubf_async.launch examples/robots/pioneer.yaml --scenario "
+       f"examples/scenarios/pioneer/{name}.json --speed max": PIONEER_WHY
+       for name in ("ball-in-sight", "ball-behind", "keep-away", "dance")},
     "ssh -L 8770:127.0.0.1:8770 pi@robot.local":
         "a tunnel to another host (test_the_tree_is_served_to_browsers_and_changed_live serves "
         "the page on loopback, where the tunnel ends)",

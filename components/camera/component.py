@@ -34,8 +34,17 @@ from typing import Annotated
 
 import msgspec
 
-from components.camera.backend import CameraBackend
-from components.camera.seekcolor import DEFAULT_HFOV_DEG, PINK, ColorRange, SeekResult, seekcolor
+from components.camera.backend import DEFAULT_MOUNT, CameraBackend, CameraMount
+from components.camera.seekcolor import (
+    BIN_COUNT,
+    DEFAULT_HFOV_DEG,
+    MAX_HFOV_DEG,
+    MIN_HFOV_DEG,
+    PINK,
+    ColorRange,
+    SeekResult,
+    seekcolor,
+)
 from components.camera.view import DEFAULT_VIEW_SCALE, draw_view, encode_jpeg
 from ubf_async.cli import ending
 from ubf_async.runtime.bus import Bus, Publisher
@@ -216,26 +225,43 @@ class SeekColorRange(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
         return ColorRange(lo=self.lo, hi=self.hi, require_r_gt_b_gt_g=self.require_r_gt_b_gt_g)
 
 
+Metres = Annotated[float, msgspec.Meta(ge=-10, le=10)]
+
+
 def build_device(
     *,
     bus: Bus,
     name: str,
     backend: CameraBackend,
     latency_s: Annotated[float, msgspec.Meta(ge=0)] = OV9655_LATENCY_S,
-    hfov_deg: Annotated[float, msgspec.Meta(gt=0, lt=180)] = DEFAULT_HFOV_DEG,
+    hfov_deg: Annotated[float, msgspec.Meta(ge=MIN_HFOV_DEG, le=MAX_HFOV_DEG)] = DEFAULT_HFOV_DEG,
     view_scale: Annotated[int, msgspec.Meta(ge=1, le=8)] = DEFAULT_VIEW_SCALE,
     seek_color: SeekColorRange | None = None,
+    x_m: Metres = DEFAULT_MOUNT.x_m,
+    y_m: Metres = DEFAULT_MOUNT.y_m,
+    z_m: Annotated[float, msgspec.Meta(gt=0, le=10)] = DEFAULT_MOUNT.z_m,
+    yaw_deg: Annotated[float, msgspec.Meta(ge=-180, le=180)] = DEFAULT_MOUNT.yaw_deg,
+    pitch_deg: Annotated[float, msgspec.Meta(ge=-60, le=60)] = DEFAULT_MOUNT.pitch_deg,
+    width_px: Annotated[int, msgspec.Meta(ge=8 * BIN_COUNT, le=8192)] = DEFAULT_MOUNT.width_px,
+    height_px: Annotated[int, msgspec.Meta(ge=8, le=8192)] = DEFAULT_MOUNT.height_px,
 ) -> CameraComponent:
     """The ``camera`` device kind: captures from ``backend``, publishes
     ``sensor/camera/<name>``.
 
     ``latency_s``: capture latency on the robot clock (the thesis's OV9655: 0.11 s; a real
-    camera whose driver has its own latency: 0). ``hfov_deg``: horizontal field of view the
-    bearing is computed with. ``view_scale``: how much the 160×128 view published on
-    ``view/camera/<name>`` is enlarged. ``seek_color``: the colour counted
-    (:class:`SeekColorRange`; default: the thesis's pink).
+    camera whose driver has its own latency: 0). ``hfov_deg``: the lens's horizontal field of
+    view (a pinhole, 20–120°), which the bearing is computed with and a simulated camera
+    renders. ``view_scale``: how much the 160×128 view published on ``view/camera/<name>``
+    is enlarged. ``seek_color``: the colour counted (:class:`SeekColorRange`; default: the
+    thesis's pink). The mount (body frame, checked against the body's footprint): ``x_m``
+    ahead of the centre, ``y_m`` to the left, ``z_m`` above the floor, ``yaw_deg`` (+ left)
+    and ``pitch_deg`` (+ up); ``width_px`` × ``height_px``: the frame. The backend is told
+    them all (:meth:`~components.camera.backend.CameraBackend.mount`).
     """
     color = seek_color.color_range() if seek_color is not None else PINK
+    backend.mount(CameraMount(name=name, x_m=x_m, y_m=y_m, z_m=z_m, yaw_deg=yaw_deg,
+                              pitch_deg=pitch_deg, hfov_deg=hfov_deg, width_px=width_px,
+                              height_px=height_px))
     return CameraComponent(bus=bus, backend=backend, name=name, latency_s=latency_s,
                            color=color, hfov_deg=hfov_deg, view_scale=view_scale)
 

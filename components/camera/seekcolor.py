@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BIN_ANGLES_DEG", "BIN_COUNT", "DEFAULT_HFOV_DEG", "PINK", "SUBSAMPLE_STEP",
+__all__ = ["BIN_ANGLES_DEG", "BIN_COUNT", "DEFAULT_HFOV_DEG", "MAX_HFOV_DEG", "MIN_HFOV_DEG",
+           "PINK", "SUBSAMPLE_STEP",
            "ColorRange", "SeekResult", "color_mask", "seekcolor", "subsample"]
 
 BIN_COUNT = 5
@@ -23,6 +24,11 @@ BIN_ANGLES_DEG: tuple[float, ...] = (14.0, 7.0, 0.0, -7.0, -14.0)
 """Bearing of each bin's centre, in image order (left to right)."""
 SUBSAMPLE_STEP = 8
 DEFAULT_HFOV_DEG = 35.0
+MIN_HFOV_DEG = 20.0
+MAX_HFOV_DEG = 120.0
+"""The lenses a camera device may declare: what the simulator's pinhole renders honestly
+(narrower is a telescope no robot here carries; wider, a pinhole stretches the edges past use
+and a real lens of that width is a fisheye the pinhole does not model)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

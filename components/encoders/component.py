@@ -33,6 +33,7 @@ from components.quadrature import (
     edges_to_counts,
     edges_to_radians,
 )
+from ubf_async.assembly.body import DEFAULT_BODY, BodySpec
 from ubf_async.clocks.clock import every
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
@@ -137,10 +138,11 @@ def build_device(
     backend: EncoderBackend,
     period_s: Annotated[float, msgspec.Meta(gt=0)] = 0.02,
     direction: Literal["commanded", "phase"] = "commanded",
-    effective_track_m: Annotated[float, msgspec.Meta(gt=0)] = EFFECTIVE_TRACK_M,
+    effective_track_m: Annotated[float, msgspec.Meta(gt=0)] | None = None,
     origin_x_m: Annotated[float, msgspec.Meta(ge=-1e4, le=1e4)] | None = None,
     origin_y_m: Annotated[float, msgspec.Meta(ge=-1e4, le=1e4)] | None = None,
     origin_heading_deg: Annotated[float, msgspec.Meta(ge=-360, le=360)] | None = None,
+    body: BodySpec = DEFAULT_BODY,
 ) -> EncodersComponent:
     """The ``encoders`` device kind: reads ``backend`` every ``period_s`` (robot clock),
     publishes ``sensor/encoders/<name>`` and ``sensor/odometry/<name>``.
@@ -150,16 +152,19 @@ def build_device(
     present states (``current_states()``) gives the decoders their start state.
     ``effective_track_m``: the track odometry integrates the heading with — the skid-steer
     robot's effective one, fitted by ``python -m components.encoders.calibrate`` (default: the
-    simulated Mini-WHEGS's, ``EFFECTIVE_TRACK_M``; the physical 6 cm would read skid turns
-    ≈7× too large).
+    body's ``effective_track_m``, for the simulated Mini-WHEGS ``EFFECTIVE_TRACK_M``; the
+    physical 6 cm would read skid turns ≈7× too large). ``body`` (the robot file's, injected):
+    the wheels' radius and the encoders' counts the odometry reads.
     ``origin_*``: the pose odometry starts from (unset: the origin — odometry in the robot's
     start frame); a fleet's world sets each robot's start pose in the world where the robot
     file leaves them unset, so the fleet's odometry shares one frame.
     """
     initial = backend.current_states()
     mode = DirectionMode.COMMANDED if direction == "commanded" else DirectionMode.PHASE
+    track = body.odometry_track_m if effective_track_m is None else effective_track_m
     return EncodersComponent(bus=bus, backend=backend, name=name, period_s=period_s, mode=mode,
-                             initial_states=initial, effective_track_m=effective_track_m,
+                             geometry=MiniWhegsGeometry.of(body),
+                             initial_states=initial, effective_track_m=track,
                              origin=OdometryPose(x_m=origin_x_m or 0.0, y_m=origin_y_m or 0.0,
                                            heading_rad=math.radians(origin_heading_deg or 0.0)))
 

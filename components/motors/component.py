@@ -45,9 +45,11 @@ from components.motors.pwm import (
     DEFAULT_RIGHT_CALIBRATION,
     MotorCalibration,
     PulseCommand,
+    body_calibrations,
     clamp_drive,
     pulse_widths,
 )
+from ubf_async.assembly.body import DEFAULT_BODY, BodySpec
 from ubf_async.clocks.clock import SilenceLimit, sleep_until
 from ubf_async.runtime.bus import Bus
 from ubf_async.runtime.component import Component
@@ -74,6 +76,7 @@ class MotorsComponent(Component):
         timeout_s: float = DEFAULT_TIMEOUT_S,
         left: MotorCalibration = DEFAULT_LEFT_CALIBRATION,
         right: MotorCalibration = DEFAULT_RIGHT_CALIBRATION,
+        turn_gain: float = 1.0,
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=f"motors-{name}", **component_options)
@@ -84,6 +87,10 @@ class MotorsComponent(Component):
         self.timeout_s = timeout_s
         self.left = left
         self.right = right
+        if not 0.0 < turn_gain <= 1.0:
+            raise ValueError(f"turn_gain must be in (0, 1], got {turn_gain}")
+        self.turn_gain = turn_gain
+        """The body's share of the wheels' difference a turn of 100 gets (``body.turn_gain``)."""
         self.malformed: dict[str, int] = {}
         self.clamped = 0
         self.timeouts = 0
@@ -185,7 +192,8 @@ class MotorsComponent(Component):
         self._apply(safe_speed, safe_turn, reason="command")
 
     def _apply(self, speed: float, turn: float, *, reason: str) -> None:
-        command = pulse_widths(speed, turn, left=self.left, right=self.right)
+        # The body's turn gain: the same turn command, the same turn rate on any body.
+        command = pulse_widths(speed, turn * self.turn_gain, left=self.left, right=self.right)
         self.backend.apply_pulses(left_ms=command.left_ms, right_ms=command.right_ms)
         self.applied = command
         self._applied_pub.publish({
@@ -228,14 +236,18 @@ def build_device(
     timeout_s: Annotated[float, msgspec.Meta(gt=0)] = DEFAULT_TIMEOUT_S,
     left: MotorTrim | None = None,
     right: MotorTrim | None = None,
+    body: BodySpec = DEFAULT_BODY,
 ) -> MotorsComponent:
     """The ``motors`` device kind: ``cmd/drive`` → PWM through ``backend``, stopping the
     wheels when no drive command arrived for ``timeout_s`` (robot clock; also in wall time
     when the clock's source goes silent, see :class:`~ubf_async.clocks.clock.SilenceLimit`) and
     when it closes.
-    ``left`` / ``right``: each motor's calibration (:class:`MotorTrim`); default: the
-    thesis's measured Mini-WHEGS motors."""
+    ``left`` / ``right``: each motor's calibration (:class:`MotorTrim`); default: the one
+    that inverts the body's motors (``body``, the robot file's, injected: for the Mini-WHEGS
+    the thesis's measured motors)."""
+    left_default, right_default = body_calibrations(body)
     return MotorsComponent(
         bus=bus, backend=backend, name=name, timeout_s=timeout_s,
-        left=left.calibration() if left is not None else DEFAULT_LEFT_CALIBRATION,
-        right=right.calibration() if right is not None else DEFAULT_RIGHT_CALIBRATION)
+        left=left.calibration() if left is not None else left_default,
+        right=right.calibration() if right is not None else right_default,
+        turn_gain=body.turn_gain)

@@ -1,4 +1,4 @@
-"""Speed/turn → per-motor PWM pulse widths for the Mini-WHEGS (pure logic, no I/O).
+"""Speed/turn → per-motor PWM pulse widths for a body's motors (pure logic, no I/O).
 
 The thesis drives the robot with two numbers, ``speed`` and ``turn``, each −100…+100
 (+speed forward, +turn = turn left, REP-103). :func:`mix` turns them into a wheel command ``u``
@@ -18,19 +18,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 # One limit for speed, turn and the wheel command ``u``: the UBF's, re-exported here.
+from ubf_async.assembly.body import (
+    DEFAULT_BODY,
+    FULL_FORWARD_MS,
+    FULL_REVERSE_MS,
+    BodySpec,
+    MotorSpec,
+)
 from ubf_async.core.action import COMMAND_LIMIT as COMMAND_LIMIT
 from ubf_async.core.action import clamp_command
 
 __all__ = ["COMMON_MAX_WHEEL_SPEED_RAD_S", "DEFAULT_LEFT_CALIBRATION", "DEFAULT_PWM",
            "DEFAULT_RIGHT_CALIBRATION", "FULL_FORWARD_MS", "FULL_REVERSE_MS", "HOLD_PERIODS",
            "LEFT_MOTOR", "MEASURED_ZERO_MS", "RIGHT_MOTOR", "MotorCalibration",
-           "MotorCharacteristic", "PulseCommand", "PwmConfig", "calibration_for", "clamp_drive",
-           "hold_s", "mix", "pulse_for_wheel_speed_ms", "pulse_widths", "wheel_speed_rad_s"]
+           "MotorCharacteristic", "PulseCommand", "PwmConfig", "body_calibrations",
+           "calibration_for", "characteristic_of", "clamp_drive", "hold_s", "mix",
+           "pulse_for_wheel_speed_ms", "pulse_widths", "wheel_speed_rad_s"]
 
-MEASURED_ZERO_MS = 1.55
+MEASURED_ZERO_MS = DEFAULT_BODY.motors.left.zero_ms
 """Pulse at which both real motors stand still (the nominal zero is 1.5 ms)."""
-FULL_REVERSE_MS = 1.0
-FULL_FORWARD_MS = 2.0
 
 
 def _require_finite(**values: float) -> None:
@@ -160,9 +166,17 @@ class MotorCharacteristic:
             )
 
 
-LEFT_MOTOR = MotorCharacteristic(dead_zone_ms=(1.48, 1.62), max_wheel_speed_rad_s=20.0)
-RIGHT_MOTOR = MotorCharacteristic(dead_zone_ms=(1.46, 1.65), max_wheel_speed_rad_s=17.0)
-"""The right motor is slower and has the larger dead zone (thesis measurement)."""
+def characteristic_of(motor: MotorSpec) -> MotorCharacteristic:
+    """A robot file's motor (``body.motors.left`` …) as the model :func:`wheel_speed_rad_s`
+    reads."""
+    return MotorCharacteristic(dead_zone_ms=motor.dead_zone_ms, zero_ms=motor.zero_ms,
+                               max_wheel_speed_rad_s=motor.max_wheel_speed_rad_s)
+
+
+LEFT_MOTOR = characteristic_of(DEFAULT_BODY.motors.left)
+RIGHT_MOTOR = characteristic_of(DEFAULT_BODY.motors.right)
+"""The Mini-WHEGS's: the right motor is slower and has the larger dead zone (thesis
+measurement)."""
 
 
 def wheel_speed_rad_s(characteristic: MotorCharacteristic, pulse_ms: float) -> float:
@@ -318,12 +332,20 @@ def calibration_for(
     )
 
 
+def body_calibrations(body: BodySpec) -> tuple[MotorCalibration, MotorCalibration]:
+    """The (left, right) calibrations that make ``u`` mean the same wheel speed on both of
+    ``body``'s motors: ``u = ±100`` is the slower motor's top speed."""
+    left, right = characteristic_of(body.motors.left), characteristic_of(body.motors.right)
+    common = min(left.max_wheel_speed_rad_s, right.max_wheel_speed_rad_s)
+    return calibration_for(left, common), calibration_for(right, common)
+
+
 COMMON_MAX_WHEEL_SPEED_RAD_S = min(
     LEFT_MOTOR.max_wheel_speed_rad_s, RIGHT_MOTOR.max_wheel_speed_rad_s
 )
-"""Fastest wheel speed both motors can reach: what ``u = ±100`` means on either side."""
-DEFAULT_LEFT_CALIBRATION = calibration_for(LEFT_MOTOR, COMMON_MAX_WHEEL_SPEED_RAD_S)
-DEFAULT_RIGHT_CALIBRATION = calibration_for(RIGHT_MOTOR, COMMON_MAX_WHEEL_SPEED_RAD_S)
+"""Fastest wheel speed both Mini-WHEGS motors can reach: what ``u = ±100`` means on either
+side."""
+DEFAULT_LEFT_CALIBRATION, DEFAULT_RIGHT_CALIBRATION = body_calibrations(DEFAULT_BODY)
 
 
 def _direction(u: float) -> int:

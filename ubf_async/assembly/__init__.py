@@ -4,6 +4,8 @@
   predicates, device kinds, backends, simulators);
 * :mod:`~ubf_async.assembly.plugins` — plug-ins by name where the core takes objects (a
   predicate by name for ``Conditional``);
+* :mod:`~ubf_async.assembly.body` — the robot's body as data (the robot file's ``body``) and
+  its devices' mounts checked against its footprint;
 * :mod:`~ubf_async.assembly.context` — ``DeviceContext``, what a backend factory is handed;
 * :mod:`~ubf_async.assembly.backend` — ``Backend``, what every device backend is (its one
   closing contract, ``aclose``);

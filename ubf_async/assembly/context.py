@@ -11,6 +11,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from ubf_async.assembly.body import DEFAULT_BODY, BodySpec
+
 if TYPE_CHECKING:
     from ubf_async.clocks.clock import Clock
     from ubf_async.runtime.bus import Bus
@@ -32,4 +34,7 @@ class DeviceContext:
     """Whether a backend may start helper processes of its own (a simulated camera's render
     process); ``False`` for a run that must stay in the calling process (a library run:
     :func:`ubf_async.runs.inprocess.run`), which then does that work in threads."""
+    body: BodySpec = DEFAULT_BODY
+    """The robot's body (its robot file's ``body``): what a device whose factory takes
+    ``body`` is given (the motors' PWM mapping, the encoders' odometry)."""
     extras: Mapping[str, Any] = field(default_factory=dict)

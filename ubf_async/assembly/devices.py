@@ -23,7 +23,7 @@ from ubf_async.wire.topics import Topic
 __all__ = ["BACKEND_INJECTED", "DEVICE_INJECTED", "backend_label", "build_device",
            "checked_backend", "device_label", "further_topics", "requires_simulator"]
 
-DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock"})
+DEVICE_INJECTED = frozenset({"bus", "name", "backend", "seed", "clock", "body"})
 """Parameters of a device kind's factory the builder supplies itself."""
 BACKEND_INJECTED = frozenset({"context"})
 """Parameters of a backend factory the builder supplies itself."""
@@ -79,7 +79,8 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
     """The component of device kind ``kind`` (its factory ``factory``) reading or driving
     ``backend``, with already checked ``params``; the run's seed and clock go to a factory
     that takes them, and so does each of ``context.extras`` the robot file does not set (a
-    fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …). The device
+    fleet's world gives the encoders their robot's start pose, ``origin_x_m`` …), and so does
+    the robot's body (``context.body``) to a factory that takes ``body``. The device
     owns ``backend`` (a :class:`~ubf_async.assembly.backend.Backend`): its ``aclose()`` is
     awaited when the component closes, or at once if no component is made."""
     backend = checked_backend(backend, what=device_label(kind, name))
@@ -92,6 +93,8 @@ def build_device(factory: Callable[..., Any], *, kind: str, name: str, backend: 
         extra["seed"] = context.seed
     if accepts(factory, "clock"):
         extra["clock"] = context.clock
+    if accepts(factory, "body"):
+        extra["body"] = context.body
     try:
         component = factory(bus=context.bus, name=name, backend=backend, **extra, **params)
         if not isinstance(component, Component):

@@ -38,6 +38,13 @@ from typing import Annotated, Any, ClassVar, Final, Literal
 import msgspec
 import yaml
 
+from ubf_async.assembly.body import (
+    MOUNT_FIELDS,
+    BodyPart,
+    BodySpec,
+    body_problems,
+    mount_problems,
+)
 from ubf_async.assembly.context import DeviceContext
 from ubf_async.assembly.devices import (
     BACKEND_INJECTED,
@@ -251,6 +258,8 @@ class RobotFile(Spec):
     remotes: RemotesSpec = msgspec.field(default_factory=RemotesSpec)
     ros2: Ros2Spec | None = None
     """The ROS 2 bridge (absent: none)."""
+    body: BodySpec = msgspec.field(default_factory=BodySpec)
+    """The robot's body (absent: the thesis's Mini-WHEGS; docs/bodies.md)."""
 
 
 # -- file positions ---------------------------------------------------------------------------
@@ -333,7 +342,7 @@ class Locator:
         return RobotFileError(message, path=self.source, line=line)
 
     def from_validation(self, exc: msgspec.ValidationError, base: Path_ = (), *,
-                        root: type[Spec] | None = RobotFile) -> RobotFileError:
+                        root: type[Spec | BodyPart] | None = RobotFile) -> RobotFileError:
         """A msgspec error (relative to ``base``) as a :class:`RobotFileError` at its line.
 
         ``root`` is the type decoded at ``base``: an unknown field is told the fields of the
@@ -491,7 +500,7 @@ def first_duplicate_key(root: yaml.Node | None) -> tuple[yaml.ScalarNode, yaml.S
 MERGE_TAG: Final = "tag:yaml.org,2002:merge"
 
 
-def struct_at(root: type[Spec], path: Path_) -> type[Spec] | None:
+def struct_at(root: type[Spec | BodyPart], path: Path_) -> type[Spec | BodyPart] | None:
     """The robot-file type of the object at ``path`` in a ``root`` (``None``: not one)."""
     info: msgspec.inspect.Type = msgspec.inspect.type_info(root)
     for part in path:
@@ -500,7 +509,9 @@ def struct_at(root: type[Spec], path: Path_) -> type[Spec] | None:
             return None
         info = step
     found = _struct(info)
-    return found if found is not None and issubclass(found, Spec) else None
+    # The body's types (ubf_async.assembly.body) are told alike without deriving from Spec.
+    return found if found is not None and (issubclass(found, Spec) or issubclass(
+        found, BodyPart)) else None
 
 
 def _members(info: msgspec.inspect.Type) -> list[msgspec.inspect.Type]:
@@ -708,6 +719,22 @@ class Robot:
     def name(self) -> str:
         return self.spec.name
 
+    @property
+    def body(self) -> BodySpec:
+        return self.spec.body
+
+    def mount_x_m(self, kind: str) -> float | None:
+        """How far ahead of the centre the first device of ``kind`` is mounted (its ``x_m``,
+        given or its factory's default); ``None``: no such device, or it has no mount."""
+        for device in self.devices:
+            if device.kind == kind:
+                given = device.params.get("x_m")
+                if given is None:
+                    found = _default_of(device.factory, "x_m")
+                    given = found if isinstance(found, int | float) else None
+                return None if given is None else float(given)
+        return None
+
     def reseeded(self, seed: int | None) -> Robot:
         """The same robot file resolved again with the behaviours drawing from ``seed`` (a
         simulated run's), without reading the file again."""
@@ -732,6 +759,15 @@ def _checked_params(factory: Callable[..., Any], params: Mapping[str, Any], *,
         raise locator.from_refusal(refusal, path) from None
     except PluginError as exc:  # parameters that cannot be described
         raise locator.error(str(exc), path) from None
+
+
+def _default_of(factory: Callable[..., Any], parameter: str) -> Any:
+    """``factory``'s default for ``parameter`` (``None``: none, or no signature to read)."""
+    try:
+        found = inspect.signature(factory).parameters.get(parameter)
+    except (TypeError, ValueError):
+        return None
+    return None if found is None or found.default is inspect.Parameter.empty else found.default
 
 
 def _requires(factory: Callable[..., Any], parameter: str) -> bool:
@@ -861,8 +897,31 @@ def _resolve_device(spec: DeviceSpec, locator: Locator, path: Path_) -> Resolved
                           params=params, backend_factory=backend, backend_params=backend_params)
 
 
+def _check_body(spec: RobotFile, locator: Locator) -> None:
+    """The body as a whole, at the line of the field it names."""
+    for where, message in body_problems(spec.body):
+        raise locator.error(f"body: {message}", ("body", *where))
+
+
+def _check_mount(device: ResolvedDevice, body: BodySpec, locator: Locator,
+                 path: Path_) -> None:
+    """A mounted device (its factory takes ``x_m`` and ``y_m``) placed on the body's
+    footprint: the values the file gives, else the factory's defaults."""
+    if not all(accepts(device.factory, name) for name in MOUNT_FIELDS):
+        return
+    mount = {name: device.params.get(name, _default_of(device.factory, name))
+             for name in MOUNT_FIELDS}
+    if any(not isinstance(value, int | float) for value in mount.values()):
+        return
+    for name, message in mount_problems(mount, body):
+        given = name in device.params
+        raise locator.error(f"{device_label(device.kind, device.name)}: {message}",
+                            (*path, "params", name) if given else path)
+
+
 def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Robot:
     """Step 2: look every name up, validate every parameter, build the tree."""
+    _check_body(spec, locator)
     devices: list[ResolvedDevice] = []
     seen: dict[tuple[str, str], int] = {}
     for i, device in enumerate(spec.devices):
@@ -872,6 +931,7 @@ def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Ro
                                 f"devices[{seen[device.kind, device.name]}])", path)
         seen[device.kind, device.name] = i
         devices.append(_resolve_device(device, locator, path))
+        _check_mount(devices[-1], spec.body, locator, path)
     if spec.tree.kind != "composite":
         raise locator.error("the tree's root must be a composite (`name`, `arbiter`, "
                             "`children`)", ("tree",))
@@ -975,7 +1035,7 @@ def shipped_schema_text() -> str:
 
 
 __all__ = [
-    "ArbiterSpec", "ControllerSpec", "DeviceSpec", "Locator", "NodeSpec", "RemoteSlot",
+    "ArbiterSpec", "BodySpec", "ControllerSpec", "DeviceSpec", "Locator", "NodeSpec", "RemoteSlot",
     "RemotesSpec", "ResolvedDevice", "Robot", "RobotFile", "RobotFileError",
     "build_arbiter", "decode_robot_data", "decode_robot_file", "load_robot", "load_robot_text",
     "load_tree_fragment", "resolve", "robot_file_schema",

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TextIO, runtime_checkable
 from ubf_async.assembly.context import DeviceContext as DeviceContext
 
 if TYPE_CHECKING:
+    from ubf_async.assembly.body import BodySpec
     from ubf_async.assembly.robotfile import ResolvedDevice
     from ubf_async.clocks.clock import SimClock
     from ubf_async.runtime.bus import Bus
@@ -66,6 +67,11 @@ class SimulationOptions:
     processes have joined (:mod:`ubf_async.clocks.lockstep`)."""
     command_line: tuple[str, ...] = ()
     """How the run was started (for its summary)."""
+    body: BodySpec | None = None
+    """The robot's body (its robot file's ``body``); ``None``: the simulator's own robot."""
+    camera_x_m: float | None = None
+    """Where the robot's first camera sits ahead of its centre; ``None``: the simulator's
+    default (scenarios place objects "from the camera", the summary measures from it)."""
 
 
 @runtime_checkable

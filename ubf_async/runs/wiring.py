@@ -19,7 +19,7 @@ import io
 import json
 import logging
 from collections.abc import Callable, Collection, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, TextIO
 
 from ubf_async.assembly.context import DeviceContext
@@ -40,9 +40,23 @@ from ubf_async.services.live import TreeService
 from ubf_async.services.remote import RemoteBehaviors
 from ubf_async.services.status import planned_ticks
 
-__all__ = ["CLOSE_BOUND_S", "EXIT_DEGRADED", "RESULTS_BOUND_S", "ControllerSettings", "RobotRun",
-           "RunPlan", "add_clock_components", "build_robot", "end", "open_simulation",
-           "print_unsaved_summary", "simulation_plan", "simulator_needed", "start"]
+__all__ = [
+    "CLOSE_BOUND_S",
+    "EXIT_DEGRADED",
+    "RESULTS_BOUND_S",
+    "ControllerSettings",
+    "RobotRun",
+    "RunPlan",
+    "add_clock_components",
+    "bodied",
+    "build_robot",
+    "end",
+    "open_simulation",
+    "print_unsaved_summary",
+    "simulation_plan",
+    "simulator_needed",
+    "start",
+]
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +147,12 @@ def simulator_needed(robot: Robot, devices: Sequence[ResolvedDevice]) -> str | N
     return simulators[0] if simulators else None
 
 
+def bodied(options: SimulationOptions, robot: Robot) -> SimulationOptions:
+    """``options`` with what the simulator builds of ``robot``: its body, and where its first
+    camera sits (scenarios place things "from the camera", the summary measures from it)."""
+    return replace(options, body=robot.body, camera_x_m=robot.mount_x_m("camera"))
+
+
 def simulation_plan(robot: Robot, options: SimulationOptions, *, simulator: Simulator,
                     connection: ConnectionOptions) -> RunPlan:
     """The plan of a simulated run of every device of ``robot`` in this process, with the robot
@@ -180,7 +200,7 @@ def open_simulation(plan: RunPlan, run: RobotRun, out: TextIO) -> int:
     if plan.simulator is not None and plan.sim_options is not None:
         assert isinstance(run.clock, SimClock)
         run.sim_run = plan.simulator.open(bus=run.bus, clock=run.clock,
-                                          options=plan.sim_options)
+                                          options=bodied(plan.sim_options, plan.robot))
         seed = run.sim_run.seed
         print(f"  {run.sim_run.describe()}", file=out)
     elif isinstance(run.clock, SimClock) and plan.follow_clock:
@@ -215,7 +235,7 @@ def _build_devices(plan: RunPlan, run: RobotRun, seed: int) -> list[Component]:
     """This process's devices, built through the plug-in registries (not started yet)."""
     context = DeviceContext(bus=run.bus, clock=run.clock, seed=seed,
                             simulation=run.sim_run.world if run.sim_run is not None else None,
-                            helper_processes=plan.helper_processes)
+                            helper_processes=plan.helper_processes, body=plan.robot.body)
     devices: list[Component] = []
     try:
         for device in plan.devices:

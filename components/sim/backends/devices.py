@@ -18,13 +18,14 @@ import math
 import os
 import threading
 import time
+import zlib
 from collections.abc import Callable
 from typing import Annotated, Any, Protocol, TypeVar
 
 import msgspec
 import numpy as np
 
-from components.camera.backend import CameraBackend
+from components.camera.backend import DEFAULT_MOUNT, CameraBackend, CameraMount
 from components.camera.seekcolor import SUBSAMPLE_STEP
 from components.encoders.backend import EncoderBackend
 from components.leds.backend import LedBackend
@@ -47,9 +48,9 @@ from ubf_async.errors import ConfigurationError
 __all__ = ["CAMERA_RNG_STREAM", "ENCODER_RNG_STREAM", "QUADRATURE_SEQUENCE", "RENDER_DELAY_ENV",
            "SIMULATOR", "SimAirRadioBackend", "SimCameraBackend", "SimEncoderBackend",
            "SimLedBackend", "SimMotorBackend", "SimRadioBackend", "SimRangeBackend", "WorldView",
-           "camera_backend", "edge_index", "encoders_backend", "insert_glitches", "leds_backend",
-           "motors_backend", "quadrature_states", "radio_air_backend", "radio_backend",
-           "range_backend", "render_delay_s"]
+           "camera_backend", "camera_stream", "edge_index", "encoders_backend", "insert_glitches",
+           "leds_backend", "motors_backend", "quadrature_states", "radio_air_backend",
+           "radio_backend", "range_backend", "render_delay_s"]
 
 
 class WorldView(Protocol):
@@ -78,6 +79,12 @@ class WorldView(Protocol):
 
 CAMERA_RNG_STREAM = 1
 ENCODER_RNG_STREAM = 2
+
+
+def camera_stream(name: str) -> int:
+    """The random stream of the camera device ``name`` other than ``front``: stable across
+    runs and processes (not Python's salted ``hash``), clear of the fixed streams."""
+    return 1000 + zlib.crc32(name.encode())
 
 QUADRATURE_SEQUENCE = np.array([0, 1, 3, 2], dtype=np.uint8)
 """2-bit states ``(A << 1) | B`` in the order a forward-turning wheel steps through them."""
@@ -140,10 +147,10 @@ def insert_glitches(
 class SimEncoderBackend(EncoderBackend):
     """Quadrature A/B phases from the simulated wheel angles.
 
-    Each wheel has ``MINI_WHEGS.edges_per_rev`` (4096) edges per revolution; ``read_phases``
-    turns the change in wheel angle since the previous call into the states the A/B lines
-    stepped through, optionally with seeded false edges (``glitch_probability`` per real edge).
-    The lines are in state 0 at wheel angle 0.
+    Each wheel has the body's ``edges_per_rev`` edges per revolution (the Mini-WHEGS's:
+    4096); ``read_phases`` turns the change in wheel angle since the previous call into the
+    states the A/B lines stepped through, optionally with seeded false edges
+    (``glitch_probability`` per real edge). The lines are in state 0 at wheel angle 0.
     """
 
     def __init__(
@@ -257,6 +264,15 @@ class SimCameraBackend(CameraBackend):
     @property
     def params(self) -> CameraParams:
         return self._params
+
+    def mount(self, mount: CameraMount) -> None:
+        """Render from the device's mount, through its lens, at its frame size. A camera
+        other than ``front`` draws its noise and bob from a stream of its own (so two
+        cameras of one robot do not share them); ``front`` keeps the stream it always had."""
+        with self._lock:
+            self._params = self._params.mounted(mount)
+            if mount.name != DEFAULT_MOUNT.name:
+                self._rng = self._world.make_rng(camera_stream(mount.name))
 
     @property
     def renderer(self) -> RenderProcess | None:

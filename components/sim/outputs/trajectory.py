@@ -60,11 +60,13 @@ def trajectory_sample(snap: WorldSnapshot, *, speed_cmd: float | None = None,
 
 
 def camera_to_ball(
-    x_m: float, y_m: float, heading_rad: float, ball_x_m: float, ball_y_m: float
+    x_m: float, y_m: float, heading_rad: float, ball_x_m: float, ball_y_m: float, *,
+    camera_x_m: float = CAMERA_OFFSET_M,
 ) -> tuple[float, float]:
-    """Distance (m) and bearing (deg, + left) from the robot's camera to the ball centre."""
-    cam_x = x_m + CAMERA_OFFSET_M * math.cos(heading_rad)
-    cam_y = y_m + CAMERA_OFFSET_M * math.sin(heading_rad)
+    """Distance (m) and bearing (deg, + left) from the robot's camera, ``camera_x_m`` ahead
+    of its centre, to the ball centre."""
+    cam_x = x_m + camera_x_m * math.cos(heading_rad)
+    cam_y = y_m + camera_x_m * math.sin(heading_rad)
     dx, dy = ball_x_m - cam_x, ball_y_m - cam_y
     bearing = math.atan2(dy, dx) - heading_rad
     bearing = (bearing + math.pi) % (2 * math.pi) - math.pi
@@ -104,7 +106,9 @@ class BallView:
     the share of samples it was in view, the robot faced it, it was too close, and of those
     too close the share the robot was backing away (the summary's ``ball_view``)."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, camera_x_m: float = CAMERA_OFFSET_M) -> None:
+        self.camera_x_m = camera_x_m
+        """Where the camera sits ahead of the robot's centre (the robot's body)."""
         self.samples = self.in_view = self.facing = self.close = self.backing = 0
         self.first_in_view_s: float | None = None
 
@@ -114,7 +118,7 @@ class BallView:
             return
         distance, bearing = camera_to_ball(sample.robot_x_m, sample.robot_y_m,
                                            sample.robot_heading_rad, sample.ball_x_m,
-                                           sample.ball_y_m)
+                                           sample.ball_y_m, camera_x_m=self.camera_x_m)
         if abs(bearing) <= CAMERA_HALF_FOV_DEG:
             self.in_view += 1
             if self.first_in_view_s is None:

@@ -1,8 +1,10 @@
-"""Render the Mini-WHEGS camera's view of a :class:`~components.sim.world.snapshot.WorldSnapshot`.
+"""Render a robot camera's view of a :class:`~components.sim.world.snapshot.WorldSnapshot`.
 
-A pinhole camera sits at the robot's front (``mount_x_m`` ahead of the body centre), 4 cm above
-the floor, looking forward and pitched up slightly, with the OV9655's 1280×1024 frame, ≈35°
-horizontal field of view and square pixels. The picture is painted back to front (painter's
+A pinhole camera (no lens distortion: a wide lens is rendered as an ideal rectilinear one) sits
+where its device's mount says (:meth:`CameraParams.mounted`); by default the Mini-WHEGS's: at
+the robot's front (``mount_x_m`` ahead of the body centre), 4 cm above the floor, looking
+forward and pitched up slightly, with the OV9655's 1280×1024 frame, ≈35° horizontal field of
+view and square pixels. The picture is painted back to front (painter's
 algorithm): a cached floor/backdrop, then walls (cut into short chunks), boxes and cylinders
 (shaded prisms) and spheres (the ball and ball-like distractors, shaded per pixel), each sorted
 by distance, and finally a little sensor noise from a pre-generated noise field shifted by a
@@ -37,20 +39,21 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
 import numpy as np
 
+from components.camera.backend import DEFAULT_MOUNT, CameraMount
 from components.sim.world.config import Color, Lighting, Wall
 from components.sim.world.snapshot import WorldSnapshot
 
 __all__ = ["DEFAULT_CAMERA", "FRAME_HEIGHT_PX", "FRAME_WIDTH_PX", "CameraParams",
            "auto_exposure_gain", "camera_pose", "render_camera", "warm_up"]
 
-FRAME_WIDTH_PX = 1280
-FRAME_HEIGHT_PX = 1024
+FRAME_WIDTH_PX = DEFAULT_MOUNT.width_px
+FRAME_HEIGHT_PX = DEFAULT_MOUNT.height_px
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -59,12 +62,14 @@ class CameraParams:
 
     width_px: int = FRAME_WIDTH_PX
     height_px: int = FRAME_HEIGHT_PX
-    hfov_deg: float = 35.0
-    mount_x_m: float = 0.05
+    hfov_deg: float = DEFAULT_MOUNT.hfov_deg
+    mount_x_m: float = DEFAULT_MOUNT.x_m
     """Camera position ahead of the robot's centre (robot frame)."""
-    mount_y_m: float = 0.0
-    height_m: float = 0.04
-    pitch_deg: float = 7.0
+    mount_y_m: float = DEFAULT_MOUNT.y_m
+    height_m: float = DEFAULT_MOUNT.z_m
+    yaw_deg: float = DEFAULT_MOUNT.yaw_deg
+    """Where the optical axis points, + to the left of the robot's heading."""
+    pitch_deg: float = DEFAULT_MOUNT.pitch_deg
     """Upward tilt of the optical axis; puts the bottom of the view at ≈-7.2°, where a ball
     resting on the floor ≈31 cm ahead starts to leave the frame."""
     near_m: float = 0.01
@@ -146,6 +151,13 @@ class CameraParams:
         if self.cylinder_sides < 3 or self.wall_chunk_m <= 0.0 or self.max_sphere_samples < 1:
             raise ValueError("cylinder_sides >= 3, wall_chunk_m > 0, max_sphere_samples >= 1")
 
+    def mounted(self, mount: CameraMount) -> CameraParams:
+        """These parameters with a camera device's mount, lens and frame."""
+        return replace(self, mount_x_m=mount.x_m, mount_y_m=mount.y_m, height_m=mount.z_m,
+                       yaw_deg=mount.yaw_deg, pitch_deg=mount.pitch_deg,
+                       hfov_deg=mount.hfov_deg, width_px=mount.width_px,
+                       height_px=mount.height_px)
+
     @property
     def focal_px(self) -> float:
         """Focal length in pixels (square pixels: same in x and y)."""
@@ -195,6 +207,9 @@ def camera_pose(
             params.height_m,
         ]
     )
+    if params.yaw_deg:  # a camera turned on its mount looks off the robot's heading
+        look = r.heading_rad + math.radians(params.yaw_deg)
+        c, s = math.cos(look), math.sin(look)
     fwd = np.array([c, s, 0.0])
     left = np.array([-s, c, 0.0])
     up = np.array([0.0, 0.0, 1.0])

@@ -49,6 +49,7 @@ from components.sim.outputs.trajectory import (
 from components.sim.runner.disturbances import HeadingAudit
 from components.sim.runner.stepper import RTF_WINDOW_S, SimulatorComponent
 from components.sim.scenarios.scenario import Scenario, load_scenario
+from components.sim.world.config import RobotConfig
 from components.sim.world.physics import World, wrap_angle
 from components.sim.world.snapshot import WorldSnapshot
 from ubf_async import __version__
@@ -158,6 +159,9 @@ class SimulationRun:
         config = self.scenario.world
         if options.seed is not None:
             config = replace(config, seed=options.seed)
+        if options.body is not None:  # the robot file's body (the default: the Mini-WHEGS)
+            config = replace(config, robot=RobotConfig.from_body(
+                options.body, camera_x_m=options.camera_x_m))
         self._world = World(config)
         self.scenario.install(self._world)
         self.simulator = SimulatorComponent(
@@ -165,7 +169,7 @@ class SimulationRun:
             lockstep_participants=options.lockstep_participants)
         self.devices: list[Component] = []
         self.trajectory_buffer = TrajectoryBuffer()
-        self.ball_view = BallView()
+        self.ball_view = BallView(camera_x_m=config.robot.camera_x_m)
         self._every_sample: list[TrajectorySample] | None = (
             [] if options.keep_trajectory else None)
         self.frames: deque[Path] = deque(maxlen=LISTED_FRAMES)
@@ -535,14 +539,16 @@ class SimulationRun:
         out["odometry"] = self.odometry_summary()
         if snap.ball is not None:
             distance, bearing = camera_to_ball(robot.x_m, robot.y_m, robot.heading_rad,
-                                               snap.ball.x_m, snap.ball.y_m)
+                                               snap.ball.x_m, snap.ball.y_m,
+                                               camera_x_m=self.world.config.robot.camera_x_m)
             out["ball"] = {"x_m": snap.ball.x_m, "y_m": snap.ball.y_m}
             out["ball_distance_m"] = distance
             out["ball_bearing_deg"] = bearing
         out["distractors"] = {}
         for name, d in zip(self.scenario.distractor_names, snap.distractors, strict=False):
             distance, bearing = camera_to_ball(robot.x_m, robot.y_m, robot.heading_rad,
-                                               d.x_m, d.y_m)
+                                               d.x_m, d.y_m,
+                                               camera_x_m=self.world.config.robot.camera_x_m)
             out["distractors"][name] = {"x_m": d.x_m, "y_m": d.y_m, "distance_m": distance,
                                         "bearing_deg": bearing}
         won = out["ticks"].get("winner_share") or {}

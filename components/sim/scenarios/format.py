@@ -56,6 +56,15 @@ class PositionSpec(Spec):
     y_m: Metres
 
 
+class BallSpec(Spec):
+    what: ClassVar[str] = "`ball`"
+
+    x_m: Metres
+    y_m: Metres
+    radius_m: Annotated[float, msgspec.Meta(ge=0.01, le=0.5)] = BALL_DIAMETER_M / 2
+    """The thesis's ball is 6.5 cm across; a scenario for a larger robot may size it up."""
+
+
 class ArenaSpec(Spec):
     what: ClassVar[str] = "`arena`"
 
@@ -228,7 +237,7 @@ class ScenarioFile(Spec):
     seed: int = 0
     duration_s: Duration = 30.0
     robot: StartSpec = msgspec.field(default_factory=StartSpec)
-    ball: PositionSpec | None = None
+    ball: BallSpec | None = None
     arena: ArenaSpec | None = None
     walls: list[WallSpec] = msgspec.field(default_factory=list)
     obstacles: list[ObstacleSpec] = msgspec.field(default_factory=list)

@@ -57,6 +57,7 @@ from components.sim.scenarios.format import (
     WaveSpec,
 )
 from components.sim.world.config import (
+    CAMERA_X_M,
     Arena,
     BallConfig,
     BoxObstacle,
@@ -81,8 +82,9 @@ __all__ = ["BallScript", "BallStep", "LightingChange", "ObjectScript", "Push", "
            "ScenarioError", "builtin_names", "decode_scenario", "load_scenario",
            "parse_scenario"]
 
-CAMERA_OFFSET_M = 0.05
-"""The camera sits this far ahead of the robot's centre (see camera_render.CameraParams)."""
+CAMERA_OFFSET_M = CAMERA_X_M
+"""The Mini-WHEGS's camera sits this far ahead of its centre (another body's:
+``RobotConfig.camera_x_m``)."""
 HIDDEN_AT = (50.0, 50.0)
 """Where a hidden ball waits: far outside any arena, behind its walls."""
 BUILTIN_DIR = "files"
@@ -222,8 +224,9 @@ class _DistractorMover(_Mover):
 
 def _camera_pose(world: World) -> tuple[float, float, float]:
     robot = world.snapshot().robot
-    return (robot.x_m + CAMERA_OFFSET_M * math.cos(robot.heading_rad),
-            robot.y_m + CAMERA_OFFSET_M * math.sin(robot.heading_rad), robot.heading_rad)
+    ahead = world.config.robot.camera_x_m  # the robot's first camera
+    return (robot.x_m + ahead * math.cos(robot.heading_rad),
+            robot.y_m + ahead * math.sin(robot.heading_rad), robot.heading_rad)
 
 
 def _from_camera(world: World, distance_m: float, bearing_deg: float) -> tuple[float, float]:
@@ -462,7 +465,8 @@ def _world(spec: ScenarioFile, scripted: Collection[str], names: Sequence[str],
         return WorldConfig(
             robot_start=WorldPose(x_m=r.x_m, y_m=r.y_m, heading_rad=math.radians(r.heading_deg)),
             ball=None if spec.ball is None else BallConfig(x_m=spec.ball.x_m,
-                                                           y_m=spec.ball.y_m),
+                                                           y_m=spec.ball.y_m,
+                                                           radius_m=spec.ball.radius_m),
             arena=None if a is None else Arena(x_min_m=a.x_min_m, y_min_m=a.y_min_m,
                                                x_max_m=a.x_max_m, y_max_m=a.y_max_m),
             walls=tuple(Wall(x1_m=w.x1_m, y1_m=w.y1_m, x2_m=w.x2_m, y2_m=w.y2_m)
@@ -658,8 +662,9 @@ def _script_targets(world: WorldConfig, scripts: list[tuple[int, tuple[BallStep,
     radius_of = {-1: world.ball.radius_m if world.ball is not None else 0.0}
     radius_of.update({i: d.radius_m for i, d in enumerate(world.distractors)})
     start = world.robot_start
-    cam_x = start.x_m + CAMERA_OFFSET_M * math.cos(start.heading_rad)
-    cam_y = start.y_m + CAMERA_OFFSET_M * math.sin(start.heading_rad)
+    ahead = world.robot.camera_x_m
+    cam_x = start.x_m + ahead * math.cos(start.heading_rad)
+    cam_y = start.y_m + ahead * math.sin(start.heading_rad)
     for index, steps in scripts:
         base: Path_ = ("ball_script",) if index == -1 else ("scripts", name_of(index))
         label = "ball_script" if index == -1 else f"scripts.{name_of(index)}"

@@ -17,12 +17,13 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from components.miniwhegs import MINI_WHEGS, MiniWhegsGeometry
-from components.motors.pwm import LEFT_MOTOR, RIGHT_MOTOR, MotorCharacteristic
+from components.motors.pwm import LEFT_MOTOR, RIGHT_MOTOR, MotorCharacteristic, characteristic_of
+from ubf_async.assembly.body import DEFAULT_BODY, BodySpec
 
-__all__ = ["BALL_DIAMETER_M", "BALL_PINK", "BOX_COLOR", "ORANGE", "WALL_COLOR", "Arena",
-           "BallConfig", "BoxObstacle", "Color", "Distractor", "DistractorKind", "Lighting",
-           "RobotConfig", "Wall", "WorldConfig", "WorldPose", "box_corners", "require_finite",
-           "require_positive"]
+__all__ = ["BALL_DIAMETER_M", "BALL_PINK", "BOX_COLOR", "CAMERA_X_M", "ORANGE", "WALL_COLOR",
+           "Arena", "BallConfig", "BoxObstacle", "Color", "Distractor", "DistractorKind",
+           "Lighting", "RobotConfig", "Wall", "WorldConfig", "WorldPose", "box_corners",
+           "require_finite", "require_positive"]
 
 Color = tuple[int, int, int]
 """An 8-bit RGB colour."""
@@ -218,16 +219,32 @@ class Lighting:
             raise ValueError(f"glare must be >= 0, got {self.glare!r}")
 
 
+CAMERA_X_M = 0.05
+"""Where the Mini-WHEGS's camera sits ahead of its centre (the camera device's default)."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RobotConfig:
-    """Mechanical and ground-contact model of the Mini-WHEGS."""
+    """Mechanical and ground-contact model of a robot: by default the Mini-WHEGS; any body a
+    robot file declares through :meth:`from_body`."""
 
     geometry: MiniWhegsGeometry = MINI_WHEGS
-    wheelbase_m: float = 0.06
-    """Distance between the front and rear wheel-leg contacts of a side."""
+    wheelbase_m: float = DEFAULT_BODY.wheelbase_m
+    """Skid steering: distance between the front and rear wheel-leg contacts of a side."""
+    drive: Literal["skid-steer", "differential"] = DEFAULT_BODY.drive
+    """``skid-steer``: four wheel-leg contacts (the Mini-WHEGS); ``differential``: two drive
+    wheels on an axle at ``axle_x_m`` and a free caster at ``caster_x_m``, which carries its
+    share of the weight and no horizontal force."""
+    axle_x_m: float = DEFAULT_BODY.axle_x_m
+    caster_x_m: float | None = DEFAULT_BODY.caster_x_m
+    height_m: float = DEFAULT_BODY.height_m
+    """The shell's height, as other robots' cameras and range finders see it."""
+    camera_x_m: float = CAMERA_X_M
+    """Where the robot's (first) camera sits ahead of its centre: scenarios place objects
+    "from the camera", and the summary measures the ball's distance from it."""
     left_motor: MotorCharacteristic = LEFT_MOTOR
     right_motor: MotorCharacteristic = RIGHT_MOTOR
-    motor_time_constant_s: float = 0.05
+    motor_time_constant_s: float = DEFAULT_BODY.motor_time_constant_s
     """First-order lag of the wheel speed behind the motor's target speed."""
     mu_longitudinal: float = 0.8
     """Friction coefficient along the body: a contact pushes with at most ``μ·m·g/4`` (so
@@ -258,10 +275,40 @@ class RobotConfig:
             lateral_slip_m_s=self.lateral_slip_m_s,
         )
 
+    @classmethod
+    def from_body(cls, body: BodySpec, *, camera_x_m: float | None = None) -> RobotConfig:
+        """The model of a robot file's ``body`` (the ground contact's defaults kept), its
+        first camera ``camera_x_m`` ahead of its centre (``None``: the Mini-WHEGS's)."""
+        return cls(geometry=MiniWhegsGeometry.of(body), wheelbase_m=body.wheelbase_m,
+                   drive=body.drive, axle_x_m=body.axle_x_m, caster_x_m=body.caster_x_m,
+                   height_m=body.height_m,
+                   camera_x_m=CAMERA_X_M if camera_x_m is None else camera_x_m,
+                   left_motor=characteristic_of(body.motors.left),
+                   right_motor=characteristic_of(body.motors.right),
+                   motor_time_constant_s=body.motor_time_constant_s)
+
+    def wheel_contacts(self, weight_n: float) -> tuple[tuple[float, float, int, float], ...]:
+        """Where the drive touches the floor: ``(x, y, side, load)`` per contact in the body
+        frame (side 0 = left, +y), the load its share of ``weight_n``. Skid steering: four
+        wheel-legs with a quarter each; differential: the two wheels share what the caster
+        does not carry (lever rule about the centre)."""
+        half_track = self.geometry.track_width_m / 2
+        if self.drive == "differential" and self.caster_x_m is not None:
+            x, caster = self.axle_x_m, self.caster_x_m
+            share = weight_n * (-caster / (x - caster)) / 2
+            return ((x, half_track, 0, share), (x, -half_track, 1, share))
+        half_base = self.wheelbase_m / 2
+        share = weight_n / 4
+        return ((half_base, half_track, 0, share), (-half_base, half_track, 0, share),
+                (half_base, -half_track, 1, share), (-half_base, -half_track, 1, share))
+
     @property
     def yaw_fraction(self) -> float:
         """κ: the steady yaw rate as a fraction of the kinematic ``(v_R − v_L)/track`` that the
-        linearised contact model predicts (see :mod:`components.sim.world.physics`)."""
+        linearised contact model predicts (see :mod:`components.sim.world.physics`); 1 for a
+        differential drive, whose wheels need not slide sideways to turn."""
+        if self.drive == "differential":
+            return 1.0
         a2 = (self.wheelbase_m / 2) ** 2
         b2 = (self.geometry.track_width_m / 2) ** 2
         c_long = self.mu_longitudinal / self.longitudinal_slip_m_s

@@ -10,6 +10,10 @@ forces this module computes itself every substep:
   characteristic (:func:`components.motors.pwm.wheel_speed_rad_s`); the wheel follows the target
   with a first-order lag. The encoders see the wheel, not the ground, so slip is invisible to
   them.
+* Any other body a robot file declares (:meth:`~components.sim.world.config.RobotConfig.from_body`)
+  is built the same way from its numbers; a *differential* drive stands on two wheel contacts
+  on its axle (their share of the weight by the lever rule) and a caster that carries the rest
+  and no horizontal force, so it turns about the axle without sliding sideways.
 * Ground contact (skid steering). Each contact slides over the floor with a slip velocity: along
   the body, the ground speed of the contact point minus the wheel-leg's surface speed ``ω·r``;
   across it, the contact point's sideways speed. The floor answers with one Coulomb friction
@@ -88,13 +92,11 @@ from components.sim.world.config import (
 )
 from components.sim.world.snapshot import BallState, DistractorState, RobotState, WorldSnapshot
 
-__all__ = ["PUSH_LABEL", "ROBOT_COLOR", "ROBOT_HEIGHT_M", "RobotView", "StepHook", "World",
+__all__ = ["PUSH_LABEL", "ROBOT_COLOR", "RobotView", "StepHook", "World",
            "wrap_angle"]
 
 ROBOT_COLOR: Color = (70, 72, 86)
 """The Mini-WHEGS's dark shell, as other robots' cameras see it."""
-ROBOT_HEIGHT_M = 0.05
-"""The height of the dark box other robots' cameras and range finders see for a robot."""
 
 PUSH_LABEL = "push"
 """What :meth:`World.contacts` calls a hand's push (:meth:`World.shift_robot`)."""
@@ -196,19 +198,11 @@ class World:
     def _set_wheel_contacts(self, cfg: WorldConfig) -> None:
         """The wheel-leg contacts and the friction they can carry (:meth:`_wheel_forces`)."""
         rc = cfg.robot
-        geo = rc.geometry
-        half_track = geo.track_width_m / 2
-        half_base = rc.wheelbase_m / 2
-        # Wheel-leg contacts (x, y, side) in the body frame; side 0 = left (+y), 1 = right.
-        self._contacts = (
-            (half_base, half_track, 0),
-            (-half_base, half_track, 0),
-            (half_base, -half_track, 1),
-            (-half_base, -half_track, 1),
-        )
-        weight_share = geo.mass_kg * cfg.gravity_m_s2 / 4
-        self._cap_long = rc.mu_longitudinal * weight_share
-        self._cap_lat = rc.mu_lateral * weight_share
+        # Wheel contacts (x, y, side, friction caps along and across) in the body frame;
+        # side 0 = left (+y), 1 = right. A caster carries weight and no force: not listed.
+        self._contacts = tuple(
+            (x, y, side, rc.mu_longitudinal * load, rc.mu_lateral * load)
+            for x, y, side, load in rc.wheel_contacts(rc.geometry.mass_kg * cfg.gravity_m_s2))
         self._inv_slip_long = 1.0 / rc.longitudinal_slip_m_s
         self._inv_slip_lat = 1.0 / rc.lateral_slip_m_s
         self._motors = (rc.left_motor, rc.right_motor)
@@ -501,11 +495,10 @@ class World:
         omega = body.angular_velocity
         vxb = c * vx + s * vy
         vyb = -s * vx + c * vy
-        cap_long, cap_lat = self._cap_long, self._cap_lat
         inv_long, inv_lat = self._inv_slip_long, self._inv_slip_lat
         fx_sum = fy_sum = torque = 0.0
         kx_sum = ky_sum = kw_sum = 0.0  # force (torque) per unit slip, for the implicit step
-        for ax, ay, side in self._contacts:
+        for ax, ay, side, cap_long, cap_lat in self._contacts:
             # Slip in units of the slip that mobilises full friction in each direction.
             sx = (vxb - omega * ay - surface[side]) * inv_long
             sy = (vyb + omega * ax) * inv_lat
@@ -637,7 +630,7 @@ class World:
                 distractors.append(DistractorState(
                     kind="box", x_m=float(ox), y_m=float(oy), yaw_rad=float(other.body.angle),
                     radius_m=geo.width_m / 2, length_m=geo.length_m, width_m=geo.width_m,
-                    height_m=ROBOT_HEIGHT_M, color=ROBOT_COLOR))
+                    height_m=cfg.robot.height_m, color=ROBOT_COLOR))
         return WorldSnapshot(
             time_s=self._time_ns / 1e9,
             step_count=self._step_count,
