@@ -168,7 +168,7 @@ def init_fleet(directory: Path, *, name: str, robots: Sequence[str], source: str
 def revoke(directory: Path, name: str) -> SecureSetup:
     """Remove identity ``name`` from the set-up at ``directory``: its ACL made again for the
     identities left, its password and its files gone
-    (:func:`ubf_async.net.secure.revoke`). Restart the robot. Raises
+    (:func:`ubf_async.net.secure.revoke`); a running robot re-opens its session. Raises
     :class:`ConfigurationError`."""
     setup = SecureSetup.load(directory)
     left = [i for i in setup.identities.values() if i.name != name]

@@ -65,9 +65,10 @@ if TYPE_CHECKING:
 __all__ = ["ACL", "ALL_MESSAGES", "BUILTIN", "CA_CERT", "CA_KEY", "DEFAULT_HOSTS", "FLEET_BUILTIN",
            "FORMAT", "IDENTITIES", "INIT_HINT", "INSPECTOR", "LISTENERS", "MANIFEST", "OPEN",
            "OPERATOR", "PASSWORDS", "PRIVATE", "READ_MESSAGES", "REISSUE", "ROBOT",
-           "ROS2_IDENTITIES", "Grant", "Identity", "IdentityRights", "Rights", "Rule",
-           "SecureSetup", "apply", "create", "diagnose", "export", "identity_file", "override",
-           "revoke", "rotate", "settings", "zenoh_access_control"]
+           "ROS2_IDENTITIES", "WATCHED", "Grant", "Identity", "IdentityRights", "Rights", "Rule",
+           "SecureSetup", "apply", "changes", "create", "diagnose", "export", "fingerprint",
+           "identity_file", "override", "passwords_of", "revoke", "rotate", "settings",
+           "zenoh_access_control"]
 
 FORMAT = 2
 ROBOT = "robot"
@@ -378,7 +379,8 @@ def rotate(directory: Path, name: str, *, hosts: Sequence[str] = (),
     """Issue identity ``name`` a new key, certificate and password, leaving every other
     identity as it is (and the access control: the identities are the same); for a listener
     ``hosts`` replace the names its certificate carries. The robot reads its password
-    dictionary when it starts: restart it. Raises :class:`ConfigurationError`."""
+    dictionary when its session opens: a running robot re-opens it when the files change
+    (:class:`ubf_async.services.setupwatch.SetupWatch`). Raises :class:`ConfigurationError`."""
     from ubf_async.net import pki
 
     setup = SecureSetup.load(directory)
@@ -400,7 +402,8 @@ def revoke(directory: Path, name: str, *, grants: Sequence[Grant]) -> SecureSetu
     """Remove identity ``name``: from the ACL (now ``grants``, those of the identities left:
     :func:`ubf_async.access.setup.revoke` makes them, and is what to call), from the password
     dictionary (so the robot refuses its session even with its still-valid certificate), and
-    its files. The robot reads both when it starts: restart it. Raises
+    its files. The robot reads both when its session opens: a running robot re-opens it when
+    the files change (:class:`ubf_async.services.setupwatch.SetupWatch`). Raises
     :class:`ConfigurationError`."""
     setup = SecureSetup.load(directory)
     setup.identity(name)
@@ -417,6 +420,44 @@ def revoke(directory: Path, name: str, *, grants: Sequence[Grant]) -> SecureSetu
     for suffix in (".json", ".pem", ".key"):
         setup.identity_file(name, suffix).unlink(missing_ok=True)
     return setup
+
+
+WATCHED = (MANIFEST, PASSWORDS, ACL, CA_CERT)
+"""The set-up's files a running robot reads again when they change (with its own identity's):
+what ``rotate`` and ``revoke`` write."""
+
+
+def fingerprint(directory: Path, identity: str = ROBOT) -> bytes:
+    """What the robot's session is opened from, as bytes that change when any of it changes
+    (:data:`WATCHED`, and ``identity``'s certificate and key): a robot compares it to know
+    when to re-open its session (``launch`` in secure mode, docs/security.md)."""
+    parts = []
+    for path in [*(directory / name for name in WATCHED),
+                 *(directory / IDENTITIES / f"{identity}{suffix}" for suffix in (".pem", ".key"))]:
+        try:
+            parts.append(path.read_bytes())
+        except OSError:  # gone (mid-rewrite): changed
+            parts.append(b"\0missing")
+    return b"\0\0".join(parts)
+
+
+def changes(before: Mapping[str, str], after: Mapping[str, str]) -> str:
+    """What happened between two password dictionaries (:func:`passwords_of`), in a user's
+    words: ``revoked avoid_obstacles; rotated teleop``."""
+    revoked = sorted(set(before) - set(after))
+    rotated = sorted(n for n in set(before) & set(after) if before[n] != after[n])
+    added = sorted(set(after) - set(before))
+    said = [f"{what} {', '.join(names)}" for what, names in
+            (("revoked", revoked), ("rotated", rotated), ("added", added)) if names]
+    return "; ".join(said) or "the files changed"
+
+
+def passwords_of(directory: Path) -> dict[str, str]:
+    """The set-up's password dictionary (identity → password); empty where it cannot be read."""
+    try:
+        return _passwords(SecureSetup(directory=directory, robot=""))
+    except OSError:
+        return {}
 
 
 def export(directory: Path, names: Sequence[str], output: Path) -> list[str]:

@@ -64,6 +64,21 @@ def probe(host: str, port: int, *, ca: Path | None, cert: Path | None = None,
         context.load_verify_locations(cafile=str(ca))
     if cert is not None and key is not None:
         context.load_cert_chain(str(cert), str(key))
+    finding = _shake_hands(host, port, context, verify=ca is not None, timeout_s=timeout_s)
+    if finding is _SLOW:  # a busy host's robot, most likely: give it longer, once
+        finding = _shake_hands(host, port, context, verify=ca is not None,
+                               timeout_s=SLOW_TIMEOUT_S)
+    return None if finding is None else (
+        Finding("no-tls", "no answer to the handshake") if finding is _SLOW else finding)
+
+
+SLOW_TIMEOUT_S = 5.0
+"""The second try's wait for a handshake that got no answer within :data:`PROBE_TIMEOUT_S`."""
+_SLOW = Finding("slow")
+
+
+def _shake_hands(host: str, port: int, context: ssl.SSLContext, *, verify: bool,
+                 timeout_s: float) -> Finding | None:
     try:
         raw = socket.create_connection((host, port), timeout=timeout_s)
     except OSError:
@@ -75,10 +90,12 @@ def probe(host: str, port: int, *, ca: Path | None, cert: Path | None = None,
             return Finding(_server_refused(exc.verify_code), exc.verify_message)
         except ssl.SSLError as exc:
             return Finding(_client_refused(exc) or "no-tls", exc.reason or str(exc))
+        except TimeoutError:  # no answer yet: not proof that it does not speak TLS
+            return _SLOW
         except OSError as exc:  # closed before any TLS: not a TLS listener
             return Finding("no-tls", str(exc) or type(exc).__name__)
         with tls:
-            if ca is None:
+            if not verify:
                 return Finding("tls-speaks")
             try:
                 tls.recv(1)  # the robot's verdict on this certificate comes as an alert

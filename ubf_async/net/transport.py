@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import json
 import threading
 import time
 from collections.abc import Callable, Collection
@@ -33,7 +34,7 @@ from typing import Any, NamedTuple, Protocol
 
 import zenoh
 
-from ubf_async.errors import ConfigurationError, NoRobotError
+from ubf_async.errors import ConfigurationError, NoRobotError, SessionError
 from ubf_async.net.connectwatch import watch_connect_endpoints
 from ubf_async.net.options import ConnectionOptions, bind_free_ports, refused_error, session_error
 
@@ -212,37 +213,106 @@ class Transport(Protocol):
 # zenoh
 
 
-class _ZenohDeclaration:
-    def __init__(self, entity: Any) -> None:
-        self._entity = entity
+class _Redeclared:
+    """A declaration a :class:`ZenohConnection` can make again on another session
+    (:meth:`ZenohConnection.reopen`): ``declare(session)`` makes its zenoh entity."""
+
+    def __init__(self, connection: ZenohConnection,
+                 declare: Callable[[zenoh.Session], Any]) -> None:
+        self._connection = connection
+        self._declare = declare
+        self._entity = declare(connection.session)
+        connection.live.add(self)
+
+    def pause(self) -> None:
+        """The session is about to close: nothing may be sent until :meth:`rebind`."""
+
+    def rebind(self, session: zenoh.Session) -> None:
+        """Declare it again on ``session`` (the old entity went with the old session)."""
+        self._entity = self._declare(session)
 
     def undeclare(self) -> None:
+        self._connection.live.discard(self)
         with contextlib.suppress(zenoh.ZError):  # already undeclared, or the session closed
             self._entity.undeclare()
 
 
-class _ZenohKeyDeclaration:
-    def __init__(self, session: zenoh.Session, key_expr: zenoh.KeyExpr) -> None:
-        self._session: zenoh.Session | None = session
-        self._key_expr = key_expr
+class _ZenohDeclaration(_Redeclared):
+    pass
+
+
+class _ZenohLivelinessSubscriber(_Redeclared):
+    """A liveliness subscriber that, across a :meth:`~ZenohConnection.reopen`, says every
+    token it had seen vanish (every link went with the old session: the remote ones did), then
+    hears the tokens alive on the new session (``history``) again."""
+
+    def __init__(self, connection: ZenohConnection, key_expr: str,
+                 callback: LivelinessCallback) -> None:
+        self._alive: set[str] = set()
+        self._callback = callback
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            key, alive = str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT
+            (self._alive.add if alive else self._alive.discard)(key)
+            callback(key, alive)
+
+        super().__init__(connection, lambda session: session.liveliness().declare_subscriber(
+            key_expr, connection.handler(on_sample), history=True))
+
+    def rebind(self, session: zenoh.Session) -> None:
+        for key in sorted(self._alive):
+            self._callback(key, False)
+        self._alive.clear()
+        super().rebind(session)
+
+
+class _ZenohKeyDeclaration(_Redeclared):
+    def __init__(self, connection: ZenohConnection, key: str) -> None:
+        self._session: zenoh.Session | None = None
+
+        def declare(session: zenoh.Session) -> Any:
+            self._session = session
+            return session.declare_keyexpr(key)
+
+        super().__init__(connection, declare)
 
     def undeclare(self) -> None:
+        self._connection.live.discard(self)
         session, self._session = self._session, None
         if session is not None:
             with contextlib.suppress(zenoh.ZError):  # the session closed (and took it along)
-                session.undeclare(self._key_expr)
+                session.undeclare(self._entity)
 
 
-class _ZenohPublisher:
-    def __init__(self, publisher: zenoh.Publisher) -> None:
-        self._publisher = publisher
-        self.put: Callable[[bytes], None] = publisher.put
-        """zenoh's own ``put``, bound once: no extra call on the hot path."""
+def _not_sent(payload: bytes, **_: Any) -> None:
+    """A publisher's ``put`` while its session is being re-opened: there is nowhere to send."""
+
+
+class _ZenohPublisher(_Redeclared):
+    def __init__(self, connection: ZenohConnection, key: str) -> None:
+        self._send: Callable[[bytes], None] = _not_sent
+        """zenoh's own ``put`` of the publisher on the current session (bound again by a
+        :meth:`~ZenohConnection.reopen`; nothing while the session is swapped)."""
         self._matching = False
         """Kept by a matching listener: asking zenoh (``matching_status``) costs ≈ 45 µs on an
         idle 2-core host, and the controller asks on every tick (its trace's subscribers)."""
         self.listener: Any = None
         """Its matching listener, undeclared with it."""
+
+        def declare(session: zenoh.Session) -> Any:
+            publisher = session.declare_publisher(key)
+            # On zenoh's thread: it only stores a bool (no Python thread for each publisher).
+            self.listener = publisher.declare_matching_listener(
+                connection.handler(self.matched, on_zenoh_thread=True))
+            connection.listeners.append(self.listener)
+            self._send = publisher.put
+            return publisher
+
+        super().__init__(connection, declare)
+
+    def put(self, payload: bytes) -> None:
+        # (callers bind this method once; it follows the session through a reopen)
+        self._send(payload)
 
     def matched(self, status: zenoh.MatchingStatus) -> None:
         """The matching listener's callback (zenoh calls it at once with the current status,
@@ -252,23 +322,34 @@ class _ZenohPublisher:
     def has_remote_subscribers(self) -> bool:
         return self._matching
 
+    def pause(self) -> None:
+        self._send = _not_sent
+        self._matching = False
+
     def undeclare(self) -> None:
+        self._connection.live.discard(self)
         with contextlib.suppress(zenoh.ZError):
             if self.listener is not None:
                 self.listener.undeclare()
-            self._publisher.undeclare()
+            self._entity.undeclare()
 
 
-class _ZenohAttachmentPublisher:
-    def __init__(self, publisher: zenoh.Publisher) -> None:
-        self._publisher = publisher
+class _ZenohAttachmentPublisher(_Redeclared):
+    def __init__(self, connection: ZenohConnection, key: str, encoding: str | None) -> None:
+        self._paused = False
+        super().__init__(connection, lambda session: session.declare_publisher(
+            key, encoding=None if encoding is None else zenoh.Encoding(encoding)))
 
     def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
-        self._publisher.put(payload, attachment=attachment)
+        if not self._paused:
+            self._entity.put(payload, attachment=attachment)
 
-    def undeclare(self) -> None:
-        with contextlib.suppress(zenoh.ZError):
-            self._publisher.undeclare()
+    def pause(self) -> None:
+        self._paused = True
+
+    def rebind(self, session: zenoh.Session) -> None:
+        super().rebind(session)
+        self._paused = False
 
 
 class _ZenohQuery:
@@ -293,21 +374,24 @@ class _ZenohQuery:
             self._query.drop()
 
 
-class _ZenohCallbackDeclaration:
+class _ZenohCallbackDeclaration(_Redeclared):
     """A declaration with its callback's end to wait for (:meth:`aclose`)."""
 
-    def __init__(self, entity: Any, end: CallbackEnd) -> None:
-        self._entity = entity
-        self._end = end
+    def __init__(self, connection: ZenohConnection,
+                 declare: Callable[[zenoh.Session], tuple[Any, CallbackEnd]]) -> None:
+        self._end: CallbackEnd | None = None
 
-    def undeclare(self) -> None:
-        with contextlib.suppress(zenoh.ZError):
-            self._entity.undeclare()
+        def declared(session: zenoh.Session) -> Any:
+            entity, self._end = declare(session)
+            return entity
+
+        super().__init__(connection, declared)
 
     async def aclose(self) -> None:
         self.undeclare()
-        if not self._end.dropped.is_set():
-            await asyncio.to_thread(self._end.wait, time.monotonic() + CALLBACK_END_WAIT_S)
+        end = self._end
+        if end is not None and not end.dropped.is_set():
+            await asyncio.to_thread(end.wait, time.monotonic() + CALLBACK_END_WAIT_S)
 
 
 CALLBACK_END_WAIT_S = 2.0
@@ -380,12 +464,19 @@ class ZenohConnection:
         self.connect_watch: asyncio.Task[None] | None = None
         """The watch of a peer's ``connect`` endpoints (:class:`ZenohTransport`), cancelled
         on :meth:`aclose`."""
-        self._link_listener: Any = None
-        self._listeners: list[Any] = []
-        """Each publisher's matching listener (undeclared before the session closes)."""
+        self.listeners: list[Any] = []
+        """Each publisher's matching listener and the link listener (undeclared before the
+        session closes)."""
+        self.live: set[_Redeclared] = set()
+        """Every declaration not undeclared yet: what :meth:`reopen` declares again."""
+        self._lock = threading.RLock()
+        """Held while declaring, and through a :meth:`reopen`: a declaration made meanwhile
+        waits for the new session (a fraction of a second, only when the set-up changed)."""
 
-    def _handler(self, callback: Callable[[Any], None], *,
-                 on_zenoh_thread: bool | None = None) -> Any:
+    def handler(self, callback: Callable[[Any], None], *,
+                on_zenoh_thread: bool | None = None) -> Any:
+        """A zenoh handler for ``callback`` (:class:`CallbackEnd`), its end kept for
+        :meth:`aclose`."""
         self._callback_ends = [e for e in self._callback_ends if not e.finished()]
         handler, end = CallbackEnd.handler(
             callback, on_zenoh_thread=self.ordered if on_zenoh_thread is None else on_zenoh_thread)
@@ -393,20 +484,16 @@ class ZenohConnection:
         return handler
 
     def declare_publisher(self, key: str) -> OutgoingPublisher:
-        publisher = self.session.declare_publisher(key)
-        out = _ZenohPublisher(publisher)
-        # On zenoh's thread: it only stores a bool (no Python thread for each publisher).
-        out.listener = publisher.declare_matching_listener(
-            self._handler(out.matched, on_zenoh_thread=True))
-        self._listeners.append(out.listener)
-        return out
+        with self._lock:
+            return _ZenohPublisher(self, key)
 
     def declare_subscriber(self, key_expr: str, callback: SampleCallback) -> Declaration:
         def on_sample(sample: zenoh.Sample) -> None:
             callback(str(sample.key_expr), sample.payload.to_bytes())
 
-        return _ZenohDeclaration(self.session.declare_subscriber(
-            key_expr, self._handler(on_sample), allowed_origin=zenoh.Locality.REMOTE))
+        with self._lock:
+            return _ZenohDeclaration(self, lambda session: session.declare_subscriber(
+                key_expr, self.handler(on_sample), allowed_origin=zenoh.Locality.REMOTE))
 
     def declare_key(self, key: str) -> Declaration:
         # A peer sends a sample on a key this session declared under the declaration's id,
@@ -414,19 +501,19 @@ class ZenohConnection:
         # Any other sample (a wildcard subscriber's, as the aggregator's) comes as a key string
         # that the session parses and matches against each of its subscribers on every
         # delivery: 20-45 us more on the reflex path of a 2-core host (docs/latency.md).
-        return _ZenohKeyDeclaration(self.session, self.session.declare_keyexpr(key))
+        with self._lock:
+            return _ZenohKeyDeclaration(self, key)
 
     def declare_token(self, key: str) -> Declaration:
-        return _ZenohDeclaration(self.session.liveliness().declare_token(key))
+        with self._lock:
+            return _ZenohDeclaration(
+                self, lambda session: session.liveliness().declare_token(key))
 
     def declare_liveliness_subscriber(
         self, key_expr: str, callback: LivelinessCallback
     ) -> Declaration:
-        def on_sample(sample: zenoh.Sample) -> None:
-            callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
-
-        return _ZenohDeclaration(self.session.liveliness().declare_subscriber(
-            key_expr, self._handler(on_sample), history=True))
+        with self._lock:
+            return _ZenohLivelinessSubscriber(self, key_expr, callback)
 
     async def liveliness_get(self, key_expr: str, *, timeout_s: float) -> list[str]:
         def query() -> list[str]:
@@ -441,7 +528,9 @@ class ZenohConnection:
         def on_query(query: zenoh.Query) -> None:
             callback(_ZenohQuery(query))
 
-        return _ZenohDeclaration(self.session.declare_queryable(key, self._handler(on_query)))
+        with self._lock:
+            return _ZenohDeclaration(self, lambda session: session.declare_queryable(
+                key, self.handler(on_query)))
 
     async def get(self, key: str, payload: bytes | None, *, timeout_s: float) -> GetResult:
         def get() -> GetResult:  # in a worker thread, so a queryable on the loop can answer
@@ -484,14 +573,19 @@ class ZenohConnection:
             with contextlib.suppress(RuntimeError):  # the loop is closing
                 loop.call_soon_threadsafe(changed.set)
 
-        self._link_listener = self.session.info.declare_link_events_listener(
-            self._handler(on_link))
+        def declare(session: zenoh.Session) -> Any:
+            listener = session.info.declare_link_events_listener(self.handler(on_link))
+            self.listeners.append(listener)
+            return listener
+
+        with self._lock:
+            _ZenohDeclaration(self, declare)
         return changed
 
     def declare_attachment_publisher(self, key: str, *,
                                      encoding: str | None = None) -> AttachmentPublisher:
-        return _ZenohAttachmentPublisher(self.session.declare_publisher(
-            key, encoding=None if encoding is None else zenoh.Encoding(encoding)))
+        with self._lock:
+            return _ZenohAttachmentPublisher(self, key, encoding)
 
     def declare_attachment_subscriber(self, key_expr: str,
                                       callback: AttachmentCallback) -> AsyncDeclaration:
@@ -500,11 +594,52 @@ class ZenohConnection:
             callback(str(sample.key_expr), sample.payload.to_bytes(),
                      None if attachment is None else attachment.to_bytes())
 
-        # On zenoh's own thread, whatever ``ordered`` says: the callback only copies and
-        # hands over. Its end is waited for by the declaration's aclose, not the session's.
-        handler, end = CallbackEnd.handler(on_sample, on_zenoh_thread=True)
-        return _ZenohCallbackDeclaration(self.session.declare_subscriber(key_expr, handler),
-                                         end)
+        def declare(session: zenoh.Session) -> tuple[Any, CallbackEnd]:
+            # On zenoh's own thread, whatever ``ordered`` says: the callback only copies and
+            # hands over. Its end is waited for by the declaration's aclose, not the session's.
+            handler, end = CallbackEnd.handler(on_sample, on_zenoh_thread=True)
+            return session.declare_subscriber(key_expr, handler), end
+
+        with self._lock:
+            return _ZenohCallbackDeclaration(self, declare)
+
+    async def reopen(self, config: zenoh.Config) -> None:
+        """Close the session and open another on ``config`` with the same zenoh id (peers
+        following this session's clock samples keep following them), and declare on it
+        everything declared now; meanwhile publishers send nothing. Every link goes with the
+        old session: a peer or client comes back only if ``config`` lets it in — how a change
+        of the secure set-up (a revoked or rotated identity) takes effect without restarting
+        the process (:func:`ubf_async.net.secure.watch_setup`). Raises
+        :class:`~ubf_async.errors.SessionError` when the new session cannot be opened (the
+        process is then off the network, and says so)."""
+        # A future, not a task: a cancellation must not leave the swap half done.
+        swapping = asyncio.get_running_loop().run_in_executor(None, self._reopen, config)
+        await asyncio.shield(swapping)
+
+    def _reopen(self, config: zenoh.Config) -> None:
+        with self._lock:
+            live = list(self.live)
+            for declaration in live:
+                declaration.pause()
+            old = self.session
+            config.insert_json5("id", json.dumps(str(old.zid())))
+            self._close_session()
+            self.listeners.clear()
+            self.session = _open_again(config)
+            for declaration in live:
+                if declaration in self.live:  # (not undeclared meanwhile)
+                    declaration.rebind(self.session)
+
+    def _close_session(self) -> None:
+        # Listeners first, as the bus undeclares its own first: the session's closing changes
+        # links and matching, and their callbacks must not run into the interpreter's exit.
+        for listener in self.listeners:
+            with contextlib.suppress(zenoh.ZError):
+                listener.undeclare()
+        self.session.close()
+        deadline = time.monotonic() + CALLBACK_END_WAIT_S
+        for end in self._callback_ends:
+            end.wait(deadline)
 
     async def aclose(self) -> None:
         """Close the session; returns once it is closed and every callback is done with — also
@@ -530,16 +665,24 @@ class ZenohConnection:
         closing.result()
 
     def _close(self) -> None:
-        # Listeners first, as the bus undeclares its own first: the session's closing changes
-        # links and matching, and their callbacks must not run into the interpreter's exit.
-        for listener in [self._link_listener, *self._listeners]:
-            if listener is not None:
-                with contextlib.suppress(zenoh.ZError):
-                    listener.undeclare()
-        self.session.close()
-        deadline = time.monotonic() + CALLBACK_END_WAIT_S
-        for end in self._callback_ends:
-            end.wait(deadline)
+        with self._lock:
+            self._close_session()
+
+
+REOPEN_ATTEMPTS_S = (0.0, 0.1, 0.3, 1.0)
+"""When re-opening a session tries to open it (the old one's listeners may take a moment to
+let go of their ports)."""
+
+
+def _open_again(config: zenoh.Config) -> zenoh.Session:
+    error: zenoh.ZError | None = None
+    for delay in REOPEN_ATTEMPTS_S:
+        time.sleep(delay)
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as exc:
+            error = exc
+    raise SessionError(f"the session could not be opened again: {error}")
 
 
 class ZenohTransport:
@@ -553,7 +696,7 @@ class ZenohTransport:
         self.session = session
         self.ordered = ordered
         self.options = options
-        self._connected = False
+        self._connection: ZenohConnection | None = None
 
     @classmethod
     async def open(cls, options: ConnectionOptions, *, ordered: bool = False) -> ZenohTransport:
@@ -580,11 +723,10 @@ class ZenohTransport:
     def connect(
         self, *, loop: asyncio.AbstractEventLoop, pending: Callable[[], bool] | None = None
     ) -> ZenohConnection:
-        if self._connected:
+        if self._connection is not None:
             raise ConfigurationError("a ZenohTransport carries one bus: open another zenoh "
                                      "session (Bus.open) for another bus")
-        self._connected = True
-        connection = ZenohConnection(self.session, ordered=self.ordered)
+        connection = self._connection = ZenohConnection(self.session, ordered=self.ordered)
         options = self.options
         if options is not None and options.mode == "peer" and options.connect:
             # A client fails to open when nothing answers; a peer opens all the same and
@@ -594,3 +736,15 @@ class ZenohTransport:
                 watch_connect_endpoints(connection.link_destinations, changed,
                                         options.connect), name="ubf-connect-watch")
         return connection
+
+    async def reopen(self) -> None:
+        """Re-open the bus's session on its options as they read now
+        (:meth:`ZenohConnection.reopen`): a secure set-up's files are read again. Raises
+        :class:`~ubf_async.errors.ConfigurationError` for a set-up that no longer reads (the
+        session is then left as it was), :class:`~ubf_async.errors.SessionError` when the new
+        session cannot be opened."""
+        if self._connection is None or self.options is None:
+            raise ConfigurationError("reopen: no bus on this transport yet")
+        config = await asyncio.to_thread(self.options.zenoh_config)  # (reads files)
+        await self._connection.reopen(config)
+        self.session = self._connection.session

@@ -54,6 +54,8 @@ from ubf_async.cli.run import check_lockstep_loop, run_main
 from ubf_async.clocks.clock import Clock, SimClock, WallClock
 from ubf_async.errors import ConfigurationError, UbfError
 from ubf_async.net.options import DEFAULT_LISTEN, DEFAULT_ROBOT, ConnectionOptions
+from ubf_async.net.secure import ROBOT
+from ubf_async.net.transport import ZenohTransport
 from ubf_async.runs import wiring
 from ubf_async.runtime.aggregator import StateAggregator
 from ubf_async.runtime.bus import Bus
@@ -66,6 +68,7 @@ from ubf_async.services.liveview import FoxgloveServer
 from ubf_async.services.monitor import DEFAULT_PORT as DEFAULT_MONITOR_PORT
 from ubf_async.services.monitor import MonitorServer
 from ubf_async.services.remote import remote_spec
+from ubf_async.services.setupwatch import SetupWatch
 from ubf_async.services.status import StatusWriter, status_fields
 from ubf_async.tools.liveview import add_host_argument
 from ubf_async.tools.monitor import add_host_argument as add_monitor_host_argument
@@ -442,6 +445,16 @@ async def _start_observers(run: wiring.RobotRun, args: argparse.Namespace, out: 
         run.end_notes.append(lambda: f"  live view: {live.stats.summary()}")
         print(f"  live in Foxglove on {live.url} (layout: docs/foxglove-layout.json)",
               file=out)
+    setup = run.bus.options.secure
+    if setup is not None and run.bus.options.identity == ROBOT:
+        # The robot holds the password dictionary and the ACL: it re-opens its session when
+        # they change, so a revoked or rotated identity is cut off while it runs.
+        transport = run.bus.transport
+        assert isinstance(transport, ZenohTransport)  # (launch opened it: Bus.open)
+        watch = SetupWatch(bus=run.bus, directory=setup, reopen=transport.reopen,
+                           said=lambda line: print(line, file=out, flush=True))
+        await watch.start()
+        run.components.append(watch)
     if args.monitor is not None:
         secure = run.bus.options.secure is not None
         monitor = MonitorServer(

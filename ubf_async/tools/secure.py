@@ -102,8 +102,9 @@ def describe(setup: SecureSetup) -> str:
     return "\n".join(lines)
 
 
-RESTART = ("restart the robot with the set-up's new files (it reads its password dictionary "
-           "and ACL when it starts)")
+RESTART = ("a robot running on this set-up re-opens its session within 2 s and the old files "
+           "are refused from then on (docs/security.md, 'Revoking and rotating while the robot "
+           "runs'); a robot elsewhere needs the set-up's new `secure export DIR robot`")
 
 
 def run(args: argparse.Namespace) -> str:
