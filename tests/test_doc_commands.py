@@ -134,6 +134,9 @@ EVOLVE_WHY = ("the worked evolution, 16 × 10 generations: about 12 minutes on 2
 TUNE_WHY = ("the worked study, 30 trials: minutes on 2 cores; tests/test_evolve.py runs the same "
             "command (its main) on a tiny SPEC, resuming a study kept in SQLite")
 
+CLUSTER_RUN = ("run as written, quoted from docs/experiments.md, on two hosts (network "
+               "namespaces) by tests/test_sweep_cluster.py::test_a_sweep_on_two_machines_as_the_"
+               "page_says")
 PIONEER_WHY = ("the library call, byte for byte a launch (tests/test_experiment.py), runs each of "
                "the four: tests/test_bodies.py::test_the_pioneer_passes_the_thesis_scenarios_"
                "scaled (flat out)")
@@ -259,13 +262,20 @@ NOT_RUN = {
     "python -m ubf_async.fleet fleet.yaml --world-only":
         "what the fleet launcher starts as its own process: every fleet run here runs it",
     "pip install -e .[cluster]": "an installation (Ray): the test extra installs it",
-    "ray start --head": "a Ray cluster of several machines: tests/test_sweep.py runs the "
-                        "sweep on a Ray of this machine",
-    "ray start --address=HEAD_IP:6379": "a Ray cluster of several machines (see ray start)",
+    "export RAY_AUTH_MODE=token": CLUSTER_RUN,
+    "ray get-auth-token --generate": CLUSTER_RUN,
+    "ray start --head": CLUSTER_RUN,
+    "ray start --address=HEAD_IP:6379": CLUSTER_RUN,
     "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters --executor ray "
-    "--address auto": "a Ray cluster of several machines (see ray start)",
+    "--address auto": CLUSTER_RUN,
     "python -m ubf_async.sweep examples/sweeps/arbiters.yaml --out out/arbiters --executor ray "
-    "--address ray://HEAD_IP:10001": "a Ray cluster of several machines (see ray start)",
+    "--address ray://HEAD_IP:10001":
+        "run by tests/test_sweep_cluster.py from a machine outside the cluster for each refusal "
+        "of the page's table; not to a finished sweep: Ray Client's per-client server dies at "
+        "its start now and then on a busy head (ray-project/ray#63202)",
+    "export RAY_AUTH_MODE=disabled":
+        "the opt-out: a second cluster without tokens, past the budget; tests/test_sweep_"
+        "cluster.py's 'no token sent' case runs with RAY_AUTH_MODE unset",
     EVOLVE: EVOLVE_WHY,
     EVOLVE + " --resume": EVOLVE_WHY,
     "python -m ubf_async.evolve examples/evolve/mini-whegs.yaml --out out/evolve --resume "

@@ -28,6 +28,8 @@ derives from the built-in exception a caller would naturally catch (``ValueError
     │   ├── PortInUseError     a listen port another process holds
     │   ├── NoRobotError       no robot answers at the endpoints
     │   └── RefusedError       something there refuses this session (secure mode)
+    ├── ClusterError           a Ray cluster a sweep cannot join (the cause and the fix)
+    │   └── RunsLostError      runs lost with a worker of the cluster (a node that died)
     ├── DeviceError            a device's hardware or driver failed (a camera that cannot open
     │                          or read, a range finder's bus read), OSError too
     ├── QueryError             a queryable answered with an error
@@ -40,10 +42,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-__all__ = ["ConfigurationError", "DeviceError", "EvolveSpecError", "JournalError", "KeyExprError",
-           "MissingExtraError", "NameTakenError", "NoRobotError", "NotAllowedError",
-           "OverridePathError", "ParameterError", "PluginError", "PortInUseError", "ProtocolError",
-           "QueryError", "RefusedError", "ResultsNotSavedError", "RobotFileError", "ScenarioError",
+__all__ = ["ClusterError", "ConfigurationError", "DeviceError", "EvolveSpecError", "JournalError",
+           "KeyExprError", "MissingExtraError", "NameTakenError", "NoRobotError",
+           "NotAllowedError", "OverridePathError", "ParameterError", "PluginError",
+           "PortInUseError", "ProtocolError", "QueryError", "RefusedError",
+           "ResultsNotSavedError", "RobotFileError", "RunsLostError", "ScenarioError",
            "SessionError", "SettleError", "ShutdownError", "SweepSpecError", "TreeChangeError",
            "UbfError", "UnknownFieldError"]
 
@@ -215,6 +218,16 @@ class NoRobotError(SessionError):
 class RefusedError(SessionError):
     """Something listens at the robot's endpoint but did not accept this process's zenoh
     session: a robot in secure mode refusing its credentials, as far as can be told."""
+
+
+class ClusterError(UbfError, ConnectionError):
+    """A Ray cluster that a sweep cannot join: one line naming the cause (nothing answers,
+    a token missing or refused, this machine not a node) and the fix."""
+
+
+class RunsLostError(ClusterError):
+    """Runs lost with the worker that held them (a Ray node that died mid-sweep); the runs
+    finished are in the journal, and resuming runs the lost ones again."""
 
 
 class QueryError(UbfError, RuntimeError):

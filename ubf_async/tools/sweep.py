@@ -15,8 +15,9 @@ stands alone: its first signal raises ``KeyboardInterrupt`` in the main thread, 
 waiting for a run.
 
 Exit status: 0 when every run ran (whatever their outcomes), 1 when some run failed (its error
-is in the table and ``DIR/runs.log``), 2 for a mistake in the command or the spec, 130 when
-stopped.
+is in the table and ``DIR/runs.log``), 2 for a mistake in the command or the spec, a Ray
+cluster that cannot be joined (one line: the cause and the fix) or runs lost with a node that
+died (``--resume`` runs them again), 130 when stopped.
 """
 
 from __future__ import annotations
@@ -32,8 +33,8 @@ from typing import Any, TextIO
 
 from ubf_async import __version__, extras
 from ubf_async.cli.args import HelpFormatter
-from ubf_async.cli.run import EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard, run_sync
-from ubf_async.errors import ConfigurationError
+from ubf_async.cli.run import EXIT_ERROR, EXIT_INTERRUPTED, STOP_BOUND_S, StopGuard, run_sync
+from ubf_async.errors import ConfigurationError, RunsLostError
 from ubf_async.runs import sweep
 from ubf_async.runs.sweep import execution, table
 from ubf_async.runs.sweep.execution import EXECUTORS, RunRecord
@@ -305,6 +306,12 @@ def execute(args: argparse.Namespace, state: sweep.Sweep, out: TextIO) -> int | 
               f"runs in flight were lost. Resume with:\n"
               f"  {resume_command(args)}", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
+    except RunsLostError as exc:
+        done = len(state.records) - before
+        print(f"{PROG}: error: {exc}: {done} of {total} runs done, kept in {state.journal}. "
+              f"Resume with (once `ray status` no longer counts the lost node as active):\n"
+              f"  {resume_command(args)}", file=sys.stderr, flush=True)
+        return EXIT_ERROR
     return None
 
 

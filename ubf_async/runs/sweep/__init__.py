@@ -7,6 +7,7 @@ docs/experiments.md).
   its runs as picklable tasks;
 * :mod:`.execution` — what a worker does with a run (a run that raises is recorded as failed),
   and the pools: multiprocessing's or Ray's, one interface;
+* :mod:`.cluster` — joining a Ray cluster, or one line saying why it cannot be joined;
 * :mod:`.journal` — each finished run appended to ``DIR/journal.jsonl`` (resuming reads it);
 * :mod:`.table` — ``runs.csv`` (byte-identical whatever ran it), ``runs.parquet``,
   ``cells.csv``; :mod:`.plot` — a figure against each swept parameter;

@@ -31,8 +31,9 @@ import msgspec
 
 from ubf_async import extras
 from ubf_async.cli import ending
-from ubf_async.errors import ConfigurationError
+from ubf_async.errors import ConfigurationError, RunsLostError
 from ubf_async.runs import inprocess, overrides
+from ubf_async.runs.sweep import cluster
 from ubf_async.runs.sweep.spec import RunTask
 
 __all__ = ["CODE_PACKAGES", "EXECUTORS", "MAX_LOG_LINES", "MAX_TEXT", "Pool", "RunRecord",
@@ -190,7 +191,9 @@ def open_pool(executor: str = "local", *, workers: int | None = None,
     cluster), ended when the block ends: ``terminate`` if it ends early (in-flight runs are
     lost), else once the workers are done. ``address`` and ``runtime_env`` are Ray's (default
     environment: :func:`code_runtime_env`); a Ray this process already joined is used as it
-    is. Raises :class:`ConfigurationError`."""
+    is. Raises :class:`ConfigurationError`, and :class:`~ubf_async.errors.ClusterError` for a
+    cluster that cannot be joined; on Ray, the pool's ``imap_unordered`` raises
+    :class:`RunsLostError` at its end when a worker was lost with runs."""
     if executor not in EXECUTORS:
         raise ConfigurationError(f"executor {executor!r}: expected one of {', '.join(EXECUTORS)}")
     if workers is not None and workers < 1:
@@ -221,6 +224,39 @@ def _ended(pool: Any) -> Iterator[Pool]:
             pool.terminate()
 
 
+class _LossesTold:
+    """Ray's pool, its lost runs told: where a worker is lost (its node died), Ray's pool gives
+    the error in place of each run it held and goes on with the other workers. Here the runs
+    that finish come out as ever, and once the others are done, :class:`RunsLostError` says
+    how many were lost — a caller keeps what finished, and runs the lost ones again."""
+
+    def __init__(self, pool: Any) -> None:
+        self._pool = pool
+
+    def imap_unordered(self, func: Callable[[RunTask], RunRecord], iterable: Iterable[RunTask],
+                       chunksize: int = 1) -> Iterator[RunRecord]:
+        lost: list[BaseException] = []
+        for result in self._pool.imap_unordered(func, iterable, chunksize=chunksize):
+            if isinstance(result, BaseException):
+                lost.append(result)
+            else:
+                yield result
+        if lost:
+            runs = len(lost) * chunksize
+            raise RunsLostError(f"{runs} run{'s' if runs > 1 else ''} lost with the Ray worker "
+                                f"that held {'them' if runs > 1 else 'it'} (a node that died? "
+                                f"{type(lost[0]).__name__}: {cluster.ray_said(lost[0])})")
+
+    def close(self) -> None:
+        self._pool.close()
+
+    def join(self) -> None:
+        self._pool.join()
+
+    def terminate(self) -> None:
+        self._pool.terminate()
+
+
 @contextlib.contextmanager
 def _ray_pool(workers: int | None, address: str | None,
               runtime_env: dict[str, Any] | None) -> Iterator[Pool]:
@@ -228,12 +264,7 @@ def _ray_pool(workers: int | None, address: str | None,
     from ray.util.multiprocessing import Pool as RayPool
     joined = not ray.is_initialized()
     if joined:
-        try:
-            ray.init(address=address, logging_level=logging.WARNING,
-                     runtime_env=code_runtime_env() if runtime_env is None else runtime_env)
-        except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise ConfigurationError(f"cannot join Ray at {address or 'a new local cluster'}: "
-                                     f"{exc}") from None
+        cluster.join(address, ray, code_runtime_env() if runtime_env is None else runtime_env)
     try:
         try:
             # An actor per CPU asked for: the pool's actors spread over the cluster's nodes
@@ -242,7 +273,7 @@ def _ray_pool(workers: int | None, address: str | None,
                            ray_remote_args={"num_cpus": 1})
         except ValueError as exc:  # more workers than the cluster has CPUs
             raise ConfigurationError(f"workers: {exc}") from None
-        with _ended(made) as pool:
+        with _ended(_LossesTold(made)) as pool:
             yield pool
     finally:
         if joined:
