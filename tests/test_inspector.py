@@ -263,7 +263,10 @@ def test_conform_checks_real_components_against_the_protocol(
     assert re.search(rf"ok    ubf/{robot}/sensor/range/plain \(no pub\): \d+ valid range "
                      r"samples", plain.stdout), plain.stdout
     assert camera.returncode == 0, camera.stdout + camera.stderr
-    assert re.search(r"ok    ubf/\S+/heartbeat/camera-front: heartbeats every", camera.stdout)
+    # Its heartbeats seen and valid: in 2 s, one a second, a busy machine may deliver too few
+    # to judge their period (tests/test_conform.py judges periods, planted deviations too).
+    assert re.search(r"ok    ubf/\S+/heartbeat/camera-front: (heartbeats every|[1-9]\d* "
+                     r"heartbeats, too few to judge)", camera.stdout), camera.stdout
     assert f"ubf/{robot}/sensor/camera/front (pub" in camera.stdout
     assert unnamed.returncode == 1, unnamed.stdout + unnamed.stderr
     assert "FAIL  no keys to check: plain announces none" in unnamed.stdout
