@@ -262,6 +262,9 @@ NOT_RUN = {
     "python -m ubf_async.fleet fleet.yaml --world-only":
         "what the fleet launcher starts as its own process: every fleet run here runs it",
     "pip install -e .[cluster]": "an installation (Ray): the test extra installs it",
+    "python -m ubf_async.sweep examples/sweeps/eyes.yaml --out out/eyes --workers 2":
+        "660 runs, 14 minutes on 2 cores: past the doc tests' budget; tests/test_eyes.py runs "
+        "each of its robots in process, and the sweep's machinery is tests/test_sweep.py's",
     "export RAY_AUTH_MODE=token": CLUSTER_RUN,
     "ray get-auth-token --generate": CLUSTER_RUN,
     "ray start --head": CLUSTER_RUN,

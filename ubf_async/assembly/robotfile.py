@@ -66,6 +66,7 @@ from ubf_async.assembly.registry import (
     validation_parts,
 )
 from ubf_async.core.behavior import Behavior, Child, Composite
+from ubf_async.core.fusion import CameraFusion
 from ubf_async.errors import MissingExtraError, ParameterError, PluginError, RobotFileError
 from ubf_async.runtime.component import Component
 from ubf_async.wire.topics import Topic
@@ -198,6 +199,15 @@ class ControllerSpec(Spec):
     """Run a tick triggered by a sample on the thread that brought it (the reflex lane,
     wall-clock robots only); ``false`` keeps every tick on the event loop's thread, for
     behaviours that need it (:mod:`ubf_async.runtime.controller`)."""
+    fuse: dict[Annotated[str, msgspec.Meta(min_length=1, max_length=128)],
+               list[Annotated[str, msgspec.Meta(min_length=1, max_length=128)]]] = {}
+    """Per fused source (``camera/both``): the robot's cameras it joins, left to right, into
+    one wide camera's five bins, which the state holds beside theirs
+    (:mod:`ubf_async.core.fusion`; docs/bodies.md, "The rodent")."""
+
+    def fusions(self) -> tuple[CameraFusion, ...]:
+        """The fused sources the state derives (``fuse``), checked when the file loads."""
+        return tuple(CameraFusion(name, tuple(sources)) for name, sources in self.fuse.items())
 
     def __post_init__(self) -> None:
         if self.mode == "event" and self.trigger is None:
@@ -919,6 +929,34 @@ def _check_mount(device: ResolvedDevice, body: BodySpec, locator: Locator,
                             (*path, "params", name) if given else path)
 
 
+def _check_fusions(spec: RobotFile, locator: Locator) -> None:
+    """Each fused source a ``camera/`` name no device has, of two or more of the file's
+    cameras, at the line of the name or camera at fault."""
+    cameras = {f"camera/{d.name}" for d in spec.devices if d.kind == "camera"}
+    devices = {f"{d.kind}/{d.name}" for d in spec.devices}
+    for name, sources in spec.controller.fuse.items():
+        path: Path_ = ("controller", "fuse")
+        if not name.startswith("camera/") or name in devices:
+            why = "a device's own" if name in devices else "not a camera/NAME source"
+            raise locator.error(f"controller.fuse: {name!r} is {why}: name the fused source "
+                                f"camera/NAME after no device (camera/both)", path, key=name)
+        for i, source in enumerate(sources):
+            if source not in cameras:
+                raise locator.error(f"controller.fuse[{name!r}]: {source!r} is not a camera of "
+                                    f"this file (cameras: {', '.join(sorted(cameras)) or 'none'})",
+                                    (*path, name, i))
+        try:
+            CameraFusion(name, tuple(sources))
+        except ValueError as exc:
+            raise locator.error(f"controller.fuse: {exc}", (*path, name)) from None
+    for field_name in ("sync_source", "trigger"):
+        waits_on = getattr(spec.controller, field_name)
+        if waits_on in spec.controller.fuse:
+            raise locator.error(f"controller.{field_name}: {waits_on!r} is fused in the state, "
+                                f"no sample of it arrives to wait on: name one of its cameras",
+                                ("controller", field_name))
+
+
 def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Robot:
     """Step 2: look every name up, validate every parameter, build the tree."""
     _check_body(spec, locator)
@@ -932,6 +970,7 @@ def resolve(spec: RobotFile, locator: Locator, *, seed: int | None = None) -> Ro
         seen[device.kind, device.name] = i
         devices.append(_resolve_device(device, locator, path))
         _check_mount(devices[-1], spec.body, locator, path)
+    _check_fusions(spec, locator)
     if spec.tree.kind != "composite":
         raise locator.error("the tree's root must be a composite (`name`, `arbiter`, "
                             "`children`)", ("tree",))

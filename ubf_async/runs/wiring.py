@@ -257,7 +257,8 @@ def _build_control(plan: RunPlan, robot: Robot, run: RobotRun, seed: int) -> Non
     aggregator = run.aggregator = StateAggregator(
         bus=run.bus, stale_after_s=spec.controller.stale_after_s,
         default_stale_after_s=spec.controller.default_stale_after_s,
-        protected_sources=protected, notify_refusals=True, departures=run.health)
+        protected_sources=protected, notify_refusals=True, departures=run.health,
+        fused=spec.controller.fusions())
     root = robot.root
     controller = run.controller = Controller(
         bus=run.bus, aggregator=aggregator, root=root, rate_hz=settings.rate_hz,

@@ -67,6 +67,7 @@ from ubf_async import throttle
 from ubf_async.clocks import clockdomain
 from ubf_async.clocks.clock import SilenceLimit
 from ubf_async.core.action import Action
+from ubf_async.core.fusion import CameraFusion
 from ubf_async.core.state import Reading, State
 from ubf_async.errors import ProtocolError
 from ubf_async.net.transport import Declaration
@@ -218,6 +219,8 @@ class StateAggregator(Component):
     ``ubf/<robot>/refused/...`` (:mod:`ubf_async.runtime.refusals`) — the robot's aggregator does;
     a remote behaviour's own copy of the state does not speak for the robot.
     ``departures``: who says which sources' publishers have left (module docstring).
+    ``fused``: sources each snapshot derives from others (a robot file's ``controller: fuse``,
+    :mod:`ubf_async.core.fusion`): in the state, never in the table of what arrived.
     """
 
     def __init__(
@@ -233,10 +236,12 @@ class StateAggregator(Component):
         max_sources: int = MAX_SOURCES,
         notify_refusals: bool = False,
         departures: Departures | None = None,
+        fused: Iterable[CameraFusion] = (),
         **component_options: float,
     ) -> None:
         super().__init__(bus=bus, name=name, **component_options)
         self.departures = departures
+        self.fused = tuple(fused)
         if not (math.isfinite(future_tolerance_s) and future_tolerance_s >= 0):
             raise ValueError(f"future_tolerance_s must be finite and ≥ 0, got "
                              f"{future_tolerance_s}")
@@ -553,6 +558,8 @@ class StateAggregator(Component):
                     value=message.data, stamp_ns=message.stamp_ns, seq=message.seq, age_s=age,
                     stale=self.is_stale(entry, now, wall_now),
                 )
+        for fusion in self.fused:
+            fusion.add_to(readings)
         return State(readings, now_ns=now, previous_action=previous_action)
 
     def sources(self) -> list[SourceInfo]:

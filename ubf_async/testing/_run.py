@@ -205,7 +205,8 @@ async def run_script_async(robot: str | Path | Robot, script: Script, *, until_s
     robot_bus = Bus(transport=net, robot=resolved.name, clock=clock)
     device_bus = Bus(transport=net, robot=resolved.name, clock=clock)
     aggregator = StateAggregator(bus=robot_bus, stale_after_s=spec.stale_after_s,
-                                 default_stale_after_s=spec.default_stale_after_s)
+                                 default_stale_after_s=spec.default_stale_after_s,
+                                 fused=spec.fusions())
     controller = Controller(bus=robot_bus, aggregator=aggregator, root=resolved.root,
                             rate_hz=settings.rate_hz, mode=settings.mode,
                             sync_source=settings.sync_source, trigger=settings.trigger,
