@@ -257,6 +257,15 @@ class _LossesTold:
         self._pool.terminate()
 
 
+def _alive_cpus(ray: Any) -> int:
+    """The CPUs of the cluster's live nodes. Ray's pool sizes itself from the cluster's
+    resources, which go on counting a node that died until Ray's resource view catches up:
+    an actor asked for there is never placed, and a resumed sweep waited forever (seen under
+    load after a killed node)."""
+    return max(1, int(sum(node["Resources"].get("CPU", 0) for node in ray.nodes()
+                          if node.get("Alive"))))
+
+
 @contextlib.contextmanager
 def _ray_pool(workers: int | None, address: str | None,
               runtime_env: dict[str, Any] | None) -> Iterator[Pool]:
@@ -269,7 +278,7 @@ def _ray_pool(workers: int | None, address: str | None,
         try:
             # An actor per CPU asked for: the pool's actors spread over the cluster's nodes
             # (they take none by default, and would all start on one).
-            made = RayPool(processes=workers, initializer=init_worker,
+            made = RayPool(processes=workers or _alive_cpus(ray), initializer=init_worker,
                            ray_remote_args={"num_cpus": 1})
         except ValueError as exc:  # more workers than the cluster has CPUs
             raise ConfigurationError(f"workers: {exc}") from None
