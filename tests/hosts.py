@@ -123,9 +123,10 @@ class Host:
     def kill(self) -> None:
         """End every process of this host at once (SIGKILL to its PID 1: the kernel ends the
         rest), as a machine that goes down. Its network, its address and its files stay."""
+        namespace = _pid_namespace(self.init_pid)
         with contextlib.suppress(ProcessLookupError):
             os.kill(self.init_pid, signal.SIGKILL)
-        _ended(self.holder)
+        _ended(self.holder, namespace)
 
     def restart(self) -> None:
         """Kill this host (:meth:`kill`) and start it again with no process running: a machine
@@ -167,12 +168,27 @@ def _boot(netns: str) -> tuple[subprocess.Popen[bytes], int]:
     raise HostsUnavailable(f"unshare --pid --fork: {said or 'no PID namespace'}")
 
 
-def _ended(holder: subprocess.Popen[bytes]) -> None:
-    """``unshare`` ended, and with it (``--kill-child``) the host's PID 1 and every process."""
+def _pid_namespace(pid: int) -> str | None:
+    """Which PID namespace ``pid`` is in (``pid:[INODE]``), ``None`` if it is gone."""
+    try:
+        return os.readlink(f"/proc/{pid}/ns/pid")
+    except OSError:
+        return None
+
+
+def _ended(holder: subprocess.Popen[bytes], namespace: str | None) -> None:
+    """``unshare`` ended, and with it (``--kill-child``) the host's PID 1 and every process:
+    returns once no process of the host's PID ``namespace`` is left (the kernel ends them after
+    their PID 1, not at once)."""
     if holder.poll() is None:
         holder.kill()
     with contextlib.suppress(subprocess.TimeoutExpired):
         holder.wait(SETUP_S)
+    deadline = time.monotonic() + SETUP_S
+    while namespace is not None and time.monotonic() < deadline and any(
+            _pid_namespace(int(entry.name)) == namespace
+            for entry in Path("/proc").iterdir() if entry.name.isdigit()):
+        time.sleep(0.02)  # polling /proc: the kernel tells no one
     if holder.stderr is not None:
         holder.stderr.close()
 

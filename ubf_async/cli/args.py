@@ -20,8 +20,8 @@ from ubf_async.net.options import (
 from ubf_async.runtime import lending
 from ubf_async.wire.keys import Keys
 
-__all__ = ["HelpFormatter", "add_connection_arguments", "add_event_loop_help",
-           "add_secure_arguments", "connection_options"]
+__all__ = ["HelpFormatter", "add_bind_host_argument", "add_connection_arguments",
+           "add_event_loop_help", "add_secure_arguments", "connection_options"]
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -164,4 +164,11 @@ def connection_options(args: argparse.Namespace) -> ConnectionOptions:
     return options
 
 
-
+def add_bind_host_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup, flag: str,
+                           *, default: str, server: str) -> None:
+    """``flag HOST``: the address ``server`` (a server without authentication: the live view,
+    the tree monitor) binds — loopback by default, wider only on a network one trusts."""
+    parser.add_argument(flag, default=default, metavar="HOST",
+                        help=f"address {server} binds (loopback by default: it has no "
+                             f"authentication; 0.0.0.0 serves every interface — only on a "
+                             f"network you trust)")

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ubf_async import extras
-from ubf_async.cli.args import HelpFormatter, add_connection_arguments
+from ubf_async.cli.args import HelpFormatter, add_bind_host_argument, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, serve_until_stopped
 from ubf_async.cli.run import run_main
 from ubf_async.net.options import DEFAULT_LISTEN
@@ -28,9 +28,8 @@ PROG = "python -m ubf_async.liveview"
 
 
 def add_host_argument(parser: Any) -> None:
-    parser.add_argument("--foxglove-host", default=DEFAULT_HOST, metavar="HOST",
-                        help="address the Foxglove server binds (loopback by default: it has no "
-                             "authentication)")
+    add_bind_host_argument(parser, "--foxglove-host", default=DEFAULT_HOST,
+                           server="the Foxglove server")
 
 
 def build_parser() -> argparse.ArgumentParser:

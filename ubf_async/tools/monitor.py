@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ubf_async import extras
-from ubf_async.cli.args import HelpFormatter, add_connection_arguments
+from ubf_async.cli.args import HelpFormatter, add_bind_host_argument, add_connection_arguments
 from ubf_async.cli.attach import add_attach_arguments, attached_bus, serve_until_stopped
 from ubf_async.cli.run import run_main
 from ubf_async.net.options import DEFAULT_LISTEN
@@ -22,10 +22,8 @@ PROG = "python -m ubf_async.monitor"
 
 
 def add_host_argument(parser: Any) -> None:
-    parser.add_argument("--monitor-host", default=DEFAULT_HOST, metavar="HOST",
-                        help="address the page is served on (loopback by default: it has no "
-                             "authentication; 0.0.0.0 serves every interface — only on a "
-                             "network you trust)")
+    add_bind_host_argument(parser, "--monitor-host", default=DEFAULT_HOST,
+                           server="the tree monitor's page")
 
 
 def build_parser() -> argparse.ArgumentParser:
